@@ -1,0 +1,154 @@
+"""Standard linear MPC (Doerr et al. 2021, Eq. 26) as a cvxpy problem built once and re-solved.
+
+The problem is parametrised (DPP) by the initial state and the reference over the horizon, so cvxpy
+canonicalises it once; each step only updates Parameter values and calls Clarabel.
+
+    minimise   Σ_{k<N} ‖Q^½ (x_k − x_k,ref)‖² + ‖R^½ (u_k − u_k,ref)‖² + ‖L (x_N − x_N,ref)‖² + ρ Σ s
+    subject to x_0 = x̂,  x_{k+1} = A x_k + B u_k,
+               |u_k| ≤ u_max                      (hard, per axis),
+               |x_k,i| ≤ x_max,i + s_k,i, s ≥ 0   (soft state limits, exact ℓ1 penalty ρ),
+
+with ``P = L Lᵀ`` the terminal weight (by default the discrete Riccati solution, so that with no active
+constraint the MPC law equals the infinite-horizon LQR law). State limits are soft so that a measured state
+slightly outside them (noise, a disturbance) never makes the problem infeasible; the slack is reported.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cvxpy as cp
+import numpy as np
+
+from oacli.control.lqr import solve_dare
+from oacli.types import SolveInfo
+
+_OK = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
+
+
+@dataclass(frozen=True)
+class MPCSolution:
+    """One MPC solve.
+
+    Attributes
+    ----------
+    u : ndarray, shape (N, m)
+        Planned inputs (NaN when the solve failed).
+    x : ndarray, shape (N+1, n)
+        Predicted states (NaN when the solve failed).
+    max_slack : float
+        Largest state-limit slack used (0 when every state limit holds).
+    info : SolveInfo
+    """
+
+    u: np.ndarray
+    x: np.ndarray
+    max_slack: float
+    info: SolveInfo
+
+
+class LinearMPC:
+    """Linear MPC on an LTI model ``x_{k+1} = A x_k + B u_k`` (Doerr Eq. 26).
+
+    Parameters
+    ----------
+    a : ndarray, shape (n, n)
+    b : ndarray, shape (n, m)
+    q_diag : ndarray, shape (n,)
+        Diagonal of the stage state weight Q (> 0 or 0).
+    r_diag : ndarray, shape (m,)
+        Diagonal of the input weight R (> 0).
+    horizon : int
+        N, number of steps.
+    u_max : ndarray, shape (m,)
+        Symmetric per-axis input limits.
+    x_max : ndarray, shape (n,), optional
+        Symmetric per-component state limits (``inf`` for none); soft constraints.
+    terminal : ndarray, shape (n, n), optional
+        Terminal weight P; the DARE solution of (A, B, Q, R) by default.
+    soft_penalty : float
+        ℓ1 penalty ρ on state-limit slack (exact penalty: large compared with the cost's sensitivity).
+    solver : str
+        cvxpy solver name (Clarabel by default).
+    """
+
+    def __init__(
+        self,
+        a: np.ndarray,
+        b: np.ndarray,
+        q_diag: np.ndarray,
+        r_diag: np.ndarray,
+        horizon: int,
+        u_max: np.ndarray,
+        x_max: np.ndarray | None = None,
+        terminal: np.ndarray | None = None,
+        soft_penalty: float = 1e4,
+        solver: str = cp.CLARABEL,
+    ) -> None:
+        a = np.asarray(a, dtype=float)
+        b = np.asarray(b, dtype=float)
+        n, m = b.shape
+        if horizon < 1:
+            raise ValueError("horizon must be >= 1")
+        self.a, self.b, self.horizon, self.solver = a, b, int(horizon), solver
+        self.q_diag = np.asarray(q_diag, dtype=float)
+        self.r_diag = np.asarray(r_diag, dtype=float)
+        self.u_max = np.asarray(u_max, dtype=float)
+        self.x_max = np.full(n, np.inf) if x_max is None else np.asarray(x_max, dtype=float)
+        if terminal is None:
+            terminal = solve_dare(a, b, np.diag(self.q_diag), np.diag(self.r_diag))
+        self.terminal = np.asarray(terminal, dtype=float)
+        n_steps = self.horizon
+
+        self.x0 = cp.Parameter(n, name="x0")
+        self.x_ref = cp.Parameter((n_steps + 1, n), name="x_ref")
+        self.u_ref = cp.Parameter((n_steps, m), name="u_ref")
+        self._x = cp.Variable((n_steps + 1, n), name="x")
+        self._u = cp.Variable((n_steps, m), name="u")
+
+        chol = np.linalg.cholesky(self.terminal + 1e-12 * np.eye(n))
+        sq_q = np.sqrt(self.q_diag)
+        sq_r = np.sqrt(self.r_diag)
+        cost = (
+            cp.sum_squares(cp.multiply(sq_q[None, :], self._x[:n_steps] - self.x_ref[:n_steps]))
+            + cp.sum_squares(cp.multiply(sq_r[None, :], self._u - self.u_ref))
+            + cp.sum_squares(chol.T @ (self._x[n_steps] - self.x_ref[n_steps]))
+        )
+        constraints = [
+            self._x[0] == self.x0,
+            self._x[1:] == self._x[:-1] @ a.T + self._u @ b.T,
+            cp.abs(self._u) <= np.tile(self.u_max, (n_steps, 1)),
+        ]
+        self._limited = np.flatnonzero(np.isfinite(self.x_max))
+        self._slack = None
+        if self._limited.size:
+            self._slack = cp.Variable((n_steps, self._limited.size), nonneg=True, name="slack")
+            bound = np.tile(self.x_max[self._limited], (n_steps, 1))
+            constraints.append(cp.abs(self._x[1:, self._limited]) <= bound + self._slack)
+            cost = cost + soft_penalty * cp.sum(self._slack)
+        self.problem = cp.Problem(cp.Minimize(cost), constraints)
+
+    def solve(self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> MPCSolution:
+        """Solve for initial state ``x0 (n,)``, reference states ``x_ref (N+1, n)`` and inputs ``u_ref (N, m)``."""
+        self.x0.value = np.asarray(x0, dtype=float)
+        self.x_ref.value = np.asarray(x_ref, dtype=float)
+        self.u_ref.value = np.asarray(u_ref, dtype=float)
+        start = time.perf_counter()
+        try:
+            self.problem.solve(solver=self.solver)
+            status = str(self.problem.status)
+        except cp.error.SolverError as exc:
+            status = f"solver_error: {exc}".splitlines()[0][:120]
+        wall = time.perf_counter() - start
+        stats = self.problem.solver_stats if status in _OK else None
+        solve_time = stats.solve_time if stats is not None and stats.solve_time is not None else wall
+        iterations = stats.num_iters if stats is not None and stats.num_iters is not None else -1
+        success = status in _OK and self._u.value is not None
+        if success:
+            slack = 0.0 if self._slack is None else float(np.max(self._slack.value, initial=0.0))
+            info = SolveInfo(status, True, float(self.problem.value), int(iterations), float(solve_time), wall)
+            return MPCSolution(np.array(self._u.value), np.array(self._x.value), slack, info)
+        nan_u = np.full(self._u.shape, np.nan)
+        nan_x = np.full(self._x.shape, np.nan)
+        return MPCSolution(nan_u, nan_x, float("nan"), SolveInfo(status, False, float("nan"), -1, wall, wall))

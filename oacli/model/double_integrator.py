@@ -1,0 +1,64 @@
+"""Exact discrete double integrator and the hover error model used by the MPC.
+
+Translation (Doerr Eq. 34) is linear: per axis ``[p, v]`` with ``p̈ = f/m``. Its exact zero-order-hold
+discretisation over ``dt`` is ``A = [[1, dt], [0, 1]]``, ``B = [[dt²/(2m)], [dt/m]]``.
+
+Attitude linearised about rest (ω = 0) in a body-frame rotation-vector error chart ``φ`` (``q = q_a ⊗ exp(φ)``)
+is again a double integrator per principal axis: ``φ̈ = τ / I_i`` (the gyroscopic term ω × Iω is second order
+and vanishes in the linearisation at ω = 0). That is the exact discretisation of Doerr Eq. 2 about hover.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from oacli.types import InertialParams
+
+ERROR_STATE_DIM = 12  # [r (3), v (3), φ (3), ω (3)]
+
+
+def double_integrator(dt: float, gain: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ZOH discretisation of ``ẍ = gain·u`` for one axis: ``(A (2, 2), B (2, 1))``."""
+    a = np.array([[1.0, dt], [0.0, 1.0]])
+    b = np.array([[0.5 * dt * dt * gain], [dt * gain]])
+    return a, b
+
+
+def translational_model(mass_kg: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact discrete translational model, state ``[r (3), v (3)]``, input ``f (3)`` (world frame).
+
+    Returns ``(A (6, 6), B (6, 3))``.
+    """
+    eye = np.eye(3)
+    a = np.block([[eye, dt * eye], [np.zeros((3, 3)), eye]])
+    b = np.vstack([0.5 * dt * dt / mass_kg * eye, dt / mass_kg * eye])
+    return a, b
+
+
+def hover_error_model(params: InertialParams, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact discretisation of the free-flyer linearised about hover, error state ``[r, v, φ, ω]`` (12).
+
+    Parameters
+    ----------
+    params : InertialParams
+        Mass and principal inertias of the model.
+    dt : float
+        Step [s].
+
+    Returns
+    -------
+    A : ndarray, shape (12, 12)
+    B : ndarray, shape (12, 6)
+        Input ``[f (world) N, τ (body) N·m]``.
+    """
+    a = np.zeros((12, 12))
+    b = np.zeros((12, 6))
+    a_t, b_t = translational_model(params.mass_kg, dt)
+    a[:6, :6] = a_t
+    b[:6, :3] = b_t
+    eye = np.eye(3)
+    inv_i = np.diag(1.0 / params.inertia_kgm2)
+    a[6:, 6:] = np.block([[eye, dt * eye], [np.zeros((3, 3)), eye]])
+    b[6:9, 3:] = 0.5 * dt * dt * inv_i
+    b[9:12, 3:] = dt * inv_i
+    return a, b
