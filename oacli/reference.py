@@ -66,7 +66,7 @@ def waypoint_reference(
 
     def hold(p: np.ndarray, q: np.ndarray, duration: float) -> None:
         nonlocal t_now
-        n = max(int(round(duration / sample_period_s)), 1)
+        n = max(round(duration / sample_period_s), 1)
         t = t_now + sample_period_s * np.arange(n)
         x = np.zeros((n, 13))
         x[:, 0:3] = p

@@ -54,7 +54,7 @@ def to_rotation_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrix R(q) (body to world), shape (..., 3, 3)."""
     q = normalize(q)
     x, y, z, w = (q[..., i] for i in range(4))
-    r = np.empty(q.shape[:-1] + (3, 3))
+    r = np.empty((*q.shape[:-1], 3, 3))
     r[..., 0, 0] = 1 - 2 * (y * y + z * z)
     r[..., 0, 1] = 2 * (x * y - z * w)
     r[..., 0, 2] = 2 * (x * z + y * w)
