@@ -60,6 +60,18 @@ def solve_dare(
     gk = b @ r_inv @ b.T
     hk = 0.5 * (q + q.T)
     eye = np.eye(n)
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            hk = _doubling(ak, gk, hk, eye, tol, max_iter)
+    except np.linalg.LinAlgError as exc:
+        raise InfeasibleError(f"Riccati doubling failed ({exc}): is (A, B) stabilisable?") from exc
+    if not np.all(np.isfinite(hk)):
+        raise InfeasibleError("Riccati doubling diverged: is (A, B) stabilisable and (Q, A) detectable?")
+    return hk
+
+
+def _doubling(ak, gk, hk, eye, tol, max_iter):
+    """Structure-preserving doubling iterations; returns H (NaN/inf when it diverges)."""
     for _ in range(max_iter):
         w = eye + gk @ hk
         w_inv_a = np.linalg.solve(w, ak)
@@ -69,13 +81,11 @@ def solve_dare(
         ak = ak @ w_inv_a
         hk_old, hk = hk, 0.5 * (h_next + h_next.T)
         gk = 0.5 * (g_next + g_next.T)
+        if not np.all(np.isfinite(hk)):
+            return hk
         if np.linalg.norm(hk - hk_old, 1) <= tol * max(1.0, np.linalg.norm(hk, 1)):
-            break
-    else:
-        raise InfeasibleError("Riccati doubling did not converge: is (A, B) stabilisable and (Q, A) detectable?")
-    if not np.all(np.isfinite(hk)):
-        raise InfeasibleError("Riccati doubling diverged: is (A, B) stabilisable and (Q, A) detectable?")
-    return hk
+            return hk
+    raise InfeasibleError("Riccati doubling did not converge: is (A, B) stabilisable and (Q, A) detectable?")
 
 
 def dlqr(
