@@ -1,0 +1,939 @@
+"""Rerun recordings of the oacli stages: writing (``StageRecording``) and reading back (``read_recording_*``).
+
+Every stage writes one ``.rrd`` next to its MCAP. A recording is derived data (the MCAP is the record of truth):
+it exists for a human to look at in the Rerun viewer, and tests read its values back.
+
+Conventions
+-----------
+- One :class:`rerun.RecordingStream` per :class:`StageRecording` (never the global one).
+- One timeline, ``mission_time`` (a duration, seconds since the stage's start). The implicit ``log_time`` and
+  ``log_tick`` timelines are switched off, so a recording holds no wall-clock times.
+- Long series go through ``send_columns`` (one call per series, not one per sample).
+- Times are rounded to the nearest nanosecond (Rerun's duration resolution); scalars are stored as float64,
+  positions, sizes and quaternions as float32 (Rerun's component types).
+- Recordings are not byte-reproducible (row ids, chunk batching): compare values, never bytes.
+
+Writing model
+-------------
+A :class:`StageRecording` buffers everything in memory (the recording stream's initial buffered sink) until
+:meth:`StageRecording.save`, which attaches a file sink on a temporary name (Rerun forwards the buffered data to
+it), disconnects (the file sink's writer thread finishes and writes the footer), checks that the file opens with
+its footer and only then renames it into place (:func:`oacli.io.atomic.atomic_path`). ``save`` is final:
+logging afterwards raises ``RuntimeError``.
+"""
+
+from __future__ import annotations
+
+import uuid
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import rerun as rr
+import rerun.blueprint as rrb
+from rerun.chunk import RrdReader
+from scipy.spatial.transform import Rotation
+
+from oacli.errors import InputError
+from oacli.geometry import Scene
+from oacli.io.atomic import atomic_path
+from oacli.io.rerun_blueprints import (
+    ACTUAL,
+    ATTITUDE_ERROR,
+    FORCE,
+    KEEP_IN,
+    KEEP_OUT,
+    LIMIT_LOWER,
+    LIMIT_UPPER,
+    LOG,
+    POSITION_ERROR,
+    REFERENCE,
+    ROBOT,
+    SOLVE_TIME,
+    TIMELINE,
+    TORQUE,
+    WORLD,
+    track_blueprint,
+)
+
+__all__ = [
+    "ACTUAL",
+    "ATTITUDE_ERROR",
+    "FORCE",
+    "KEEP_IN",
+    "KEEP_OUT",
+    "LIMIT_LOWER",
+    "LIMIT_UPPER",
+    "LOG",
+    "POSITION_ERROR",
+    "REFERENCE",
+    "ROBOT",
+    "SOLVE_TIME",
+    "TIMELINE",
+    "TORQUE",
+    "WORLD",
+    "StageRecording",
+    "read_blueprint_views",
+    "read_recording_component",
+    "read_recording_entities",
+    "read_recording_scalars",
+    "track_blueprint",
+    "write_track_recording",
+]
+
+#: Astrobee is a 30 cm cube.
+ASTROBEE_SIZE_M = 0.30
+
+# RGBA colours (0-255).
+KEEP_IN_COLOR = (80, 200, 120, 60)
+KEEP_OUT_COLOR = (230, 60, 60, 110)
+REFERENCE_COLOR = (90, 150, 255, 255)
+ACTUAL_COLOR = (255, 170, 40, 255)
+ROBOT_COLOR = (240, 220, 90, 140)
+#: Per-axis series colours (x red, y green, z blue).
+AXIS_COLORS = ((230, 60, 60, 255), (60, 180, 75, 255), (60, 110, 230, 255))
+AXIS_NAMES = ("x", "y", "z")
+
+_TEXT_LEVELS = {"WARNING": "WARN", "FATAL": "CRITICAL", "ERR": "ERROR"}
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Small helpers
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _time_column(t_s: np.ndarray) -> rr.TimeColumn:
+    """``mission_time`` column from times [s], rounded to the nearest nanosecond (Rerun truncates floats)."""
+    ns = np.rint(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)
+    return rr.TimeColumn(TIMELINE, duration=ns.astype("timedelta64[ns]"))
+
+
+def _times(name: str, t: np.ndarray) -> np.ndarray:
+    """Check a 1-D array of finite times [s] and return it as float64."""
+    arr = np.asarray(t, dtype=float)
+    if arr.ndim != 1:
+        raise ValueError(f"{name}: expected a 1-D array of times, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: times must be finite")
+    return arr
+
+
+def _points(name: str, p: np.ndarray) -> np.ndarray:
+    """Check an (N, 3) array of finite positions [m]."""
+    arr = np.asarray(p, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (N, 3), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: positions must be finite")
+    return arr
+
+
+def _rgba(color: Sequence[int] | np.ndarray) -> np.ndarray:
+    """An RGB or RGBA colour (0-255) as a uint8 RGBA array of shape (4,)."""
+    c = np.asarray(color, dtype=np.uint8).reshape(-1)
+    if c.shape == (3,):
+        c = np.append(c, np.uint8(255))
+    if c.shape != (4,):
+        raise ValueError(f"a colour needs 3 or 4 channels, got {c.shape}")
+    return c
+
+
+def _level(level: str) -> str:
+    up = str(level).strip().upper()
+    return _TEXT_LEVELS.get(up, up)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------------------------------
+
+
+class StageRecording:
+    """One stage's Rerun recording, buffered in memory until :meth:`save`.
+
+    Parameters
+    ----------
+    application_id : str
+        Rerun application id; the viewer groups recordings and blueprints by it.
+    recording_name : str
+        Human-readable name shown in the viewer (e.g. ``"track"``).
+    recording_id : str, optional
+        Rerun recording id; a fresh random UUID by default (two recordings never share one).
+
+    Notes
+    -----
+    Everything logged before :meth:`save` ends up in the file; ``save`` is final. Temporal data lives on the
+    ``mission_time`` duration timeline [s]. ``static=True`` data holds for all times.
+    """
+
+    def __init__(
+        self, application_id: str = "oacli", recording_name: str = "oacli", *, recording_id: str | None = None
+    ) -> None:
+        self._rec = rr.RecordingStream(application_id, recording_id=recording_id or uuid.uuid4().hex)
+        self._rec.set_log_time_enabled(False)
+        self._rec.set_log_tick_enabled(False)
+        self._rec.send_recording_name(recording_name)
+        self._saved = False
+        self.application_id = application_id
+        self.recording_name = recording_name
+
+    # -- plumbing ------------------------------------------------------------------------------------------------
+
+    @property
+    def stream(self) -> rr.RecordingStream:
+        """The underlying recording stream, for anything the helpers below do not cover.
+
+        Its ``log_time`` and ``log_tick`` timelines are off: call ``stream.set_time(TIMELINE, duration=t)`` before
+        a temporal ``stream.log`` (or use ``send_columns``), else the row carries no time at all.
+        """
+        self._check_open()
+        return self._rec
+
+    @property
+    def recording_id(self) -> str:
+        """The Rerun recording id."""
+        return self._rec.get_recording_id()
+
+    def _check_open(self) -> None:
+        if self._saved:
+            raise RuntimeError("this StageRecording was already saved; logging after save() is not possible")
+
+    def _log(self, entity: str, archetype, *, static: bool, t: float | None) -> None:
+        """Log one row: static, or at mission time ``t`` [s]."""
+        self._check_open()
+        if static:
+            self._rec.log(entity, archetype, static=True, strict=True)
+            return
+        if t is None:
+            raise ValueError(f"{entity}: a non-static row needs a time t [s]")
+        self._rec.set_time(TIMELINE, duration=np.timedelta64(int(np.rint(float(t) * 1e9)), "ns"))
+        try:
+            self._rec.log(entity, archetype, strict=True)
+        finally:
+            self._rec.reset_time()
+
+    def _send(self, entity: str, t_s: np.ndarray, columns) -> None:
+        self._check_open()
+        self._rec.send_columns(entity, indexes=[_time_column(t_s)], columns=columns, strict=True)
+
+    # -- 3D scene ------------------------------------------------------------------------------------------------
+
+    def log_scene(
+        self,
+        scene: Scene,
+        *,
+        keep_in_color: Sequence[int] = KEEP_IN_COLOR,
+        keep_out_color: Sequence[int] = KEEP_OUT_COLOR,
+        view_coordinates: rr.ViewCoordinates | None = rr.ViewCoordinates.RIGHT_HAND_Z_DOWN,
+    ) -> None:
+        """Log the workspace statically: keep-in boxes under ``world/keep_in``, keep-out zones under ``world/keep_out``.
+
+        Parameters
+        ----------
+        scene : oacli.geometry.Scene
+            Keep-in boxes [m] and keep-out ellipsoids.
+        keep_in_color, keep_out_color : sequence of int
+            RGBA (0-255); both are drawn as a translucent fill with a wireframe.
+        view_coordinates : rerun.ViewCoordinates or None
+            Axis convention logged on ``world``. The default, right-handed with +z down, is the ISS analysis
+            frame Astrobee uses (+x forward, +y starboard, +z deck). ``None`` logs none.
+
+        Notes
+        -----
+        Both entities are logged even when empty, so a reader always finds them. Ellipsoids are drawn with
+        ``half_sizes`` = semi-axes [m] and the rotation of :meth:`oacli.geometry.Ellipsoid.principal_axes`
+        (a quaternion, x, y, z, w).
+        """
+        if view_coordinates is not None:
+            self._log(WORLD, view_coordinates, static=True, t=None)
+        boxes = scene.keep_in
+        self._log(
+            KEEP_IN,
+            rr.Boxes3D(
+                centers=np.array([b.center for b in boxes], dtype=float).reshape(-1, 3),
+                half_sizes=np.array([0.5 * b.size for b in boxes], dtype=float).reshape(-1, 3),
+                colors=np.tile(_rgba(keep_in_color), (len(boxes), 1)),
+                fill_mode=rr.components.FillMode.TransparentFillMajorWireframe,
+                labels=[f"keep-in {i}" for i in range(len(boxes))],
+                show_labels=False,
+            ),
+            static=True,
+            t=None,
+        )
+        axes = [e.principal_axes() for e in scene.keep_out]
+        self._log(
+            KEEP_OUT,
+            rr.Ellipsoids3D(
+                centers=np.array([e.center for e in scene.keep_out], dtype=float).reshape(-1, 3),
+                half_sizes=np.array([a for a, _ in axes], dtype=float).reshape(-1, 3),
+                quaternions=np.array([Rotation.from_matrix(r).as_quat() for _, r in axes]).reshape(-1, 4),
+                colors=np.tile(_rgba(keep_out_color), (len(axes), 1)),
+                fill_mode=rr.components.FillMode.TransparentFillMajorWireframe,
+                labels=[f"keep-out {i}" for i in range(len(axes))],
+                show_labels=False,
+            ),
+            static=True,
+            t=None,
+        )
+
+    def log_path(
+        self,
+        entity: str,
+        positions: np.ndarray,
+        *,
+        color: Sequence[int] = REFERENCE_COLOR,
+        radius_m: float = 0.006,
+        static: bool = True,
+        t: float | None = None,
+    ) -> None:
+        """Log a polyline through ``positions`` as ``LineStrips3D`` (e.g. ``world/reference``, ``world/plan/path``).
+
+        Parameters
+        ----------
+        entity : str
+            Entity path.
+        positions : ndarray, shape (N, 3)
+            Vertices [m] in the world frame.
+        color : sequence of int
+            RGB(A) 0-255.
+        radius_m : float
+            Line radius [m] (drawn in scene units).
+        static : bool
+            Log for all times (default); otherwise at mission time ``t``.
+        t : float, optional
+            Mission time [s] of a non-static path (e.g. the plan an MPC made at ``t``).
+        """
+        p = _points(entity, positions)
+        self._log(entity, rr.LineStrips3D([p], colors=[_rgba(color)], radii=[float(radius_m)]), static=static, t=t)
+
+    def log_segments(
+        self,
+        entity: str,
+        starts: np.ndarray,
+        ends: np.ndarray,
+        *,
+        color: Sequence[int] = (160, 160, 160, 160),
+        radius_m: float = 0.002,
+        static: bool = True,
+        t: float | None = None,
+    ) -> None:
+        """Log many straight segments ``starts[i] -> ends[i]`` as one ``LineStrips3D`` (e.g. a planner's tree).
+
+        Parameters
+        ----------
+        entity : str
+            Entity path, e.g. ``world/plan/tree``.
+        starts, ends : ndarray, shape (M, 3)
+            Segment end points [m].
+        color : sequence of int
+            RGB(A) 0-255, shared by all segments.
+        radius_m : float
+            Line radius [m].
+        static : bool
+            Log for all times (default); otherwise at mission time ``t`` [s].
+        t : float, optional
+            Mission time [s] for a non-static log.
+        """
+        a = _points(f"{entity} starts", starts)
+        b = _points(f"{entity} ends", ends)
+        if a.shape != b.shape:
+            raise ValueError(f"{entity}: starts {a.shape} and ends {b.shape} differ")
+        strips = np.stack([a, b], axis=1)
+        self._log(
+            entity,
+            rr.LineStrips3D(strips, colors=[_rgba(color)], radii=[float(radius_m)]),
+            static=static,
+            t=t,
+        )
+
+    def log_points(
+        self,
+        entity: str,
+        positions: np.ndarray,
+        *,
+        color: Sequence[int] = (200, 200, 200, 255),
+        radius_m: float = 0.02,
+        labels: Sequence[str] | None = None,
+        static: bool = True,
+        t: float | None = None,
+    ) -> None:
+        """Log a set of points (``Points3D``), e.g. waypoints or rejected samples.
+
+        Parameters
+        ----------
+        entity : str
+            Entity path.
+        positions : ndarray, shape (N, 3)
+            Points [m].
+        color : sequence of int
+            RGB(A) 0-255.
+        radius_m : float
+            Point radius [m].
+        labels : sequence of str, optional
+            One label per point.
+        static : bool
+            Log for all times (default); otherwise at mission time ``t`` [s].
+        t : float, optional
+            Mission time [s] for a non-static log.
+        """
+        p = _points(entity, positions)
+        self._log(
+            entity,
+            rr.Points3D(p, colors=[_rgba(color)], radii=[float(radius_m)], labels=labels),
+            static=static,
+            t=t,
+        )
+
+    def log_positions_over_time(
+        self,
+        entity: str,
+        t: np.ndarray,
+        positions: np.ndarray,
+        *,
+        color: Sequence[int] = REFERENCE_COLOR,
+        radius_m: float = 0.03,
+    ) -> None:
+        """Log one moving point: ``positions[i]`` at mission time ``t[i]`` (one ``send_columns`` call).
+
+        Parameters
+        ----------
+        entity : str
+            Entity path, e.g. ``world/reference/target``.
+        t : ndarray, shape (N,)
+            Mission times [s].
+        positions : ndarray, shape (N, 3)
+            Positions [m].
+        color : sequence of int
+            RGB(A) 0-255 (static).
+        radius_m : float
+            Point radius [m] (static).
+        """
+        tt = _times(f"{entity} t", t)
+        p = _points(entity, positions)
+        if p.shape[0] != tt.shape[0]:
+            raise ValueError(f"{entity}: {tt.shape[0]} times but {p.shape[0]} positions")
+        self._log(entity, rr.Points3D.from_fields(colors=[_rgba(color)], radii=[float(radius_m)]), static=True, t=None)
+        self._send(entity, tt, rr.Points3D.columns(positions=p))
+
+    def log_trajectory_over_time(
+        self,
+        entity: str,
+        t: np.ndarray,
+        x: np.ndarray,
+        *,
+        body_size_m: float = ASTROBEE_SIZE_M,
+        body_color: Sequence[int] = ROBOT_COLOR,
+        axes_length_m: float = 0.25,
+        path_entity: str | None = None,
+        path_color: Sequence[int] = ACTUAL_COLOR,
+    ) -> None:
+        """Log a rigid body's pose over time and, optionally, the path it flew.
+
+        ``entity`` gets a ``Transform3D`` (translation ``x[:, 0:3]``, quaternion ``x[:, 6:10]``) per time stamp via
+        one ``send_columns`` call, plus a static ``Boxes3D`` body (a cube of edge ``body_size_m``) and body axes,
+        both drawn in the body frame so they move with the transform.
+
+        Parameters
+        ----------
+        entity : str
+            Entity path of the body, e.g. ``world/robot``.
+        t : ndarray, shape (N,)
+            Mission times [s].
+        x : ndarray, shape (N, 13)
+            States ``[r (3) m, v (3) m/s, q (4) x, y, z, w, omega (3) rad/s]`` (see :mod:`oacli.types`).
+        body_size_m : float
+            Edge length of the drawn cube [m] (Astrobee: 0.30 m).
+        body_color : sequence of int
+            RGBA 0-255 of the body.
+        axes_length_m : float
+            Length of the drawn body axes [m]; 0 draws none.
+        path_entity : str, optional
+            When given, the positions are also logged there as a static polyline (e.g. ``world/actual``).
+        path_color : sequence of int
+            RGB(A) 0-255 of that polyline.
+        """
+        tt = _times(f"{entity} t", t)
+        xx = np.asarray(x, dtype=float)
+        if xx.shape != (tt.shape[0], 13):
+            raise ValueError(f"{entity}: expected x of shape ({tt.shape[0]}, 13), got {xx.shape}")
+        if not np.all(np.isfinite(xx[:, :10])):
+            raise ValueError(f"{entity}: positions and quaternions must be finite")
+        q = xx[:, 6:10]
+        norm = np.linalg.norm(q, axis=1)
+        if np.any(norm < 1e-9):
+            raise ValueError(f"{entity}: zero quaternion in x[:, 6:10]")
+        self._send(
+            entity,
+            tt,
+            rr.Transform3D.columns(translation=xx[:, 0:3], quaternion=q / norm[:, None]),
+        )
+        half = 0.5 * float(body_size_m)
+        self._log(
+            entity,
+            rr.Boxes3D(
+                half_sizes=[[half, half, half]],
+                colors=[_rgba(body_color)],
+                fill_mode=rr.components.FillMode.TransparentFillMajorWireframe,
+            ),
+            static=True,
+            t=None,
+        )
+        if axes_length_m > 0:
+            self._log(entity, rr.TransformAxes3D(float(axes_length_m)), static=True, t=None)
+        if path_entity is not None:
+            self.log_path(path_entity, xx[:, 0:3], color=path_color)
+
+    # -- time series ---------------------------------------------------------------------------------------------
+
+    def log_series(
+        self,
+        entity: str,
+        t: np.ndarray,
+        values: np.ndarray,
+        names: Sequence[str] | None = None,
+        *,
+        limits: np.ndarray | None = None,
+        colors: Sequence[Sequence[int]] | None = None,
+        width: float = 1.5,
+    ) -> None:
+        """Log one or more scalar series sharing time stamps (one ``send_columns`` call).
+
+        Parameters
+        ----------
+        entity : str
+            Entity path, e.g. ``metrics/force_N``. All ``k`` series live on this one entity (one ``Scalars``
+            row of length ``k`` per time), named by a static ``SeriesLines``.
+        t : ndarray, shape (N,)
+            Mission times [s].
+        values : ndarray, shape (N,) or (N, k)
+            Values in the entity's unit (put the unit in the entity name). NaN leaves a gap.
+        names : sequence of str, optional
+            Series names (length ``k``); ``x, y, z`` when ``k == 3``, else the last path element or ``s0, s1...``.
+        limits : ndarray, shape (k,), optional
+            Symmetric bounds: ``+limits`` is logged under ``<entity>/limit_upper`` and ``-limits`` under
+            ``<entity>/limit_lower`` as constant series spanning ``t[0]..t[-1]`` (two samples each), in the same
+            colours but thinner, so a time series view of ``<entity>`` shows each series against its limits.
+        colors : sequence of RGB(A), optional
+            One colour per series; red/green/blue for ``k == 3``, else Rerun's automatic colours.
+        width : float
+            Line width [ui points].
+        """
+        tt = _times(f"{entity} t", t)
+        v = np.asarray(values, dtype=float)
+        if v.ndim == 1:
+            v = v[:, None]
+        if v.ndim != 2 or v.shape[0] != tt.shape[0]:
+            raise ValueError(
+                f"{entity}: expected values of shape ({tt.shape[0]},) or ({tt.shape[0]}, k), got {v.shape}"
+            )
+        k = v.shape[1]
+        if names is None:
+            names = AXIS_NAMES if k == 3 else ((entity.rsplit("/", 1)[-1],) if k == 1 else [f"s{i}" for i in range(k)])
+        names = [str(n) for n in names]
+        if len(names) != k:
+            raise ValueError(f"{entity}: {k} series but {len(names)} names")
+        if colors is None and k == 3:
+            colors = AXIS_COLORS
+        rgba = None if colors is None else np.array([_rgba(c) for c in colors])
+        if rgba is not None and rgba.shape[0] != k:
+            raise ValueError(f"{entity}: {k} series but {rgba.shape[0]} colours")
+
+        self._log(entity, rr.SeriesLines(names=names, colors=rgba, widths=[float(width)] * k), static=True, t=None)
+        self._send(entity, tt, rr.Scalars.columns(scalars=v))
+
+        if limits is None:
+            return
+        lim = np.asarray(limits, dtype=float).reshape(-1)
+        if lim.shape != (k,):
+            raise ValueError(f"{entity}: expected {k} limits, got shape {np.shape(limits)}")
+        if tt.size == 0:
+            return
+        t_span = np.array([tt.min(), tt.max()])
+        faded = None if rgba is None else np.concatenate([rgba[:, :3], np.full((k, 1), 150, np.uint8)], axis=1)
+        for child, sign, label in ((LIMIT_UPPER, 1.0, "+"), (LIMIT_LOWER, -1.0, "−")):
+            path = f"{entity}/{child}"
+            self._log(
+                path,
+                rr.SeriesLines(names=[f"{label}{n} limit" for n in names], colors=faded, widths=[0.75] * k),
+                static=True,
+                t=None,
+            )
+            self._send(path, t_span, rr.Scalars.columns(scalars=np.tile(sign * lim, (2, 1))))
+
+    # -- text ----------------------------------------------------------------------------------------------------
+
+    def log_text(self, t: float, level: str, message: str) -> None:
+        """Log one text line under ``log`` at mission time ``t`` [s].
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s].
+        level : str
+            ``"DEBUG"``, ``"INFO"``, ``"WARN"`` (``"WARNING"`` is accepted), ``"ERROR"`` or ``"CRITICAL"``.
+        message : str
+            The text.
+        """
+        self._log(LOG, rr.TextLog(str(message), level=_level(level)), static=False, t=float(t))
+
+    def log_texts(self, t: np.ndarray, levels: Sequence[str], messages: Sequence[str]) -> None:
+        """Log many text lines under ``log`` at once (one ``send_columns`` call); see :meth:`log_text`."""
+        tt = _times("log t", t)
+        if not (len(levels) == len(messages) == tt.shape[0]):
+            raise ValueError(f"log: {tt.shape[0]} times, {len(levels)} levels, {len(messages)} messages")
+        if tt.size == 0:
+            return
+        self._send(LOG, tt, rr.TextLog.columns(text=[str(m) for m in messages], level=[_level(lv) for lv in levels]))
+
+    # -- output --------------------------------------------------------------------------------------------------
+
+    def save(self, path: Path, blueprint: rrb.Blueprint | None = None) -> None:
+        """Write everything logged so far to ``path`` atomically, with ``blueprint`` as the default layout.
+
+        The file is written under a temporary name beside ``path``, completed (footer written, writer thread
+        joined), checked to open, fsynced and then renamed onto ``path``. On any failure ``path`` is not
+        created (an existing file is left untouched) and the temporary file is removed. The recording is closed
+        afterwards, also on failure.
+
+        Parameters
+        ----------
+        path : Path
+            Final ``.rrd`` path; its folder must exist.
+        blueprint : rerun.blueprint.Blueprint, optional
+            Default viewer layout, stored in the file as a blueprint store of the same application id.
+
+        Raises
+        ------
+        RuntimeError
+            When called twice, or when the written file cannot be read back.
+        """
+        self._check_open()
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            try:
+                self._rec.save(tmp, default_blueprint=blueprint)
+                self._rec.flush()
+            finally:
+                # Dropping the file sink joins its writer thread, which writes the footer.
+                self._rec.disconnect()
+                self._saved = True
+            _check_complete(tmp, self.recording_id)
+
+    def __repr__(self) -> str:
+        state = "saved" if self._saved else "open"
+        return f"StageRecording({self.recording_name!r}, id={self.recording_id}, {state})"
+
+
+def _check_complete(path: Path, recording_id: str) -> None:
+    """Raise ``RuntimeError`` unless ``path`` is an rrd with a footer holding ``recording_id``."""
+    try:
+        reader = RrdReader(path)
+        ids = [s.recording_id for s in reader.recordings()]
+        reader.store()  # reads the manifest from the footer: fails on a truncated file
+    except Exception as exc:
+        raise RuntimeError(f"the Rerun recording {path} was not written completely: {exc}") from exc
+    if recording_id not in ids:
+        raise RuntimeError(f"the Rerun recording {path} does not hold recording {recording_id} (Rerun disabled?)")
+
+
+def write_track_recording(
+    path: Path,
+    *,
+    scene: Scene,
+    t_ref: np.ndarray,
+    x_ref: np.ndarray,
+    t_true: np.ndarray,
+    x_true: np.ndarray,
+    t_ctrl: np.ndarray,
+    u_command: np.ndarray,
+    u_applied: np.ndarray,
+    position_error_m: np.ndarray,
+    attitude_error_rad: np.ndarray,
+    solve_time_ms: np.ndarray,
+    force_limit_N: np.ndarray,
+    torque_limit_Nm: np.ndarray,
+    log: Sequence[tuple[float, str, str]] = (),
+    recording_name: str = "track",
+) -> None:
+    """Write the ``track`` stage's recording with :func:`track_blueprint` as its layout.
+
+    Entities: ``world/keep_in``, ``world/keep_out`` (static scene), ``world/reference`` (static path, plus a
+    moving target point ``world/reference/target``), ``world/actual`` (static path flown), ``world/robot`` (pose
+    over time and body), ``metrics/position_error_m``, ``metrics/attitude_error_rad``, ``metrics/force_N`` and
+    ``metrics/torque_Nm`` (applied, series ``x, y, z``, with ``limit_upper``/``limit_lower`` children and the
+    commanded value under ``.../command``), ``metrics/solve_time_ms`` and ``log``.
+
+    Parameters
+    ----------
+    path : Path
+        Output ``.rrd``, written atomically.
+    scene : oacli.geometry.Scene
+        Keep-in boxes and keep-out ellipsoids.
+    t_ref : ndarray, shape (N,)
+        Reference times [s].
+    x_ref : ndarray, shape (N, 13)
+        Reference states (positions [m] used).
+    t_true : ndarray, shape (M,)
+        Plant times [s].
+    x_true : ndarray, shape (M, 13)
+        True states (position [m] and attitude quaternion x, y, z, w used).
+    t_ctrl : ndarray, shape (K,)
+        Controller update times [s].
+    u_command, u_applied : ndarray, shape (K, 6)
+        Commanded and applied (saturated) input ``[force (3) N world frame, torque (3) N·m body frame]``.
+    position_error_m : ndarray, shape (K,)
+        ``‖r - r_ref‖`` [m] at ``t_ctrl``.
+    attitude_error_rad : ndarray, shape (K,)
+        Attitude error angle [rad] at ``t_ctrl``.
+    solve_time_ms : ndarray, shape (K,)
+        Solver wall time [ms] per step (NaN where unknown).
+    force_limit_N : ndarray, shape (3,)
+        Per-axis force bound [N] (plotted as ±).
+    torque_limit_Nm : ndarray, shape (3,)
+        Per-axis torque bound [N·m] (plotted as ±).
+    log : sequence of (float, str, str)
+        ``(t [s], level, message)`` lines for the text log.
+    recording_name : str
+        Recording name shown in the viewer.
+    """
+    t_ctrl = _times("t_ctrl", t_ctrl)
+    k = t_ctrl.shape[0]
+    for name, arr, shape in (
+        ("u_command", u_command, (k, 6)),
+        ("u_applied", u_applied, (k, 6)),
+        ("position_error_m", position_error_m, (k,)),
+        ("attitude_error_rad", attitude_error_rad, (k,)),
+        ("solve_time_ms", solve_time_ms, (k,)),
+        ("force_limit_N", force_limit_N, (3,)),
+        ("torque_limit_Nm", torque_limit_Nm, (3,)),
+    ):
+        if np.shape(arr) != shape:
+            raise ValueError(f"{name}: expected shape {shape}, got {np.shape(arr)}")
+    x_ref = np.asarray(x_ref, dtype=float)
+    t_ref = _times("t_ref", t_ref)
+    if x_ref.shape != (t_ref.shape[0], 13):
+        raise ValueError(f"x_ref: expected shape ({t_ref.shape[0]}, 13), got {x_ref.shape}")
+    u_command = np.asarray(u_command, dtype=float)
+    u_applied = np.asarray(u_applied, dtype=float)
+
+    rec = StageRecording(recording_name=recording_name)
+    rec.log_scene(scene)
+    rec.log_path(REFERENCE, x_ref[:, 0:3], color=REFERENCE_COLOR)
+    rec.log_positions_over_time(f"{REFERENCE}/target", t_ref, x_ref[:, 0:3], color=REFERENCE_COLOR, radius_m=0.03)
+    rec.log_trajectory_over_time(ROBOT, t_true, x_true, path_entity=ACTUAL, path_color=ACTUAL_COLOR)
+
+    rec.log_series(POSITION_ERROR, t_ctrl, position_error_m, ["position error"])
+    rec.log_series(ATTITUDE_ERROR, t_ctrl, attitude_error_rad, ["attitude error"])
+    rec.log_series(FORCE, t_ctrl, u_applied[:, 0:3], AXIS_NAMES, limits=force_limit_N)
+    rec.log_series(TORQUE, t_ctrl, u_applied[:, 3:6], AXIS_NAMES, limits=torque_limit_Nm)
+    faded = [(*c[:3], 110) for c in AXIS_COLORS]
+    rec.log_series(f"{FORCE}/command", t_ctrl, u_command[:, 0:3], [f"{a} cmd" for a in AXIS_NAMES], colors=faded)
+    rec.log_series(f"{TORQUE}/command", t_ctrl, u_command[:, 3:6], [f"{a} cmd" for a in AXIS_NAMES], colors=faded)
+    rec.log_series(SOLVE_TIME, t_ctrl, solve_time_ms, ["solve time"])
+
+    if log:
+        t_log, levels, messages = zip(*log, strict=True)
+        rec.log_texts(np.array(t_log, dtype=float), list(levels), list(messages))
+    rec.save(Path(path), track_blueprint())
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Reading back (tests, the logs stage)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _reader(path: Path) -> RrdReader:
+    """Open an ``.rrd`` and list its stores (which decodes every frame header: a truncated file fails here)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"Rerun recording {path} does not exist")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "no footer/manifest" on truncated or legacy files
+            reader = RrdReader(path)
+            reader.recordings()
+    except Exception as exc:  # rerun raises plain RuntimeErrors for unreadable files
+        raise InputError(f"cannot read Rerun recording {path}: {exc}") from exc
+    return reader
+
+
+def _entity(chunk_path: str) -> str:
+    return chunk_path.lstrip("/")
+
+
+def _arrow_values(arr: pa.Array) -> np.ndarray:
+    """Arrow values as numpy: fixed-size lists become (n, size) arrays, lists object arrays of per-item arrays
+    (e.g. the points of each line strip), strings object arrays, primitives plain arrays."""
+    kind = arr.type
+    if pa.types.is_fixed_size_list(kind):
+        return _arrow_values(arr.flatten()).reshape(-1, kind.list_size)
+    if pa.types.is_list(kind) or pa.types.is_large_list(kind):
+        parts = _column_rows(arr)
+        out = np.empty(len(parts), dtype=object)
+        for i, part in enumerate(parts):
+            out[i] = part
+        return out
+    if pa.types.is_string(kind) or pa.types.is_large_string(kind):
+        return np.array(arr.to_pylist(), dtype=object)
+    return arr.to_numpy(zero_copy_only=False)
+
+
+def _column_rows(column: pa.Array) -> list[np.ndarray]:
+    """Split a Rerun component column (a list array, one list per row) into one ndarray per row.
+
+    A row of ``Vec3D`` becomes an array of shape (n, 3), a row of scalars shape (n,), a row of strings an object
+    array, a row of line strips an object array of (n_i, 3) arrays. Null rows become empty arrays.
+    """
+    if isinstance(column, pa.ChunkedArray):
+        column = column.combine_chunks()
+    lengths = column.value_lengths().fill_null(0).to_numpy(zero_copy_only=False).astype(np.int64)
+    flat = _arrow_values(column.flatten())
+    return list(np.split(flat, np.cumsum(lengths)[:-1]))
+
+
+def _index_seconds(batch: pa.RecordBatch, timeline: str) -> np.ndarray:
+    col = batch.column(timeline)
+    if pa.types.is_duration(col.type) or pa.types.is_timestamp(col.type):
+        unit = col.type.unit
+        scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[unit]
+        return col.cast(pa.int64()).to_numpy(zero_copy_only=False) * scale
+    return col.to_numpy(zero_copy_only=False).astype(float)
+
+
+def read_recording_entities(path: Path) -> set[str]:
+    """Entity paths (without the leading ``/``) of the first recording store in an ``.rrd``.
+
+    Rerun's reserved entities (``__properties`` ...) are left out.
+
+    Raises
+    ------
+    oacli.errors.InputError
+        The file is missing or not a readable recording.
+    """
+    reader = _reader(path)
+    return {e for ch in reader.stream() if not (e := _entity(ch.entity_path)).startswith("__")}
+
+
+def read_recording_component(
+    path: Path, entity: str, component: str, *, timeline: str = TIMELINE
+) -> tuple[np.ndarray | None, list[np.ndarray]]:
+    """All values of one component of one entity, e.g. ``("world/keep_out", "Ellipsoids3D:half_sizes")``.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.rrd``.
+    entity : str
+        Entity path (with or without the leading ``/``).
+    component : str
+        Component identifier ``"<Archetype>:<field>"`` as Rerun names it.
+    timeline : str
+        Timeline of temporal rows.
+
+    Returns
+    -------
+    times_s : ndarray, shape (R,), or None
+        Row times [s] sorted ascending (stable), or None when the component is static.
+    rows : list of ndarray
+        One array per row (see ``_column_rows``), in the order of ``times_s``.
+
+    Raises
+    ------
+    KeyError
+        The entity does not have the component.
+    """
+    want = _entity(entity)
+    static_rows: list[np.ndarray] = []
+    times: list[np.ndarray] = []
+    rows: list[np.ndarray] = []
+    for ch in _reader(path).stream().filter(content=f"/{want}", components=component):
+        if _entity(ch.entity_path) != want:
+            continue
+        batch = ch.to_record_batch()
+        if component not in batch.schema.names:
+            continue
+        values = _column_rows(batch.column(component))
+        if ch.is_static:
+            static_rows = values  # the latest static write wins, as in the viewer
+        elif timeline in batch.schema.names:
+            times.append(_index_seconds(batch, timeline))
+            rows.extend(values)
+    if rows:
+        t = np.concatenate(times)
+        order = np.argsort(t, kind="stable")
+        return t[order], [rows[i] for i in order]
+    if static_rows:
+        return None, static_rows
+    raise KeyError(f"{want} has no component {component} in {path}")
+
+
+def read_recording_scalars(path: Path, *, timeline: str = TIMELINE) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Every temporal ``Scalars`` series of a recording.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.rrd``.
+    timeline : str
+        Timeline to read the times from.
+
+    Returns
+    -------
+    dict
+        ``entity path -> (times_s (N,), values (N,) or (N, k))``, rows sorted by time (stable); ``k > 1`` when the
+        entity holds several series (e.g. force x, y, z).
+    """
+    parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
+    stream = _reader(path).stream().filter(has_timeline=timeline, components="Scalars:scalars")
+    for ch in stream:
+        batch = ch.to_record_batch()
+        if "Scalars:scalars" not in batch.schema.names:
+            continue
+        t_list, v_list = parts.setdefault(_entity(ch.entity_path), ([], []))
+        t_list.append(_index_seconds(batch, timeline))
+        v_list.extend(_column_rows(batch.column("Scalars:scalars")))
+    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for entity, (t_list, v_list) in parts.items():
+        t = np.concatenate(t_list)
+        widths = {v.shape[0] for v in v_list}
+        if len(widths) != 1:
+            raise InputError(f"{entity}: scalar rows of different lengths {sorted(widths)} in {path}")
+        v = np.stack(v_list).astype(float)
+        order = np.argsort(t, kind="stable")
+        v = v[order]
+        out[entity] = (t[order], v[:, 0] if v.shape[1] == 1 else v)
+    return out
+
+
+def read_blueprint_views(path: Path) -> list[dict[str, str | None]]:
+    """The views of the (first) blueprint stored in an ``.rrd``.
+
+    Returns
+    -------
+    list of dict
+        One ``{"class": "TimeSeries" | "3D" | "TextLog" ..., "origin": str, "name": str | None}`` per view;
+        empty when the file holds no blueprint.
+    """
+    reader = _reader(path)
+    blueprints = reader.blueprints()
+    if not blueprints:
+        return []
+    views: dict[str, dict[str, str | None]] = {}
+    for ch in reader.stream(store=blueprints[0]):
+        entity = _entity(ch.entity_path)
+        if not entity.startswith("view/") or entity.count("/") != 1:
+            continue
+        batch = ch.to_record_batch()
+        view = views.setdefault(entity, {"class": None, "origin": None, "name": None})
+        for key, component in (
+            ("class", "ViewBlueprint:class_identifier"),
+            ("origin", "ViewBlueprint:space_origin"),
+            ("name", "ViewBlueprint:display_name"),
+        ):
+            if component in batch.schema.names:
+                values = batch.column(component).to_pylist()
+                if values and values[-1]:
+                    view[key] = values[-1][0]
+    return list(views.values())
