@@ -48,3 +48,12 @@ def feedforward_inputs(x_ref: np.ndarray, dt: float, params: InertialParams) -> 
     w = x_ref[:-1, 10:13]
     torque = inertia * dw + np.cross(w, inertia * w)
     return np.hstack([params.mass_kg * dv, torque])
+
+
+def sample_inputs(traj: Trajectory, times: np.ndarray) -> np.ndarray:
+    """Inputs of ``traj`` at ``times`` [s] under its zero-order hold, shape (len(times), 6); zero after the end."""
+    times = np.atleast_1d(np.asarray(times, dtype=float))
+    idx = np.clip(np.searchsorted(traj.t, times, side="right") - 1, 0, len(traj) - 1)
+    out = traj.u[idx].copy()
+    out[times > traj.t[-1]] = 0.0
+    return out

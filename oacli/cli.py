@@ -1,0 +1,176 @@
+"""The ``oacli`` command line: thin wrappers that load a config, call one stage runner and report.
+
+Exit codes: 0 success; 1 internal error; 2 bad input (config, file, option); 3 infeasible problem;
+130 interrupted. Errors are printed on stderr as one line per problem, never as a traceback (set
+``OACLI_DEBUG=1`` to see one). Progress goes to stderr, the results table to stdout.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from oacli import __version__
+from oacli.errors import ConfigError, OacliError
+
+app = typer.Typer(
+    name="oacli",
+    help="Plan, control and learn the model of a free-flying space robot (Astrobee) during on-orbit assembly.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _version_callback(value: bool) -> None:
+    if value:
+        typer.echo(f"oacli {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version_callback, is_eager=True, help="Print the version.")
+    ] = False,
+) -> None:
+    """oacli: plan | smooth | excite | estimate | track | mission."""
+
+
+class Progress:
+    """A minimal progress bar on stderr: redrawn in place on a terminal, a line every 25 % otherwise."""
+
+    def __init__(self, label: str, enabled: bool) -> None:
+        self.label = label
+        self.enabled = enabled
+        self.tty = sys.stderr.isatty()
+        self.start = time.perf_counter()
+        self._last_step = -1
+
+    def __call__(self, fraction: float) -> None:
+        if not self.enabled:
+            return
+        if self.tty:
+            step = int(fraction * 100)
+            if step == self._last_step:
+                return
+            self._last_step = step
+            bar = "#" * (step // 4) + "-" * (25 - step // 4)
+            elapsed = time.perf_counter() - self.start
+            sys.stderr.write(f"\r{self.label} [{bar}] {step:3d}% {elapsed:6.1f} s")
+            if fraction >= 1.0:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+        else:
+            step = int(fraction * 4)
+            if step != self._last_step:
+                self._last_step = step
+                sys.stderr.write(f"{self.label}: {25 * step}% ({time.perf_counter() - self.start:.1f} s)\n")
+                sys.stderr.flush()
+
+
+def _fail(exc: BaseException) -> typer.Exit:
+    """Print an error without a traceback and return the Exit to raise."""
+    if isinstance(exc, OacliError):
+        for line in exc.problems:
+            typer.echo(f"error: {line}", err=True)
+        return typer.Exit(exc.exit_code)
+    if isinstance(exc, KeyboardInterrupt):
+        typer.echo("error: interrupted", err=True)
+        return typer.Exit(130)
+    if os.environ.get("OACLI_DEBUG"):
+        raise exc
+    typer.echo(f"internal error: {type(exc).__name__}: {exc} (set OACLI_DEBUG=1 for a traceback)", err=True)
+    return typer.Exit(1)
+
+
+def _run_guarded(action: Callable[[], Any]) -> Any:
+    try:
+        return action()
+    except (OacliError, KeyboardInterrupt, Exception) as exc:  # every error is mapped to an exit code
+        raise _fail(exc) from None
+
+
+def _format_value(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, dict):
+        return ", ".join(f"{k} {_format_value(v)}" for k, v in value.items())
+    return str(value)
+
+
+def print_table(summary: dict[str, Any], keys: list[str]) -> None:
+    """Print selected summary entries as an aligned two-column table on stdout."""
+    width = max(len(k) for k in keys)
+    for key in keys:
+        if key in summary:
+            typer.echo(f"{key:<{width}}  {_format_value(summary[key])}")
+
+
+TRACK_TABLE = [
+    "status", "rms_position_error_m", "max_position_error_m", "final_position_error_m", "rms_attitude_error_rad",
+    "constraint_violations", "solver_failures", "solve_time_ms", "sim_time_s", "wall_time_s",
+]
+
+
+def _load(config: Path, seed: int | None):
+    from oacli.config import load_config
+
+    cfg = load_config(config)
+    if seed is not None:
+        if seed < 0:
+            raise ConfigError(f"--seed: {seed}: must be >= 0")
+        cfg = cfg.model_copy(update={"seed": seed})
+    return cfg
+
+
+@app.command("track")
+def track(
+    config: Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")],
+    reference: Annotated[
+        Path | None,
+        typer.Option("--reference", "-r", help="Reference to follow: a previous stage's MCAP (its /trajectory), "
+                     "a RATTLE results_*_0.dat folder, or a CSV. Overrides the config's reference."),
+    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
+    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
+        "runs"
+    ),
+    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+) -> None:
+    """Track a reference with MPC in closed-loop simulation; write track.mcap, track.rrd and summary.json."""
+
+    def action():
+        from oacli.io.reference_files import load_reference
+        from oacli.stages.track import run_track
+
+        cfg = _load(config, seed)
+        ref = None
+        if reference is not None:
+            ref_path = reference.resolve()
+            ref = load_reference(ref_path, sample_period_s=cfg.reference.sample_period_s,
+                                 frame=cfg.environment.frame)
+            new_ref = cfg.reference.model_copy(update={"source": "file", "file": str(ref_path)})
+            cfg = cfg.model_copy(update={"reference": new_ref})
+        return run_track(cfg, reference=ref, out=out, runs_root=runs_root, progress=Progress("track", not quiet))
+
+    result = _run_guarded(action)
+    if not quiet:
+        print_table(result.summary, TRACK_TABLE)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":
+    main()
