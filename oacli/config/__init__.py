@@ -1,0 +1,381 @@
+"""Load, validate and dump oacli configuration files.
+
+A configuration is a YAML file read with PyYAML's safe loader (duplicate keys rejected) into the frozen pydantic
+models of :mod:`oacli.config.models`. Every problem, whether the file is missing, the YAML is malformed or a value
+is non-physical, raises :class:`oacli.errors.ConfigError` with one line per problem::
+
+    <file>: <field.path>: <value, shortened>: <reason>
+    configs/x.yaml: robot.mass_kg: -1.0: must be > 0
+
+List indices appear as numbers (``environment.keep_out.0.center``). Problems with the file as a whole read
+``<file>: <reason>`` (``<file>: line 3, column 7: invalid YAML: ...`` for syntax errors).
+
+Examples
+--------
+>>> from oacli.config import load_config, dump_config
+>>> cfg = load_config("configs/iss_reswarm.yaml")          # doctest: +SKIP
+>>> cfg.robot.inertial_params().mass_kg                     # doctest: +SKIP
+9.583788668
+>>> text = dump_config(cfg)                                 # resolved, safe YAML; load_config reads it back
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+import reprlib
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from oacli.config.models import (
+    ControllerConfig,
+    ControllerWeights,
+    DisturbanceConfig,
+    EnvironmentConfig,
+    KeepInBox,
+    KeepOutEllipsoid,
+    OacliConfig,
+    Pose,
+    ReferenceConfig,
+    RobotConfig,
+    SensorsConfig,
+    SimulationConfig,
+    TruthConfig,
+)
+from oacli.errors import ConfigError
+
+MAX_CONFIG_BYTES = 10 * 1024 * 1024
+"""Largest config file accepted [bytes]."""
+
+VALUE_REPR_CHARS = 60
+"""Values in messages are shortened to this many characters."""
+
+_REPR = reprlib.Repr()
+_REPR.maxlevel = 3
+_REPR.maxlist = _REPR.maxtuple = 6
+_REPR.maxdict = 4
+_REPR.maxstring = VALUE_REPR_CHARS
+_REPR.maxother = VALUE_REPR_CHARS
+
+_MISSING = "<missing>"
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Public API
+# --------------------------------------------------------------------------------------------------------------
+
+
+def load_config(path: str | os.PathLike[str]) -> OacliConfig:
+    """Read, validate and resolve a YAML configuration file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The YAML file. Relative paths inside it (``reference.file``) are resolved against its folder.
+
+    Returns
+    -------
+    OacliConfig
+        The frozen, validated configuration with every default filled in.
+
+    Raises
+    ------
+    ConfigError
+        For a missing or unreadable file, a directory, non-UTF-8 text, malformed YAML, a top level that is not a
+        mapping, an empty file, and every invalid or non-physical value (one line per problem, each starting with
+        ``path``).
+    """
+    source = os.fspath(path)
+    p = Path(source)
+    if not p.exists():
+        raise ConfigError(f"{source}: file not found")
+    if p.is_dir():
+        raise ConfigError(f"{source}: is a directory, expected a YAML file")
+    try:
+        size = p.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{source}: file is too large ({size} bytes, at most {MAX_CONFIG_BYTES})")
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{source}: not valid UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start})"
+        ) from None
+    data = _parse_yaml(text, source)
+    if data is None:
+        raise ConfigError(f"{source}: file is empty (expected a mapping with at least a 'robot' section)")
+    return config_from_dict(data, source=source, base_dir=os.path.dirname(os.path.abspath(source)))
+
+
+def config_from_dict(
+    data: Mapping[str, Any], source: str = "<dict>", base_dir: str | os.PathLike[str] | None = None
+) -> OacliConfig:
+    """Validate a configuration given as nested plain data (what ``yaml.safe_load`` returns).
+
+    Parameters
+    ----------
+    data : Mapping
+        The configuration; lists may also be tuples or 1-D/2-D numpy arrays.
+    source : str
+        Name used at the start of every problem line (normally the file path).
+    base_dir : str or os.PathLike, optional
+        Folder relative paths are resolved against (default: the current working directory).
+
+    Returns
+    -------
+    OacliConfig
+        The validated configuration.
+
+    Raises
+    ------
+    ConfigError
+        One line per problem, ``<source>: <field.path>: <value>: <reason>``.
+    """
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{source}: the top level must be a mapping of config sections, got {type(data).__name__}")
+    context = {"base_dir": None if base_dir is None else os.fspath(base_dir)}
+    try:
+        return OacliConfig.model_validate(dict(data), context=context)
+    except ValidationError as exc:
+        raise ConfigError(format_validation_errors(exc, source)) from None
+    except RecursionError:
+        raise ConfigError(f"{source}: the data is nested too deeply") from None
+
+
+def dump_config(cfg: OacliConfig) -> str:
+    """The resolved configuration as safe YAML text that :func:`load_config` reads back into an equal model.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        A validated configuration.
+
+    Returns
+    -------
+    str
+        YAML with every field explicit (defaults included), vectors in flow style, in field order.
+    """
+    data = cfg.model_dump(mode="json")
+    body = yaml.dump(data, Dumper=_FlowVectorDumper, sort_keys=False, default_flow_style=False, allow_unicode=True)
+    return (
+        "# oacli resolved configuration: every default filled in (lengths m, times s, forces N, torques N·m)\n" + body
+    )
+
+
+def format_validation_errors(exc: ValidationError, source: str) -> list[str]:
+    """Turn a pydantic ``ValidationError`` into ``<source>: <path>: <value>: <reason>`` lines, one per error."""
+    lines = []
+    for err in exc.errors(include_url=False):
+        loc = tuple(part for part in err["loc"] if not _is_union_tag(part))
+        path = ".".join(_loc_part(part) for part in loc) or "<top level>"
+        value = _MISSING if err["type"] == "missing" else _short_repr(err.get("input"))
+        lines.append(f"{source}: {path}: {value}: {_reason(err, loc)}")
+    return lines
+
+
+# --------------------------------------------------------------------------------------------------------------
+# YAML
+# --------------------------------------------------------------------------------------------------------------
+
+
+class _FlowVectorDumper(yaml.SafeDumper):
+    """Safe dumper writing lists of scalars (vectors) on one line and everything else in block style."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
+    flow = all(not isinstance(item, list | dict) for item in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+_FlowVectorDumper.add_representer(list, _represent_list)
+
+
+class _StrictSafeLoader(yaml.SafeLoader):
+    """PyYAML's safe loader that also rejects duplicate keys in a mapping (PyYAML keeps the last silently)."""
+
+    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict:
+        if isinstance(node, yaml.MappingNode):
+            seen: set = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    duplicate = key in seen
+                    seen.add(key)
+                except TypeError:  # unhashable key: the base class reports it
+                    continue
+                if duplicate:
+                    raise yaml.constructor.ConstructorError(
+                        "while constructing a mapping",
+                        node.start_mark,
+                        f"found duplicate key {key!r}",
+                        key_node.start_mark,
+                    )
+        return super().construct_mapping(node, deep=deep)
+
+
+def _parse_yaml(text: str, source: str) -> Any:
+    """``yaml.safe_load`` (plus duplicate-key detection) with every error turned into a one-line ConfigError."""
+    try:
+        return yaml.load(text, Loader=_StrictSafeLoader)  # a SafeLoader subclass: as safe as yaml.safe_load
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        what = " ".join(str(x) for x in (exc.problem, f"({exc.context})" if exc.context else None) if x)
+        raise ConfigError(f"{source}: {where}invalid YAML: {_one_line(what or str(exc))}") from None
+    except yaml.reader.ReaderError as exc:
+        line = text.count("\n", 0, exc.position) + 1
+        column = exc.position - (text.rfind("\n", 0, exc.position) + 1) + 1
+        raise ConfigError(
+            f"{source}: line {line}, column {column}: invalid YAML: unacceptable character "
+            f"#x{exc.character if isinstance(exc.character, int) else ord(exc.character):04x}"
+        ) from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: invalid YAML: {_one_line(str(exc))}") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: invalid YAML: nested too deeply") from None
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Message formatting
+# --------------------------------------------------------------------------------------------------------------
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _is_union_tag(part: str | int) -> bool:
+    return isinstance(part, str) and len(part) > 2 and part.startswith("<") and part.endswith(">")
+
+
+def _loc_part(part: str | int) -> str:
+    text = str(part)
+    if text and text.isprintable() and not any(c.isspace() for c in text):
+        return text
+    return repr(part)
+
+
+def _short_repr(value: Any) -> str:
+    try:
+        text = _REPR.repr(value)
+    except Exception:  # a value whose repr fails must not hide the real problem
+        text = f"<{type(value).__name__}>"
+    text = _one_line(text)
+    return text if len(text) <= VALUE_REPR_CHARS else text[: VALUE_REPR_CHARS - 3] + "..."
+
+
+def _reason(err: dict[str, Any], loc: tuple[str | int, ...]) -> str:
+    kind = err["type"]
+    ctx = err.get("ctx") or {}
+    if kind == "missing":
+        return "required key is missing"
+    if kind == "extra_forbidden":
+        allowed = _allowed_keys(loc[:-1])
+        if not allowed:
+            return "unknown key"
+        close = _suggest(str(loc[-1]), allowed)
+        if close:
+            return f"unknown key (did you mean '{close}'?)"
+        return f"unknown key (allowed: {', '.join(allowed)})"
+    simple = {
+        "greater_than": lambda: f"must be > {ctx['gt']}",
+        "greater_than_equal": lambda: f"must be >= {ctx['ge']}",
+        "less_than": lambda: f"must be < {ctx['lt']}",
+        "less_than_equal": lambda: f"must be <= {ctx['le']}",
+        "literal_error": lambda: f"must be {ctx['expected']}",
+        "string_pattern_mismatch": lambda: (
+            "must contain only letters, digits, '_', '.' and '-' (not starting with '.' or '-')"
+        ),
+        "string_too_long": lambda: f"must be at most {ctx['max_length']} characters",
+        "string_type": lambda: "must be a string",
+        "int_type": lambda: "must be an integer",
+        "int_from_float": lambda: "must be an integer",
+        "int_parsing": lambda: "must be an integer",
+        "model_type": lambda: "must be a mapping",
+        "model_attributes_type": lambda: "must be a mapping",
+        "dict_type": lambda: "must be a mapping",
+        "tuple_type": lambda: "must be a list",
+        "list_type": lambda: "must be a list",
+        "recursion_loop": lambda: "refers to itself (recursive YAML alias)",
+    }
+    if kind in simple:
+        try:
+            return simple[kind]()
+        except KeyError:
+            pass
+    return _one_line(str(err.get("msg", kind)))
+
+
+def _suggest(key: str, allowed: list[str]) -> str | None:
+    """The allowed key the user most likely meant: a prefix/extension of ``key`` or a close spelling."""
+    lowered = key.lower()
+    if len(lowered) >= 3:
+        for name in allowed:
+            if name.startswith(lowered) or lowered.startswith(name):
+                return name
+    close = difflib.get_close_matches(key, allowed, n=1, cutoff=0.7)
+    return close[0] if close else None
+
+
+def _models_in(annotation: Any) -> tuple[type[BaseModel] | None, bool]:
+    """The model class inside a field annotation and whether it sits in a container (list/tuple/dict)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation, False
+    origin = typing.get_origin(annotation)
+    args = typing.get_args(annotation)
+    if origin is typing.Annotated:
+        return _models_in(args[0])
+    container = origin in (tuple, list, dict)
+    for arg in args:
+        model, nested = _models_in(arg)
+        if model is not None:
+            return model, container or nested
+    return None, False
+
+
+def _allowed_keys(loc: tuple[str | int, ...]) -> list[str]:
+    """Field names of the model at ``loc`` (for 'did you mean' hints); empty when it cannot be determined."""
+    model: type[BaseModel] = OacliConfig
+    i = 0
+    while i < len(loc):
+        field = model.model_fields.get(str(loc[i]))
+        if field is None:
+            return []
+        sub, in_container = _models_in(field.annotation)
+        if sub is None:
+            return []
+        i += 2 if in_container else 1
+        model = sub
+    return list(model.model_fields)
+
+
+__all__ = [
+    "ConfigError",
+    "ControllerConfig",
+    "ControllerWeights",
+    "DisturbanceConfig",
+    "EnvironmentConfig",
+    "KeepInBox",
+    "KeepOutEllipsoid",
+    "OacliConfig",
+    "Pose",
+    "ReferenceConfig",
+    "RobotConfig",
+    "SensorsConfig",
+    "SimulationConfig",
+    "TruthConfig",
+    "config_from_dict",
+    "dump_config",
+    "format_validation_errors",
+    "load_config",
+]
