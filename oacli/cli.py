@@ -90,13 +90,6 @@ def _fail(exc: BaseException) -> typer.Exit:
     return typer.Exit(1)
 
 
-def _run_guarded(action: Callable[[], Any]) -> Any:
-    try:
-        return action()
-    except (OacliError, KeyboardInterrupt, Exception) as exc:  # every error is mapped to an exit code
-        raise _fail(exc) from None
-
-
 def _format_value(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:.6g}"
@@ -113,13 +106,8 @@ def print_table(summary: dict[str, Any], keys: list[str]) -> None:
             typer.echo(f"{key:<{width}}  {_format_value(summary[key])}")
 
 
-TRACK_TABLE = [
-    "status", "rms_position_error_m", "max_position_error_m", "final_position_error_m", "rms_attitude_error_rad",
-    "constraint_violations", "solver_failures", "solve_time_ms", "sim_time_s", "wall_time_s",
-]
-
-
-def _load(config: Path, seed: int | None):
+def load_config_with_seed(config: Path, seed: int | None):
+    """Load a config file and apply a ``--seed`` override (validated like the config's own seed)."""
     from oacli.config import load_config
 
     cfg = load_config(config)
@@ -130,47 +118,21 @@ def _load(config: Path, seed: int | None):
     return cfg
 
 
-@app.command("track")
-def track(
-    config: Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")],
-    reference: Annotated[
-        Path | None,
-        typer.Option("--reference", "-r", help="Reference to follow: a previous stage's MCAP (its /trajectory), "
-                     "a RATTLE results_*_0.dat folder, or a CSV. Overrides the config's reference."),
-    ] = None,
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
-    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
-        "runs"
-    ),
-    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
-) -> None:
-    """Track a reference with MPC in closed-loop simulation; write track.mcap, track.rrd and summary.json."""
-
-    def action():
-        from oacli.io.reference_files import load_reference
-        from oacli.stages.track import run_track
-
-        cfg = _load(config, seed)
-        ref = None
-        if reference is not None:
-            ref_path = reference.resolve()
-            ref = load_reference(ref_path, sample_period_s=cfg.reference.sample_period_s,
-                                 frame=cfg.environment.frame)
-            new_ref = cfg.reference.model_copy(update={"source": "file", "file": str(ref_path)})
-            cfg = cfg.model_copy(update={"reference": new_ref})
-        return run_track(cfg, reference=ref, out=out, runs_root=runs_root, progress=Progress("track", not quiet))
-
-    result = _run_guarded(action)
-    if not quiet:
-        print_table(result.summary, TRACK_TABLE)
-    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+def run_guarded(action: Callable[[], Any]) -> Any:
+    """Run a command's action, mapping every error to a clear message and an exit code (no traceback)."""
+    try:
+        return action()
+    except (OacliError, KeyboardInterrupt, Exception) as exc:  # every error is mapped to an exit code
+        raise _fail(exc) from None
 
 
 def main() -> None:
     """Console-script entry point."""
     app()
 
+
+# Each command lives in its own module under oacli.commands and registers itself on ``app``.
+from oacli.commands import track as _track  # noqa: E402, F401
 
 if __name__ == "__main__":
     main()

@@ -130,7 +130,7 @@ def test_generated_malformed_configs_fail_cleanly(tmp_path, which, data, unknown
         for key in path[:-1]:
             node = node[key]
         node["bogus_key"] = 1
-        field = ".".join(path[:-1] + ("bogus_key",)) if len(path) > 1 else "bogus_key"
+        field = ".".join((*path[:-1], "bogus_key")) if len(path) > 1 else "bogus_key"
     else:
         node = cfg
         for key in path[:-1]:

@@ -94,7 +94,7 @@ def test_recording_reads_back_with_the_logged_values(iss_run):
     idx = np.searchsorted(tel.t_true, tel.t_ctrl - 1e-9)
     expected = np.linalg.norm(tel.x_true[idx, 0:3] - tel.x_reference[:, 0:3], axis=1)
     np.testing.assert_allclose(pos_err, expected, atol=1e-9)
-    t_att, att_err = scalars["metrics/attitude_error_rad"]
+    _t_att, att_err = scalars["metrics/attitude_error_rad"]
     np.testing.assert_allclose(att_err, quat.angle_between(tel.x_reference[:, 6:10], tel.x_true[idx, 6:10]),
                                atol=1e-9)
     _, force = scalars["metrics/force_N"]

@@ -31,7 +31,7 @@ def test_dare_matches_scipy_on_the_free_flyer():
     p = solve_dare(a, b, q, r)
     expected = scipy.linalg.solve_discrete_are(a, b, q, r)
     np.testing.assert_allclose(p, expected, rtol=1e-9, atol=1e-9)
-    k, p2 = dlqr(a, b, q, r)
+    k, _p2 = dlqr(a, b, q, r)
     np.testing.assert_allclose(k, -np.linalg.solve(r + b.T @ expected @ b, b.T @ expected @ a), rtol=1e-8, atol=1e-10)
     assert np.max(np.abs(np.linalg.eigvals(a + b @ k))) < 1.0
 

@@ -53,7 +53,7 @@ def test_unconstrained_mpc_equals_the_lqr_law(horizon, rng):
 
 
 def test_inputs_never_exceed_the_limits_and_saturate_on_large_errors(rng):
-    mpc, a, b = make_mpc(10)
+    mpc, _a, _b = make_mpc(10)
     for _ in range(10):
         x0 = np.r_[rng.uniform(-3, 3, 3), rng.uniform(-0.1, 0.1, 3), rng.uniform(-1, 1, 3), np.zeros(3)]
         sol = mpc.solve(x0, np.zeros((11, 12)), np.zeros((10, 6)))

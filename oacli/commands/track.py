@@ -1,0 +1,52 @@
+"""``oacli track``: closed-loop tracking of a reference with MPC."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+
+TRACK_TABLE = [
+    "status", "rms_position_error_m", "max_position_error_m", "final_position_error_m", "rms_attitude_error_rad",
+    "constraint_violations", "solver_failures", "solve_time_ms", "sim_time_s", "wall_time_s",
+]
+
+
+@app.command("track")
+def track(
+    config: Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")],
+    reference: Annotated[
+        Path | None,
+        typer.Option("--reference", "-r", help="Reference to follow: a previous stage's MCAP (its /trajectory), "
+                     "a RATTLE results_*_0.dat folder, or a CSV. Overrides the config's reference."),
+    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
+    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
+        "runs"
+    ),
+    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+) -> None:
+    """Track a reference with MPC in closed-loop simulation; write track.mcap, track.rrd and summary.json."""
+
+    def action():
+        from oacli.io.reference_files import load_reference
+        from oacli.stages.track import run_track
+
+        cfg = load_config_with_seed(config, seed)
+        ref = None
+        if reference is not None:
+            ref_path = reference.resolve()
+            ref = load_reference(ref_path, sample_period_s=cfg.reference.sample_period_s,
+                                 frame=cfg.environment.frame)
+            new_ref = cfg.reference.model_copy(update={"source": "file", "file": str(ref_path)})
+            cfg = cfg.model_copy(update={"reference": new_ref})
+        return run_track(cfg, reference=ref, out=out, runs_root=runs_root, progress=Progress("track", not quiet))
+
+    result = run_guarded(action)
+    if not quiet:
+        print_table(result.summary, TRACK_TABLE)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet)
