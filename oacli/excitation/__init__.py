@@ -1,0 +1,1 @@
+"""Information-rich excitation: parameter sensitivities, Fisher information, optimal design."""
