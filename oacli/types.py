@@ -193,3 +193,43 @@ class Telemetry:
         if len(self.solve_info) not in (0, k):
             raise ValueError(f"solve_info: expected {k} entries, got {len(self.solve_info)}")
         object.__setattr__(self, "solve_info", tuple(self.solve_info))
+
+
+@dataclass(frozen=True)
+class ParameterEstimate:
+    """An estimate of the inertial parameters θ = [m kg, Ixx, Iyy, Izz kg·m²] (Doerr Eqs. 31-32).
+
+    Attributes
+    ----------
+    t : float
+        Time of the last measurement used [s].
+    theta : ndarray, shape (4,)
+        Estimate.
+    covariance : ndarray, shape (4, 4)
+        Estimate covariance (e.g. (AᵀA)⁻¹ of the batch problem, or the filter's P).
+    method : str
+        ``"batch"``, ``"sequential"``, ``"prior"`` ...
+    samples_used, samples_rejected : int
+        Measurements used, and rejected by outlier gating.
+    """
+
+    t: float
+    theta: np.ndarray
+    covariance: np.ndarray
+    method: str
+    samples_used: int = 0
+    samples_rejected: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "theta", _as_array("theta", self.theta, (4,)))
+        cov = _as_array("covariance", self.covariance, (4, 4))
+        object.__setattr__(self, "covariance", cov)
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations sqrt(diag P), shape (4,)."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    def inertial_params(self) -> InertialParams:
+        """The estimate as :class:`InertialParams` (raises ValueError if it is not physical)."""
+        return InertialParams(self.theta[0], self.theta[1:4])
