@@ -22,11 +22,11 @@ from oacli.errors import InputError
 from oacli.geometry import Box, Ellipsoid, Scene
 from oacli.io.mcap_io import (
     StageMcapWriter,
-    quaternion_from_matrix,
     read_stage,
     read_telemetry,
     read_trajectory,
 )
+from oacli.model.quaternion import from_rotation_matrix
 from oacli.types import SolveInfo, Trajectory
 
 CONFIG = "robot:\n  mass_kg: 9.58\nseed: 7\n"
@@ -503,10 +503,10 @@ def test_quaternion_from_matrix_round_trips(rng):
         q = rng.normal(size=4)
         q /= np.linalg.norm(q)
         q = -q if q[3] < 0 else q
-        assert np.allclose(quaternion_from_matrix(rotation_matrix(q)), q, atol=1e-12)
+        assert np.allclose(from_rotation_matrix(rotation_matrix(q)), q, atol=1e-12)
     # 180° turns exercise the non-trace branches
     for r in (np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])):
-        assert np.allclose(rotation_matrix(quaternion_from_matrix(r)), r, atol=1e-12)
+        assert np.allclose(rotation_matrix(from_rotation_matrix(r)), r, atol=1e-12)
 
 
 def test_pose_in_frame_decodes(tmp_path, rng):

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import math
 import subprocess
 from collections.abc import Mapping
 from pathlib import Path
@@ -19,6 +18,7 @@ from typing import Any
 import oacli
 from oacli.errors import InputError
 from oacli.io.atomic import write_text_atomic
+from oacli.io.jsonsafe import to_json_safe
 
 
 def utc_stamp(now: _dt.datetime | None = None) -> str:
@@ -85,21 +85,8 @@ def git_commit() -> str:
     return commit + ("-dirty" if dirty.returncode == 0 and dirty.stdout.strip() else "")
 
 
-def _json_safe(value: Any) -> Any:
-    """Replace NaN/inf by None so that summary.json is strict JSON."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, Mapping):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    if hasattr(value, "tolist"):
-        return _json_safe(value.tolist())
-    return value
-
-
 def write_summary(run_dir: Path, summary: Mapping[str, Any], filename: str = "summary.json") -> Path:
     """Write ``summary`` as strict JSON (NaN → null), atomically; returns the path."""
     path = Path(run_dir) / filename
-    write_text_atomic(path, json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n")
+    write_text_atomic(path, json.dumps(to_json_safe(summary), indent=2, allow_nan=False) + "\n")
     return path

@@ -1,0 +1,543 @@
+"""Read a stage's MCAP file back into oacli's data types (see :mod:`oacli.io.mcap_write` for the writer).
+
+Reading walks the file record by record with the ``mcap`` package's record parsers: it checks every chunk CRC,
+every attachment CRC and the data-section CRC (``mcap``'s seeking reader checks only the chunks it reads, never
+the data-section CRC). A file cut mid-write (a crash, a ``.partial`` leftover) has no footer; the same walk then
+stops at the last complete record and reports ``truncated=True``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zlib
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from foxglove.messages import (
+    LogLevel,
+)
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Attachment, Channel, Chunk, DataEnd, Message, Metadata, Schema
+from mcap.stream_reader import CRCValidationError, breakup_chunk
+
+from oacli.errors import InputError
+from oacli.io import mcap_schema as ms
+from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Telemetry, Trajectory
+
+#: Target uncompressed chunk size [bytes]; a hard crash loses at most the chunk being filled.
+DEFAULT_CHUNK_SIZE = 256 * 1024
+
+_MAGIC = b"\x89MCAP0\r\n"
+_NS_PER_S = 1_000_000_000
+
+_LOG_LEVELS = {
+    "debug": LogLevel.Debug,
+    "info": LogLevel.Info,
+    "warning": LogLevel.Warning,
+    "warn": LogLevel.Warning,
+    "error": LogLevel.Error,
+    "fatal": LogLevel.Fatal,
+    "critical": LogLevel.Fatal,
+}
+_LOG_LEVEL_NAMES = {0: "unknown", 1: "debug", 2: "info", 3: "warning", 4: "error", 5: "fatal"}
+
+_KEEP_IN_COLOR = (0.2, 0.8, 0.3, 0.08)
+_KEEP_OUT_COLOR = (0.9, 0.15, 0.15, 0.35)
+#: Path colours in order (reference blue, actual orange, then green, purple, brown, pink, grey, olive).
+_PATH_PALETTE = (
+    (0.12, 0.47, 0.71, 1.0),
+    (1.0, 0.5, 0.05, 1.0),
+    (0.17, 0.63, 0.17, 1.0),
+    (0.58, 0.4, 0.74, 1.0),
+    (0.55, 0.34, 0.29, 1.0),
+    (0.89, 0.47, 0.76, 1.0),
+    (0.5, 0.5, 0.5, 1.0),
+    (0.74, 0.74, 0.13, 1.0),
+)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StageRecord:
+    """What a stage's MCAP file holds, decoded.
+
+    Attributes
+    ----------
+    path : Path
+        The file read.
+    trajectories : dict[str, Trajectory]
+        Every topic whose schema is ``oacli.TrajectorySample`` and that has samples; name and frame from the
+        channel metadata.
+    wrenches : dict[str, tuple[ndarray, ndarray]]
+        Every ``oacli.Wrench`` topic as ``(t (K,) [s], wrench (K, 6) [N, N·m])``.
+    json_records : dict[str, tuple[dict, ...]]
+        Every other JSON topic (``/solver/stats``, stage-specific records), records in file order.
+    metadata : dict[str, dict[str, str]]
+        Metadata records by name (``oacli`` holds version, stage, seed, git commit, creation time, ...).
+    attachments : dict[str, bytes]
+        Attachments by name (``config.yaml`` holds the resolved configuration).
+    topics : dict[str, str]
+        Every topic in the file and its schema name (``""`` for schemaless channels).
+    message_counts : dict[str, int]
+        Messages read per topic.
+    log : tuple of (float, str, str)
+        ``(t [s], level, message)`` of every ``foxglove.Log`` message, in file order.
+    truncated : bool
+        True when the file was not closed by its writer (no footer): everything up to the last complete
+        record was read, later data is lost.
+    """
+
+    path: Path
+    trajectories: dict[str, Trajectory]
+    wrenches: dict[str, tuple[np.ndarray, np.ndarray]]
+    json_records: dict[str, tuple[dict, ...]]
+    metadata: dict[str, dict[str, str]]
+    attachments: dict[str, bytes]
+    topics: dict[str, str]
+    message_counts: dict[str, int]
+    log: tuple[tuple[float, str, str], ...]
+    truncated: bool
+
+    @property
+    def solver_stats(self) -> tuple[dict, ...]:
+        """Records of ``/solver/stats`` (empty when absent)."""
+        return self.json_records.get(ms.TOPIC_SOLVER_STATS, ())
+
+    @property
+    def config_yaml(self) -> str | None:
+        """The resolved configuration (attachment ``config.yaml``) as text, or None."""
+        data = self.attachments.get(ms.CONFIG_ATTACHMENT)
+        return None if data is None else data.decode("utf-8")
+
+
+def _varint(buf: bytes, pos: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        byte = buf[pos]
+        pos += 1
+        value |= (byte & 0x7F) << shift
+        if not byte & 0x80:
+            return value, pos
+        shift += 7
+
+
+def _decode_log(buf: bytes) -> tuple[str, str]:
+    """``(level, message)`` of a protobuf-encoded ``foxglove.Log`` (level = field 2, message = field 3)."""
+    level, message, pos = 0, "", 0
+    while pos < len(buf):
+        key, pos = _varint(buf, pos)
+        field_number, wire_type = key >> 3, key & 7
+        if wire_type == 0:
+            value, pos = _varint(buf, pos)
+            if field_number == 2:
+                level = value
+        elif wire_type == 2:
+            length, pos = _varint(buf, pos)
+            if field_number == 3:
+                message = bytes(buf[pos : pos + length]).decode("utf-8", errors="replace")
+            pos += length
+        elif wire_type == 5:
+            pos += 4
+        elif wire_type == 1:
+            pos += 8
+        else:
+            raise ValueError(f"unsupported protobuf wire type {wire_type}")
+    return _LOG_LEVEL_NAMES.get(level, str(level)), message
+
+
+def _stream(body: bytes | memoryview) -> ReadDataStream:
+    return ReadDataStream(io.BytesIO(body))
+
+
+class _Scan:
+    """Record-by-record walk of an MCAP file collecting what :class:`StageRecord` needs."""
+
+    def __init__(self, path: Path, validate_crcs: bool, topics: frozenset[str] | None) -> None:
+        self.path = path
+        self.validate = validate_crcs
+        self.wanted = topics
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, Channel] = {}
+        self.topics: dict[str, str] = {}
+        self.channel_meta: dict[str, dict[str, str]] = {}
+        self.messages: dict[str, list[tuple[int, bytes]]] = {}
+        self.counts: dict[str, int] = {}
+        self.metadata: dict[str, dict[str, str]] = {}
+        self.attachments: dict[str, bytes] = {}
+        self.truncated = False
+
+    def fail(self, reason: str) -> InputError:
+        return InputError(f"{self.path}: {reason}")
+
+    def run(self) -> None:
+        try:
+            data = self.path.read_bytes()
+        except FileNotFoundError:
+            raise self.fail("file not found") from None
+        except OSError as exc:
+            raise self.fail(f"cannot read the file ({exc.strerror or exc})") from None
+        if len(data) < len(_MAGIC) or data[: len(_MAGIC)] != _MAGIC:
+            raise self.fail("not an MCAP file (it does not start with the MCAP magic bytes)")
+        complete = len(data) >= 2 * len(_MAGIC) and data[-len(_MAGIC) :] == _MAGIC
+        view = memoryview(data)
+        pos, end = len(_MAGIC), len(data)
+        finished = False  # reached the DataEnd (or Footer) record
+        while pos + 9 <= end:
+            opcode = data[pos]
+            length = int.from_bytes(data[pos + 1 : pos + 9], "little")
+            if pos + 9 + length > end:
+                break  # a record cut by the end of the file
+            body = view[pos + 9 : pos + 9 + length]
+            if opcode == Opcode.DATA_END:
+                if self.validate:
+                    expected = DataEnd.read(_stream(body)).data_section_crc
+                    actual = zlib.crc32(view[:pos])
+                    if expected != 0 and expected != actual:
+                        raise self.fail(
+                            f"data section CRC mismatch (stored {expected:#010x}, computed {actual:#010x}): "
+                            "the file is corrupt"
+                        )
+                finished = True
+                break  # the summary section after it repeats what was read
+            if opcode == Opcode.FOOTER:
+                finished = True
+                break
+            self._record(opcode, body, pos)
+            pos += 9 + length
+        if complete and not finished:
+            raise self.fail(f"corrupt MCAP: the record at byte {pos} runs past the end of the data section")
+        self.truncated = not complete
+
+    def _record(self, opcode: int, body: memoryview, offset: int) -> None:
+        try:
+            if opcode == Opcode.CHUNK:
+                chunk = Chunk.read(_stream(body))
+                try:
+                    records = breakup_chunk(chunk, validate_crc=self.validate)
+                except CRCValidationError as exc:
+                    raise self.fail(
+                        f"chunk at byte {offset} failed its CRC check (stored {exc.expected:#010x}, computed "
+                        f"{exc.actual:#010x}): the file is corrupt"
+                    ) from None
+                except InputError:
+                    raise
+                except Exception as exc:
+                    raise self.fail(
+                        f"chunk at byte {offset} is corrupt: its {chunk.compression} data do not decompress "
+                        f"({exc}), so its CRC cannot match"
+                    ) from None
+                for record in records:
+                    self._inner(record)
+            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+                self._inner(Schema.read(_stream(body)) if opcode == Opcode.SCHEMA else Channel.read(_stream(body)))
+            elif opcode == Opcode.MESSAGE:
+                self._inner(Message.read(_stream(body), len(body)))
+            elif opcode == Opcode.ATTACHMENT:
+                if self.validate:
+                    stored = int.from_bytes(body[-4:], "little")
+                    actual = zlib.crc32(body[:-4])
+                    if stored != 0 and stored != actual:
+                        raise self.fail(f"attachment at byte {offset} failed its CRC check: the file is corrupt")
+                attachment = Attachment.read(_stream(body))
+                self.attachments[attachment.name] = bytes(attachment.data)
+            elif opcode == Opcode.METADATA:
+                record = Metadata.read(_stream(body))
+                self.metadata[record.name] = dict(record.metadata)
+        except InputError:
+            raise
+        except Exception as exc:
+            raise self.fail(f"corrupt MCAP record (opcode {opcode:#04x}) at byte {offset}: {exc}") from None
+
+    def _inner(self, record: Any) -> None:
+        if isinstance(record, Message):
+            channel = self.channels.get(record.channel_id)
+            if channel is None:
+                raise self.fail(f"message on unknown channel id {record.channel_id}")
+            topic = channel.topic
+            self.counts[topic] = self.counts.get(topic, 0) + 1
+            if self.wanted is None or topic in self.wanted:
+                self.messages.setdefault(topic, []).append((record.log_time, record.data))
+        elif isinstance(record, Schema):
+            self.schemas[record.id] = record
+        elif isinstance(record, Channel):
+            schema = self.schemas.get(record.schema_id) if record.schema_id else None
+            if record.schema_id and schema is None:
+                raise self.fail(f"channel {record.topic} refers to unknown schema id {record.schema_id}")
+            name = schema.name if schema is not None else ""
+            if self.topics.get(record.topic, name) != name:
+                raise self.fail(f"topic {record.topic} has two schemas ({self.topics[record.topic]}, {name})")
+            self.channels[record.id] = record
+            self.topics[record.topic] = name
+            self.channel_meta[record.topic] = dict(record.metadata)
+            self.counts.setdefault(record.topic, 0)
+
+
+def _json_messages(scan: _Scan, topic: str) -> list[dict]:
+    out = []
+    for i, (_, data) in enumerate(scan.messages.get(topic, [])):
+        try:
+            out.append(json.loads(data))
+        except ValueError as exc:
+            raise scan.fail(f"message {i} on {topic} is not valid JSON ({exc})") from None
+    return out
+
+
+def _trajectory(scan: _Scan, topic: str, records: list[dict]) -> Trajectory:
+    try:
+        rows = [
+            [
+                r["t"],
+                *r["position"],
+                *r["velocity"],
+                *r["quaternion"],
+                *r["angular_velocity"],
+                *r["force"],
+                *r["torque"],
+            ]
+            for r in records
+        ]
+        arr = np.array(rows, dtype=float)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise scan.fail(f"{topic}: malformed {ms.TRAJECTORY_SAMPLE} record ({exc!r})") from None
+    if arr.shape[1:] != (1 + STATE_DIM + INPUT_DIM,):
+        raise scan.fail(f"{topic}: {ms.TRAJECTORY_SAMPLE} records have the wrong vector lengths")
+    meta = scan.channel_meta.get(topic, {})
+    try:
+        return Trajectory(
+            t=arr[:, 0],
+            x=arr[:, 1 : 1 + STATE_DIM],
+            u=arr[:, 1 + STATE_DIM :],
+            name=meta.get("name", topic.strip("/")),
+            frame=meta.get("frame", "world"),
+        )
+    except ValueError as exc:
+        raise scan.fail(f"{topic}: not a valid trajectory ({exc})") from None
+
+
+def _wrenches(scan: _Scan, topic: str, records: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        arr = np.array([[r["t"], *r["force"], *r["torque"]] for r in records], dtype=float).reshape(-1, 7)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise scan.fail(f"{topic}: malformed {ms.WRENCH} record ({exc!r})") from None
+    t, w = arr[:, 0].copy(), arr[:, 1:].copy()
+    t.setflags(write=False)
+    w.setflags(write=False)
+    return t, w
+
+
+def read_stage(path: Path, *, validate_crcs: bool = True, topics: Iterable[str] | None = None) -> StageRecord:
+    """Read a stage's MCAP file.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.mcap`` file (a ``.partial`` leftover of a crashed run is readable too: ``truncated=True``).
+    validate_crcs : bool
+        Check the chunk, attachment and data-section CRCs (default). Corruption raises :class:`InputError`.
+    topics : iterable of str, optional
+        Decode only these topics (all when omitted); ``topics`` and ``message_counts`` still list every topic.
+
+    Returns
+    -------
+    StageRecord
+
+    Raises
+    ------
+    InputError
+        The file is missing, unreadable, not an MCAP file, corrupt (a CRC mismatch) or malformed.
+    """
+    scan = _Scan(Path(path), validate_crcs, None if topics is None else frozenset(topics))
+    scan.run()
+    trajectories: dict[str, Trajectory] = {}
+    wrenches: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    json_records: dict[str, tuple[dict, ...]] = {}
+    log: list[tuple[float, str, str]] = []
+    for topic in scan.messages:
+        schema_name = scan.topics[topic]
+        channel_encoding = next(c.message_encoding for c in scan.channels.values() if c.topic == topic)
+        if schema_name == "foxglove.Log":
+            for log_time, data in scan.messages[topic]:
+                try:
+                    level, text = _decode_log(data)
+                except (ValueError, IndexError) as exc:
+                    raise scan.fail(f"undecodable foxglove.Log message on {topic} ({exc})") from None
+                log.append((log_time / 1e9, level, text))
+        elif channel_encoding == "json":
+            records = _json_messages(scan, topic)
+            if schema_name == ms.TRAJECTORY_SAMPLE:
+                if records:
+                    trajectories[topic] = _trajectory(scan, topic, records)
+            elif schema_name == ms.WRENCH:
+                wrenches[topic] = _wrenches(scan, topic, records)
+            else:
+                json_records[topic] = tuple(records)
+    return StageRecord(
+        path=Path(path),
+        trajectories=trajectories,
+        wrenches=wrenches,
+        json_records=json_records,
+        metadata=scan.metadata,
+        attachments=scan.attachments,
+        topics=dict(sorted(scan.topics.items())),
+        message_counts=dict(sorted(scan.counts.items())),
+        log=tuple(log),
+        truncated=scan.truncated,
+    )
+
+
+def _refuse_truncated(record: StageRecord) -> None:
+    raise InputError(
+        f"{record.path}: the file is truncated (its writer did not finish, e.g. the run crashed); "
+        "rerun the stage that produced it"
+    )
+
+
+def _missing_topic(record: StageRecord, topic: str, schema_name: str) -> InputError:
+    if topic in record.topics:
+        found = record.topics[topic] or "no schema"
+        if found == schema_name:
+            return InputError(f"{record.path}: topic {topic} has no messages")
+        return InputError(f"{record.path}: topic {topic} carries {found}, not {schema_name}")
+    listed = ", ".join(f"{t} ({s or 'no schema'})" for t, s in record.topics.items()) or "none"
+    return InputError(f"{record.path}: no topic {topic}; topics in the file: {listed}")
+
+
+def read_trajectory(path: Path, topic: str = ms.TOPIC_TRAJECTORY, *, allow_truncated: bool = False) -> Trajectory:
+    """Read one ``oacli.TrajectorySample`` topic of an MCAP file as a :class:`~oacli.types.Trajectory`.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.mcap`` file (CRCs are checked).
+    topic : str
+        Topic to read (``/trajectory`` by default).
+    allow_truncated : bool
+        Accept a file its writer did not finish and return the samples it holds (refused by default: a
+        stage's input should not silently be half a trajectory).
+
+    Returns
+    -------
+    Trajectory
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, not an MCAP file, CRC mismatch, truncated file, or no such topic (the
+        message lists the topics the file has).
+    """
+    record = read_stage(path, topics=[topic])
+    if record.truncated and not allow_truncated:
+        _refuse_truncated(record)
+    if topic not in record.trajectories:
+        raise _missing_topic(record, topic, ms.TRAJECTORY_SAMPLE)
+    return record.trajectories[topic]
+
+
+def _input_series(record: StageRecord, topic: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, u)`` of an input topic stored either as ``oacli.TrajectorySample`` or as ``oacli.Wrench``."""
+    if topic in record.trajectories:
+        traj = record.trajectories[topic]
+        return traj.t, traj.u
+    if topic in record.wrenches:
+        return record.wrenches[topic]
+    raise _missing_topic(record, topic, ms.TRAJECTORY_SAMPLE)
+
+
+def read_telemetry(path: Path, *, allow_truncated: bool = False) -> Telemetry:
+    """Read a ``track`` stage's closed-loop record as :class:`~oacli.types.Telemetry`.
+
+    Topics: ``/state/true`` (plant rate) gives ``t_true``, ``x_true``; ``/state/measured`` gives ``t_ctrl`` and
+    ``x_measured``; ``/reference`` the reference state, ``/control/command`` and ``/control/applied`` the inputs
+    (``oacli.TrajectorySample`` -- its ``force``/``torque`` -- or ``oacli.Wrench``), ``/disturbance`` (optional,
+    ``oacli.Wrench``), ``/solver/stats`` (optional). All controller-rate topics must have exactly the times
+    of ``/state/measured``.
+
+    Parameters
+    ----------
+    path : Path
+        The ``track.mcap`` file.
+    allow_truncated : bool
+        Accept a file cut by a crash; controller-rate topics are cut to their common length.
+
+    Returns
+    -------
+    Telemetry
+
+    Raises
+    ------
+    InputError
+        Unreadable, corrupt or truncated file, a missing topic, or controller-rate topics whose times differ.
+    """
+    wanted = [
+        ms.TOPIC_STATE_TRUE,
+        ms.TOPIC_STATE_MEASURED,
+        ms.TOPIC_REFERENCE,
+        ms.TOPIC_CONTROL_COMMAND,
+        ms.TOPIC_CONTROL_APPLIED,
+        ms.TOPIC_DISTURBANCE,
+        ms.TOPIC_SOLVER_STATS,
+    ]
+    record = read_stage(path, topics=wanted)
+    if record.truncated and not allow_truncated:
+        _refuse_truncated(record)
+    for topic in (ms.TOPIC_STATE_TRUE, ms.TOPIC_STATE_MEASURED, ms.TOPIC_REFERENCE):
+        if topic not in record.trajectories:
+            raise _missing_topic(record, topic, ms.TRAJECTORY_SAMPLE)
+    true, measured = record.trajectories[ms.TOPIC_STATE_TRUE], record.trajectories[ms.TOPIC_STATE_MEASURED]
+    reference = record.trajectories[ms.TOPIC_REFERENCE]
+    series: dict[str, tuple[np.ndarray, np.ndarray]] = {
+        ms.TOPIC_STATE_MEASURED: (measured.t, measured.x),
+        ms.TOPIC_REFERENCE: (reference.t, reference.x),
+        ms.TOPIC_CONTROL_COMMAND: _input_series(record, ms.TOPIC_CONTROL_COMMAND),
+        ms.TOPIC_CONTROL_APPLIED: _input_series(record, ms.TOPIC_CONTROL_APPLIED),
+    }
+    if ms.TOPIC_DISTURBANCE in record.wrenches or ms.TOPIC_DISTURBANCE in record.trajectories:
+        series[ms.TOPIC_DISTURBANCE] = _input_series(record, ms.TOPIC_DISTURBANCE)
+    stats = record.solver_stats
+    if stats:
+        series[ms.TOPIC_SOLVER_STATS] = (np.array([float(s["t"]) for s in stats]), np.zeros((len(stats), 0)))
+    k = len(measured.t)
+    if allow_truncated:
+        k = min(len(t) for t, _ in series.values())
+    t_ctrl = measured.t[:k]
+    for topic, (t, _) in series.items():
+        if len(t) < k or (len(t) != k and not allow_truncated):
+            raise InputError(f"{record.path}: {topic} has {len(t)} samples but {ms.TOPIC_STATE_MEASURED} has {k}")
+        if not np.array_equal(t[:k], t_ctrl):
+            raise InputError(f"{record.path}: the times of {topic} differ from those of {ms.TOPIC_STATE_MEASURED}")
+
+    def nan_if_none(value: Any) -> float:
+        return float("nan") if value is None else float(value)
+
+    solve_info = tuple(
+        SolveInfo(
+            status=str(s["status"]),
+            success=bool(s["success"]),
+            objective=nan_if_none(s.get("objective")),
+            iterations=int(s.get("iterations", -1)),
+            solve_time_s=nan_if_none(s.get("solve_time_ms")) / 1e3,
+            step_time_s=nan_if_none(s.get("step_time_ms")) / 1e3,
+        )
+        for s in stats[:k]
+    )
+    disturbance = series[ms.TOPIC_DISTURBANCE][1][:k] if ms.TOPIC_DISTURBANCE in series else None
+    return Telemetry(
+        t_true=true.t,
+        x_true=true.x,
+        t_ctrl=t_ctrl,
+        x_measured=measured.x[:k],
+        x_reference=series[ms.TOPIC_REFERENCE][1][:k],
+        u_command=series[ms.TOPIC_CONTROL_COMMAND][1][:k],
+        u_applied=series[ms.TOPIC_CONTROL_APPLIED][1][:k],
+        solve_info=solve_info,
+        disturbance=disturbance,
+    )

@@ -1,0 +1,628 @@
+"""Write a stage's MCAP file (the record of truth of every oacli stage); read it with :mod:`oacli.io.mcap_read`.
+
+The contract (topics, schemas, units, metadata, attachments) is documented in ``docs/mcap.md`` and its names
+and JSON schemas live in :mod:`oacli.io.mcap_schema`.
+
+Writing uses the Foxglove SDK's MCAP writer (``foxglove.open_mcap``) with one ``foxglove.Context`` per file, so
+channels of one file never leak into another. It writes zstd-compressed chunks of at most
+:data:`DEFAULT_CHUNK_SIZE` bytes (uncompressed), chunk CRCs, the data-section CRC, the summary CRC and attachment
+CRCs. The file is written under a temporary name and renamed into place only when the ``with`` block ends
+without an exception (:func:`oacli.io.atomic.atomic_path`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import foxglove
+import numpy as np
+from foxglove.channels import LogChannel, PoseInFrameChannel, SceneUpdateChannel
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+from foxglove.messages import (
+    Color,
+    CubePrimitive,
+    KeyValuePair,
+    LinePrimitive,
+    LinePrimitiveLineType,
+    Log,
+    LogLevel,
+    Point3,
+    Pose,
+    PoseInFrame,
+    Quaternion,
+    SceneEntity,
+    SceneUpdate,
+    SpherePrimitive,
+    Timestamp,
+    Vector3,
+)
+
+import oacli
+from oacli.geometry.shapes import Scene
+from oacli.io import mcap_schema as ms
+from oacli.io.atomic import atomic_path
+from oacli.io.jsonsafe import to_json_safe
+from oacli.model.quaternion import from_rotation_matrix
+from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
+
+#: Target uncompressed chunk size [bytes]; a hard crash loses at most the chunk being filled.
+DEFAULT_CHUNK_SIZE = 256 * 1024
+
+_MAGIC = b"\x89MCAP0\r\n"
+_NS_PER_S = 1_000_000_000
+
+_LOG_LEVELS = {
+    "debug": LogLevel.Debug,
+    "info": LogLevel.Info,
+    "warning": LogLevel.Warning,
+    "warn": LogLevel.Warning,
+    "error": LogLevel.Error,
+    "fatal": LogLevel.Fatal,
+    "critical": LogLevel.Fatal,
+}
+_LOG_LEVEL_NAMES = {0: "unknown", 1: "debug", 2: "info", 3: "warning", 4: "error", 5: "fatal"}
+
+_KEEP_IN_COLOR = (0.2, 0.8, 0.3, 0.08)
+_KEEP_OUT_COLOR = (0.9, 0.15, 0.15, 0.35)
+#: Path colours in order (reference blue, actual orange, then green, purple, brown, pink, grey, olive).
+_PATH_PALETTE = (
+    (0.12, 0.47, 0.71, 1.0),
+    (1.0, 0.5, 0.05, 1.0),
+    (0.17, 0.63, 0.17, 1.0),
+    (0.58, 0.4, 0.74, 1.0),
+    (0.55, 0.34, 0.29, 1.0),
+    (0.89, 0.47, 0.76, 1.0),
+    (0.5, 0.5, 0.5, 1.0),
+    (0.74, 0.74, 0.13, 1.0),
+)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _times_ns(what: str, t: Any) -> tuple[np.ndarray, list[int]]:
+    """Check times ``t`` [s] (1-D, finite, >= 0) and return them with ``round(t * 1e9)`` [ns]."""
+    arr = np.array(t, dtype=float, ndmin=1)
+    if arr.ndim != 1:
+        raise ValueError(f"{what}: times must be a 1-D array, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what}: times contain NaN or infinite values")
+    if arr.size and arr.min() < 0.0:
+        raise ValueError(f"{what}: times must be >= 0 s (mission time), got {arr.min()!r}")
+    return arr, np.rint(arr * 1e9).astype(np.int64).tolist()
+
+
+def _finite_array(what: str, value: Any, shape: tuple[int, int]) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != shape:
+        raise ValueError(f"{what}: expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what}: contains NaN or infinite values")
+    return arr
+
+
+def _timestamp(ns: int) -> Timestamp:
+    return Timestamp(ns // _NS_PER_S, ns % _NS_PER_S)
+
+
+def _pose(position: Sequence[float], quat_xyzw: Sequence[float]) -> Pose:
+    x, y, z = (float(v) for v in position)
+    qx, qy, qz, qw = (float(v) for v in quat_xyzw)
+    return Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
+
+
+def _color(rgba: Sequence[float]) -> Color:
+    r, g, b, a = rgba
+    return Color(r=r, g=g, b=b, a=a)
+
+
+def _vec3(v: Sequence[float]) -> Vector3:
+    x, y, z = (float(c) for c in v)
+    return Vector3(x=x, y=y, z=z)
+
+
+def _fmt(v: np.ndarray) -> str:
+    return "[" + ", ".join(repr(float(c)) for c in v) + "]"
+
+
+def _ms_or_none(seconds: float) -> float | None:
+    seconds = float(seconds)
+    return seconds * 1e3 if math.isfinite(seconds) else None
+
+
+class StageMcapWriter:
+    """Context manager writing one stage's MCAP file atomically.
+
+    On entering, the file is opened under a temporary name (``.<name>.partial`` beside ``path``), and the
+    metadata record ``oacli`` and the attachment ``config.yaml`` are written first (so that even a file cut by a
+    crash carries them). On leaving without an exception the file is finished (summary, CRCs), fsynced and
+    renamed to ``path``; if an exception escapes the ``with`` block the temporary file is deleted and no file
+    named ``path`` is created.
+
+    All times are mission time ``t`` [s] since the start of the stage, ``t >= 0``; each message's MCAP
+    ``log_time`` and ``publish_time`` are ``round(t * 1e9)`` [ns] and oacli's JSON records also hold the exact
+    float ``t``. Sample topics (trajectories, wrenches, solver statistics, poses) must be written with strictly
+    increasing times; a topic may be written in several calls (each continuing after the last time written).
+
+    Parameters
+    ----------
+    path : Path
+        Final file name (``*.mcap``). Its folder must exist.
+    stage : str
+        Stage name (``plan``, ``smooth``, ``track``, ...), stored in the ``oacli`` metadata.
+    config_yaml : str
+        The resolved configuration as YAML text, stored as the attachment ``config.yaml``.
+    metadata : Mapping[str, object], optional
+        Further entries of the ``oacli`` metadata record (``seed``, ``git_commit``, ...); values are converted
+        with ``str``. They override the defaults ``version``, ``created_utc``, ``frame``, ``contract_version``;
+        ``seed`` and ``git_commit`` default to ``"unknown"``.
+    frame : str
+        Name of the world frame (``frame_id`` of poses; channel metadata of sample topics).
+    chunk_size : int
+        Target uncompressed chunk size [bytes].
+    overwrite : bool
+        Replace an existing ``path`` (default: refuse with ``FileExistsError``).
+
+    Examples
+    --------
+    ::
+
+        with StageMcapWriter(run / "plan.mcap", stage="plan", config_yaml=text, metadata={"seed": 1}) as w:
+            w.write_trajectory("/trajectory", plan)
+            w.write_poses(plan.t, plan.x)
+            w.write_scene(scene, {"plan": plan.x[:, :3]})
+            w.write_log(0.0, "info", "plan found")
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        *,
+        stage: str,
+        config_yaml: str,
+        metadata: Mapping[str, object] | None = None,
+        frame: str = "world",
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        overwrite: bool = False,
+    ) -> None:
+        self.path = Path(path)
+        self.stage = str(stage)
+        self.frame = str(frame)
+        self._config_yaml = str(config_yaml)
+        self._extra_metadata = {str(k): str(v) for k, v in (metadata or {}).items()}
+        self._chunk_size = int(chunk_size)
+        self._overwrite = bool(overwrite)
+        self._atomic: Any = None
+        self._writer: Any = None
+        self._context: Any = None
+        self._state = "new"
+        # topic -> (channel, schema name, channel metadata)
+        self._channels: dict[str, tuple[Any, str, dict[str, str]]] = {}
+        self._last_t: dict[str, float] = {}
+
+    # -- context management ------------------------------------------------------------------------------
+
+    def __enter__(self) -> StageMcapWriter:
+        if self._state != "new":
+            raise RuntimeError("a StageMcapWriter can be entered only once")
+        if self.path.exists() and not self._overwrite:
+            raise FileExistsError(f"{self.path} exists; refusing to overwrite it")
+        if not self.path.parent.is_dir():
+            raise FileNotFoundError(f"folder {self.path.parent} does not exist")
+        self._atomic = atomic_path(self.path)
+        tmp = self._atomic.__enter__()
+        try:
+            self._context = foxglove.Context()
+            options = MCAPWriteOptions(
+                compression=MCAPCompression.Zstd,
+                chunk_size=self._chunk_size,
+                calculate_chunk_crcs=True,
+                calculate_data_section_crc=True,
+                calculate_summary_section_crc=True,
+                calculate_attachment_crcs=True,
+            )
+            self._writer = foxglove.open_mcap(tmp, context=self._context, writer_options=options)
+            self._state = "open"
+            created = datetime.now(UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
+            info = {
+                "version": oacli.__version__,
+                "stage": self.stage,
+                "seed": "unknown",
+                "git_commit": "unknown",
+                "created_utc": created,
+                "frame": self.frame,
+                "contract_version": ms.CONTRACT_VERSION,
+                **self._extra_metadata,
+            }
+            self.write_metadata(ms.METADATA_NAME, info)
+            self.attach(ms.CONFIG_ATTACHMENT, self._config_yaml.encode("utf-8"), ms.CONFIG_MEDIA_TYPE)
+        except BaseException:
+            self.__exit__(*sys.exc_info())
+            raise
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if self._state == "closed":
+            return
+        self._state = "closed"
+        try:
+            if self._writer is not None:
+                self._writer.close()
+        except BaseException as err:
+            if exc is None:
+                self._atomic.__exit__(type(err), err, err.__traceback__)
+                raise
+            err.add_note("(while closing the MCAP writer after an earlier error)")
+        finally:
+            self._writer = None
+            for channel, _, _ in self._channels.values():
+                channel.close()
+            self._channels.clear()
+            self._context = None
+        self._atomic.__exit__(exc_type, exc, tb)
+
+    def _require_open(self) -> None:
+        if self._state != "open":
+            raise RuntimeError("StageMcapWriter is not open; use it as a context manager (with ... as w:)")
+
+    # -- channels --------------------------------------------------------------------------------------------
+
+    def _json_channel(self, topic: str, schema_name: str, schema: Mapping[str, Any], metadata: dict[str, str]) -> Any:
+        self._require_open()
+        entry = self._channels.get(topic)
+        if entry is not None:
+            channel, existing, existing_meta = entry
+            if existing != schema_name:
+                raise ValueError(f"topic {topic} carries {existing} records; cannot write {schema_name} on it")
+            if metadata.get("frame", existing_meta.get("frame")) != existing_meta.get("frame"):
+                raise ValueError(f"topic {topic} is in frame {existing_meta.get('frame')!r}, not {metadata['frame']!r}")
+            return channel
+        full_schema = {**schema, "title": schema_name}
+        full_schema.setdefault("type", "object")
+        channel = foxglove.Channel(topic, schema=full_schema, context=self._context, metadata=metadata or None)
+        self._channels[topic] = (channel, schema_name, metadata)
+        return channel
+
+    def _typed_channel(self, topic: str, channel_cls: Any, schema_name: str) -> Any:
+        self._require_open()
+        entry = self._channels.get(topic)
+        if entry is not None:
+            if entry[1] != schema_name:
+                raise ValueError(f"topic {topic} carries {entry[1]} messages; cannot write {schema_name} on it")
+            return entry[0]
+        channel = channel_cls(topic, context=self._context)
+        self._channels[topic] = (channel, schema_name, {})
+        return channel
+
+    def _sample_times(self, topic: str, t: Any) -> tuple[np.ndarray, list[int]]:
+        """Times of a sample topic: valid, strictly increasing and after the last time written on ``topic``."""
+        arr, ns = _times_ns(topic, t)
+        if np.any(np.diff(arr) <= 0.0):
+            raise ValueError(f"{topic}: times must be strictly increasing")
+        last = self._last_t.get(topic)
+        if last is not None and arr.size and arr[0] <= last:
+            raise ValueError(f"{topic}: times must continue after the last written time {last!r} s")
+        return arr, ns
+
+    @staticmethod
+    def _log_rows(channel: Any, template: str, rows: np.ndarray, ns: list[int]) -> None:
+        base_log = channel.base.log  # the JSON text is already encoded: skip foxglove.Channel.log's checks
+        for row, log_time in zip(rows.tolist(), ns, strict=True):
+            base_log((template % tuple(row)).encode(), log_time, None)
+
+    # -- oacli records ---------------------------------------------------------------------------------------
+
+    def write_states(
+        self,
+        topic: str,
+        t: np.ndarray,
+        x: np.ndarray,
+        u: np.ndarray | None = None,
+        *,
+        name: str | None = None,
+        frame: str | None = None,
+    ) -> None:
+        """Write state (and input) samples as ``oacli.TrajectorySample`` records on ``topic``.
+
+        Parameters
+        ----------
+        topic : str
+            Any topic name (``/state/true``, ``/reference``, ``/control/command``, ...).
+        t : ndarray, shape (N,)
+            Mission times [s], ``>= 0``, strictly increasing (and after the last time written on ``topic``).
+        x : ndarray, shape (N, 13)
+            States ``[r (m), v (m/s), q (x, y, z, w), omega (rad/s)]``.
+        u : ndarray, shape (N, 6), optional
+            Inputs ``[f (N, world), tau (N·m, body)]``; zeros when omitted.
+        name : str, optional
+            Trajectory name stored in the channel metadata (default: the topic without its leading ``/``).
+        frame : str, optional
+            World frame of the samples (default: the writer's frame); fixed per topic.
+        """
+        times, ns = self._sample_times(topic, t)
+        n = times.shape[0]
+        xs = _finite_array(f"{topic}: x", x, (n, STATE_DIM))
+        us = np.zeros((n, INPUT_DIM)) if u is None else _finite_array(f"{topic}: u", u, (n, INPUT_DIM))
+        meta = {"frame": self.frame if frame is None else str(frame), "name": name or topic.strip("/")}
+        channel = self._json_channel(topic, ms.TRAJECTORY_SAMPLE, ms.TRAJECTORY_SAMPLE_SCHEMA, meta)
+        if n:
+            self._log_rows(channel, ms.TRAJECTORY_SAMPLE_TEMPLATE, np.column_stack([times, xs, us]), ns)
+            self._last_t[topic] = float(times[-1])
+
+    def write_trajectory(self, topic: str, traj: Trajectory) -> None:
+        """Write a :class:`~oacli.types.Trajectory` (its name and frame go to the channel metadata).
+
+        Parameters
+        ----------
+        topic : str
+            Topic name, ``/trajectory`` for a stage's output trajectory.
+        traj : Trajectory
+            Times [s] must be ``>= 0``.
+        """
+        self.write_states(topic, traj.t, traj.x, traj.u, name=traj.name, frame=traj.frame)
+
+    def write_wrenches(self, topic: str, t: np.ndarray, wrench: np.ndarray) -> None:
+        """Write force/torque samples as ``oacli.Wrench`` records (e.g. ``/disturbance``).
+
+        Parameters
+        ----------
+        topic : str
+            Topic name.
+        t : ndarray, shape (N,)
+            Mission times [s], strictly increasing.
+        wrench : ndarray, shape (N, 6)
+            ``[f (N, world), tau (N·m, body)]`` held from ``t[k]`` to ``t[k+1]``.
+        """
+        times, ns = self._sample_times(topic, t)
+        w = _finite_array(f"{topic}: wrench", wrench, (times.shape[0], INPUT_DIM))
+        channel = self._json_channel(topic, ms.WRENCH, ms.WRENCH_SCHEMA, {"frame": self.frame})
+        if times.size:
+            self._log_rows(channel, ms.WRENCH_TEMPLATE, np.column_stack([times, w]), ns)
+            self._last_t[topic] = float(times[-1])
+
+    def write_solver_stats(self, t: np.ndarray, infos: Sequence[SolveInfo], topic: str = ms.TOPIC_SOLVER_STATS) -> None:
+        """Write one ``oacli.SolverStats`` record per controller step.
+
+        Parameters
+        ----------
+        t : ndarray, shape (K,)
+            Controller step times [s], strictly increasing.
+        infos : sequence of SolveInfo, length K
+            Per-step outcome; NaN objective or times become JSON ``null``; times are written in ms.
+        topic : str
+            Topic name.
+        """
+        times, ns = self._sample_times(topic, t)
+        if len(infos) != times.shape[0]:
+            raise ValueError(f"{topic}: {times.shape[0]} times but {len(infos)} SolveInfo records")
+        channel = self._json_channel(topic, ms.SOLVER_STATS, ms.SOLVER_STATS_SCHEMA, {})
+        base_log = channel.base.log
+        for ti, info, log_time in zip(times.tolist(), infos, ns, strict=True):
+            objective = float(info.objective)
+            record = {
+                "t": ti,
+                "status": str(info.status),
+                "success": bool(info.success),
+                "objective": objective if math.isfinite(objective) else None,
+                "iterations": int(info.iterations),
+                "solve_time_ms": _ms_or_none(info.solve_time_s),
+                "step_time_ms": _ms_or_none(info.step_time_s),
+            }
+            base_log(json.dumps(record, allow_nan=False).encode(), log_time, None)
+        if times.size:
+            self._last_t[topic] = float(times[-1])
+
+    def write_json(
+        self, topic: str, schema_name: str, schema: Mapping[str, Any], t: float, record: Mapping[str, Any]
+    ) -> None:
+        """Write one record of a stage-specific JSON schema (parameter estimates, events, ...).
+
+        Parameters
+        ----------
+        topic : str
+            Topic name; a topic carries one schema.
+        schema_name : str
+            Schema name, ``oacli.<Something>`` by convention (stored as the JSON schema's ``title``).
+        schema : Mapping
+            JSON Schema of an object (``{"type": "object", "properties": {...}}``); used on the first write.
+        t : float
+            Mission time [s], ``>= 0``; stored as the record's ``t`` field (inserted first).
+        record : Mapping
+            The record; numpy arrays and scalars are converted, NaN and infinities become ``null``.
+        """
+        times, ns = _times_ns(topic, t)
+        if times.shape != (1,):
+            raise ValueError(f"{topic}: write_json takes one time, got shape {times.shape}")
+        t_s = float(times[0])
+        if "t" in record and float(record["t"]) != t_s:
+            raise ValueError(f"{topic}: record t={record['t']!r} differs from t={t_s!r}")
+        channel = self._json_channel(topic, schema_name, schema, {})
+        body = to_json_safe({"t": t_s, **{k: v for k, v in record.items() if k != "t"}})
+        channel.base.log(json.dumps(body, allow_nan=False).encode(), ns[0], None)
+
+    # -- Foxglove messages -----------------------------------------------------------------------------------
+
+    def write_poses(self, t: np.ndarray, x: np.ndarray, topic: str = ms.TOPIC_ROBOT_POSE) -> None:
+        """Write the robot pose as ``foxglove.PoseInFrame`` messages (one per sample, ``frame_id`` = frame).
+
+        Parameters
+        ----------
+        t : ndarray, shape (N,)
+            Times [s], strictly increasing.
+        x : ndarray, shape (N, 13)
+            States; position ``x[:, 0:3]`` [m] and quaternion ``x[:, 6:10]`` ``[x, y, z, w]`` are used.
+        topic : str
+            Topic name.
+        """
+        times, ns = self._sample_times(topic, t)
+        xs = _finite_array(f"{topic}: x", x, (times.shape[0], STATE_DIM))
+        channel = self._typed_channel(topic, PoseInFrameChannel, "foxglove.PoseInFrame")
+        frame = self.frame
+        for (px, py, pz, qx, qy, qz, qw), log_time in zip(xs[:, [0, 1, 2, 6, 7, 8, 9]].tolist(), ns, strict=True):
+            pose = Pose(position=Vector3(x=px, y=py, z=pz), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
+            channel.log(PoseInFrame(timestamp=_timestamp(log_time), frame_id=frame, pose=pose), log_time=log_time)
+        if times.size:
+            self._last_t[topic] = float(times[-1])
+
+    def write_scene(
+        self,
+        scene: Scene,
+        paths: Mapping[str, np.ndarray] | None = None,
+        t: float = 0.0,
+        topic: str = ms.TOPIC_SCENE,
+    ) -> None:
+        """Write the workspace and named paths as one ``foxglove.SceneUpdate``.
+
+        Entities (all in ``scene.frame``, lifetime unlimited): ``keep_in/<i>`` a translucent green cube per
+        keep-in box (centre, edge lengths [m]); ``keep_out/<i>`` a translucent red ellipsoid
+        (``SpherePrimitive``) per keep-out zone, with ``size`` = 2 × semi-axes [m] along the principal axes and
+        the orientation of the principal-axes rotation; ``path/<name>`` a ``LINE_STRIP`` per path, coloured
+        in order (blue, orange, green, purple, ...). Entity metadata give the numbers in text.
+
+        Parameters
+        ----------
+        scene : Scene
+            Keep-in boxes and keep-out ellipsoids.
+        paths : Mapping[str, ndarray of shape (N, 3)], optional
+            Named polylines [m] (e.g. ``{"reference": ..., "actual": ...}``).
+        t : float
+            Time of the update [s].
+        topic : str
+            Topic name.
+        """
+        _, ns = _times_ns(topic, t)
+        stamp = _timestamp(ns[0])
+        identity = (0.0, 0.0, 0.0, 1.0)
+        entities = []
+        for i, box in enumerate(scene.keep_in):
+            cube = CubePrimitive(pose=_pose(box.center, identity), size=_vec3(box.size), color=_color(_KEEP_IN_COLOR))
+            meta = [
+                KeyValuePair(key="kind", value="keep-in box"),
+                KeyValuePair(key="lower_m", value=_fmt(box.lower)),
+                KeyValuePair(key="upper_m", value=_fmt(box.upper)),
+            ]
+            entities.append(
+                SceneEntity(timestamp=stamp, frame_id=scene.frame, id=f"keep_in/{i}", metadata=meta, cubes=[cube])
+            )
+        for i, ellipsoid in enumerate(scene.keep_out):
+            semi_axes, rotation = ellipsoid.principal_axes()
+            quat = from_rotation_matrix(rotation)
+            sphere = SpherePrimitive(
+                pose=_pose(ellipsoid.center, quat), size=_vec3(2.0 * semi_axes), color=_color(_KEEP_OUT_COLOR)
+            )
+            meta = [
+                KeyValuePair(key="kind", value="keep-out ellipsoid"),
+                KeyValuePair(key="center_m", value=_fmt(ellipsoid.center)),
+                KeyValuePair(key="semi_axes_m", value=_fmt(semi_axes)),
+                KeyValuePair(key="orientation_xyzw", value=_fmt(quat)),
+            ]
+            entities.append(
+                SceneEntity(timestamp=stamp, frame_id=scene.frame, id=f"keep_out/{i}", metadata=meta, spheres=[sphere])
+            )
+        for k, (name, points) in enumerate((paths or {}).items()):
+            pts = np.asarray(points, dtype=float)
+            if pts.ndim != 2 or pts.shape[1] != 3:
+                raise ValueError(f"path {name!r}: expected shape (N, 3), got {pts.shape}")
+            if not np.all(np.isfinite(pts)):
+                raise ValueError(f"path {name!r}: contains NaN or infinite values")
+            line = LinePrimitive(
+                type=LinePrimitiveLineType.LineStrip,
+                pose=_pose((0.0, 0.0, 0.0), identity),
+                thickness=2.0,
+                scale_invariant=True,
+                points=[Point3(x=px, y=py, z=pz) for px, py, pz in pts.tolist()],
+                color=_color(_PATH_PALETTE[k % len(_PATH_PALETTE)]),
+            )
+            meta = [KeyValuePair(key="kind", value="path"), KeyValuePair(key="points", value=str(len(pts)))]
+            entities.append(
+                SceneEntity(timestamp=stamp, frame_id=scene.frame, id=f"path/{name}", metadata=meta, lines=[line])
+            )
+        channel = self._typed_channel(topic, SceneUpdateChannel, "foxglove.SceneUpdate")
+        channel.log(SceneUpdate(entities=entities), log_time=ns[0])
+
+    def write_log(self, t: float, level: str, message: str, *, topic: str = ms.TOPIC_LOG) -> None:
+        """Write a text message as ``foxglove.Log`` (``name`` = the stage).
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s].
+        level : str
+            ``debug``, ``info``, ``warning`` (``warn``), ``error`` or ``fatal`` (``critical``), any case.
+        message : str
+            The text.
+        topic : str
+            Topic name.
+        """
+        try:
+            log_level = _LOG_LEVELS[level.lower()]
+        except KeyError:
+            raise ValueError(f"unknown log level {level!r}; use one of {sorted(_LOG_LEVELS)}") from None
+        _, ns = _times_ns(topic, t)
+        channel = self._typed_channel(topic, LogChannel, "foxglove.Log")
+        msg = Log(timestamp=_timestamp(ns[0]), level=log_level, message=str(message), name=self.stage)
+        channel.log(msg, log_time=ns[0])
+
+    # -- attachments and metadata ----------------------------------------------------------------------------
+
+    def attach(self, name: str, data: bytes, media_type: str, *, t: float = 0.0) -> None:
+        """Store a file as an MCAP attachment (create time = now, log time = ``t`` [s] mission time).
+
+        Parameters
+        ----------
+        name : str
+            Attachment name (e.g. ``config.yaml``).
+        data : bytes
+            Content.
+        media_type : str
+            MIME type (e.g. ``application/yaml``).
+        t : float
+            Mission time [s] of the attachment.
+        """
+        self._require_open()
+        _, ns = _times_ns(f"attachment {name}", t)
+        self._writer.attach(
+            log_time=ns[0], create_time=time.time_ns(), name=str(name), media_type=str(media_type), data=bytes(data)
+        )
+
+    def write_metadata(self, name: str, data: Mapping[str, object]) -> None:
+        """Write a metadata record (string keys and values; values converted with ``str``).
+
+        Parameters
+        ----------
+        name : str
+            Record name.
+        data : Mapping[str, object]
+            Entries; must not be empty.
+        """
+        self._require_open()
+        if not data:
+            raise ValueError(f"metadata record {name!r} is empty (MCAP writers drop empty records)")
+        self._writer.write_metadata(str(name), {str(k): str(v) for k, v in data.items()})
+
+    def flush(self) -> None:
+        """Finish the current chunk and flush it to disk (bounds what a hard crash can lose)."""
+        self._require_open()
+        self._writer.flush()
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Reading
+# ----------------------------------------------------------------------------------------------------------
+
+
