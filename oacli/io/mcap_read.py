@@ -17,9 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from foxglove.messages import (
-    LogLevel,
-)
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, DataEnd, Message, Metadata, Schema
@@ -29,41 +26,12 @@ from oacli.errors import InputError
 from oacli.io import mcap_schema as ms
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Telemetry, Trajectory
 
-#: Target uncompressed chunk size [bytes]; a hard crash loses at most the chunk being filled.
-DEFAULT_CHUNK_SIZE = 256 * 1024
-
 _MAGIC = b"\x89MCAP0\r\n"
-_NS_PER_S = 1_000_000_000
 
-_LOG_LEVELS = {
-    "debug": LogLevel.Debug,
-    "info": LogLevel.Info,
-    "warning": LogLevel.Warning,
-    "warn": LogLevel.Warning,
-    "error": LogLevel.Error,
-    "fatal": LogLevel.Fatal,
-    "critical": LogLevel.Fatal,
-}
 _LOG_LEVEL_NAMES = {0: "unknown", 1: "debug", 2: "info", 3: "warning", 4: "error", 5: "fatal"}
 
-_KEEP_IN_COLOR = (0.2, 0.8, 0.3, 0.08)
-_KEEP_OUT_COLOR = (0.9, 0.15, 0.15, 0.35)
-#: Path colours in order (reference blue, actual orange, then green, purple, brown, pink, grey, olive).
-_PATH_PALETTE = (
-    (0.12, 0.47, 0.71, 1.0),
-    (1.0, 0.5, 0.05, 1.0),
-    (0.17, 0.63, 0.17, 1.0),
-    (0.58, 0.4, 0.74, 1.0),
-    (0.55, 0.34, 0.29, 1.0),
-    (0.89, 0.47, 0.76, 1.0),
-    (0.5, 0.5, 0.5, 1.0),
-    (0.74, 0.74, 0.13, 1.0),
-)
 
 
-# ----------------------------------------------------------------------------------------------------------
-# Writing
-# ----------------------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)

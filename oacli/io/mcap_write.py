@@ -56,7 +56,6 @@ from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
 #: Target uncompressed chunk size [bytes]; a hard crash loses at most the chunk being filled.
 DEFAULT_CHUNK_SIZE = 256 * 1024
 
-_MAGIC = b"\x89MCAP0\r\n"
 _NS_PER_S = 1_000_000_000
 
 _LOG_LEVELS = {
@@ -68,7 +67,6 @@ _LOG_LEVELS = {
     "fatal": LogLevel.Fatal,
     "critical": LogLevel.Fatal,
 }
-_LOG_LEVEL_NAMES = {0: "unknown", 1: "debug", 2: "info", 3: "warning", 4: "error", 5: "fatal"}
 
 _KEEP_IN_COLOR = (0.2, 0.8, 0.3, 0.08)
 _KEEP_OUT_COLOR = (0.9, 0.15, 0.15, 0.35)
@@ -85,9 +83,6 @@ _PATH_PALETTE = (
 )
 
 
-# ----------------------------------------------------------------------------------------------------------
-# Writing
-# ----------------------------------------------------------------------------------------------------------
 
 
 def _times_ns(what: str, t: Any) -> tuple[np.ndarray, list[int]]:
@@ -621,8 +616,5 @@ class StageMcapWriter:
         self._writer.flush()
 
 
-# ----------------------------------------------------------------------------------------------------------
-# Reading
-# ----------------------------------------------------------------------------------------------------------
 
 
