@@ -31,9 +31,6 @@ _MAGIC = b"\x89MCAP0\r\n"
 _LOG_LEVEL_NAMES = {0: "unknown", 1: "debug", 2: "info", 3: "warning", 4: "error", 5: "fatal"}
 
 
-
-
-
 @dataclass(frozen=True)
 class StageRecord:
     """What a stage's MCAP file holds, decoded.

@@ -83,8 +83,6 @@ _PATH_PALETTE = (
 )
 
 
-
-
 def _times_ns(what: str, t: Any) -> tuple[np.ndarray, list[int]]:
     """Check times ``t`` [s] (1-D, finite, >= 0) and return them with ``round(t * 1e9)`` [ns]."""
     arr = np.array(t, dtype=float, ndmin=1)
@@ -614,7 +612,3 @@ class StageMcapWriter:
         """Finish the current chunk and flush it to disk (bounds what a hard crash can lose)."""
         self._require_open()
         self._writer.flush()
-
-
-
-
