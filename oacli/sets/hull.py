@@ -7,7 +7,8 @@ functions), so the H-polytope always contains every point given, whatever roundi
 * 1-D: the interval ``[min, max]``.
 * 2-D: Andrew's monotone chain with exact orientation tests; a point is dropped only when it makes no strict
   left turn (it lies inside or on an edge). Degenerate sets (a segment, a point) get the normals of their
-  bounding rectangle along and across the segment, which describe them exactly.
+  bounding rectangle along and across the segment, which describe them exactly. Minkowski sums of convex
+  polygons by merging their edges in angular order.
 * n-D: Qhull (``scipy.spatial.ConvexHull``); the set must be full-dimensional.
 """
 
@@ -39,10 +40,25 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
         while len(upper) >= 2 and _cross(upper[-2], upper[-1], p) <= 0.0:
             upper.pop()
         upper.append(p)
-    hull = np.array(lower[:-1] + upper[:-1])
-    if hull.shape[0] < 3:  # all points collinear: the two extreme points
-        return hull
-    return hull
+    return np.array(lower[:-1] + upper[:-1])  # two points when all are collinear
+
+
+def minkowski_sum_polygons(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Vertices of ``conv(p) ⊕ conv(q)`` for convex polygons given counter-clockwise (as from
+    :func:`convex_hull_2d`), by merging their edges in angular order (linear time; no point is dropped by a
+    tolerance: vertices are sums of input vertices up to rounding, collinear vertices may remain)."""
+    p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+    if p.shape[0] < 3 or q.shape[0] < 3:
+        return convex_hull_2d((p[:, None, :] + q[None, :, :]).reshape(-1, 2))
+
+    def from_lowest(v: np.ndarray) -> np.ndarray:
+        return np.roll(v, -int(np.lexsort((v[:, 0], v[:, 1]))[0]), axis=0)
+
+    p, q = from_lowest(p), from_lowest(q)
+    edges = np.vstack([np.roll(p, -1, axis=0) - p, np.roll(q, -1, axis=0) - q])
+    angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), 2 * np.pi)
+    steps = edges[np.argsort(angles, kind="stable")]
+    return p[0] + q[0] + np.vstack([np.zeros(2), np.cumsum(steps[:-1], axis=0)])
 
 
 def _unit_rows(a: np.ndarray) -> np.ndarray:

@@ -271,7 +271,8 @@ class Polytope:
         return Polytope(self._a, self._b + self._a @ t, vertices=v)
 
     def linear_map(self, m: np.ndarray) -> Polytope:
-        """The image ``M P = {M x : x ∈ P}`` of a bounded polytope (``M`` of shape (p, n))."""
+        """The image ``M P = {M x : x ∈ P}`` of a bounded polytope (``M`` of shape (p, n); for p ≥ 3 the image
+        must be full-dimensional)."""
         m = np.array(m, dtype=float, ndmin=2)
         if m.shape[1] != self.dim:
             raise ValueError(f"M: expected {self.dim} columns, got {m.shape[1]}")

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.errors import InfeasibleError
-from oacli.sets.hull import hull_normals
+from oacli.sets.hull import convex_hull_2d, hull_normals, minkowski_sum_polygons
 from oacli.sets.polytope import Polytope
 
 
@@ -140,13 +140,18 @@ def _scaled_minkowski_series(a_k: np.ndarray, w: Polytope, s: int, scale: float)
     """``scale · ⊕_{i<s} A_Kⁱ W`` with normals from the hull of the summed vertices and offsets from the exact
     support function ``scale · Σ_i h_W((A_Kⁱ)ᵀ a)`` (no vertex pruning affects the offsets)."""
     n = a_k.shape[0]
-    points = w.vertices.copy()
     powers = [np.eye(n)]
     for _ in range(1, s):
         powers.append(a_k @ powers[-1])
-        image = w.vertices @ powers[-1].T
-        points = (points[:, None, :] + image[None, :, :]).reshape(-1, n)
-        _, points = hull_normals(points)  # keep the hull vertices only (a point dropped lies inside the hull)
+    if n == 2:  # exact polygon sums by merging edges (linear time per term)
+        points = convex_hull_2d(w.vertices)
+        for p in powers[1:]:
+            points = minkowski_sum_polygons(points, convex_hull_2d(w.vertices @ p.T))
+    else:
+        points = w.vertices.copy()
+        for p in powers[1:]:
+            points = (points[:, None, :] + (w.vertices @ p.T)[None, :, :]).reshape(-1, n)
+            _, points = hull_normals(points)  # keep the hull vertices only (a point dropped lies inside the hull)
     normals, hull_vertices = hull_normals(points)
     offsets = sum(w.support(normals @ p) for p in powers)
     return Polytope(normals, scale * offsets, vertices=scale * hull_vertices)
@@ -183,30 +188,31 @@ class FacetReduction:
     min_margin: float
 
 
-def _line_intersections(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Vertices of a polygon given by counter-clockwise ordered, irredundant lines: line k ∩ line k+1."""
-    a2, b2 = np.roll(a, -1, axis=0), np.roll(b, -1)
-    det = a[:, 0] * a2[:, 1] - a[:, 1] * a2[:, 0]
-    x = (b * a2[:, 1] - b2 * a[:, 1]) / det
-    y = (a[:, 0] * b2 - a2[:, 0] * b) / det
-    return np.column_stack([x, y])
+def _intersect(a1: np.ndarray, b1: float, a2: np.ndarray, b2: float) -> np.ndarray | None:
+    """Intersection of the lines ``a1ᵀx = b1`` and ``a2ᵀx = b2`` (None when parallel)."""
+    det = a1[0] * a2[1] - a1[1] * a2[0]
+    if abs(det) < 1e-14:
+        return None
+    return np.array([(b1 * a2[1] - b2 * a1[1]) / det, (a1[0] * b2 - a2[0] * b1) / det])
 
 
 def reduce_facets(a_closed: np.ndarray, z: Polytope, w: Polytope, growth: float) -> FacetReduction:
-    """Drop facets of a 2-D RPI set while it stays RPI and within ``(1 + growth) Z`` (valid, cheaper lasso).
+    """A 2-D RPI set with fewer facets, within ``(1 + growth) Z`` (a valid, cheaper lasso constraint).
 
     The search starts from ``(1 + growth/2) Z``, which is RPI with a positive margin on every facet (for an RPI
-    set Z, ``h_Z(a) − h_Z(A_Kᵀa) ≥ h_W(a)``, so scaling by ``1 + δ`` adds ``δ h_W(a)`` of margin). Removing an
-    inequality enlarges the set, so the result contains ``Z`` (and ``F_∞``). A facet is removed only
-    when (i) the remaining inequalities still bound the set, (ii) every robust invariance margin
-    (:func:`rpi_margins`) of the enlarged set stays ≥ ``1e-12 · max|b|`` and (iii) its support along every
-    original normal and axis stays ≤ ``(1 + growth)`` times the original. Short facets are tried first.
+    set Z, ``h_Z(a) − h_Z(A_Kᵀa) ≥ h_W(a)``, so scaling by ``1 + δ`` adds ``δ h_W(a)`` of margin). Removing
+    facet j replaces the polygon P by ``conv(P ∪ {v})``, v the intersection of j's neighbouring lines, so every
+    support value becomes ``max(h_P(d), vᵀd)``: the removal is accepted only when (i) the neighbours still bound
+    the set, (ii) every remaining robust invariance inequality ``h(A_Kᵀ a_k) + h_W(a_k) ≤ c_k`` holds with margin
+    ``≥ 1e-12 max|c|`` and (iii) ``vᵀa ≤ (1 + growth) h_Z(a)`` along every original normal and axis. Short facets
+    are tried first; passes repeat until nothing changes. The result contains Z (and ``F_∞``); it is checked once
+    more on independently enumerated vertices, and should that check fail Z is returned unchanged.
 
     Parameters
     ----------
     a_closed : ndarray, shape (2, 2)
     z : Polytope
-        A 2-D RPI set of ``(A_K, W)`` with irredundant inequalities (as from :func:`minimal_rpi_outer`).
+        A 2-D RPI set of ``(A_K, W)`` whose inequalities are all facets (as from :func:`minimal_rpi_outer`).
     w : Polytope
     growth : float
         Allowed relative growth ≥ 0; 0 returns ``z`` unchanged.
@@ -214,41 +220,49 @@ def reduce_facets(a_closed: np.ndarray, z: Polytope, w: Polytope, growth: float)
     a_k = np.asarray(a_closed, dtype=float)
     before = z.n_facets
     if z.dim != 2 or growth <= 0.0 or before <= 4:
-        margins = rpi_margins(a_k, z, w)
-        return FacetReduction(z, before, before, 0.0, float(margins.min()))
-    order = np.argsort(np.arctan2(z.a[:, 1], z.a[:, 0]))
-    # Start from (1 + growth/2) Z: RPI with margins ≥ (growth/2) h_W(a_i) > 0 on every facet (scaling an RPI set
-    # up keeps it RPI), which leaves room to drop facets.
-    normals, offsets = z.a[order], (1.0 + 0.5 * growth) * z.b[order]
+        return FacetReduction(z, before, before, 0.0, float(rpi_margins(a_k, z, w).min()))
+    angle = np.arctan2(z.a[:, 1], z.a[:, 0])
+    order = np.argsort(angle)
+    normals, angle = z.a[order], angle[order]
+    offsets = (1.0 + 0.5 * growth) * z.b[order]
+    f = len(offsets)
     probe = np.vstack([normals, np.eye(2), -np.eye(2)])
     limit = (1.0 + growth) * z.support(probe)
     tol = 1e-12 * float(np.max(np.abs(offsets)))
-    w_support = w.support(normals)
-    keep = np.ones(len(offsets), dtype=bool)
-
-    def admissible(mask: np.ndarray) -> bool:
-        nk = normals[mask]
-        angles = np.sort(np.arctan2(nk[:, 1], nk[:, 0]))
-        gaps = np.diff(np.concatenate([angles, [angles[0] + 2 * np.pi]]))
-        if np.max(gaps) >= np.pi - 1e-9:  # the remaining half-planes would not bound the set
-            return False
-        verts = _line_intersections(nk, offsets[mask])
-        if np.any(verts @ probe.T > limit + tol):
-            return False
-        h_image = np.max(verts @ (nk @ a_k).T, axis=0)
-        return bool(np.all(offsets[mask] - h_image - w_support[mask] >= tol))
-
+    budget = offsets - w.support(normals)  # c_k − h_W(a_k): the bound on h(A_Kᵀ a_k)
+    image_dirs = normals @ a_k  # rows (A_Kᵀ a_k)ᵀ
+    h_image = (1.0 + 0.5 * growth) * z.support(image_dirs)  # supports of the current polygon
+    if np.any(h_image > budget - tol):  # no room (numerically tight): keep Z
+        return FacetReduction(z, before, before, 0.0, float(rpi_margins(a_k, z, w).min()))
+    prev = np.roll(np.arange(f), 1)
+    nxt = np.roll(np.arange(f), -1)
+    keep = np.ones(f, dtype=bool)
+    vertex = np.array([_intersect(normals[k], offsets[k], normals[nxt[k]], offsets[nxt[k]]) for k in range(f)])
     changed = True
-    while changed:
+    while changed and keep.sum() > 3:
         changed = False
-        verts = _line_intersections(normals[keep], offsets[keep])
-        lengths = np.linalg.norm(verts - np.roll(verts, 1, axis=0), axis=1)  # edge of line k: v_{k-1} .. v_k
-        for idx in np.flatnonzero(keep)[np.argsort(lengths)]:
-            trial = keep.copy()
-            trial[idx] = False
-            if trial.sum() >= 3 and admissible(trial):
-                keep = trial
-                changed = True
+        kept = np.flatnonzero(keep)
+        lengths = np.linalg.norm(vertex[kept] - vertex[prev[kept]], axis=1)  # edge of line k: v_prev(k) .. v_k
+        for j in kept[np.argsort(lengths)]:
+            if keep.sum() <= 3:
+                break
+            p, n = prev[j], nxt[j]
+            gap = (angle[n] - angle[p]) % (2 * np.pi)
+            if gap >= np.pi - 1e-9:  # (i) the neighbours would not bound the set
+                continue
+            v = _intersect(normals[p], offsets[p], normals[n], offsets[n])
+            if v is None or np.any(probe @ v > limit + tol):  # (iii)
+                continue
+            new_h = np.maximum(h_image, image_dirs @ v)
+            others = keep.copy()
+            others[j] = False
+            if np.any(new_h[others] > budget[others] - tol):  # (ii)
+                continue
+            keep[j] = False
+            h_image = new_h
+            nxt[p], prev[n] = n, p
+            vertex[p] = v
+            changed = True
     reduced = Polytope(normals[keep], offsets[keep])  # vertices re-enumerated independently of the search
     grown = float(np.max(reduced.support(probe) / z.support(probe)) - 1.0)
     margin = float(rpi_margins(a_k, reduced, w).min())
