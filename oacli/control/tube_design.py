@@ -128,6 +128,19 @@ class TubeDesign:
         return LinearConstraint(h_mat, np.concatenate([ax.z.b for ax in self.axes]))
 
     @property
+    def lasso_for_solver(self) -> LinearConstraint:
+        """The lasso of the QP: Z shrunk by half of each axis's smallest invariance margin.
+
+        A QP solution may violate a constraint by the solver's feasibility tolerance; with this back-off the
+        applied nominal state still satisfies ``x̃ − z_0 ∈ Z`` exactly. Recursive feasibility is kept: with
+        every margin ``h_i − h_Z(A_Kᵀa_i) − h_W(a_i) ≥ m``, the predicted ``ẑ`` gives ``a_iᵀ(x̃⁺ − ẑ) ≤ h_i − m``.
+        """
+        backoff = np.concatenate([np.full(ax.z.n_facets, 0.5 * max(ax.reduction.min_margin, 0.0))
+                                  for ax in self.axes])
+        lasso = self.lasso
+        return LinearConstraint(lasso.h_matrix, lasso.h_vector - backoff)
+
+    @property
     def tightened_state(self) -> LinearConstraint:
         """X̄ on ``[r, v]``: the tightened velocity bounds (positions are free)."""
         lo = np.array([ax.velocity_bounds_mps[0] for ax in self.axes])

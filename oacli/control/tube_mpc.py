@@ -153,7 +153,7 @@ class TubeMPC:
         )
         trans = QPBlock(
             "translation", a_t, b_t, q_t, weights.force, p_t,
-            state=design.tightened_state, input=design.tightened_input, lasso=design.lasso,
+            state=design.tightened_state, input=design.tightened_input, lasso=design.lasso_for_solver,
         )
         rot = QPBlock(
             "attitude", a_r, b_r, q_r, weights.torque, solve_dare(a_r, b_r, np.diag(q_r), np.diag(weights.torque)),
@@ -170,7 +170,6 @@ class TubeMPC:
         lo = np.array([ax.force_bounds_N[0] for ax in design.axes])
         hi = np.array([ax.force_bounds_N[1] for ax in design.axes])
         self._v_bounds = (lo, hi)
-        self.origin = np.array(reference.x[0, 0:3])
         self._offsets = self.step_s * np.arange(self.horizon + 1)
         self._plan_t: float | None = None
         self._plan_v: np.ndarray | None = None
@@ -209,18 +208,21 @@ class TubeMPC:
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
         x_ref_full = sample_states(self.reference, t + self._offsets)
-        x_t = np.concatenate([x[0:3] - self.origin, x[3:6]])
-        z_pred = self._z_pred
+        x_t = x[0:6]  # measured translational state [r (world), v]
+        z_pred = self._z_pred  # world coordinates
         tube_margin = np.nan if z_pred is None else self.design.error_margin(x_t - z_pred)
         info: SolveInfo
         attempted = self._hold_q is None
         if attempted:
             u_ref = feedforward_inputs(x_ref_full, self.step_s, self.params)
             anchor = x_ref_full[0, 6:10]
-            ref_t = np.column_stack([x_ref_full[:, 0:3] - self.origin, x_ref_full[:, 3:6]])
+            # Translation is exactly linear: the QP works relative to the measured position (small numbers,
+            # so the solver's absolute tolerances are small against Z).
+            origin = np.concatenate([x[0:3], np.zeros(3)])
+            ref_t = x_ref_full[:, 0:6] - origin
             ref_r = np.column_stack([quat.error_vector(anchor, x_ref_full[:, 6:10]), x_ref_full[:, 10:13]])
             x_r = np.concatenate([quat.error_vector(anchor, x[6:10]), x[10:13]])
-            self.qp.set_parameters("translation", x_t, ref_t, u_ref[:, 0:3])
+            self.qp.set_parameters("translation", x_t - origin, ref_t, u_ref[:, 0:3])
             self.qp.set_parameters("attitude", x_r, ref_r, u_ref[:, 3:6])
             sol = self.qp.solve(fast=self.fast)
             info = sol.info
@@ -228,7 +230,7 @@ class TubeMPC:
                 self._failures = 0
                 tr, at = sol.blocks["translation"], sol.blocks["attitude"]
                 self._plan_t, self._plan_v, self._plan_tau = t, tr.v, at.v
-                mode, z, v, tau = "mpc", tr.z[0], tr.v[0], at.v[0]
+                mode, z, v, tau = "mpc", tr.z[0] + origin, tr.v[0], at.v[0]
             else:
                 self._failures += 1
                 planned = self._plan_input(t)
@@ -250,11 +252,9 @@ class TubeMPC:
         step_info = SolveInfo(status, mode == "mpc", info.objective, info.iterations, info.solve_time_s,
                               time.perf_counter() - start)
         rec = self._rec
-        z_world = np.concatenate([z[0:3] + self.origin, z[3:6]])
-        z_pred_world = (np.full(6, np.nan) if z_pred is None
-                        else np.concatenate([z_pred[0:3] + self.origin, z_pred[3:6]]))
-        for key, value in (("t", t), ("mode", mode), ("z", z_world), ("v", v), ("anc", anc), ("tau", tau),
-                           ("z_pred", z_pred_world), ("tube", tube_margin),
+        z_pred_rec = np.full(6, np.nan) if z_pred is None else z_pred
+        for key, value in (("t", t), ("mode", mode), ("z", z), ("v", v), ("anc", anc), ("tau", tau),
+                           ("z_pred", z_pred_rec), ("tube", tube_margin),
                            ("lasso", self.design.error_margin(x_t - z)),
                            ("failed", attempted and not info.success)):
             rec[key].append(value)
