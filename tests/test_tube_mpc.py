@@ -59,11 +59,13 @@ def two_block_qp(horizon, design, fast=True, **kw):
 
 
 def random_parameters(qp, rng, scale=1.0):
-    n = qp.horizon
+    n, out = qp.horizon, {}
     for name in ("translation", "attitude"):
         x = rng.normal(size=6) * np.r_[[0.2] * 3, [0.02] * 3] * scale
         ref = np.cumsum(rng.normal(size=(n + 1, 6)) * 0.01, axis=0)
-        qp.set_parameters(name, x, ref, rng.normal(size=(n, 3)) * 0.01)
+        out[name] = (x, ref, rng.normal(size=(n, 3)) * 0.01)
+        qp.set_parameters(name, *out[name])
+    return out
 
 
 @pytest.fixture(scope="module")
@@ -113,12 +115,13 @@ def test_solver_options_do_not_change_the_solution(design, rng):
 def test_objective_includes_the_reference_constant(design, rng):
     """The QP drops Σ w r² (not DPP); NominalQP adds it back: its objective is the tracking cost of Eq. 27."""
     qp = two_block_qp(4, design)
-    random_parameters(qp, rng)
+    params = random_parameters(qp, rng)
     sol = qp.solve()
     cost = 0.0
     for blk in qp.blocks:
         bv, s = qp._vars[blk.name], sol.blocks[blk.name]
-        dz, dv = s.z - bv.x_ref.value, s.v - bv.u_ref.value
+        _, x_ref, u_ref = params[blk.name]
+        dz, dv = s.z - x_ref, s.v - u_ref
         cost += np.sum(blk.q_diag * dz[:-1] ** 2) + np.sum(blk.r_diag * dv**2) + dz[-1] @ blk.terminal @ dz[-1]
         cost += 0.0 if bv.slack is None else blk.soft_penalty * np.sum(qp.compiled.value(bv.slack))
     assert sol.info.objective == pytest.approx(cost, rel=1e-7)
@@ -153,8 +156,12 @@ def test_compiled_qp_refuses_a_parameter_in_the_constraint_matrix():
 def test_mass_bound_is_doerr_eq_28_and_covers_every_mass_in_the_interval():
     m0, sigma, u_max, dt = 9.5, 0.1, 0.15, 0.2
     w = mass_uncertainty_bound(m0, sigma, u_max, dt)
-    f = lambda u, m: np.array([0.5 * dt * dt, dt]) * u / m  # exact one-step double integrator from rest
-    np.testing.assert_allclose(w, np.abs(f(u_max, m0) - np.maximum(f(u_max, m0 + 2 * sigma), f(u_max, m0 - 2 * sigma))))
+
+    def f(u, m):  # the exact one-step double integrator from rest
+        return np.array([0.5 * dt * dt, dt]) * u / m
+
+    heavy, light = f(u_max, m0 + 2 * sigma), f(u_max, m0 - 2 * sigma)
+    np.testing.assert_allclose(w, np.abs(f(u_max, m0) - np.maximum(heavy, light)))
     # Closed form: u_max (1/(m0 − 2σ) − 1/m0) [dt²/2, dt].
     np.testing.assert_allclose(w, u_max * (1 / (m0 - 2 * sigma) - 1 / m0) * np.array([0.02, 0.2]), rtol=1e-12)
     for m in np.linspace(m0 - 2 * sigma, m0 + 2 * sigma, 21):
@@ -373,3 +380,16 @@ def test_consecutive_failures_end_in_a_safe_hold(design):
     assert np.all(h.tube_margin[1:] >= -tol)
     assert np.all(np.abs(tel.u_command[:, 0:3]) <= U_TUBE * (1 + 1e-6))
     assert np.linalg.norm(tel.x_true[-1, 3:6]) < 0.003  # the robot is at rest up to the ±0.002 N disturbance
+
+
+def test_closed_loop_is_the_same_through_either_solve_path(design):
+    """The controller with the direct Clarabel path and with problem.solve() flies the same trajectory."""
+    runs = []
+    for fast in (True, False):
+        ref, ctrl = failing_controller(design, fail_steps=set())
+        ctrl.fast = fast
+        runs.append((run(ctrl, ref, 6.0), ctrl.history()))
+    (tel_a, h_a), (tel_b, h_b) = runs
+    np.testing.assert_allclose(tel_a.u_command, tel_b.u_command, atol=1e-8)
+    np.testing.assert_allclose(h_a.nominal_state, h_b.nominal_state, atol=1e-8)
+    np.testing.assert_allclose(tel_a.x_true, tel_b.x_true, atol=1e-9)

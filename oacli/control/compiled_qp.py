@@ -50,7 +50,8 @@ class CompiledSolve:
         Optimal value of the cvxpy objective (NaN unless solved).
     iterations : int
     solve_time_s : float
-        Clarabel's own solve time [s].
+        Wall time of the data update and the Clarabel solve [s] (Clarabel's own ``solve_time`` reads higher
+        than the wall time around the call, so it is not used).
     """
 
     status: str
@@ -121,27 +122,35 @@ class CompiledQP:
             raise ValueError("Clarabel does not allow data updates with these settings (presolve/chordal)")
         self._x: np.ndarray | None = None
 
-    def parameter_vector(self, *, missing_as_zero: bool = False) -> np.ndarray:
-        """θ: the current parameter values, column-major, with the constant 1 at its column (cvxpy's layout)."""
+    def parameter_vector(self, values: dict | None = None, *, missing_as_zero: bool = False) -> np.ndarray:
+        """θ: parameter values, column-major, with the constant 1 at its column (cvxpy's layout).
+
+        ``values`` maps a parameter's id to its value (shape of the parameter); parameters not in it use their
+        ``.value``. Passing values directly skips cvxpy's per-assignment validation (the caller checks shapes).
+        """
         theta = np.zeros(self._n_params + 1)
         for param, col, size in self._param_slices:
-            if param.value is None:
+            value = param.value if values is None or param.id not in values else values[param.id]
+            if value is None:
                 if missing_as_zero:
                     continue
                 raise ValueError(f"parameter {param.name()} has no value")
-            theta[col : col + size] = np.asarray(param.value, dtype=float).ravel(order="F")
+            theta[col : col + size] = np.asarray(value, dtype=float).ravel(order="F")
         theta[self._const_col] = 1.0
         return theta
 
-    def solve(self) -> CompiledSolve:
-        """Solve with the parameters' current values; variables are then read with :meth:`value`."""
-        theta = self.parameter_vector()
+    def solve(self, values: dict | None = None) -> CompiledSolve:
+        """Solve with the parameters' values (``values`` by parameter id, else ``.value``); variables are then
+        read with :meth:`value`."""
+        theta = self.parameter_vector(values)
+        start = time.perf_counter()
         self._solver.update(q=self._t_q @ theta, b=self._t_b @ theta)
         sol = self._solver.solve()
+        wall = time.perf_counter() - start
         status = _STATUS.get(str(sol.status), "solver_error")
         self._x = np.asarray(sol.x) if status in SUCCESS_STATUSES else None
         objective = float(sol.obj_val + self._t_d @ theta) if self._x is not None else float("nan")
-        return CompiledSolve(status, objective, int(sol.iterations), float(sol.solve_time))
+        return CompiledSolve(status, objective, int(sol.iterations), wall)
 
     def value(self, variable: cp.Variable) -> np.ndarray:
         """Value of ``variable`` in the last successful solve (shape of the variable)."""

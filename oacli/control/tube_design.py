@@ -21,6 +21,7 @@ factor is reported.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -121,13 +122,13 @@ class TubeDesign:
         out[:, i], out[:, i + 3] = a2[:, 0], a2[:, 1]
         return out
 
-    @property
+    @cached_property
     def lasso(self) -> LinearConstraint:
         """Z of the 6-D translational error as ``H e ≤ h`` (block diagonal over the axes)."""
         h_mat = np.vstack([self._embed(i, ax.z.a) for i, ax in enumerate(self.axes)])
         return LinearConstraint(h_mat, np.concatenate([ax.z.b for ax in self.axes]))
 
-    @property
+    @cached_property
     def lasso_for_solver(self) -> LinearConstraint:
         """The lasso of the QP: Z shrunk by half of each axis's smallest invariance margin.
 

@@ -171,6 +171,7 @@ class NominalQP:
         constraints = []
         self._vars: dict[str, _BlockVars] = {}
         self._weights: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._values: dict[int, np.ndarray] = {}
         for blk in self.blocks:
             n, m = blk.n, blk.m
             # States k = 0..N-1 and the terminal state are separate variables so that every quadratic term
@@ -236,18 +237,24 @@ class NominalQP:
         self.compiled = CompiledQP(self.problem, settings) if fast else None
 
     def set_parameters(self, name: str, x: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> None:
-        """Set block ``name``'s measured state ``x (n,)``, references ``x_ref (N+1, n)`` and ``u_ref (N, m)``."""
+        """Set block ``name``'s measured state ``x (n,)``, references ``x_ref (N+1, n)`` and ``u_ref (N, m)``.
+
+        The values are checked here and handed to the solve path (cvxpy's Parameters receive them only for the
+        ``problem.solve()`` path, where their own validation runs).
+        """
         bv = self._vars[name]
-        bv.x.value = np.asarray(x, dtype=float)
-        bv.x_ref.value = np.asarray(x_ref, dtype=float)
-        bv.u_ref.value = np.asarray(u_ref, dtype=float)
+        for param, value in ((bv.x, x), (bv.x_ref, x_ref), (bv.u_ref, u_ref)):
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != param.shape or not np.all(np.isfinite(arr)):
+                raise ValueError(f"{param.name()}: expected finite values of shape {param.shape}, got {arr.shape}")
+            self._values[param.id] = arr
 
     def _reference_constant(self) -> float:
         """``Σ w r²`` over every block: the part of the tracking cost that does not depend on the variables."""
         total = 0.0
         for name, bv in self._vars.items():
             q_w, r_w, p_n = self._weights[name]
-            x_ref, u_ref = bv.x_ref.value, bv.u_ref.value
+            x_ref, u_ref = self._values[bv.x_ref.id], self._values[bv.u_ref.id]
             total += float(np.sum(q_w * x_ref[:-1] ** 2) + np.sum(r_w * u_ref**2) + x_ref[-1] @ p_n @ x_ref[-1])
         return total
 
@@ -259,11 +266,13 @@ class NominalQP:
             raise ValueError("the fast path was not compiled (fast=False at construction)")
         start = time.perf_counter()
         if use_fast:
-            out = self.compiled.solve()
+            out = self.compiled.solve(self._values)
             status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
             value = self.compiled.value if out.success else None
         else:
-            status, solve_time = timed_cvxpy_solve(self.problem, **self.clarabel_options)
+            for param in self.problem.parameters():
+                param.value = self._values[param.id]
+            status, solve_time = timed_cvxpy_solve(self.problem, **self.clarabel_options)  # wall of solve()
             ok = status in _OK
             objective = float(self.problem.value) if ok else float("nan")
             stats = self.problem.solver_stats if ok else None
