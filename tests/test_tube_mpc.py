@@ -393,3 +393,45 @@ def test_closed_loop_is_the_same_through_either_solve_path(design):
     np.testing.assert_allclose(tel_a.u_command, tel_b.u_command, atol=1e-8)
     np.testing.assert_allclose(h_a.nominal_state, h_b.nominal_state, atol=1e-8)
     np.testing.assert_allclose(tel_a.x_true, tel_b.x_true, atol=1e-9)
+
+
+def test_bounded_measurement_noise_is_covered_by_w_and_the_state_tightening():
+    """With measurement noise |n| ≤ N, W gains N ⊕ (−A N) and X̄ = X ⊖ (Z ⊕ N): the measured error stays in the
+    promised tube and the TRUE velocity within its limit, the input within U, for random and vertex noise."""
+    from oacli.control.tube_design import design_axis
+
+    noise = np.array([0.002, 0.0005])  # [m, m/s]
+    spec = DisturbanceSpec(MASS, 0.1, force_N=np.full(3, 0.002), noise_position_m=np.full(3, noise[0]),
+                           noise_velocity_mps=np.full(3, noise[1]))
+    common = {"mass_kg": MASS, "dt_s": DT, "force_limit_N": 0.15, "velocity_limit_mps": 0.2,
+              "weights": AncillaryWeights(5.0, 10.0, 2.0), "epsilon": 0.005}
+    ax = design_axis(0, spec=spec, **common)
+    assert ax.feasible
+    clean = design_axis(0, spec=DisturbanceSpec(MASS, 0.1, force_N=np.full(3, 0.002)), **common)
+    assert ax.velocity_bounds_mps[1] < clean.velocity_bounds_mps[1] - noise[1]  # noise tightens X beyond Z alone
+    z, k, a, b = ax.z, ax.gain, ax.a, ax.b
+    qp = NominalQP([QPBlock("x", a, b, np.array([50.0, 5.0]), np.array([0.1]), np.diag([100.0, 10.0]),
+                            state=LinearConstraint(np.array([[0.0, 1.0], [0.0, -1.0]]),
+                                                   [ax.velocity_bounds_mps[1], -ax.velocity_bounds_mps[0]]),
+                            input=LinearConstraint.box(np.array([ax.force_bounds_N[1]])),
+                            lasso=LinearConstraint(z.a, z.b))], 10)
+    w_process = Polytope.symmetric_box(ax.disturbance.mass_term + ax.disturbance.force_term)
+    tol = 1e-7 * float(np.max(z.b))
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        x, z_pred = np.array([0.4, -0.18]), None
+        for step in range(50):
+            n = noise * (rng.choice([-1.0, 1.0], 2) if seed % 2 else rng.uniform(-1, 1, 2))  # vertex or random
+            x_meas = x + n
+            if z_pred is not None:
+                assert z.contains_points(x_meas - z_pred, tol=tol)
+            shift = np.array([x_meas[0], 0.0])
+            qp.set_parameters("x", x_meas - shift, np.tile(-shift, (11, 1)), np.zeros((10, 1)))
+            sol = qp.solve()
+            assert sol.info.success, step
+            z0, v0 = sol.blocks["x"].z[0] + shift, sol.blocks["x"].v[0]
+            u = v0 + k @ (x_meas - z0)
+            assert abs(u[0]) <= 0.15 * (1 + 1e-6) and abs(x[1]) <= 0.2 * (1 + 1e-6)
+            z_pred = a @ z0 + b @ v0
+            w = w_process.vertices[rng.integers(0, 4)] if seed % 2 else rng.uniform(-1, 1, 2) * w_process.b[:2]
+            x = a @ x + b @ u + w

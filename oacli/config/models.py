@@ -492,7 +492,9 @@ class ControllerConfig(Section):
         default_factory=ControllerWeights, description="Diagonal cost weights."
     )
     max_consecutive_failures: Annotated[StrictInt, Field(ge=1)] = Field(
-        default=5, description="Abort the run after this many consecutive failed solves [-], >= 1."
+        default=5,
+        description="Consecutive failed solves tolerated [-], >= 1 (tube: then a latched safe hold, see "
+        "oacli.control.tube_mpc).",
     )
     tube: Annotated[TubeConfig, _none_to({})] = Field(
         default_factory=TubeConfig, description="Robust tube MPC settings (used when type is 'tube')."

@@ -101,6 +101,7 @@ def tube_track_blueprint() -> rrb.Blueprint:
     """Layout: the track layout's scene and log, its metrics, and a column of tube metrics."""
     world = rrb.Spatial3DView(origin=WORLD, name="World (ISS frame): reference, flown path, nominal tube")
     log = rrb.TextLogView(origin=LOG, name="Log")
+    # View names use glyphs of the viewer's font only (it panics on e.g. U+2295 ⊕ or combining macrons).
     note = ": x red, y green, z blue; thin = ± bound"
     metrics = rrb.Vertical(
         time_series_view(POSITION_ERROR, "Position error [m]"),
@@ -111,10 +112,10 @@ def tube_track_blueprint() -> rrb.Blueprint:
         name="Metrics",
     )
     tube = rrb.Vertical(
-        time_series_view(FORCE_NOMINAL, "Nominal force v [N]" + note + " (tightened Ū)", legend=False),
-        time_series_view(FORCE_ANCILLARY, "Ancillary force K(x − z) [N]" + note + " (max over Z)", legend=False),
-        time_series_view(NOMINAL_VELOCITY, "Nominal velocity [m/s]" + note + " (tightened X̄)", legend=False),
-        time_series_view(TUBE_MARGIN, "Tube margin (≥ 0: inside z ⊕ Z)"),
+        time_series_view(FORCE_NOMINAL, "Nominal force v [N]" + note + " (tightened U)", legend=False),
+        time_series_view(FORCE_ANCILLARY, "Ancillary force K(x - z) [N]" + note + " (max over Z)", legend=False),
+        time_series_view(NOMINAL_VELOCITY, "Nominal velocity [m/s]" + note + " (tightened X)", legend=False),
+        time_series_view(TUBE_MARGIN, "Tube margin (>= 0: inside the tube z + Z)"),
         name="Tube",
     )
     return rrb.Blueprint(
