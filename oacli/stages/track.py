@@ -347,7 +347,14 @@ def _describe_design(design: TubeDesign) -> list[LogEntry]:
 
 
 def tube_summary(design: TubeDesign, history: TubeHistory, tel: Telemetry, cfg: OacliConfig) -> dict[str, Any]:
-    """Summary entries of a tube run: violations, fallbacks, RPI figures, tightened bounds."""
+    """Summary entries of a tube run: violations, fallbacks, RPI figures, tightened bounds.
+
+    ``tube_violations`` counts control steps whose measured state left the tube promised at the previous step,
+    ``x̃_k − ẑ_k ∉ Z`` with ``ẑ_k = A z_{k−1} + B v_{k−1}`` (beyond ``TUBE_TOLERANCE_REL`` of Z's size): the
+    invariance guarantee, which can only fail when a disturbance left W. ``tube.lasso_violations`` counts steps
+    with ``x̃_k − z_k ∉ Z`` for the nominal state actually used (a constraint of the QP). ``fallback_steps``
+    counts steps not driven by a fresh solve (shifted plan or safe hold), ``solver_failures`` failed solves.
+    """
     tol = TUBE_TOLERANCE_REL * float(np.max(design.lasso.h_vector))
     tube_margin = history.tube_margin
     checked = np.isfinite(tube_margin)
