@@ -32,7 +32,7 @@ from oacli.types import InertialParams
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 PRESETS = sorted(CONFIGS.glob("*.yaml"))
-PRESET_NAMES = ["doerr2021.yaml", "iss_reswarm.yaml"]
+PRESET_NAMES = ["doerr2021.yaml", "iss_reswarm.yaml", "iss_reswarm_tube.yaml"]
 
 BASE: dict[str, Any] = {
     "robot": {
@@ -431,7 +431,7 @@ BAD_INPUTS = [
     ),
     ("missing mass", _delete("robot.mass_kg"), "robot.mass_kg: <missing>: required key is missing"),
     ("missing robot", _delete("robot"), "robot: <missing>: required key is missing"),
-    ("unknown controller type", _set("controller.type", "pid"), "controller.type: 'pid': must be 'mpc'"),
+    ("unknown controller type", _set("controller.type", "pid"), "controller.type: 'pid': must be 'mpc' or 'tube'"),
     ("float horizon", _set("controller.horizon", 10.0), "controller.horizon: 10.0: must be an integer"),
     ("horizon too long", _set("controller.horizon", 501), "controller.horizon: 501: must be <= 500"),
     ("bool seed", _set("seed", True), "seed: True: must be an integer"),

@@ -1,4 +1,4 @@
-"""``oacli track``: closed-loop tracking of a reference with MPC."""
+"""``oacli track``: closed-loop tracking of a reference with MPC or robust tube MPC (``controller.type``)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ from oacli.cli import Progress, app, load_config_with_seed, print_table, run_gua
 
 TRACK_TABLE = [
     "status", "rms_position_error_m", "max_position_error_m", "final_position_error_m", "rms_attitude_error_rad",
-    "constraint_violations", "solver_failures", "solve_time_ms", "sim_time_s", "wall_time_s",
+    "constraint_violations", "solver_failures", "fallback_steps", "tube_violations", "rpi", "solve_time_ms",
+    "step_time_ms", "sim_time_s", "wall_time_s",
 ]
 
 
@@ -30,7 +31,8 @@ def track(
     seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
 ) -> None:
-    """Track a reference with MPC in closed-loop simulation; write track.mcap, track.rrd and summary.json."""
+    """Track a reference with MPC or robust tube MPC (controller.type) in closed-loop simulation; write
+    track.mcap, track.rrd and summary.json."""
 
     def action():
         from oacli.io.reference_files import load_reference

@@ -471,14 +471,19 @@ class ControllerWeights(Section):
         return _ro(self.force + self.torque)
 
 
-ControllerType = Literal["mpc"]
-"""Controller kinds; later ``"tube"`` (robust tube MPC)."""
+ControllerType = Literal["mpc", "tube"]
+"""Controller kinds: ``"mpc"`` (standard MPC) and ``"tube"`` (robust tube MPC, settings in ``controller.tube``)."""
+
+# The tube section lives in its own module, which builds on the types above (import order matters).
+from oacli.config.tube import TubeConfig, tube_problems  # noqa: E402
 
 
 class ControllerConfig(Section):
     """The tracking controller."""
 
-    type: ControllerType = Field(default="mpc", description="Controller kind: 'mpc' (nominal MPC).")
+    type: ControllerType = Field(
+        default="mpc", description="Controller kind: 'mpc' (standard MPC) or 'tube' (robust tube MPC)."
+    )
     rate_hz: PositiveReal = Field(default=5.0, description="Control update rate [Hz], > 0.")
     horizon: Annotated[StrictInt, Field(ge=1, le=MAX_HORIZON)] = Field(
         default=10, description=f"Prediction horizon [steps of 1/rate_hz s], 1..{MAX_HORIZON}."
@@ -487,7 +492,12 @@ class ControllerConfig(Section):
         default_factory=ControllerWeights, description="Diagonal cost weights."
     )
     max_consecutive_failures: Annotated[StrictInt, Field(ge=1)] = Field(
-        default=5, description="Abort the run after this many consecutive failed solves [-], >= 1."
+        default=5,
+        description="Consecutive failed solves tolerated [-], >= 1 (tube: then a latched safe hold, see "
+        "oacli.control.tube_mpc).",
+    )
+    tube: Annotated[TubeConfig, _none_to({})] = Field(
+        default_factory=TubeConfig, description="Robust tube MPC settings (used when type is 'tube')."
     )
 
     @property
@@ -663,6 +673,13 @@ class OacliConfig(Section):
                         f"robot.torque_limit_Nm ({tmin:g} N·m)",
                     )
                 )
+        if self.controller.type == "tube":
+            problems += tube_problems(
+                self.controller.tube,
+                period_s=self.controller.period_s,
+                robot_mass_kg=self.robot.mass_kg,
+                robot_force_limit_N=self.robot.force_limit_N,
+            )
         if self.controller.rate_hz > self.simulation.plant_rate_hz:
             problems.append(
                 (

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import uuid
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -656,6 +656,8 @@ def write_track_recording(
     torque_limit_Nm: np.ndarray,
     log: Sequence[tuple[float, str, str]] = (),
     recording_name: str = "track",
+    extra: Callable[[StageRecording], None] | None = None,
+    blueprint: rrb.Blueprint | None = None,
 ) -> None:
     """Write the ``track`` stage's recording with :func:`track_blueprint` as its layout.
 
@@ -697,6 +699,10 @@ def write_track_recording(
         ``(t [s], level, message)`` lines for the text log.
     recording_name : str
         Recording name shown in the viewer.
+    extra : callable, optional
+        Called with the :class:`StageRecording` before it is saved, to log controller-specific layers.
+    blueprint : rerun.blueprint.Blueprint, optional
+        Layout to store instead of :func:`track_blueprint`.
     """
     t_ctrl = _times("t_ctrl", t_ctrl)
     k = t_ctrl.shape[0]
@@ -736,7 +742,9 @@ def write_track_recording(
     if log:
         t_log, levels, messages = zip(*log, strict=True)
         rec.log_texts(np.array(t_log, dtype=float), list(levels), list(messages))
-    rec.save(Path(path), track_blueprint())
+    if extra is not None:
+        extra(rec)
+    rec.save(Path(path), track_blueprint() if blueprint is None else blueprint)
 
 
 # ----------------------------------------------------------------------------------------------------------------

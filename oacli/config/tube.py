@@ -1,0 +1,147 @@
+"""The ``controller.tube`` section: robust tube MPC settings (used when ``controller.type`` is ``tube``).
+
+Defaults follow the ReSWARM flight settings (REFERENCE.md, "Tube MPC": rattle ``casadi_nmpc``/``z_poly_calc``):
+ancillary LQR Q = diag(5, 10), R = 2; ε = 0.005; W from the 2σ mass bounds (Doerr et al. 2021, Eq. 28).
+Imported by :mod:`oacli.config.models` (import ``oacli.config``, not this module, to load it).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import Field
+
+from oacli.config.models import (
+    NonNegativeReal,
+    NonNegativeVector3,
+    PositiveReal,
+    PositiveVector3,
+    Section,
+    StrictInt,
+    Weight3,
+    _none_to,
+)
+
+
+class TubeTerminalWeights(Section):
+    """Diagonal terminal weight of the nominal translation MPC (Doerr Eq. 24, the matrix H)."""
+
+    position: Weight3 = Field(default=(100.0, 100.0, 100.0), description="Terminal position weight [1/m²], > 0.")
+    velocity: Weight3 = Field(default=(10.0, 10.0, 10.0), description="Terminal velocity weight [s²/m²], > 0.")
+
+
+class AncillaryConfig(Section):
+    """Discrete LQR weights of the ancillary law u = v + K (x − z), the same on every axis."""
+
+    position: PositiveReal = Field(default=5.0, description="Q position weight [1/m²], > 0 (ReSWARM: 5).")
+    velocity: PositiveReal = Field(default=10.0, description="Q velocity weight [s²/m²], > 0 (ReSWARM: 10).")
+    force: PositiveReal = Field(default=2.0, description="R force weight [1/N²], > 0 (ReSWARM: 2).")
+
+
+class TubeDisturbanceConfig(Section):
+    """What the disturbance set W per control step is made of (summed per world axis)."""
+
+    mass_std_kg: NonNegativeReal = Field(
+        default=0.0,
+        description="Standard deviation σ of the mass estimate robot.mass_kg [kg], >= 0; W gains the one-step "
+        "deviation at the tube force limit between the model mass and mass ± mass_sigmas·σ (Doerr Eq. 28).",
+    )
+    mass_sigmas: PositiveReal = Field(default=2.0, description="Mass interval half-width in σ (Eq. 28: 2).")
+    force_N: NonNegativeVector3 = Field(
+        default=(0.0, 0.0, 0.0), description="Bound of an external force per world axis [N], >= 0."
+    )
+    position_m: NonNegativeVector3 = Field(
+        default=(0.0, 0.0, 0.0), description="Extra position disturbance per control step [m], >= 0."
+    )
+    velocity_mps: NonNegativeVector3 = Field(
+        default=(0.0, 0.0, 0.0), description="Extra velocity disturbance per control step [m/s], >= 0."
+    )
+    position_noise_m: NonNegativeVector3 = Field(
+        default=(0.0, 0.0, 0.0), description="Bound of the position measurement noise [m], >= 0."
+    )
+    velocity_noise_mps: NonNegativeVector3 = Field(
+        default=(0.0, 0.0, 0.0), description="Bound of the velocity measurement noise [m/s], >= 0."
+    )
+    on_empty_tightening: Literal["error", "scale_w"] = Field(
+        default="error",
+        description="When W is too large for the limits: 'error' stops (exit 3); 'scale_w' shrinks W of that axis "
+        "(the guarantee then covers the smaller W only; the factor is logged and reported).",
+    )
+    min_nominal_fraction: Annotated[PositiveReal, Field(lt=1)] = Field(
+        default=0.1, description="With scale_w: fraction of each limit left to the nominal MPC, in (0, 1)."
+    )
+
+
+class TubeConfig(Section):
+    """Robust tube MPC: translation by tube MPC, attitude by standard MPC, one QP per step."""
+
+    prediction_step_s: PositiveReal | None = Field(
+        default=None,
+        description="Step of the nominal MPC model [s]; an integer multiple of the control period (ReSWARM: "
+        "1.0 s at a 0.2 s control period). Default: the control period.",
+    )
+    force_limit_N: PositiveVector3 | None = Field(
+        default=None,
+        description="Force limit U of the tube per world axis [N], <= robot.force_limit_N (ReSWARM: 0.15). "
+        "Default: robot.force_limit_N.",
+    )
+    terminal: Annotated[TubeTerminalWeights | None, _none_to(None)] = Field(
+        default=None, description="Diagonal terminal weights; default: the discrete Riccati solution."
+    )
+    ancillary: Annotated[AncillaryConfig, _none_to({})] = Field(
+        default_factory=AncillaryConfig, description="Ancillary LQR weights."
+    )
+    disturbance: Annotated[TubeDisturbanceConfig, _none_to({})] = Field(
+        default_factory=TubeDisturbanceConfig, description="The disturbance set W."
+    )
+    rpi_epsilon: PositiveReal = Field(
+        default=0.005,
+        description="Accuracy ε of the invariant-set outer approximation (Raković et al. 2005) [m, m/s], > 0.",
+    )
+    rpi_max_terms: Annotated[StrictInt, Field(ge=1)] = Field(
+        default=1000, description="Refuse (never truncate) when the invariant set needs more terms than this."
+    )
+    lasso_facet_growth: Annotated[NonNegativeReal, Field(le=1)] = Field(
+        default=0.05,
+        description="Relative growth of Z allowed to drop facets (verified invariant); 0 keeps every facet.",
+    )
+    solver: Literal["direct", "cvxpy"] = Field(
+        default="direct",
+        description="'direct': cvxpy canonicalises once, Clarabel is called with updated data; 'cvxpy': "
+        "problem.solve() every step (same problem, slower).",
+    )
+
+
+def tube_problems(tube: TubeConfig, *, period_s: float, robot_mass_kg: float,
+                  robot_force_limit_N: tuple[float, ...]) -> list[tuple[tuple[str | int, ...], Any, str]]:
+    """Cross-field problems of ``controller.tube`` as ``(loc, value, reason)`` (checked when type is ``tube``)."""
+    problems: list[tuple[tuple[str | int, ...], Any, str]] = []
+    base = ("controller", "tube")
+    if tube.prediction_step_s is not None:
+        ratio = tube.prediction_step_s / period_s
+        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
+            problems.append((
+                (*base, "prediction_step_s"), tube.prediction_step_s,
+                f"must be an integer multiple of the control period 1/controller.rate_hz = {period_s:g} s",
+            ))
+    if tube.force_limit_N is not None:
+        for i, (lim, robot) in enumerate(zip(tube.force_limit_N, robot_force_limit_N, strict=True)):
+            if lim > robot * (1 + 1e-12):
+                problems.append(((*base, "force_limit_N", i), lim,
+                                 f"must be <= robot.force_limit_N[{i}] = {robot:g} N (the actuator limit)"))
+    dist = tube.disturbance
+    if dist.mass_std_kg == 0:
+        for i, axis in enumerate("xyz"):
+            if dist.force_N[i] == 0 and not (dist.position_m[i] > 0 and dist.velocity_mps[i] > 0):
+                problems.append((
+                    (*base, "disturbance"), None,
+                    f"W has no width on the {axis} axis: set mass_std_kg > 0, force_N > 0, or both position_m and "
+                    "velocity_mps > 0 (the invariant-set algorithm needs the origin inside W)",
+                ))
+                break
+    low = robot_mass_kg - dist.mass_sigmas * dist.mass_std_kg
+    if not (low > 0 and math.isfinite(low)):
+        problems.append(((*base, "disturbance", "mass_std_kg"), dist.mass_std_kg,
+                         f"robot.mass_kg - {dist.mass_sigmas:g} sigma = {low:g} kg must be > 0"))
+    return problems

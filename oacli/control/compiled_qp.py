@@ -1,0 +1,172 @@
+"""Solve a parametrised cvxpy QP by calling Clarabel directly with updated data (the fast path).
+
+cvxpy canonicalises a DPP problem into ``minimise ½xᵀPx + qᵀx + d  s.t.  A x + s = b, s ∈ K`` with
+``(q, d)`` and ``(A, b)`` affine in the parameter vector θ: ``problem.get_problem_data(CLARABEL)`` builds that
+parametrised cone program once (cvxpy's ``ParamConeProg``, stored in the data under ``"param_prob"``, already in
+Clarabel's cone order) and every ``problem.solve()`` re-applies it, formats the data, builds a new Clarabel
+solver and inverts the solution through the reduction chain. When the parameters enter only ``q``, ``d`` and
+``b`` (P and A constant, checked here), all of that reduces to two sparse matrix-vector products
+``q = T_q θ``, ``b = T_b θ``, ``DefaultSolver.update(q=q, b=b)`` and ``solve()`` on one solver object, and the
+variables are slices of Clarabel's ``x`` (cvxpy's ``var_id_to_col``, column-major). The problem stays
+formulated in cvxpy; the tests check that both paths give the same solution.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import clarabel
+import cvxpy as cp
+import numpy as np
+import scipy.sparse as sp
+from cvxpy import settings as cps
+from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import dims_to_solver_cones
+from cvxpy.reductions.solvers.conic_solvers.conic_solver import ConicSolver
+
+#: Clarabel status strings and what they mean for the caller (as cvxpy maps them).
+_STATUS = {
+    "Solved": "optimal",
+    "AlmostSolved": "optimal_inaccurate",
+    "PrimalInfeasible": "infeasible",
+    "AlmostPrimalInfeasible": "infeasible_inaccurate",
+    "DualInfeasible": "unbounded",
+    "AlmostDualInfeasible": "unbounded_inaccurate",
+    "MaxIterations": "user_limit",
+    "MaxTime": "user_limit",
+}
+SUCCESS_STATUSES = frozenset({"optimal", "optimal_inaccurate"})
+
+
+@dataclass(frozen=True)
+class CompiledSolve:
+    """Outcome of one :meth:`CompiledQP.solve`.
+
+    Attributes
+    ----------
+    status : str
+        cvxpy-style status (``"optimal"``, ``"infeasible"``, ..., ``"solver_error"``).
+    objective : float
+        Optimal value of the cvxpy objective (NaN unless solved).
+    iterations : int
+    solve_time_s : float
+        Wall time of the data update and the Clarabel solve [s] (Clarabel's own ``solve_time`` reads higher
+        than the wall time around the call, so it is not used).
+    """
+
+    status: str
+    objective: float
+    iterations: int
+    solve_time_s: float
+
+    @property
+    def success(self) -> bool:
+        """True for an optimal (or almost optimal) solution."""
+        return self.status in SUCCESS_STATUSES
+
+
+class CompiledQP:
+    """A DPP cvxpy problem canonicalised once and re-solved with Clarabel directly.
+
+    Parameters
+    ----------
+    problem : cvxpy.Problem
+        DPP problem whose parameters appear only in the linear objective term, the objective constant and the
+        constraint right-hand sides (the usual MPC: initial state and references).
+    settings : clarabel.DefaultSettings, optional
+        Solver settings; Clarabel's defaults (as ``problem.solve(solver=CLARABEL)`` uses) when omitted.
+
+    Raises
+    ------
+    ValueError
+        When the problem is not DPP or a parameter enters P or A.
+    """
+
+    def __init__(self, problem: cp.Problem, settings: clarabel.DefaultSettings | None = None) -> None:
+        if not problem.is_dpp():
+            raise ValueError("the problem is not DPP: it cannot be canonicalised once")
+        self.problem = problem
+        data, _chain, _inverse = problem.get_problem_data(cp.CLARABEL)
+        prog = data[cps.PARAM_PROB]
+        n = prog.x.size
+        tensor_a = sp.csc_array(prog.A)
+        m = tensor_a.shape[0] // (n + 1)
+        if tensor_a[: m * n, :-1].nnz or (prog.P is not None and sp.csc_array(prog.P)[:, :-1].nnz):
+            raise ValueError("a parameter enters the constraint matrix or the quadratic term: use problem.solve()")
+        # Clarabel's form A x + s = b: the data already hold A negated by ConicSolver.apply.
+        self._a = sp.csc_matrix(data[cps.A])
+        self._p = sp.csc_matrix(sp.triu(data[cps.P])) if cps.P in data else sp.csc_matrix((n, n))
+        self._t_b = sp.csr_array(tensor_a[m * n :, :])
+        t_q = sp.csr_array(prog.q)
+        self._t_q, self._t_d = sp.csr_array(t_q[:n, :]), t_q[[n], :].toarray().ravel()
+        self._cones = dims_to_solver_cones(data[ConicSolver.DIMS])
+        self._n_params = prog.total_param_size
+        self._param_slices = []
+        known = {p.id: p for p in problem.parameters()}
+        for pid, col in prog.param_id_to_col.items():
+            if pid == -1 or pid not in known:
+                if pid in prog.id_to_param and pid not in known:
+                    raise ValueError("cvxpy replaced a parameter (attributes): use plain cp.Parameter objects")
+                continue
+            self._param_slices.append((known[pid], col, prog.param_id_to_size[pid]))
+        self._const_col = prog.param_id_to_col[-1] if -1 in prog.param_id_to_col else self._n_params
+        self._var_cols = {v.id: prog.var_id_to_col[v.id] for v in problem.variables() if v.id in prog.var_id_to_col}
+        self.n_variables, self.n_constraints = n, m
+        self._settings = settings or clarabel.DefaultSettings()
+        self._settings.verbose = False
+        theta = self.parameter_vector(missing_as_zero=True)  # structure only: q and b are set at every solve
+        self._solver = clarabel.DefaultSolver(
+            self._p, self._t_q @ theta, self._a, self._t_b @ theta, self._cones, self._settings
+        )
+        if not self._solver.is_data_update_allowed():
+            raise ValueError("Clarabel does not allow data updates with these settings (presolve/chordal)")
+        self._x: np.ndarray | None = None
+
+    def parameter_vector(self, values: dict | None = None, *, missing_as_zero: bool = False) -> np.ndarray:
+        """θ: parameter values, column-major, with the constant 1 at its column (cvxpy's layout).
+
+        ``values`` maps a parameter's id to its value (shape of the parameter); parameters not in it use their
+        ``.value``. Passing values directly skips cvxpy's per-assignment validation (the caller checks shapes).
+        """
+        theta = np.zeros(self._n_params + 1)
+        for param, col, size in self._param_slices:
+            value = param.value if values is None or param.id not in values else values[param.id]
+            if value is None:
+                if missing_as_zero:
+                    continue
+                raise ValueError(f"parameter {param.name()} has no value")
+            theta[col : col + size] = np.asarray(value, dtype=float).ravel(order="F")
+        theta[self._const_col] = 1.0
+        return theta
+
+    def solve(self, values: dict | None = None) -> CompiledSolve:
+        """Solve with the parameters' values (``values`` by parameter id, else ``.value``); variables are then
+        read with :meth:`value`."""
+        theta = self.parameter_vector(values)
+        start = time.perf_counter()
+        self._solver.update(q=self._t_q @ theta, b=self._t_b @ theta)
+        sol = self._solver.solve()
+        wall = time.perf_counter() - start
+        status = _STATUS.get(str(sol.status), "solver_error")
+        self._x = np.asarray(sol.x) if status in SUCCESS_STATUSES else None
+        objective = float(sol.obj_val + self._t_d @ theta) if self._x is not None else float("nan")
+        return CompiledSolve(status, objective, int(sol.iterations), wall)
+
+    def value(self, variable: cp.Variable) -> np.ndarray:
+        """Value of ``variable`` in the last successful solve (shape of the variable)."""
+        if self._x is None:
+            raise RuntimeError("no solution: the last solve failed or none was run")
+        col = self._var_cols[variable.id]
+        return self._x[col : col + variable.size].reshape(variable.shape, order="F")
+
+
+def timed_cvxpy_solve(problem: cp.Problem, **clarabel_options) -> tuple[str, float]:
+    """``problem.solve(solver=CLARABEL, **clarabel_options)`` (the plain path) and its wall time [s]; status
+    ``solver_error: ...`` when Clarabel raises."""
+    start = time.perf_counter()
+    try:
+        problem.solve(solver=cp.CLARABEL, **clarabel_options)
+        status = str(problem.status)
+    except cp.error.SolverError as exc:
+        status = f"solver_error: {exc}".splitlines()[0][:120]
+    return status, time.perf_counter() - start

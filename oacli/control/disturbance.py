@@ -1,0 +1,154 @@
+"""Disturbance sets W of the translational tube MPC, per world axis and control step.
+
+Translation is exactly linear in the world frame (force in the world frame, Doerr et al. 2021, Eq. 34), so the
+model error of one axis over one control step ``dt`` is additive on ``[position, velocity]``:
+
+* mass uncertainty (Doerr Eq. 28): with the mass estimate ``m₀`` and standard deviation ``σ``, the largest
+  one-step deviation at the largest input ``u_max`` is
+  ``w_max = |f(u_max, m₀) − max(f(u_max, m₀+2σ), f(u_max, m₀−2σ))|``, ``f`` the exact discrete double
+  integrator from rest, ``f(u, m) = [dt²/(2m), dt/m] u``; the lighter mass moves further, so
+  ``w_max = u_max (1/(m₀ − 2σ) − 1/m₀) [dt²/2, dt]``;
+* an external force bound ``d`` (world frame): ``d [dt²/2, dt] / (m₀ − 2σ)`` (the lightest plausible mass);
+* a given box ``[position, velocity]`` per step;
+* measurement noise bounded by the box N: the controller sees ``x̃ = x + n``, and its error ``ẽ = x̃ − z`` obeys
+  ``ẽ⁺ = A_K ẽ + w + n⁺ − A n`` (A the open-loop model), so W gains ``N ⊕ (−A N)``.
+
+``W = scale · (box(mass + force + given) ⊕ N ⊕ (−A N))``; ``scale < 1`` only by an explicit policy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from oacli.sets import Polytope
+
+
+def step_gain(dt_s: float) -> np.ndarray:
+    """``[dt²/2, dt]``: position and velocity change per unit acceleration held over one step."""
+    return np.array([0.5 * dt_s * dt_s, dt_s])
+
+
+def mass_uncertainty_bound(
+    mass_kg: float, mass_std_kg: float, force_max_N: float, dt_s: float, n_sigma: float = 2.0
+) -> np.ndarray:
+    """Doerr et al. 2021, Eq. 28: one-step bound ``[position m, velocity m/s]`` from mass uncertainty.
+
+    Parameters
+    ----------
+    mass_kg : float
+        Mass estimate m₀ [kg] (the controller's model).
+    mass_std_kg : float
+        Standard deviation σ of the estimate [kg], ≥ 0.
+    force_max_N : float
+        Largest force magnitude the controller applies on this axis [N].
+    dt_s : float
+        Control step [s].
+    n_sigma : float
+        Width of the mass interval in σ (2 in Eq. 28).
+
+    Raises
+    ------
+    ValueError
+        When ``m₀ − n_sigma σ ≤ 0``.
+    """
+    low = mass_kg - n_sigma * mass_std_kg
+    if not low > 0:
+        raise ValueError(f"mass - {n_sigma:g} sigma = {low:g} kg is not positive")
+    f0 = force_max_N / mass_kg * step_gain(dt_s)
+    f_low = force_max_N / low * step_gain(dt_s)
+    f_high = force_max_N / (mass_kg + n_sigma * mass_std_kg) * step_gain(dt_s)
+    return np.abs(f0 - np.maximum(f_low, f_high))
+
+
+def force_disturbance_bound(force_N: float, mass_min_kg: float, dt_s: float) -> np.ndarray:
+    """One-step bound ``[position m, velocity m/s]`` of a force ``|d| ≤ force_N`` held over ``dt_s``."""
+    return force_N / mass_min_kg * step_gain(dt_s)
+
+
+def _zeros3() -> np.ndarray:
+    return np.zeros(3)
+
+
+@dataclass(frozen=True)
+class DisturbanceSpec:
+    """What W is made of, per world axis (each array shape (3,)).
+
+    Attributes
+    ----------
+    mass_kg : float
+        Mass estimate m₀ [kg].
+    mass_std_kg : float
+        Its standard deviation σ [kg] (0: no mass term).
+    n_sigma : float
+        Mass interval half-width in σ (Doerr Eq. 28: 2).
+    force_N : ndarray
+        External force bound per axis [N].
+    box_position_m, box_velocity_mps : ndarray
+        Extra per-step box half-widths [m], [m/s].
+    noise_position_m, noise_velocity_mps : ndarray
+        Measurement noise bounds [m], [m/s].
+    """
+
+    mass_kg: float
+    mass_std_kg: float = 0.0
+    n_sigma: float = 2.0
+    force_N: np.ndarray = field(default_factory=_zeros3)
+    box_position_m: np.ndarray = field(default_factory=_zeros3)
+    box_velocity_mps: np.ndarray = field(default_factory=_zeros3)
+    noise_position_m: np.ndarray = field(default_factory=_zeros3)
+    noise_velocity_mps: np.ndarray = field(default_factory=_zeros3)
+
+    def noise_box(self, axis: int) -> np.ndarray:
+        """Measurement noise half-widths ``[position, velocity]`` of one axis."""
+        return np.array([self.noise_position_m[axis], self.noise_velocity_mps[axis]], dtype=float)
+
+    def axis(self, axis: int, force_max_N: float, dt_s: float, scale: float = 1.0) -> AxisDisturbance:
+        """W of world axis ``axis`` (0, 1, 2) for inputs ``|u| ≤ force_max_N`` and control step ``dt_s``."""
+        mass_term = (
+            mass_uncertainty_bound(self.mass_kg, self.mass_std_kg, force_max_N, dt_s, self.n_sigma)
+            if self.mass_std_kg > 0
+            else np.zeros(2)
+        )
+        m_min = self.mass_kg - self.n_sigma * self.mass_std_kg
+        force_term = force_disturbance_bound(float(self.force_N[axis]), m_min, dt_s)
+        box_term = np.array([self.box_position_m[axis], self.box_velocity_mps[axis]], dtype=float)
+        noise = self.noise_box(axis)
+        half = mass_term + force_term + box_term
+        w = Polytope.symmetric_box(half)
+        if np.any(noise > 0):
+            a = np.array([[1.0, dt_s], [0.0, 1.0]])
+            n_box = Polytope.symmetric_box(noise)
+            w = w.minkowski_sum(n_box).minkowski_sum(n_box.linear_map(-a))
+        if scale != 1.0:
+            w = w.scaled(scale)
+        return AxisDisturbance(w, mass_term, force_term, box_term, noise, float(scale))
+
+
+@dataclass(frozen=True)
+class AxisDisturbance:
+    """W of one axis per control step, and its parts (each ``[position m, velocity m/s]`` half-widths).
+
+    Attributes
+    ----------
+    w : Polytope
+        The disturbance set (2-D).
+    mass_term, force_term, box_term : ndarray, shape (2,)
+    noise_bound : ndarray, shape (2,)
+        Measurement noise half-widths (enter W as ``N ⊕ (−A N)``).
+    scale : float
+        Factor applied to the whole set (1 unless an explicit W-shrinking policy chose less).
+    """
+
+    w: Polytope
+    mass_term: np.ndarray
+    force_term: np.ndarray
+    box_term: np.ndarray
+    noise_bound: np.ndarray
+    scale: float
+
+    @property
+    def half_widths(self) -> np.ndarray:
+        """Largest |w| per component ``[position m, velocity m/s]`` (support along ±e)."""
+        return np.maximum(self.w.support(np.eye(2)), self.w.support(-np.eye(2)))

@@ -1,0 +1,337 @@
+"""Offline design of the translational tube: ancillary gain K, invariant set Z, tightened constraints.
+
+Under the hover model every world axis of translation is the exact double integrator ``[p, v]⁺ = A [p, v] + B f``
+(force in the world frame), decoupled from the other axes and from attitude. The tube is therefore designed per
+axis in 2-D (Mayne, Seron & Raković 2005; Doerr et al. 2021, Eqs. 18-27):
+
+1. ``K``: discrete LQR of the axis model (``u = K e``, Doerr Eq. 18; ReSWARM: Q = diag(5, 10), R = 2);
+2. ``W``: :mod:`oacli.control.disturbance` (Doerr Eq. 28 and configured terms);
+3. ``Z``: the RPI outer ε-approximation ``F(α, s)`` of Raković et al. 2005 (Algorithm 1), then
+   :func:`oacli.sets.reduce_facets` for a cheaper lasso constraint that is verified RPI and within
+   ``(1 + growth) F(α, s)``;
+4. tightened sets ``Ū = U ⊖ K Z`` and ``X̄ = X ⊖ (Z ⊕ (−N))`` (N: measurement noise box; the true state is
+   ``x = x̃ − n``), with X the velocity limit.
+
+If a tightened set loses the origin from its interior (W too large for the actuators, seed 001 §4.5), the design
+refuses with W and the actuator margin, unless the explicit policy ``"scale_w"`` is chosen: then W of that axis is
+scaled down to the largest factor that leaves ``min_nominal_fraction`` of each limit to the nominal MPC, and the
+factor is reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from oacli.control.disturbance import AxisDisturbance, DisturbanceSpec
+from oacli.control.lqr import dlqr
+from oacli.control.tube_qp import LinearConstraint
+from oacli.errors import InfeasibleError
+from oacli.model.double_integrator import double_integrator
+from oacli.sets import FacetReduction, Polytope, RPIApproximation, minimal_rpi_outer, reduce_facets
+
+AXIS_NAMES = ("x", "y", "z")
+
+
+@dataclass(frozen=True)
+class AncillaryWeights:
+    """LQR weights of the ancillary law per axis: ``Q = diag(position, velocity)``, ``R = force``."""
+
+    position: float = 5.0
+    velocity: float = 10.0
+    force: float = 2.0
+
+
+@dataclass(frozen=True)
+class AxisTube:
+    """The tube of one world axis (state ``[position m, velocity m/s]``, input force N).
+
+    Attributes
+    ----------
+    name : str
+    a, b : ndarray, shapes (2, 2), (2, 1)
+        Exact model over one control step.
+    gain : ndarray, shape (1, 2)
+        Ancillary gain K: ``u = v + K (x − z)``.
+    disturbance : AxisDisturbance
+    rpi : RPIApproximation
+        ``F(α, s)`` (before facet reduction).
+    reduction : FacetReduction
+        The set used (``reduction.z``) and how it was obtained.
+    force_limit_N, velocity_limit_mps : float
+        The constraints U and X of the axis.
+    force_bounds_N, velocity_bounds_mps : tuple of float
+        Tightened ``(lower, upper)`` bounds for the nominal MPC.
+    """
+
+    name: str
+    a: np.ndarray
+    b: np.ndarray
+    gain: np.ndarray
+    disturbance: AxisDisturbance
+    rpi: RPIApproximation
+    reduction: FacetReduction
+    force_limit_N: float
+    velocity_limit_mps: float
+    force_bounds_N: tuple[float, float]
+    velocity_bounds_mps: tuple[float, float]
+
+    @property
+    def z(self) -> Polytope:
+        """The tube cross-section Z in use."""
+        return self.reduction.z
+
+    @property
+    def a_closed(self) -> np.ndarray:
+        """``A_K = A + B K``."""
+        return self.a + self.b @ self.gain
+
+    @property
+    def ancillary_force_N(self) -> float:
+        """Largest ancillary force ``max_{e ∈ Z} |K e|`` [N]."""
+        k = self.gain[0]
+        return float(max(self.z.support(k), self.z.support(-k)))
+
+    @property
+    def feasible(self) -> bool:
+        """True when both tightened sets keep the origin in their interior."""
+        (ulo, uhi), (vlo, vhi) = self.force_bounds_N, self.velocity_bounds_mps
+        return ulo < 0 < uhi and vlo < 0 < vhi
+
+
+@dataclass(frozen=True)
+class TubeDesign:
+    """The translational tube of all three axes; vectors are ordered ``[r (3), v (3)]`` and ``f (3)``."""
+
+    axes: tuple[AxisTube, AxisTube, AxisTube]
+    dt_s: float
+    mass_kg: float
+
+    @property
+    def gain(self) -> np.ndarray:
+        """Ancillary gain (3, 6) on the error ``[r − r_z, v − v_z]``."""
+        k = np.zeros((3, 6))
+        for i, ax in enumerate(self.axes):
+            k[i, i], k[i, i + 3] = ax.gain[0]
+        return k
+
+    def _embed(self, i: int, a2: np.ndarray) -> np.ndarray:
+        out = np.zeros((a2.shape[0], 6))
+        out[:, i], out[:, i + 3] = a2[:, 0], a2[:, 1]
+        return out
+
+    @cached_property
+    def lasso(self) -> LinearConstraint:
+        """Z of the 6-D translational error as ``H e ≤ h`` (block diagonal over the axes)."""
+        h_mat = np.vstack([self._embed(i, ax.z.a) for i, ax in enumerate(self.axes)])
+        return LinearConstraint(h_mat, np.concatenate([ax.z.b for ax in self.axes]))
+
+    @cached_property
+    def lasso_for_solver(self) -> LinearConstraint:
+        """The lasso of the QP: Z shrunk by half of each axis's smallest invariance margin.
+
+        A QP solution may violate a constraint by the solver's feasibility tolerance; with this back-off the
+        applied nominal state still satisfies ``x̃ − z_0 ∈ Z`` exactly. Recursive feasibility is kept: with
+        every margin ``h_i − h_Z(A_Kᵀa_i) − h_W(a_i) ≥ m``, the predicted ``ẑ`` gives ``a_iᵀ(x̃⁺ − ẑ) ≤ h_i − m``.
+        """
+        backoff = np.concatenate([np.full(ax.z.n_facets, 0.5 * max(ax.reduction.min_margin, 0.0))
+                                  for ax in self.axes])
+        lasso = self.lasso
+        return LinearConstraint(lasso.h_matrix, lasso.h_vector - backoff)
+
+    @property
+    def tightened_state(self) -> LinearConstraint:
+        """X̄ on ``[r, v]``: the tightened velocity bounds (positions are free)."""
+        lo = np.array([ax.velocity_bounds_mps[0] for ax in self.axes])
+        hi = np.array([ax.velocity_bounds_mps[1] for ax in self.axes])
+        return LinearConstraint.box(np.r_[np.full(3, np.inf), hi], np.r_[np.full(3, -np.inf), lo])
+
+    @property
+    def tightened_input(self) -> LinearConstraint:
+        """Ū on the force."""
+        lo = np.array([ax.force_bounds_N[0] for ax in self.axes])
+        hi = np.array([ax.force_bounds_N[1] for ax in self.axes])
+        return LinearConstraint.box(hi, lo)
+
+    def error_margin(self, e: np.ndarray) -> float:
+        """``min_i (h_i − H_i e)`` for the 6-D error ``e``: ≥ 0 exactly when ``e ∈ Z``."""
+        lasso = self.lasso
+        return float(np.min(lasso.h_vector - lasso.h_matrix @ np.asarray(e, dtype=float)))
+
+    def position_extent(self) -> np.ndarray:
+        """Half-extents of Z's projection on position ``(3, 2)``: ``[−min, max]`` per axis [m]."""
+        return np.array([[ax.z.support(np.array([-1.0, 0.0])), ax.z.support(np.array([1.0, 0.0]))] for ax in self.axes])
+
+    def summary(self) -> dict:
+        """Figures a reviewer wants: RPI size and cost, W, gains, tightened bounds (lists over x, y, z)."""
+        axes = self.axes
+        return {
+            "rpi": {
+                "s": [ax.rpi.s for ax in axes],
+                "alpha": [ax.rpi.alpha for ax in axes],
+                "facets": [ax.reduction.facets_after for ax in axes],
+                "facets_before_reduction": [ax.reduction.facets_before for ax in axes],
+                "facet_growth": [ax.reduction.growth for ax in axes],
+                "epsilon": axes[0].rpi.epsilon,
+                "epsilon_achieved": [ax.rpi.epsilon_achieved for ax in axes],
+                "spectral_radius": [ax.rpi.spectral_radius for ax in axes],
+            },
+            "w_position_m": [float(ax.disturbance.half_widths[0]) for ax in axes],
+            "w_velocity_mps": [float(ax.disturbance.half_widths[1]) for ax in axes],
+            "w_scale": [ax.disturbance.scale for ax in axes],
+            "ancillary_gain": [[float(g) for g in ax.gain[0]] for ax in axes],
+            "z_position_m": [float(ax.z.support(np.array([1.0, 0.0]))) for ax in axes],
+            "z_velocity_mps": [float(ax.z.support(np.array([0.0, 1.0]))) for ax in axes],
+            "ancillary_force_max_N": [ax.ancillary_force_N for ax in axes],
+            "tightened_force_N": [list(ax.force_bounds_N) for ax in axes],
+            "tightened_velocity_mps": [list(ax.velocity_bounds_mps) for ax in axes],
+        }
+
+
+def _interval(p: Polytope) -> tuple[float, float]:
+    """``(lower, upper)`` of a 1-D polytope (−inf/inf where unbounded)."""
+    return -float(p.support(np.array([-1.0]))), float(p.support(np.array([1.0])))
+
+
+def design_axis(
+    axis: int,
+    *,
+    mass_kg: float,
+    dt_s: float,
+    force_limit_N: float,
+    velocity_limit_mps: float,
+    weights: AncillaryWeights,
+    spec: DisturbanceSpec,
+    epsilon: float,
+    max_terms: int = 1000,
+    facet_growth: float = 0.05,
+    w_scale: float = 1.0,
+) -> AxisTube:
+    """Design the tube of one axis (no feasibility decision: see :attr:`AxisTube.feasible`)."""
+    a, b = double_integrator(dt_s, 1.0 / mass_kg)
+    gain, _ = dlqr(a, b, np.diag([weights.position, weights.velocity]), np.array([[weights.force]]))
+    dist = spec.axis(axis, force_limit_N, dt_s, w_scale)
+    a_k = a + b @ gain
+    rpi = minimal_rpi_outer(a_k, dist.w, epsilon, max_terms=max_terms)
+    reduction = reduce_facets(a_k, rpi.z, dist.w, facet_growth)
+    z = reduction.z
+    u_set = Polytope.symmetric_box([force_limit_N])
+    u_bar = u_set.pontryagin_difference(z.linear_map(gain))  # Ū = U ⊖ K Z
+    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), [velocity_limit_mps, velocity_limit_mps])
+    noise = dist.noise_bound
+    z_true = z if not np.any(noise > 0) else z.minkowski_sum(Polytope.symmetric_box(noise))  # Z ⊕ (−N), N symmetric
+    x_bar = x_set.pontryagin_difference(z_true)  # X̄ = X ⊖ (Z ⊕ −N)
+    vel_hi, vel_neg_lo = x_bar.b  # rows [0, 1] and [0, −1]
+    return AxisTube(
+        name=AXIS_NAMES[axis],
+        a=a,
+        b=b,
+        gain=gain,
+        disturbance=dist,
+        rpi=rpi,
+        reduction=reduction,
+        force_limit_N=float(force_limit_N),
+        velocity_limit_mps=float(velocity_limit_mps),
+        force_bounds_N=_interval(u_bar),
+        velocity_bounds_mps=(-float(vel_neg_lo), float(vel_hi)),
+    )
+
+
+def _describe_infeasible(ax: AxisTube, dt_s: float) -> str:
+    wp, wv = ax.disturbance.half_widths
+    d = ax.disturbance
+    z_vel = max(ax.z.support(np.array([0.0, 1.0])), ax.z.support(np.array([0.0, -1.0])))
+    return (
+        f"controller.tube: the tightened constraints are empty on the {ax.name} axis. W per {dt_s:g} s control step "
+        f"is position ±{wp:.4g} m, velocity ±{wv:.4g} m/s (mass term ±{d.mass_term[1]:.3g} m/s, force term "
+        f"±{d.force_term[1]:.3g} m/s, noise ±{d.noise_bound[1]:.3g} m/s); its invariant tube needs up to "
+        f"{ax.ancillary_force_N:.4g} N of ancillary force of the {ax.force_limit_N:g} N tube force limit (actuator "
+        f"margin {ax.force_limit_N - ax.ancillary_force_N:+.4g} N) and {z_vel:.4g} m/s of the "
+        f"{ax.velocity_limit_mps:g} m/s velocity limit (margin {ax.velocity_bounds_mps[1]:+.4g} m/s). Reduce the "
+        "disturbance (controller.tube.disturbance), raise controller.tube.force_limit_N, or choose the explicit "
+        "policy controller.tube.disturbance.on_empty_tightening: scale_w"
+    )
+
+
+def design_translation_tube(
+    *,
+    mass_kg: float,
+    dt_s: float,
+    force_limit_N: np.ndarray,
+    velocity_limit_mps: np.ndarray,
+    weights: AncillaryWeights,
+    spec: DisturbanceSpec,
+    epsilon: float,
+    max_terms: int = 1000,
+    facet_growth: float = 0.05,
+    on_empty: str = "error",
+    min_nominal_fraction: float = 0.1,
+) -> TubeDesign:
+    """Design the three axis tubes (see the module docstring).
+
+    Parameters
+    ----------
+    mass_kg : float
+        Model mass m₀ [kg].
+    dt_s : float
+        Control period (the step of the ancillary law and of W) [s].
+    force_limit_N, velocity_limit_mps : ndarray, shape (3,)
+        U and X per world axis.
+    weights : AncillaryWeights
+    spec : DisturbanceSpec
+    epsilon, max_terms : float, int
+        Raković et al. 2005 Algorithm 1 accuracy [m, m/s] and term limit.
+    facet_growth : float
+        Allowed growth of Z by facet reduction (0: keep every facet of F(α, s)).
+    on_empty : {"error", "scale_w"}
+        What to do when a tightened set loses the origin: refuse, or scale W of that axis down (explicit).
+    min_nominal_fraction : float
+        With ``"scale_w"``: fraction of each limit the nominal MPC keeps.
+
+    Raises
+    ------
+    InfeasibleError
+        With W and the actuator margin when the tightening empties a set and the policy is ``"error"``; also from
+        :func:`oacli.sets.minimal_rpi_outer` (unstable A_K, too many terms).
+    """
+    if on_empty not in ("error", "scale_w"):
+        raise ValueError(f"on_empty must be 'error' or 'scale_w', got {on_empty!r}")
+    common = {"mass_kg": mass_kg, "dt_s": dt_s, "weights": weights, "spec": spec, "epsilon": epsilon,
+              "max_terms": max_terms, "facet_growth": facet_growth}
+    axes = []
+    for i in range(3):
+        limits = {"force_limit_N": float(force_limit_N[i]), "velocity_limit_mps": float(velocity_limit_mps[i])}
+        ax = design_axis(i, **common, **limits)
+        if not ax.feasible:
+            if on_empty == "error":
+                raise InfeasibleError(_describe_infeasible(ax, dt_s))
+            ax = _scaled_axis(i, common, limits, min_nominal_fraction)
+        axes.append(ax)
+    return TubeDesign(axes=tuple(axes), dt_s=float(dt_s), mass_kg=float(mass_kg))
+
+
+def _keeps_fraction(ax: AxisTube, fraction: float) -> bool:
+    (ulo, uhi), (vlo, vhi) = ax.force_bounds_N, ax.velocity_bounds_mps
+    f, v = fraction * ax.force_limit_N, fraction * ax.velocity_limit_mps
+    return ulo <= -f and uhi >= f and vlo <= -v and vhi >= v
+
+
+def _scaled_axis(i: int, common: dict, limits: dict, fraction: float) -> AxisTube:
+    """Largest W scale (bisection, 1e-3 resolution) for which the axis keeps ``fraction`` of its limits."""
+    lo, hi = 0.0, 1.0
+    best = None
+    while hi - lo > 1e-3:
+        mid = 0.5 * (lo + hi)
+        ax = design_axis(i, **common, **limits, w_scale=mid)
+        if _keeps_fraction(ax, fraction):
+            lo, best = mid, ax
+        else:
+            hi = mid
+    if best is None:
+        raise InfeasibleError(
+            f"controller.tube: even W scaled to {lo:.1e} of its size leaves less than {fraction:g} of the "
+            f"{AXIS_NAMES[i]}-axis limits to the nominal MPC"
+        )
+    return best

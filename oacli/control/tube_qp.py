@@ -1,0 +1,295 @@
+"""The nominal MPC of robust tube MPC as one cvxpy QP, built once (DPP) and re-solved every step.
+
+The QP holds one or more decoupled linear subsystems ("blocks") over a common horizon N. A *tube block*
+(Mayne, Seron & Raković 2005; Doerr et al. 2021, Eq. 27) has a free initial nominal state ``z_0`` tied to the
+measured state ``x`` by the lasso constraint ``x − z_0 ∈ Z`` and tightened hard constraints ``z_k ∈ X̄``
+(k = 0..N) and ``v_k ∈ Ū``; a *standard block* (Doerr Eq. 26) starts at ``x`` and has soft state limits
+(exact ℓ1 penalty, so a measured state outside them never makes the QP infeasible) and hard input limits.
+Both minimise
+
+    Σ_{k<N} ‖Q^½ (z_k − x_ref,k)‖² + ‖R^½ (v_k − u_ref,k)‖² + ‖L (z_N − x_ref,N)‖²,   P_N = L Lᵀ.
+
+Every constraint is a linear inequality ``H y ≤ h`` written without ``abs`` atoms (which would add hidden
+variables), and the references enter the cost through ``sum_squares(c ⊙ (z − r))`` with constant ``c``, which
+keeps the problem DPP (``quad_form(z − r, Q)`` with a Parameter ``r`` would not). Parameters enter only the
+linear cost term and the right-hand sides, so :class:`oacli.control.compiled_qp.CompiledQP` can solve it
+without re-canonicalising.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import clarabel
+import cvxpy as cp
+import numpy as np
+
+from oacli.control.compiled_qp import CompiledQP, timed_cvxpy_solve
+from oacli.types import SolveInfo
+
+_OK = {"optimal", "optimal_inaccurate"}
+
+#: Clarabel settings of both solve paths: the defaults except iterative refinement of the KKT solves, which
+#: costs more than half the solve time on these small, well-scaled QPs; the interior-point method still stops
+#: only when Clarabel's residual and gap tolerances (1e-8) are met (tests compare with the default settings).
+CLARABEL_OPTIONS: dict = {"iterative_refinement_enable": False}
+
+
+@dataclass(frozen=True)
+class LinearConstraint:
+    """``H y ≤ h`` on a vector y (a state or an input)."""
+
+    h_matrix: np.ndarray
+    h_vector: np.ndarray
+
+    def __post_init__(self) -> None:
+        hm = np.array(self.h_matrix, dtype=float, ndmin=2)
+        hv = np.array(self.h_vector, dtype=float).reshape(-1)
+        if hm.shape[0] != hv.shape[0]:
+            raise ValueError(f"H has {hm.shape[0]} rows but h has {hv.shape[0]} entries")
+        object.__setattr__(self, "h_matrix", hm)
+        object.__setattr__(self, "h_vector", hv)
+
+    @classmethod
+    def box(cls, bound: np.ndarray, lower: np.ndarray | None = None) -> LinearConstraint:
+        """``lower ≤ y ≤ bound`` (``lower = −bound`` by default); infinite entries are left out."""
+        upper = np.asarray(bound, dtype=float).reshape(-1)
+        low = -upper if lower is None else np.asarray(lower, dtype=float).reshape(-1)
+        eye = np.eye(upper.size)
+        up, lo = np.isfinite(upper), np.isfinite(low)
+        return cls(np.vstack([eye[up], -eye[lo]]), np.concatenate([upper[up], -low[lo]]))
+
+    @property
+    def rows(self) -> int:
+        """Number of inequalities."""
+        return int(self.h_vector.size)
+
+
+@dataclass(frozen=True)
+class QPBlock:
+    """One linear subsystem ``y_{k+1} = A y_k + B u_k`` of the nominal QP.
+
+    Attributes
+    ----------
+    name : str
+    a, b : ndarray, shapes (n, n), (n, m)
+    q_diag, r_diag : ndarray, shapes (n,), (m,)
+        Stage weights (≥ 0 and > 0).
+    terminal : ndarray, shape (n, n)
+        Terminal weight P_N (symmetric positive semidefinite).
+    state : LinearConstraint, optional
+        Tube block: the tightened X̄, hard on z_0..z_N. Standard block: soft limits on y_1..y_N.
+    input : LinearConstraint, optional
+        Hard input constraint (tube block: Ū).
+    lasso : LinearConstraint, optional
+        ``Z`` as ``H e ≤ h``; given ⇒ tube block with the constraint ``x − z_0 ∈ Z``; omitted ⇒ ``y_0 = x``.
+    soft_penalty : float
+        ℓ1 weight of the soft state-limit slack (standard block).
+    """
+
+    name: str
+    a: np.ndarray
+    b: np.ndarray
+    q_diag: np.ndarray
+    r_diag: np.ndarray
+    terminal: np.ndarray
+    state: LinearConstraint | None = None
+    input: LinearConstraint | None = None
+    lasso: LinearConstraint | None = None
+    soft_penalty: float = 1e4
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return int(np.shape(self.a)[0])
+
+    @property
+    def m(self) -> int:
+        """Input dimension."""
+        return int(np.shape(self.b)[1])
+
+
+@dataclass
+class _BlockVars:
+    x: cp.Parameter
+    x_ref: cp.Parameter
+    u_ref: cp.Parameter
+    z: cp.Variable
+    z_n: cp.Variable
+    v: cp.Variable
+    slack: cp.Variable | None = None
+
+
+@dataclass(frozen=True)
+class BlockSolution:
+    """Solution of one block: nominal states ``z (N+1, n)`` and inputs ``v (N, m)`` (NaN when failed)."""
+
+    z: np.ndarray
+    v: np.ndarray
+    max_slack: float
+
+
+@dataclass(frozen=True)
+class QPSolution:
+    """One solve of :class:`NominalQP`: per-block solutions (by name) and the solve record."""
+
+    blocks: dict[str, BlockSolution]
+    info: SolveInfo
+
+
+class NominalQP:
+    """The nominal MPC QP of one or more blocks, built once, solved by the fast path or ``problem.solve()``.
+
+    Parameters
+    ----------
+    blocks : sequence of QPBlock
+    horizon : int
+        N ≥ 1.
+    fast : bool
+        Compile the direct Clarabel path (:class:`CompiledQP`) and use it by default.
+    clarabel_options : dict, optional
+        Clarabel settings used by both paths (default :data:`CLARABEL_OPTIONS`).
+    """
+
+    def __init__(
+        self,
+        blocks: list[QPBlock] | tuple[QPBlock, ...],
+        horizon: int,
+        *,
+        fast: bool = True,
+        clarabel_options: dict | None = None,
+    ) -> None:
+        if horizon < 1:
+            raise ValueError("horizon must be >= 1")
+        self.blocks = tuple(blocks)
+        self.horizon = n_steps = int(horizon)
+        names = [blk.name for blk in self.blocks]
+        if len(set(names)) != len(names):
+            raise ValueError(f"block names must be unique, got {names}")
+        cost = 0
+        constraints = []
+        self._vars: dict[str, _BlockVars] = {}
+        self._weights: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._values: dict[int, np.ndarray] = {}
+        for blk in self.blocks:
+            n, m = blk.n, blk.m
+            # States k = 0..N-1 and the terminal state are separate variables so that every quadratic term
+            # is on a variable itself: cvxpy then puts the weights straight into P (a quadratic term on a
+            # slice or an affine residual costs one auxiliary variable and equality row per entry).
+            bv = _BlockVars(
+                x=cp.Parameter(n, name=f"{blk.name}_x"),
+                x_ref=cp.Parameter((n_steps + 1, n), name=f"{blk.name}_x_ref"),
+                u_ref=cp.Parameter((n_steps, m), name=f"{blk.name}_u_ref"),
+                z=cp.Variable((n_steps, n), name=f"{blk.name}_z"),
+                z_n=cp.Variable(n, name=f"{blk.name}_z_terminal"),
+                v=cp.Variable((n_steps, m), name=f"{blk.name}_v"),
+            )
+            a, b = np.asarray(blk.a, dtype=float), np.asarray(blk.b, dtype=float)
+            q_w = np.tile(np.asarray(blk.q_diag, dtype=float), (n_steps, 1))
+            r_w = np.tile(np.asarray(blk.r_diag, dtype=float), (n_steps, 1))
+            p_n = np.asarray(blk.terminal, dtype=float)
+            p_n = 0.5 * (p_n + p_n.T)
+            # ‖c ⊙ (z − r)‖² = Σ w z² − 2 Σ (w ⊙ r) z + const: the references enter only the linear term q.
+            # The constant Σ w r² is not DPP (a product of parameters); NominalQP adds it to the objective.
+            cost = cost + (
+                cp.sum(cp.multiply(q_w, cp.square(bv.z)))
+                - 2 * cp.sum(cp.multiply(cp.multiply(q_w, bv.x_ref[:n_steps]), bv.z))
+                + cp.sum(cp.multiply(r_w, cp.square(bv.v)))
+                - 2 * cp.sum(cp.multiply(cp.multiply(r_w, bv.u_ref), bv.v))
+                + cp.quad_form(bv.z_n, p_n, assume_PSD=True)
+                - 2 * (bv.x_ref[n_steps] @ p_n) @ bv.z_n
+            )
+            self._weights[blk.name] = (q_w, r_w, p_n)
+            if n_steps > 1:
+                constraints.append(bv.z[1:] == bv.z[:-1] @ a.T + bv.v[:-1] @ b.T)
+            constraints.append(bv.z_n == a @ bv.z[n_steps - 1] + b @ bv.v[n_steps - 1])
+            if blk.input is not None:
+                hu = blk.input
+                constraints.append(bv.v @ hu.h_matrix.T <= np.tile(hu.h_vector, (n_steps, 1)))
+            if blk.lasso is not None:
+                hz = blk.lasso
+                # x − z_0 ∈ Z  ⇔  H z_0 ≥ H x − h
+                constraints.append(hz.h_matrix @ bv.z[0] >= hz.h_matrix @ bv.x - hz.h_vector)
+                if blk.state is not None:
+                    hx = blk.state
+                    constraints += [
+                        bv.z @ hx.h_matrix.T <= np.tile(hx.h_vector, (n_steps, 1)),
+                        hx.h_matrix @ bv.z_n <= hx.h_vector,
+                    ]
+            else:
+                constraints.append(bv.z[0] == bv.x)
+                if blk.state is not None and blk.state.rows:
+                    hx = blk.state
+                    bv.slack = cp.Variable((n_steps, hx.rows), name=f"{blk.name}_slack")
+                    constraints += [bv.slack >= 0, hx.h_matrix @ bv.z_n <= hx.h_vector + bv.slack[n_steps - 1]]
+                    if n_steps > 1:
+                        constraints.append(
+                            bv.z[1:] @ hx.h_matrix.T <= np.tile(hx.h_vector, (n_steps - 1, 1)) + bv.slack[:-1]
+                        )
+                    cost = cost + blk.soft_penalty * cp.sum(bv.slack)
+            self._vars[blk.name] = bv
+        self.problem = cp.Problem(cp.Minimize(cost), constraints)
+        self.clarabel_options = dict(CLARABEL_OPTIONS if clarabel_options is None else clarabel_options)
+        settings = clarabel.DefaultSettings()
+        for key, value in self.clarabel_options.items():
+            setattr(settings, key, value)
+        self.compiled = CompiledQP(self.problem, settings) if fast else None
+
+    def set_parameters(self, name: str, x: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> None:
+        """Set block ``name``'s measured state ``x (n,)``, references ``x_ref (N+1, n)`` and ``u_ref (N, m)``.
+
+        The values are checked here and handed to the solve path (cvxpy's Parameters receive them only for the
+        ``problem.solve()`` path, where their own validation runs).
+        """
+        bv = self._vars[name]
+        for param, value in ((bv.x, x), (bv.x_ref, x_ref), (bv.u_ref, u_ref)):
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != param.shape or not np.all(np.isfinite(arr)):
+                raise ValueError(f"{param.name()}: expected finite values of shape {param.shape}, got {arr.shape}")
+            self._values[param.id] = arr
+
+    def _reference_constant(self) -> float:
+        """``Σ w r²`` over every block: the part of the tracking cost that does not depend on the variables."""
+        total = 0.0
+        for name, bv in self._vars.items():
+            q_w, r_w, p_n = self._weights[name]
+            x_ref, u_ref = self._values[bv.x_ref.id], self._values[bv.u_ref.id]
+            total += float(np.sum(q_w * x_ref[:-1] ** 2) + np.sum(r_w * u_ref**2) + x_ref[-1] @ p_n @ x_ref[-1])
+        return total
+
+    def solve(self, *, fast: bool | None = None) -> QPSolution:
+        """Solve with the current parameters: the direct Clarabel path (default when compiled) or
+        ``problem.solve(solver=CLARABEL)``."""
+        use_fast = self.compiled is not None if fast is None else fast
+        if use_fast and self.compiled is None:
+            raise ValueError("the fast path was not compiled (fast=False at construction)")
+        start = time.perf_counter()
+        if use_fast:
+            out = self.compiled.solve(self._values)
+            status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
+            value = self.compiled.value if out.success else None
+        else:
+            for param in self.problem.parameters():
+                param.value = self._values[param.id]
+            status, solve_time = timed_cvxpy_solve(self.problem, **self.clarabel_options)  # wall of solve()
+            ok = status in _OK
+            objective = float(self.problem.value) if ok else float("nan")
+            stats = self.problem.solver_stats if ok else None
+            iterations = int(stats.num_iters) if stats is not None and stats.num_iters is not None else -1
+            value = (lambda var: np.asarray(var.value)) if ok else None
+        wall = time.perf_counter() - start
+        if value is not None:
+            objective += self._reference_constant()
+        blocks = {}
+        for name, bv in self._vars.items():
+            if value is None:
+                nan_z = np.full((self.horizon + 1, bv.z_n.size), np.nan)
+                blocks[name] = BlockSolution(nan_z, np.full(bv.v.shape, np.nan), np.nan)
+            else:
+                slack = 0.0 if bv.slack is None else float(np.max(value(bv.slack), initial=0.0))
+                z = np.vstack([value(bv.z), value(bv.z_n)[None, :]])
+                blocks[name] = BlockSolution(z, np.array(value(bv.v)), max(slack, 0.0))
+        info = SolveInfo(status, value is not None, objective, iterations, solve_time, wall)
+        return QPSolution(blocks, info)
+

@@ -1,0 +1,129 @@
+"""Rerun layers and layout of a ``track`` run with the robust tube MPC (``controller: tube``).
+
+Entities (added to the track recording of :func:`oacli.io.rerun_io.write_track_recording`):
+
+* ``world/nominal`` — the nominal path (static polyline of the tube centres ``z``), and
+  ``world/nominal/centre`` the nominal position moving over ``mission_time``;
+* ``world/tube`` — the tube ``z ⊕ Z`` along the nominal path: one box per control step, centred on the nominal
+  position, spanning the projection of Z on position (exact: Z is a product over the world axes);
+* ``metrics/tube/force_nominal_N`` and ``metrics/tube/force_ancillary_N`` — nominal ``v`` and ancillary
+  ``K (x̃ − z)`` force per axis (seed 001, Fig. 24), each with ± the tightened bound ``Ū`` (nominal) or
+  ``max |K Z|`` (ancillary) as limits;
+* ``metrics/tube/nominal_velocity_mps`` — nominal velocity against the tightened velocity bound ``X̄``;
+* ``metrics/tube/tube_margin`` — ``min_i (h_i − H_i (x̃ − ẑ))`` (≥ 0: inside the promised tube).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from oacli.io.rerun_blueprints import (
+    ATTITUDE_ERROR,
+    FORCE,
+    LOG,
+    POSITION_ERROR,
+    SOLVE_TIME,
+    TIMELINE,
+    TORQUE,
+    WORLD,
+    time_series_view,
+)
+from oacli.io.rerun_io import AXIS_NAMES, StageRecording
+
+NOMINAL = "world/nominal"
+TUBE = "world/tube"
+TUBE_METRICS = "metrics/tube"
+FORCE_NOMINAL = "metrics/tube/force_nominal_N"
+FORCE_ANCILLARY = "metrics/tube/force_ancillary_N"
+NOMINAL_VELOCITY = "metrics/tube/nominal_velocity_mps"
+TUBE_MARGIN = "metrics/tube/tube_margin"
+
+NOMINAL_COLOR = (60, 200, 200, 255)
+TUBE_COLOR = (60, 200, 200, 70)
+
+
+def log_tube_layers(
+    rec: StageRecording,
+    *,
+    t_ctrl: np.ndarray,
+    nominal_state: np.ndarray,
+    nominal_force: np.ndarray,
+    ancillary_force: np.ndarray,
+    tube_margin: np.ndarray,
+    z_position_extent: np.ndarray,
+    tightened_force_N: np.ndarray,
+    ancillary_force_max_N: np.ndarray,
+    tightened_velocity_mps: np.ndarray,
+) -> None:
+    """Log the tube layers (see the module docstring).
+
+    Parameters
+    ----------
+    rec : StageRecording
+    t_ctrl : ndarray, shape (K,)
+        Controller times [s].
+    nominal_state : ndarray, shape (K, 6)
+        Nominal ``[r (world) m, v m/s]`` per step.
+    nominal_force, ancillary_force : ndarray, shape (K, 3)
+        [N].
+    tube_margin : ndarray, shape (K,)
+        Tube margin per step (NaN where undefined).
+    z_position_extent : ndarray, shape (3, 2)
+        ``[−min, max]`` of Z's position projection per axis [m].
+    tightened_force_N, ancillary_force_max_N, tightened_velocity_mps : ndarray, shape (3,)
+        Symmetric bounds plotted as ± limits.
+    """
+    z = np.asarray(nominal_state, dtype=float)
+    ext = np.asarray(z_position_extent, dtype=float)
+    rec.log_path(NOMINAL, z[:, 0:3], color=NOMINAL_COLOR)
+    rec.log_positions_over_time(f"{NOMINAL}/centre", t_ctrl, z[:, 0:3], color=NOMINAL_COLOR, radius_m=0.01)
+    lower, upper = z[:, 0:3] - ext[:, 0], z[:, 0:3] + ext[:, 1]
+    rec.stream.log(
+        TUBE,
+        rr.Boxes3D(
+            centers=0.5 * (lower + upper),
+            half_sizes=0.5 * (upper - lower),
+            colors=[TUBE_COLOR],
+            fill_mode=rr.components.FillMode.MajorWireframe,
+        ),
+        static=True,
+        strict=True,
+    )
+    rec.log_series(FORCE_NOMINAL, t_ctrl, nominal_force, AXIS_NAMES, limits=tightened_force_N)
+    rec.log_series(FORCE_ANCILLARY, t_ctrl, ancillary_force, AXIS_NAMES, limits=ancillary_force_max_N)
+    rec.log_series(NOMINAL_VELOCITY, t_ctrl, z[:, 3:6], AXIS_NAMES, limits=tightened_velocity_mps)
+    rec.log_series(TUBE_MARGIN, t_ctrl, tube_margin, ["tube margin"])
+
+
+def tube_track_blueprint() -> rrb.Blueprint:
+    """Layout: the track layout's scene and log, its metrics, and a column of tube metrics."""
+    world = rrb.Spatial3DView(origin=WORLD, name="World (ISS frame): reference, flown path, nominal tube")
+    log = rrb.TextLogView(origin=LOG, name="Log")
+    # View names use glyphs of the viewer's font only (it panics on e.g. U+2295 ⊕ or combining macrons).
+    note = ": x red, y green, z blue; thin = ± bound"
+    metrics = rrb.Vertical(
+        time_series_view(POSITION_ERROR, "Position error [m]"),
+        time_series_view(ATTITUDE_ERROR, "Attitude error [rad]"),
+        time_series_view(FORCE, "Force applied [N]" + note, legend=False),
+        time_series_view(TORQUE, "Torque applied [N·m]" + note, legend=False),
+        time_series_view(SOLVE_TIME, "Solve time [ms]"),
+        name="Metrics",
+    )
+    tube = rrb.Vertical(
+        time_series_view(FORCE_NOMINAL, "Nominal force v [N]" + note + " (tightened U)", legend=False),
+        time_series_view(FORCE_ANCILLARY, "Ancillary force K(x - z) [N]" + note + " (max over Z)", legend=False),
+        time_series_view(NOMINAL_VELOCITY, "Nominal velocity [m/s]" + note + " (tightened X)", legend=False),
+        time_series_view(TUBE_MARGIN, "Tube margin (>= 0: inside the tube z + Z)"),
+        name="Tube",
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(world, log, row_shares=[3.0, 1.0], name="Scene"),
+            metrics,
+            tube,
+            column_shares=[1.2, 1.0, 1.0],
+        ),
+        rrb.TimePanel(timeline=TIMELINE),
+    )

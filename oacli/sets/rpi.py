@@ -1,0 +1,271 @@
+"""Robust positively invariant (RPI) sets of ``e⁺ = A_K e + w``, ``w ∈ W``.
+
+* :func:`minimal_rpi_outer`: Raković, Kerrigan, Kouramas & Mayne 2005 ("Invariant approximations of the
+  minimal robust positively invariant set", IEEE TAC 50(3)), Algorithm 1: the RPI outer ε-approximation
+  ``F(α, s) = (1 − α)⁻¹ F_s`` of the minimal RPI set ``F_∞``, with ``F_s = ⊕_{i<s} A_Kⁱ W`` (their Eq. 2),
+  ``α°(s) = max_i h_W((A_Kˢ)ᵀ f_i) / g_i`` (Eq. 11), ``M(s)`` of Eq. 13 and the stopping rule
+  ``α ≤ ε / (ε + M(s))`` (Eq. 14), so that ``F_∞ ⊆ F(α, s) ⊆ F_∞ ⊕ B_∞ⁿ(ε)``.
+* :func:`rpi_margins`: the robust invariance test facet by facet, ``h_Z(A_Kᵀ a_i) + h_W(a_i) ≤ b_i``.
+* :func:`reduce_facets`: fewer facets for a 2-D RPI set, each removal verified to keep the set RPI and within
+  ``(1 + growth)`` times the original (an outer approximation of ``F_∞`` that stays RPI).
+
+The computation never caps the number of terms ``s`` silently: when ``max_terms`` is not enough it refuses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from oacli.errors import InfeasibleError
+from oacli.sets.hull import convex_hull_2d, hull_normals, minkowski_sum_polygons
+from oacli.sets.polytope import Polytope
+
+
+@dataclass(frozen=True)
+class RPIApproximation:
+    """Result of :func:`minimal_rpi_outer`.
+
+    Attributes
+    ----------
+    z : Polytope
+        The RPI outer ε-approximation ``F(α, s)`` of the minimal RPI set.
+    s : int
+        Number of Minkowski-sum terms.
+    alpha : float
+        ``α°(s)``: ``A_Kˢ W ⊆ α W``.
+    m_s : float
+        ``M(s)`` of RKKM05 Eq. 13 [state units].
+    epsilon : float
+        Requested accuracy ε (radius of the ∞-norm ball) [state units].
+    spectral_radius : float
+        Spectral radius of ``A_K`` (< 1).
+    """
+
+    z: Polytope
+    s: int
+    alpha: float
+    m_s: float
+    epsilon: float
+    spectral_radius: float
+
+    @property
+    def facets(self) -> int:
+        """Number of inequalities of ``z``."""
+        return self.z.n_facets
+
+    @property
+    def epsilon_achieved(self) -> float:
+        """``α M(s) / (1 − α)``: the accuracy ``F(α, s) ⊆ F_∞ ⊕ B(ε)`` actually holds with (≤ ε)."""
+        return self.alpha * self.m_s / (1.0 - self.alpha)
+
+
+def spectral_radius(a: np.ndarray) -> float:
+    """Largest absolute eigenvalue of a square matrix."""
+    return float(np.max(np.abs(np.linalg.eigvals(np.asarray(a, dtype=float)))))
+
+
+def minimal_rpi_outer(
+    a_closed: np.ndarray, w: Polytope, epsilon: float, *, max_terms: int = 1000
+) -> RPIApproximation:
+    """RPI outer ε-approximation of the minimal RPI set (Raković et al. 2005, Algorithm 1).
+
+    Parameters
+    ----------
+    a_closed : ndarray, shape (n, n)
+        Closed-loop matrix ``A_K = A + B K``; must be Schur stable.
+    w : Polytope
+        Disturbance set W (bounded, with the origin in its interior: every offset ``g_i > 0``).
+    epsilon : float
+        Accuracy ε > 0 of the outer approximation [state units, ∞-norm].
+    max_terms : int
+        Largest number of terms s tried. Reaching it raises; the set is never cut short.
+
+    Returns
+    -------
+    RPIApproximation
+
+    Raises
+    ------
+    InfeasibleError
+        When ``A_K`` is not Schur stable, when W does not contain the origin in its interior, or when
+        ``max_terms`` terms do not reach ε.
+    """
+    a_k = np.asarray(a_closed, dtype=float)
+    n = a_k.shape[0]
+    if a_k.shape != (n, n) or w.dim != n:
+        raise ValueError(f"A_K must be square and match W's dimension ({w.dim}), got {a_k.shape}")
+    if not epsilon > 0:
+        raise ValueError(f"epsilon must be > 0, got {epsilon}")
+    rho = spectral_radius(a_k)
+    if rho >= 1.0:
+        raise InfeasibleError(
+            f"the ancillary closed loop A + BK is not Schur stable (spectral radius {rho:.6g} >= 1): "
+            "no bounded robust positively invariant set exists; choose another ancillary gain"
+        )
+    f, g = w.a, w.b
+    if np.any(g <= 0.0):
+        raise InfeasibleError(
+            "the disturbance set W does not contain the origin in its interior (an offset g_i <= 0): "
+            "Raković et al. 2005 Algorithm 1 needs 0 ∈ int W"
+        )
+    eye = np.eye(n)
+    directions = np.vstack([eye, -eye])
+    power = eye.copy()  # A_K^(s-1) during iteration s
+    m_sums = np.zeros(2 * n)  # Σ_{i<s} h_W(±(A_Kⁱ)ᵀ e_j)
+    alpha = np.inf
+    s = 0
+    while s < max_terms:
+        s += 1
+        m_sums += w.support(directions @ power)  # rows ±e_jᵀ A^(s-1)  → directions (A^(s-1))ᵀ(±e_j)
+        power = a_k @ power  # A_K^s
+        alpha = float(np.max(w.support(f @ power) / g))  # α°(s), Eq. 11: h_W((A^s)ᵀ f_i) / g_i
+        m_s = float(np.max(m_sums))  # M(s), Eq. 13
+        if alpha <= epsilon / (epsilon + m_s):  # Eq. 14
+            break
+    else:
+        raise InfeasibleError(
+            f"the minimal RPI approximation needs more than max_terms = {max_terms} terms for ε = {epsilon:g} "
+            f"(after {s} terms α = {alpha:.4g}, M = {m_s:.4g}, spectral radius {rho:.6g}); the set is not "
+            "truncated: raise max_terms or ε, or use a faster ancillary gain"
+        )
+    if alpha >= 1.0:  # cannot happen once Eq. 14 holds; kept as a guard for the scaling below
+        raise InfeasibleError(f"α = {alpha:.6g} >= 1: F(α, s) is not defined")
+    z = _scaled_minkowski_series(a_k, w, s, 1.0 / (1.0 - alpha))
+    return RPIApproximation(z=z, s=s, alpha=alpha, m_s=m_s, epsilon=float(epsilon), spectral_radius=rho)
+
+
+def _scaled_minkowski_series(a_k: np.ndarray, w: Polytope, s: int, scale: float) -> Polytope:
+    """``scale · ⊕_{i<s} A_Kⁱ W`` with normals from the hull of the summed vertices and offsets from the exact
+    support function ``scale · Σ_i h_W((A_Kⁱ)ᵀ a)`` (no vertex pruning affects the offsets)."""
+    n = a_k.shape[0]
+    powers = [np.eye(n)]
+    for _ in range(1, s):
+        powers.append(a_k @ powers[-1])
+    if n == 2:  # exact polygon sums by merging edges (linear time per term)
+        points = convex_hull_2d(w.vertices)
+        for p in powers[1:]:
+            points = minkowski_sum_polygons(points, convex_hull_2d(w.vertices @ p.T))
+    else:
+        points = w.vertices.copy()
+        for p in powers[1:]:
+            points = (points[:, None, :] + (w.vertices @ p.T)[None, :, :]).reshape(-1, n)
+            _, points = hull_normals(points)  # keep the hull vertices only (a point dropped lies inside the hull)
+    normals, hull_vertices = hull_normals(points)
+    offsets = sum(w.support(normals @ p) for p in powers)
+    return Polytope(normals, scale * offsets, vertices=scale * hull_vertices)
+
+
+def rpi_margins(a_closed: np.ndarray, z: Polytope, w: Polytope) -> np.ndarray:
+    """Robust invariance margins ``b_i − h_Z(A_Kᵀ a_i) − h_W(a_i)`` per facet ``a_iᵀ e ≤ b_i`` of Z.
+
+    All margins ``≥ 0`` ⇔ ``A_K Z ⊕ W ⊆ Z`` (Z is RPI; Kolmanovsky & Gilbert 1998).
+    """
+    a = z.a
+    return z.b - z.support(a @ np.asarray(a_closed, dtype=float)) - w.support(a)
+
+
+@dataclass(frozen=True)
+class FacetReduction:
+    """Result of :func:`reduce_facets`.
+
+    Attributes
+    ----------
+    z : Polytope
+        The reduced RPI set (contains the input set, is RPI, lies within ``(1 + growth)`` times the input).
+    facets_before, facets_after : int
+    growth : float
+        Largest ``h_reduced(a) / h_original(a) − 1`` over the original normals and the coordinate axes (≤ growth).
+    min_margin : float
+        Smallest robust invariance margin of the reduced set (≥ 0).
+    """
+
+    z: Polytope
+    facets_before: int
+    facets_after: int
+    growth: float
+    min_margin: float
+
+
+def _intersect(a1: np.ndarray, b1: float, a2: np.ndarray, b2: float) -> np.ndarray | None:
+    """Intersection of the lines ``a1ᵀx = b1`` and ``a2ᵀx = b2`` (None when parallel)."""
+    det = a1[0] * a2[1] - a1[1] * a2[0]
+    if abs(det) < 1e-14:
+        return None
+    return np.array([(b1 * a2[1] - b2 * a1[1]) / det, (a1[0] * b2 - a2[0] * b1) / det])
+
+
+def reduce_facets(a_closed: np.ndarray, z: Polytope, w: Polytope, growth: float) -> FacetReduction:
+    """A 2-D RPI set with fewer facets, within ``(1 + growth) Z`` (a valid, cheaper lasso constraint).
+
+    The search starts from ``(1 + growth/2) Z``, which is RPI with a positive margin on every facet (for an RPI
+    set Z, ``h_Z(a) − h_Z(A_Kᵀa) ≥ h_W(a)``, so scaling by ``1 + δ`` adds ``δ h_W(a)`` of margin). Removing
+    facet j replaces the polygon P by ``conv(P ∪ {v})``, v the intersection of j's neighbouring lines, so every
+    support value becomes ``max(h_P(d), vᵀd)``: the removal is accepted only when (i) the neighbours still bound
+    the set, (ii) every remaining robust invariance inequality ``h(A_Kᵀ a_k) + h_W(a_k) ≤ c_k`` holds with margin
+    ``≥ 1e-12 max|c|`` and (iii) ``vᵀa ≤ (1 + growth) h_Z(a)`` along every original normal and axis. Short facets
+    are tried first; passes repeat until nothing changes. The result contains Z (and ``F_∞``); it is checked once
+    more on independently enumerated vertices, and should that check fail Z is returned unchanged.
+
+    Parameters
+    ----------
+    a_closed : ndarray, shape (2, 2)
+    z : Polytope
+        A 2-D RPI set of ``(A_K, W)`` whose inequalities are all facets (as from :func:`minimal_rpi_outer`).
+    w : Polytope
+    growth : float
+        Allowed relative growth ≥ 0; 0 returns ``z`` unchanged.
+    """
+    a_k = np.asarray(a_closed, dtype=float)
+    before = z.n_facets
+    if z.dim != 2 or growth <= 0.0 or before <= 4:
+        return FacetReduction(z, before, before, 0.0, float(rpi_margins(a_k, z, w).min()))
+    angle = np.arctan2(z.a[:, 1], z.a[:, 0])
+    order = np.argsort(angle)
+    normals, angle = z.a[order], angle[order]
+    offsets = (1.0 + 0.5 * growth) * z.b[order]
+    f = len(offsets)
+    probe = np.vstack([normals, np.eye(2), -np.eye(2)])
+    limit = (1.0 + growth) * z.support(probe)
+    tol = 1e-12 * float(np.max(np.abs(offsets)))
+    budget = offsets - w.support(normals)  # c_k − h_W(a_k): the bound on h(A_Kᵀ a_k)
+    image_dirs = normals @ a_k  # rows (A_Kᵀ a_k)ᵀ
+    h_image = (1.0 + 0.5 * growth) * z.support(image_dirs)  # supports of the current polygon
+    if np.any(h_image > budget - tol):  # no room (numerically tight): keep Z
+        return FacetReduction(z, before, before, 0.0, float(rpi_margins(a_k, z, w).min()))
+    prev = np.roll(np.arange(f), 1)
+    nxt = np.roll(np.arange(f), -1)
+    keep = np.ones(f, dtype=bool)
+    vertex = np.array([_intersect(normals[k], offsets[k], normals[nxt[k]], offsets[nxt[k]]) for k in range(f)])
+    changed = True
+    while changed and keep.sum() > 3:
+        changed = False
+        kept = np.flatnonzero(keep)
+        lengths = np.linalg.norm(vertex[kept] - vertex[prev[kept]], axis=1)  # edge of line k: v_prev(k) .. v_k
+        for j in kept[np.argsort(lengths)]:
+            if keep.sum() <= 3:
+                break
+            p, n = prev[j], nxt[j]
+            gap = (angle[n] - angle[p]) % (2 * np.pi)
+            if gap >= np.pi - 1e-9:  # (i) the neighbours would not bound the set
+                continue
+            v = _intersect(normals[p], offsets[p], normals[n], offsets[n])
+            if v is None or np.any(probe @ v > limit + tol):  # (iii)
+                continue
+            new_h = np.maximum(h_image, image_dirs @ v)
+            others = keep.copy()
+            others[j] = False
+            if np.any(new_h[others] > budget[others] - tol):  # (ii)
+                continue
+            keep[j] = False
+            h_image = new_h
+            nxt[p], prev[n] = n, p
+            vertex[p] = v
+            changed = True
+    reduced = Polytope(normals[keep], offsets[keep])  # vertices re-enumerated independently of the search
+    grown = float(np.max(reduced.support(probe) / z.support(probe)) - 1.0)
+    margin = float(rpi_margins(a_k, reduced, w).min())
+    if margin < 0.0 or grown > growth * (1.0 + 1e-9) or not reduced.contains(z):  # independent final check
+        return FacetReduction(z, before, before, 0.0, float(rpi_margins(a_k, z, w).min()))
+    return FacetReduction(reduced, before, reduced.n_facets, max(grown, 0.0), margin)
