@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cvxpy as cp
@@ -583,7 +584,10 @@ def initial_guess(problem: ExcitationProblem, excitation_fraction: float = 0.3) 
 
 
 def design_excitation(
-    problem: ExcitationProblem, settings: ScpSettings | None = None, u_init: np.ndarray | None = None
+    problem: ExcitationProblem,
+    settings: ScpSettings | None = None,
+    u_init: np.ndarray | None = None,
+    progress: Callable[[float], None] | None = None,
 ) -> ExcitationDesign:
     """Design an information-optimal excitation trajectory (Doerr Eq. 30) by SCP; see the module docstring.
 
@@ -593,6 +597,8 @@ def design_excitation(
     settings : ScpSettings, optional
     u_init : ndarray, shape (N, 6), optional
         Initial inputs (default: :func:`initial_guess`).
+    progress : callable, optional
+        Called with the fraction of the iteration budget used after each iteration (and 1.0 at the end).
 
     Returns
     -------
@@ -669,6 +675,8 @@ def design_excitation(
             ScpIterate(it, current.criterion, current.merit, current.violation, candidate.criterion,
                        candidate.merit, predicted, ratio, d_force, d_torque, accepted, status, solve_time)
         )
+        if progress is not None:
+            progress(it / settings.max_iterations)
         if not (predicted_decrease > settings.tolerance) and not rotation_blamed:
             stop = "converged (predicted decrease below tolerance)"
             break
@@ -676,6 +684,8 @@ def design_excitation(
             stop = "trust region below its minimum"
             break
 
+    if progress is not None:
+        progress(1.0)
     x = current.x
     n = p.steps
     t = p.dt * np.arange(n + 1)

@@ -139,9 +139,12 @@ def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float) -> 
 
 
 def dense_positions(x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, substeps: int = 20) -> np.ndarray:
-    """Positions between samples under the zero-order-hold force (exact parabola), shape (N·substeps + 1, 3)."""
+    """Positions between samples under the zero-order-hold force (exact parabola), shape (N·substeps + 1, 3).
+
+    ``x (N+1, 13)``; ``u`` has N rows (or N+1, the last one unused).
+    """
     tau = dt_s * np.arange(substeps) / substeps
-    n = u.shape[0]
+    n = x.shape[0] - 1
     acc = u[:n, 0:3] / mass_kg
     pts = x[:n, None, 0:3] + x[:n, None, 3:6] * tau[None, :, None] + 0.5 * acc[:, None, :] * tau[None, :, None] ** 2
     return np.vstack([pts.reshape(-1, 3), x[n, 0:3]])
