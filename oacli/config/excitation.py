@@ -171,6 +171,11 @@ class RattleConfig(Section):
         default=3, description="SCP iterations per replan (ACADO RTI ran up to 5 SQP iterations)."
     )
     penalty: PositiveReal = Field(default=1000.0, description="Exact penalty on the normalised violation [-].")
+    stop_speed_fraction: Fraction = Field(
+        default=0.25,
+        description="End-of-horizon speed bound as a fraction of the velocity limit; the last planned sample keeps "
+        "the braking distance from walls and obstacles (recursive feasibility), in (0, 1].",
+    )
     weights: Annotated[RattleWeightsConfig, _none_to({})] = Field(
         default_factory=RattleWeightsConfig, description="Quadratic tracking weights of the planner."
     )

@@ -65,6 +65,8 @@ from oacli.excitation.problem import (
     keep_out_halfspaces,
     keep_out_violation,
     rest_to_rest_inputs,
+    rest_to_rest_profile,
+    translation_excitation,
 )
 from oacli.geometry import Scene
 from oacli.model import quaternion as quat
@@ -163,6 +165,11 @@ class ScpSettings:
         Trust-region factors.
     tolerance : float
         Stop when the predicted merit decrease is below this (the merit starts at 1).
+    starts : int
+        Number of starts (the deterministic initial guess plus random ones); each runs ``screening_iterations``
+        and the best continues up to ``max_iterations``.
+    screening_iterations : int
+        Iterations every start gets before the best is chosen.
     """
 
     max_iterations: int = 30
@@ -175,6 +182,8 @@ class ScpSettings:
     shrink: float = 0.5
     grow: float = 2.0
     tolerance: float = 1e-4
+    starts: int = 1
+    screening_iterations: int = 5
 
 
 @dataclass(frozen=True)
@@ -559,18 +568,22 @@ class _Subproblem:
 
 
 def initial_guess(problem: ExcitationProblem, excitation_fraction: float = 0.3) -> np.ndarray:
-    """A rest-to-rest input sequence (N, 6) with mild excitation on every axis (so that F is non-singular).
+    """A rest-to-rest input sequence (N, 6) that already excites every parameter (so that F is non-singular).
 
-    The excitation amplitude starts at ``excitation_fraction`` of the input limits and is halved until the rollout
-    keeps inputs, velocities and rates within 90 % of their limits.
+    Forces: the transfer plus out-and-back patterns near the speed limit (:func:`translation_excitation`).
+    Torques: the rotation plus zero-net harmonics at ``excitation_fraction`` of the limits, halved until the
+    rollout keeps inputs, velocities and rates within 90 % of their limits.
     """
     p = problem
     lim = p.limits
     frac = excitation_fraction
     u = rest_to_rest_inputs(p.start, p.goal, p.steps, p.dt, p.theta)
+    margin = chord_margin_m(lim.force_N, p.theta[0], p.dt) + p.clearance_m
+    pattern = translation_excitation(p.start, u[:, 0:3], p.dt, p.theta[0], lim, p.scene, margin)
     for _ in range(12):
-        amp = frac * np.vstack([lim.force_N, lim.torque_Nm])
+        amp = frac * np.vstack([np.where(np.any(pattern != 0, axis=0), 0.0, lim.force_N), lim.torque_Nm])
         u = rest_to_rest_inputs(p.start, p.goal, p.steps, p.dt, p.theta, excitation=amp)
+        u[:, 0:3] += pattern
         x, _ = propagate_with_sensitivities(p.start, u, p.theta, p.dt)
         ok = (
             np.all(np.abs(u) <= 0.9 * lim.input)
@@ -583,11 +596,115 @@ def initial_guess(problem: ExcitationProblem, excitation_fraction: float = 0.3) 
     return np.clip(u, -lim.input, lim.input)
 
 
+class _ScpRun:
+    """One SCP run from one start, advanced an iteration at a time (see the module docstring)."""
+
+    def __init__(self, problem: ExcitationProblem, settings: ScpSettings, merit: _Merit, sub: _Subproblem,
+                 start: Evaluation) -> None:
+        self.p = problem
+        self.s = settings
+        self.merit = merit
+        self.sub = sub
+        self.first = start
+        self.current = start
+        # Separate trust regions for force and torque: translation is exactly linear in the force, while the
+        # rotation (and so the final attitude and the rates) is where the linear model errs.
+        self.d_force = self.d_torque = settings.trust_region_initial
+        self.history: list[ScpIterate] = []
+        self.lin = None
+        self.stop: str | None = None
+
+    def step(self) -> None:
+        p, settings, merit, sub = self.p, self.s, self.merit, self.sub
+        it = len(self.history) + 1
+        current = self.current
+        if self.lin is None:
+            self.lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)
+        lin = self.lin
+        sub.set_iterate(current, lin, self.d_force, self.d_torque)
+        t0 = time.perf_counter()
+        status, du, slack = sub.solve()
+        solve_time = time.perf_counter() - t0
+        if du is None:
+            self.d_force *= settings.shrink
+            self.d_torque *= settings.shrink
+            self.history.append(
+                ScpIterate(it, current.criterion, current.merit, current.violation, float("nan"), float("nan"),
+                           float("nan"), float("nan"), self.d_force, self.d_torque, False, status, solve_time)
+            )
+            if max(self.d_force, self.d_torque) < settings.trust_region_min:
+                self.stop = f"subproblem failed ({status})"
+            return
+        dfim = _fim_step(lin.gradients, du)
+        crit_model = criterion_value(current.fim + dfim, p.criterion, merit.d)
+        predicted = merit.normalise(crit_model) + settings.penalty * slack if np.isfinite(crit_model) else np.inf
+        predicted_decrease = current.merit - predicted
+        trial = np.clip(current.u + du, -p.limits.input, p.limits.input)
+        candidate = merit.evaluate(trial)
+        if candidate.violations["terminal_attitude"] > 0 or candidate.violations["terminal_angular_velocity"] > 0:
+            corrected = merit.evaluate(restore_rotation_endpoint(p, trial))
+            if corrected.merit < candidate.merit:
+                candidate = corrected
+        actual = current.merit - candidate.merit
+        ratio = actual / predicted_decrease if predicted_decrease > 0 else float("nan")
+        accepted = bool(actual > 0 and predicted_decrease > 0 and ratio >= settings.accept_ratio)
+        rotation_blamed = False
+        if accepted:
+            self.current = current = candidate
+            self.lin = None
+            if ratio >= settings.good_ratio:
+                self.d_force = min(self.d_force * settings.grow, settings.trust_region_max)
+                self.d_torque = min(self.d_torque * settings.grow, settings.trust_region_max)
+        else:
+            rotation_blamed = _rotational_violation(candidate) > _rotational_violation(current)
+            self.d_torque *= settings.shrink
+            if not rotation_blamed or self.d_torque < settings.trust_region_min:
+                self.d_force *= settings.shrink
+        self.history.append(
+            ScpIterate(it, current.criterion, current.merit, current.violation, candidate.criterion,
+                       candidate.merit, predicted, ratio, self.d_force, self.d_torque, accepted, status, solve_time)
+        )
+        if not (predicted_decrease > settings.tolerance) and not rotation_blamed:
+            self.stop = "converged (predicted decrease below tolerance)"
+        elif max(self.d_force, self.d_torque) < settings.trust_region_min:
+            self.stop = "trust region below its minimum"
+
+
+def perturbed_guess(problem: ExcitationProblem, rng: np.random.Generator) -> np.ndarray:
+    """Another start for the SCP: the rest-to-rest transfer plus random zero-net harmonics on every channel.
+
+    Each channel gets ``cos(2π h (k + ½)/N + φ)`` with a random harmonic h ∈ {1, ..., 4} and phase φ, projected so
+    that the end state is unchanged to first order, at half the limit (halved until within 90 % of every limit).
+    """
+    p = problem
+    n = p.steps
+    lim = p.limits
+    phase = 2.0 * np.pi * (np.arange(n) + 0.5) / n
+    shapes = np.empty((n, 6))
+    for c in range(6):
+        prof = rest_to_rest_profile(n, np.cos(rng.integers(1, 5) * phase + rng.uniform(0.0, 2.0 * np.pi)), 0.0)
+        shapes[:, c] = prof / max(np.abs(prof).max(), 1e-12)
+    base = rest_to_rest_inputs(p.start, p.goal, n, p.dt, p.theta)
+    frac = 0.5
+    u = base
+    for _ in range(12):
+        u = base.copy()
+        u[:, 0:3] += frac * lim.force_N * shapes[:, 0:3]
+        u[:, 3:6] += frac * lim.torque_Nm * shapes[:, 3:6]
+        x, _ = propagate_with_sensitivities(p.start, u, p.theta, p.dt)
+        if (np.all(np.abs(u) <= 0.9 * lim.input) and np.all(np.abs(x[:, 3:6]) <= 0.9 * lim.velocity_mps)
+                and np.all(np.abs(x[:, 10:13]) <= 0.9 * lim.angular_velocity_radps)):
+            break
+        frac *= 0.5
+    return np.clip(u, -lim.input, lim.input)
+
+
 def design_excitation(
     problem: ExcitationProblem,
     settings: ScpSettings | None = None,
     u_init: np.ndarray | None = None,
     progress: Callable[[float], None] | None = None,
+    rng: np.random.Generator | None = None,
 ) -> ExcitationDesign:
     """Design an information-optimal excitation trajectory (Doerr Eq. 30) by SCP; see the module docstring.
 
@@ -599,6 +716,8 @@ def design_excitation(
         Initial inputs (default: :func:`initial_guess`).
     progress : callable, optional
         Called with the fraction of the iteration budget used after each iteration (and 1.0 at the end).
+    rng : numpy.random.Generator, optional
+        Source of the extra starts (:func:`perturbed_guess`); a fixed seed by default.
 
     Returns
     -------
@@ -619,70 +738,36 @@ def design_excitation(
         u0 = initial_guess(p)
     else:
         u0 = np.clip(np.asarray(u_init, dtype=float), -p.limits.input, p.limits.input)
-    current = merit.evaluate(u0)
-    first = current
     sub = _Subproblem(p, merit, settings.penalty)
-    # Separate trust regions for force and torque: translation is exactly linear in the force, while the rotation
-    # (and so the final attitude and the rates) is where the linear model errs.
-    d_force = d_torque = settings.trust_region_initial
-    history: list[ScpIterate] = []
-    lin = None
-    stop = "iteration limit"
-    for it in range(1, settings.max_iterations + 1):
-        if lin is None:
-            lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)
-        sub.set_iterate(current, lin, d_force, d_torque)
-        t0 = time.perf_counter()
-        status, du, slack = sub.solve()
-        solve_time = time.perf_counter() - t0
-        if du is None:
-            d_force *= settings.shrink
-            d_torque *= settings.shrink
-            history.append(
-                ScpIterate(it, current.criterion, current.merit, current.violation, float("nan"), float("nan"),
-                           float("nan"), float("nan"), d_force, d_torque, False, status, solve_time)
-            )
-            if max(d_force, d_torque) < settings.trust_region_min:
-                stop = f"subproblem failed ({status})"
-                break
-            continue
-        dfim = _fim_step(lin.gradients, du)
-        crit_model = criterion_value(current.fim + dfim, p.criterion, merit.d)
-        predicted = merit.normalise(crit_model) + settings.penalty * slack if np.isfinite(crit_model) else np.inf
-        predicted_decrease = current.merit - predicted
-        trial = np.clip(current.u + du, -p.limits.input, p.limits.input)
-        candidate = merit.evaluate(trial)
-        if candidate.violations["terminal_attitude"] > 0 or candidate.violations["terminal_angular_velocity"] > 0:
-            corrected = merit.evaluate(restore_rotation_endpoint(p, trial))
-            if corrected.merit < candidate.merit:
-                candidate = corrected
-        actual = current.merit - candidate.merit
-        ratio = actual / predicted_decrease if predicted_decrease > 0 else float("nan")
-        accepted = bool(actual > 0 and predicted_decrease > 0 and ratio >= settings.accept_ratio)
-        if accepted:
-            rotation_blamed = False
-            current = candidate
-            lin = None
-            if ratio >= settings.good_ratio:
-                d_force = min(d_force * settings.grow, settings.trust_region_max)
-                d_torque = min(d_torque * settings.grow, settings.trust_region_max)
-        else:
-            rotation_blamed = _rotational_violation(candidate) > _rotational_violation(current)
-            d_torque *= settings.shrink
-            if not rotation_blamed or d_torque < settings.trust_region_min:
-                d_force *= settings.shrink
-        history.append(
-            ScpIterate(it, current.criterion, current.merit, current.violation, candidate.criterion,
-                       candidate.merit, predicted, ratio, d_force, d_torque, accepted, status, solve_time)
-        )
+    # The first start fixes the merit's normalisation, so that all starts are compared on the same merit.
+    runs = [_ScpRun(p, settings, merit, sub, merit.evaluate(u0))]
+    rng = np.random.default_rng(0) if rng is None else rng
+    for _ in range(settings.starts - 1):
+        runs.append(_ScpRun(p, settings, merit, sub, merit.evaluate(perturbed_guess(p, rng))))
+    budget = settings.max_iterations
+    used = 0
+    if len(runs) > 1:
+        # Multi-start: information is a convex function of the inputs and it is *maximised*, so the SCP ends in a
+        # local optimum that depends on the start. Every start gets a few iterations; the best continues.
+        for run in runs:
+            for _ in range(settings.screening_iterations):
+                if run.stop is not None:
+                    break
+                run.step()
+                used += 1
+                if progress is not None:
+                    progress(min(used / (budget + settings.starts * settings.screening_iterations), 1.0))
+    best = min(runs, key=lambda r: r.current.merit)
+    while best.stop is None and len(best.history) < budget:
+        best.step()
+        used += 1
         if progress is not None:
-            progress(it / settings.max_iterations)
-        if not (predicted_decrease > settings.tolerance) and not rotation_blamed:
-            stop = "converged (predicted decrease below tolerance)"
-            break
-        if max(d_force, d_torque) < settings.trust_region_min:
-            stop = "trust region below its minimum"
-            break
+            progress(min(used / (budget + settings.starts * settings.screening_iterations), 1.0))
+    if best.stop is None:
+        best.stop = "iteration limit"
+    current, first, history, stop = best.current, best.first, best.history, best.stop
+    if len(runs) > 1:
+        stop += f" (best of {len(runs)} starts: start {runs.index(best) + 1})"
 
     if progress is not None:
         progress(1.0)

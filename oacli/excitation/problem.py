@@ -85,12 +85,17 @@ def box_assignment(scene: Scene, p_start: np.ndarray, p_end: np.ndarray, margin:
 
 
 def keep_in_violation(
-    scene: Scene, positions: np.ndarray, margin: np.ndarray, boxes: np.ndarray | None = None
+    scene: Scene,
+    positions: np.ndarray,
+    margin: np.ndarray,
+    boxes: np.ndarray | None = None,
+    end_extra_m: np.ndarray | float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Violation [m] of the keep-in constraint per segment, and the box used for each segment.
 
     ``positions (N+1, 3)``: segment k runs from sample k to k+1. With ``boxes`` omitted the best box per segment is
-    used (:func:`box_assignment`), which makes the violation a function of the positions alone.
+    used (:func:`box_assignment`), which makes the violation a function of the positions alone. ``end_extra_m``
+    shrinks the box further for the very last sample (room to stop, used by the receding-horizon planner).
     """
     if not scene.keep_in:
         n = positions.shape[0] - 1
@@ -100,7 +105,10 @@ def keep_in_violation(
         boxes = box_assignment(scene, p0, p1, margin)
     lo = np.array([scene.keep_in[i].lower for i in boxes]) + margin
     hi = np.array([scene.keep_in[i].upper for i in boxes]) - margin
-    excess = np.maximum.reduce([lo - p0, p0 - hi, lo - p1, p1 - hi])
+    lo1, hi1 = lo.copy(), hi.copy()
+    lo1[-1] += end_extra_m
+    hi1[-1] -= end_extra_m
+    excess = np.maximum.reduce([lo - p0, p0 - hi, lo1 - p1, p1 - hi1])
     return np.maximum(excess.max(axis=1), 0.0), boxes
 
 
@@ -125,16 +133,20 @@ def keep_out_halfspaces(center: np.ndarray, shape: np.ndarray, points: np.ndarra
     return n_hat, beta
 
 
-def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float) -> np.ndarray:
+def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end_extra_m: float = 0.0) -> np.ndarray:
     """Violation [m] per keep-out zone and segment, shape (E, N): ``max(0, β̂ + δ − n̂ᵀp)`` over both chord ends,
-    the half-space taken at the chord midpoint (see the module docstring)."""
+    the half-space taken at the chord midpoint (see the module docstring); the very last sample needs
+    ``end_extra_m`` more."""
     p0, p1 = positions[:-1], positions[1:]
     mid = 0.5 * (p0 + p1)
     out = np.zeros((len(scene.keep_out), p0.shape[0]))
+    extra = np.zeros(p0.shape[0])
+    extra[-1] = end_extra_m
     for e, ell in enumerate(scene.keep_out):
         n_hat, beta = keep_out_halfspaces(ell.center, ell.shape, mid)
-        gap = np.minimum(np.einsum("ki,ki->k", n_hat, p0), np.einsum("ki,ki->k", n_hat, p1)) - beta
-        out[e] = np.maximum(margin_m - gap, 0.0)
+        gap0 = np.einsum("ki,ki->k", n_hat, p0) - beta - margin_m
+        gap1 = np.einsum("ki,ki->k", n_hat, p1) - beta - margin_m - extra
+        out[e] = np.maximum(-np.minimum(gap0, gap1), 0.0)
     return out
 
 
@@ -167,7 +179,7 @@ def attitude_error(q_goal: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.nd
     return 2.0 * sign * rel[0:3], 2.0 * sign * left[0:3]
 
 
-def _rest_to_rest_profile(n: int, shape: np.ndarray, displacement_coeff: float) -> np.ndarray:
+def rest_to_rest_profile(n: int, shape: np.ndarray, displacement_coeff: float) -> np.ndarray:
     """Project ``shape (n,)`` so that ``Σ w = 0`` (rest to rest) and ``Σ w_k (n − k − ½) = displacement_coeff``."""
     c = np.vstack([np.ones(n), n - np.arange(n) - 0.5])
     rhs = np.array([0.0, displacement_coeff])
@@ -245,7 +257,7 @@ def rest_to_rest_inputs(
     if excitation is not None:
         amp = np.asarray(excitation, dtype=float).reshape(2, 3)
         for i in range(3):
-            prof = _rest_to_rest_profile(n, np.cos((2 + i) * phase), 0.0)
+            prof = rest_to_rest_profile(n, np.cos((2 + i) * phase), 0.0)
             prof = prof / max(np.abs(prof).max(), 1e-12)
             u[:, i] += amp[0, i] * prof
             alpha[:, i] += amp[1, i] * prof / inertia[i]
@@ -254,3 +266,67 @@ def rest_to_rest_inputs(
     w_mid = w + 0.5 * alpha * dt_s
     u[:, 3:6] = inertia * alpha + np.cross(w_mid, inertia * w_mid)
     return u
+
+
+def _triangle(phase: np.ndarray) -> np.ndarray:
+    """Unit triangle wave of period 1: 0 → 1 (¼) → 0 (½) → −1 (¾) → 0."""
+    f = np.mod(phase, 1.0)
+    return np.where(f < 0.25, 4 * f, np.where(f < 0.75, 2 - 4 * f, 4 * f - 4))
+
+
+def translation_excitation(
+    start: np.ndarray,
+    transfer_force: np.ndarray,
+    dt_s: float,
+    mass_kg: float,
+    limits: MotionLimits,
+    scene: Scene,
+    margin_m: np.ndarray,
+    max_cycles: int = 12,
+) -> np.ndarray:
+    """Out-and-back force patterns (N, 3) that keep the speed high, added to a rest-to-rest transfer.
+
+    The mass information of velocity measurements grows with ``Σ_k v_k²`` (``∂v/∂m = −v/m``), so a good start
+    for the design spends as long as possible near the speed limit. Per world axis, the velocity
+    ``v(t) = clip(A · tri(c t/T), −V, V)`` (``c`` whole cycles, ramps at 80 % of the acceleration left by the
+    transfer, plateaus at 90 % of the speed left by it) returns to rest and to its start; of the cycle counts and
+    signs whose motion stays in the keep-in box of the start (shrunk by ``margin_m``) and within the limits, the one
+    with the largest ``Σ v²`` is kept (none when nothing fits).
+    """
+    n = transfer_force.shape[0]
+    duration = n * dt_s
+    v_tr = np.vstack([np.zeros(3), np.cumsum(transfer_force * dt_s / mass_kg, axis=0)])
+    p_tr = start[0:3] + np.vstack([np.zeros(3), np.cumsum(0.5 * dt_s * (v_tr[:-1] + v_tr[1:]), axis=0)])
+    if scene.keep_in:
+        inside = [b for b in scene.keep_in if np.all(b.contains(start[0:3]))] or list(scene.keep_in)
+        box = max(inside, key=lambda b: float(np.min(np.minimum(start[0:3] - b.lower, b.upper - start[0:3]))))
+        lo, hi = box.lower + margin_m, box.upper - margin_m
+    else:
+        lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
+    t = dt_s * np.arange(n + 1)
+    out = np.zeros((n, 3))
+    for i in range(3):
+        accel = (0.8 * limits.force_N[i] - np.max(np.abs(transfer_force[:, i]))) / mass_kg
+        speed = 0.9 * limits.velocity_mps[i] - np.max(np.abs(v_tr[:, i]))
+        if accel <= 0 or speed <= 0:
+            continue
+        best, best_score = None, -np.inf
+        for cycles in range(1, max_cycles + 1):
+            period = duration / cycles
+            v = np.clip(accel * period / 4.0 * _triangle(t / period), -speed, speed)
+            f = mass_kg * np.diff(v) / dt_s
+            f = rest_to_rest_profile(n, f, 0.0)
+            for sign in (1.0, -1.0):
+                fs = sign * f
+                vs = v_tr[:, i] + np.concatenate([[0.0], np.cumsum(fs * dt_s / mass_kg)])
+                ps = p_tr[:, i] + np.concatenate([[0.0], np.cumsum(0.5 * dt_s * (vs[:-1] + vs[1:]) - 0.5 * dt_s
+                                                                   * (v_tr[:-1, i] + v_tr[1:, i]))])
+                if (np.any(ps < lo[i]) or np.any(ps > hi[i]) or np.max(np.abs(vs)) > 0.95 * limits.velocity_mps[i]
+                        or np.max(np.abs(fs + transfer_force[:, i])) > 0.95 * limits.force_N[i]):
+                    continue
+                score = float(np.sum(vs**2))
+                if score > best_score:
+                    best, best_score = fs, score
+        if best is not None:
+            out[:, i] = best
+    return out

@@ -182,6 +182,12 @@ class InformationAwarePlanner:
         Initial trust region as a fraction of the input limits.
     dither : float
         Amplitude (fraction of the input limits) of the rest-to-rest excitation tried as a second starting point.
+    clearance_m : float
+        Extra distance kept from keep-in faces and keep-out surfaces [m].
+    stop_speed_fraction : float
+        The speed at the end of the horizon is bounded by this fraction of the velocity limit, and the last sample
+        keeps the braking distance from that speed (at full force) from the walls and obstacles, so that the next
+        plan can always stay in the workspace.
     """
 
     def __init__(
@@ -198,6 +204,8 @@ class InformationAwarePlanner:
         penalty: float = 1000.0,
         trust_region: float = 1.0,
         dither: float = 0.3,
+        clearance_m: float = 0.0,
+        stop_speed_fraction: float = 0.25,
     ) -> None:
         self.goal = np.array(goal, dtype=float).reshape(13)
         self.n = int(horizon)
@@ -210,6 +218,8 @@ class InformationAwarePlanner:
         self.penalty = float(penalty)
         self.trust_region = float(trust_region)
         self.dither = float(dither)
+        self.clearance_m = float(clearance_m)
+        self.stop_speed = float(stop_speed_fraction) * limits.velocity_mps
         self._built_for_mass: float | None = None
 
     # -- the QP -----------------------------------------------------------------------------------------------
@@ -247,7 +257,11 @@ class InformationAwarePlanner:
             cp.abs(self.p_w[1:] + drot[1:, 4:7])
             <= self.p_w_bound + cp.reshape(s_w, (n, 1), order="C") @ lim.angular_velocity_radps[None, :],
         ]
-        slacks = [s_v, s_w]
+        # Room to stop at the end of the horizon: the next plan must be able to stay in the workspace
+        # (recursive feasibility of the receding horizon).
+        s_stop = cp.Variable(nonneg=True)
+        cons.append(cp.abs(self.p_v[n] + dv[n]) <= self.stop_speed * (1.0 + s_stop))
+        slacks = [s_v, s_w, s_stop]
         self.has_keep_in = bool(self.scene.keep_in)
         if self.has_keep_in:
             self.in_lo0, self.in_hi0, self.in_lo1, self.in_hi1 = (cp.Parameter((n, 3)) for _ in range(4))
@@ -289,8 +303,12 @@ class InformationAwarePlanner:
     # -- true cost and violation --------------------------------------------------------------------------------
 
     def _margins(self, mass: float) -> tuple[np.ndarray, float]:
-        margin = chord_margin_m(self.limits.force_N, mass, self.dt)
-        return margin, float(np.linalg.norm(margin))
+        margin = chord_margin_m(self.limits.force_N, mass, self.dt) + self.clearance_m
+        return margin, float(np.linalg.norm(margin - self.clearance_m)) + self.clearance_m
+
+    def stop_distance(self, mass: float) -> np.ndarray:
+        """Per-axis braking distance [m] from the end-of-horizon speed bound at full force."""
+        return self.stop_speed**2 * mass / (2.0 * self.limits.force_N)
 
     def _evaluate(self, x0, u, theta, std, gamma) -> dict:
         x, s = propagate_with_sensitivities(x0, u, theta, self.dt)
@@ -310,11 +328,14 @@ class InformationAwarePlanner:
         effort = w.force * np.sum(u[:, 0:3] ** 2) + w.torque * np.sum(u[:, 3:6] ** 2)
         lim = self.limits
         margin, out_margin = self._margins(theta[0])
+        stop = self.stop_distance(theta[0])
         viol = (
             np.sum(np.maximum(np.max(np.abs(x[1:, 3:6]) / lim.velocity_mps, axis=1) - 1.0, 0.0))
             + np.sum(np.maximum(np.max(np.abs(x[1:, 10:13]) / lim.angular_velocity_radps, axis=1) - 1.0, 0.0))
-            + np.sum(keep_in_violation(self.scene, x[:, 0:3], margin)[0]) / LENGTH_UNIT_M
-            + np.sum(keep_out_violation(self.scene, x[:, 0:3], out_margin)) / LENGTH_UNIT_M
+            + max(float(np.max(np.abs(x[-1, 3:6]) / self.stop_speed)) - 1.0, 0.0)
+            + np.sum(keep_in_violation(self.scene, x[:, 0:3], margin, end_extra_m=stop)[0]) / LENGTH_UNIT_M
+            + np.sum(keep_out_violation(self.scene, x[:, 0:3], out_margin, float(np.linalg.norm(stop))))
+            / LENGTH_UNIT_M
         )
         cost = tracking + terminal + effort - reward
         return {"u": u, "x": x, "fim": 0.5 * (fim + fim.T), "reward": reward, "cost": float(cost),
@@ -338,18 +359,23 @@ class InformationAwarePlanner:
         self.p_w_bound.value = np.minimum(w_max, np.maximum(0.98 * w_max, np.abs(x[1:, 10:13])))
         pos = x[:, 0:3]
         margin, out_margin = self._margins(theta[0])
+        stop = self.stop_distance(theta[0])
         if self.has_keep_in:
             _, boxes = keep_in_violation(self.scene, pos, margin)
             lo = np.array([self.scene.keep_in[i].lower for i in boxes]) + margin
             hi = np.array([self.scene.keep_in[i].upper for i in boxes]) - margin
             self.in_lo0.value, self.in_hi0.value = lo - pos[:-1], hi - pos[:-1]
+            lo[-1] += stop
+            hi[-1] -= stop
             self.in_lo1.value, self.in_hi1.value = lo - pos[1:], hi - pos[1:]
         mid = 0.5 * (pos[:-1] + pos[1:])
         for (n_hat, c0, c1), ell in zip(self.out_params, self.scene.keep_out, strict=True):
             nh, beta = keep_out_halfspaces(ell.center, ell.shape, mid)
             n_hat.value = nh
             c0.value = beta + out_margin - np.einsum("ki,ki->k", nh, pos[:-1])
-            c1.value = beta + out_margin - np.einsum("ki,ki->k", nh, pos[1:])
+            bound1 = beta + out_margin - np.einsum("ki,ki->k", nh, pos[1:])
+            bound1[-1] += float(np.linalg.norm(stop))
+            c1.value = bound1
 
     # -- public -------------------------------------------------------------------------------------------------
 

@@ -386,7 +386,8 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         problem.goal, horizon=rcfg.horizon, dt_s=rcfg.step_s, limits=limits, measurement=problem.measurement,
         scene=problem.scene, weights=PlannerWeights(w.position, w.velocity, w.attitude, w.angular_velocity, w.force,
                                                     w.torque, w.terminal),
-        iterations=rcfg.iterations, penalty=rcfg.penalty,
+        iterations=rcfg.iterations, penalty=rcfg.penalty, clearance_m=exc.clearance_m,
+        stop_speed_fraction=rcfg.stop_speed_fraction,
     )
     weighting = InformationWeighting(np.array(rcfg.gamma0), np.array(rcfg.floor), rcfg.alpha, rcfg.beta)
     prior_cov = exc.prior.covariance()
