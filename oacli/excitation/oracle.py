@@ -3,7 +3,7 @@
 The information-aware planner (:mod:`oacli.excitation.rattle`) needs, at every replan, the latest estimate
 ``θ̂`` and its standard deviations. Any sequential estimator that can be fed one measurement at a time will do
 (:class:`SequentialEstimator`); the real one (recursive least squares / EKF with outlier gating, seed 001 §4.4.1)
-lives in :mod:`oacli.estimation`.
+comes with the estimation half of issue 5 and only has to implement this protocol.
 
 :class:`CramerRaoOracle` is **not** an estimator: it knows the true parameters and reports them, with the
 Cramér-Rao covariance ``(F_prior + F)⁻¹`` of the information accumulated so far along the flown trajectory (the
@@ -14,7 +14,7 @@ testing the planner's information-seeking behaviour independently of any estimat
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from oacli.model import rigid_body as rb
 from oacli.types import ParameterEstimate
 
 
+@runtime_checkable
 class SequentialEstimator(Protocol):
     """A parameter estimator updated with one measurement at a time.
 

@@ -169,14 +169,25 @@ def collision_free(scene: Scene, x: np.ndarray, u: np.ndarray, dt_s: float, mass
     return bool(np.all(scene.in_keep_in(pts)) and not np.any(scene.in_keep_out(pts)))
 
 
+def left_multiplication_matrix(p: np.ndarray) -> np.ndarray:
+    """``L(p)`` (4, 4) with ``p ⊗ q = L(p) q`` (Hamilton product, scalar last)."""
+    x, y, z, w = np.asarray(p, dtype=float)
+    return np.array([[w, -z, y, x], [z, w, -x, y], [-y, x, w, z], [-x, -y, -z, w]])
+
+
+def attitude_errors(q_goal: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Small-angle attitude errors ``e = 2 vec(q_goal⁻¹ ⊗ q)`` (sign fixed so the scalar part is ≥ 0) of a stack of
+    quaternions ``q (K, 4)``, and their Jacobians ``∂e/∂q`` (K, 3, 4)."""
+    left = left_multiplication_matrix(quat.conjugate(q_goal))
+    rel = np.asarray(q, dtype=float) @ left.T
+    sign = np.where(rel[:, 3] >= 0, 1.0, -1.0)
+    return 2.0 * sign[:, None] * rel[:, 0:3], 2.0 * sign[:, None, None] * left[None, 0:3, :]
+
+
 def attitude_error(q_goal: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Small-angle attitude error ``e = 2 vec(q_goal⁻¹ ⊗ q)`` (sign fixed so the scalar part is ≥ 0) and ``∂e/∂q``
-    (3, 4)."""
-    conj = quat.conjugate(q_goal)
-    left = np.column_stack([quat.multiply(conj, col) for col in np.eye(4)])  # q_goal⁻¹ ⊗ q = L q
-    rel = left @ q
-    sign = 1.0 if rel[3] >= 0 else -1.0
-    return 2.0 * sign * rel[0:3], 2.0 * sign * left[0:3]
+    """:func:`attitude_errors` of one quaternion: ``e`` (3,) and ``∂e/∂q`` (3, 4)."""
+    e, jac = attitude_errors(q_goal, np.asarray(q, dtype=float)[None, :])
+    return e[0], jac[0]
 
 
 def rest_to_rest_profile(n: int, shape: np.ndarray, displacement_coeff: float) -> np.ndarray:

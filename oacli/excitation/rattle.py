@@ -46,7 +46,7 @@ from oacli.excitation.information import (
 from oacli.excitation.problem import (
     LENGTH_UNIT_M,
     MotionLimits,
-    attitude_error,
+    attitude_errors,
     chord_margin_m,
     keep_in_violation,
     keep_out_halfspaces,
@@ -202,7 +202,7 @@ class InformationAwarePlanner:
         weights: PlannerWeights | None = None,
         iterations: int = 3,
         penalty: float = 1000.0,
-        trust_region: float = 1.0,
+        trust_region: float = 0.25,
         dither: float = 0.3,
         clearance_m: float = 0.0,
         stop_speed_fraction: float = 0.25,
@@ -316,7 +316,7 @@ class InformationAwarePlanner:
         fim = np.einsum("kmi,kmj->ij", g_state, g_state) + np.einsum("kmi,kmj->ij", g_acc, g_acc)
         reward = float(np.sum(gamma * 0.5 * np.log1p(np.diag(fim) * std**2)))
         w = self.weights
-        err = np.array([attitude_error(self.goal[6:10], q)[0] for q in x[:, 6:10]])
+        err, jac = attitude_errors(self.goal[6:10], x[:, 6:10])
         dr = x[:, 0:3] - self.goal[0:3]
         stage = slice(1, self.n)
         tracking = (
@@ -339,7 +339,7 @@ class InformationAwarePlanner:
         )
         cost = tracking + terminal + effort - reward
         return {"u": u, "x": x, "fim": 0.5 * (fim + fim.T), "reward": reward, "cost": float(cost),
-                "violation": float(viol), "merit": float(cost + self.penalty * viol), "err": err}
+                "violation": float(viol), "merit": float(cost + self.penalty * viol), "err": err, "jac": jac}
 
     def _set(self, ev: dict, theta, std, gamma, delta: float) -> None:
         x = ev["x"]
@@ -352,11 +352,13 @@ class InformationAwarePlanner:
         lin = fim_gradients(x[0], ev["u"], theta, self.dt, self.measurement, weight[None])
         self.p_g.value = lin.gradients[0]
         self.rotation.set(lin.a, lin.b)
-        jac = np.array([attitude_error(self.goal[6:10], q)[1] for q in x[:, 6:10]])
-        self.attitude.set(ev["err"], jac)
+        self.attitude.set(ev["err"], ev["jac"])
         self.p_delta.value = delta * self.limits.input
+        # The rates follow the linearised rotation only to first order: the model aims at 90 % of the limit (never
+        # tighter than the current rate, so the slack at zero step is the true violation), leaving the rest for
+        # the linearisation error of a step.
         w_max = self.limits.angular_velocity_radps[None, :]
-        self.p_w_bound.value = np.minimum(w_max, np.maximum(0.98 * w_max, np.abs(x[1:, 10:13])))
+        self.p_w_bound.value = np.minimum(w_max, np.maximum(0.9 * w_max, np.abs(x[1:, 10:13])))
         pos = x[:, 0:3]
         margin, out_margin = self._margins(theta[0])
         stop = self.stop_distance(theta[0])
