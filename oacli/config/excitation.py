@@ -117,6 +117,14 @@ class ScpConfig(Section):
     tolerance: PositiveReal = Field(
         default=1e-4, description="Stop when the predicted merit decrease is below this (merit starts at 1)."
     )
+    starts: Annotated[StrictInt, Field(ge=1, le=50)] = Field(
+        default=1,
+        description="Starts: the deterministic initial guess plus random ones (from the seed); the best after "
+        "screening_iterations continues, 1..50.",
+    )
+    screening_iterations: Annotated[StrictInt, Field(ge=1, le=100)] = Field(
+        default=5, description="Iterations each start gets before the best one is chosen, 1..100."
+    )
 
     @model_validator(mode="after")
     def _ordered(self) -> ScpConfig:

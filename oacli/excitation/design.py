@@ -22,8 +22,24 @@ exactly); around the current one a convex subproblem in the step ``δu`` is solv
 
 A step is accepted only when the merit ``φ = J/J_ref + μ·V`` (``V`` the normalised constraint violation of the
 *nonlinear* rollout, measured as the slacks measure it) decreases and the ratio of actual to predicted decrease is
-at least ``accept_ratio``; Δ grows after good steps and shrinks after poor or rejected ones. Every iterate, accepted
-or not, is recorded with its criterion, merit, violation and trust region.
+at least ``accept_ratio``; Δ grows after good steps and shrinks after poor or rejected ones (separately for force and
+torque: translation is exactly linear, rotation is where the model errs). Every iterate, accepted or not, is
+recorded with its criterion, merit, violation and trust regions.
+
+Two details keep the iteration efficient on long horizons, where the final attitude is a strongly nonlinear
+function of the torques:
+
+* constraints the model predicts only to first order (final attitude and rate, rate limits) are aimed at a
+  tightened bound that is never tighter than the current value, so the slacks at zero step still equal the true
+  violation while a step's linearisation error stays inside the true bound;
+* a trial point that misses the final attitude gets a second-order correction (:func:`restore_rotation_endpoint`,
+  Gauss-Newton on the final attitude and rate with the torques), and the better of the two is judged by the merit
+  (the classical remedy for the Maratos effect of exact-penalty SQP).
+
+Information is a convex function of the inputs and it is *maximised*, so the result is a local optimum that depends
+on the start. The default start (:func:`initial_guess`) already spends long stretches near the speed limit (the mass
+information of velocity measurements grows with ``Σ v²``) and excites every rotation axis; optional extra starts
+(``ScpSettings.starts``) are screened for a few iterations and the best continues.
 """
 
 from __future__ import annotations

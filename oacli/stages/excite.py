@@ -205,6 +205,8 @@ def scp_settings(cfg: OacliConfig) -> ScpSettings:
         trust_region_max=s.trust_region_max,
         penalty=s.penalty,
         tolerance=s.tolerance,
+        starts=s.starts,
+        screening_iterations=s.screening_iterations,
     )
 
 
@@ -291,7 +293,7 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
                  progress: Callable[[float], None] | None) -> StageResult:
     wall = time.perf_counter()
     problem = excitation_problem(cfg)
-    design = design_excitation(problem, scp_settings(cfg), progress=progress)
+    design = design_excitation(problem, scp_settings(cfg), progress=progress, rng=np.random.default_rng(cfg.seed))
     check_design(design, problem)
 
     log: list[LogEntry] = [
