@@ -578,6 +578,9 @@ class ReferenceConfig(Section):
 # --------------------------------------------------------------------------------------------------------------
 
 
+from oacli.config.excitation import ExcitationConfig  # noqa: E402  (needs Section and the types above)
+
+
 class OacliConfig(Section):
     """A complete, validated oacli configuration. Only ``robot`` is required; everything else has defaults."""
 
@@ -606,6 +609,9 @@ class OacliConfig(Section):
     )
     reference: Annotated[ReferenceConfig, _none_to({})] = Field(
         default_factory=ReferenceConfig, description="Reference trajectory settings."
+    )
+    excitation: Annotated[ExcitationConfig, _none_to({})] = Field(
+        default_factory=ExcitationConfig, description="Excitation design and online information-aware planning."
     )
 
     @model_validator(mode="after")

@@ -1,0 +1,48 @@
+"""``oacli excite``: an information-rich excitation trajectory (offline design or RATTLE in closed loop)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+
+EXCITE_TABLE = [
+    "status", "method", "criterion", "criterion_initial", "criterion_final", "iterations", "solve_time_s",
+    "max_force_N", "max_torque_Nm", "collision_free", "crb_std", "goal_residual", "wall_time_s",
+]
+
+
+@app.command("excite")
+def excite(
+    config: Annotated[Path, typer.Argument(help="YAML configuration file with an excitation section (see configs/).")],
+    method: Annotated[
+        str | None,
+        typer.Option("--method", "-m", help="'offline' (SCP design, Doerr Eq. 30) or 'rattle' (online "
+                     "information-aware planner in closed loop). Overrides excitation.method."),
+    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
+    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
+        "runs"
+    ),
+    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+) -> None:
+    """Design an information-rich trajectory from excitation.start to excitation.goal; write excite.mcap,
+    excite.rrd and summary.json."""
+
+    def action():
+        from oacli.errors import ConfigError
+        from oacli.stages.excite import run_excite
+
+        if method is not None and method not in ("offline", "rattle"):
+            raise ConfigError(f"--method: {method!r}: must be 'offline' or 'rattle'")
+        cfg = load_config_with_seed(config, seed)
+        return run_excite(cfg, method=method, out=out, runs_root=runs_root, progress=Progress("excite", not quiet))
+
+    result = run_guarded(action)
+    if not quiet:
+        print_table(result.summary, EXCITE_TABLE)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet)

@@ -1,0 +1,258 @@
+"""The ``excitation`` section: information-rich trajectory design (Doerr et al. 2021, Eq. 30) and RATTLE.
+
+Everything has a default except the start and the goal (needed by ``oacli excite`` only, checked there). Numbers
+with a published source say so in their description; see ``configs/`` for commented presets.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BeforeValidator, Field, Strict, model_validator
+from pydantic_core import PydanticCustomError
+
+from oacli.config.models import (
+    PositiveReal,
+    PositiveVector3,
+    PrincipalInertia,
+    Real,
+    Section,
+    StrictInt,
+    WaypointRef,
+    _none_to,
+    _sequence,
+)
+
+MAX_EXCITATION_STEPS = 2000
+"""Largest accepted number of design steps."""
+
+RATTLE_VELOCITY_STD = math.sqrt(5e-6)
+"""rattle ``param_est/scripts/param_est_config.py``: R_6DOF velocity entries 0.5e-5, read as variances (the filter
+adds R to H P Hᵀ, ``S = H P Hᵀ + R``), so the standard deviation is sqrt(5e-6) = 2.236e-3 m/s."""
+RATTLE_ANGULAR_VELOCITY_STD = math.sqrt(2.5e-4)
+"""rattle ``param_est``: R_6DOF angular velocity entries 0.25e-3 (variances) -> 1.581e-2 rad/s."""
+RATTLE_ACCELERATION_STD = math.sqrt(5e-6)
+"""rattle ``param_est``: R_6DOF linear acceleration entries 0.5e-5 (variances) -> 2.236e-3 m/s²."""
+
+PositiveVector4 = Annotated[
+    tuple[PositiveReal, PositiveReal, PositiveReal, PositiveReal], BeforeValidator(_sequence(4))
+]
+"""Four positive numbers, one per parameter [m, Ixx, Iyy, Izz]."""
+NonNegativeVector4 = Annotated[
+    tuple[
+        Annotated[Real, Field(ge=0)], Annotated[Real, Field(ge=0)], Annotated[Real, Field(ge=0)],
+        Annotated[Real, Field(ge=0)],
+    ],
+    BeforeValidator(_sequence(4)),
+]
+StrictBool = Annotated[bool, Strict()]
+Fraction = Annotated[Real, Field(gt=0, le=1)]
+
+
+class LimitsOverride(Section):
+    """Per-axis limits that replace the robot's for this design (each omitted one keeps the robot's)."""
+
+    force_N: PositiveVector3 | None = Field(default=None, description="Force bound per world axis [N].")
+    torque_Nm: PositiveVector3 | None = Field(default=None, description="Torque bound per body axis [N·m].")
+    velocity_mps: PositiveVector3 | None = Field(default=None, description="Velocity bound per world axis [m/s].")
+    angular_velocity_radps: PositiveVector3 | None = Field(
+        default=None, description="Angular velocity bound per body axis [rad/s]."
+    )
+
+
+class MeasurementNoiseConfig(Section):
+    """What the estimator measures, with per-axis noise standard deviations (``null`` = not measured).
+
+    The defaults are RATTLE's sequential estimator (rattle ``param_est``): velocity, angular velocity and linear
+    acceleration, with R = diag(5e-6 ×3, 2.5e-4 ×3, 5e-6 ×3) read as variances.
+    """
+
+    position_std_m: PositiveReal | None = Field(default=None, description="Position noise std [m].")
+    velocity_std_mps: PositiveReal | None = Field(
+        default=RATTLE_VELOCITY_STD, description="Velocity noise std [m/s] (rattle: sqrt(5e-6))."
+    )
+    attitude_std_rad: PositiveReal | None = Field(default=None, description="Attitude noise std [rad].")
+    angular_velocity_std_radps: PositiveReal | None = Field(
+        default=RATTLE_ANGULAR_VELOCITY_STD, description="Angular velocity noise std [rad/s] (rattle: sqrt(2.5e-4))."
+    )
+    linear_acceleration_std_mps2: PositiveReal | None = Field(
+        default=RATTLE_ACCELERATION_STD, description="Linear acceleration noise std [m/s²] (rattle: sqrt(5e-6))."
+    )
+    angular_acceleration_std_radps2: PositiveReal | None = Field(
+        default=None, description="Angular acceleration noise std [rad/s²]."
+    )
+
+    @model_validator(mode="after")
+    def _something_measured(self) -> MeasurementNoiseConfig:
+        if all(getattr(self, name) is None for name in type(self).model_fields):
+            raise PydanticCustomError("oacli_measurement", "at least one quantity must be measured (all are null)")
+        return self
+
+
+class TerminalToleranceConfig(Section):
+    """How close to the goal, at rest, the design must end (largest per-axis error)."""
+
+    position_m: PositiveReal = Field(default=0.01, description="Position tolerance [m].")
+    velocity_mps: PositiveReal = Field(default=1e-3, description="Velocity tolerance [m/s].")
+    attitude_rad: PositiveReal = Field(default=0.01, description="Attitude tolerance [rad].")
+    angular_velocity_radps: PositiveReal = Field(default=1e-3, description="Angular velocity tolerance [rad/s].")
+
+
+class ScpConfig(Section):
+    """Sequential convex programming of the offline design."""
+
+    max_iterations: Annotated[StrictInt, Field(ge=1, le=1000)] = Field(
+        default=40, description="Convex subproblems solved at most, 1..1000."
+    )
+    trust_region_initial: PositiveReal = Field(
+        default=0.5, description="Initial trust region, fraction of the input limits [-], > 0."
+    )
+    trust_region_min: PositiveReal = Field(default=1e-3, description="Stop below this trust region [-], > 0.")
+    trust_region_max: PositiveReal = Field(default=2.0, description="Largest trust region [-], > 0.")
+    penalty: PositiveReal = Field(
+        default=10.0, description="Exact-penalty weight on the normalised constraint violation [-], > 0."
+    )
+    tolerance: PositiveReal = Field(
+        default=1e-4, description="Stop when the predicted merit decrease is below this (merit starts at 1)."
+    )
+    starts: Annotated[StrictInt, Field(ge=1, le=50)] = Field(
+        default=1,
+        description="Starts: the deterministic initial guess plus random ones (from the seed); the best after "
+        "screening_iterations continues, 1..50.",
+    )
+    screening_iterations: Annotated[StrictInt, Field(ge=1, le=100)] = Field(
+        default=5, description="Iterations each start gets before the best one is chosen, 1..100."
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ScpConfig:
+        if not self.trust_region_min <= self.trust_region_initial <= self.trust_region_max:
+            raise PydanticCustomError(
+                "oacli_trust_region",
+                "need trust_region_min <= trust_region_initial <= trust_region_max (got {a}, {b}, {c})",
+                {"a": self.trust_region_min, "b": self.trust_region_initial, "c": self.trust_region_max},
+            )
+        return self
+
+
+class PriorConfig(Section):
+    """Prior knowledge of θ = [m, Ixx, Iyy, Izz]: the design's model and the estimator's start."""
+
+    mass_kg: PositiveReal | None = Field(default=None, description="Prior mass [kg] (default: robot.mass_kg).")
+    inertia_kgm2: PrincipalInertia | None = Field(
+        default=None, description="Prior principal inertias [kg·m²] (default: robot.inertia_kgm2)."
+    )
+    variance: PositiveVector4 = Field(
+        default=(15.0, 0.005, 0.005, 0.005),
+        description="Prior variances [kg², (kg·m²)²] (rattle param_est P0 = diag(15, 0.005, 0.005, 0.005)).",
+    )
+
+    def covariance(self) -> np.ndarray:
+        """Prior covariance diag(variance), shape (4, 4)."""
+        return np.diag(np.array(self.variance, dtype=float))
+
+
+class RattleWeightsConfig(Section):
+    """Planner tracking weights (rattle: state [10, 10, 10, 5, 5, 5, 1×6], input 1, terminal 100)."""
+
+    position: PositiveReal = Field(default=10.0, description="Position error weight [1/m²].")
+    velocity: PositiveReal = Field(default=5.0, description="Velocity weight [s²/m²].")
+    attitude: PositiveReal = Field(default=1.0, description="Attitude error weight [1/rad²].")
+    angular_velocity: PositiveReal = Field(default=1.0, description="Angular velocity weight [s²/rad²].")
+    force: PositiveReal = Field(default=1.0, description="Force weight [1/N²].")
+    torque: PositiveReal = Field(default=1.0, description="Torque weight [1/(N·m)²].")
+    terminal: PositiveReal = Field(default=100.0, description="Final-error weight [-].")
+
+
+class RattleConfig(Section):
+    """The online information-aware planner in closed loop (RATTLE, seed 001 §4.4, §4.6)."""
+
+    horizon: Annotated[StrictInt, Field(ge=2, le=500)] = Field(
+        default=40, description="Planning horizon N [steps] (rattle: 40)."
+    )
+    step_s: PositiveReal = Field(default=0.3, description="Planning step [s] (rattle: 0.3 s).")
+    replan_period_s: PositiveReal = Field(default=12.0, description="Time between replans [s] (flown: 12 s).")
+    duration_s: PositiveReal = Field(default=60.0, description="Closed-loop run time [s].")
+    iterations: Annotated[StrictInt, Field(ge=1, le=100)] = Field(
+        default=3, description="SCP iterations per replan (ACADO RTI ran up to 5 SQP iterations)."
+    )
+    penalty: PositiveReal = Field(default=1000.0, description="Exact penalty on the normalised violation [-].")
+    stop_speed_fraction: Fraction = Field(
+        default=0.25,
+        description="End-of-horizon speed bound as a fraction of the velocity limit; the last planned sample keeps "
+        "the braking distance from walls and obstacles (recursive feasibility), in (0, 1].",
+    )
+    weights: Annotated[RattleWeightsConfig, _none_to({})] = Field(
+        default_factory=RattleWeightsConfig, description="Quadratic tracking weights of the planner."
+    )
+    gamma0: NonNegativeVector4 = Field(
+        default=(50.0, 20.0, 20.0, 20.0), description="Initial information weights γ0 for [m, Ixx, Iyy, Izz]."
+    )
+    floor: PositiveVector4 = Field(
+        default=(0.03, 1e-4, 1e-4, 1e-4), description="Desired precision per parameter [kg, kg·m²]."
+    )
+    alpha: PositiveReal = Field(default=2.2, description="Shut-off: γ_i = 0 once σ_i <= alpha · floor_i.")
+    beta: PositiveReal = Field(default=5.0, description="Decay: γ_i = γ0_i exp(-beta floor_i / σ_i).")
+    limits: Annotated[LimitsOverride, _none_to({})] = Field(
+        default_factory=LimitsOverride,
+        description="Planner limits (rattle planner: 0.15 N, 0.015 N·m); omitted ones: excitation.limits, then robot.",
+    )
+
+
+class ExcitationConfig(Section):
+    """Information-rich excitation from ``start`` to ``goal`` (Doerr Eq. 30) and online RATTLE planning."""
+
+    method: Literal["offline", "rattle"] = Field(
+        default="offline", description="'offline': SCP design (Eq. 30); 'rattle': online planner in closed loop."
+    )
+    start: WaypointRef | None = Field(default=None, description="Start pose (waypoint name or inline), at rest.")
+    goal: WaypointRef | None = Field(default=None, description="Goal pose (waypoint name or inline), at rest.")
+    duration_s: PositiveReal = Field(default=60.0, description="Duration of the offline design [s].")
+    steps: Annotated[StrictInt, Field(ge=2, le=MAX_EXCITATION_STEPS)] = Field(
+        default=120,
+        description=f"Design steps N (dt = duration/N; one measurement per step), 2..{MAX_EXCITATION_STEPS}.",
+    )
+    criterion: Literal["A", "D", "E"] = Field(
+        default="A", description="A: tr F⁻¹ (Eq. 30), D: -log det F, E: -λ_min F."
+    )
+    parameter_scaling: Literal["absolute", "relative"] = Field(
+        default="absolute", description="Criterion on θ as is (Eq. 30) or on θ relative to the prior."
+    )
+    use_prior_information: StrictBool = Field(
+        default=False, description="Add the prior's information (inverse variance) to the design's FIM."
+    )
+    clearance_m: Annotated[Real, Field(ge=0)] = Field(
+        default=0.0, description="Extra distance kept from keep-in faces and keep-out surfaces [m], >= 0."
+    )
+    limits: Annotated[LimitsOverride, _none_to({})] = Field(
+        default_factory=LimitsOverride, description="Limits of the design (omitted ones: the robot's)."
+    )
+    measurement: Annotated[MeasurementNoiseConfig, _none_to({})] = Field(
+        default_factory=MeasurementNoiseConfig, description="The FIM's measurement model."
+    )
+    terminal_tolerance: Annotated[TerminalToleranceConfig, _none_to({})] = Field(
+        default_factory=TerminalToleranceConfig, description="How close to the goal, at rest, the design must end."
+    )
+    scp: Annotated[ScpConfig, _none_to({})] = Field(
+        default_factory=ScpConfig, description="Sequential convex programming settings of the offline design."
+    )
+    prior: Annotated[PriorConfig, _none_to({})] = Field(
+        default_factory=PriorConfig, description="Prior estimate of θ (the design's model) and its variance."
+    )
+    rattle: Annotated[RattleConfig, _none_to({})] = Field(
+        default_factory=RattleConfig, description="Online information-aware planner (method 'rattle')."
+    )
+
+
+__all__ = [
+    "ExcitationConfig",
+    "LimitsOverride",
+    "MeasurementNoiseConfig",
+    "PriorConfig",
+    "RattleConfig",
+    "RattleWeightsConfig",
+    "ScpConfig",
+    "TerminalToleranceConfig",
+]

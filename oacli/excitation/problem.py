@@ -1,0 +1,343 @@
+"""The excitation problem shared by the offline design and the online planner: limits, workspace linearisation,
+rest-to-rest initial guesses and dense collision checks.
+
+Workspace constraints are convexified per *segment* (the motion between two samples). Under a zero-order-hold
+force the position between samples is the parabola ``p(τ) = p_k + v_k τ + ½ (f_k/m) τ²``, which stays within
+``δ = ‖a‖ dt²/8`` of the chord ``p_k → p_{k+1}`` (``a = f/m``). Hence:
+
+* keep-in box: both ends of the chord inside the box shrunk by ``δ`` (per axis) keeps the whole parabola inside;
+* keep-out ellipsoid ``h(p) = (p − c)ᵀP(p − c) − 1 ≥ 0`` (Doerr Eq. 12): ``h`` is convex, so its tangent plane
+  at any point ``p̄`` (here the chord midpoint of the current iterate) under-estimates it and the half-space
+  ``n̂ᵀp ≥ β̂`` with ``n = ∇h(p̄)``, ``n̂ = n/‖n‖``, ``β̂ = (nᵀp̄ − h(p̄))/‖n‖`` lies in free space. Both chord ends
+  ``≥ β̂ + δ`` put the chord in that half-space and the parabola within ``δ`` of it, so the *continuous* motion is
+  collision-free, not only its samples.
+
+The same functions measure the violation of a trajectory (for the SCP merit), with the linearisation taken at
+that trajectory, so the convexified constraints at zero step reproduce it exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from oacli.errors import InfeasibleError
+from oacli.geometry import Scene
+from oacli.model import quaternion as quat
+
+LENGTH_UNIT_M = 0.01
+"""Slack unit of the geometric constraints [m] (1 cm of intrusion = one unit of violation)."""
+
+
+@dataclass(frozen=True)
+class MotionLimits:
+    """Per-axis limits: force [N] (world frame), torque [N·m] (body frame), velocity [m/s], angular rate [rad/s]."""
+
+    force_N: np.ndarray
+    torque_Nm: np.ndarray
+    velocity_mps: np.ndarray
+    angular_velocity_radps: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("force_N", "torque_Nm", "velocity_mps", "angular_velocity_radps"):
+            value = np.array(getattr(self, name), dtype=float).reshape(3)
+            if np.any(~(value > 0)) or not np.all(np.isfinite(value)):
+                raise ValueError(f"{name} must be three finite numbers > 0, got {value}")
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+
+    @property
+    def input(self) -> np.ndarray:
+        """Input bounds [f (3) N, τ (3) N·m], shape (6,)."""
+        return np.concatenate([self.force_N, self.torque_Nm])
+
+
+@dataclass(frozen=True)
+class TerminalTolerance:
+    """How close to the goal, at rest, the trajectory must end (per axis)."""
+
+    position_m: float = 0.01
+    velocity_mps: float = 1e-3
+    attitude_rad: float = 0.01
+    angular_velocity_radps: float = 1e-3
+
+
+def chord_margin_m(force_limit_n: np.ndarray, mass_kg: float, dt_s: float) -> np.ndarray:
+    """Per-axis bound ``|a_i| dt²/8`` [m] on the distance between the parabola and its chord over one step."""
+    return np.asarray(force_limit_n, dtype=float) / mass_kg * dt_s**2 / 8.0
+
+
+def box_assignment(scene: Scene, p_start: np.ndarray, p_end: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """Index of the keep-in box best containing each segment ``p_start[k] → p_end[k]`` (largest worst margin).
+
+    Returns an int array (N,); all zeros when the scene has a single box. Raises ValueError without boxes.
+    """
+    if not scene.keep_in:
+        raise ValueError("the scene has no keep-in box")
+    scores = []
+    for box in scene.keep_in:
+        lo = box.lower + margin
+        hi = box.upper - margin
+        slack = np.minimum.reduce([p_start - lo, hi - p_start, p_end - lo, hi - p_end])  # (N, 3)
+        scores.append(slack.min(axis=1))
+    return np.argmax(np.array(scores), axis=0)
+
+
+def keep_in_violation(
+    scene: Scene,
+    positions: np.ndarray,
+    margin: np.ndarray,
+    boxes: np.ndarray | None = None,
+    end_extra_m: np.ndarray | float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Violation [m] of the keep-in constraint per segment, and the box used for each segment.
+
+    ``positions (N+1, 3)``: segment k runs from sample k to k+1. With ``boxes`` omitted the best box per segment is
+    used (:func:`box_assignment`), which makes the violation a function of the positions alone. ``end_extra_m``
+    shrinks the box further for the very last sample (room to stop, used by the receding-horizon planner).
+    """
+    if not scene.keep_in:
+        n = positions.shape[0] - 1
+        return np.zeros(n), np.zeros(n, dtype=int)
+    p0, p1 = positions[:-1], positions[1:]
+    if boxes is None:
+        boxes = box_assignment(scene, p0, p1, margin)
+    lo = np.array([scene.keep_in[i].lower for i in boxes]) + margin
+    hi = np.array([scene.keep_in[i].upper for i in boxes]) - margin
+    lo1, hi1 = lo.copy(), hi.copy()
+    lo1[-1] += end_extra_m
+    hi1[-1] -= end_extra_m
+    excess = np.maximum.reduce([lo - p0, p0 - hi, lo1 - p1, p1 - hi1])
+    return np.maximum(excess.max(axis=1), 0.0), boxes
+
+
+def keep_out_halfspaces(center: np.ndarray, shape: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals ``n̂ (K, 3)`` and offsets ``β̂ (K,)`` of the tangent half-spaces ``n̂ᵀp ≥ β̂`` at ``points``.
+
+    Every point of such a half-space satisfies ``(p − c)ᵀP(p − c) ≥ 1``. At a point on the centre (no gradient)
+    the direction +x is used.
+    """
+    d = points - center
+    h = np.einsum("ki,ij,kj->k", d, shape, d) - 1.0
+    n = 2.0 * d @ shape
+    norm = np.linalg.norm(n, axis=1)
+    degenerate = norm < 1e-12
+    safe = np.where(degenerate, 1.0, norm)
+    n_hat = n / safe[:, None]
+    beta = (np.einsum("ki,ki->k", n, points) - h) / safe
+    if np.any(degenerate):
+        # On the centre: the half-space x >= c_x + (x-extent of the ellipsoid) lies in free space.
+        n_hat[degenerate] = np.array([1.0, 0.0, 0.0])
+        beta[degenerate] = center[0] + np.sqrt(np.linalg.inv(shape)[0, 0])
+    return n_hat, beta
+
+
+def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end_extra_m: float = 0.0) -> np.ndarray:
+    """Violation [m] per keep-out zone and segment, shape (E, N): ``max(0, β̂ + δ − n̂ᵀp)`` over both chord ends,
+    the half-space taken at the chord midpoint (see the module docstring); the very last sample needs
+    ``end_extra_m`` more."""
+    p0, p1 = positions[:-1], positions[1:]
+    mid = 0.5 * (p0 + p1)
+    out = np.zeros((len(scene.keep_out), p0.shape[0]))
+    extra = np.zeros(p0.shape[0])
+    extra[-1] = end_extra_m
+    for e, ell in enumerate(scene.keep_out):
+        n_hat, beta = keep_out_halfspaces(ell.center, ell.shape, mid)
+        gap0 = np.einsum("ki,ki->k", n_hat, p0) - beta - margin_m
+        gap1 = np.einsum("ki,ki->k", n_hat, p1) - beta - margin_m - extra
+        out[e] = np.maximum(-np.minimum(gap0, gap1), 0.0)
+    return out
+
+
+def dense_positions(x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, substeps: int = 20) -> np.ndarray:
+    """Positions between samples under the zero-order-hold force (exact parabola), shape (N·substeps + 1, 3).
+
+    ``x (N+1, 13)``; ``u`` has N rows (or N+1, the last one unused).
+    """
+    tau = dt_s * np.arange(substeps) / substeps
+    n = x.shape[0] - 1
+    acc = u[:n, 0:3] / mass_kg
+    pts = x[:n, None, 0:3] + x[:n, None, 3:6] * tau[None, :, None] + 0.5 * acc[:, None, :] * tau[None, :, None] ** 2
+    return np.vstack([pts.reshape(-1, 3), x[n, 0:3]])
+
+
+def collision_free(scene: Scene, x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, substeps: int = 20) -> bool:
+    """True when the continuous motion (dense re-check between samples) stays in a keep-in box and out of every
+    keep-out zone."""
+    pts = dense_positions(x, u, dt_s, mass_kg, substeps)
+    return bool(np.all(scene.in_keep_in(pts)) and not np.any(scene.in_keep_out(pts)))
+
+
+def left_multiplication_matrix(p: np.ndarray) -> np.ndarray:
+    """``L(p)`` (4, 4) with ``p ⊗ q = L(p) q`` (Hamilton product, scalar last)."""
+    x, y, z, w = np.asarray(p, dtype=float)
+    return np.array([[w, -z, y, x], [z, w, -x, y], [-y, x, w, z], [-x, -y, -z, w]])
+
+
+def attitude_errors(q_goal: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Small-angle attitude errors ``e = 2 vec(q_goal⁻¹ ⊗ q)`` (sign fixed so the scalar part is ≥ 0) of a stack of
+    quaternions ``q (K, 4)``, and their Jacobians ``∂e/∂q`` (K, 3, 4)."""
+    left = left_multiplication_matrix(quat.conjugate(q_goal))
+    rel = np.asarray(q, dtype=float) @ left.T
+    sign = np.where(rel[:, 3] >= 0, 1.0, -1.0)
+    return 2.0 * sign[:, None] * rel[:, 0:3], 2.0 * sign[:, None, None] * left[None, 0:3, :]
+
+
+def attitude_error(q_goal: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`attitude_errors` of one quaternion: ``e`` (3,) and ``∂e/∂q`` (3, 4)."""
+    e, jac = attitude_errors(q_goal, np.asarray(q, dtype=float)[None, :])
+    return e[0], jac[0]
+
+
+def rest_to_rest_profile(n: int, shape: np.ndarray, displacement_coeff: float) -> np.ndarray:
+    """Project ``shape (n,)`` so that ``Σ w = 0`` (rest to rest) and ``Σ w_k (n − k − ½) = displacement_coeff``."""
+    c = np.vstack([np.ones(n), n - np.arange(n) - 0.5])
+    rhs = np.array([0.0, displacement_coeff])
+    return shape - c.T @ np.linalg.solve(c @ c.T, c @ shape - rhs)
+
+
+def minimum_time_s(distance: float, accel: float, speed: float) -> float:
+    """Shortest rest-to-rest time [s] over ``distance`` with bounded acceleration and speed (bang-coast-bang)."""
+    if distance <= 0:
+        return 0.0
+    if speed * speed / accel >= distance:
+        return 2.0 * np.sqrt(distance / accel)
+    return distance / speed + speed / accel
+
+
+def check_reachable(
+    start: np.ndarray, goal: np.ndarray, duration_s: float, theta: np.ndarray, limits: MotionLimits
+) -> None:
+    """Raise :class:`InfeasibleError` when the goal cannot be reached at rest within the duration.
+
+    A necessary condition per axis: the bang-coast-bang minimum time of the translation along each world axis
+    (force and velocity limits) and of the rotation angle about each body axis (torque and rate limits,
+    gyroscopic coupling ignored) must not exceed the duration.
+    """
+    d = np.abs(goal[0:3] - start[0:3])
+    rot = np.abs(quat.error_vector(start[6:10], goal[6:10]))
+    problems = []
+    for i, axis in enumerate("xyz"):
+        t_lin = minimum_time_s(d[i], limits.force_N[i] / theta[0], limits.velocity_mps[i])
+        if t_lin > duration_s:
+            problems.append(
+                f"moving {d[i]:.3g} m along {axis} needs at least {t_lin:.3g} s with |f_{axis}| <= "
+                f"{limits.force_N[i]:.3g} N and |v_{axis}| <= {limits.velocity_mps[i]:.3g} m/s (mass {theta[0]:.4g} "
+                f"kg), more than the {duration_s:.3g} s allowed"
+            )
+        t_rot = minimum_time_s(rot[i], limits.torque_Nm[i] / theta[1 + i], limits.angular_velocity_radps[i])
+        if t_rot > duration_s:
+            problems.append(
+                f"rotating {rot[i]:.3g} rad about body {axis} needs at least {t_rot:.3g} s with |tau_{axis}| <= "
+                f"{limits.torque_Nm[i]:.3g} N·m and |w_{axis}| <= {limits.angular_velocity_radps[i]:.3g} rad/s, "
+                f"more than the {duration_s:.3g} s allowed"
+            )
+    if problems:
+        raise InfeasibleError(problems)
+
+
+def rest_to_rest_inputs(
+    start: np.ndarray,
+    goal: np.ndarray,
+    steps: int,
+    dt_s: float,
+    theta: np.ndarray,
+    excitation: np.ndarray | None = None,
+) -> np.ndarray:
+    """Inputs (N, 6) that move the model from ``start`` to ``goal`` at rest, optionally with excitation added.
+
+    Translation: the force profile ``f_k ∝ sin(2π(k + ½)/N)`` projected so that the discrete double integrator
+    (exact under a zero-order hold) ends at the goal at rest. Rotation: the same profile about the fixed body axis
+    of the rotation ``start → goal``, as angular acceleration ``α``, with torque ``I α + ω × I ω`` (so that ω stays
+    on that axis). ``excitation (2, 3)`` adds amplitudes [force N, torque N·m] per axis of zero-net harmonics
+    (``cos(2π h (k + ½)/N)``, h = 2, 3, 4 per axis, projected to leave both the end position and the end angle
+    unchanged to first order).
+    """
+    n = steps
+    m = theta[0]
+    inertia = theta[1:4]
+    phase = 2.0 * np.pi * (np.arange(n) + 0.5) / n
+    base = np.sin(phase)
+    coeff = float(np.sum(base * (n - np.arange(n) - 0.5)))
+    u = np.zeros((n, 6))
+    disp = goal[0:3] - start[0:3]
+    u[:, 0:3] = np.outer(base, disp) * m / (dt_s**2 * coeff)
+    angle = quat.error_vector(start[6:10], goal[6:10])  # body-frame rotation vector
+    alpha = np.outer(base, angle) / (dt_s**2 * coeff)
+    if excitation is not None:
+        amp = np.asarray(excitation, dtype=float).reshape(2, 3)
+        for i in range(3):
+            prof = rest_to_rest_profile(n, np.cos((2 + i) * phase), 0.0)
+            prof = prof / max(np.abs(prof).max(), 1e-12)
+            u[:, i] += amp[0, i] * prof
+            alpha[:, i] += amp[1, i] * prof / inertia[i]
+    # Torque that produces α about the body axes, compensating the gyroscopic term along the way.
+    w = np.vstack([np.zeros(3), np.cumsum(alpha * dt_s, axis=0)[:-1]])
+    w_mid = w + 0.5 * alpha * dt_s
+    u[:, 3:6] = inertia * alpha + np.cross(w_mid, inertia * w_mid)
+    return u
+
+
+def _triangle(phase: np.ndarray) -> np.ndarray:
+    """Unit triangle wave of period 1: 0 → 1 (¼) → 0 (½) → −1 (¾) → 0."""
+    f = np.mod(phase, 1.0)
+    return np.where(f < 0.25, 4 * f, np.where(f < 0.75, 2 - 4 * f, 4 * f - 4))
+
+
+def translation_excitation(
+    start: np.ndarray,
+    transfer_force: np.ndarray,
+    dt_s: float,
+    mass_kg: float,
+    limits: MotionLimits,
+    scene: Scene,
+    margin_m: np.ndarray,
+    max_cycles: int = 12,
+) -> np.ndarray:
+    """Out-and-back force patterns (N, 3) that keep the speed high, added to a rest-to-rest transfer.
+
+    The mass information of velocity measurements grows with ``Σ_k v_k²`` (``∂v/∂m = −v/m``), so a good start
+    for the design spends as long as possible near the speed limit. Per world axis, the velocity
+    ``v(t) = clip(A · tri(c t/T), −V, V)`` (``c`` whole cycles, ramps at 80 % of the acceleration left by the
+    transfer, plateaus at 90 % of the speed left by it) returns to rest and to its start; of the cycle counts and
+    signs whose motion stays in the keep-in box of the start (shrunk by ``margin_m``) and within the limits, the one
+    with the largest ``Σ v²`` is kept (none when nothing fits).
+    """
+    n = transfer_force.shape[0]
+    duration = n * dt_s
+    v_tr = np.vstack([np.zeros(3), np.cumsum(transfer_force * dt_s / mass_kg, axis=0)])
+    p_tr = start[0:3] + np.vstack([np.zeros(3), np.cumsum(0.5 * dt_s * (v_tr[:-1] + v_tr[1:]), axis=0)])
+    if scene.keep_in:
+        inside = [b for b in scene.keep_in if np.all(b.contains(start[0:3]))] or list(scene.keep_in)
+        box = max(inside, key=lambda b: float(np.min(np.minimum(start[0:3] - b.lower, b.upper - start[0:3]))))
+        lo, hi = box.lower + margin_m, box.upper - margin_m
+    else:
+        lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
+    t = dt_s * np.arange(n + 1)
+    out = np.zeros((n, 3))
+    for i in range(3):
+        accel = (0.8 * limits.force_N[i] - np.max(np.abs(transfer_force[:, i]))) / mass_kg
+        speed = 0.9 * limits.velocity_mps[i] - np.max(np.abs(v_tr[:, i]))
+        if accel <= 0 or speed <= 0:
+            continue
+        best, best_score = None, -np.inf
+        for cycles in range(1, max_cycles + 1):
+            period = duration / cycles
+            v = np.clip(accel * period / 4.0 * _triangle(t / period), -speed, speed)
+            f = mass_kg * np.diff(v) / dt_s
+            f = rest_to_rest_profile(n, f, 0.0)
+            for sign in (1.0, -1.0):
+                fs = sign * f
+                vs = v_tr[:, i] + np.concatenate([[0.0], np.cumsum(fs * dt_s / mass_kg)])
+                ps = p_tr[:, i] + np.concatenate([[0.0], np.cumsum(0.5 * dt_s * (vs[:-1] + vs[1:]) - 0.5 * dt_s
+                                                                   * (v_tr[:-1, i] + v_tr[1:, i]))])
+                if (np.any(ps < lo[i]) or np.any(ps > hi[i]) or np.max(np.abs(vs)) > 0.95 * limits.velocity_mps[i]
+                        or np.max(np.abs(fs + transfer_force[:, i])) > 0.95 * limits.force_N[i]):
+                    continue
+                score = float(np.sum(vs**2))
+                if score > best_score:
+                    best, best_score = fs, score
+        if best is not None:
+            out[:, i] = best
+    return out

@@ -1,0 +1,183 @@
+"""RATTLE in closed loop: information-aware replanning, a sequential estimator and the simulated plant.
+
+:class:`RattleController` implements the simulator's ``Controller`` protocol (:mod:`oacli.sim.simulator`). At each
+control step it first feeds the estimator the new measurement (with the input held since the previous one); every
+``replan_period_s`` it reads the estimate, sets the information weights by the decay rule
+(:func:`oacli.excitation.rattle.information_weights`) and replans from the measured state with the estimate as the
+model (warm-started with the previous plan shifted). Between replans it follows the plan: the planned input plus
+an LQR correction of the error to the planned state (gain from the exact hover discretisation with the current
+estimate, :func:`oacli.model.double_integrator.hover_error_model`), clipped to the limits.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from oacli.control.lqr import dlqr
+from oacli.control.tracking import to_error_state
+from oacli.excitation.oracle import SequentialEstimator
+from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, PlanResult
+from oacli.model.double_integrator import hover_error_model
+from oacli.sim.sensors import Disturbance, SensorNoise
+from oacli.sim.simulator import ControlStep, simulate
+from oacli.trajectory import sample_inputs, sample_states
+from oacli.types import InertialParams, ParameterEstimate, SolveInfo, Telemetry, Trajectory
+
+
+@dataclass(frozen=True)
+class ReplanRecord:
+    """One replan of the closed loop.
+
+    Attributes
+    ----------
+    t : float
+        Mission time [s].
+    theta, std, gamma : ndarray, shape (4,)
+        Estimate used as the model, its standard deviations, and the information weights set from them.
+    plan : PlanResult
+    """
+
+    t: float
+    theta: np.ndarray
+    std: np.ndarray
+    gamma: np.ndarray
+    plan: PlanResult
+
+
+class RattleController:
+    """Replanning information-aware controller (see the module docstring).
+
+    Parameters
+    ----------
+    planner : InformationAwarePlanner
+    estimator : SequentialEstimator
+    weighting : InformationWeighting
+    replan_period_s : float
+        Time between replans [s] (12 s as flown).
+    control_period_s : float
+        Period of :meth:`step` [s] (for the feedback gain).
+    feedback_q, feedback_r : ndarray, shape (12,), (6,)
+        LQR weights on the error ``[r, v, φ, ω]`` and on ``[f, τ]``.
+    input_limits : ndarray, shape (6,)
+    """
+
+    def __init__(
+        self,
+        planner: InformationAwarePlanner,
+        estimator: SequentialEstimator,
+        weighting: InformationWeighting,
+        *,
+        replan_period_s: float,
+        control_period_s: float,
+        feedback_q: np.ndarray,
+        feedback_r: np.ndarray,
+        input_limits: np.ndarray,
+    ) -> None:
+        self.planner = planner
+        self.estimator = estimator
+        self.weighting = weighting
+        self.replan_period_s = float(replan_period_s)
+        self.control_period_s = float(control_period_s)
+        self.q = np.diag(feedback_q)
+        self.r = np.diag(feedback_r)
+        self.input_limits = np.asarray(input_limits, dtype=float)
+        self.replans: list[ReplanRecord] = []
+        self.estimates: list[ParameterEstimate] = []
+        self._plan: Trajectory | None = None
+        self._next_replan = 0.0
+        self._u_prev: np.ndarray | None = None
+        self._gain: np.ndarray | None = None
+
+    def _replan(self, t: float, x: np.ndarray) -> None:
+        est = self.estimator.estimate
+        std = est.std
+        gamma = self.weighting.weights(std)
+        warm = None
+        if self._plan is not None:
+            times = t + self.planner.dt * np.arange(self.planner.n)
+            warm = sample_inputs(self._plan, times)
+        plan = self.planner.plan(x, est.theta, std, gamma, t0=t, u_warm=warm)
+        self._plan = plan.trajectory
+        params = InertialParams(est.theta[0], est.theta[1:4])
+        a, b = hover_error_model(params, self.control_period_s)
+        self._gain, _ = dlqr(a, b, self.q, self.r)
+        self.replans.append(ReplanRecord(t, est.theta.copy(), std.copy(), gamma, plan))
+        self._next_replan = t + self.replan_period_s
+
+    def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
+        """Input for ``[t, t + control period)`` (simulator ``Controller`` protocol)."""
+        start = time.perf_counter()
+        if self._u_prev is not None:
+            self.estimates.append(self.estimator.update(t, x_measured, self._u_prev))
+        solve_time = float("nan")
+        if t >= self._next_replan - 1e-9:
+            self._replan(t, x_measured)
+            solve_time = self.replans[-1].plan.solve_time_s
+        assert self._plan is not None and self._gain is not None
+        x_ref = sample_states(self._plan, np.array([t]))[0]
+        u_ff = sample_inputs(self._plan, np.array([t]))[0]
+        err = to_error_state(x_measured, x_ref[0:3], x_ref[6:10])
+        err[3:6] -= x_ref[3:6]
+        err[9:12] -= x_ref[10:13]
+        u = np.clip(u_ff + self._gain @ err, -self.input_limits, self.input_limits)
+        self._u_prev = u
+        info = SolveInfo("optimal", True, solve_time_s=solve_time, step_time_s=time.perf_counter() - start)
+        return ControlStep(u, info, x_ref)
+
+
+@dataclass(frozen=True)
+class RattleRun:
+    """A closed-loop RATTLE run.
+
+    Attributes
+    ----------
+    telemetry : Telemetry
+    replans : tuple of ReplanRecord
+    estimates : tuple of ParameterEstimate
+        The estimator's output after each measurement.
+    """
+
+    telemetry: Telemetry
+    replans: tuple[ReplanRecord, ...]
+    estimates: tuple[ParameterEstimate, ...]
+
+    @property
+    def final_estimate(self) -> ParameterEstimate:
+        """The last estimate."""
+        return self.estimates[-1]
+
+
+def run_rattle(
+    planner: InformationAwarePlanner,
+    estimator: SequentialEstimator,
+    weighting: InformationWeighting,
+    x0: np.ndarray,
+    truth: InertialParams,
+    *,
+    duration_s: float,
+    replan_period_s: float,
+    control_period_s: float,
+    plant_period_s: float,
+    input_limits: np.ndarray,
+    feedback_q: np.ndarray,
+    feedback_r: np.ndarray,
+    sensors: SensorNoise,
+    disturbance: Disturbance,
+    rng: np.random.Generator,
+    progress: Callable[[float], None] | None = None,
+) -> RattleRun:
+    """Simulate RATTLE in closed loop from ``x0`` for ``duration_s`` (see :class:`RattleController`)."""
+    controller = RattleController(
+        planner, estimator, weighting, replan_period_s=replan_period_s, control_period_s=control_period_s,
+        feedback_q=feedback_q, feedback_r=feedback_r, input_limits=input_limits,
+    )
+    tel = simulate(
+        controller, x0, truth, duration_s=duration_s, control_period_s=control_period_s,
+        plant_period_s=plant_period_s, input_limits=input_limits, sensors=sensors, disturbance=disturbance,
+        rng=rng, progress=progress,
+    )
+    return RattleRun(tel, tuple(controller.replans), tuple(controller.estimates))

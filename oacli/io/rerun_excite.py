@@ -1,0 +1,160 @@
+"""The ``excite`` stage's Rerun recording and its default layout.
+
+Entities (a fixed contract: tests read them back):
+
+* ``world/keep_in``, ``world/keep_out``: the workspace (static);
+* ``world/excitation``: the path of the output trajectory (static), ``world/initial_guess``: the SCP's start;
+  ``world/plans``: each RATTLE plan, logged at its replan time;
+* ``world/robot``: the robot body moving along ``mission_time``;
+* ``metrics/criterion``: the design criterion of the current design after each SCP iteration, and
+  ``metrics/criterion/candidate`` that of each trial point, on the ``scp_iteration`` sequence timeline;
+* ``metrics/information``: cumulative Fisher information per parameter, relative (``F_ii θ_i²``, series
+  ``m, Ixx, Iyy, Izz``), and ``metrics/crb_std_pct``: the Cramér-Rao standard deviation in % of θ_i, over time;
+* ``metrics/gamma``: RATTLE's information weights over time;
+* ``metrics/force_N``, ``metrics/torque_Nm`` (with ± limits), ``metrics/velocity_mps``,
+  ``metrics/angular_velocity_radps`` (with ± limits);
+* ``log``: the text log.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from oacli.geometry import Scene
+from oacli.io.rerun_blueprints import LOG, TIMELINE, WORLD, time_series_view
+from oacli.io.rerun_io import ACTUAL_COLOR, AXIS_NAMES, REFERENCE_COLOR, StageRecording
+
+EXCITATION = "world/excitation"
+INITIAL_GUESS = "world/initial_guess"
+PLANS = "world/plans"
+ROBOT = "world/robot"
+CRITERION = "metrics/criterion"
+CRITERION_CANDIDATE = "metrics/criterion/candidate"
+INFORMATION = "metrics/information"
+CRB_STD_PCT = "metrics/crb_std_pct"
+GAMMA = "metrics/gamma"
+FORCE = "metrics/force_N"
+TORQUE = "metrics/torque_Nm"
+VELOCITY = "metrics/velocity_mps"
+ANGULAR_VELOCITY = "metrics/angular_velocity_radps"
+ITERATION_TIMELINE = "scp_iteration"
+PARAMETER_SERIES = ("m", "Ixx", "Iyy", "Izz")
+_PARAM_COLORS = ((230, 60, 60, 255), (60, 180, 75, 255), (60, 110, 230, 255), (200, 120, 20, 255))
+_PLAN_COLOR = (150, 150, 150, 200)
+
+
+def excite_blueprint() -> rrb.Blueprint:
+    """Default layout: 3D world and log on the left; information, bounds and inputs over mission time on the right,
+    and the criterion per SCP iteration (switch the time panel to the ``scp_iteration`` timeline to see it)."""
+    world = rrb.Spatial3DView(origin=WORLD, name="World")
+    log = rrb.TextLogView(origin=LOG, name="Log")
+    plots = rrb.Vertical(
+        time_series_view(INFORMATION, "Information per parameter, F_ii θ_i² [-]"),
+        time_series_view(CRB_STD_PCT, "Cramér-Rao std [% of θ]"),
+        time_series_view(FORCE, "Force [N], world frame (thin: ± limit)", legend=False),
+        time_series_view(TORQUE, "Torque [N·m], body frame (thin: ± limit)", legend=False),
+        time_series_view(ANGULAR_VELOCITY, "Angular velocity [rad/s] (thin: ± limit)", legend=False),
+        time_series_view(CRITERION, "Criterion per SCP iteration (timeline scp_iteration)"),
+        name="Metrics",
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(rrb.Vertical(world, log, row_shares=[3.0, 1.0], name="Scene"), plots, column_shares=[1.2, 1.0]),
+        rrb.TimePanel(timeline=TIMELINE),
+    )
+
+
+def write_excite_recording(
+    path: Path,
+    *,
+    scene: Scene,
+    t: np.ndarray,
+    x: np.ndarray,
+    u: np.ndarray,
+    theta: np.ndarray,
+    information: np.ndarray,
+    crb_std: np.ndarray,
+    force_limit_N: np.ndarray,
+    torque_limit_Nm: np.ndarray,
+    angular_velocity_limit_radps: np.ndarray,
+    criterion: np.ndarray | None = None,
+    candidate_criterion: np.ndarray | None = None,
+    initial_positions: np.ndarray | None = None,
+    plans: Sequence[tuple[float, np.ndarray]] = (),
+    gamma: tuple[np.ndarray, np.ndarray] | None = None,
+    log: Sequence[tuple[float, str, str]] = (),
+    recording_name: str = "excite",
+) -> None:
+    """Write the ``excite`` recording (entities in the module docstring) with :func:`excite_blueprint`.
+
+    Parameters
+    ----------
+    path : Path
+        Output ``.rrd`` (written atomically).
+    scene : Scene
+    t : ndarray, shape (N,)
+        Sample times [s] of the trajectory.
+    x : ndarray, shape (N, 13)
+        States.
+    u : ndarray, shape (N, 6)
+        Inputs [N, N·m] held from each sample.
+    theta : ndarray, shape (4,)
+        Parameters the information is relative to.
+    information : ndarray, shape (N, 4, 4)
+        Cumulative Fisher information at each sample.
+    crb_std : ndarray, shape (N, 4)
+        Cramér-Rao standard deviation at each sample (``inf`` where unidentifiable: not drawn).
+    force_limit_N, torque_limit_Nm, angular_velocity_limit_radps : ndarray, shape (3,)
+    criterion, candidate_criterion : ndarray, shape (I,), optional
+        Per SCP iteration (``nan`` where the subproblem failed).
+    initial_positions : ndarray, shape (M, 3), optional
+        Path of the initial guess.
+    plans : sequence of (float, ndarray (K, 3))
+        RATTLE plans (replan time, planned positions).
+    gamma : (ndarray (R,), ndarray (R, 4)), optional
+        Replan times and information weights.
+    log : sequence of (float, str, str)
+    recording_name : str
+    """
+    t = np.asarray(t, dtype=float)
+    rec = StageRecording(recording_name=recording_name)
+    rec.log_scene(scene)
+    rec.log_trajectory_over_time(ROBOT, t, x, path_entity=EXCITATION, path_color=ACTUAL_COLOR)
+    if initial_positions is not None:
+        rec.log_path(INITIAL_GUESS, initial_positions, color=REFERENCE_COLOR, radius_m=0.003)
+    for t_plan, positions in plans:
+        rec.log_path(PLANS, positions, color=_PLAN_COLOR, radius_m=0.004, static=False, t=float(t_plan))
+
+    diag = np.einsum("kii->ki", np.asarray(information, dtype=float)) * np.asarray(theta, dtype=float) ** 2
+    rec.log_series(INFORMATION, t, diag, PARAMETER_SERIES, colors=_PARAM_COLORS)
+    pct = 100.0 * np.asarray(crb_std, dtype=float) / np.abs(theta)
+    pct = np.where(np.isfinite(pct), pct, np.nan)
+    rec.log_series(CRB_STD_PCT, t, pct, PARAMETER_SERIES, colors=_PARAM_COLORS)
+    rec.log_series(FORCE, t, u[:, 0:3], AXIS_NAMES, limits=force_limit_N)
+    rec.log_series(TORQUE, t, u[:, 3:6], AXIS_NAMES, limits=torque_limit_Nm)
+    rec.log_series(VELOCITY, t, x[:, 3:6], AXIS_NAMES)
+    rec.log_series(ANGULAR_VELOCITY, t, x[:, 10:13], AXIS_NAMES, limits=angular_velocity_limit_radps)
+    if gamma is not None:
+        rec.log_series(GAMMA, gamma[0], gamma[1], PARAMETER_SERIES, colors=_PARAM_COLORS)
+
+    if criterion is not None and len(criterion):
+        stream = rec.stream
+        iterations = np.arange(1, len(criterion) + 1)
+        for entity, values, name in ((CRITERION, criterion, "design"), (CRITERION_CANDIDATE, candidate_criterion,
+                                                                          "candidate")):
+            if values is None:
+                continue
+            stream.log(entity, rr.SeriesLines(names=[name]), static=True)
+            stream.send_columns(
+                entity,
+                indexes=[rr.TimeColumn(ITERATION_TIMELINE, sequence=iterations)],
+                columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)),
+            )
+    if log:
+        t_log, levels, messages = zip(*log, strict=True)
+        rec.log_texts(np.array(t_log, dtype=float), list(levels), list(messages))
+    rec.save(Path(path), excite_blueprint())

@@ -1,0 +1,531 @@
+"""The ``excite`` stage: an information-rich trajectory from the config's start to its goal.
+
+Two methods (``excitation.method`` or ``--method``):
+
+* ``offline``: the A/D/E-optimal design of Doerr et al. 2021 (Eq. 30) by sequential convex programming
+  (:mod:`oacli.excitation.design`). The design is computed *before* the run folder is created, so an infeasible
+  problem (exit 3) leaves no folder behind.
+* ``rattle``: RATTLE's online information-aware planner in closed loop with the simulated plant (the config's
+  ``truth``) and a sequential estimator (:mod:`oacli.excitation.rattle_loop`). Until the real estimator is wired in,
+  the estimator is the Cramér-Rao oracle (:class:`oacli.excitation.oracle.CramerRaoOracle`), named so in every
+  output.
+
+Outputs in the run folder: ``config.yaml`` (first), ``excite.mcap`` (``/trajectory`` as ``oacli.TrajectorySample``
+at the design's sample period, the criterion per SCP iteration, the information over time, the scene),
+``excite.rrd`` and ``summary.json`` (last).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oacli import __version__
+from oacli.config import OacliConfig, dump_config
+from oacli.config.excitation import LimitsOverride
+from oacli.config.models import Pose
+from oacli.errors import ConfigError, InfeasibleError, InputError
+from oacli.excitation.design import (
+    ExcitationDesign,
+    ExcitationProblem,
+    ScpSettings,
+    design_excitation,
+)
+from oacli.excitation.fim_gradient import criterion_value, scaling_matrix
+from oacli.excitation.information import PARAM_NAMES, MeasurementModel, cramer_rao_std
+from oacli.excitation.oracle import CramerRaoOracle
+from oacli.excitation.problem import MotionLimits, TerminalTolerance
+from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, PlannerWeights
+from oacli.excitation.rattle_loop import RattleRun, run_rattle
+from oacli.geometry import Scene
+from oacli.io.atomic import write_text_atomic
+from oacli.io.mcap_io import StageMcapWriter
+from oacli.io.rerun_excite import write_excite_recording
+from oacli.io.runfolder import create_run_dir, git_commit, write_summary
+from oacli.metrics import percentiles_ms
+from oacli.sim.sensors import Disturbance, SensorNoise
+from oacli.stages.track import StageResult
+from oacli.trajectory import sample_states
+from oacli.types import Trajectory
+
+LogEntry = tuple[float, str, str]
+
+ITERATION_TOPIC = "/excitation/iterations"
+ITERATION_SCHEMA_NAME = "oacli.ScpIteration"
+ITERATION_SCHEMA: dict[str, Any] = {
+    "description": "One sequential convex programming iteration of the excitation design (t is always 0).",
+    "properties": {
+        "t": {"type": "number", "description": "0 (iterations are not in mission time) [s]"},
+        "iteration": {"type": "integer", "description": "iteration number, from 1"},
+        "criterion": {"type": ["number", "null"], "description": "criterion of the design after the iteration"},
+        "merit": {"type": ["number", "null"], "description": "merit J/J_ref + μ V after the iteration"},
+        "violation": {"type": ["number", "null"], "description": "normalised constraint violation after it"},
+        "candidate_criterion": {"type": ["number", "null"], "description": "criterion at the trial point"},
+        "candidate_merit": {"type": ["number", "null"], "description": "merit at the trial point"},
+        "predicted_merit": {"type": ["number", "null"], "description": "convex model's merit at the trial point"},
+        "ratio": {"type": ["number", "null"], "description": "actual / predicted merit decrease"},
+        "trust_region_force": {"type": "number", "description": "trust region, fraction of the force limit"},
+        "trust_region_torque": {"type": "number", "description": "trust region, fraction of the torque limit"},
+        "accepted": {"type": "boolean", "description": "the trial point became the design"},
+        "status": {"type": "string", "description": "solver status of the subproblem"},
+        "solve_time_ms": {"type": "number", "description": "subproblem solve time [ms]"},
+    },
+}
+INFORMATION_TOPIC = "/excitation/information"
+INFORMATION_SCHEMA_NAME = "oacli.Information"
+INFORMATION_SCHEMA: dict[str, Any] = {
+    "description": "Cumulative Fisher information of the measurements up to t, and its Cramér-Rao bound.",
+    "properties": {
+        "t": {"type": "number", "description": "mission time [s]"},
+        "parameters": {"type": "array", "items": {"type": "string"}, "description": "θ names"},
+        "information": {"type": "array", "description": "Fisher information F (4x4) [1/unit²]"},
+        "crb_std": {"type": "array", "description": "sqrt(diag F⁻¹), null where unidentifiable [kg, kg·m²]"},
+    },
+}
+REPLAN_TOPIC = "/excitation/replans"
+REPLAN_SCHEMA_NAME = "oacli.Replan"
+REPLAN_SCHEMA: dict[str, Any] = {
+    "description": "One replan of the RATTLE information-aware planner.",
+    "properties": {
+        "t": {"type": "number", "description": "mission time [s]"},
+        "theta": {"type": "array", "description": "estimate used as the model [kg, kg·m²]"},
+        "std": {"type": "array", "description": "its standard deviations [kg, kg·m²]"},
+        "gamma": {"type": "array", "description": "information weights from the decay rule"},
+        "cost": {"type": "number", "description": "true cost of the plan"},
+        "information_reward": {"type": "number", "description": "Σ γ_i ½ log(1 + F_ii σ_i²) of the plan"},
+        "accepted_iterations": {"type": "integer", "description": "SCP steps kept"},
+        "solve_time_ms": {"type": "number", "description": "wall time of the replan [ms]"},
+        "status": {"type": "string", "description": "last solver status"},
+        "estimator": {"type": "string", "description": "method of the estimate"},
+    },
+}
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Config -> problem
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _resolve_pose(cfg: OacliConfig, ref: str | Pose | None, field: str) -> Pose:
+    if ref is None:
+        raise ConfigError(f"excitation.{field}: <missing>: required by `oacli excite` (a waypoint name or a pose)")
+    if isinstance(ref, str):
+        if ref not in cfg.waypoints:
+            defined = ", ".join(sorted(cfg.waypoints)) or "none"
+            raise ConfigError(
+                f"excitation.{field}: {ref!r}: unknown waypoint name (defined in waypoints: {defined})"
+            )
+        return cfg.waypoints[ref]
+    return ref
+
+
+def motion_limits(cfg: OacliConfig, *overrides: LimitsOverride) -> MotionLimits:
+    """The robot's limits with the given overrides applied in order (later ones win)."""
+    robot = cfg.robot
+    values = {
+        "force_N": robot.force_limit_N,
+        "torque_Nm": robot.torque_limit_Nm,
+        "velocity_mps": robot.velocity_limit_mps,
+        "angular_velocity_radps": robot.angular_velocity_limit_radps,
+    }
+    for override in overrides:
+        for name in values:
+            if getattr(override, name) is not None:
+                values[name] = getattr(override, name)
+    return MotionLimits(**{k: np.asarray(v, dtype=float) for k, v in values.items()})
+
+
+def measurement_model(cfg: OacliConfig) -> MeasurementModel:
+    """The FIM's measurement model from ``excitation.measurement``."""
+    return MeasurementModel(**cfg.excitation.measurement.model_dump())
+
+
+def prior_theta(cfg: OacliConfig) -> np.ndarray:
+    """Prior θ = [m, Ixx, Iyy, Izz]: ``excitation.prior`` where given, else the robot model."""
+    prior = cfg.excitation.prior
+    mass = prior.mass_kg if prior.mass_kg is not None else cfg.robot.mass_kg
+    inertia = prior.inertia_kgm2 if prior.inertia_kgm2 is not None else cfg.robot.inertia_kgm2
+    return np.array([mass, *inertia], dtype=float)
+
+
+def _describe(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{v:.4g}" for v in p) + ")"
+
+
+def check_pose_in_workspace(label: str, position: np.ndarray, scene: Scene) -> None:
+    """Refuse a start or goal inside a keep-out zone or outside every keep-in box (InputError naming both)."""
+    for i, ellipsoid in enumerate(scene.keep_out):
+        if ellipsoid.contains(position):
+            raise InputError(
+                f"excitation.{label} {_describe(position)} is inside keep-out zone environment.keep_out.{i}"
+            )
+    if not scene.in_keep_in(position):
+        raise InputError(f"excitation.{label} {_describe(position)} is outside every keep-in box (environment.keep_in)")
+
+
+def excitation_problem(cfg: OacliConfig) -> ExcitationProblem:
+    """The offline design problem the config describes (start and goal checked against the workspace)."""
+    exc = cfg.excitation
+    start = _resolve_pose(cfg, exc.start, "start").state()
+    goal = _resolve_pose(cfg, exc.goal, "goal").state()
+    scene = cfg.scene()
+    check_pose_in_workspace("start", start[0:3], scene)
+    check_pose_in_workspace("goal", goal[0:3], scene)
+    theta = prior_theta(cfg)
+    prior_info = np.linalg.inv(exc.prior.covariance()) if exc.use_prior_information else None
+    tol = exc.terminal_tolerance
+    return ExcitationProblem(
+        start=start,
+        goal=goal,
+        duration_s=exc.duration_s,
+        steps=exc.steps,
+        theta=theta,
+        measurement=measurement_model(cfg),
+        limits=motion_limits(cfg, exc.limits),
+        scene=scene,
+        criterion=exc.criterion,
+        scaling=exc.parameter_scaling,
+        prior_information=prior_info,
+        clearance_m=exc.clearance_m,
+        terminal=TerminalTolerance(tol.position_m, tol.velocity_mps, tol.attitude_rad, tol.angular_velocity_radps),
+    )
+
+
+def scp_settings(cfg: OacliConfig) -> ScpSettings:
+    """SCP settings from ``excitation.scp``."""
+    s = cfg.excitation.scp
+    return ScpSettings(
+        max_iterations=s.max_iterations,
+        trust_region_initial=s.trust_region_initial,
+        trust_region_min=s.trust_region_min,
+        trust_region_max=s.trust_region_max,
+        penalty=s.penalty,
+        tolerance=s.tolerance,
+        starts=s.starts,
+        screening_iterations=s.screening_iterations,
+    )
+
+
+def _named(values: np.ndarray) -> dict[str, float]:
+    return {name: float(v) for name, v in zip(PARAM_NAMES, values, strict=True)}
+
+
+def check_design(design: ExcitationDesign, problem: ExcitationProblem) -> None:
+    """Raise InfeasibleError when the design breaks the workspace, a limit or misses the goal."""
+    problems = []
+    if not design.collision_free:
+        problems.append("the design leaves the keep-in boxes or enters a keep-out zone (dense re-check)")
+    x = design.trajectory.x
+    lim = problem.limits
+    over_v = float(np.max(np.abs(x[:, 3:6]) / lim.velocity_mps))
+    over_w = float(np.max(np.abs(x[:, 10:13]) / lim.angular_velocity_radps))
+    if over_v > 1.001 or over_w > 1.001:
+        problems.append(
+            f"the design exceeds the velocity or angular-velocity limit (peak {over_v:.4g} and {over_w:.4g} × limit)"
+        )
+    tol = problem.terminal
+    res = design.terminal_residual
+    for key, bound in (("position_m", tol.position_m), ("velocity_mps", tol.velocity_mps),
+                       ("attitude_rad", tol.attitude_rad), ("angular_velocity_radps", tol.angular_velocity_radps)):
+        if res[key] > bound * 1.001:
+            problems.append(
+                f"the design ends {res[key]:.3g} ({key}) from the goal at rest, more than the tolerance {bound:.3g} "
+                f"(excitation.terminal_tolerance); more iterations (excitation.scp.max_iterations) may help"
+            )
+    if problems:
+        raise InfeasibleError([f"no feasible excitation found: {p}" for p in problems])
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The stage
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def run_excite(
+    cfg: OacliConfig,
+    *,
+    method: str | None = None,
+    out: Path | None = None,
+    runs_root: Path = Path("runs"),
+    progress: Callable[[float], None] | None = None,
+) -> StageResult:
+    """Run the ``excite`` stage and write its run folder.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration (seed overrides applied).
+    method : {"offline", "rattle"}, optional
+        Overrides ``excitation.method``.
+    out, runs_root, progress
+        As for :func:`oacli.stages.track.run_track`.
+
+    Returns
+    -------
+    StageResult
+    """
+    method = method or cfg.excitation.method
+    if method not in ("offline", "rattle"):
+        raise ConfigError(f"--method: {method!r}: must be 'offline' or 'rattle'")
+    if method == "offline":
+        return _run_offline(cfg, out=out, runs_root=runs_root, progress=progress)
+    return _run_rattle(cfg, out=out, runs_root=runs_root, progress=progress)
+
+
+def _metadata(cfg: OacliConfig, method: str) -> dict[str, Any]:
+    return {"stage": "excite", "method": method, "seed": cfg.seed, "git_commit": git_commit(),
+            "version": __version__, "config_name": cfg.name}
+
+
+def _information_records(writer: StageMcapWriter, t: np.ndarray, info: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    crb = np.array([cramer_rao_std(f, theta) if np.any(f) else np.full(4, np.inf) for f in info])
+    for tk, fk, ck in zip(t, info, crb, strict=True):
+        writer.write_json(INFORMATION_TOPIC, INFORMATION_SCHEMA_NAME, INFORMATION_SCHEMA, float(tk),
+                          {"parameters": list(PARAM_NAMES), "information": fk, "crb_std": ck})
+    return crb
+
+
+def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
+                 progress: Callable[[float], None] | None) -> StageResult:
+    wall = time.perf_counter()
+    problem = excitation_problem(cfg)
+    design = design_excitation(problem, scp_settings(cfg), progress=progress, rng=np.random.default_rng(cfg.seed))
+    check_design(design, problem)
+
+    log: list[LogEntry] = [
+        (0.0, "info", f"excitation design: {problem.steps} steps of {problem.dt:.4g} s, criterion {problem.criterion} "
+                      f"({problem.scaling}), {len(design.iterations)} SCP iterations ({design.accepted_iterations} "
+                      f"accepted), stop: {design.stop_reason}"),
+        (0.0, "info", f"criterion {design.criterion_initial:.6g} -> {design.criterion_final:.6g}"),
+    ]
+    traj = design.trajectory
+    x, u = traj.x, traj.u
+    summary = {
+        "stage": "excite",
+        "status": "ok",
+        "method": "offline",
+        "criterion": problem.criterion,
+        "parameter_scaling": problem.scaling,
+        "seed": cfg.seed,
+        "criterion_initial": design.criterion_initial,
+        "criterion_final": design.criterion_final,
+        "criterion_ratio": design.criterion_final / design.criterion_initial if problem.criterion == "A" else None,
+        "iterations": len(design.iterations),
+        "accepted_iterations": design.accepted_iterations,
+        "stop_reason": design.stop_reason,
+        "solve_time_s": design.solve_time_s,
+        "max_force_N": float(np.max(np.abs(u[:, 0:3]))),
+        "max_torque_Nm": float(np.max(np.abs(u[:, 3:6]))),
+        "max_speed_mps": float(np.max(np.abs(x[:, 3:6]))),
+        "max_angular_velocity_radps": float(np.max(np.abs(x[:, 10:13]))),
+        "collision_free": bool(design.collision_free),
+        "crb_std": _named(design.crb_std),
+        "crb_std_pct": _named(100.0 * design.crb_std / problem.theta),
+        "goal_residual": design.terminal_residual,
+        "theta_design": _named(problem.theta),
+        "duration_s": problem.duration_s,
+        "steps": problem.steps,
+        "dt_s": problem.dt,
+    }
+    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
+    files = {"config": run_dir / "config.yaml"}
+    config_yaml = dump_config(cfg)
+    write_text_atomic(files["config"], config_yaml)
+    try:
+        files["mcap"] = run_dir / "excite.mcap"
+        with StageMcapWriter(files["mcap"], stage="excite", config_yaml=config_yaml, metadata=_metadata(cfg, "offline"),
+                             frame=cfg.environment.frame) as writer:
+            writer.write_scene(problem.scene, {"excitation": x[:, 0:3], "initial_guess": design.initial.x[:, 0:3]})
+            writer.write_trajectory("/trajectory", Trajectory(traj.t, x, u, name="excitation",
+                                                              frame=cfg.environment.frame))
+            writer.write_poses(traj.t, x)
+            for it in design.iterations:
+                writer.write_json(ITERATION_TOPIC, ITERATION_SCHEMA_NAME, ITERATION_SCHEMA, 0.0, {
+                    "iteration": it.iteration, "criterion": it.criterion, "merit": it.merit,
+                    "violation": it.violation, "candidate_criterion": it.candidate_criterion,
+                    "candidate_merit": it.candidate_merit, "predicted_merit": it.predicted_merit,
+                    "ratio": it.ratio, "trust_region_force": it.trust_region_force,
+                    "trust_region_torque": it.trust_region_torque, "accepted": it.accepted, "status": it.status,
+                    "solve_time_ms": 1e3 * it.solve_time_s,
+                })
+            crb = _information_records(writer, traj.t, design.information_over_time, problem.theta)
+            for t, level, message in log:
+                writer.write_log(t, level, message)
+        files["rrd"] = run_dir / "excite.rrd"
+        write_excite_recording(
+            files["rrd"], scene=problem.scene, t=traj.t, x=x, u=u, theta=problem.theta,
+            information=design.information_over_time, crb_std=crb,
+            force_limit_N=problem.limits.force_N, torque_limit_Nm=problem.limits.torque_Nm,
+            angular_velocity_limit_radps=problem.limits.angular_velocity_radps,
+            criterion=np.array([it.criterion for it in design.iterations]),
+            candidate_criterion=np.array([it.candidate_criterion for it in design.iterations]),
+            initial_positions=design.initial.x[:, 0:3], log=log, recording_name=f"{cfg.name}/excite",
+        )
+        summary["wall_time_s"] = time.perf_counter() - wall
+        summary["run_dir"] = str(run_dir)
+        summary["files"] = {k: p.name for k, p in files.items()}
+        files["summary"] = write_summary(run_dir, summary)
+    except BaseException as exc:
+        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+        write_summary(run_dir, {"stage": "excite", "status": "failed", "error": reason})
+        raise
+    return StageResult(run_dir, summary, files)
+
+
+def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
+                progress: Callable[[float], None] | None) -> StageResult:
+    wall = time.perf_counter()
+    exc = cfg.excitation
+    rcfg = exc.rattle
+    problem = excitation_problem(cfg)  # start, goal, workspace checks, measurement model
+    limits = motion_limits(cfg, exc.limits, rcfg.limits)
+    w = rcfg.weights
+    planner = InformationAwarePlanner(
+        problem.goal, horizon=rcfg.horizon, dt_s=rcfg.step_s, limits=limits, measurement=problem.measurement,
+        scene=problem.scene, weights=PlannerWeights(w.position, w.velocity, w.attitude, w.angular_velocity, w.force,
+                                                    w.torque, w.terminal),
+        iterations=rcfg.iterations, penalty=rcfg.penalty, clearance_m=exc.clearance_m,
+        stop_speed_fraction=rcfg.stop_speed_fraction,
+    )
+    weighting = InformationWeighting(np.array(rcfg.gamma0), np.array(rcfg.floor), rcfg.alpha, rcfg.beta)
+    prior_cov = exc.prior.covariance()
+    truth = cfg.truth_params()
+    theta_true = np.array([truth.mass_kg, *truth.inertia_kgm2])
+    estimator = CramerRaoOracle(theta_true, prior_cov, problem.measurement, problem.start)
+    cw = cfg.controller.weights
+    dist = cfg.truth.disturbance
+
+    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
+    files = {"config": run_dir / "config.yaml"}
+    config_yaml = dump_config(cfg)
+    write_text_atomic(files["config"], config_yaml)
+    try:
+        run = run_rattle(
+            planner, estimator, weighting, problem.start, truth,
+            duration_s=rcfg.duration_s, replan_period_s=rcfg.replan_period_s,
+            control_period_s=cfg.controller.period_s, plant_period_s=cfg.simulation.plant_period_s,
+            input_limits=limits.input, feedback_q=cw.state_weights(), feedback_r=cw.input_weights(),
+            sensors=SensorNoise(**cfg.sensors.model_dump()), disturbance=Disturbance(dist.bias, dist.random_bound),
+            rng=np.random.default_rng(cfg.seed), progress=progress,
+        )
+        summary, traj, log = _rattle_summary(cfg, problem, limits, run, prior_cov, theta_true)
+        _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, limits, run, traj, log, prior_cov,
+                              theta_true)
+        summary["wall_time_s"] = time.perf_counter() - wall
+        summary["run_dir"] = str(run_dir)
+        summary["files"] = {k: p.name for k, p in files.items()}
+        files["summary"] = write_summary(run_dir, summary)
+    except BaseException as err:
+        reason = "interrupted" if isinstance(err, KeyboardInterrupt) else f"{type(err).__name__}: {err}"
+        write_summary(run_dir, {"stage": "excite", "status": "failed", "error": reason})
+        raise
+    return StageResult(run_dir, summary, files)
+
+
+def _flown_trajectory(run: RattleRun, frame: str) -> Trajectory:
+    """The true states at the control instants with the inputs applied from each (plus the final state)."""
+    tel = run.telemetry
+    truth = Trajectory(tel.t_true, tel.x_true, np.zeros((len(tel.t_true), 6)))
+    t = np.append(tel.t_ctrl, tel.t_true[-1])
+    x = sample_states(truth, t)
+    u = np.vstack([tel.u_applied, np.zeros((1, 6))])
+    return Trajectory(t, x, u, name="rattle_flown", frame=frame)
+
+
+def _rattle_summary(cfg, problem, limits, run: RattleRun, prior_cov, theta_true):
+    exc = cfg.excitation
+    d = scaling_matrix(theta_true, exc.parameter_scaling)
+    prior_info = np.linalg.inv(prior_cov)
+    final = run.final_estimate
+    posterior_info = np.linalg.inv(final.covariance)
+    tel = run.telemetry
+    traj = _flown_trajectory(run, cfg.environment.frame)
+    scene = problem.scene
+    inside = scene.in_keep_in(tel.x_true[:, 0:3]) & ~scene.in_keep_out(tel.x_true[:, 0:3])
+    goal = problem.goal
+    solve = np.array([r.plan.solve_time_s for r in run.replans])
+    log: list[LogEntry] = [(r.t, "info", f"replan: std {np.array2string(r.std, precision=4)}, gamma "
+                            f"{np.array2string(r.gamma, precision=3)}, {r.plan.accepted}/{r.plan.iterations} steps "
+                            f"kept, {1e3 * r.plan.solve_time_s:.0f} ms") for r in run.replans]
+    log.insert(0, (0.0, "info", f"RATTLE closed loop, estimator: {final.method} (Cramér-Rao covariance around the "
+                                "true parameters; not a real estimator)"))
+    summary = {
+        "stage": "excite",
+        "status": "ok",
+        "method": "rattle",
+        "estimator": final.method,
+        "criterion": exc.criterion,
+        "parameter_scaling": exc.parameter_scaling,
+        "seed": cfg.seed,
+        "criterion_initial": criterion_value(prior_info, exc.criterion, d),
+        "criterion_final": criterion_value(posterior_info, exc.criterion, d),
+        "iterations": len(run.replans),
+        "replans": len(run.replans),
+        "solve_time_s": float(solve.sum()),
+        "replan_time_ms": percentiles_ms(solve),
+        "max_force_N": float(np.max(np.abs(tel.u_applied[:, 0:3]))),
+        "max_torque_Nm": float(np.max(np.abs(tel.u_applied[:, 3:6]))),
+        "max_speed_mps": float(np.max(np.abs(tel.x_true[:, 3:6]))),
+        "max_angular_velocity_radps": float(np.max(np.abs(tel.x_true[:, 10:13]))),
+        "collision_free": bool(np.all(inside)),
+        "crb_std": _named(final.std),
+        "crb_std_pct": _named(100.0 * final.std / theta_true),
+        "prior_std": _named(np.sqrt(np.diag(prior_cov))),
+        "gamma_final": _named(run.replans[-1].gamma),
+        "goal_residual": {
+            "position_m": float(np.max(np.abs(tel.x_true[-1, 0:3] - goal[0:3]))),
+            "velocity_mps": float(np.max(np.abs(tel.x_true[-1, 3:6]))),
+            "angular_velocity_radps": float(np.max(np.abs(tel.x_true[-1, 10:13]))),
+        },
+        "final_position_error_m": float(np.linalg.norm(tel.x_true[-1, 0:3] - goal[0:3])),
+        "duration_s": float(tel.t_true[-1]),
+        "dt_s": cfg.controller.period_s,
+        "force_limit_N": limits.force_N,
+        "torque_limit_Nm": limits.torque_Nm,
+    }
+    return summary, traj, log
+
+
+def _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, limits, run: RattleRun, traj, log, prior_cov,
+                          theta_true) -> None:
+    tel = run.telemetry
+    est_t = np.array([0.0] + [e.t for e in run.estimates])
+    prior_info = np.linalg.inv(prior_cov)
+    info = np.array([np.zeros((4, 4))] + [np.linalg.inv(e.covariance) - prior_info for e in run.estimates])
+    info = 0.5 * (info + np.transpose(info, (0, 2, 1)))
+    # The flown trajectory's samples are the control instants (plus the end): information at the same instants.
+    idx = np.clip(np.searchsorted(est_t, traj.t + 1e-9) - 1, 0, len(est_t) - 1)
+    info_traj = info[idx]
+    files["mcap"] = run_dir / "excite.mcap"
+    with StageMcapWriter(files["mcap"], stage="excite", config_yaml=config_yaml, metadata=_metadata(cfg, "rattle"),
+                         frame=cfg.environment.frame) as writer:
+        plans = {f"plan_{i}": r.plan.trajectory.x[:, 0:3] for i, r in enumerate(run.replans)}
+        writer.write_scene(problem.scene, {"flown": tel.x_true[:, 0:3], **plans})
+        writer.write_trajectory("/trajectory", traj)
+        writer.write_states("/state/true", tel.t_true, tel.x_true)
+        writer.write_poses(tel.t_true, tel.x_true)
+        for r in run.replans:
+            writer.write_json(REPLAN_TOPIC, REPLAN_SCHEMA_NAME, REPLAN_SCHEMA, r.t, {
+                "theta": r.theta, "std": r.std, "gamma": r.gamma, "cost": r.plan.cost,
+                "information_reward": r.plan.information_reward, "accepted_iterations": r.plan.accepted,
+                "solve_time_ms": 1e3 * r.plan.solve_time_s, "status": r.plan.status,
+                "estimator": run.final_estimate.method,
+            })
+        _information_records(writer, traj.t, info_traj, theta_true)
+        for t, level, message in log:
+            writer.write_log(t, level, message)
+    # The recording shows the posterior std (prior included) over time, as the planner saw it.
+    post_std = np.array([np.sqrt(np.diag(np.linalg.inv(prior_info + f))) for f in info_traj])
+    files["rrd"] = run_dir / "excite.rrd"
+    write_excite_recording(
+        files["rrd"], scene=problem.scene, t=traj.t, x=traj.x, u=traj.u, theta=theta_true, information=info_traj,
+        crb_std=post_std, force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,
+        angular_velocity_limit_radps=limits.angular_velocity_radps,
+        plans=[(r.t, r.plan.trajectory.x[:, 0:3]) for r in run.replans],
+        gamma=(np.array([r.t for r in run.replans]), np.array([r.gamma for r in run.replans])),
+        log=log, recording_name=f"{cfg.name}/excite",
+    )

@@ -1,0 +1,213 @@
+"""End-to-end ``oacli excite``: run the CLI, read the MCAP and the Rerun recording back, then track the design."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from oacli.cli import app
+from oacli.config import load_config
+from oacli.excitation.information import MeasurementModel, cramer_rao_std, fisher_information
+from oacli.excitation.problem import dense_positions
+from oacli.excitation.rattle import InformationWeighting
+from oacli.io.mcap_io import read_stage, read_telemetry, read_trajectory
+from oacli.io.rerun_io import read_recording_entities, read_recording_scalars
+from oacli.trajectory import sample_states
+from tests.conftest import REPO
+from tests.test_cli_errors import assert_clean_failure
+
+ISS = REPO / "configs" / "iss_reswarm.yaml"
+PAYLOAD = {"mass_kg": 15.0, "inertia_kgm2": [0.1464, 0.1376, 0.1604]}  # seed 000 Table 1, Astrobee with object
+runner = CliRunner()
+
+
+def run_cli(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def small_iss(path: Path, **excitation) -> Path:
+    """The ISS preset's B→C excitation, shortened (40 steps of 1 s), with the payload as the simulated truth and
+    the impellers at 2500 RPM (seed 001 Table 2) so that the tracker has force to spare."""
+    data = yaml.safe_load(ISS.read_text())
+    data["truth"] = dict(PAYLOAD)
+    data["robot"]["force_limit_N"] = [0.680, 0.332, 0.394]
+    data["robot"]["torque_limit_Nm"] = [0.068, 0.0332, 0.0394]
+    data["robot"]["angular_velocity_limit_radps"] = [0.5236, 0.5236, 0.5236]  # astrobee "difficult" flight mode
+    data["excitation"].update({"steps": 40, "duration_s": 40.0, "scp": {"max_iterations": 15}})
+    for key, value in excitation.items():
+        data["excitation"][key] = value
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+@pytest.fixture(scope="module")
+def config(tmp_path_factory) -> Path:
+    return small_iss(tmp_path_factory.mktemp("cfg") / "small.yaml")
+
+
+@pytest.fixture(scope="module")
+def excite_run(config, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("excite") / "run"
+    result = run_cli("excite", config, "--out", out, "--quiet")
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_run_folder_and_summary(excite_run, config):
+    assert sorted(p.name for p in excite_run.iterdir()) == ["config.yaml", "excite.mcap", "excite.rrd",
+                                                            "summary.json"]
+    summary = json.loads((excite_run / "summary.json").read_text())
+    for key in ("criterion_initial", "criterion_final", "iterations", "solve_time_s", "max_force_N", "max_torque_Nm",
+                "collision_free", "crb_std", "goal_residual"):
+        assert key in summary, key
+    assert summary["status"] == "ok" and summary["stage"] == "excite" and summary["method"] == "offline"
+    assert summary["criterion_final"] < summary["criterion_initial"]
+    assert summary["collision_free"] is True
+    assert summary["max_force_N"] <= 0.25 + 1e-9 and summary["max_torque_Nm"] <= 0.025 + 1e-9
+    assert load_config(excite_run / "config.yaml") == load_config(config)
+
+
+def test_mcap_reads_back_and_agrees_with_the_summary(excite_run, config):
+    cfg = load_config(config)
+    summary = json.loads((excite_run / "summary.json").read_text())
+    record = read_stage(excite_run / "excite.mcap", validate_crcs=True)
+    assert record.topics["/trajectory"] == "oacli.TrajectorySample"
+    for topic in ("/excitation/iterations", "/excitation/information", "/scene", "/robot/pose", "/log"):
+        assert topic in record.topics, topic
+    assert record.metadata["oacli"]["stage"] == "excite"
+    traj = read_trajectory(excite_run / "excite.mcap")
+    # At the design's sample period, from B at rest to C within the tolerance reported.
+    np.testing.assert_allclose(np.diff(traj.t), 1.0, atol=1e-9)
+    assert len(traj) == 41
+    np.testing.assert_allclose(traj.x[0, 0:3], cfg.waypoints["B"].position)
+    np.testing.assert_allclose(traj.x[0, 3:6], 0.0)
+    residual = np.max(np.abs(traj.x[-1, 0:3] - np.asarray(cfg.waypoints["C"].position)))
+    assert residual == pytest.approx(summary["goal_residual"]["position_m"], abs=1e-12)
+    assert residual <= cfg.excitation.terminal_tolerance.position_m * (1 + 1e-6)
+    assert np.max(np.abs(traj.u[:, 0:3])) == pytest.approx(summary["max_force_N"], abs=1e-12)
+    # Collision-free between the samples too (the parabola under the held force), with the clearance kept.
+    pts = dense_positions(traj.x, traj.u, 1.0, 15.0, substeps=50)
+    assert np.all(cfg.scene().in_keep_in(pts, margin_m=cfg.excitation.clearance_m - 1e-6))
+    # The criterion per iteration; the last one is the design's.
+    iterations = record.json_records["/excitation/iterations"]
+    assert len(iterations) == summary["iterations"]
+    assert [r["iteration"] for r in iterations] == list(range(1, len(iterations) + 1))
+    assert iterations[-1]["criterion"] == pytest.approx(summary["criterion_final"], rel=1e-12)
+    # Information over time: recomputing the FIM from the trajectory read back gives the last record and the bound.
+    info = record.json_records["/excitation/information"]
+    assert len(info) == len(traj)
+    theta = np.array([15.0, 0.1464, 0.1376, 0.1604])
+    model = MeasurementModel(**cfg.excitation.measurement.model_dump())
+    fim = fisher_information(traj.x[0], traj.u[:-1], theta, 1.0, model)
+    np.testing.assert_allclose(np.array(info[-1]["information"]), fim, rtol=1e-9)
+    np.testing.assert_allclose(info[-1]["crb_std"], cramer_rao_std(fim, theta), rtol=1e-9)
+    np.testing.assert_allclose(list(summary["crb_std"].values()), cramer_rao_std(fim, theta), rtol=1e-9)
+    assert np.trace(np.linalg.inv(fim)) == pytest.approx(summary["criterion_final"], rel=1e-9)
+
+
+def test_recording_reads_back_with_the_logged_values(excite_run):
+    rrd = excite_run / "excite.rrd"
+    entities = read_recording_entities(rrd)
+    for entity in ("world/keep_in", "world/keep_out", "world/excitation", "world/initial_guess", "world/robot",
+                   "metrics/criterion", "metrics/information", "metrics/crb_std_pct", "metrics/force_N",
+                   "metrics/torque_Nm", "log"):
+        assert entity in entities, entity
+    traj = read_trajectory(excite_run / "excite.mcap")
+    scalars = read_recording_scalars(rrd)
+    t_force, force = scalars["metrics/force_N"]
+    np.testing.assert_allclose(t_force, traj.t, atol=1e-9)
+    np.testing.assert_allclose(force, traj.u[:, 0:3], atol=1e-12)
+    _, information = scalars["metrics/information"]
+    last = read_stage(excite_run / "excite.mcap").json_records["/excitation/information"][-1]
+    theta = np.array([15.0, 0.1464, 0.1376, 0.1604])
+    np.testing.assert_allclose(information[-1], np.diag(np.array(last["information"])) * theta**2, rtol=1e-12)
+    per_iteration = read_recording_scalars(rrd, timeline="scp_iteration")
+    iterations, criterion = per_iteration["metrics/criterion"]
+    records = read_stage(excite_run / "excite.mcap").json_records["/excitation/iterations"]
+    np.testing.assert_array_equal(iterations, np.arange(1, len(records) + 1))
+    np.testing.assert_allclose(criterion, [r["criterion"] for r in records], rtol=1e-12)
+
+
+def test_excite_then_track_with_the_payload(excite_run, config, tmp_path):
+    """The design is trackable: the MPC (model: bare Astrobee, 9.58 kg) follows it with the 15 kg payload."""
+    out = tmp_path / "track"
+    result = run_cli("track", config, "--reference", excite_run / "excite.mcap", "--out", out, "--quiet")
+    assert result.exit_code == 0, result.output
+    design = read_trajectory(excite_run / "excite.mcap")
+    tel = read_telemetry(out / "track.mcap")
+    # The tracker's reference is the design, sampled at the controller times.
+    np.testing.assert_allclose(tel.x_reference[:, 0:3], sample_states(design, tel.t_ctrl)[:, 0:3], atol=1e-9)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["constraint_violations"] == 0
+    assert summary["solver_failures"] == 0
+    assert summary["rms_position_error_m"] <= 0.06  # 36 % mass error in the controller's model
+    assert summary["max_position_error_m"] <= 0.10
+    assert summary["final_position_error_m"] <= 0.02
+    idx = np.searchsorted(tel.t_true, tel.t_ctrl - 1e-9)
+    err = np.linalg.norm(tel.x_true[idx, 0:3] - tel.x_reference[:, 0:3], axis=1)
+    assert np.sqrt(np.mean(err**2)) <= 0.06
+
+
+def test_rattle_method_replans_and_records_the_weights(tmp_path):
+    cfg_path = small_iss(tmp_path / "rattle.yaml", rattle={"duration_s": 24.0, "replan_period_s": 12.0,
+                                                           "limits": {"force_N": [0.15] * 3, "torque_Nm": [0.015] * 3}})
+    out = tmp_path / "run"
+    result = run_cli("excite", cfg_path, "--method", "rattle", "--out", out, "--quiet")
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["method"] == "rattle" and summary["estimator"] == "oracle-crb"
+    assert summary["replans"] == 2 and summary["collision_free"] is True
+    assert summary["criterion_final"] < summary["criterion_initial"]
+    record = read_stage(out / "excite.mcap")
+    replans = record.json_records["/excitation/replans"]
+    assert [r["t"] for r in replans] == [0.0, 12.0]
+    rule = InformationWeighting()
+    for r in replans:
+        np.testing.assert_allclose(r["gamma"], rule.weights(np.array(r["std"])), rtol=1e-12)
+    traj = read_trajectory(out / "excite.mcap")
+    np.testing.assert_allclose(np.diff(traj.t[:-1]), 0.2, atol=1e-9)  # the controller period (5 Hz)
+    assert np.all(np.abs(traj.u[:, 0:3]) <= 0.15 + 1e-12)
+    t_gamma, gamma = read_recording_scalars(out / "excite.rrd")["metrics/gamma"]
+    np.testing.assert_allclose(t_gamma, [0.0, 12.0], atol=1e-9)
+    np.testing.assert_allclose(gamma, [r["gamma"] for r in replans], rtol=1e-12)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Bad input: one clear message, exit 2 (3 when infeasible), no run folder
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_start_inside_a_keep_out_zone_is_refused(tmp_path):
+    data = yaml.safe_load(ISS.read_text())
+    data["environment"]["keep_out"] = [{"center": [10.8, -7.75, 5.2], "semi_axes_m": [0.2, 0.2, 0.2]}]
+    cfg = tmp_path / "obstacle.yaml"
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    result = run_cli("excite", cfg, "--runs-dir", tmp_path / "runs")
+    assert_clean_failure(result, tmp_path / "runs", code=2, must_name="environment.keep_out.0")
+    assert "excitation.start" in result.stderr
+
+
+def test_infeasible_limits_exit_3_without_a_run_folder(tmp_path):
+    cfg = small_iss(tmp_path / "tiny.yaml", limits={"force_N": [0.005, 0.005, 0.005]})
+    result = run_cli("excite", cfg, "--runs-dir", tmp_path / "runs")
+    # 0.9 m along z with 0.005 N on 15 kg needs 2 sqrt(0.9 / 3.33e-4) = 104 s > 40 s.
+    assert_clean_failure(result, tmp_path / "runs", code=3, must_name="along z")
+
+
+def test_unknown_goal_and_missing_start_name_the_field(tmp_path):
+    cfg = small_iss(tmp_path / "bad.yaml", goal="Z")
+    result = run_cli("excite", cfg, "--runs-dir", tmp_path / "runs")
+    assert_clean_failure(result, tmp_path / "runs", code=2, must_name="excitation.goal")
+    cfg = small_iss(tmp_path / "bad2.yaml", start=None)
+    result = run_cli("excite", cfg, "--runs-dir", tmp_path / "runs")
+    assert_clean_failure(result, tmp_path / "runs", code=2, must_name="excitation.start")
+
+
+def test_unknown_method_is_refused(tmp_path):
+    result = run_cli("excite", ISS, "--method", "magic", "--runs-dir", tmp_path / "runs")
+    assert_clean_failure(result, tmp_path / "runs", code=2, must_name="--method")
