@@ -568,6 +568,9 @@ class ReferenceConfig(Section):
 # --------------------------------------------------------------------------------------------------------------
 
 
+from oacli.config.planner import PlannerConfig  # noqa: E402  (the planner section builds on the types above)
+
+
 class OacliConfig(Section):
     """A complete, validated oacli configuration. Only ``robot`` is required; everything else has defaults."""
 
@@ -596,6 +599,9 @@ class OacliConfig(Section):
     )
     reference: Annotated[ReferenceConfig, _none_to({})] = Field(
         default_factory=ReferenceConfig, description="Reference trajectory settings."
+    )
+    planner: Annotated[PlannerConfig, _none_to({})] = Field(
+        default_factory=PlannerConfig, description="Global planning (oacli plan) and smoothing (oacli smooth)."
     )
 
     @model_validator(mode="after")
