@@ -79,12 +79,15 @@ class ShortcutResult:
         Costs of the input and of the result.
     attempts : tuple of ShortcutAttempt
         Every try, in order.
+    sections : tuple of (int, TranslationalTrajectory)
+        Every accepted shortcut: its try number and the spliced-in section.
     """
 
     trajectory: TranslationalTrajectory
     cost_before: float
     cost_after: float
     attempts: tuple[ShortcutAttempt, ...]
+    sections: tuple[tuple[int, TranslationalTrajectory], ...] = ()
 
     @property
     def tried(self) -> int:
@@ -159,6 +162,7 @@ def lqr_shortcut(
     goal = np.asarray(goal, dtype=float)
     cost_before = traj.cost(weights, goal)
     attempts: list[ShortcutAttempt] = []
+    sections: list[tuple[int, TranslationalTrajectory]] = []
     for i in range(int(tries)):
         n = len(traj)
         if n < 3:
@@ -191,7 +195,8 @@ def lqr_shortcut(
                 if sample_dt_s is not None:
                     section = section.refined(sample_dt_s)
                 traj = splice(traj, a, b, section)
+                sections.append((i, section))
                 outcome, steps = ACCEPTED, int(n_steps)
                 break
         attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))
-    return ShortcutResult(traj, cost_before, traj.cost(weights, goal), tuple(attempts))
+    return ShortcutResult(traj, cost_before, traj.cost(weights, goal), tuple(attempts), tuple(sections))

@@ -33,50 +33,78 @@ MIN_STEPS = 2
 LIMIT_RTOL = 1e-9
 
 
-def _axis_maps(n: int, dt: float, mass: float, q_r: float, q_v: float, r_f: float):
-    """Per-axis maps of the N-step connection: ``G (n, 6)``, states ``X (n+1, 2, 6)``, cost ``M (6, 6)``."""
+def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: float):
+    """Per-axis maps of every N-step connection, ``MIN_STEPS <= N <= n_max``, by one Riccati recursion.
+
+    The end points and the goal are carried as constant states, ``ξ = [r, v, r_g, v_g, r_b, v_b]``, so the
+    stage cost ``½ [ξ; u]ᵀ Ŵ [ξ; u]`` (exact interval integrals of
+    :func:`~oacli.planning.translational.interval_cost_matrix` over ``z = [r - r_g, v, v - v_g, u]``) is a pure
+    quadratic form, and the terminal constraint ``x_N = x_b`` enters through a multiplier ν as the terminal value
+    ``νᵀ (x_N - x_b)``. The value with ``j`` steps to go is ``½ ζᵀ P⁽ʲ⁾ ζ`` with ``ζ = [ξ; ν]``: the Riccati step of
+    Doerr Eq. 9 (for the augmented system, no affine terms) gives ``P⁽ʲ⁺¹⁾`` and the gain ``u = K⁽ʲ⁾ ζ``. The
+    system is time-invariant, so ``P⁽ᴺ⁾`` is the value of the N-step problem for every N at once; maximising over
+    ν (the ν-block of ``P⁽ᴺ⁾`` is negative definite for N >= 2) gives the optimal cost and ``ν*``, and rolling
+    the gains forward gives the forces and states as linear maps of ``y = [r_a, v_a, r_b, v_b, r_g, v_g]``.
+
+    Returns
+    -------
+    g : ndarray, shape (n_max + 1, n_max, 6)
+        ``U = g[N, :N] @ y`` (rows beyond N are zero).
+    states : ndarray, shape (n_max + 1, n_max + 1, 2, 6)
+        ``x_k = states[N, k] @ y`` for ``k <= N``.
+    cost : ndarray, shape (n_max + 1, 6, 6)
+        ``J_N = yᵀ cost[N] y`` (without the time term).
+    """
     a, b = double_integrator(dt, 1.0 / mass)
-    b = b[:, 0]
-    w = interval_cost_matrix(dt, mass, q_r, q_v, r_f)  # z = [r - r_g, v, v - v_g, f]
-    sel_a = np.zeros((2, 6))
-    sel_a[:, 0:2] = np.eye(2)
-    sel_b = np.zeros((2, 6))
-    sel_b[:, 2:4] = np.eye(2)
-    sel_g = np.zeros((2, 6))
-    sel_g[:, 4:6] = np.eye(2)
-    xa = np.empty((n + 1, 2, 6))
-    xu = np.zeros((n + 1, 2, n))
-    xa[0] = sel_a
-    for k in range(n):
-        xa[k + 1] = a @ xa[k]
-        xu[k + 1] = a @ xu[k]
-        xu[k + 1, :, k] += b
-    h = np.zeros((n, n))
-    f = np.zeros((n, 6))
-    e = np.zeros((6, 6))
-    for k in range(n):
-        zy = np.zeros((4, 6))
-        zu = np.zeros((4, n))
-        zy[0] = xa[k, 0] - sel_g[0]
-        zy[1] = xa[k, 1]
-        zy[2] = xa[k, 1] - sel_g[1]
-        zu[0:2] = xu[k]
-        zu[2] = xu[k, 1]
-        zu[3, k] = 1.0
-        h += zu.T @ w @ zu
-        f += zu.T @ w @ zy
-        e += zy.T @ w @ zy
-    kkt = np.zeros((n + 2, n + 2))
-    kkt[:n, :n] = h
-    kkt[:n, n:] = xu[n].T
-    kkt[n:, :n] = xu[n]
-    rhs = np.vstack([-f, sel_b - xa[n]])
-    sol = np.linalg.solve(kkt, rhs)
-    g = sol[:n]
-    cost = 0.5 * (g.T @ h @ g + g.T @ f + f.T @ g + e)
-    states = xa + np.einsum("kin,nj->kij", xu, g)
-    states[n] = sel_b  # the terminal constraint holds exactly
-    return g, states, 0.5 * (cost + cost.T)
+    w = interval_cost_matrix(dt, mass, q_r, q_v, r_f)
+    # z = t_z @ [ξ; u], ξ = [r, v, r_g, v_g, r_b, v_b]
+    t_z = np.zeros((4, 7))
+    t_z[0, [0, 2]] = [1.0, -1.0]
+    t_z[1, 1] = 1.0
+    t_z[2, [1, 3]] = [1.0, -1.0]
+    t_z[3, 6] = 1.0
+    w_hat = t_z.T @ w @ t_z
+    phi = np.eye(8)
+    phi[0:2, 0:2] = a
+    gam = np.zeros((8, 1))
+    gam[0:2, 0] = b[:, 0]
+    sel = np.zeros((7, 8))  # [ξ; u] from [ζ; u]
+    sel[0:6, 0:6] = np.eye(6)
+    w_zz = sel[0:6].T @ w_hat[0:6, 0:6] @ sel[0:6]
+    w_uz = w_hat[6:7, 0:6] @ sel[0:6]
+    w_uu = w_hat[6:7, 6:7]
+    p = np.zeros((n_max + 1, 8, 8))
+    p[0, 0:2, 6:8] = np.eye(2)
+    p[0, 4:6, 6:8] = -np.eye(2)
+    p[0] += p[0].T.copy()
+    gains = np.zeros((n_max + 1, 1, 8))
+    for j in range(n_max):
+        q_zz = w_zz + phi.T @ p[j] @ phi
+        q_uu = w_uu + gam.T @ p[j] @ gam
+        q_uz = w_uz + gam.T @ p[j] @ phi
+        gains[j + 1] = -q_uz / q_uu[0, 0]  # gain with j + 1 steps to go
+        nxt = q_zz + q_uz.T @ gains[j + 1]
+        p[j + 1] = 0.5 * (nxt + nxt.T)
+    # From ξ ordering [r, v, r_g, v_g, r_b, v_b] to y ordering [r_a, v_a, r_b, v_b, r_g, v_g].
+    perm = np.zeros((6, 6))
+    perm[[0, 1, 4, 5, 2, 3], np.arange(6)] = 1.0  # ξ = perm @ y
+    g = np.zeros((n_max + 1, n_max, 6))
+    states = np.zeros((n_max + 1, n_max + 1, 2, 6))
+    cost = np.zeros((n_max + 1, 6, 6))
+    for n in range(MIN_STEPS, n_max + 1):
+        pn = p[n]
+        p_vv, p_vx = pn[6:8, 6:8], pn[6:8, 0:6]
+        nu = -np.linalg.solve(p_vv, p_vx)  # ν* = nu @ ξ0
+        c_x = pn[0:6, 0:6] + p_vx.T @ nu
+        zeta = np.vstack([np.eye(6), nu]) @ perm  # ζ_0 as a map of y
+        cost[n] = 0.5 * perm.T @ (0.5 * (c_x + c_x.T)) @ perm
+        for k in range(n):
+            states[n, k] = zeta[0:2]
+            u = gains[n - k] @ zeta
+            g[n, k] = u[0]
+            zeta = phi @ zeta + gam @ u
+        states[n, n] = perm[4:6]  # x_N = x_b exactly
+    return g, states, cost
 
 
 @dataclass(frozen=True)
@@ -123,17 +151,13 @@ class LqrConnector:
         self.weights = weights
         self.max_steps = int(max_steps)
         n_max = self.max_steps
-        self._g = np.zeros((3, n_max + 1, n_max, 6))
-        self._x = np.zeros((3, n_max + 1, n_max + 1, 2, 6))
-        self._m = np.zeros((3, n_max + 1, 6, 6))
-        for i in range(3):
-            for n in range(MIN_STEPS, n_max + 1):
-                g, states, cost = _axis_maps(
-                    n, self.dt_s, self.mass_kg, weights.position[i], weights.velocity[i], weights.force[i]
-                )
-                self._g[i, n, :n] = g
-                self._x[i, n, : n + 1] = states
-                self._m[i, n] = cost
+        maps = [
+            axis_maps(n_max, self.dt_s, self.mass_kg, weights.position[i], weights.velocity[i], weights.force[i])
+            for i in range(3)
+        ]
+        self._g = np.stack([m[0] for m in maps])  # (3, N+1, N, 6)
+        self._x = np.stack([m[1] for m in maps])  # (3, N+1, N+1, 2, 6)
+        self._m = np.stack([m[2] for m in maps])  # (3, N+1, 6, 6)
         self._v = np.ascontiguousarray(self._x[:, :, :, 1, :])  # velocity maps (3, N+1, N+1, 6)
         self._time_cost = weights.time * self.dt_s * np.arange(n_max + 1)
 
