@@ -90,7 +90,7 @@ class KinoRrtConfig(Section):
 class ShortcutConfig(Section):
     """LQR shortcutting (Doerr §"Trajectory Smoothing by LQR Shortcutting"; ReSWARM §4.3)."""
 
-    tries: Annotated[StrictInt, Field(ge=0)] = Field(default=300, description="Random shortcut tries [-], >= 0.")
+    tries: Annotated[StrictInt, Field(ge=0)] = Field(default=1000, description="Random shortcut tries [-], >= 0.")
     max_horizon_s: PositiveReal = Field(
         default=60.0, description="Longest shortcut connection [s], > 0 (a multiple of steer_dt_s)."
     )

@@ -6,9 +6,9 @@ One iteration, as in Doerr's list of seven components:
    ``goal_bias`` the goal is chosen instead, and then the goal is connected from its near set directly.
 2. **Nearest node** by the LQR cost-to-go (Eq. 10), a Euclidean nearest-neighbour query in transformed
    coordinates (:class:`~oacli.planning.steering.LqrMetric`).
-3. **LQR steer** (:class:`~oacli.planning.steering.LqrConnector`): the exact LQR connection from the nearest node
-   to the sample; if no horizon up to the steering horizon keeps the force and velocity limits, the sample is
-   pulled towards the nearest node (halving the step) until one does.
+3. **LQR steer** (:meth:`~oacli.planning.steering.LqrConnector.saturated_rollout`): a shrinking-horizon LQR
+   rollout from the nearest node towards the sample, with the force clipped to its limits and to the range that
+   keeps the velocity within its limits; the new state is where it ends (reachable within the limits).
 4. **Near nodes** with cost-to-go at most ``γ (log n / n)^(1/n_x)``, ``n_x = 6`` (Eq. 11), at most ``max_near``.
 5. **Choose parent**: the near node and horizon of least cost-to-come plus connection cost whose connection is
    within the limits and **collision-free in continuous time** (checked lazily in cost order).
@@ -76,8 +76,6 @@ class LqrRrtStarSettings:
         γ of the near radius ``γ (log n / n)^(1/6)`` (Eq. 11), in cost units.
     max_near : int
         Largest near set.
-    steer_halvings : int
-        How often steering may halve the step towards the sample.
     max_edge_checks : int
         Collision checks per choose-parent or goal connection before giving up.
     snapshots : int
@@ -93,7 +91,6 @@ class LqrRrtStarSettings:
     goal_bias: float = 0.05
     gamma: float = 20.0
     max_near: int = 30
-    steer_halvings: int = 5
     max_edge_checks: int = 8
     snapshots: int = 40
 
@@ -199,15 +196,23 @@ class _Planner:
     # -- steps -----------------------------------------------------------------------------------------------
 
     def steer(self, x_from: np.ndarray, x_to: np.ndarray) -> np.ndarray | None:
-        """Largest step ``x_from + η (x_to - x_from)``, η = 1, ½, ¼ ..., with a feasible connection."""
-        eta = 0.5 ** np.arange(self.settings.steer_halvings + 1)
-        targets = x_from + eta[:, None] * (x_to - x_from)
-        steps = np.arange(MIN_STEPS, self.settings.metric_steps + 1)
-        ok = self.limits_ok(x_from, targets, steps).any(axis=1)
-        ok &= self.problem.checker.points_free(targets[:, 0:3])
-        if not np.any(ok):
+        """LQR steering within the limits towards ``x_to`` (Doerr: 'LQR steer'; Perez et al. 2012).
+
+        The horizon is the cheapest one up to the steering horizon; the new state is where the saturated
+        shrinking-horizon LQR rollout ends (:meth:`LqrConnector.saturated_rollout`), so it is reachable from
+        ``x_from`` within the force and velocity limits. None when that state is not collision-free.
+        """
+        costs = self.conn.costs(x_from, x_to, self.goal)[0, : self.settings.metric_steps + 1]
+        steps = int(np.argmin(costs))
+        roll = self.conn.saturated_rollout(
+            x_from, x_to, self.goal, steps, self.problem.force_limit_N, self.problem.velocity_limit_mps
+        )
+        x_new = roll.x[-1]
+        if np.allclose(x_new, x_from, rtol=0.0, atol=1e-9):
             return None
-        return targets[int(np.argmax(ok))]
+        if not self.problem.checker.points_free(x_new[0:3]):
+            return None
+        return x_new
 
     def add_node(self, x: np.ndarray, parent: int, steps: int, cost: float, *, index_as_source: bool) -> int:
         node = self.tree.add(x, parent, cost, EDGE_LQR, steps=steps, iteration=self.iteration,

@@ -169,7 +169,8 @@ def lqr_shortcut(
             attempts.append(ShortcutAttempt(i, 0, n - 1, 0.0, traj.duration_s, 0, 0.0, np.nan, NOT_LOWER_COST))
             continue
         a = int(rng.integers(0, n - 2))
-        b = int(rng.integers(a + 2, n))
+        span = n - 1 - a  # log-uniform section length: as many local as global tries
+        b = a + min(span, max(2, int(np.exp(rng.uniform(np.log(2.0), np.log(span + 1.0))))))
         cum = np.concatenate([[0.0], np.cumsum(traj.interval_costs(weights, goal))])
         old = float(cum[b] - cum[a])
         x_a, x_b = traj.x[a], traj.x[b]

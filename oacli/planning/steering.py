@@ -159,6 +159,9 @@ class LqrConnector:
         self._x = np.stack([m[1] for m in maps])  # (3, N+1, N+1, 2, 6)
         self._m = np.stack([m[2] for m in maps])  # (3, N+1, 6, 6)
         self._v = np.ascontiguousarray(self._x[:, :, :, 1, :])  # velocity maps (3, N+1, N+1, 6)
+        self._g_flat = self._g.reshape(3, -1, 6)
+        self._m_flat = self._m.reshape(3, -1, 6)
+        self._v_flat = self._v.reshape(3, -1, 6)
         self._time_cost = weights.time * self.dt_s * np.arange(n_max + 1)
 
     # -- vectorised over candidate pairs and horizons ----------------------------------------------------------
@@ -179,7 +182,12 @@ class LqrConnector:
     def costs(self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Optimal connection cost for every horizon, shape (K, max_steps + 1); ``inf`` for N < MIN_STEPS."""
         y = self._y(x_a, x_b, goal)
-        j = np.einsum("kia,inab,kib->kn", y, self._m, y) + self._time_cost
+        k = y.shape[0]
+        j = np.tile(self._time_cost, (k, 1))
+        for i in range(3):
+            yi = y[:, i, :]  # (K, 6)
+            my = (self._m_flat[i] @ yi.T).reshape(-1, 6, k)  # (N+1, 6, K)
+            j += np.einsum("nak,ka->kn", my, yi)
         j[:, :MIN_STEPS] = np.inf
         return j
 
@@ -201,14 +209,27 @@ class LqrConnector:
         force_ok, velocity_ok : ndarray of bool, shape (K, len(steps))
         """
         y = self._y(x_a, x_b, goal)
-        steps = np.arange(self.max_steps + 1) if steps is None else np.asarray(steps, dtype=int)
-        u = np.einsum("inja,kia->kinj", self._g[:, steps], y)
-        v = np.einsum("inja,kia->kinj", self._v[:, steps], y)
-        f_lim = np.asarray(force_limit_N, dtype=float)[None, :, None] * (1.0 + LIMIT_RTOL)
-        v_lim = np.asarray(velocity_limit_mps, dtype=float)[None, :, None] * (1.0 + LIMIT_RTOL)
-        force_ok = np.all(np.abs(u).max(axis=3) <= f_lim, axis=1)
-        velocity_ok = np.all(np.abs(v).max(axis=3) <= v_lim, axis=1)
-        too_short = steps < MIN_STEPS
+        if steps is None:
+            g, v = self._g_flat, self._v_flat
+            n_steps = self.max_steps + 1
+            too_short = np.arange(n_steps) < MIN_STEPS
+        else:
+            steps = np.asarray(steps, dtype=int)
+            n_steps = steps.shape[0]
+            g = self._g[:, steps].reshape(3, -1, 6)
+            v = self._v[:, steps].reshape(3, -1, 6)
+            too_short = steps < MIN_STEPS
+        k = y.shape[0]
+        f_lim = np.asarray(force_limit_N, dtype=float) * (1.0 + LIMIT_RTOL)
+        v_lim = np.asarray(velocity_limit_mps, dtype=float) * (1.0 + LIMIT_RTOL)
+        force_ok = np.ones((k, n_steps), dtype=bool)
+        velocity_ok = np.ones((k, n_steps), dtype=bool)
+        for i in range(3):
+            yi = y[:, i, :].T  # (6, K)
+            u = np.abs(g[i] @ yi).reshape(n_steps, -1, k).max(axis=1)  # (steps, K)
+            vel = np.abs(v[i] @ yi).reshape(n_steps, -1, k).max(axis=1)
+            force_ok &= (u <= f_lim[i]).T
+            velocity_ok &= (vel <= v_lim[i]).T
         force_ok[:, too_short] = False
         velocity_ok[:, too_short] = False
         return force_ok, velocity_ok
@@ -234,6 +255,42 @@ class LqrConnector:
         x[-1] = np.asarray(x_b, dtype=float).reshape(6)
         t = t0 + self.dt_s * np.arange(steps + 1)
         return TranslationalTrajectory(t, x, u, self.mass_kg)
+
+    def saturated_rollout(
+        self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
+        velocity_limit_mps: np.ndarray,
+    ) -> TranslationalTrajectory:
+        """LQR steering within the limits: a shrinking-horizon LQR rollout towards ``x_target``.
+
+        At step k the force is the first force of the optimal ``(steps - k)``-step connection from the current
+        state to ``x_target`` (the last step matches the target velocity), clipped to ``|f_i| <= F_i`` and to the
+        range that keeps ``|v_i| <= V_i`` at the next sample. The rollout reaches ``x_target`` when no limit is
+        active and otherwise ends where the saturated motion gets to: a state reachable within the limits.
+        """
+        self._check_steps(steps)
+        m, dt = self.mass_kg, self.dt_s
+        f_lim = np.asarray(force_limit_N, dtype=float)
+        v_lim = np.asarray(velocity_limit_mps, dtype=float)
+        x = np.asarray(x_a, dtype=float).reshape(6).copy()
+        target = np.asarray(x_target, dtype=float).reshape(6)
+        goal = np.asarray(goal, dtype=float).reshape(6)
+        xs = [x.copy()]
+        us = []
+        for k in range(steps):
+            left = steps - k
+            if left >= MIN_STEPS:
+                y = self._y(x, target, goal)[0]  # (3, 6)
+                u = np.einsum("ia,ia->i", self._g[:, left, 0], y)
+            else:
+                u = m * (target[3:6] - x[3:6]) / dt
+            lo = np.maximum(-f_lim, m * (-v_lim - x[3:6]) / dt)
+            hi = np.minimum(f_lim, m * (v_lim - x[3:6]) / dt)
+            u = np.clip(u, lo, np.maximum(lo, hi))
+            acc = u / m
+            x = np.concatenate([x[0:3] + x[3:6] * dt + 0.5 * acc * dt * dt, x[3:6] + acc * dt])
+            xs.append(x.copy())
+            us.append(u)
+        return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us), m)
 
     def value_function(self, steps: int, x_b: np.ndarray, goal: np.ndarray) -> ValueFunction:
         """Cost-to-go ``V(x_a)`` of reaching ``x_b`` in ``steps`` steps, in the form of Doerr Eq. 8."""
