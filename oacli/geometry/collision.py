@@ -215,7 +215,7 @@ def quartic_minimum(coeffs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r = roots
         fp = d[:, :1] + r * (d[:, 1:2] + r * (d[:, 2:3] + r * d[:, 3:4]))
         fpp = d[:, 1:2] + r * (2.0 * d[:, 2:3] + 3.0 * r * d[:, 3:4])
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             step = np.where(np.abs(fpp) > 1e-300, fp / fpp, 0.0)
         roots = np.clip(np.where(np.isfinite(step), r - step, r), 0.0, 1.0)
     cand = np.concatenate([np.zeros((k, 1)), np.ones((k, 1)), roots], axis=1)
