@@ -168,7 +168,7 @@ def plan_kino_rrt(
             if not np.isfinite(total[n]):
                 break
             link = conn.trajectory(x, goal, goal, int(n))
-            if checker.check(link.pieces()).free:
+            if checker.is_free(link.pieces()):
                 return tree.add(goal, node, tree.cost[node] + total[n], EDGE_LQR, steps=int(n),
                                 iteration=iteration, wall_time_s=clock() - t0)
             stats["goal_link_collisions"] += 1

@@ -163,7 +163,7 @@ class _Planner:
     def edge(self, x_a: np.ndarray, x_b: np.ndarray, steps: int) -> tuple[bool, TranslationalTrajectory]:
         traj = self.conn.trajectory(x_a, x_b, self.goal, steps)
         self.stats["edge_checks"] += 1
-        free = self.problem.checker.check(traj.pieces()).free
+        free = self.problem.checker.is_free(traj.pieces())
         if not free:
             self.stats["edge_collisions"] += 1
         return free, traj

@@ -192,7 +192,7 @@ def lqr_shortcut(
         outcome, steps = COLLISION, int(order[0])
         for n_steps in order[:max_collision_checks]:
             section = connector.trajectory(x_a, x_b, goal, int(n_steps))
-            if checker.check(section.pieces()).free:
+            if checker.is_free(section.pieces()):
                 if sample_dt_s is not None:
                     section = section.refined(sample_dt_s)
                 traj = splice(traj, a, b, section)

@@ -168,16 +168,18 @@ class LqrConnector:
 
     @staticmethod
     def _y(x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """Per-axis end-point vectors ``y (K, 3, 6)``."""
-        x_a = np.atleast_2d(np.asarray(x_a, dtype=float))
-        x_b = np.atleast_2d(np.asarray(x_b, dtype=float))
-        k = max(x_a.shape[0], x_b.shape[0])
-        x_a = np.broadcast_to(x_a, (k, 6))
-        x_b = np.broadcast_to(x_b, (k, 6))
-        g = np.broadcast_to(np.asarray(goal, dtype=float), (k, 6))
-        return np.stack(
-            [x_a[:, 0:3], x_a[:, 3:6], x_b[:, 0:3], x_b[:, 3:6], g[:, 0:3], g[:, 3:6]], axis=2
-        )  # (K, 3 axes, 6)
+        """Per-axis end-point vectors ``y (K, 3, 6)`` = ``[r_a, v_a, r_b, v_b, r_g, v_g]`` per axis."""
+        x_a = np.asarray(x_a, dtype=float).reshape(-1, 6)
+        x_b = np.asarray(x_b, dtype=float).reshape(-1, 6)
+        g = np.asarray(goal, dtype=float).reshape(6)
+        y = np.empty((max(x_a.shape[0], x_b.shape[0]), 3, 6))
+        y[:, :, 0] = x_a[:, 0:3]
+        y[:, :, 1] = x_a[:, 3:6]
+        y[:, :, 2] = x_b[:, 0:3]
+        y[:, :, 3] = x_b[:, 3:6]
+        y[:, :, 4] = g[0:3]
+        y[:, :, 5] = g[3:6]
+        return y
 
     def costs(self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Optimal connection cost for every horizon, shape (K, max_steps + 1); ``inf`` for N < MIN_STEPS."""
