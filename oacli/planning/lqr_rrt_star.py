@@ -177,12 +177,16 @@ class _Planner:
             near = np.array([self.sources.nearest(z)[0]])
         return near
 
-    def best_connection(self, parents: np.ndarray, x: np.ndarray) -> tuple[int, int, float]:
-        """Least total cost (cost-to-come + connection) parent and horizon with a free connection to ``x``."""
+    def best_connection(self, parents: np.ndarray, x: np.ndarray, bound: float = math.inf) -> tuple[int, int, float]:
+        """Least total cost (cost-to-come + connection) parent and horizon with a free connection to ``x``.
+
+        Only connections cheaper than ``bound`` are considered.
+        """
         tree = self.tree
         xs = tree.states[parents]
         total = tree.cost[parents][:, None] + self.conn.costs(xs, x, self.goal)
         total[~self.limits_ok(xs, x)] = np.inf
+        total[total >= bound] = np.inf
         flat = np.argsort(total, axis=None, kind="stable")
         for f in flat[: self.settings.max_edge_checks]:
             k, n = divmod(int(f), total.shape[1])
@@ -257,16 +261,19 @@ class _Planner:
     def connect_goal(self, parents: np.ndarray) -> None:
         """Connect the goal from ``parents`` (add it, or give it a cheaper parent)."""
         self.stats["goal_attempts"] += 1
-        parent, n, total = self.best_connection(parents, self.goal)
+        bound = math.inf
+        if self.goal_node >= 0:
+            current = self.tree.cost[self.goal_node]
+            bound = current - _IMPROVE_RTOL * max(1.0, abs(current))
+        parent, n, total = self.best_connection(parents, self.goal, bound)
         if parent < 0:
             return
         if self.goal_node < 0:
             self.goal_node = self.add_node(self.goal, parent, n, total, index_as_source=False)
-        elif total < self.tree.cost[self.goal_node] - _IMPROVE_RTOL * max(1.0, self.tree.cost[self.goal_node]):
-            if not self.tree.is_ancestor(self.goal_node, parent):
-                event = self.tree.rewire(self.goal_node, parent, total, steps=n, iteration=self.iteration)
-                self.rewires.append(event)
-                self.stats["rewires"] += 1
+        elif not self.tree.is_ancestor(self.goal_node, parent):
+            event = self.tree.rewire(self.goal_node, parent, total, steps=n, iteration=self.iteration)
+            self.rewires.append(event)
+            self.stats["rewires"] += 1
 
     def record_solution(self) -> None:
         if self.goal_node < 0:
