@@ -133,6 +133,8 @@ def main() -> None:
 
 # Each command lives in its own module under oacli.commands and registers itself on ``app``.
 from oacli.commands import excite as _excite  # noqa: E402, F401
+from oacli.commands import plan as _plan  # noqa: E402, F401
+from oacli.commands import smooth as _smooth  # noqa: E402, F401
 from oacli.commands import track as _track  # noqa: E402, F401
 
 if __name__ == "__main__":

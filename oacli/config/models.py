@@ -579,6 +579,7 @@ class ReferenceConfig(Section):
 
 
 from oacli.config.excitation import ExcitationConfig  # noqa: E402  (needs Section and the types above)
+from oacli.config.planner import PlannerConfig  # noqa: E402  (the planner section builds on the types above)
 
 
 class OacliConfig(Section):
@@ -612,6 +613,9 @@ class OacliConfig(Section):
     )
     excitation: Annotated[ExcitationConfig, _none_to({})] = Field(
         default_factory=ExcitationConfig, description="Excitation design and online information-aware planning."
+    )
+    planner: Annotated[PlannerConfig, _none_to({})] = Field(
+        default_factory=PlannerConfig, description="Global planning (oacli plan) and smoothing (oacli smooth)."
     )
 
     @model_validator(mode="after")

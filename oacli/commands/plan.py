@@ -1,0 +1,50 @@
+"""``oacli plan``: a collision-free trajectory between two waypoints (LQR-RRT* or kinodynamic RRT)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+
+PLAN_TABLE = [
+    "status", "planner", "segment", "iterations", "nodes", "time_to_first_solution_s", "cost", "path_length_m",
+    "duration_s", "duration_ratio", "max_force_N", "collision_free", "wall_time_s",
+]
+
+
+@app.command("plan")
+def plan(
+    config: Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")],
+    segment: Annotated[
+        str | None, typer.Option("--segment", "-s", help="Waypoints 'A-B' to plan between (default: "
+                                 "planner.segment, else the first two of reference.waypoints).")
+    ] = None,
+    planner: Annotated[
+        str | None, typer.Option("--planner", "-p", help="'lqr-rrt-star' or 'kino-rrt' (default: planner.type).")
+    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
+    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
+        "runs"
+    ),
+    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+) -> None:
+    """Plan a segment; write plan.mcap (trajectory, tree, scene), plan.rrd and summary.json.
+
+    Exit code 3 when no solution is found within the budget (the run folder then holds the partial tree).
+    """
+
+    def action():
+        from oacli.stages.plan import run_plan
+
+        cfg = load_config_with_seed(config, seed)
+        return run_plan(cfg, segment=segment, planner=planner, out=out, runs_root=runs_root,
+                        progress=Progress("plan", not quiet))
+
+    result = run_guarded(action)
+    if not quiet:
+        print_table(result.summary, PLAN_TABLE)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet)

@@ -1,0 +1,44 @@
+"""``oacli smooth``: LQR shortcutting of a plan read back from its MCAP."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+
+SMOOTH_TABLE = [
+    "status", "cost_before", "cost_after", "duration_before_s", "duration_after_s", "duration_ratio",
+    "path_length_after_m", "shortcuts_tried", "shortcuts_accepted", "shortcuts_rejected", "collision_free",
+    "wall_time_s",
+]
+
+
+@app.command("smooth")
+def smooth(
+    config: Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")],
+    input_path: Annotated[
+        Path, typer.Option("--input", "-i", help="MCAP with a /trajectory to smooth (plan.mcap or smooth.mcap).")
+    ],
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
+    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
+        "runs"
+    ),
+    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+) -> None:
+    """Smooth a plan by LQR shortcutting; write smooth.mcap, smooth.rrd and summary.json."""
+
+    def action():
+        from oacli.stages.smooth import run_smooth
+
+        cfg = load_config_with_seed(config, seed)
+        return run_smooth(cfg, input_path=input_path, out=out, runs_root=runs_root,
+                          progress=Progress("smooth", not quiet))
+
+    result = run_guarded(action)
+    if not quiet:
+        print_table(result.summary, SMOOTH_TABLE)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet)

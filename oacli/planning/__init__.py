@@ -1,0 +1,1 @@
+"""Global planning in the translational state space: LQR-RRT*, kinodynamic RRT and LQR shortcutting."""

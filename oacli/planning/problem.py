@@ -1,0 +1,77 @@
+"""The planning problem in the translational state space and how to sample it.
+
+The global planners plan the translational state ``x = [r, v]`` (Doerr Eq. 34) of the robot's centre, as Doerr
+et al. and ReSWARM §4.1.3 do: attitude is interpolated afterwards (:mod:`oacli.planning.full_state`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from oacli.geometry.collision import CollisionChecker
+from oacli.planning.translational import CostWeights
+
+
+@dataclass(frozen=True)
+class PlanningProblem:
+    """Start, goal, limits, workspace and cost of one planning query.
+
+    Attributes
+    ----------
+    start, goal : ndarray, shape (6,)
+        ``[r (m), v (m/s)]``; the goal is usually at rest.
+    mass_kg : float
+        Mass of the double integrator [kg].
+    force_limit_N : ndarray, shape (3,)
+        ``|f_i| <= F_i`` per world axis [N].
+    velocity_limit_mps : ndarray, shape (3,)
+        ``|v_i| <= V_i`` per world axis [m/s].
+    checker : CollisionChecker
+        Continuous collision checks of the robot body against the workspace.
+    sample_lower, sample_upper : ndarray, shape (B, 3)
+        Boxes positions are sampled from (the keep-in boxes), chosen with probability proportional to volume.
+    weights : CostWeights
+        The trajectory cost (:mod:`oacli.planning.translational`).
+    """
+
+    start: np.ndarray
+    goal: np.ndarray
+    mass_kg: float
+    force_limit_N: np.ndarray
+    velocity_limit_mps: np.ndarray
+    checker: CollisionChecker
+    sample_lower: np.ndarray
+    sample_upper: np.ndarray
+    weights: CostWeights
+
+    def __post_init__(self) -> None:
+        for name, shape in (("start", (6,)), ("goal", (6,)), ("force_limit_N", (3,)), ("velocity_limit_mps", (3,))):
+            arr = np.array(getattr(self, name), dtype=float).reshape(shape)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        lo = np.array(self.sample_lower, dtype=float).reshape(-1, 3)
+        hi = np.array(self.sample_upper, dtype=float).reshape(-1, 3)
+        if lo.shape[0] == 0 or lo.shape != hi.shape or np.any(hi <= lo):
+            raise ValueError("sampling needs at least one box with upper > lower on every axis")
+        object.__setattr__(self, "sample_lower", lo)
+        object.__setattr__(self, "sample_upper", hi)
+        if np.any(self.force_limit_N <= 0) or np.any(self.velocity_limit_mps <= 0):
+            raise ValueError("force and velocity limits must be > 0")
+
+    def sample_state(self, rng: np.random.Generator) -> np.ndarray:
+        """A state uniformly distributed over the sampling boxes × the velocity box (Doerr: random sampling)."""
+        volumes = np.prod(self.sample_upper - self.sample_lower, axis=1)
+        b = 0 if volumes.shape[0] == 1 else int(rng.choice(volumes.shape[0], p=volumes / volumes.sum()))
+        r = rng.uniform(self.sample_lower[b], self.sample_upper[b])
+        v = rng.uniform(-self.velocity_limit_mps, self.velocity_limit_mps)
+        return np.concatenate([r, v])
+
+    def sample_free_state(self, rng: np.random.Generator, attempts: int = 100) -> np.ndarray | None:
+        """A sampled state whose position is collision-free (None after ``attempts`` rejections)."""
+        for _ in range(attempts):
+            x = self.sample_state(rng)
+            if self.checker.points_free(x[0:3]):
+                return x
+        return None

@@ -1,0 +1,203 @@
+"""Trajectory smoothing by LQR shortcutting (Doerr et al. 2021 §"Trajectory Smoothing by LQR Shortcutting";
+ReSWARM §4.3; after Hauser & Ng-Thow-Hing 2010).
+
+Each try picks two random samples ``x_a`` (at ``t_a``) and ``x_b`` (at ``t_b``) of the current trajectory
+``σ = [σ1, σ2, σ3]`` and computes the LQR interpolation between them: for every horizon, the exact LQR connection
+from ``x_a`` to ``x_b`` (:class:`~oacli.planning.steering.LqrConnector`). The cheapest connection is spliced in
+for ``σ2`` only if it
+
+1. costs less than ``σ2`` (the cost of :mod:`oacli.planning.translational` is additive over samples, so the
+   whole trajectory's cost drops by exactly the difference),
+2. keeps every force ``|f_i| <= F_i`` and every velocity ``|v_i| <= V_i``, and
+3. is collision-free in continuous time (:mod:`oacli.geometry.collision`).
+
+(The ReSWARM flight code spliced shortcuts in without the collision check.) Every try is recorded with its
+outcome, so the smoothing can be audited. The result never costs more than the input, and stays within the
+limits and collision-free if the input was.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from oacli.geometry.collision import CollisionChecker
+from oacli.planning.steering import LqrConnector
+from oacli.planning.translational import TranslationalTrajectory
+
+ACCEPTED = "accepted"
+NOT_LOWER_COST = "not_lower_cost"
+INPUT_LIMIT = "input_limit"
+VELOCITY_LIMIT = "velocity_limit"
+COLLISION = "collision"
+REJECTIONS = (NOT_LOWER_COST, INPUT_LIMIT, VELOCITY_LIMIT, COLLISION)
+
+_IMPROVE_RTOL = 1e-12
+
+
+@dataclass(frozen=True)
+class ShortcutAttempt:
+    """One shortcut try.
+
+    Attributes
+    ----------
+    index : int
+        Try number (0-based).
+    a, b : int
+        Sample indices of the end points in the trajectory as it was at this try.
+    t_a, t_b : float
+        Their times [s].
+    steps : int
+        Horizon [steps] of the best connection considered (0 when none was lower-cost).
+    old_cost, new_cost : float
+        Cost of the replaced section and of the connection (NaN when none was considered).
+    outcome : str
+        ``accepted`` or a rejection reason (:data:`REJECTIONS`).
+    """
+
+    index: int
+    a: int
+    b: int
+    t_a: float
+    t_b: float
+    steps: int
+    old_cost: float
+    new_cost: float
+    outcome: str
+
+
+@dataclass(frozen=True)
+class ShortcutResult:
+    """Outcome of :func:`lqr_shortcut`.
+
+    Attributes
+    ----------
+    trajectory : TranslationalTrajectory
+        The smoothed trajectory.
+    cost_before, cost_after : float
+        Costs of the input and of the result.
+    attempts : tuple of ShortcutAttempt
+        Every try, in order.
+    sections : tuple of (int, TranslationalTrajectory)
+        Every accepted shortcut: its try number and the spliced-in section.
+    """
+
+    trajectory: TranslationalTrajectory
+    cost_before: float
+    cost_after: float
+    attempts: tuple[ShortcutAttempt, ...]
+    sections: tuple[tuple[int, TranslationalTrajectory], ...] = ()
+
+    @property
+    def tried(self) -> int:
+        """Number of tries."""
+        return len(self.attempts)
+
+    @property
+    def accepted(self) -> int:
+        """Number of shortcuts spliced in."""
+        return sum(a.outcome == ACCEPTED for a in self.attempts)
+
+    @property
+    def rejected(self) -> dict[str, int]:
+        """Rejected tries by reason (every reason listed, zeros included)."""
+        return {r: sum(a.outcome == r for a in self.attempts) for r in REJECTIONS}
+
+
+def splice(
+    traj: TranslationalTrajectory, a: int, b: int, section: TranslationalTrajectory
+) -> TranslationalTrajectory:
+    """Replace samples ``a..b`` of ``traj`` by ``section`` (which must start at ``x[a]`` and end at ``x[b]``)."""
+    shift = traj.t[a] - section.t[0]
+    t_sec = section.t + shift
+    delay = t_sec[-1] - traj.t[b]
+    t = np.concatenate([traj.t[: a + 1], t_sec[1:], traj.t[b + 1 :] + delay])
+    x = np.concatenate([traj.x[: a + 1], section.x[1:], traj.x[b + 1 :]])
+    u = np.concatenate([traj.u[:a], section.u, traj.u[b:]])
+    return TranslationalTrajectory(t, x, u, traj.mass_kg)
+
+
+def lqr_shortcut(
+    traj: TranslationalTrajectory,
+    connector: LqrConnector,
+    checker: CollisionChecker,
+    goal: np.ndarray,
+    force_limit_N: np.ndarray,
+    velocity_limit_mps: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    tries: int,
+    sample_dt_s: float | None = None,
+    max_collision_checks: int = 3,
+) -> ShortcutResult:
+    """Smooth ``traj`` by ``tries`` random LQR shortcuts (module docstring).
+
+    Parameters
+    ----------
+    traj : TranslationalTrajectory
+        Input trajectory (zero-order-hold samples).
+    connector : LqrConnector
+        Exact LQR connections (its step is the shortcut's force step; its weights define the cost).
+    checker : CollisionChecker
+        Continuous collision checks.
+    goal : ndarray, shape (6,)
+        The plan's goal ``x_g`` (enters the cost's state term).
+    force_limit_N, velocity_limit_mps : ndarray, shape (3,)
+        Per-axis limits.
+    rng : numpy.random.Generator
+        Source of the random sample pairs.
+    tries : int
+        Number of shortcut tries.
+    sample_dt_s : float, optional
+        Sample spliced sections every ``sample_dt_s`` (must divide the connector's step); default: its step.
+    max_collision_checks : int
+        Connections (in cost order) checked for collisions per try.
+
+    Returns
+    -------
+    ShortcutResult
+    """
+    weights = connector.weights
+    goal = np.asarray(goal, dtype=float)
+    cost_before = traj.cost(weights, goal)
+    attempts: list[ShortcutAttempt] = []
+    sections: list[tuple[int, TranslationalTrajectory]] = []
+    for i in range(int(tries)):
+        n = len(traj)
+        if n < 3:
+            attempts.append(ShortcutAttempt(i, 0, n - 1, 0.0, traj.duration_s, 0, 0.0, np.nan, NOT_LOWER_COST))
+            continue
+        a = int(rng.integers(0, n - 2))
+        span = n - 1 - a  # log-uniform section length: as many local as global tries
+        b = a + min(span, max(2, int(np.exp(rng.uniform(np.log(2.0), np.log(span + 1.0))))))
+        cum = np.concatenate([[0.0], np.cumsum(traj.interval_costs(weights, goal))])
+        old = float(cum[b] - cum[a])
+        x_a, x_b = traj.x[a], traj.x[b]
+        costs = connector.costs(x_a, x_b, goal)[0]
+        lower = costs < old - _IMPROVE_RTOL * max(1.0, abs(old))
+        base = dict(index=i, a=a, b=b, t_a=float(traj.t[a]), t_b=float(traj.t[b]), old_cost=old)
+        if not np.any(lower):
+            attempts.append(ShortcutAttempt(**base, steps=0, new_cost=np.nan, outcome=NOT_LOWER_COST))
+            continue
+        f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps)
+        f_ok, v_ok = f_ok[0], v_ok[0]
+        ok = lower & f_ok & v_ok
+        if not np.any(ok):
+            best = int(np.argmin(np.where(lower, costs, np.inf)))
+            reason = INPUT_LIMIT if not np.any(lower & f_ok) else VELOCITY_LIMIT
+            attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))
+            continue
+        order = np.flatnonzero(ok)[np.argsort(costs[ok], kind="stable")]
+        outcome, steps = COLLISION, int(order[0])
+        for n_steps in order[:max_collision_checks]:
+            section = connector.trajectory(x_a, x_b, goal, int(n_steps))
+            if checker.is_free(section.pieces()):
+                if sample_dt_s is not None:
+                    section = section.refined(sample_dt_s)
+                traj = splice(traj, a, b, section)
+                sections.append((i, section))
+                outcome, steps = ACCEPTED, int(n_steps)
+                break
+        attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))
+    return ShortcutResult(traj, cost_before, traj.cost(weights, goal), tuple(attempts), tuple(sections))

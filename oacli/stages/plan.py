@@ -1,0 +1,453 @@
+"""The ``plan`` stage: a collision-free, dynamically feasible trajectory between two waypoints.
+
+Inputs: the config (robot, scene, waypoints, ``planner`` section) and a segment ``A-B``. Everything is validated
+before the run folder is created (unknown waypoints, a start or goal inside a keep-out zone or outside the keep-in
+boxes: exit 2, no folder). Outputs in the run folder: ``config.yaml`` (resolved, with the segment and planner that
+ran), ``plan.mcap``, ``plan.rrd`` and ``summary.json`` (last). Without a solution within the budget the MCAP and
+the recording still hold the partial tree, ``summary.json`` says ``"status": "no_solution"`` and the command exits
+with code 3.
+
+``plan.mcap`` topics (besides the contract of docs/mcap.md): ``/trajectory`` (oacli.TrajectorySample, the plan),
+``/robot/pose``, ``/scene`` (scene and path), ``/plan/tree`` (oacli.PlanTreeNode, one record per node of the final
+tree), ``/plan/rewires`` (oacli.PlanRewire), ``/plan/solutions`` (oacli.PlanSolution), ``/log``; metadata record
+``oacli.plan`` (planner, segment, status, cost). Planner records carry ``t = 0`` (they are not on the trajectory's
+time axis) and their own ``iteration`` and ``wall_time_s``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oacli import __version__
+from oacli.config import OacliConfig, dump_config
+from oacli.errors import ConfigError, InfeasibleError
+from oacli.geometry import Scene
+from oacli.geometry.collision import CollisionChecker, RobotBody
+from oacli.geometry.verify import dense_check
+from oacli.io.atomic import write_text_atomic
+from oacli.io.mcap_io import StageMcapWriter
+from oacli.io.rerun_plan import write_plan_recording
+from oacli.io.runfolder import create_run_dir, git_commit, write_summary
+from oacli.model import quaternion as quat
+from oacli.planning.full_state import full_state_trajectory, minimum_time_lower_bound_s, translational_part
+from oacli.planning.kino_rrt import KinoRrtSettings, plan_kino_rrt
+from oacli.planning.lqr_rrt_star import LqrRrtStarSettings, plan_lqr_rrt_star
+from oacli.planning.problem import PlanningProblem
+from oacli.planning.result import PlanResult
+from oacli.planning.translational import CostWeights, TranslationalTrajectory
+from oacli.planning.tree import EDGE_LQR, EDGE_PRIMITIVE
+from oacli.stages.track import StageResult
+from oacli.types import Trajectory
+
+LogEntry = tuple[float, str, str]
+
+#: Stream keys of the per-stage random generators (``default_rng([seed, key])``).
+PLAN_STREAM = 0x504C414E  # "PLAN"
+SMOOTH_STREAM = 0x534D4F4F  # "SMOO"
+
+TREE_NODE = "oacli.PlanTreeNode"
+REWIRE = "oacli.PlanRewire"
+SOLUTION = "oacli.PlanSolution"
+
+_T = {"type": "number", "description": "0: planner records are not on the trajectory's time axis [s]"}
+_VEC3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
+
+TREE_NODE_SCHEMA: dict[str, Any] = {
+    "description": "One node of the planner's final tree and its incoming edge.",
+    "type": "object",
+    "properties": {
+        "t": _T,
+        "node": {"type": "integer", "description": "node index (0 = start)"},
+        "parent": {"type": "integer", "description": "parent index, -1 for the start"},
+        "iteration": {"type": "integer", "description": "iteration the node was added in"},
+        "wall_time_s": {"type": "number", "description": "planner wall time when the node was added [s]"},
+        "position": {**_VEC3, "description": "position r, world frame [m]"},
+        "velocity": {**_VEC3, "description": "velocity v, world frame [m/s]"},
+        "cost": {"type": "number", "description": "cost-to-come from the start [-]"},
+        "edge": {"type": "string", "description": "'root', 'lqr' (exact LQR connection) or 'primitive'"},
+        "edge_steps": {"type": "integer", "description": "horizon of an LQR edge [steps of steer_dt_s]"},
+        "edge_duration_s": {"type": "number", "description": "duration of the incoming edge [s]"},
+        "edge_force": {**_VEC3, "description": "held force of a primitive edge, world frame [N]"},
+        "in_path": {"type": "boolean", "description": "the node lies on the returned start-to-goal path"},
+        "goal": {"type": "boolean", "description": "the node is the goal"},
+    },
+    "required": ["t", "node", "parent", "position", "velocity", "cost", "edge"],
+}
+
+REWIRE_SCHEMA: dict[str, Any] = {
+    "description": "A rewiring of LQR-RRT*: node moved to a cheaper parent; its descendants' costs followed.",
+    "type": "object",
+    "properties": {
+        "t": _T,
+        "iteration": {"type": "integer"},
+        "node": {"type": "integer"},
+        "old_parent": {"type": "integer"},
+        "new_parent": {"type": "integer"},
+        "old_steps": {"type": "integer", "description": "old edge horizon [steps]"},
+        "new_steps": {"type": "integer", "description": "new edge horizon [steps]"},
+        "old_cost": {"type": "number", "description": "cost-to-come before [-]"},
+        "new_cost": {"type": "number", "description": "cost-to-come after [-]"},
+        "descendants_updated": {"type": "integer", "description": "nodes below whose cost changed too"},
+    },
+    "required": ["t", "iteration", "node", "old_parent", "new_parent", "old_cost", "new_cost"],
+}
+
+SOLUTION_SCHEMA: dict[str, Any] = {
+    "description": "The best start-to-goal solution improved (the first record is the first solution).",
+    "type": "object",
+    "properties": {
+        "t": _T,
+        "iteration": {"type": "integer"},
+        "wall_time_s": {"type": "number", "description": "planner wall time [s]"},
+        "cost": {"type": "number", "description": "cost of the best solution [-]"},
+        "nodes": {"type": "integer", "description": "tree size"},
+    },
+    "required": ["t", "iteration", "wall_time_s", "cost", "nodes"],
+}
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A planning query from the config: waypoint names, poses and the robot body used for collisions."""
+
+    name: str
+    start_name: str
+    goal_name: str
+    start: np.ndarray  # 13-state at rest
+    goal: np.ndarray
+
+
+def _fmt_point(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{v:.4g}" for v in p) + ")"
+
+
+def resolve_segment(cfg: OacliConfig, segment: str | None) -> Segment:
+    """The segment ``A-B`` to plan: from the option, else ``planner.segment``, else the reference's first two names.
+
+    Raises
+    ------
+    ConfigError
+        No segment given anywhere, unknown waypoint names, or an ambiguous split (names containing ``-``).
+    """
+    where = "--segment" if segment is not None else "planner.segment"
+    text = segment if segment is not None else cfg.planner.segment
+    if text is None:
+        names = [w for w in cfg.reference.waypoints if isinstance(w, str)]
+        if len(names) < 2:
+            raise ConfigError(
+                f"{where}: no segment to plan: give --segment A-B, planner.segment, or two waypoint names in "
+                "reference.waypoints"
+            )
+        text, where = f"{names[0]}-{names[1]}", "reference.waypoints"
+    defined = ", ".join(sorted(cfg.waypoints)) or "none"
+    splits = [
+        (text[:i], text[i + 1 :])
+        for i, ch in enumerate(text)
+        if ch == "-" and text[:i] in cfg.waypoints and text[i + 1 :] in cfg.waypoints
+    ]
+    if not splits:
+        raise ConfigError(f"{where}: {text}: not two waypoint names joined by '-' (defined in waypoints: {defined})")
+    if len(splits) > 1:
+        raise ConfigError(f"{where}: {text}: ambiguous, it splits into waypoints {splits}")
+    a, b = splits[0]
+    if a == b:
+        raise ConfigError(f"{where}: {text}: start and goal are the same waypoint")
+    return Segment(text, a, b, cfg.waypoint(a).state(), cfg.waypoint(b).state())
+
+
+def robot_body(cfg: OacliConfig, q_start: np.ndarray, q_goal: np.ndarray) -> RobotBody:
+    """The robot's bounding ellipsoid for collision checks (see ``planner.robot_semi_axes_m``)."""
+    axes = cfg.planner.robot_semi_axes_m
+    if axes is None:
+        return RobotBody.sphere(cfg.robot.radius_m)
+    if float(quat.angle_between(np.asarray(q_start), np.asarray(q_goal))) < 1e-9:
+        return RobotBody.ellipsoid(np.asarray(axes), quat.to_rotation_matrix(np.asarray(q_start)))
+    return RobotBody.sphere(float(max(axes)))
+
+
+def describe_body(body: RobotBody) -> str:
+    if body.is_point:
+        return "the robot (a point)"
+    return f"the robot (bounding radius {body.bounding_radius_m:.3g} m)"
+
+
+def check_endpoint(label: str, where: str, position: np.ndarray, checker: CollisionChecker, body: RobotBody) -> None:
+    """Refuse a start or goal inside a keep-out zone or outside every keep-in box (ConfigError, exit 2)."""
+    for kind, j in checker.point_violations(position):
+        if kind == "keep_in":
+            raise ConfigError(f"{where}: {label} {_fmt_point(position)} is outside every keep-in box "
+                              "(environment.keep_in)")
+        raise ConfigError(f"{where}: {label} {_fmt_point(position)}: {describe_body(body)} overlaps keep-out zone "
+                          f"environment.keep_out.{j} (safety factor included)")
+
+
+def cost_weights(cfg: OacliConfig) -> CostWeights:
+    """The planner's cost weights as :class:`~oacli.planning.translational.CostWeights`."""
+    w = cfg.planner.weights
+    return CostWeights(w.position, w.velocity, w.force, w.time)
+
+
+def build_problem(cfg: OacliConfig, seg: Segment) -> tuple[PlanningProblem, RobotBody]:
+    """Validate the query and build the :class:`~oacli.planning.problem.PlanningProblem` (no files touched)."""
+    scene = cfg.scene()
+    if not scene.keep_in:
+        raise ConfigError("environment.keep_in: planning samples positions in the keep-in boxes; give at least one")
+    body = robot_body(cfg, seg.start[6:10], seg.goal[6:10])
+    checker = CollisionChecker(scene, body)
+    check_endpoint(f"start of segment {seg.name}", f"waypoints.{seg.start_name}", seg.start[0:3], checker, body)
+    check_endpoint(f"goal of segment {seg.name}", f"waypoints.{seg.goal_name}", seg.goal[0:3], checker, body)
+    robot = cfg.robot
+    problem = PlanningProblem(
+        start=seg.start[0:6], goal=seg.goal[0:6], mass_kg=robot.mass_kg,
+        force_limit_N=np.asarray(robot.force_limit_N), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
+        checker=checker, sample_lower=np.array([b.lower for b in scene.keep_in]),
+        sample_upper=np.array([b.upper for b in scene.keep_in]),
+        weights=cost_weights(cfg),
+    )
+    return problem, body
+
+
+def lqr_rrt_star_settings(cfg: OacliConfig) -> LqrRrtStarSettings:
+    p = cfg.planner
+    return LqrRrtStarSettings(
+        dt_s=p.steer_dt_s, metric_steps=p.steps(p.steer_horizon_s), max_steps=p.steps(p.max_connection_s),
+        max_iterations=p.max_iterations, time_budget_s=p.time_budget_s, anytime=p.anytime,
+        goal_bias=p.goal_bias, gamma=p.near_gamma, max_near=p.max_near,
+    )
+
+
+def kino_rrt_settings(cfg: OacliConfig) -> KinoRrtSettings:
+    p = cfg.planner
+    k = p.kino
+    return KinoRrtSettings(
+        primitive_fraction=k.primitive_fraction, primitive_dt_s=k.primitive_dt_s, primitive_set=k.primitive_set,
+        position_weight=k.position_weight, velocity_weight=k.velocity_weight,
+        goal_tolerance_m=p.goal_tolerance_m, goal_tolerance_mps=p.goal_tolerance_mps, dt_s=p.steer_dt_s,
+        max_link_steps=p.steps(p.max_connection_s), max_iterations=p.max_iterations,
+        time_budget_s=p.time_budget_s, goal_bias=k.goal_bias,
+    )
+
+
+def to_output(cfg: OacliConfig, trans: TranslationalTrajectory, q_start: np.ndarray, q_goal: np.ndarray,
+              name: str) -> Trajectory:
+    """The 13-state output trajectory sampled every ``planner.output_dt_s`` with the attitude slerped."""
+    robot = cfg.robot
+    return full_state_trajectory(
+        trans.refined(cfg.planner.output_dt_s), q_start, q_goal, cfg.robot_params(),
+        rate_limit_radps=np.asarray(robot.angular_velocity_limit_radps),
+        torque_limit_Nm=np.asarray(robot.torque_limit_Nm), hold_dt_s=cfg.planner.output_dt_s, name=name,
+        frame=cfg.environment.frame,
+    )
+
+
+def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChecker, body: RobotBody,
+                       goal6: np.ndarray) -> dict[str, Any]:
+    """Summary numbers of an output trajectory; collisions re-checked exactly and densely (every 5 mm)."""
+    robot = cfg.robot
+    trans = translational_part(traj, robot.mass_kg)
+    report = checker.check(trans.pieces())
+    force = np.abs(traj.u[:, 0:3]).max(axis=0)
+    torque = np.abs(traj.u[:, 3:6]).max(axis=0)
+    vel = np.abs(traj.x[:, 3:6]).max(axis=0)
+    omega = np.abs(traj.x[:, 10:13]).max(axis=0)
+    within = bool(
+        np.all(force <= np.asarray(robot.force_limit_N) * (1 + 1e-9))
+        and np.all(vel <= np.asarray(robot.velocity_limit_mps) * (1 + 1e-9))
+        and np.all(torque <= np.asarray(robot.torque_limit_Nm) * (1 + 1e-9))
+        and np.all(omega <= np.asarray(robot.angular_velocity_limit_radps) * (1 + 1e-9))
+    )
+    bound = minimum_time_lower_bound_s(traj.x[0, 0:3], traj.x[-1, 0:3], np.asarray(robot.force_limit_N),
+                                       np.asarray(robot.velocity_limit_mps), robot.mass_kg)
+    out: dict[str, Any] = {
+        "cost": trans.cost(cost_weights(cfg), goal6),
+        "path_length_m": trans.path_length_m(),
+        "duration_s": traj.duration_s,
+        "min_time_lower_bound_s": bound,
+        "duration_ratio": traj.duration_s / bound if bound > 0 else float("nan"),
+        "impulse_Ns": trans.impulse_Ns(),
+        "max_force_N": float(force.max()),
+        "max_force_per_axis_N": force,
+        "max_velocity_mps": float(vel.max()),
+        "max_torque_Nm": float(torque.max()),
+        "max_angular_velocity_radps": float(omega.max()),
+        "within_limits": within,
+        "collision_free": bool(report.free),
+    }
+    if not report.free:
+        out["first_collision"] = {
+            "t_s": float(trans.t[report.first_piece] + np.nan_to_num(report.time_in_piece_s)),
+            "kind": report.kind, "zone": report.zone,
+        }
+    if np.allclose(body.sigma, body.sigma[0, 0] * np.eye(3)):  # sphere or point: the dense re-check applies
+        dense = dense_check(trans.t, trans.x, trans.u, trans.mass_kg, checker.scene, body.bounding_radius_m)
+        out["dense_check"] = {"ok": dense.ok, "samples": dense.samples, "max_spacing_m": dense.max_spacing_m,
+                              "min_clearance_m": dense.min_clearance_m}
+    return out
+
+
+def _edge_name(kind: int) -> str:
+    return {EDGE_LQR: "lqr", EDGE_PRIMITIVE: "primitive"}.get(int(kind), "root")
+
+
+def _write_plan_mcap(path: Path, cfg: OacliConfig, config_yaml: str, scene: Scene, result: PlanResult,
+                     output: Trajectory | None, summary: dict[str, Any], log: list[LogEntry]) -> None:
+    metadata = {"stage": "plan", "seed": cfg.seed, "git_commit": git_commit(), "version": __version__,
+                "config_name": cfg.name}
+    tree = result.tree
+    in_path = np.zeros(len(tree), dtype=bool)
+    in_path[list(result.path)] = True
+    with StageMcapWriter(path, stage="plan", config_yaml=config_yaml, metadata=metadata,
+                         frame=cfg.environment.frame) as writer:
+        writer.write_metadata("oacli.plan", {k: summary[k] for k in ("planner", "segment", "status", "iterations",
+                                                                       "nodes") if k in summary}
+                              | {"cost": summary.get("cost")})
+        paths = {"plan": output.x[:, 0:3]} if output is not None else {}
+        writer.write_scene(scene, paths)
+        if output is not None:
+            writer.write_trajectory("/trajectory", output)
+            writer.write_poses(output.t, output.x)
+        for i in range(len(tree)):
+            writer.write_json("/plan/tree", TREE_NODE, TREE_NODE_SCHEMA, 0.0, {
+                "node": i, "parent": int(tree.parent[i]), "iteration": int(tree.iteration[i]),
+                "wall_time_s": float(tree.wall_time_s[i]), "position": tree.states[i, 0:3],
+                "velocity": tree.states[i, 3:6], "cost": float(tree.cost[i]), "edge": _edge_name(tree.kind[i]),
+                "edge_steps": int(tree.steps[i]), "edge_duration_s": float(tree.duration_s[i]),
+                "edge_force": tree.force[i], "in_path": bool(in_path[i]), "goal": i == tree.goal_node,
+            })
+        for ev in result.rewires:
+            writer.write_json("/plan/rewires", REWIRE, REWIRE_SCHEMA, 0.0, {
+                "iteration": ev.iteration, "node": ev.node, "old_parent": ev.old_parent,
+                "new_parent": ev.new_parent, "old_steps": ev.old_steps, "new_steps": ev.new_steps,
+                "old_cost": ev.old_cost, "new_cost": ev.new_cost, "descendants_updated": ev.descendants_updated,
+            })
+        for sol in result.solutions:
+            writer.write_json("/plan/solutions", SOLUTION, SOLUTION_SCHEMA, 0.0, {
+                "iteration": sol.iteration, "wall_time_s": sol.wall_time_s, "cost": sol.cost, "nodes": sol.nodes,
+            })
+        for t, level, message in log:
+            writer.write_log(t, level, message)
+
+
+def run_plan(
+    cfg: OacliConfig,
+    *,
+    segment: str | None = None,
+    planner: str | None = None,
+    out: Path | None = None,
+    runs_root: Path = Path("runs"),
+    progress: Callable[[float], None] | None = None,
+) -> StageResult:
+    """Run the ``plan`` stage and write its run folder (module docstring).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration (seed override applied).
+    segment : str, optional
+        ``A-B``; overrides ``planner.segment``.
+    planner : str, optional
+        ``lqr-rrt-star`` or ``kino-rrt``; overrides ``planner.type``.
+    out, runs_root : Path
+        Run folder (see :func:`oacli.io.runfolder.create_run_dir`).
+    progress : callable, optional
+        Called with the used fraction of the planning budget.
+
+    Returns
+    -------
+    StageResult
+
+    Raises
+    ------
+    ConfigError
+        Bad segment, start or goal in collision, no keep-in box (before any file is written).
+    InfeasibleError
+        No solution within the budget (the run folder then holds the partial tree, status ``no_solution``).
+    """
+    wall_start = time.perf_counter()
+    if planner is not None:
+        if planner not in ("lqr-rrt-star", "kino-rrt"):
+            raise ConfigError(f"--planner: {planner}: must be 'lqr-rrt-star' or 'kino-rrt'")
+        cfg = cfg.model_copy(update={"planner": cfg.planner.model_copy(update={"type": planner})})
+    seg = resolve_segment(cfg, segment)
+    cfg = cfg.model_copy(update={"planner": cfg.planner.model_copy(update={"segment": seg.name})})
+    problem, body = build_problem(cfg, seg)
+    scene = problem.checker.scene
+    kind = cfg.planner.type
+
+    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
+    files = {"config": run_dir / "config.yaml"}
+    config_yaml = dump_config(cfg)
+    write_text_atomic(files["config"], config_yaml)
+    log: list[LogEntry] = []
+    try:
+        rng = np.random.default_rng([cfg.seed, PLAN_STREAM])
+        log.append((0.0, "info", f"{kind}: segment {seg.name} from {_fmt_point(seg.start[0:3])} to "
+                                 f"{_fmt_point(seg.goal[0:3])}; {describe_body(body)}"))
+        if kind == "lqr-rrt-star":
+            result = plan_lqr_rrt_star(problem, lqr_rrt_star_settings(cfg), rng, progress=progress)
+        else:
+            result = plan_kino_rrt(problem, kino_rrt_settings(cfg), rng, progress=progress)
+        output = None
+        summary: dict[str, Any] = {
+            "stage": "plan",
+            "status": "ok" if result.solved else "no_solution",
+            "planner": kind,
+            "segment": seg.name,
+            "seed": cfg.seed,
+            "iterations": result.iterations,
+            "nodes": len(result.tree),
+            "stop_reason": result.stop_reason,
+            "time_to_first_solution_s": result.time_to_first_solution_s,
+            "iterations_to_first_solution": result.iterations_to_first_solution,
+            "planning_time_s": result.planning_time_s,
+            "cost_first_solution": result.solutions[0].cost if result.solutions else float("nan"),
+            "solution_improvements": max(len(result.solutions) - 1, 0),
+            "rewires": len(result.rewires),
+            "stats": result.stats,
+        }
+        if result.solved:
+            output = to_output(cfg, result.trajectory, seg.start[6:10], seg.goal[6:10], "plan")
+            summary |= trajectory_metrics(cfg, output, problem.checker, body, problem.goal)
+            log.append((0.0, "info", f"solution after {result.iterations_to_first_solution} iterations "
+                                     f"({result.time_to_first_solution_s:.3f} s), {len(result.tree)} nodes, "
+                                     f"cost {summary['cost']:.6g}"))
+            log.append((output.duration_s, "info", f"arrives at {seg.goal_name} after {output.duration_s:.1f} s"))
+        else:
+            summary |= {"cost": float("nan"), "collision_free": None, "duration_s": float("nan"),
+                        "path_length_m": float("nan"), "max_force_N": float("nan")}
+            log.append((0.0, "error", f"no solution within the budget ({result.iterations} iterations, "
+                                      f"{result.planning_time_s:.1f} s, {len(result.tree)} nodes)"))
+        files["mcap"] = run_dir / "plan.mcap"
+        _write_plan_mcap(files["mcap"], cfg, config_yaml, scene, result, output, summary, log)
+        files["rrd"] = run_dir / "plan.rrd"
+        tree = result.tree
+        write_plan_recording(
+            files["rrd"], scene=scene, start=seg.start[0:3], goal=seg.goal[0:3], tree_states=tree.states,
+            tree_edges=tree.edges, snapshots=[(s.iteration, s.parent, s.path) for s in result.snapshots],
+            solutions=[(s.iteration, s.cost) for s in result.solutions],
+            trajectory=None if output is None else (output.t, output.x, output.u),
+            force_limit_N=np.asarray(cfg.robot.force_limit_N),
+            velocity_limit_mps=np.asarray(cfg.robot.velocity_limit_mps), log=log,
+            recording_name=f"{cfg.name}/plan",
+        )
+        summary["wall_time_s"] = time.perf_counter() - wall_start
+        summary["run_dir"] = str(run_dir)
+        summary["files"] = {k: p.name for k, p in files.items()}
+        files["summary"] = write_summary(run_dir, summary)
+    except BaseException as exc:
+        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+        write_summary(run_dir, {"stage": "plan", "status": "failed", "error": reason})
+        raise
+    if not result.solved:
+        raise InfeasibleError(
+            f"no solution from {seg.start_name} to {seg.goal_name} within the budget ({result.iterations} "
+            f"iterations, {result.planning_time_s:.1f} s, {len(result.tree)} nodes; stopped by "
+            f"{result.stop_reason}); the partial tree is in {run_dir}"
+        )
+    return StageResult(run_dir, summary, files)

@@ -1,0 +1,226 @@
+"""The ``smooth`` stage: LQR shortcutting of a plan read back from its MCAP.
+
+Inputs: the config (robot, scene, ``planner.weights`` and ``planner.shortcut``) and a previous stage's MCAP with a
+``/trajectory`` topic (``plan.mcap`` or an earlier ``smooth.mcap``). The input is refused (exit 2, no run folder)
+when it is unreadable, in another frame, does not follow the double integrator of ``robot.mass_kg`` under its
+held forces, does not end at rest, exceeds the force or velocity limits, or collides (a smoother must not launder
+a colliding plan). Outputs: ``config.yaml``, ``smooth.mcap``, ``smooth.rrd``, ``summary.json``.
+
+``smooth.mcap`` topics: ``/trajectory`` (the smoothed trajectory), ``/trajectory/input`` (the input as read),
+``/robot/pose``, ``/scene`` (paths ``before`` and ``after``), ``/smooth/shortcuts`` (oacli.ShortcutAttempt, one
+record per try, ``t = 0``), ``/log``; metadata ``oacli.smooth`` (input file, costs).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oacli import __version__
+from oacli.config import OacliConfig, dump_config
+from oacli.errors import InputError
+from oacli.geometry.collision import CollisionChecker
+from oacli.io.atomic import write_text_atomic
+from oacli.io.mcap_io import StageMcapWriter, read_stage, read_trajectory
+from oacli.io.rerun_plan import write_smooth_recording
+from oacli.io.runfolder import create_run_dir, git_commit, write_summary
+from oacli.planning.full_state import translational_part
+from oacli.planning.shortcut import ACCEPTED, ShortcutResult, lqr_shortcut
+from oacli.planning.steering import LqrConnector
+from oacli.stages.plan import (
+    SMOOTH_STREAM,
+    cost_weights,
+    describe_body,
+    robot_body,
+    to_output,
+    trajectory_metrics,
+)
+from oacli.stages.track import StageResult
+from oacli.types import Trajectory
+
+LogEntry = tuple[float, str, str]
+
+SHORTCUT_ATTEMPT = "oacli.ShortcutAttempt"
+SHORTCUT_SCHEMA: dict[str, Any] = {
+    "description": "One LQR shortcut try: the section between samples a and b, the best connection, the outcome.",
+    "type": "object",
+    "properties": {
+        "t": {"type": "number", "description": "0: shortcut records are not on the trajectory's time axis [s]"},
+        "try": {"type": "integer", "description": "try number"},
+        "a": {"type": "integer", "description": "first sample index (trajectory as it was at this try)"},
+        "b": {"type": "integer", "description": "last sample index"},
+        "t_a": {"type": "number", "description": "time of sample a [s]"},
+        "t_b": {"type": "number", "description": "time of sample b [s]"},
+        "steps": {"type": "integer", "description": "horizon of the best connection considered [steps]"},
+        "old_cost": {"type": "number", "description": "cost of the replaced section [-]"},
+        "new_cost": {"type": ["number", "null"], "description": "cost of the connection [-]"},
+        "outcome": {"type": "string", "description": "accepted, not_lower_cost, input_limit, velocity_limit or "
+                                                     "collision"},
+    },
+    "required": ["t", "try", "a", "b", "outcome"],
+}
+
+
+def load_plan(cfg: OacliConfig, path: Path) -> Trajectory:
+    """Read the input trajectory and check it against the config (see the module docstring)."""
+    path = Path(path)
+    record = read_stage(path, topics=["/trajectory"])
+    if record.truncated:
+        raise InputError(f"{path}: the file is truncated (its writer did not finish); rerun the stage that made it")
+    traj = read_trajectory(path)
+    if traj.frame != cfg.environment.frame:
+        raise InputError(f"{path}: /trajectory is in frame {traj.frame!r}, the config's environment.frame is "
+                         f"{cfg.environment.frame!r}")
+    if len(traj) < 2:
+        raise InputError(f"{path}: /trajectory has {len(traj)} sample; a plan needs at least two")
+    return traj
+
+
+def check_input(cfg: OacliConfig, path: Path, traj: Trajectory, checker: CollisionChecker) -> None:
+    """Refuse an input the smoother cannot start from (InputError, exit 2)."""
+    robot = cfg.robot
+    trans = translational_part(traj, robot.mass_kg)
+    if not trans.is_zoh_consistent():
+        raise InputError(
+            f"{path}: /trajectory does not follow the double integrator of robot.mass_kg = {robot.mass_kg:g} kg "
+            f"under its held forces (largest deviation {trans.zoh_residual():.3g}); was it planned with another mass?"
+        )
+    if np.any(np.abs(trans.x[-1, 3:6]) > 1e-9):
+        raise InputError(f"{path}: /trajectory does not end at rest (final velocity {trans.x[-1, 3:6]} m/s)")
+    force = trans.max_abs_force_N()
+    if np.any(force > np.asarray(robot.force_limit_N) * (1 + 1e-9)):
+        raise InputError(f"{path}: /trajectory exceeds robot.force_limit_N (largest |f| per axis {force} N)")
+    vel = trans.max_abs_velocity_mps()
+    if np.any(vel > np.asarray(robot.velocity_limit_mps) * (1 + 1e-9)):
+        raise InputError(f"{path}: /trajectory exceeds robot.velocity_limit_mps (largest |v| per axis {vel} m/s)")
+    report = checker.check(trans.pieces())
+    if not report.free:
+        t_hit = float(trans.t[report.first_piece] + np.nan_to_num(report.time_in_piece_s))
+        what = ("leaves the keep-in boxes" if report.kind == "keep_in"
+                else f"enters keep-out zone environment.keep_out.{report.zone}")
+        raise InputError(f"{path}: /trajectory {what} at t = {t_hit:.2f} s ({describe_body(checker.robot)}); "
+                         "a colliding plan cannot be smoothed")
+
+
+def _write_smooth_mcap(path: Path, cfg: OacliConfig, config_yaml: str, checker: CollisionChecker, source: Path,
+                       traj_in: Trajectory, traj_out: Trajectory, result: ShortcutResult,
+                       summary: dict[str, Any], log: list[LogEntry]) -> None:
+    metadata = {"stage": "smooth", "seed": cfg.seed, "git_commit": git_commit(), "version": __version__,
+                "config_name": cfg.name}
+    with StageMcapWriter(path, stage="smooth", config_yaml=config_yaml, metadata=metadata,
+                         frame=cfg.environment.frame) as writer:
+        writer.write_metadata("oacli.smooth", {"input": str(source), "cost_before": result.cost_before,
+                                               "cost_after": result.cost_after, "accepted": result.accepted,
+                                               "tried": result.tried})
+        writer.write_scene(checker.scene, {"before": traj_in.x[:, 0:3], "after": traj_out.x[:, 0:3]})
+        writer.write_trajectory("/trajectory", traj_out)
+        writer.write_trajectory("/trajectory/input", traj_in)
+        writer.write_poses(traj_out.t, traj_out.x)
+        for a in result.attempts:
+            writer.write_json("/smooth/shortcuts", SHORTCUT_ATTEMPT, SHORTCUT_SCHEMA, 0.0, {
+                "try": a.index, "a": a.a, "b": a.b, "t_a": a.t_a, "t_b": a.t_b, "steps": a.steps,
+                "old_cost": a.old_cost, "new_cost": a.new_cost, "outcome": a.outcome,
+            })
+        for t, level, message in log:
+            writer.write_log(t, level, message)
+
+
+def _cost_per_try(result: ShortcutResult) -> np.ndarray:
+    costs = [result.cost_before]
+    for a in result.attempts:
+        costs.append(costs[-1] - (a.old_cost - a.new_cost) if a.outcome == ACCEPTED else costs[-1])
+    return np.array(costs)
+
+
+def run_smooth(
+    cfg: OacliConfig,
+    *,
+    input_path: Path,
+    out: Path | None = None,
+    runs_root: Path = Path("runs"),
+    progress: Callable[[float], None] | None = None,
+) -> StageResult:
+    """Run the ``smooth`` stage on ``input_path`` and write its run folder (module docstring).
+
+    Raises
+    ------
+    InputError
+        Unreadable or unsuitable input (before any file is written).
+    """
+    wall_start = time.perf_counter()
+    input_path = Path(input_path).resolve()
+    traj_in = load_plan(cfg, input_path)
+    robot = cfg.robot
+    q_start, q_goal = traj_in.x[0, 6:10], traj_in.x[-1, 6:10]
+    body = robot_body(cfg, q_start, q_goal)
+    checker = CollisionChecker(cfg.scene(), body)
+    check_input(cfg, input_path, traj_in, checker)
+    trans = translational_part(traj_in, robot.mass_kg)
+    goal = trans.x[-1].copy()
+    p = cfg.planner
+    connector = LqrConnector(robot.mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
+
+    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
+    files = {"config": run_dir / "config.yaml"}
+    config_yaml = dump_config(cfg)
+    write_text_atomic(files["config"], config_yaml)
+    log: list[LogEntry] = [(0.0, "info", f"smoothing {input_path} ({traj_in.duration_s:.1f} s) with "
+                                         f"{p.shortcut.tries} LQR shortcut tries")]
+    try:
+        rng = np.random.default_rng([cfg.seed, SMOOTH_STREAM])
+        result = lqr_shortcut(
+            trans, connector, checker, goal, np.asarray(robot.force_limit_N), np.asarray(robot.velocity_limit_mps),
+            rng, tries=p.shortcut.tries, sample_dt_s=p.output_dt_s,
+        )
+        if progress is not None:
+            progress(1.0)
+        traj_out = to_output(cfg, result.trajectory, q_start, q_goal, "smooth")
+        before = trajectory_metrics(cfg, traj_in, checker, body, goal)
+        after = trajectory_metrics(cfg, traj_out, checker, body, goal)
+        summary: dict[str, Any] = {
+            "stage": "smooth",
+            "status": "ok",
+            "input": str(input_path),
+            "seed": cfg.seed,
+            "cost_before": result.cost_before,
+            "cost_after": result.cost_after,
+            "duration_before_s": traj_in.duration_s,
+            "duration_after_s": traj_out.duration_s,
+            "path_length_before_m": before["path_length_m"],
+            "path_length_after_m": after["path_length_m"],
+            "impulse_before_Ns": before["impulse_Ns"],
+            "impulse_after_Ns": after["impulse_Ns"],
+            "shortcuts_tried": result.tried,
+            "shortcuts_accepted": result.accepted,
+            "shortcuts_rejected": result.rejected,
+            **{k: after[k] for k in after if k not in ("path_length_m", "impulse_Ns")},
+        }
+        summary["cost"] = after["cost"]
+        log.append((traj_out.duration_s, "info",
+                    f"cost {result.cost_before:.6g} -> {result.cost_after:.6g}, duration {traj_in.duration_s:.1f} s "
+                    f"-> {traj_out.duration_s:.1f} s, {result.accepted}/{result.tried} shortcuts accepted"))
+        files["mcap"] = run_dir / "smooth.mcap"
+        _write_smooth_mcap(files["mcap"], cfg, config_yaml, checker, input_path, traj_in, traj_out, result,
+                           summary, log)
+        files["rrd"] = run_dir / "smooth.rrd"
+        write_smooth_recording(
+            files["rrd"], scene=checker.scene, before=traj_in.x[:, 0:3], trajectory=(traj_out.t, traj_out.x,
+                                                                                      traj_out.u),
+            shortcuts=[(i, sec.x[:, 0:3]) for i, sec in result.sections], cost_per_try=_cost_per_try(result),
+            force_limit_N=np.asarray(robot.force_limit_N), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
+            log=log, recording_name=f"{cfg.name}/smooth",
+        )
+        summary["wall_time_s"] = time.perf_counter() - wall_start
+        summary["run_dir"] = str(run_dir)
+        summary["files"] = {k: q.name for k, q in files.items()}
+        files["summary"] = write_summary(run_dir, summary)
+    except BaseException as exc:
+        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+        write_summary(run_dir, {"stage": "smooth", "status": "failed", "error": reason})
+        raise
+    return StageResult(run_dir, summary, files)
+
