@@ -8,10 +8,12 @@ last, atomically. A run that fails after its folder was created gets a ``summary
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import subprocess
-from collections.abc import Mapping
+import time
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -90,3 +92,63 @@ def write_summary(run_dir: Path, summary: Mapping[str, Any], filename: str = "su
     path = Path(run_dir) / filename
     write_text_atomic(path, json.dumps(to_json_safe(summary), indent=2, allow_nan=False) + "\n")
     return path
+
+
+class StageRun:
+    """A stage's run folder between its creation and its ``summary.json`` (see :func:`open_stage_run`).
+
+    Attributes
+    ----------
+    stage : str
+        Stage name (``track``, ``plan`` ...).
+    run_dir : Path
+        The folder.
+    files : dict of str to Path
+        Files written so far, by role (``config``, ``mcap``, ``rrd`` ...); listed in the summary.
+    """
+
+    def __init__(self, stage: str, run_dir: Path, started: float | None = None) -> None:
+        self.stage = stage
+        self.run_dir = run_dir
+        self.files: dict[str, Path] = {}
+        self._start = time.perf_counter() if started is None else started
+
+    def file(self, role: str, name: str) -> Path:
+        """Register and return the path of an output file, e.g. ``run.file("mcap", "track.mcap")``."""
+        path = self.run_dir / name
+        self.files[role] = path
+        return path
+
+    def finish(self, summary: dict[str, Any]) -> Path:
+        """Add ``wall_time_s``, ``run_dir`` and ``files`` to ``summary`` and write it (last, atomically)."""
+        summary["wall_time_s"] = time.perf_counter() - self._start
+        summary["run_dir"] = str(self.run_dir)
+        summary["files"] = {k: p.name for k, p in self.files.items()}
+        self.files["summary"] = write_summary(self.run_dir, summary)
+        return self.files["summary"]
+
+
+@contextlib.contextmanager
+def open_stage_run(
+    stage: str,
+    name: str,
+    config_yaml: str,
+    *,
+    out: Path | None = None,
+    runs_root: Path = Path("runs"),
+    started: float | None = None,
+) -> Iterator[StageRun]:
+    """Create a run folder, write the resolved ``config.yaml`` first, and yield a :class:`StageRun`.
+
+    If the block raises (or is interrupted), ``summary.json`` records ``"status": "failed"`` and the error before
+    the exception propagates, so a failed run never looks complete. ``started`` (a ``time.perf_counter()``
+    value) is when the stage began, for ``wall_time_s``; the folder's creation by default.
+    """
+    run = StageRun(stage, create_run_dir(name, out=out, runs_root=runs_root), started)
+    write_text_atomic(run.file("config", "config.yaml"), config_yaml)
+    try:
+        yield run
+    except BaseException as exc:
+        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+        write_summary(run.run_dir, {"stage": stage, "status": "failed", "error": reason})
+        raise

@@ -42,10 +42,9 @@ from oacli.excitation.problem import MotionLimits, TerminalTolerance
 from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, PlannerWeights
 from oacli.excitation.rattle_loop import RattleRun, run_rattle
 from oacli.geometry import Scene
-from oacli.io.atomic import write_text_atomic
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun_excite import write_excite_recording
-from oacli.io.runfolder import create_run_dir, git_commit, write_summary
+from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.metrics import percentiles_ms
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.stages.track import StageResult
@@ -331,12 +330,10 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         "steps": problem.steps,
         "dt_s": problem.dt,
     }
-    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
-    files = {"config": run_dir / "config.yaml"}
     config_yaml = dump_config(cfg)
-    write_text_atomic(files["config"], config_yaml)
-    try:
-        files["mcap"] = run_dir / "excite.mcap"
+    with open_stage_run("excite", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall) as run:
+        run_dir, files = run.run_dir, run.files
+        run.file("mcap", "excite.mcap")
         with StageMcapWriter(files["mcap"], stage="excite", config_yaml=config_yaml, metadata=_metadata(cfg, "offline"),
                              frame=cfg.environment.frame) as writer:
             writer.write_scene(problem.scene, {"excitation": x[:, 0:3], "initial_guess": design.initial.x[:, 0:3]})
@@ -355,7 +352,7 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             crb = _information_records(writer, traj.t, design.information_over_time, problem.theta)
             for t, level, message in log:
                 writer.write_log(t, level, message)
-        files["rrd"] = run_dir / "excite.rrd"
+        run.file("rrd", "excite.rrd")
         write_excite_recording(
             files["rrd"], scene=problem.scene, t=traj.t, x=x, u=u, theta=problem.theta,
             information=design.information_over_time, crb_std=crb,
@@ -365,14 +362,7 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             candidate_criterion=np.array([it.candidate_criterion for it in design.iterations]),
             initial_positions=design.initial.x[:, 0:3], log=log, recording_name=f"{cfg.name}/excite",
         )
-        summary["wall_time_s"] = time.perf_counter() - wall
-        summary["run_dir"] = str(run_dir)
-        summary["files"] = {k: p.name for k, p in files.items()}
-        files["summary"] = write_summary(run_dir, summary)
-    except BaseException as exc:
-        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        write_summary(run_dir, {"stage": "excite", "status": "failed", "error": reason})
-        raise
+        run.finish(summary)
     return StageResult(run_dir, summary, files)
 
 
@@ -399,11 +389,9 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     cw = cfg.controller.weights
     dist = cfg.truth.disturbance
 
-    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
-    files = {"config": run_dir / "config.yaml"}
     config_yaml = dump_config(cfg)
-    write_text_atomic(files["config"], config_yaml)
-    try:
+    with open_stage_run("excite", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall) as stage_run:
+        run_dir, files = stage_run.run_dir, stage_run.files
         run = run_rattle(
             planner, estimator, weighting, problem.start, truth,
             duration_s=rcfg.duration_s, replan_period_s=rcfg.replan_period_s,
@@ -415,14 +403,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         summary, traj, log = _rattle_summary(cfg, problem, limits, run, prior_cov, theta_true)
         _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, limits, run, traj, log, prior_cov,
                               theta_true)
-        summary["wall_time_s"] = time.perf_counter() - wall
-        summary["run_dir"] = str(run_dir)
-        summary["files"] = {k: p.name for k, p in files.items()}
-        files["summary"] = write_summary(run_dir, summary)
-    except BaseException as err:
-        reason = "interrupted" if isinstance(err, KeyboardInterrupt) else f"{type(err).__name__}: {err}"
-        write_summary(run_dir, {"stage": "excite", "status": "failed", "error": reason})
-        raise
+        stage_run.finish(summary)
     return StageResult(run_dir, summary, files)
 
 

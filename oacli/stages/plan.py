@@ -30,10 +30,9 @@ from oacli.errors import ConfigError, InfeasibleError
 from oacli.geometry import Scene
 from oacli.geometry.collision import CollisionChecker, RobotBody
 from oacli.geometry.verify import dense_check
-from oacli.io.atomic import write_text_atomic
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun_plan import write_plan_recording
-from oacli.io.runfolder import create_run_dir, git_commit, write_summary
+from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.model import quaternion as quat
 from oacli.planning.full_state import full_state_trajectory, minimum_time_lower_bound_s, translational_part
 from oacli.planning.kino_rrt import KinoRrtSettings, plan_kino_rrt
@@ -380,12 +379,10 @@ def run_plan(
     scene = problem.checker.scene
     kind = cfg.planner.type
 
-    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
-    files = {"config": run_dir / "config.yaml"}
-    config_yaml = dump_config(cfg)
-    write_text_atomic(files["config"], config_yaml)
     log: list[LogEntry] = []
-    try:
+    config_yaml = dump_config(cfg)
+    with open_stage_run("plan", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start) as run:
+        run_dir, files = run.run_dir, run.files
         rng = np.random.default_rng([cfg.seed, PLAN_STREAM])
         log.append((0.0, "info", f"{kind}: segment {seg.name} from {_fmt_point(seg.start[0:3])} to "
                                  f"{_fmt_point(seg.goal[0:3])}; {describe_body(body)}"))
@@ -423,9 +420,9 @@ def run_plan(
                         "path_length_m": float("nan"), "max_force_N": float("nan")}
             log.append((0.0, "error", f"no solution within the budget ({result.iterations} iterations, "
                                       f"{result.planning_time_s:.1f} s, {len(result.tree)} nodes)"))
-        files["mcap"] = run_dir / "plan.mcap"
+        run.file("mcap", "plan.mcap")
         _write_plan_mcap(files["mcap"], cfg, config_yaml, scene, result, output, summary, log)
-        files["rrd"] = run_dir / "plan.rrd"
+        run.file("rrd", "plan.rrd")
         tree = result.tree
         write_plan_recording(
             files["rrd"], scene=scene, start=seg.start[0:3], goal=seg.goal[0:3], tree_states=tree.states,
@@ -436,14 +433,7 @@ def run_plan(
             velocity_limit_mps=np.asarray(cfg.robot.velocity_limit_mps), log=log,
             recording_name=f"{cfg.name}/plan",
         )
-        summary["wall_time_s"] = time.perf_counter() - wall_start
-        summary["run_dir"] = str(run_dir)
-        summary["files"] = {k: p.name for k, p in files.items()}
-        files["summary"] = write_summary(run_dir, summary)
-    except BaseException as exc:
-        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        write_summary(run_dir, {"stage": "plan", "status": "failed", "error": reason})
-        raise
+        run.finish(summary)
     if not result.solved:
         raise InfeasibleError(
             f"no solution from {seg.start_name} to {seg.goal_name} within the budget ({result.iterations} "

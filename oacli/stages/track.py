@@ -23,12 +23,11 @@ from oacli.control.tube_design import AncillaryWeights, TubeDesign, design_trans
 from oacli.control.tube_mpc import TerminalWeights, TubeHistory, TubeMPC
 from oacli.errors import InputError
 from oacli.geometry import Scene
-from oacli.io.atomic import write_text_atomic
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.reference_files import load_reference
 from oacli.io.rerun_io import write_track_recording
 from oacli.io.rerun_tube import log_tube_layers, tube_track_blueprint
-from oacli.io.runfolder import create_run_dir, git_commit, write_summary
+from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.metrics import constraint_violations, percentiles_ms, rms, tracking_errors
 from oacli.reference import waypoint_reference
 from oacli.sim.sensors import Disturbance, SensorNoise
@@ -191,11 +190,8 @@ def run_track(
     dist_cfg = cfg.truth.disturbance
     disturbance = Disturbance(dist_cfg.bias, dist_cfg.random_bound)
 
-    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
-    files = {"config": run_dir / "config.yaml"}
     config_yaml = dump_config(cfg)
-    write_text_atomic(files["config"], config_yaml)
-    try:
+    with open_stage_run("track", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start) as run:
         rng = np.random.default_rng(cfg.seed)
         tel = simulate(
             controller, x0, cfg.truth_params(),
@@ -219,11 +215,10 @@ def run_track(
                     f"done: rms position error {summary['rms_position_error_m']:.4f} m, "
                     f"{summary['solver_failures']} solver failures, "
                     f"{summary['constraint_violations']} constraint violations"))
-        files["mcap"] = run_dir / "track.mcap"
-        _write_track_mcap(files["mcap"], cfg, config_yaml, reference, tel, scene, log, design, history)
-        files["rrd"] = run_dir / "track.rrd"
+        _write_track_mcap(run.file("mcap", "track.mcap"), cfg, config_yaml, reference, tel, scene, log, design, history)
         write_track_recording(
-            files["rrd"], scene=scene, t_ref=reference.t, x_ref=reference.x, t_true=tel.t_true, x_true=tel.x_true,
+            run.file("rrd", "track.rrd"), scene=scene, t_ref=reference.t, x_ref=reference.x,
+            t_true=tel.t_true, x_true=tel.x_true,
             t_ctrl=tel.t_ctrl, u_command=tel.u_command, u_applied=tel.u_applied,
             position_error_m=pos_err_ctrl, attitude_error_rad=att_err_ctrl,
             solve_time_ms=1e3 * np.array([i.solve_time_s for i in tel.solve_info]),
@@ -232,15 +227,8 @@ def run_track(
             extra=None if design is None else _tube_layers(design, history),
             blueprint=None if design is None else tube_track_blueprint(),
         )
-        summary["wall_time_s"] = time.perf_counter() - wall_start
-        summary["run_dir"] = str(run_dir)
-        summary["files"] = {k: p.name for k, p in files.items()}
-        files["summary"] = write_summary(run_dir, summary)
-    except BaseException as exc:
-        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        write_summary(run_dir, {"stage": "track", "status": "failed", "error": reason})
-        raise
-    return StageResult(run_dir, summary, files)
+        run.finish(summary)
+    return StageResult(run.run_dir, summary, run.files)
 
 
 def _write_track_mcap(
