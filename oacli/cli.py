@@ -28,6 +28,14 @@ app = typer.Typer(
 )
 
 
+# Options every stage command shares (``Annotated`` aliases: ``out: OutOption = None``).
+ConfigArgument = Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")]
+OutOption = Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")]
+RunsDirOption = Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")]
+SeedOption = Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")]
+QuietOption = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")]
+
+
 def _version_callback(value: bool) -> None:
     if value:
         typer.echo(f"oacli {__version__}")

@@ -7,7 +7,17 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+from oacli.cli import (
+    OutOption,
+    Progress,
+    QuietOption,
+    RunsDirOption,
+    SeedOption,
+    app,
+    load_config_with_seed,
+    print_table,
+    run_guarded,
+)
 
 EXCITE_TABLE = [
     "status", "method", "criterion", "criterion_initial", "criterion_final", "iterations", "solve_time_s",
@@ -23,12 +33,10 @@ def excite(
         typer.Option("--method", "-m", help="'offline' (SCP design, Doerr Eq. 30) or 'rattle' (online "
                      "information-aware planner in closed loop). Overrides excitation.method."),
     ] = None,
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
-    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
-        "runs"
-    ),
-    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+    out: OutOption = None,
+    runs_root: RunsDirOption = Path("runs"),
+    seed: SeedOption = None,
+    quiet: QuietOption = False,
 ) -> None:
     """Design an information-rich trajectory from excitation.start to excitation.goal; write excite.mcap,
     excite.rrd and summary.json."""

@@ -7,7 +7,18 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+from oacli.cli import (
+    ConfigArgument,
+    OutOption,
+    Progress,
+    QuietOption,
+    RunsDirOption,
+    SeedOption,
+    app,
+    load_config_with_seed,
+    print_table,
+    run_guarded,
+)
 
 PLAN_TABLE = [
     "status", "planner", "segment", "iterations", "nodes", "time_to_first_solution_s", "cost", "path_length_m",
@@ -17,7 +28,7 @@ PLAN_TABLE = [
 
 @app.command("plan")
 def plan(
-    config: Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")],
+    config: ConfigArgument,
     segment: Annotated[
         str | None, typer.Option("--segment", "-s", help="Waypoints 'A-B' to plan between (default: "
                                  "planner.segment, else the first two of reference.waypoints).")
@@ -25,12 +36,10 @@ def plan(
     planner: Annotated[
         str | None, typer.Option("--planner", "-p", help="'lqr-rrt-star' or 'kino-rrt' (default: planner.type).")
     ] = None,
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
-    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
-        "runs"
-    ),
-    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+    out: OutOption = None,
+    runs_root: RunsDirOption = Path("runs"),
+    seed: SeedOption = None,
+    quiet: QuietOption = False,
 ) -> None:
     """Plan a segment; write plan.mcap (trajectory, tree, scene), plan.rrd and summary.json.
 

@@ -7,7 +7,18 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+from oacli.cli import (
+    ConfigArgument,
+    OutOption,
+    Progress,
+    QuietOption,
+    RunsDirOption,
+    SeedOption,
+    app,
+    load_config_with_seed,
+    print_table,
+    run_guarded,
+)
 
 SMOOTH_TABLE = [
     "status", "cost_before", "cost_after", "duration_before_s", "duration_after_s", "duration_ratio",
@@ -18,16 +29,14 @@ SMOOTH_TABLE = [
 
 @app.command("smooth")
 def smooth(
-    config: Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")],
+    config: ConfigArgument,
     input_path: Annotated[
         Path, typer.Option("--input", "-i", help="MCAP with a /trajectory to smooth (plan.mcap or smooth.mcap).")
     ],
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
-    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
-        "runs"
-    ),
-    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+    out: OutOption = None,
+    runs_root: RunsDirOption = Path("runs"),
+    seed: SeedOption = None,
+    quiet: QuietOption = False,
 ) -> None:
     """Smooth a plan by LQR shortcutting; write smooth.mcap, smooth.rrd and summary.json."""
 

@@ -7,7 +7,18 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+from oacli.cli import (
+    ConfigArgument,
+    OutOption,
+    Progress,
+    QuietOption,
+    RunsDirOption,
+    SeedOption,
+    app,
+    load_config_with_seed,
+    print_table,
+    run_guarded,
+)
 
 TRACK_TABLE = [
     "status", "rms_position_error_m", "max_position_error_m", "final_position_error_m", "rms_attitude_error_rad",
@@ -18,18 +29,16 @@ TRACK_TABLE = [
 
 @app.command("track")
 def track(
-    config: Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")],
+    config: ConfigArgument,
     reference: Annotated[
         Path | None,
         typer.Option("--reference", "-r", help="Reference to follow: a previous stage's MCAP (its /trajectory), "
                      "a RATTLE results_*_0.dat folder, or a CSV. Overrides the config's reference."),
     ] = None,
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
-    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
-        "runs"
-    ),
-    seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+    out: OutOption = None,
+    runs_root: RunsDirOption = Path("runs"),
+    seed: SeedOption = None,
+    quiet: QuietOption = False,
 ) -> None:
     """Track a reference with MPC or robust tube MPC (controller.type) in closed-loop simulation; write
     track.mcap, track.rrd and summary.json."""
