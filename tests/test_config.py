@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 import os
 import tempfile
@@ -127,19 +128,23 @@ def test_doerr_preset_values():
     assert cfg.environment.safety_factor > 1.0
     assert len(cfg.environment.keep_out) >= 2
     assert {"A", "B", "C"} <= set(cfg.waypoints)
-    assert [p for p in cfg.reference.waypoints] == ["A", "B"]
+    assert [p for p in cfg.reference.waypoints] == ["A", "V", "B"]
+    # The straight A-B line crosses a keep-out zone: segment 1 needs the planner (or the via point V).
+    a, b = np.array(cfg.waypoints["A"].position), np.array(cfg.waypoints["B"].position)
+    assert np.any(cfg.scene().in_keep_out(a + np.linspace(0, 1, 101)[:, None] * (b - a)))
 
 
 @pytest.mark.parametrize("name", PRESET_NAMES)
 def test_preset_reference_path_is_free(name):
-    """The straight A→B path of each preset stays in the keep-in set and clear of the (inflated) keep-out zones."""
+    """The piecewise-straight reference path of each preset stays in the keep-in set and clear of the keep-out
+    zones grown by the robot radius."""
     cfg = load_config(CONFIGS / name)
-    poses = cfg.reference_poses()
+    poses = np.array([p.position for p in cfg.reference_poses()])
     scene = cfg.environment.scene()
     radius = cfg.robot.radius_m
     s = np.linspace(0.0, 1.0, 201)[:, None]
-    start, end = np.array(poses[0].position), np.array(poses[-1].position)
-    points = start + s * (end - start)
+    start, end = poses[0], poses[-1]
+    points = np.vstack([a + s * (b - a) for a, b in itertools.pairwise(poses)])
     assert np.all(scene.in_keep_in(points))
     assert np.all(scene.in_keep_in(np.array([start, end]), margin_m=radius))
     for zone in scene.keep_out:
