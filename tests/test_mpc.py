@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import warnings
 
-import cvxpy as cp
 import numpy as np
 import pytest
 
+from oacli.control.compiled_qp import CompiledSolve
 from oacli.control.lqr import dlqr
 from oacli.control.mpc import LinearMPC
 from oacli.control.tracking import TrackingLimits, TrackingMPC, TrackingWeights
@@ -25,6 +25,21 @@ X_MAX = np.r_[[np.inf] * 3, [0.2] * 3, [np.inf] * 3, [0.1745] * 3]
 def make_mpc(horizon=10, dt=0.2):
     a, b = hover_error_model(PARAMS, dt)
     return LinearMPC(a, b, Q, R, horizon, U_MAX, x_max=X_MAX), a, b
+
+
+def test_compiled_path_equals_problem_solve(rng):
+    """The direct-Clarabel path solves the same cvxpy problem as problem.solve()."""
+    a, b = hover_error_model(PARAMS, 0.2)
+    fast = LinearMPC(a, b, Q, R, 10, U_MAX, x_max=X_MAX)
+    slow = LinearMPC(a, b, Q, R, 10, U_MAX, x_max=X_MAX, fast=False)
+    for _ in range(5):
+        x0 = np.r_[rng.uniform(-1, 1, 3), rng.uniform(-0.3, 0.3, 3), rng.uniform(-0.5, 0.5, 3), np.zeros(3)]
+        x_ref = np.tile(rng.uniform(-0.1, 0.1, 12), (11, 1))
+        f, s = fast.solve(x0, x_ref, np.zeros((10, 6))), slow.solve(x0, x_ref, np.zeros((10, 6)))
+        assert f.info.success and s.info.success
+        np.testing.assert_allclose(f.u, s.u, atol=1e-6)
+        assert f.info.objective == pytest.approx(s.info.objective, rel=1e-6, abs=1e-9)
+        assert f.max_slack == pytest.approx(s.max_slack, abs=1e-7)
 
 
 def test_problem_is_dpp_and_resolving_raises_no_warning():
@@ -98,9 +113,9 @@ def test_failed_solves_fall_back_to_the_shifted_plan_then_lqr(monkeypatch):
     plan = ctrl._plan.copy()
 
     def broken_solve(*args, **kwargs):
-        raise cp.error.SolverError("injected failure")
+        return CompiledSolve("solver_error: injected failure", float("nan"), -1, 0.0)
 
-    monkeypatch.setattr(ctrl.mpc.problem, "solve", broken_solve)
+    monkeypatch.setattr(ctrl.mpc.compiled, "solve", broken_solve)
     steps = [ctrl.step(5.0 + 0.2 * i, x) for i in range(1, 13)]
     assert not any(s.info.success for s in steps)
     for i, s in enumerate(steps[:9], start=1):

@@ -1,7 +1,9 @@
 """Standard linear MPC (Doerr et al. 2021, Eq. 26) as a cvxpy problem built once and re-solved.
 
 The problem is parametrised (DPP) by the initial state and the reference over the horizon, so cvxpy
-canonicalises it once; each step only updates Parameter values and calls Clarabel.
+canonicalises it once; each step only updates the parameter values. By default the step then calls Clarabel
+directly with the updated data (:class:`oacli.control.compiled_qp.CompiledQP`); ``fast=False`` goes through
+``problem.solve()`` instead (same problem, same solution, more overhead).
 
     minimise   Σ_{k<N} ‖Q^½ (x_k − x_k,ref)‖² + ‖R^½ (u_k − u_k,ref)‖² + ‖L (x_N − x_N,ref)‖² + ρ Σ s
     subject to x_0 = x̂,  x_{k+1} = A x_k + B u_k,
@@ -21,10 +23,9 @@ from dataclasses import dataclass
 import cvxpy as cp
 import numpy as np
 
+from oacli.control.compiled_qp import SUCCESS_STATUSES, CompiledQP, timed_cvxpy_solve
 from oacli.control.lqr import solve_dare
 from oacli.types import SolveInfo
-
-_OK = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
 
 
 @dataclass(frozen=True)
@@ -69,8 +70,8 @@ class LinearMPC:
         Terminal weight P; the DARE solution of (A, B, Q, R) by default.
     soft_penalty : float
         ℓ1 penalty ρ on state-limit slack (exact penalty: large compared with the cost's sensitivity).
-    solver : str
-        cvxpy solver name (Clarabel by default).
+    fast : bool
+        Solve through the compiled direct-Clarabel path (default) rather than ``problem.solve()``.
     """
 
     def __init__(
@@ -84,14 +85,14 @@ class LinearMPC:
         x_max: np.ndarray | None = None,
         terminal: np.ndarray | None = None,
         soft_penalty: float = 1e4,
-        solver: str = cp.CLARABEL,
+        fast: bool = True,
     ) -> None:
         a = np.asarray(a, dtype=float)
         b = np.asarray(b, dtype=float)
         n, m = b.shape
         if horizon < 1:
             raise ValueError("horizon must be >= 1")
-        self.a, self.b, self.horizon, self.solver = a, b, int(horizon), solver
+        self.a, self.b, self.horizon = a, b, int(horizon)
         self.q_diag = np.asarray(q_diag, dtype=float)
         self.r_diag = np.asarray(r_diag, dtype=float)
         self.u_max = np.asarray(u_max, dtype=float)
@@ -123,11 +124,14 @@ class LinearMPC:
         self._limited = np.flatnonzero(np.isfinite(self.x_max))
         self._slack = None
         if self._limited.size:
-            self._slack = cp.Variable((n_steps, self._limited.size), nonneg=True, name="slack")
+            # A plain variable with an explicit sign constraint: cvxpy replaces variables that carry attributes
+            # (nonneg=True) by new ones, which the compiled path could then not read back.
+            self._slack = cp.Variable((n_steps, self._limited.size), name="slack")
             bound = np.tile(self.x_max[self._limited], (n_steps, 1))
-            constraints.append(cp.abs(self._x[1:, self._limited]) <= bound + self._slack)
+            constraints += [cp.abs(self._x[1:, self._limited]) <= bound + self._slack, self._slack >= 0]
             cost = cost + soft_penalty * cp.sum(self._slack)
         self.problem = cp.Problem(cp.Minimize(cost), constraints)
+        self.compiled = CompiledQP(self.problem) if fast else None
 
     def solve(self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> MPCSolution:
         """Solve for initial state ``x0 (n,)``, reference states ``x_ref (N+1, n)`` and inputs ``u_ref (N, m)``."""
@@ -135,20 +139,22 @@ class LinearMPC:
         self.x_ref.value = np.asarray(x_ref, dtype=float)
         self.u_ref.value = np.asarray(u_ref, dtype=float)
         start = time.perf_counter()
-        try:
-            self.problem.solve(solver=self.solver)
-            status = str(self.problem.status)
-        except cp.error.SolverError as exc:
-            status = f"solver_error: {exc}".splitlines()[0][:120]
+        if self.compiled is not None:
+            out = self.compiled.solve()
+            status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
+            value = self.compiled.value if out.success else None
+        else:
+            status, solve_time = timed_cvxpy_solve(self.problem)
+            stats = self.problem.solver_stats if status in SUCCESS_STATUSES else None
+            iterations = stats.num_iters if stats is not None and stats.num_iters is not None else -1
+            objective = float(self.problem.value) if stats is not None else float("nan")
+            value = (lambda v: v.value) if stats is not None and self._u.value is not None else None
         wall = time.perf_counter() - start
-        stats = self.problem.solver_stats if status in _OK else None
-        solve_time = stats.solve_time if stats is not None and stats.solve_time is not None else wall
-        iterations = stats.num_iters if stats is not None and stats.num_iters is not None else -1
-        success = status in _OK and self._u.value is not None
-        if success:
-            slack = 0.0 if self._slack is None else float(np.max(self._slack.value, initial=0.0))
-            info = SolveInfo(status, True, float(self.problem.value), int(iterations), float(solve_time), wall)
-            return MPCSolution(np.array(self._u.value), np.array(self._x.value), slack, info)
+        if value is not None:
+            u, x = np.array(value(self._u)), np.array(value(self._x))
+            slack = 0.0 if self._slack is None else float(np.max(value(self._slack), initial=0.0))
+            info = SolveInfo(status, True, float(objective), int(iterations), float(solve_time), wall)
+            return MPCSolution(u, x, slack, info)
         nan_u = np.full(self._u.shape, np.nan)
         nan_x = np.full(self._x.shape, np.nan)
         return MPCSolution(nan_u, nan_x, float("nan"), SolveInfo(status, False, float("nan"), -1, wall, wall))
