@@ -19,6 +19,8 @@ from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from oacli.cli import app
+from oacli.config import load_config
+from oacli.errors import ConfigError
 from oacli.geometry import Box, Ellipsoid, Scene
 from oacli.geometry.collision import CollisionChecker, RobotBody
 from oacli.geometry.verify import dense_check
@@ -411,3 +413,20 @@ def test_smooth_runs_the_polish_and_records_it(tmp_path):
     solved = [s["length_m"] for s in steps if s["length_m"] is not None]
     np.testing.assert_allclose(np.concatenate(lengths), solved, rtol=1e-12)
     assert "world/smooth/shortcut" not in read_recording_entities(tmp_path / "off" / "smooth.rrd")
+
+
+@pytest.mark.parametrize(("polish", "field", "reason"), [
+    ({"step_s": 0.25}, "planner.polish.step_s", "multiple of output_dt_s"),
+    ({"duration_factor": 0.9}, "planner.polish.duration_factor", "must be >= 1"),
+    ({"effort_weight": -1.0}, "planner.polish.effort_weight", "must be >= 0"),
+    ({"enabled": "yes"}, "planner.polish.enabled", "bool"),
+])
+def test_bad_polish_settings_are_refused_naming_the_field(tmp_path, polish, field, reason):
+    data = yaml.safe_load(S1.read_text())
+    data["planner"]["polish"] = polish
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    message = str(err.value)
+    assert field in message and reason in message, message
