@@ -67,9 +67,10 @@ exactly (:func:`terminal_correction`) and the states are re-propagated. It becom
 one doubles Δ up to its maximum; a certified one that fails an exact check halves it, as does a failed solve), and
 it becomes the *result* only if, after cutting any trailing rest at the goal, it is within the force and velocity
 limits, passes the EXACT continuous collision check (:class:`~oacli.geometry.collision.CollisionChecker`), fits
-the cost cap and is strictly shorter than the best so far (exact arc length,
-:meth:`~oacli.planning.translational.TranslationalTrajectory.path_length_m`). The result is therefore never longer
-than the input and never breaks the limits or collision-freedom; its duration never exceeds the budget.
+the cost cap and is shorter than the best so far by more than :data:`MIN_GAIN` (relative; exact arc length,
+:meth:`~oacli.planning.translational.TranslationalTrajectory.path_length_m`, of the candidate sampled every ``dt_s``
+as it would be returned). The result is therefore never longer than the input and never breaks the limits or
+collision-freedom; its duration never exceeds the budget.
 
 Cost semantics
 --------------
@@ -84,6 +85,7 @@ followed by the polish never returns a trajectory costlier than the plan it was 
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import cvxpy as cp
@@ -109,6 +111,8 @@ _OK = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
 _FAR_M = 1e6
 #: Largest buffer [m] for which a solution counts as certified (solver tolerance).
 _CERTIFIED_M = 1e-7
+#: Least relative shortening that counts (the closed-form arc length rounds at ~1e-8 in near-straight pieces).
+MIN_GAIN = 1e-7
 
 
 @dataclass(frozen=True)
@@ -217,7 +221,7 @@ class PolishResult:
         Why the polish stopped: ``iterations`` (budget spent), ``converged`` (a certified step gained less than the
         tolerance), ``trust_radius`` (Δ fell below its minimum), or why it was skipped.
     accepted_trajectories : tuple of (int, TranslationalTrajectory)
-        Every accepted candidate with its iteration index (on the polish grid), for replaying the polish.
+        Every accepted candidate with its iteration index (sampled every ``dt_s``), for replaying the polish.
     """
 
     status: str
@@ -543,7 +547,9 @@ class PolishSubproblem:
     def solve(self) -> str:
         """Solve with Clarabel; returns the cvxpy status (``"solver_error"`` when Clarabel raised)."""
         try:
-            self.problem.solve(solver=cp.CLARABEL, canon_backend="COO")
+            with warnings.catch_warnings():  # an inaccurate solve is reported by its status, not a warning
+                warnings.simplefilter("ignore", UserWarning)
+                self.problem.solve(solver=cp.CLARABEL, canon_backend="COO")
         except cp.error.SolverError:
             return "solver_error"
         return str(self.problem.status)
@@ -667,7 +673,7 @@ def polish_trajectory(
             radius *= 0.5
             continue
         full = exact_trajectory(traj.x[0], sub.f.value, goal, h, traj.mass_kg)
-        cand = trim_rest(full, goal, s.rest_tolerance)
+        cand = trim_rest(full, goal, s.rest_tolerance).refined(dt_s)  # the output, judged as it will be returned
         buffer = float(np.max(sub.buffer.value))
         certified = buffer <= _CERTIFIED_M
         length, cost = cand.path_length_m(), cand.cost(weights, goal)
@@ -677,7 +683,7 @@ def polish_trajectory(
             outcome = COST
         elif not checker.is_free(cand.pieces()):
             outcome = COLLISION
-        elif not length < best_len * (1.0 - 1e-12):
+        elif not length < best_len * (1.0 - MIN_GAIN):
             outcome = NOT_SHORTER
         else:
             outcome = ACCEPTED
@@ -699,4 +705,4 @@ def polish_trajectory(
             last_objective = objective
     if best is None:
         return result(NOT_IMPROVED, traj, reason, n)
-    return result(IMPROVED, best.refined(dt_s), reason, n)
+    return result(IMPROVED, best, reason, n)
