@@ -90,6 +90,8 @@ from dataclasses import dataclass
 
 import cvxpy as cp
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from oacli.geometry.collision import CollisionChecker
 from oacli.planning.translational import CostWeights, TranslationalTrajectory, interval_cost_matrix
@@ -310,30 +312,35 @@ def trim_rest(traj: TranslationalTrajectory, goal: np.ndarray, tolerance: float)
 
 def project_onto_grid(traj: TranslationalTrajectory, h: np.ndarray, goal: np.ndarray) -> TranslationalTrajectory:
     """The input as a trajectory on the polish grid: held forces fitted by least squares to its states at the
-    knots (positions in m, velocities scaled by the piece length), then corrected to reach ``goal`` exactly.
+    knots, then corrected to reach ``goal`` exactly (:func:`exact_trajectory`).
 
-    Knots beyond the input's end take its final state (the goal at rest).
+    Minimises ``Σ_k ‖r_k − r̂_k‖² + (h̄)² ‖v_k − v̂_k‖²`` (h̄ the mean piece length, so both terms are lengths) over
+    the forces, subject to the exact discretisation from the input's first state: an equality-constrained least
+    squares problem, solved as one sparse KKT system (all three axes at once). Knots beyond the input's end take
+    its final state (the goal at rest).
     """
     h = np.asarray(h, dtype=float)
     n, m = h.shape[0], traj.mass_kg
     t_knots = np.concatenate([[0.0], np.cumsum(h)]) + traj.t[0]
-    target = traj.states_at(np.minimum(t_knots, traj.t[-1]))
-    scale = float(np.mean(h))
-    # Knot states are affine in the forces: x_k = x_k(f = 0) + Σ_{j<k} G_kj f_j, per axis.
-    g_r = np.zeros((n + 1, n))
-    g_v = np.zeros((n + 1, n))
-    for k in range(1, n + 1):
-        g_r[k] = g_r[k - 1] + h[k - 1] * g_v[k - 1]
-        g_r[k, k - 1] += 0.5 * h[k - 1] ** 2 / m
-        g_v[k] = g_v[k - 1]
-        g_v[k, k - 1] += h[k - 1] / m
-    t_rel = t_knots - t_knots[0]
-    free_r = traj.x[0, 0:3] + np.outer(t_rel, traj.x[0, 3:6])
-    free_v = np.tile(traj.x[0, 3:6], (n + 1, 1))
-    a = np.vstack([g_r[1:], scale * g_v[1:]])
-    b = np.vstack([target[1:, 0:3] - free_r[1:], scale * (target[1:, 3:6] - free_v[1:])])
-    forces = np.linalg.lstsq(a, b, rcond=None)[0]
-    return exact_trajectory(traj.x[0], forces, goal, h, m)
+    target = traj.states_at(np.minimum(t_knots, traj.t[-1]))[1:]  # (n, 6): knots 1..n
+    w_v = float(np.mean(h)) ** 2
+    # Unknowns per axis z = [r_1..r_n, v_1..v_n, f_0..f_{n-1}]; constraints: the dynamics of pieces 0..n-1.
+    eye = sp.identity(n, format="csr")
+    shift = sp.diags(np.ones(n - 1), -1, shape=(n, n), format="csr")  # picks x_{k-1} for row k
+    dyn = sp.bmat([
+        [eye - shift, -sp.diags(h) @ shift, sp.diags(-0.5 * h * h / m)],
+        [None, eye - shift, sp.diags(-h / m)],
+    ], format="csr")
+    hess = sp.diags(np.concatenate([np.ones(n), np.full(n, w_v), np.full(n, 1e-12)]))
+    kkt = sp.bmat([[hess, dyn.T], [dyn, None]], format="csc")
+    x0 = traj.x[0]
+    rhs_dyn = np.zeros((2 * n, 3))
+    rhs_dyn[0] = x0[0:3] + h[0] * x0[3:6]  # piece 0 starts from the known first state
+    rhs_dyn[n] = x0[3:6]
+    rhs = np.vstack([target[:, 0:3], w_v * target[:, 3:6], np.zeros((n, 3)), rhs_dyn])
+    sol = spla.spsolve(kkt, rhs)
+    forces = np.asarray(sol).reshape(-1, 3)[2 * n:3 * n]
+    return exact_trajectory(x0, forces, goal, h, m)
 
 
 def within_limits(traj: TranslationalTrajectory, force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray) -> bool:
@@ -673,7 +680,8 @@ def polish_trajectory(
             radius *= 0.5
             continue
         full = exact_trajectory(traj.x[0], sub.f.value, goal, h, traj.mass_kg)
-        cand = trim_rest(full, goal, s.rest_tolerance).refined(dt_s)  # the output, judged as it will be returned
+        coarse = trim_rest(full, goal, s.rest_tolerance)
+        cand = coarse.refined(dt_s)  # the output, judged as it would be returned
         buffer = float(np.max(sub.buffer.value))
         certified = buffer <= _CERTIFIED_M
         length, cost = cand.path_length_m(), cand.cost(weights, goal)
@@ -681,7 +689,7 @@ def polish_trajectory(
             outcome = LIMITS
         elif cap is not None and cost > cap * (1 + 1e-9):
             outcome = COST
-        elif not checker.is_free(cand.pieces()):
+        elif not checker.is_free(coarse.pieces()):  # the same curve as cand's, in fewer pieces
             outcome = COLLISION
         elif not length < best_len * (1.0 - MIN_GAIN):
             outcome = NOT_SHORTER
