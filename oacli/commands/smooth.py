@@ -1,4 +1,4 @@
-"""``oacli smooth``: LQR shortcutting of a plan read back from its MCAP."""
+"""``oacli smooth``: LQR shortcutting of a plan read back from its MCAP, then the path-length polish."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import typer
 from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
 
 SMOOTH_TABLE = [
-    "status", "cost_before", "cost_after", "duration_before_s", "duration_after_s", "duration_ratio",
-    "path_length_after_m", "shortcuts_tried", "shortcuts_accepted", "shortcuts_rejected", "collision_free",
-    "wall_time_s",
+    "status", "cost_before", "cost_after_shortcut", "cost_after", "duration_before_s", "duration_after_s",
+    "duration_ratio", "path_length_before_m", "path_length_after_shortcut_m", "path_length_after_m",
+    "shortcuts_tried", "shortcuts_accepted", "shortcuts_rejected", "collision_free", "wall_time_s",
 ]
 
 
@@ -29,7 +29,8 @@ def smooth(
     seed: Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
 ) -> None:
-    """Smooth a plan by LQR shortcutting; write smooth.mcap, smooth.rrd and summary.json."""
+    """Smooth a plan by LQR shortcutting, then shorten its path (planner.polish); write smooth.mcap, smooth.rrd
+    and summary.json."""
 
     def action():
         from oacli.stages.smooth import run_smooth
