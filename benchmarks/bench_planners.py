@@ -7,6 +7,9 @@ same point validity function (``CollisionChecker.points_free``), N seeds each:
   tries; exactly what ``oacli plan`` and ``oacli smooth`` run.
 * **oacli LQR-RRT\\* anytime + shortcutting**: the same, but improving for the geometric RRT*'s time budget
   before smoothing (``planner.anytime: true``), for the path-quality comparison.
+* **... + polish**: both of the above followed by the path-length polish (:mod:`oacli.planning.polish`, sequential
+  convex programming), exactly as ``oacli smooth`` runs it with the scene's ``planner.polish`` settings (cost cap:
+  the plan's LQR cost).
 * **oacli kino-RRT**: motion primitives (ReSWARM Eqs. 26-27) with the exact LQR goal link.
 * **OMPL control RRT** (``ompl.control.RRT``): the same double integrator, validity checked at its propagation
   steps (its own design); reaching the goal within a distance of 0.1 in the 6-D state space.
@@ -16,8 +19,9 @@ same point validity function (``CollisionChecker.points_free``), N seeds each:
 Metrics: success rate; time to first solution (median, p90) [s]; duration, impulse ∫Σ|f_i|dt and LQR cost (the
 cost of :mod:`oacli.planning.translational`) of the (smoothed) trajectory; duration against the minimum-time lower
 bound (per-axis bang-coast-bang, obstacles ignored); path length; and the rate of trajectories that pass an
-independent dense re-check every 5 mm (:func:`oacli.geometry.verify.dense_check`). Ratios compare medians measured
-in this run, so they are meaningful on a shared, noisy machine.
+independent dense re-check every 5 mm (:func:`oacli.geometry.verify.dense_check`); the wall time of the smoothing
+(shortcutting, plus the polish where it runs). Ratios compare medians measured in this run, so they are
+meaningful on a shared, noisy machine.
 
 Run from the repository root: ``python -m benchmarks.bench_planners [--seeds 20] [--scenes S1 S2] [--ompl-budget 10]
 [--json out.json]``
@@ -51,6 +55,7 @@ from oacli.stages.plan import (
     lqr_rrt_star_settings,
     resolve_segment,
 )
+from oacli.stages.smooth import run_polish
 
 SCENES = {"S1": Path(__file__).parent / "scenes" / "s1_sphere.yaml",
           "S2": Path(__file__).parent / "scenes" / "s2_slalom.yaml"}
@@ -104,22 +109,43 @@ def run_scene(name: str, seeds: int, ompl_budget: float, rrtstar_budget: float) 
     first = lqr_rrt_star_settings(cfg)
     anytime = replace(first, anytime=True, time_budget_s=rrtstar_budget, max_iterations=10**9)
     conn = LqrConnector(problem.mass_kg, p.steer_dt_s, problem.weights, p.steps(p.shortcut.max_horizon_s))
-    rows: dict[str, list[dict]] = {"oacli LQR-RRT* + shortcut": [], "oacli LQR-RRT* anytime + shortcut": [],
-                                   "oacli kino-RRT": []}
+    labels = {"oacli LQR-RRT* + shortcut": first, "oacli LQR-RRT* anytime + shortcut": anytime}
+    rows: dict[str, list[dict]] = {}
+    for label in labels:
+        rows[label] = []
+        rows[label + " + polish"] = []
+    rows["oacli kino-RRT"] = []
     for seed in range(seeds):
-        for label, settings in (("oacli LQR-RRT* + shortcut", first), ("oacli LQR-RRT* anytime + shortcut", anytime)):
+        for label, settings in labels.items():
             t0 = time.perf_counter()
             result = plan_lqr_rrt_star(problem, settings, np.random.default_rng([seed, PLAN_STREAM]))
             row: dict = {"seed": seed, "solved": result.solved, "ttfs_s": result.time_to_first_solution_s}
+            prow: dict = dict(row)
             if result.solved:
+                t1 = time.perf_counter()
                 smooth = lqr_shortcut(result.trajectory, conn, problem.checker, problem.goal, problem.force_limit_N,
                                       problem.velocity_limit_mps, np.random.default_rng([seed, SMOOTH_STREAM]),
                                       tries=p.shortcut.tries, sample_dt_s=p.output_dt_s)
+                t2 = time.perf_counter()
                 row |= _traj_metrics(smooth.trajectory, problem, bound)
                 row["raw_duration_s"] = result.trajectory.duration_s
-                row["dense_ok"] = _dense_ok(result.trajectory, scene) and _dense_ok(smooth.trajectory, scene)
-                row["wall_s"] = time.perf_counter() - t0
+                raw_ok = _dense_ok(result.trajectory, scene)
+                row["dense_ok"] = raw_ok and _dense_ok(smooth.trajectory, scene)
+                row["smooth_s"] = t2 - t1
+                row["wall_s"] = t2 - t0
+                polish = run_polish(cfg, smooth.trajectory, problem.checker, problem.goal,
+                                    result.cost if p.polish.keep_cost else None)
+                t3 = time.perf_counter()
+                prow |= _traj_metrics(polish.trajectory, problem, bound)
+                prow["dense_ok"] = raw_ok and _dense_ok(polish.trajectory, scene)
+                prow["exact_ok"] = bool(problem.checker.is_free(polish.trajectory.pieces()))
+                prow["smooth_s"] = t3 - t1
+                prow["wall_s"] = t3 - t0
+                prow["polish_status"] = polish.status
+                prow["polish_iterations"] = len(polish.iterations)
+                prow["length_before_polish_m"] = polish.length_before_m
             rows[label].append(row)
+            rows[label + " + polish"].append(prow)
         kino = plan_kino_rrt(problem, kino_rrt_settings(cfg), np.random.default_rng([seed, PLAN_STREAM]))
         krow: dict = {"seed": seed, "solved": kino.solved, "ttfs_s": kino.time_to_first_solution_s}
         if kino.solved:
@@ -163,21 +189,21 @@ def summarise(rows: list[dict]) -> dict[str, float]:
         "dense_free": (sum(bool(r.get("dense_ok")) for r in solved) / len(solved)) if solved else float("nan"),
         "dense_free_count": f"{sum(bool(r.get('dense_ok')) for r in solved)}/{len(solved)}",
     }
-    for key in ("duration_s", "duration_ratio", "impulse_Ns", "cost", "length_m"):
+    for key in ("duration_s", "duration_ratio", "impulse_Ns", "cost", "length_m", "smooth_s"):
         out[key] = _median(r.get(key, float("nan")) for r in solved)
     return out
 
 
 def print_table(scene: str, bound: float, summaries: dict[str, dict[str, float]]) -> None:
     print(f"\n{scene}: minimum-time lower bound {bound:.2f} s")
-    head = (f"{'planner':<35} {'success':>7} {'TTFS p50':>9} {'TTFS p90':>9} {'duration':>9} {'/bound':>7}"
-            f" {'impulse':>8} {'LQR cost':>9} {'length':>8} {'dense-free':>10}")
+    head = (f"{'planner':<44} {'success':>7} {'TTFS p50':>9} {'TTFS p90':>9} {'duration':>9} {'/bound':>7}"
+            f" {'impulse':>8} {'LQR cost':>9} {'length':>8} {'dense-free':>10} {'smooth s':>9}")
     print(head)
     print("-" * len(head))
     for name, s in summaries.items():
-        print(f"{name:<35} {s['success']:>7.0%} {s['ttfs_p50_s']:>9.3f} {s['ttfs_p90_s']:>9.3f} "
+        print(f"{name:<44} {s['success']:>7.0%} {s['ttfs_p50_s']:>9.3f} {s['ttfs_p90_s']:>9.3f} "
               f"{s['duration_s']:>9.1f} {s['duration_ratio']:>7.2f} {s['impulse_Ns']:>8.2f} {s['cost']:>9.3f} "
-              f"{s['length_m']:>8.4f} {s['dense_free_count']:>10}")
+              f"{s['length_m']:>8.4f} {s['dense_free_count']:>10} {s['smooth_s']:>9.2f}")
 
 
 def main() -> None:
@@ -204,6 +230,8 @@ def main() -> None:
         print_table(scene, bound, summaries)
         ours = summaries["oacli LQR-RRT* + shortcut"]
         best = summaries["oacli LQR-RRT* anytime + shortcut"]
+        ours_p = summaries["oacli LQR-RRT* + shortcut + polish"]
+        best_p = summaries["oacli LQR-RRT* anytime + shortcut + polish"]
         if "OMPL control RRT" in summaries:
             peer, geo = summaries["OMPL control RRT"], summaries["OMPL RRT* + simplifyMax"]
             print(f"  TTFS p50 oacli / OMPL control RRT: {ours['ttfs_p50_s'] / peer['ttfs_p50_s']:.3f}")
@@ -212,6 +240,11 @@ def main() -> None:
             print(f"  path length / OMPL RRT* + simplifyMax: oacli first solution + shortcut "
                   f"{ours['length_m'] / geo['length_m']:.4f}, anytime + shortcut "
                   f"{best['length_m'] / geo['length_m']:.4f}")
+            print(f"  path length / OMPL RRT* + simplifyMax with the polish: first solution + shortcut + polish "
+                  f"{ours_p['length_m'] / geo['length_m']:.4f}, anytime + shortcut + polish "
+                  f"{best_p['length_m'] / geo['length_m']:.4f}")
+        print(f"  smoothed duration / bound with the polish: {ours_p['duration_ratio']:.2f} "
+              f"(anytime {best_p['duration_ratio']:.2f})")
         report[scene] = {"lower_bound_s": bound, "summaries": summaries, "rows": rows}
     if args.json:
         args.json.write_text(json.dumps(report, indent=2, default=float))

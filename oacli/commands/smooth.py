@@ -1,4 +1,4 @@
-"""``oacli smooth``: LQR shortcutting of a plan read back from its MCAP."""
+"""``oacli smooth``: LQR shortcutting of a plan read back from its MCAP, then the path-length polish."""
 
 from __future__ import annotations
 
@@ -21,9 +21,9 @@ from oacli.cli import (
 )
 
 SMOOTH_TABLE = [
-    "status", "cost_before", "cost_after", "duration_before_s", "duration_after_s", "duration_ratio",
-    "path_length_after_m", "shortcuts_tried", "shortcuts_accepted", "shortcuts_rejected", "collision_free",
-    "wall_time_s",
+    "status", "cost_before", "cost_after_shortcut", "cost_after", "duration_before_s", "duration_after_s",
+    "duration_ratio", "path_length_before_m", "path_length_after_shortcut_m", "path_length_after_m",
+    "shortcuts_tried", "shortcuts_accepted", "shortcuts_rejected", "collision_free", "wall_time_s",
 ]
 
 
@@ -38,7 +38,8 @@ def smooth(
     seed: SeedOption = None,
     quiet: QuietOption = False,
 ) -> None:
-    """Smooth a plan by LQR shortcutting; write smooth.mcap, smooth.rrd and summary.json."""
+    """Smooth a plan by LQR shortcutting, then shorten its path (planner.polish); write smooth.mcap, smooth.rrd
+    and summary.json."""
 
     def action():
         from oacli.stages.smooth import run_smooth

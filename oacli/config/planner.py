@@ -15,6 +15,7 @@ from typing import Annotated, Literal
 from pydantic import Field, Strict, model_validator
 
 from oacli.config.models import (
+    NonNegativeReal,
     NonNegativeVector3,
     PositiveReal,
     PositiveVector3,
@@ -96,6 +97,36 @@ class ShortcutConfig(Section):
     )
 
 
+class PolishConfig(Section):
+    """Trajectory polish after LQR shortcutting: sequential convex programming that shortens the path
+    (:mod:`oacli.planning.polish`)."""
+
+    enabled: StrictBool = Field(default=True, description="Run the polish in oacli smooth after the shortcutting.")
+    iterations: Annotated[StrictInt, Field(ge=1)] = Field(
+        default=30, description="SCP subproblems (second-order cone programs) at most, >= 1."
+    )
+    step_s: PositiveReal = Field(
+        default=0.5, description="Held-force step of the polish grid [s], > 0; a multiple of output_dt_s."
+    )
+    duration_factor: Annotated[Real, Field(ge=1)] | None = Field(
+        default=None,
+        description="Duration budget as a multiple of the minimum-time lower bound [-], >= 1: the polish may "
+        "lengthen the trajectory up to max(input duration, factor × bound); default: keep the input's duration.",
+    )
+    effort_weight: NonNegativeReal = Field(
+        default=0.01, description="Weight w_e of Σ h |f|² against the path length [m/(N²·s)], >= 0."
+    )
+    trust_radius_m: PositiveReal = Field(default=0.05, description="Initial trust radius on positions [m], > 0.")
+    clearance_m: NonNegativeReal = Field(
+        default=1e-4, description="Extra distance kept from every keep-out zone (robot included) [m], >= 0."
+    )
+    keep_cost: StrictBool = Field(
+        default=True,
+        description="Never return a trajectory whose LQR cost J exceeds the cost of the smooth stage's input "
+        "(the polish minimises length, not J; the shortcutting alone never raises J).",
+    )
+
+
 class PlannerConfig(Section):
     """Global planning of a segment between two waypoints, and smoothing of the plan."""
 
@@ -150,6 +181,9 @@ class PlannerConfig(Section):
     shortcut: Annotated[ShortcutConfig, _none_to({})] = Field(
         default_factory=ShortcutConfig, description="LQR shortcutting settings (oacli smooth)."
     )
+    polish: Annotated[PolishConfig, _none_to({})] = Field(
+        default_factory=PolishConfig, description="Path-length polish after the shortcutting (oacli smooth)."
+    )
 
     @model_validator(mode="after")
     def _consistent_steps(self) -> PlannerConfig:
@@ -165,6 +199,11 @@ class PlannerConfig(Section):
         if not multiple(self.steer_dt_s, self.output_dt_s):
             problems.append(
                 (("steer_dt_s",), self.steer_dt_s, f"must be a multiple of output_dt_s ({self.output_dt_s:g} s)")
+            )
+        if not multiple(self.polish.step_s, self.output_dt_s):
+            problems.append(
+                (("polish", "step_s"), self.polish.step_s,
+                 f"must be a multiple of output_dt_s ({self.output_dt_s:g} s)")
             )
         if not multiple(self.kino.primitive_dt_s, self.output_dt_s):
             problems.append(
@@ -202,4 +241,4 @@ class PlannerConfig(Section):
         return max(2, int(seconds / self.steer_dt_s + 1e-9))
 
 
-__all__ = ["KinoRrtConfig", "PlannerConfig", "PlannerType", "PlannerWeights", "ShortcutConfig"]
+__all__ = ["KinoRrtConfig", "PlannerConfig", "PlannerType", "PlannerWeights", "PolishConfig", "ShortcutConfig"]

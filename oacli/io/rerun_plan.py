@@ -11,10 +11,13 @@ Entity paths (a fixed contract; tests read them back):
     ``metrics/velocity_mps`` per axis against their ± limits (``mission_time``); ``metrics/solution_cost`` (the
     best solution's cost on the ``iteration`` timeline); ``log``.
 ``smooth.rrd``
-    the scene; ``world/smooth/before`` and ``world/smooth/after`` (paths, static); ``world/smooth/shortcuts``
-    (each accepted shortcut's section, on the ``shortcut`` sequence timeline); ``world/robot`` (smoothed
-    trajectory); ``metrics/force_N``, ``metrics/velocity_mps`` (smoothed, ``mission_time``); ``metrics/cost``
-    (trajectory cost after each try, ``shortcut`` timeline); ``log``.
+    the scene; ``world/smooth/before`` and ``world/smooth/after`` (paths, static; ``after`` is the output, polished
+    when the polish ran); ``world/smooth/shortcut`` (the path after the shortcutting, before the polish, static;
+    only when the polish ran); ``world/smooth/shortcuts`` (each accepted shortcut's section, on the ``shortcut``
+    sequence timeline); ``world/smooth/polish`` (each accepted polish candidate's path, on the ``polish``
+    sequence timeline); ``world/robot`` (output trajectory); ``metrics/force_N``, ``metrics/velocity_mps``
+    (output, ``mission_time``); ``metrics/cost`` (trajectory cost after each try, ``shortcut`` timeline);
+    ``metrics/polish_length_m`` (exact path length of each polish candidate, ``polish`` timeline); ``log``.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from oacli.io.rerun_io import ACTUAL_COLOR, AXIS_NAMES, REFERENCE_COLOR, ROBOT, 
 
 ITERATION = "iteration"
 SHORTCUT = "shortcut"
+POLISH = "polish"
 
 PLAN_START = "world/plan/start"
 PLAN_GOAL = "world/plan/goal"
@@ -42,6 +46,9 @@ PLAN_PATH = "world/plan/path"
 SMOOTH_BEFORE = "world/smooth/before"
 SMOOTH_AFTER = "world/smooth/after"
 SMOOTH_SHORTCUTS = "world/smooth/shortcuts"
+SMOOTH_SHORTCUT_PATH = "world/smooth/shortcut"
+SMOOTH_POLISH = "world/smooth/polish"
+POLISH_LENGTH = "metrics/polish_length_m"
 FORCE = "metrics/force_N"
 VELOCITY = "metrics/velocity_mps"
 SOLUTION_COST = "metrics/solution_cost"
@@ -52,6 +59,8 @@ GROWTH_COLOR = (120, 160, 220, 140)
 PATH_COLOR = (255, 170, 40, 255)
 START_COLOR = (60, 200, 90, 255)
 GOAL_COLOR = (230, 60, 60, 255)
+SHORTCUT_COLOR = (120, 120, 120, 255)
+POLISH_COLOR = (60, 200, 90, 255)
 
 
 def _sequence(rec: StageRecording, timeline: str, value: int) -> None:
@@ -172,12 +181,13 @@ def write_plan_recording(
 
 
 def smooth_blueprint() -> rrb.Blueprint:
-    """Layout of ``smooth.rrd``: 3D scene and log, force, velocity and cost per shortcut try."""
-    world = rrb.Spatial3DView(origin=WORLD, name="World: before (blue), after (orange)")
+    """Layout of ``smooth.rrd``: 3D scene and log, force, velocity, cost per shortcut try, length per polish step."""
+    world = rrb.Spatial3DView(origin=WORLD, name="World: before (blue), shortcut (grey), after (orange)")
     plots = rrb.Vertical(
         time_series_view(FORCE, "Force [N], world frame (mission_time)", legend=False),
         time_series_view(VELOCITY, "Velocity [m/s], world frame (mission_time)", legend=False),
         time_series_view(COST, "Trajectory cost after each shortcut try (shortcut)"),
+        time_series_view(POLISH_LENGTH, "Path length of each polish candidate [m] (polish)"),
         name="Metrics",
     )
     return rrb.Blueprint(
@@ -202,6 +212,9 @@ def write_smooth_recording(
     velocity_limit_mps: np.ndarray,
     log: Sequence[tuple[float, str, str]] = (),
     recording_name: str = "smooth",
+    shortcut_path: np.ndarray | None = None,
+    polish_steps: Sequence[tuple[int, np.ndarray]] = (),
+    polish_lengths: np.ndarray | None = None,
 ) -> None:
     """Write ``smooth.rrd`` (entities in the module docstring).
 
@@ -220,10 +233,29 @@ def write_smooth_recording(
     force_limit_N, velocity_limit_mps : ndarray, shape (3,)
     log : sequence of (t, level, message)
     recording_name : str
+    shortcut_path : ndarray, shape (K, 3), optional
+        Path after the shortcutting, before the polish [m] (None when the polish did not run).
+    polish_steps : sequence of (iteration, positions (k, 3))
+        Accepted polish candidates.
+    polish_lengths : ndarray, shape (iterations,), optional
+        Exact path length of each polish candidate [m] (NaN where the subproblem failed).
     """
     rec = StageRecording(recording_name=recording_name)
     rec.log_scene(scene)
     rec.log_path(SMOOTH_BEFORE, before, color=REFERENCE_COLOR, radius_m=0.006)
+    if shortcut_path is not None:
+        rec.log_path(SMOOTH_SHORTCUT_PATH, shortcut_path, color=SHORTCUT_COLOR, radius_m=0.005)
+    for index, pts in polish_steps:
+        _sequence(rec, POLISH, index)
+        rec.stream.log(SMOOTH_POLISH, rr.LineStrips3D([np.asarray(pts, dtype=float)], colors=[POLISH_COLOR],
+                                                      radii=[0.006]))
+        rec.stream.reset_time()
+    lengths = np.asarray(polish_lengths if polish_lengths is not None else [], dtype=float)
+    solved = np.flatnonzero(np.isfinite(lengths))
+    if solved.size:
+        rec.stream.log(POLISH_LENGTH, rr.SeriesLines(names=["path length"]), static=True)
+        rec.stream.send_columns(POLISH_LENGTH, indexes=[rr.TimeColumn(POLISH, sequence=solved)],
+                                columns=rr.Scalars.columns(scalars=lengths[solved]))
     t, x, u = trajectory
     rec.log_path(SMOOTH_AFTER, x[:, 0:3], color=ACTUAL_COLOR, radius_m=0.008)
     for index, pts in shortcuts:

@@ -1,14 +1,22 @@
-"""The ``smooth`` stage: LQR shortcutting of a plan read back from its MCAP.
+"""The ``smooth`` stage: LQR shortcutting of a plan read back from its MCAP, then the path-length polish.
 
-Inputs: the config (robot, scene, ``planner.weights`` and ``planner.shortcut``) and a previous stage's MCAP with a
+Inputs: the config (robot, scene, ``planner.weights``, ``planner.shortcut``, ``planner.polish``) and a previous
+stage's MCAP with a
 ``/trajectory`` topic (``plan.mcap`` or an earlier ``smooth.mcap``). The input is refused (exit 2, no run folder)
 when it is unreadable, in another frame, does not follow the double integrator of ``robot.mass_kg`` under its
 held forces, does not end at rest, exceeds the force or velocity limits, or collides (a smoother must not launder
 a colliding plan). Outputs: ``config.yaml``, ``smooth.mcap``, ``smooth.rrd``, ``summary.json``.
 
 ``smooth.mcap`` topics: ``/trajectory`` (the smoothed trajectory), ``/trajectory/input`` (the input as read),
-``/robot/pose``, ``/scene`` (paths ``before`` and ``after``), ``/smooth/shortcuts`` (oacli.ShortcutAttempt, one
-record per try, ``t = 0``), ``/log``; metadata ``oacli.smooth`` (input file, costs).
+``/trajectory/shortcut`` (after the shortcutting, before the polish; only when the polish ran), ``/robot/pose``,
+``/scene`` (paths ``before``, ``shortcut`` when the polish ran, and ``after``), ``/smooth/shortcuts``
+(oacli.ShortcutAttempt, one record per try, ``t = 0``), ``/smooth/polish`` (oacli.PolishIteration, one record per
+SCP subproblem, ``t = 0``), ``/log``; metadata ``oacli.smooth`` (input file, costs, lengths).
+
+Costs in ``summary.json``: ``cost_before`` is the input's LQR cost ``J``, ``cost_after_shortcut`` the cost after
+the shortcutting (never higher), ``cost_after`` the output's. The polish minimises path length, not ``J``; with
+``planner.polish.keep_cost`` (default) it never returns a trajectory costlier than the input, so
+``cost_after <= cost_before`` still holds. ``polish`` holds its own before/after length, duration and cost.
 """
 
 from __future__ import annotations
@@ -28,9 +36,11 @@ from oacli.io.atomic import write_text_atomic
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_trajectory
 from oacli.io.rerun_plan import write_smooth_recording
 from oacli.io.runfolder import create_run_dir, git_commit, write_summary
-from oacli.planning.full_state import translational_part
+from oacli.planning.full_state import minimum_time_lower_bound_s, translational_part
+from oacli.planning.polish import STEP_OUTCOMES, PolishResult, PolishSettings, polish_trajectory
 from oacli.planning.shortcut import ACCEPTED, ShortcutResult, lqr_shortcut
 from oacli.planning.steering import LqrConnector
+from oacli.planning.translational import TranslationalTrajectory
 from oacli.stages.plan import (
     SMOOTH_STREAM,
     cost_weights,
@@ -62,6 +72,28 @@ SHORTCUT_SCHEMA: dict[str, Any] = {
                                                      "collision"},
     },
     "required": ["t", "try", "a", "b", "outcome"],
+}
+
+POLISH_ITERATION = "oacli.PolishIteration"
+POLISH_SCHEMA: dict[str, Any] = {
+    "description": "One SCP subproblem of the path-length polish and the verdict on its solution.",
+    "type": "object",
+    "properties": {
+        "t": {"type": "number", "description": "0: polish records are not on the trajectory's time axis [s]"},
+        "iteration": {"type": "integer", "description": "subproblem number"},
+        "trust_radius_m": {"type": "number", "description": "trust radius on the knot positions [m]"},
+        "status": {"type": "string", "description": "solver status"},
+        "objective": {"type": ["number", "null"], "description": "subproblem optimum (length bound + effort + "
+                                                                 "buffer penalty)"},
+        "buffer_m": {"type": ["number", "null"], "description": "largest virtual buffer (0: certified) [m]"},
+        "length_m": {"type": ["number", "null"], "description": "exact path length of the candidate [m]"},
+        "duration_s": {"type": ["number", "null"], "description": "candidate duration [s]"},
+        "cost": {"type": ["number", "null"], "description": "LQR cost J of the candidate [-]"},
+        "solve_time_s": {"type": "number", "description": "solve wall time [s]"},
+        "outcome": {"type": "string", "description": "accepted, not_shorter, collision, limits, cost or "
+                                                     "solver_failed"},
+    },
+    "required": ["t", "iteration", "status", "outcome"],
 }
 
 
@@ -107,23 +139,41 @@ def check_input(cfg: OacliConfig, path: Path, traj: Trajectory, checker: Collisi
 
 
 def _write_smooth_mcap(path: Path, cfg: OacliConfig, config_yaml: str, checker: CollisionChecker, source: Path,
-                       traj_in: Trajectory, traj_out: Trajectory, result: ShortcutResult,
-                       summary: dict[str, Any], log: list[LogEntry]) -> None:
+                       traj_in: Trajectory, traj_shortcut: Trajectory, traj_out: Trajectory, result: ShortcutResult,
+                       polish: PolishResult | None, summary: dict[str, Any], log: list[LogEntry]) -> None:
     metadata = {"stage": "smooth", "seed": cfg.seed, "git_commit": git_commit(), "version": __version__,
                 "config_name": cfg.name}
     with StageMcapWriter(path, stage="smooth", config_yaml=config_yaml, metadata=metadata,
                          frame=cfg.environment.frame) as writer:
-        writer.write_metadata("oacli.smooth", {"input": str(source), "cost_before": result.cost_before,
-                                               "cost_after": result.cost_after, "accepted": result.accepted,
-                                               "tried": result.tried})
-        writer.write_scene(checker.scene, {"before": traj_in.x[:, 0:3], "after": traj_out.x[:, 0:3]})
+        writer.write_metadata("oacli.smooth", {
+            "input": str(source), "cost_before": summary["cost_before"],
+            "cost_after_shortcut": result.cost_after, "cost_after": summary["cost_after"],
+            "accepted": result.accepted, "tried": result.tried,
+            "path_length_before_m": summary["path_length_before_m"],
+            "path_length_after_m": summary["path_length_after_m"],
+            "polish": "off" if polish is None else polish.status,
+        })
+        paths = {"before": traj_in.x[:, 0:3]}
+        if polish is not None:
+            paths["shortcut"] = traj_shortcut.x[:, 0:3]
+        paths["after"] = traj_out.x[:, 0:3]
+        writer.write_scene(checker.scene, paths)
         writer.write_trajectory("/trajectory", traj_out)
         writer.write_trajectory("/trajectory/input", traj_in)
+        if polish is not None:
+            writer.write_trajectory("/trajectory/shortcut", traj_shortcut)
         writer.write_poses(traj_out.t, traj_out.x)
         for a in result.attempts:
             writer.write_json("/smooth/shortcuts", SHORTCUT_ATTEMPT, SHORTCUT_SCHEMA, 0.0, {
                 "try": a.index, "a": a.a, "b": a.b, "t_a": a.t_a, "t_b": a.t_b, "steps": a.steps,
                 "old_cost": a.old_cost, "new_cost": a.new_cost, "outcome": a.outcome,
+            })
+        for it in polish.iterations if polish is not None else ():
+            writer.write_json("/smooth/polish", POLISH_ITERATION, POLISH_SCHEMA, 0.0, {
+                "iteration": it.index, "trust_radius_m": it.trust_radius_m, "status": it.status,
+                "objective": it.objective, "buffer_m": it.buffer_m, "length_m": it.length_m,
+                "duration_s": it.duration_s, "cost": it.cost, "solve_time_s": it.solve_time_s,
+                "outcome": it.outcome,
             })
         for t, level, message in log:
             writer.write_log(t, level, message)
@@ -134,6 +184,41 @@ def _cost_per_try(result: ShortcutResult) -> np.ndarray:
     for a in result.attempts:
         costs.append(costs[-1] - (a.old_cost - a.new_cost) if a.outcome == ACCEPTED else costs[-1])
     return np.array(costs)
+
+
+def polish_settings(cfg: OacliConfig) -> PolishSettings:
+    """The polish settings of ``planner.polish``."""
+    p = cfg.planner.polish
+    return PolishSettings(iterations=p.iterations, step_s=p.step_s, effort_weight=p.effort_weight,
+                          trust_radius_m=p.trust_radius_m, clearance_m=p.clearance_m)
+
+
+def run_polish(cfg: OacliConfig, trans: TranslationalTrajectory, checker: CollisionChecker, goal: np.ndarray,
+               cost_cap: float | None) -> PolishResult:
+    """Polish a shortcut result as configured in ``planner.polish`` (duration budget from ``duration_factor``)."""
+    robot, p = cfg.robot, cfg.planner.polish
+    budget = None
+    if p.duration_factor is not None:
+        bound = minimum_time_lower_bound_s(trans.x[0], goal, np.asarray(robot.force_limit_N),
+                                           np.asarray(robot.velocity_limit_mps), robot.mass_kg)
+        budget = p.duration_factor * bound
+    return polish_trajectory(trans, checker, goal, np.asarray(robot.force_limit_N),
+                             np.asarray(robot.velocity_limit_mps), cost_weights(cfg), dt_s=cfg.planner.output_dt_s,
+                             duration_budget_s=budget, cost_cap=cost_cap, settings=polish_settings(cfg))
+
+
+def polish_summary(polish: PolishResult, wall_time_s: float) -> dict[str, Any]:
+    """The ``polish`` entry of summary.json (before = after the shortcutting)."""
+    return {
+        "enabled": True, "status": polish.status, "reason": polish.reason,
+        "iterations": len(polish.iterations), "accepted": polish.accepted, "pieces": polish.pieces,
+        "length_before_m": polish.length_before_m, "length_after_m": polish.length_after_m,
+        "duration_before_s": polish.duration_before_s, "duration_after_s": polish.duration_after_s,
+        "duration_budget_s": polish.duration_budget_s,
+        "cost_before": polish.cost_before, "cost_after": polish.cost_after, "cost_cap": polish.cost_cap,
+        "outcomes": {k: sum(it.outcome == k for it in polish.iterations) for k in STEP_OUTCOMES},
+        "wall_time_s": wall_time_s,
+    }
 
 
 def run_smooth(
@@ -169,7 +254,8 @@ def run_smooth(
     config_yaml = dump_config(cfg)
     write_text_atomic(files["config"], config_yaml)
     log: list[LogEntry] = [(0.0, "info", f"smoothing {input_path} ({traj_in.duration_s:.1f} s) with "
-                                         f"{p.shortcut.tries} LQR shortcut tries")]
+                                         f"{p.shortcut.tries} LQR shortcut tries"
+                                         + (", then the path-length polish" if p.polish.enabled else ""))]
     try:
         rng = np.random.default_rng([cfg.seed, SMOOTH_STREAM])
         result = lqr_shortcut(
@@ -177,8 +263,19 @@ def run_smooth(
             rng, tries=p.shortcut.tries, sample_dt_s=p.output_dt_s,
         )
         if progress is not None:
-            progress(1.0)
-        traj_out = to_output(cfg, result.trajectory, q_start, q_goal, "smooth")
+            progress(0.5 if p.polish.enabled else 1.0)
+        polish: PolishResult | None = None
+        final = result.trajectory
+        if p.polish.enabled:
+            t_polish = time.perf_counter()
+            polish = run_polish(cfg, result.trajectory, checker, goal,
+                                result.cost_before if p.polish.keep_cost else None)
+            polish_wall = time.perf_counter() - t_polish
+            final = polish.trajectory
+            if progress is not None:
+                progress(1.0)
+        traj_shortcut = to_output(cfg, result.trajectory, q_start, q_goal, "smooth")
+        traj_out = to_output(cfg, final, q_start, q_goal, "smooth") if polish is not None else traj_shortcut
         before = trajectory_metrics(cfg, traj_in, checker, body, goal)
         after = trajectory_metrics(cfg, traj_out, checker, body, goal)
         summary: dict[str, Any] = {
@@ -187,30 +284,43 @@ def run_smooth(
             "input": str(input_path),
             "seed": cfg.seed,
             "cost_before": result.cost_before,
-            "cost_after": result.cost_after,
+            "cost_after_shortcut": result.cost_after,
+            "cost_after": after["cost"],
             "duration_before_s": traj_in.duration_s,
+            "duration_after_shortcut_s": traj_shortcut.duration_s,
             "duration_after_s": traj_out.duration_s,
             "path_length_before_m": before["path_length_m"],
+            "path_length_after_shortcut_m": result.trajectory.path_length_m(),
             "path_length_after_m": after["path_length_m"],
             "impulse_before_Ns": before["impulse_Ns"],
             "impulse_after_Ns": after["impulse_Ns"],
             "shortcuts_tried": result.tried,
             "shortcuts_accepted": result.accepted,
             "shortcuts_rejected": result.rejected,
-            **{k: after[k] for k in after if k not in ("path_length_m", "impulse_Ns")},
+            "polish": {"enabled": False} if polish is None else polish_summary(polish, polish_wall),
+            **{k: after[k] for k in after if k not in ("path_length_m", "impulse_Ns", "cost")},
         }
         summary["cost"] = after["cost"]
         log.append((traj_out.duration_s, "info",
-                    f"cost {result.cost_before:.6g} -> {result.cost_after:.6g}, duration {traj_in.duration_s:.1f} s "
-                    f"-> {traj_out.duration_s:.1f} s, {result.accepted}/{result.tried} shortcuts accepted"))
+                    f"shortcutting: cost {result.cost_before:.6g} -> {result.cost_after:.6g}, duration "
+                    f"{traj_in.duration_s:.1f} s -> {traj_shortcut.duration_s:.1f} s, {result.accepted}/{result.tried} "
+                    "shortcuts accepted"))
+        if polish is not None:
+            log.append((traj_out.duration_s, "info",
+                        f"polish ({polish.status}, {polish.reason}): path length {polish.length_before_m:.4f} m -> "
+                        f"{polish.length_after_m:.4f} m, cost {polish.cost_before:.6g} -> {polish.cost_after:.6g}, "
+                        f"{polish.accepted}/{len(polish.iterations)} SCP steps accepted"))
         files["mcap"] = run_dir / "smooth.mcap"
-        _write_smooth_mcap(files["mcap"], cfg, config_yaml, checker, input_path, traj_in, traj_out, result,
-                           summary, log)
+        _write_smooth_mcap(files["mcap"], cfg, config_yaml, checker, input_path, traj_in, traj_shortcut, traj_out,
+                           result, polish, summary, log)
         files["rrd"] = run_dir / "smooth.rrd"
         write_smooth_recording(
             files["rrd"], scene=checker.scene, before=traj_in.x[:, 0:3], trajectory=(traj_out.t, traj_out.x,
                                                                                       traj_out.u),
             shortcuts=[(i, sec.x[:, 0:3]) for i, sec in result.sections], cost_per_try=_cost_per_try(result),
+            shortcut_path=traj_shortcut.x[:, 0:3] if polish is not None else None,
+            polish_steps=[] if polish is None else [(i, c.x[:, 0:3]) for i, c in polish.accepted_trajectories],
+            polish_lengths=None if polish is None else np.array([it.length_m for it in polish.iterations]),
             force_limit_N=np.asarray(robot.force_limit_N), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
             log=log, recording_name=f"{cfg.name}/smooth",
         )
