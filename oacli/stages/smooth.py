@@ -32,10 +32,9 @@ from oacli import __version__
 from oacli.config import OacliConfig, dump_config
 from oacli.errors import InputError
 from oacli.geometry.collision import CollisionChecker
-from oacli.io.atomic import write_text_atomic
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_trajectory
 from oacli.io.rerun_plan import write_smooth_recording
-from oacli.io.runfolder import create_run_dir, git_commit, write_summary
+from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.planning.full_state import minimum_time_lower_bound_s, translational_part
 from oacli.planning.polish import STEP_OUTCOMES, PolishResult, PolishSettings, polish_trajectory
 from oacli.planning.shortcut import ACCEPTED, ShortcutResult, lqr_shortcut
@@ -249,14 +248,12 @@ def run_smooth(
     p = cfg.planner
     connector = LqrConnector(robot.mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
 
-    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
-    files = {"config": run_dir / "config.yaml"}
     config_yaml = dump_config(cfg)
-    write_text_atomic(files["config"], config_yaml)
     log: list[LogEntry] = [(0.0, "info", f"smoothing {input_path} ({traj_in.duration_s:.1f} s) with "
                                          f"{p.shortcut.tries} LQR shortcut tries"
                                          + (", then the path-length polish" if p.polish.enabled else ""))]
-    try:
+    with open_stage_run("smooth", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start) as run:
+        run_dir, files = run.run_dir, run.files
         rng = np.random.default_rng([cfg.seed, SMOOTH_STREAM])
         result = lqr_shortcut(
             trans, connector, checker, goal, np.asarray(robot.force_limit_N), np.asarray(robot.velocity_limit_mps),
@@ -310,10 +307,10 @@ def run_smooth(
                         f"polish ({polish.status}, {polish.reason}): path length {polish.length_before_m:.4f} m -> "
                         f"{polish.length_after_m:.4f} m, cost {polish.cost_before:.6g} -> {polish.cost_after:.6g}, "
                         f"{polish.accepted}/{len(polish.iterations)} SCP steps accepted"))
-        files["mcap"] = run_dir / "smooth.mcap"
+        run.file("mcap", "smooth.mcap")
         _write_smooth_mcap(files["mcap"], cfg, config_yaml, checker, input_path, traj_in, traj_shortcut, traj_out,
                            result, polish, summary, log)
-        files["rrd"] = run_dir / "smooth.rrd"
+        run.file("rrd", "smooth.rrd")
         write_smooth_recording(
             files["rrd"], scene=checker.scene, before=traj_in.x[:, 0:3], trajectory=(traj_out.t, traj_out.x,
                                                                                       traj_out.u),
@@ -324,13 +321,6 @@ def run_smooth(
             force_limit_N=np.asarray(robot.force_limit_N), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
             log=log, recording_name=f"{cfg.name}/smooth",
         )
-        summary["wall_time_s"] = time.perf_counter() - wall_start
-        summary["run_dir"] = str(run_dir)
-        summary["files"] = {k: q.name for k, q in files.items()}
-        files["summary"] = write_summary(run_dir, summary)
-    except BaseException as exc:
-        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        write_summary(run_dir, {"stage": "smooth", "status": "failed", "error": reason})
-        raise
+        run.finish(summary)
     return StageResult(run_dir, summary, files)
 
