@@ -132,6 +132,7 @@ def main() -> None:
 
 
 # Each command lives in its own module under oacli.commands and registers itself on ``app``.
+from oacli.commands import estimate as _estimate  # noqa: E402, F401
 from oacli.commands import track as _track  # noqa: E402, F401
 
 if __name__ == "__main__":

@@ -567,6 +567,8 @@ class ReferenceConfig(Section):
 # The whole file
 # --------------------------------------------------------------------------------------------------------------
 
+from oacli.config.estimation import EstimationConfig  # noqa: E402  (section module; imports the types above)
+
 
 class OacliConfig(Section):
     """A complete, validated oacli configuration. Only ``robot`` is required; everything else has defaults."""
@@ -596,6 +598,9 @@ class OacliConfig(Section):
     )
     reference: Annotated[ReferenceConfig, _none_to({})] = Field(
         default_factory=ReferenceConfig, description="Reference trajectory settings."
+    )
+    estimation: Annotated[EstimationConfig, _none_to({})] = Field(
+        default_factory=EstimationConfig, description="Inertial parameter estimation (oacli estimate)."
     )
 
     @model_validator(mode="after")

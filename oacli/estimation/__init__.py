@@ -1,0 +1,1 @@
+"""Inertial parameter estimation: batch maximum likelihood and a sequential filter (Doerr 2021 Eqs. 31-32)."""
