@@ -25,6 +25,11 @@ Choices the paper leaves open, and what is done here:
 * **Outliers.** After convergence every record's normalised residual ``d²_k = ‖R^-½ (h(x̂_k) ⊟ ỹ_k)‖²`` is tested
   against the χ² gate (seed 001 §6.2.1); records outside it are dropped and the problem is re-solved, until the
   inlier set no longer changes. The dynamics still tie the state of a dropped record to its neighbours.
+* **Continuation.** With a nearly rigid model (small process noise) the process residuals have tiny standard
+  deviations, and the second-order terms a large parameter step leaves in them (``u Δt/m`` is not linear in m)
+  make full Gauss-Newton steps overshoot, so Levenberg-Marquardt would crawl. The problem is therefore solved
+  first with the process noise inflated 1000×, 100× and 10× (each solution warm-starts the next, with a loose
+  tolerance) and then with the configured noise; only the last stage's costs are in ``cost_history``.
 * **Gauge.** State components that are not measured at all (e.g. position when only velocities are used) have
   unobservable offsets that do not affect θ; the first state's unmeasured components get a unit-weight tie to the
   first record so that ``AᵀA`` stays invertible.
@@ -67,6 +72,9 @@ __all__ = ["BatchResult", "estimate_batch", "estimate_batch_windows"]
 _ACCEL_ROWS = np.r_[3:6, 10:13]  # v̇ and ω̇ rows of the continuous dynamics
 _LAMBDA_INIT = 1e-6
 _LAMBDA_MAX = 1e12
+_CONTINUATION = (1000.0, 100.0, 10.0)
+"""Process-noise inflation factors solved first, each warm-starting the next (see the module docstring)."""
+_CONTINUATION_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -100,6 +108,11 @@ class BatchResult:
         Records dropped for a repeated time stamp.
     solve_time_s : float
         Wall time [s].
+    phi : ndarray, shape (4,)
+        The solution in the physical parametrisation (:mod:`oacli.estimation.parametrization`).
+    last_covariance : ndarray, shape (16, 16)
+        Covariance of ``[δx_K (12, tangent of the last state), δφ (4)]`` -- what a filter continuing from here
+        needs (:class:`oacli.estimation.sequential.SequentialEstimator` bootstraps from it).
     """
 
     estimate: ParameterEstimate
@@ -115,6 +128,8 @@ class BatchResult:
     converged: bool
     duplicates: int
     solve_time_s: float
+    phi: np.ndarray
+    last_covariance: np.ndarray
 
 
 def _block_coo(blocks: np.ndarray, row0: np.ndarray, col0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -147,10 +162,15 @@ class _Problem:
         self.dof = len(self.state_rows) + len(self.accel_rows)
         self.gauge_rows = np.setdiff1d(np.arange(TANGENT_DIM), self.state_rows)
         self.durations = substep_schedule(self.t[:-1], self.t[1:], settings.substep_s)
-        self.w_proc = settings.process.sqrt_information(np.diff(self.t), weights_theta)
+        self._w_proc_nominal = settings.process.sqrt_information(np.diff(self.t), weights_theta)
+        self.w_proc = self._w_proc_nominal
         self.prior = prior
         if prior is not None:
             self.prior_sqrt_info = np.linalg.inv(np.linalg.cholesky(prior.covariance))
+
+    def set_process_noise_scale(self, factor: float) -> None:
+        """Use ``factor`` × the configured process noise standard deviations (continuation, see the module)."""
+        self.w_proc = self._w_proc_nominal / float(factor)
 
     # -- residuals and Jacobian ------------------------------------------------------------------------------------
 
@@ -304,20 +324,27 @@ def _levenberg_marquardt(
     return x, phi, settings.max_iterations, False
 
 
-def _theta_covariance(problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray) -> np.ndarray:
-    """``[(AᵀA)⁻¹]_θθ`` at the solution, mapped from φ to θ; ``inf`` diagonal where AᵀA is singular."""
+def _marginal_covariances(
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``[(AᵀA)⁻¹]_θθ`` mapped from φ to θ, and the covariance of ``[δx_K, δφ]`` (last state and φ, 16×16).
+
+    Singular ``AᵀA`` gives ``inf`` diagonals.
+    """
     _, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
     h = (a_mat.T @ a_mat).tocsc()
     n = problem.n_var
-    rhs = np.zeros((n, par.N_PARAMS))
-    rhs[n - par.N_PARAMS:, :] = np.eye(par.N_PARAMS)
+    m = TANGENT_DIM + par.N_PARAMS
+    rhs = np.zeros((n, m))
+    rhs[n - m:, :] = np.eye(m)
     sol = _solve(h, rhs)
-    jac = par.theta_jacobian(phi)
     if sol is None:
-        return np.diag(np.full(par.N_PARAMS, np.inf))
-    cov_phi = sol[n - par.N_PARAMS:, :]
-    cov = jac @ (0.5 * (cov_phi + cov_phi.T)) @ jac.T
-    return 0.5 * (cov + cov.T)
+        return np.diag(np.full(par.N_PARAMS, np.inf)), np.diag(np.full(m, np.inf))
+    cov_last = sol[n - m:, :]
+    cov_last = 0.5 * (cov_last + cov_last.T)
+    jac = par.theta_jacobian(phi)
+    cov = jac @ cov_last[TANGENT_DIM:, TANGENT_DIM:] @ jac.T
+    return 0.5 * (cov + cov.T), cov_last
 
 
 def estimate_batch(
@@ -365,6 +392,12 @@ def estimate_batch(
     inliers = np.ones(problem.k, dtype=bool)
     history: list[float] = []
     iterations = 0
+    loose = EstimatorSettings(**{**settings.__dict__, "tolerance": max(settings.tolerance, _CONTINUATION_TOLERANCE)})
+    for factor in _CONTINUATION:
+        problem.set_process_noise_scale(factor)
+        x, phi, its, _ = _levenberg_marquardt(problem, x, phi, inliers, loose, [])
+        iterations += its
+    problem.set_process_noise_scale(1.0)
     rounds = 0
     converged = False
     for rounds in range(1, settings.max_gating_rounds + 1):  # noqa: B007
@@ -378,7 +411,7 @@ def estimate_batch(
             break
         inliers = new_inliers
     d2 = problem.d2(x, phi)
-    cov = _theta_covariance(problem, x, phi, inliers)
+    cov, cov_last = _marginal_covariances(problem, x, phi, inliers)
     estimate = ParameterEstimate(
         t=float(problem.t[-1]),
         theta=par.theta_from_phi(phi),
@@ -401,6 +434,8 @@ def estimate_batch(
         converged=converged,
         duplicates=len(ordered.duplicates),
         solve_time_s=time.perf_counter() - wall,
+        phi=phi,
+        last_covariance=cov_last,
     )
 
 

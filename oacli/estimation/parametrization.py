@@ -7,7 +7,7 @@ Slotine 2017, "Linear matrix inequalities for physically consistent inertial par
 
     φ = [log m, log A, log B, log C],     A = (Iyy + Izz − Ixx)/2,  B = (Ixx + Izz − Iyy)/2,  C = (Ixx + Iyy − Izz)/2
 
-Every real φ maps to a mass > 0 and inertias that satisfy the triangle inequalities strictly, so no estimate
+Every real φ maps to a mass > 0 and inertias that satisfy the triangle inequalities, so no estimate
 is ever reset or clipped (RATTLE's ``param_est`` reset its filter to the prior when an estimate became
 non-physical). The Gaussian prior and the reported covariance stay in θ (linearised through ``dθ/dφ``).
 """
@@ -23,17 +23,27 @@ _SUMS = np.array([[0.0, 1.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 0.0]])
 _SUMS_INV = 0.5 * np.array([[-1.0, 1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, -1.0]])
 
 
+TRIANGLE_RTOL = 1e-12
+"""Relative rounding tolerance of the triangle inequalities (as the config's ``INERTIA_TRIANGLE_RTOL``)."""
+
+
 def is_physical(theta: np.ndarray) -> bool:
-    """True when ``m > 0`` and the principal inertias satisfy every triangle inequality strictly."""
+    """True when ``m > 0``, every principal inertia > 0 and each sum of two >= the third (within rounding).
+
+    Equality is a planar body (a lamina); φ reaches it only in the limit ``log A → −∞``, where the computed
+    inertias satisfy the inequality to rounding.
+    """
     theta = np.asarray(theta, dtype=float)
-    return bool(theta[0] > 0 and np.all(_SUMS_INV @ theta[1:4] > 0))
+    second_moments = _SUMS_INV @ theta[1:4]
+    return bool(theta[0] > 0 and np.all(theta[1:4] > 0)
+                and np.all(second_moments >= -TRIANGLE_RTOL * np.max(theta[1:4])))
 
 
 def phi_from_theta(theta: np.ndarray) -> np.ndarray:
     """φ of a physical θ (raises ``ValueError`` otherwise)."""
     theta = np.asarray(theta, dtype=float)
-    if not is_physical(theta):
-        raise ValueError(f"θ = {theta} is not physical (mass > 0 and strict inertia triangle inequalities needed)")
+    if not (theta[0] > 0 and np.all(_SUMS_INV @ theta[1:4] > 0)):
+        raise ValueError(f"θ = {theta} is not physical: φ needs mass > 0 and strict inertia triangle inequalities")
     return np.log(np.concatenate([[theta[0]], _SUMS_INV @ theta[1:4]]))
 
 

@@ -64,6 +64,16 @@ def substep_schedule(t0: np.ndarray, t1: np.ndarray, step_s: float) -> np.ndarra
 
 def dynamics_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """ẋ = f(x, u, θ) (Doerr Eqs. 34-35) for stacks ``x (K, 13)``, ``u (K, 6)``; same as ``rigid_body.dynamics``."""
+    if x.shape[0] == 1:  # one state: Python floats are 10× faster than 1-element arrays
+        m, ix, iy, iz = (float(v) for v in theta)
+        vx, vy, vz, qx, qy, qz, qw, wx, wy, wz = (float(v) for v in x[0, 3:13])
+        fx, fy, fz, tx, ty, tz = (float(v) for v in u[0])
+        return np.array([[
+            vx, vy, vz, fx / m, fy / m, fz / m,
+            0.5 * (qw * wx - qz * wy + qy * wz), 0.5 * (qz * wx + qw * wy - qx * wz),
+            0.5 * (-qy * wx + qx * wy + qw * wz), 0.5 * (-qx * wx - qy * wy - qz * wz),
+            (tx - (iz - iy) * wy * wz) / ix, (ty - (ix - iz) * wz * wx) / iy, (tz - (iy - ix) * wx * wy) / iz,
+        ]])
     m = theta[0]
     ix, iy, iz = theta[1], theta[2], theta[3]
     qx, qy, qz, qw = x[:, 6], x[:, 7], x[:, 8], x[:, 9]
@@ -81,9 +91,38 @@ def dynamics_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarra
     return dx
 
 
+def _jacobian_single(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """:func:`dynamics_jacobians_batch` for one state, with Python floats (a filter step is 10× faster)."""
+    m, ix, iy, iz = (float(v) for v in theta)
+    qx, qy, qz, qw, wx, wy, wz = (float(v) for v in x[6:13])
+    fx, fy, fz, tx, ty, tz = (float(v) for v in u)
+    jac = np.zeros((1, STATE_DIM, STATE_DIM + N_PARAMS))
+    j = jac[0]
+    j[0, 3] = j[1, 4] = j[2, 5] = 1.0
+    m2 = m * m
+    j[3, 13], j[4, 13], j[5, 13] = -fx / m2, -fy / m2, -fz / m2
+    hx, hy, hz, hqx, hqy, hqz, hqw = 0.5 * wx, 0.5 * wy, 0.5 * wz, 0.5 * qx, 0.5 * qy, 0.5 * qz, 0.5 * qw
+    j[6, 7], j[6, 8], j[6, 9], j[6, 10], j[6, 11], j[6, 12] = hz, -hy, hx, hqw, -hqz, hqy
+    j[7, 6], j[7, 8], j[7, 9], j[7, 10], j[7, 11], j[7, 12] = -hz, hx, hy, hqz, hqw, -hqx
+    j[8, 6], j[8, 7], j[8, 9], j[8, 10], j[8, 11], j[8, 12] = hy, -hx, hz, -hqy, hqx, hqw
+    j[9, 6], j[9, 7], j[9, 8], j[9, 10], j[9, 11], j[9, 12] = -hx, -hy, -hz, -hqx, -hqy, -hqz
+    j[10, 11], j[10, 12] = -(iz - iy) * wz / ix, -(iz - iy) * wy / ix
+    j[11, 10], j[11, 12] = -(ix - iz) * wz / iy, -(ix - iz) * wx / iy
+    j[12, 10], j[12, 11] = -(iy - ix) * wy / iz, -(iy - ix) * wx / iz
+    wdx = (tx - (iz - iy) * wy * wz) / ix
+    wdy = (ty - (ix - iz) * wz * wx) / iy
+    wdz = (tz - (iy - ix) * wx * wy) / iz
+    j[10, 14], j[10, 15], j[10, 16] = -wdx / ix, wy * wz / ix, -wy * wz / ix
+    j[11, 14], j[11, 15], j[11, 16] = -wz * wx / iy, -wdy / iy, wz * wx / iy
+    j[12, 14], j[12, 15], j[12, 16] = wx * wy / iz, -wx * wy / iz, -wdz / iz
+    return jac
+
+
 def dynamics_jacobians_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """``[∂f/∂x | ∂f/∂θ]`` (K, 13, 17) of :func:`dynamics_batch` (same as ``rigid_body.dynamics_jacobians``)."""
     k = x.shape[0]
+    if k == 1:
+        return _jacobian_single(x[0], u[0], theta)
     m = theta[0]
     ix, iy, iz = theta[1], theta[2], theta[3]
     q = x[:, 6:10]
