@@ -19,7 +19,7 @@ noise enters two consecutive innovations. Here the filter's state is the robot s
 0.016 rad/s, the first seconds of data carry information that is strongly non-linear in θ (the inertias enter as
 I⁻¹), and a Gaussian filter started from the prior linearises about estimates that are still far off and can become
 overconfident (and then gate good records). So the filter starts as a batch solver
-(:func:`oacli.estimation.batch.estimate_batch` over the records so far, every ``bootstrap_check_every`` records)
+(:func:`oacli.estimation.batch.estimate_batch` over the records so far, at geometrically spaced record counts)
 and hands over -- last state, φ and their joint covariance -- once every parameter is known to
 ``bootstrap_relative_std`` (5 %). Until then :meth:`SequentialEstimator.update` returns the batch estimate.
 
@@ -125,7 +125,7 @@ class SequentialEstimator:
         Hand over from the batch bootstrap once every standard deviation is below this fraction of its estimate
         (``None``: start the filter from the first record and the prior).
     bootstrap_check_every : int
-        Records between two bootstrap solves (>= 1).
+        Fewest records between two bootstrap solves (>= 1); the spacing grows by 25 % each time.
     bootstrap_max_records : int
         Hand over after this many records even if θ is not yet that well known (the batch covariance is used as
         it is; if it is singular -- unexciting data -- the filter starts from the last record and the prior).
@@ -134,7 +134,7 @@ class SequentialEstimator:
     def __init__(
         self, settings: EstimatorSettings, prior: ParameterEstimate, *, reinitialise_after: int = 5,
         bootstrap_relative_std: float | None = 0.05, bootstrap_check_every: int = 5,
-        bootstrap_max_records: int = 50,
+        bootstrap_max_records: int = 200,
     ) -> None:
         if reinitialise_after < 1:
             raise ValueError("reinitialise_after must be >= 1")
@@ -146,6 +146,7 @@ class SequentialEstimator:
         self.bootstrap_relative_std = bootstrap_relative_std
         self.bootstrap_check_every = int(bootstrap_check_every)
         self.bootstrap_max_records = max(int(bootstrap_max_records), 2)
+        self._next_check = self.bootstrap_check_every
         self._boot: list[Measurement] | None = [] if bootstrap_relative_std is not None else None
         self._boot_estimate: ParameterEstimate | None = None
         self.bootstrap_records = 0
@@ -410,8 +411,10 @@ class SequentialEstimator:
     def _process(self, rec: Measurement) -> None:
         if self._boot is not None:
             self._boot.append(rec)
-            if len(self._boot) >= 2 and (len(self._boot) % self.bootstrap_check_every == 0
-                                         or len(self._boot) >= self.bootstrap_max_records):
+            n = len(self._boot)
+            if n >= 2 and (n >= self._next_check or n >= self.bootstrap_max_records):
+                # Checks at 5, 10, 15, 20, 25, 31, 38, ... records: the bootstrap costs O(n) batch records.
+                self._next_check = max(n + self.bootstrap_check_every, int(np.ceil(1.25 * n)))
                 self._bootstrap(force=False)
             return
         status = "accepted"
