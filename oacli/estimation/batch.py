@@ -354,6 +354,8 @@ def estimate_batch(
     *,
     initial_theta: np.ndarray | None = None,
     initial_states: np.ndarray | None = None,
+    initial_phi: np.ndarray | None = None,
+    continuation: bool = True,
 ) -> BatchResult:
     """Batch maximum-likelihood estimate of the states and θ from a set of records (Doerr Eqs. 31-32).
 
@@ -370,6 +372,12 @@ def estimate_batch(
         Starting point (default: the prior mean); must be physical.
     initial_states : ndarray, shape (K, 13), optional
         Starting states for the time-ordered records (default: the measured states).
+    initial_phi : ndarray, shape (4,), optional
+        Starting point in the physical parametrisation (overrides ``initial_theta``; a previous solution's ``phi``,
+        which may lie arbitrarily close to the physical boundary).
+    continuation : bool
+        Solve with inflated process noise first (see the module docstring); a warm start close to the solution
+        may skip it.
 
     Returns
     -------
@@ -380,20 +388,20 @@ def estimate_batch(
     recs = ordered.records
     if len(recs) < 2:
         raise ValueError(f"the batch estimator needs at least 2 records with distinct time stamps, got {len(recs)}")
-    if initial_theta is None:
+    if initial_theta is None and initial_phi is None:
         if prior is None:
             raise ValueError("give a prior or an initial_theta")
         initial_theta = prior.theta
-    theta_w = prior.theta if prior is not None else np.asarray(initial_theta, dtype=float)
+    phi = par.phi_from_theta(initial_theta) if initial_phi is None else np.array(initial_phi, dtype=float)
+    theta_w = prior.theta if prior is not None else par.theta_from_phi(phi)
     problem = _Problem(recs, settings, prior, theta_w)
     x = problem.y.copy() if initial_states is None else np.array(initial_states, dtype=float)
-    phi = par.phi_from_theta(initial_theta)
     threshold = chi2_threshold(problem.dof, settings.gate_probability) if settings.gate_probability else np.inf
     inliers = np.ones(problem.k, dtype=bool)
     history: list[float] = []
     iterations = 0
     loose = EstimatorSettings(**{**settings.__dict__, "tolerance": max(settings.tolerance, _CONTINUATION_TOLERANCE)})
-    for factor in _CONTINUATION:
+    for factor in _CONTINUATION if continuation else ():
         problem.set_process_noise_scale(factor)
         x, phi, its, _ = _levenberg_marquardt(problem, x, phi, inliers, loose, [])
         iterations += its
@@ -439,6 +447,22 @@ def estimate_batch(
     )
 
 
+def extend_states(
+    states: np.ndarray, records: Sequence[Measurement], theta: np.ndarray, substep_s: float
+) -> np.ndarray:
+    """Warm start for a longer window: the solved ``states`` for the first records, then the process model
+    propagated from the last of them with the records' inputs (consistent with the dynamics: the stiff process
+    residuals start at zero)."""
+    out = np.array([r.x_measured for r in records])
+    n = states.shape[0]
+    out[:n] = states
+    t = np.array([r.t for r in records])
+    for i in range(n, len(records)):
+        sched = substep_schedule(t[i - 1:i], t[i:i + 1], substep_s)
+        out[i] = propagate_intervals(out[i - 1][None], records[i - 1].u_applied[None], theta, sched)[0][0]
+    return out
+
+
 def estimate_batch_windows(
     records: Sequence[Measurement],
     settings: EstimatorSettings,
@@ -457,16 +481,16 @@ def estimate_batch_windows(
     t = np.array([r.t for r in ordered])
     results: list[BatchResult] = []
     theta = None if prior is None else prior.theta
+    phi: np.ndarray | None = None
     states: np.ndarray | None = None
     for i, end in enumerate(window_ends_s):
         n = int(np.searchsorted(t, end + TIME_TOL_S, side="right"))
         if n >= 2:
-            init = np.array([r.x_measured for r in ordered[:n]])
-            if states is not None:
-                init[: states.shape[0]] = states
-            result = estimate_batch(ordered[:n], settings, prior, initial_theta=theta, initial_states=init)
+            init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)
+            result = estimate_batch(ordered[:n], settings, prior, initial_theta=theta, initial_states=init,
+                                    initial_phi=phi)
             results.append(result)
-            theta, states = result.estimate.theta, result.states
+            theta, phi, states = result.estimate.theta, result.phi, result.states
         if progress is not None:
             progress((i + 1) / len(window_ends_s))
     return results

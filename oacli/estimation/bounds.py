@@ -5,7 +5,9 @@ The Fisher information of θ is built with the measurement model and the sensiti
 bound the right yardstick for the estimators of this package:
 
 * the sensitivities ``S_k = ∂x_k/∂[x_0, θ]`` follow the estimators' exact multi-rate process model
-  (:mod:`oacli.estimation.propagation`), linearised about the *estimated* states ``x̂_k`` and θ̂;
+  (:mod:`oacli.estimation.propagation`), linearised about the *estimated* states ``x̂_k`` and θ̂, and are carried
+  in the tangent chart of each state, so that the sign convention of the quaternions (the simulator keeps
+  ``w >= 0`` and flips ``q`` when ``w`` crosses zero) cannot enter;
 * the initial state is unknown to the estimators, so it enters as a nuisance parameter: the bound on θ is the
   Schur complement ``F_θθ − F_θx F_xx⁻¹ F_xθ`` of the joint information of ``[δx_0, θ]``. The bound of
   :func:`oacli.excitation.information.fisher_information`, which assumes ``x_0`` known, is reported beside it
@@ -21,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from oacli.estimation.manifold import TANGENT_DIM, lift_matrix
+from oacli.estimation.manifold import TANGENT_DIM, lift_matrix, project_matrix
 from oacli.estimation.models import MeasurementModel, measured_rows
 from oacli.estimation.propagation import dynamics_jacobians_batch, propagate_intervals, substep_schedule
-from oacli.excitation.information import PARAM_NAMES, cramer_rao_std, state_output_matrix, unidentifiable_parameters
+from oacli.excitation.information import PARAM_NAMES, cramer_rao_std, unidentifiable_parameters
 
 __all__ = ["CramerRaoBound", "cramer_rao_bound", "unobservable_parameters"]
 
@@ -101,23 +103,29 @@ def cramer_rao_bound(
         accel_rows = accel_rows[:0]
     w_accel = np.sqrt(model.acceleration_weights[accel_rows])
     n = TANGENT_DIM + N_PARAMS
-    # S_k = ∂x_k/∂[δx_0, θ] (13, 16): S_0 = [lift(x_0) | 0], S_{k+1} = A_k S_k + [0 | C_k].
-    durations = substep_schedule(t[:-1], t[1:], substep_s) if k > 1 else np.zeros((0, 1))
+    # Sensitivities in the tangent chart of each state (so the quaternion's sign convention cannot matter):
+    # S_k = ∂(x_k ⊟ x̂_k)/∂[δx_0, θ] (12, 16), S_0 = [I | 0], S_{k+1} = P(x⁺) A_k L(x̂_k) S_k + [0 | P(x⁺) C_k] with
+    # x⁺ = f(x̂_k); there the measurement Jacobian H L = I (information.py's H for a unit quaternion).
+    sens = np.zeros((k, TANGENT_DIM, n))
+    sens[0, :, 0:TANGENT_DIM] = np.eye(TANGENT_DIM)
     if k > 1:
-        _, a, c = propagate_intervals(states[:-1], u[:-1], theta, durations)
-    sens = np.zeros((k, 13, n))
-    sens[0, :, 0:TANGENT_DIM] = lift_matrix(states[0])
-    for i in range(k - 1):
-        sens[i + 1] = a[i] @ sens[i]
-        sens[i + 1, :, TANGENT_DIM:] += c[i]
+        durations = substep_schedule(t[:-1], t[1:], substep_s)
+        x_next, a, c = propagate_intervals(states[:-1], u[:-1], theta, durations)
+        proj = project_matrix(x_next)
+        a_t = proj @ a @ lift_matrix(states[:-1])
+        c_t = proj @ c
+        for i in range(k - 1):
+            sens[i + 1] = a_t[i] @ sens[i]
+            sens[i + 1, :, TANGENT_DIM:] += c_t[i]
     info = np.zeros((n, n))
     for i in np.flatnonzero(used):
-        g = (state_output_matrix(states[i]) @ sens[i])[state_rows] * w_state[:, None]
+        g = sens[i][state_rows] * w_state[:, None]
         info += g.T @ g
     if accel_rows.size:
         jac = dynamics_jacobians_batch(states, u, theta)[:, _ACCEL_ROWS]
+        lifts = lift_matrix(states)
         for i in np.flatnonzero(used):
-            g = jac[i, :, 0:13] @ sens[i]
+            g = jac[i, :, 0:13] @ lifts[i] @ sens[i]
             g[:, TANGENT_DIM:] += jac[i, :, 13:]
             g = g[accel_rows] * w_accel[:, None]
             info += g.T @ g

@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.estimation import parametrization as par
-from oacli.estimation.batch import estimate_batch
+from oacli.estimation.batch import estimate_batch, extend_states
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.manifold import (
     TANGENT_DIM,
@@ -149,6 +149,7 @@ class SequentialEstimator:
         self._next_check = self.bootstrap_check_every
         self._boot: list[Measurement] | None = [] if bootstrap_relative_std is not None else None
         self._boot_estimate: ParameterEstimate | None = None
+        self._boot_result = None
         self.bootstrap_records = 0
         self._phi = par.phi_from_theta(prior.theta)
         jac_inv = np.linalg.inv(par.theta_jacobian(self._phi))
@@ -376,7 +377,14 @@ class SequentialEstimator:
                 for rec in recs:
                     self._process(rec)
             return
-        result = estimate_batch(self._boot, self.settings, self.prior)
+        init_phi, init_states = None, None
+        if self._boot_result is not None:  # warm start from the previous bootstrap solve
+            init_phi = self._boot_result.phi
+            init_states = extend_states(self._boot_result.states, self._boot, self._boot_result.estimate.theta,
+                                        self.settings.substep_s)
+        result = estimate_batch(self._boot, self.settings, self.prior, initial_phi=init_phi,
+                                initial_states=init_states)
+        self._boot_result = result
         est = result.estimate
         self._boot_estimate = ParameterEstimate(est.t, est.theta, est.covariance, "sequential", est.samples_used,
                                                 est.samples_rejected)
