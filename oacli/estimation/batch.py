@@ -307,8 +307,9 @@ def _levenberg_marquardt(
                 continue
             x_new = boxplus(x, step[: TANGENT_DIM * k].reshape(k, TANGENT_DIM))
             phi_new = phi + step[TANGENT_DIM * k:]
-            b_new, a_new = problem.evaluate(x_new, phi_new, inliers, jacobian=True)
-            cost_new = float(b_new @ b_new)
+            with np.errstate(all="ignore"):  # a wild trial step may overflow; it is then rejected below
+                b_new, a_new = problem.evaluate(x_new, phi_new, inliers, jacobian=True)
+                cost_new = float(b_new @ b_new)
             if np.isfinite(cost_new) and cost_new <= cost:
                 break
             lam *= 10.0

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.excitation.information import MeasurementModel
-from oacli.types import ParameterEstimate
 
 __all__ = [
     "EstimatorSettings",
@@ -197,8 +196,3 @@ class EstimatorSettings:
             raise ValueError("gate_probability must be in (0, 1) or None")
         if self.max_iterations < 1 or self.max_gating_rounds < 1 or self.reorder_window < 0:
             raise ValueError("max_iterations and max_gating_rounds must be >= 1, reorder_window >= 0")
-
-
-def prior_estimate(theta: np.ndarray, covariance: np.ndarray) -> ParameterEstimate:
-    """A prior as a :class:`ParameterEstimate` (method ``"prior"``, t = 0)."""
-    return ParameterEstimate(t=0.0, theta=theta, covariance=covariance, method="prior")

@@ -107,13 +107,20 @@ class EstimationRun:
     t_records : ndarray, shape (K,)
     states : ndarray, shape (K, 13)
         Estimated states at the record times (batch: smoothed; sequential: filtered).
+    inputs, measured : ndarray, shape (K, 6), (K, 13)
+        Applied inputs and measured states of the records.
     status : list of str
-        Per record: accepted, rejected, initialised, reinitialised or late.
+        Per record: accepted, rejected, initialised or reinitialised.
     d2 : ndarray, shape (K,)
+        Normalised residual (batch) or innovation (sequential) squared.
     dof : int
     gate_threshold : float
+        χ² threshold (``inf`` without gating).
     bound : CramerRaoBound
+        Along the estimated trajectory, over the records used.
     batch : BatchResult or None
+    reinitialisations : int
+        Sequential: robot-state re-initialisations.
     solve_time_s : float
     """
 
