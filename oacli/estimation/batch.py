@@ -29,7 +29,8 @@ Choices the paper leaves open, and what is done here:
   deviations, and the second-order terms a large parameter step leaves in them (``u Δt/m`` is not linear in m)
   make full Gauss-Newton steps overshoot, so Levenberg-Marquardt would crawl. The problem is therefore solved
   first with the process noise inflated 1000×, 100× and 10× (each solution warm-starts the next, with a loose
-  tolerance) and then with the configured noise; only the last stage's costs are in ``cost_history``.
+  tolerance) and then with the configured noise, in every gating round; only the last stage's costs are in
+  ``cost_history``.
 * **Gauge.** State components that are not measured at all (e.g. position when only velocities are used) have
   unobservable offsets that do not affect θ; the first state's unmeasured components get a unit-weight tie to the
   first record so that ``AᵀA`` stays invertible.
@@ -402,14 +403,16 @@ def estimate_batch(
     history: list[float] = []
     iterations = 0
     loose = EstimatorSettings(**{**settings.__dict__, "tolerance": max(settings.tolerance, _CONTINUATION_TOLERANCE)})
-    for factor in _CONTINUATION if continuation else ():
-        problem.set_process_noise_scale(factor)
-        x, phi, its, _ = _levenberg_marquardt(problem, x, phi, inliers, loose, [])
-        iterations += its
-    problem.set_process_noise_scale(1.0)
     rounds = 0
     converged = False
     for rounds in range(1, settings.max_gating_rounds + 1):  # noqa: B007
+        # Every round starts with the continuation: dropping outliers moves the optimum, and the stiff problem
+        # would crawl towards it otherwise.
+        for factor in _CONTINUATION if continuation else ():
+            problem.set_process_noise_scale(factor)
+            x, phi, its, _ = _levenberg_marquardt(problem, x, phi, inliers, loose, [])
+            iterations += its
+        problem.set_process_noise_scale(1.0)
         x, phi, its, converged = _levenberg_marquardt(problem, x, phi, inliers, settings, history)
         iterations += its
         d2 = problem.d2(x, phi)
