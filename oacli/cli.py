@@ -140,6 +140,7 @@ def main() -> None:
 
 
 # Each command lives in its own module under oacli.commands and registers itself on ``app``.
+from oacli.commands import estimate as _estimate  # noqa: E402, F401
 from oacli.commands import excite as _excite  # noqa: E402, F401
 from oacli.commands import plan as _plan  # noqa: E402, F401
 from oacli.commands import smooth as _smooth  # noqa: E402, F401

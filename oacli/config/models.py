@@ -577,7 +577,7 @@ class ReferenceConfig(Section):
 # The whole file
 # --------------------------------------------------------------------------------------------------------------
 
-
+from oacli.config.estimation import EstimationConfig  # noqa: E402  (section module; imports the types above)
 from oacli.config.excitation import ExcitationConfig  # noqa: E402  (needs Section and the types above)
 from oacli.config.planner import PlannerConfig  # noqa: E402  (the planner section builds on the types above)
 
@@ -616,6 +616,9 @@ class OacliConfig(Section):
     )
     planner: Annotated[PlannerConfig, _none_to({})] = Field(
         default_factory=PlannerConfig, description="Global planning (oacli plan) and smoothing (oacli smooth)."
+    )
+    estimation: Annotated[EstimationConfig, _none_to({})] = Field(
+        default_factory=EstimationConfig, description="Inertial parameter estimation (oacli estimate)."
     )
 
     @model_validator(mode="after")

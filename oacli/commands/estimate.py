@@ -1,0 +1,53 @@
+"""``oacli estimate``: inertial parameters from a tracking run (batch maximum likelihood or sequential EKF)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+
+ESTIMATE_TABLE = [
+    "status", "method", "mass_kg", "inertia_kgm2", "std", "crb_std", "error_pct", "cov_reduction_pct",
+    "samples_used", "samples_rejected", "solve_time_s",
+]
+
+
+@app.command("estimate")
+def estimate(
+    config: Annotated[Path, typer.Argument(help="YAML configuration file (its estimation section; see configs/).")],
+    telemetry: Annotated[
+        Path, typer.Option("--telemetry", "-t", help="A tracking run's track.mcap (measured states, applied inputs).")
+    ],
+    method: Annotated[
+        str | None,
+        typer.Option("--method", "-m", help="batch (maximum likelihood over the run) or sequential (EKF); "
+                     "default: the config's estimation.method."),
+    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
+    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
+        "runs"
+    ),
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+) -> None:
+    """Estimate mass and principal inertias from TRACK.mcap; write estimate.mcap, estimate.rrd, summary.json.
+
+    Exit code 3 when the telemetry cannot identify every parameter (the message names them), 2 for bad input.
+    """
+
+    def action():
+        from oacli.errors import InputError
+        from oacli.stages.estimate import run_estimate
+
+        if method is not None and method not in ("batch", "sequential"):
+            raise InputError(f"--method {method}: must be batch or sequential")
+        cfg = load_config_with_seed(config, None)
+        return run_estimate(cfg, telemetry=telemetry, method=method, out=out, runs_root=runs_root,
+                            progress=Progress("estimate", not quiet))
+
+    result = run_guarded(action)
+    if not quiet:
+        print_table(result.summary, ESTIMATE_TABLE)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet)

@@ -1,0 +1,173 @@
+"""The ``estimation`` section: inertial parameter estimation from a tracking run (``oacli estimate``).
+
+Sources of the defaults: RATTLE's sequential estimator (``param_est/scripts/param_est_config.py`` in
+albee/rattle-iros-2022, "rattle" below) and the ReSWARM flight paper (seed 001). In rattle the prior ``P`` and the
+measurement noise ``R`` are **covariances**: ``P = diag(vec_cov)`` and ``R = diag(vec_R)`` enter the EKF as
+``S = H P Hᵀ + R``, so their diagonals are variances. Here variances are given as variances and noise as standard
+deviations (``std = sqrt(variance)``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+from pydantic_core import PydanticCustomError
+
+from oacli.config.models import (
+    PositiveReal,
+    PositiveVector3,
+    PrincipalInertia,
+    Real,
+    Section,
+    StrictInt,
+    _none_to,
+)
+
+EstimationMethod = Literal["batch", "sequential"]
+
+RATTLE_PRIOR_THETA = (15.0, 0.1, 0.1, 0.1)
+"""rattle ``params_init_6DOF_simplified``: [m kg, Ixx, Iyy, Izz kg·m²]."""
+RATTLE_PRIOR_VARIANCE = (15.0, 0.005, 0.005, 0.005)
+"""rattle ``vec_cov_6DOF_simplified`` (diagonal of the initial covariance P): [kg², (kg·m²)² ×3]."""
+
+
+class PriorConfig(Section):
+    """Gaussian prior ``N(θ₀, P₀)`` on θ = [m, Ixx, Iyy, Izz]; a missing mean is taken from ``robot``."""
+
+    mass_kg: PositiveReal | None = Field(
+        default=None, description="Prior mean of the mass [kg], > 0 (default: robot.mass_kg, the model as prior)."
+    )
+    inertia_kgm2: PrincipalInertia | None = Field(
+        default=None,
+        description="Prior mean of the principal inertias [kg·m²] (default: robot.inertia_kgm2); triangle "
+        "inequalities must hold.",
+    )
+    mass_variance_kg2: PositiveReal = Field(
+        default=RATTLE_PRIOR_VARIANCE[0],
+        description="Prior variance of the mass [kg²], > 0 (rattle P0: 15, i.e. a standard deviation of 3.9 kg).",
+    )
+    inertia_variance_kg2m4: PositiveVector3 = Field(
+        default=RATTLE_PRIOR_VARIANCE[1:],
+        description="Prior variances of Ixx, Iyy, Izz [(kg·m²)²], > 0 (rattle P0: 0.005 each, std 0.071 kg·m²).",
+    )
+
+
+class MeasurementNoiseConfig(Section):
+    """Standard deviations of the measurements the estimators use; ``null`` leaves a quantity out."""
+
+    position_std_m: PositiveReal | None = Field(
+        default=0.01, description="Position noise std per axis [m] (ISS localisation, seed 001 §5.4.2)."
+    )
+    velocity_std_mps: PositiveReal | None = Field(
+        default=math.sqrt(5e-6), description="Velocity noise std per axis [m/s] (rattle R: variance 5e-6)."
+    )
+    attitude_std_rad: PositiveReal | None = Field(
+        default=0.005, description="Attitude noise std per axis, body-frame rotation vector [rad]."
+    )
+    angular_velocity_std_radps: PositiveReal | None = Field(
+        default=math.sqrt(2.5e-4), description="Angular velocity noise std per axis [rad/s] (rattle R: 2.5e-4)."
+    )
+    linear_acceleration_std_mps2: PositiveReal | None = Field(
+        default=None,
+        description="Linear acceleration noise std per axis [m/s²] (rattle R: variance 5e-6, i.e. 0.00224); "
+        "used only when the telemetry records accelerations.",
+    )
+
+
+class ProcessNoiseConfig(Section):
+    """Unmodelled wrench in the process model (white noise; see ``oacli.estimation.models.ProcessNoise``)."""
+
+    force_std_N: PositiveReal = Field(
+        default=1e-5,
+        description="Std of an unmodelled force held over one control period [N], > 0; set it to the plant's "
+        "disturbance level (small: the model is trusted).",
+    )
+    torque_std_Nm: PositiveReal = Field(
+        default=1e-6, description="Std of an unmodelled torque held over one control period [N·m], > 0."
+    )
+
+
+class EstimationConfig(Section):
+    """Inertial parameter estimation (Doerr 2021 Eqs. 31-32; seed 001 §4.4.1, §6.2.1)."""
+
+    method: EstimationMethod = Field(
+        default="batch", description="'batch' (maximum likelihood over the whole run) or 'sequential' (EKF)."
+    )
+    prior: Annotated[PriorConfig, _none_to({})] = Field(
+        default_factory=PriorConfig, description="Prior on θ (also the starting point of the batch solver)."
+    )
+    use_prior: bool = Field(
+        default=True, description="Batch: include the prior in the likelihood (the sequential filter always does)."
+    )
+    measurement_noise: Annotated[MeasurementNoiseConfig, _none_to({})] = Field(
+        default_factory=MeasurementNoiseConfig, description="Measurement noise model."
+    )
+    process_noise: Annotated[ProcessNoiseConfig, _none_to({})] = Field(
+        default_factory=ProcessNoiseConfig, description="Process noise model."
+    )
+    gate_probability: Annotated[Real, Field(gt=0.0, lt=1.0)] | None = Field(
+        default=0.99, description="χ² outlier gate level in (0, 1), null disables gating (seed 001 §6.2.1: 0.99)."
+    )
+    max_iterations: Annotated[StrictInt, Field(ge=1, le=1000)] = Field(
+        default=30, description="Batch: Gauss-Newton iterations per gating round, 1..1000."
+    )
+    max_gating_rounds: Annotated[StrictInt, Field(ge=1, le=100)] = Field(
+        default=8, description="Batch: re-solves after outlier rejection, 1..100."
+    )
+    tolerance: PositiveReal = Field(
+        default=1e-10, description="Batch: relative cost decrease (and step) at which iterations stop, > 0."
+    )
+    reorder_window: Annotated[StrictInt, Field(ge=0, le=10000)] = Field(
+        default=8, description="Sequential: records held back to restore time-stamp order, >= 0."
+    )
+    substep_s: PositiveReal | None = Field(
+        default=None,
+        description="Integration step of the process model [s] (default: simulation.plant_rate_hz's period).",
+    )
+    max_relative_std: PositiveReal = Field(
+        default=0.1,
+        description="A parameter whose Cramér-Rao bound exceeds this fraction of its value is reported as "
+        "unobservable and no estimate is written, > 0.",
+    )
+    window_s: PositiveReal = Field(
+        default=10.0,
+        description="Batch: also solve on growing windows every window_s seconds to record convergence [s], > 0.",
+    )
+
+    @model_validator(mode="after")
+    def _something_measured(self) -> EstimationConfig:
+        noise = self.measurement_noise
+        state = (noise.position_std_m, noise.velocity_std_mps, noise.attitude_std_rad, noise.angular_velocity_std_radps)
+        if all(s is None for s in state):
+            raise PydanticCustomError(
+                "oacli_estimation", "measurement_noise: at least one of position, velocity, attitude or angular "
+                "velocity must be measured"
+            )
+        return self
+
+    def prior_theta(self, robot_theta: np.ndarray) -> np.ndarray:
+        """θ₀ [kg, kg·m² ×3]: the configured mean, missing entries from the robot model ``robot_theta``."""
+        out = np.array(robot_theta, dtype=float)
+        if self.prior.mass_kg is not None:
+            out[0] = self.prior.mass_kg
+        if self.prior.inertia_kgm2 is not None:
+            out[1:4] = self.prior.inertia_kgm2
+        return out
+
+    def prior_covariance(self) -> np.ndarray:
+        """P₀ = diag(mass variance, inertia variances) [kg², (kg·m²)²]."""
+        return np.diag([self.prior.mass_variance_kg2, *self.prior.inertia_variance_kg2m4])
+
+
+__all__ = [
+    "RATTLE_PRIOR_THETA",
+    "RATTLE_PRIOR_VARIANCE",
+    "EstimationConfig",
+    "EstimationMethod",
+    "MeasurementNoiseConfig",
+    "PriorConfig",
+    "ProcessNoiseConfig",
+]

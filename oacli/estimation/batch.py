@@ -1,0 +1,500 @@
+"""Batch maximum-likelihood estimation of states and inertial parameters (Doerr et al. 2021, Eqs. 31-32).
+
+Given records ``ỹ_k`` (measured state, applied input, optional accelerations) at times ``t_1 .. t_K``, the
+estimator maximises Eq. 31, ``Π p(ỹ_k | x_k) Π p(x_k | x_{k-1}, u_{k-1}, θ)``, over every state and the parameters,
+``ϑ = [x_1 .. x_K, θ]``. With Gaussian noise this is the nonlinear least-squares problem
+
+    min_ϑ  Σ_k ‖ R^-½ (h(x_k) ⊟ ỹ_k) ‖²  +  Σ_k ‖ Q_k^-½ (x_{k+1} ⊟ f(x_k, u_k, θ)) ‖²  (+ ‖ P₀^-½ (θ − θ₀) ‖²)
+
+solved by Gauss-Newton with Levenberg-Marquardt damping: each iteration linearises about ``ϑ̄`` and solves Eq. 32,
+``min ‖b(ϑ̄) + A δϑ‖²``, then updates ``x̄ ⊞ δx`` (quaternion-aware, :mod:`oacli.estimation.manifold`) and θ.
+
+Choices the paper leaves open, and what is done here:
+
+* **Residuals on the manifold.** The attitude residuals are body-frame rotation vectors ``log(q̃⁻¹ ⊗ q)`` and
+  ``log(f_q⁻¹ ⊗ q_{k+1})``; their Jacobians use the exact inverse SO(3) Jacobians, so the linearisation is exact to
+  first order even far from the solution (checked against finite differences in the tests).
+* **Process model.** ``f`` is the simulator's multi-rate RK4 integration with the input held over each control
+  period (:mod:`oacli.estimation.propagation`), with its exact Jacobians ``A_k = ∂f/∂x``, ``C_k = ∂f/∂θ``.
+* **Physical parameters.** θ is estimated through φ (:mod:`oacli.estimation.parametrization`), so every iterate has
+  mass > 0 and inertias satisfying the triangle inequalities; the maximum-likelihood point is the same.
+* **Sparsity.** ``A`` is assembled as a ``scipy.sparse`` matrix (block bidiagonal in the states plus four dense
+  parameter columns) and ``AᵀA δϑ = −Aᵀb`` is solved by sparse LU; the cost grows linearly with the telemetry.
+* **Covariance.** ``cov(θ̂) = [(AᵀA)⁻¹]_θθ`` at the solution (Doerr: "extracted from (AᵀA)⁻¹"), mapped from φ
+  to θ through ``dθ/dφ``.
+* **Outliers.** After convergence every record's normalised residual ``d²_k = ‖R^-½ (h(x̂_k) ⊟ ỹ_k)‖²`` is tested
+  against the χ² gate (seed 001 §6.2.1); records outside it are dropped and the problem is re-solved, until the
+  inlier set no longer changes. The dynamics still tie the state of a dropped record to its neighbours.
+* **Continuation.** With a nearly rigid model (small process noise) the process residuals have tiny standard
+  deviations, and the second-order terms a large parameter step leaves in them (``u Δt/m`` is not linear in m)
+  make full Gauss-Newton steps overshoot, so Levenberg-Marquardt would crawl. The problem is therefore solved
+  first with the process noise inflated 1000×, 100× and 10× (each solution warm-starts the next, with a loose
+  tolerance) and then with the configured noise, in every gating round; only the last stage's costs are in
+  ``cost_history``.
+* **Gauge.** State components that are not measured at all (e.g. position when only velocities are used) have
+  unobservable offsets that do not affect θ; the first state's unmeasured components get a unit-weight tie to the
+  first record so that ``AᵀA`` stays invertible.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from oacli.estimation import parametrization as par
+from oacli.estimation.gating import chi2_threshold
+from oacli.estimation.manifold import (
+    TANGENT_DIM,
+    boxminus,
+    boxplus,
+    lift_matrix,
+    project_matrix,
+    so3_left_jacobian_inverse,
+    so3_right_jacobian_inverse,
+)
+from oacli.estimation.models import EstimatorSettings, Measurement, measured_rows
+from oacli.estimation.preprocessing import order_by_time
+from oacli.estimation.propagation import (
+    TIME_TOL_S,
+    dynamics_batch,
+    dynamics_jacobians_batch,
+    propagate_intervals,
+    substep_schedule,
+)
+from oacli.types import ParameterEstimate
+
+__all__ = ["BatchResult", "estimate_batch", "estimate_batch_windows"]
+
+_ACCEL_ROWS = np.r_[3:6, 10:13]  # v̇ and ω̇ rows of the continuous dynamics
+_LAMBDA_INIT = 1e-6
+_LAMBDA_MAX = 1e12
+_CONTINUATION = (1000.0, 100.0, 10.0)
+"""Process-noise inflation factors solved first, each warm-starting the next (see the module docstring)."""
+_CONTINUATION_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """Outcome of :func:`estimate_batch`.
+
+    Attributes
+    ----------
+    estimate : ParameterEstimate
+        θ̂ and ``[(AᵀA)⁻¹]_θθ``; ``samples_used`` = inlier records, ``samples_rejected`` = gated records plus
+        duplicated time stamps.
+    t : ndarray, shape (K,)
+        Record times [s] in time order (duplicates removed).
+    states : ndarray, shape (K, 13)
+        Estimated states ``x̂_k``.
+    inliers : ndarray of bool, shape (K,)
+        Records used in the final solve.
+    d2 : ndarray, shape (K,)
+        Normalised residual squared of every record against the final fit.
+    gate_threshold : float
+        χ² threshold used (``inf`` without gating); ``dof`` degrees of freedom per record.
+    dof : int
+    iterations : int
+        Gauss-Newton iterations over all gating rounds.
+    gating_rounds : int
+    cost_history : tuple of float
+        Cost ``‖b‖²`` after every accepted iteration (first entry: the initial guess), across rounds.
+    converged : bool
+        The last round met the tolerance within ``max_iterations``.
+    duplicates : int
+        Records dropped for a repeated time stamp.
+    solve_time_s : float
+        Wall time [s].
+    phi : ndarray, shape (4,)
+        The solution in the physical parametrisation (:mod:`oacli.estimation.parametrization`).
+    last_covariance : ndarray, shape (16, 16)
+        Covariance of ``[δx_K (12, tangent of the last state), δφ (4)]`` -- what a filter continuing from here
+        needs (:class:`oacli.estimation.sequential.SequentialEstimator` bootstraps from it).
+    """
+
+    estimate: ParameterEstimate
+    t: np.ndarray
+    states: np.ndarray
+    inliers: np.ndarray
+    d2: np.ndarray
+    gate_threshold: float
+    dof: int
+    iterations: int
+    gating_rounds: int
+    cost_history: tuple[float, ...]
+    converged: bool
+    duplicates: int
+    solve_time_s: float
+    phi: np.ndarray
+    last_covariance: np.ndarray
+
+
+def _block_coo(blocks: np.ndarray, row0: np.ndarray, col0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """COO triplets of a stack of dense blocks (n, r, c) placed at row/column offsets (n,)."""
+    n, r, c = blocks.shape
+    rows = np.broadcast_to(row0[:, None, None] + np.arange(r)[None, :, None], (n, r, c))
+    cols = np.broadcast_to(col0[:, None, None] + np.arange(c)[None, None, :], (n, r, c))
+    return rows.ravel(), cols.ravel(), blocks.ravel()
+
+
+class _Problem:
+    """Residuals ``b(ϑ)`` and the sparse Jacobian ``A`` of the batch problem for fixed data."""
+
+    def __init__(
+        self, records: Sequence[Measurement], settings: EstimatorSettings, prior: ParameterEstimate | None,
+        weights_theta: np.ndarray,
+    ) -> None:
+        self.t = np.array([r.t for r in records])
+        self.y = np.array([r.x_measured for r in records])
+        self.u = np.array([r.u_applied for r in records])
+        self.acc = np.array([r.accelerations() for r in records])
+        self.k = len(records)
+        self.n_var = TANGENT_DIM * self.k + par.N_PARAMS
+        model = settings.measurement
+        self.state_rows, accel_rows = measured_rows(model)
+        # Acceleration rows are used only where every record of the batch carries them.
+        self.accel_rows = np.array([i for i in accel_rows if np.all(np.isfinite(self.acc[:, i]))], dtype=int)
+        self.w_state = np.sqrt(model.state_weights[self.state_rows])
+        self.w_accel = np.sqrt(model.acceleration_weights[self.accel_rows])
+        self.dof = len(self.state_rows) + len(self.accel_rows)
+        self.gauge_rows = np.setdiff1d(np.arange(TANGENT_DIM), self.state_rows)
+        self.durations = substep_schedule(self.t[:-1], self.t[1:], settings.substep_s)
+        self._w_proc_nominal = settings.process.sqrt_information(np.diff(self.t), weights_theta)
+        self.w_proc = self._w_proc_nominal
+        self.prior = prior
+        if prior is not None:
+            self.prior_sqrt_info = np.linalg.inv(np.linalg.cholesky(prior.covariance))
+
+    def set_process_noise_scale(self, factor: float) -> None:
+        """Use ``factor`` × the configured process noise standard deviations (continuation, see the module)."""
+        self.w_proc = self._w_proc_nominal / float(factor)
+
+    # -- residuals and Jacobian ------------------------------------------------------------------------------------
+
+    def evaluate(
+        self, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, jacobian: bool
+    ) -> tuple[np.ndarray, sp.csc_matrix | None]:
+        """``b(ϑ)`` and, if asked, ``A = ∂b/∂δϑ`` (right perturbations of the states, φ additive)."""
+        k = self.k
+        theta = par.theta_from_phi(phi)
+        dtheta = par.theta_jacobian(phi)
+        parts: list[np.ndarray] = []
+        triplets: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        row = 0
+        phi_col = TANGENT_DIM * k
+
+        # Measurement residuals h(x_k) ⊟ ỹ_k on the inlier records.
+        idx = np.flatnonzero(inliers)
+        if idx.size and self.state_rows.size:
+            e = boxminus(x[idx], self.y[idx])
+            res = (e[:, self.state_rows] * self.w_state).ravel()
+            parts.append(res)
+            if jacobian:
+                blocks = np.zeros((idx.size, TANGENT_DIM, TANGENT_DIM))
+                blocks[:, 0:6, 0:6] = np.eye(6)
+                blocks[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                blocks[:, 9:12, 9:12] = np.eye(3)
+                blocks = blocks[:, self.state_rows, :] * self.w_state[None, :, None]
+                n_r = len(self.state_rows)
+                triplets.append(_block_coo(blocks, row + n_r * np.arange(idx.size), TANGENT_DIM * idx))
+            row += res.size
+
+        # Acceleration residuals (rows of the continuous dynamics at x_k, u_k).
+        if idx.size and self.accel_rows.size:
+            f = dynamics_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS]
+            res = ((f - self.acc[idx])[:, self.accel_rows] * self.w_accel).ravel()
+            parts.append(res)
+            if jacobian:
+                jac = dynamics_jacobians_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS][:, self.accel_rows]
+                jx = jac[:, :, 0:13] @ lift_matrix(x[idx]) * self.w_accel[None, :, None]
+                jp = jac[:, :, 13:] @ dtheta * self.w_accel[None, :, None]
+                n_a = len(self.accel_rows)
+                r0 = row + n_a * np.arange(idx.size)
+                triplets.append(_block_coo(jx, r0, TANGENT_DIM * idx))
+                triplets.append(_block_coo(jp, r0, np.full(idx.size, phi_col)))
+            row += res.size
+
+        # Process residuals x_{k+1} ⊟ f(x_k, u_k, θ), whitened by Q_k^-½.
+        if k > 1:
+            fx, a, c = propagate_intervals(x[:-1], self.u[:-1], theta, self.durations)
+            e = boxminus(x[1:], fx)
+            res = np.einsum("kij,kj->ki", self.w_proc, e).ravel()
+            parts.append(res)
+            if jacobian:
+                next_blk = np.zeros((k - 1, TANGENT_DIM, TANGENT_DIM))
+                next_blk[:, 0:6, 0:6] = np.eye(6)
+                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                next_blk[:, 9:12, 9:12] = np.eye(3)
+                pred_blk = next_blk.copy()
+                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e[:, 6:9])
+                proj = pred_blk @ project_matrix(fx)  # (K-1, 12, 13)
+                j_prev = -(self.w_proc @ proj @ a @ lift_matrix(x[:-1]))
+                j_next = self.w_proc @ next_blk
+                j_phi = -(self.w_proc @ proj @ c @ dtheta)
+                r0 = row + TANGENT_DIM * np.arange(k - 1)
+                triplets.append(_block_coo(j_prev, r0, TANGENT_DIM * np.arange(k - 1)))
+                triplets.append(_block_coo(j_next, r0, TANGENT_DIM * np.arange(1, k)))
+                triplets.append(_block_coo(j_phi, r0, np.full(k - 1, phi_col)))
+            row += res.size
+
+        # Gauge: tie the unmeasured components of the first state to the first record (unit weight).
+        if self.gauge_rows.size:
+            e = boxminus(x[0], self.y[0])
+            parts.append(e[self.gauge_rows])
+            if jacobian:
+                blk = np.eye(TANGENT_DIM)
+                blk[6:9, 6:9] = so3_right_jacobian_inverse(e[6:9])
+                triplets.append(_block_coo(blk[self.gauge_rows][None], np.array([row]), np.array([0])))
+            row += self.gauge_rows.size
+
+        # Gaussian prior on θ (in θ, not in φ).
+        if self.prior is not None:
+            parts.append(self.prior_sqrt_info @ (theta - self.prior.theta))
+            if jacobian:
+                blk = (self.prior_sqrt_info @ dtheta)[None]
+                triplets.append(_block_coo(blk, np.array([row]), np.array([phi_col])))
+            row += par.N_PARAMS
+
+        b = np.concatenate(parts) if parts else np.zeros(0)
+        if not jacobian:
+            return b, None
+        rows, cols, vals = (np.concatenate(z) for z in zip(*triplets, strict=True))
+        a_mat = sp.csc_matrix((vals, (rows, cols)), shape=(row, self.n_var))
+        return b, a_mat
+
+    def d2(self, x: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """Normalised residual squared ``d²_k`` of every record against the states ``x``."""
+        e = boxminus(x, self.y)[:, self.state_rows] * self.w_state
+        out = np.sum(e * e, axis=1)
+        if self.accel_rows.size:
+            f = dynamics_batch(x, self.u, par.theta_from_phi(phi))[:, _ACCEL_ROWS]
+            ea = (f - self.acc)[:, self.accel_rows] * self.w_accel
+            out += np.sum(ea * ea, axis=1)
+        return out
+
+
+def _solve(h: sp.csc_matrix, g: np.ndarray) -> np.ndarray | None:
+    try:
+        out = spla.splu(h).solve(g)
+    except RuntimeError:  # exactly singular
+        return None
+    return out if np.all(np.isfinite(out)) else None
+
+
+def _levenberg_marquardt(
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, settings: EstimatorSettings,
+    history: list[float],
+) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """Minimise ‖b‖² from (x, φ); returns the solution, the iterations done and whether it converged."""
+    b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+    cost = float(b @ b)
+    history.append(cost)
+    lam = _LAMBDA_INIT
+    k = problem.k
+    for it in range(1, settings.max_iterations + 1):
+        h = (a_mat.T @ a_mat).tocsc()
+        g = a_mat.T @ b
+        diag = np.maximum(h.diagonal(), 1e-12 * max(h.diagonal().max(), 1.0))
+        while True:
+            step = _solve((h + sp.diags(lam * diag)).tocsc(), -g)
+            if step is None:
+                lam *= 10.0
+                if lam > _LAMBDA_MAX:
+                    return x, phi, it, False
+                continue
+            x_new = boxplus(x, step[: TANGENT_DIM * k].reshape(k, TANGENT_DIM))
+            phi_new = phi + step[TANGENT_DIM * k:]
+            with np.errstate(all="ignore"):  # a wild trial step may overflow; it is then rejected below
+                b_new, a_new = problem.evaluate(x_new, phi_new, inliers, jacobian=True)
+                cost_new = float(b_new @ b_new)
+            if np.isfinite(cost_new) and cost_new <= cost:
+                break
+            lam *= 10.0
+            if lam > _LAMBDA_MAX:
+                return x, phi, it, True  # no descent left: at a minimum within rounding
+        decrease = (cost - cost_new) / max(cost, 1e-300)
+        step_size = float(np.max(np.abs(step)))
+        x, phi, b, a_mat, cost = x_new, phi_new, b_new, a_new, cost_new
+        history.append(cost)
+        lam = max(lam / 10.0, 1e-15)
+        if decrease < settings.tolerance or step_size < settings.tolerance:
+            return x, phi, it, True
+    return x, phi, settings.max_iterations, False
+
+
+def _marginal_covariances(
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``[(AᵀA)⁻¹]_θθ`` mapped from φ to θ, and the covariance of ``[δx_K, δφ]`` (last state and φ, 16×16).
+
+    Singular ``AᵀA`` gives ``inf`` diagonals.
+    """
+    _, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+    h = (a_mat.T @ a_mat).tocsc()
+    n = problem.n_var
+    m = TANGENT_DIM + par.N_PARAMS
+    rhs = np.zeros((n, m))
+    rhs[n - m:, :] = np.eye(m)
+    sol = _solve(h, rhs)
+    if sol is None:
+        return np.diag(np.full(par.N_PARAMS, np.inf)), np.diag(np.full(m, np.inf))
+    cov_last = sol[n - m:, :]
+    cov_last = 0.5 * (cov_last + cov_last.T)
+    jac = par.theta_jacobian(phi)
+    cov = jac @ cov_last[TANGENT_DIM:, TANGENT_DIM:] @ jac.T
+    return 0.5 * (cov + cov.T), cov_last
+
+
+def estimate_batch(
+    records: Sequence[Measurement],
+    settings: EstimatorSettings,
+    prior: ParameterEstimate | None,
+    *,
+    initial_theta: np.ndarray | None = None,
+    initial_states: np.ndarray | None = None,
+    initial_phi: np.ndarray | None = None,
+    continuation: bool = True,
+) -> BatchResult:
+    """Batch maximum-likelihood estimate of the states and θ from a set of records (Doerr Eqs. 31-32).
+
+    Parameters
+    ----------
+    records : sequence of Measurement
+        In any order (sorted by time stamp here; repeated time stamps are dropped and counted). At least 2.
+    settings : EstimatorSettings
+        Noise models, integration grid, gate, iteration limits.
+    prior : ParameterEstimate or None
+        Gaussian prior ``N(θ₀, P₀)`` on θ (``None``: pure maximum likelihood). ``P₀`` is a covariance
+        (variances on its diagonal).
+    initial_theta : ndarray, shape (4,), optional
+        Starting point (default: the prior mean); must be physical.
+    initial_states : ndarray, shape (K, 13), optional
+        Starting states for the time-ordered records (default: the measured states).
+    initial_phi : ndarray, shape (4,), optional
+        Starting point in the physical parametrisation (overrides ``initial_theta``; a previous solution's ``phi``,
+        which may lie arbitrarily close to the physical boundary).
+    continuation : bool
+        Solve with inflated process noise first (see the module docstring); a warm start close to the solution
+        may skip it.
+
+    Returns
+    -------
+    BatchResult
+    """
+    wall = time.perf_counter()
+    ordered = order_by_time(records)
+    recs = ordered.records
+    if len(recs) < 2:
+        raise ValueError(f"the batch estimator needs at least 2 records with distinct time stamps, got {len(recs)}")
+    if initial_theta is None and initial_phi is None:
+        if prior is None:
+            raise ValueError("give a prior or an initial_theta")
+        initial_theta = prior.theta
+    phi = par.phi_from_theta(initial_theta) if initial_phi is None else np.array(initial_phi, dtype=float)
+    theta_w = prior.theta if prior is not None else par.theta_from_phi(phi)
+    problem = _Problem(recs, settings, prior, theta_w)
+    x = problem.y.copy() if initial_states is None else np.array(initial_states, dtype=float)
+    threshold = chi2_threshold(problem.dof, settings.gate_probability) if settings.gate_probability else np.inf
+    inliers = np.ones(problem.k, dtype=bool)
+    history: list[float] = []
+    iterations = 0
+    loose = EstimatorSettings(**{**settings.__dict__, "tolerance": max(settings.tolerance, _CONTINUATION_TOLERANCE)})
+    rounds = 0
+    converged = False
+    for rounds in range(1, settings.max_gating_rounds + 1):  # noqa: B007
+        # Every round starts with the continuation: dropping outliers moves the optimum, and the stiff problem
+        # would crawl towards it otherwise.
+        for factor in _CONTINUATION if continuation else ():
+            problem.set_process_noise_scale(factor)
+            x, phi, its, _ = _levenberg_marquardt(problem, x, phi, inliers, loose, [])
+            iterations += its
+        problem.set_process_noise_scale(1.0)
+        x, phi, its, converged = _levenberg_marquardt(problem, x, phi, inliers, settings, history)
+        iterations += its
+        d2 = problem.d2(x, phi)
+        new_inliers = d2 <= threshold
+        if not np.any(new_inliers):
+            break  # nothing passes the gate: keep the last inlier set rather than an empty problem
+        if np.array_equal(new_inliers, inliers):
+            break
+        inliers = new_inliers
+    d2 = problem.d2(x, phi)
+    cov, cov_last = _marginal_covariances(problem, x, phi, inliers)
+    estimate = ParameterEstimate(
+        t=float(problem.t[-1]),
+        theta=par.theta_from_phi(phi),
+        covariance=cov if np.all(np.isfinite(cov)) else np.diag(np.full(4, 1e300)),
+        method="batch",
+        samples_used=int(inliers.sum()),
+        samples_rejected=int((~inliers).sum()) + len(ordered.duplicates),
+    )
+    return BatchResult(
+        estimate=estimate,
+        t=problem.t,
+        states=x,
+        inliers=inliers,
+        d2=d2,
+        gate_threshold=float(threshold),
+        dof=problem.dof,
+        iterations=iterations,
+        gating_rounds=rounds,
+        cost_history=tuple(history),
+        converged=converged,
+        duplicates=len(ordered.duplicates),
+        solve_time_s=time.perf_counter() - wall,
+        phi=phi,
+        last_covariance=cov_last,
+    )
+
+
+def extend_states(
+    states: np.ndarray, records: Sequence[Measurement], theta: np.ndarray, substep_s: float
+) -> np.ndarray:
+    """Warm start for a longer window: the solved ``states`` for the first records, then the process model
+    propagated from the last of them with the records' inputs (consistent with the dynamics: the stiff process
+    residuals start at zero)."""
+    out = np.array([r.x_measured for r in records])
+    n = states.shape[0]
+    out[:n] = states
+    t = np.array([r.t for r in records])
+    for i in range(n, len(records)):
+        sched = substep_schedule(t[i - 1:i], t[i:i + 1], substep_s)
+        out[i] = propagate_intervals(out[i - 1][None], records[i - 1].u_applied[None], theta, sched)[0][0]
+    return out
+
+
+def estimate_batch_windows(
+    records: Sequence[Measurement],
+    settings: EstimatorSettings,
+    prior: ParameterEstimate | None,
+    window_ends_s: Sequence[float],
+    *,
+    progress: Callable[[float], None] | None = None,
+) -> list[BatchResult]:
+    """Batch estimates on growing windows ``[t_first, t_end]`` (to show convergence over mission time).
+
+    Each window is warm-started from the previous solution (states and θ); windows with fewer than two records
+    are skipped. The last entry of ``window_ends_s`` should be the last record time to include all data.
+    ``progress`` is called with the fraction of windows done.
+    """
+    ordered = order_by_time(records).records
+    t = np.array([r.t for r in ordered])
+    results: list[BatchResult] = []
+    theta = None if prior is None else prior.theta
+    phi: np.ndarray | None = None
+    states: np.ndarray | None = None
+    for i, end in enumerate(window_ends_s):
+        n = int(np.searchsorted(t, end + TIME_TOL_S, side="right"))
+        if n >= 2:
+            init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)
+            result = estimate_batch(ordered[:n], settings, prior, initial_theta=theta, initial_states=init,
+                                    initial_phi=phi)
+            results.append(result)
+            theta, phi, states = result.estimate.theta, result.phi, result.states
+        if progress is not None:
+            progress((i + 1) / len(window_ends_s))
+    return results

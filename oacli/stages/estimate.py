@@ -1,0 +1,444 @@
+"""The ``estimate`` stage: inertial parameters from a tracking run (Doerr 2021 Eqs. 31-32; seed 001 §4.4.1, §6.2.1).
+
+Inputs: the config (its ``estimation`` section: method, prior, noise, gate; ``robot`` as the default prior mean;
+``simulation.plant_rate_hz`` as the default integration grid) and a ``track.mcap`` (measured states and applied
+inputs at the control rate; its attached config gives the truth when the run was simulated). Everything is read,
+estimated and checked for identifiability **before** the run folder is created. Outputs: ``config.yaml`` (written
+first), ``estimate.mcap``, ``estimate.rrd`` and ``summary.json`` (written last).
+
+Telemetry that cannot identify θ (too short, or no torque so the inertias are invisible) ends with
+:class:`oacli.errors.InfeasibleError` (exit code 3) naming the unobservable parameters and their Cramér-Rao bound
+relative to their value; no estimate is written.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from oacli import __version__
+from oacli.config import OacliConfig, dump_config
+from oacli.errors import InfeasibleError, InputError
+from oacli.estimation.batch import BatchResult, estimate_batch_windows
+from oacli.estimation.bounds import CramerRaoBound, cramer_rao_bound, describe_unobservable, unobservable_parameters
+from oacli.estimation.gating import chi2_threshold
+from oacli.estimation.models import EstimatorSettings, Measurement, MeasurementModel, ProcessNoise
+from oacli.estimation.preprocessing import measurements_from_telemetry
+from oacli.estimation.sequential import SequentialEstimator
+from oacli.excitation.information import PARAM_NAMES
+from oacli.io.atomic import write_text_atomic
+from oacli.io.mcap_io import StageMcapWriter, read_stage, read_telemetry
+from oacli.io.rerun_estimate import write_estimate_recording
+from oacli.io.runfolder import create_run_dir, git_commit, write_summary
+from oacli.model.rigid_body import theta_of
+from oacli.stages.track import StageResult
+from oacli.types import ParameterEstimate
+
+LogEntry = tuple[float, str, str]
+
+TOPIC_PARAMS = "/estimate/params"
+TOPIC_SAMPLES = "/estimate/samples"
+TOPIC_COST = "/estimate/cost"
+TOPIC_STATE = "/state/estimated"
+
+PARAMETER_ESTIMATE = "oacli.ParameterEstimate"
+ESTIMATION_SAMPLE = "oacli.EstimationSample"
+ESTIMATION_COST = "oacli.EstimationCost"
+
+_NUM = {"type": "number"}
+_TIME = {"type": "number", "minimum": 0, "description": "mission time [s]"}
+PARAMETER_ESTIMATE_SCHEMA = {
+    "description": "Estimate of the inertial parameters θ = [m, Ixx, Iyy, Izz] from the records up to t "
+    "(Doerr 2021 Eqs. 31-32).",
+    "type": "object",
+    "properties": {
+        "t": {**_TIME, "description": "time of the last record used [s]"},
+        "method": {"type": "string", "description": "batch or sequential"},
+        "mass_kg": {**_NUM, "description": "mass estimate [kg]"},
+        "inertia_kgm2": {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3,
+                         "description": "principal inertias Ixx, Iyy, Izz [kg·m²]"},
+        "covariance": {"type": "array", "items": {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4},
+                       "minItems": 4, "maxItems": 4,
+                       "description": "covariance of [m, Ixx, Iyy, Izz] [kg², kg²·m², (kg·m²)²]"},
+        "std": {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4,
+                "description": "standard deviations sqrt(diag covariance) [kg, kg·m² ×3]"},
+        "samples_used": {"type": "integer", "description": "records used"},
+        "samples_rejected": {"type": "integer", "description": "records rejected (χ² gate, late, duplicate)"},
+        "final": {"type": "boolean", "description": "true for the estimate from all records"},
+    },
+    "required": ["t", "method", "mass_kg", "inertia_kgm2", "covariance", "std", "samples_used", "samples_rejected"],
+}
+ESTIMATION_SAMPLE_SCHEMA = {
+    "description": "What the estimator did with one telemetry record.",
+    "type": "object",
+    "properties": {
+        "t": _TIME,
+        "status": {"type": "string", "description": "accepted, rejected (χ² gate), initialised, reinitialised, late"},
+        "d2": {"type": ["number", "null"], "description": "normalised residual or innovation squared"},
+        "dof": {"type": "integer", "description": "degrees of freedom of d2"},
+        "gate": {"type": ["number", "null"], "description": "χ² threshold (null: no gate)"},
+    },
+    "required": ["t", "status", "d2", "dof", "gate"],
+}
+ESTIMATION_COST_SCHEMA = {
+    "description": "Batch solver: cost ‖b‖² after each accepted Gauss-Newton iteration of the final solve.",
+    "type": "object",
+    "properties": {"t": _TIME, "iteration": {"type": "integer"}, "cost": _NUM},
+    "required": ["t", "iteration", "cost"],
+}
+
+
+@dataclass(frozen=True)
+class EstimationRun:
+    """Everything one estimation produced (before any file is written).
+
+    Attributes
+    ----------
+    method : str
+    final : ParameterEstimate
+    history : list of ParameterEstimate
+        Estimates over mission time (batch: growing windows; sequential: after every record).
+    t_records : ndarray, shape (K,)
+    states : ndarray, shape (K, 13)
+        Estimated states at the record times (batch: smoothed; sequential: filtered).
+    inputs, measured : ndarray, shape (K, 6), (K, 13)
+        Applied inputs and measured states of the records.
+    status : list of str
+        Per record: accepted, rejected, initialised or reinitialised.
+    d2 : ndarray, shape (K,)
+        Normalised residual (batch) or innovation (sequential) squared.
+    dof : int
+    gate_threshold : float
+        χ² threshold (``inf`` without gating).
+    bound : CramerRaoBound
+        Along the estimated trajectory, over the records used.
+    batch : BatchResult or None
+    reinitialisations : int
+        Sequential: robot-state re-initialisations.
+    solve_time_s : float
+    """
+
+    method: str
+    final: ParameterEstimate
+    history: list[ParameterEstimate]
+    t_records: np.ndarray
+    states: np.ndarray
+    inputs: np.ndarray
+    measured: np.ndarray
+    status: list[str]
+    d2: np.ndarray
+    dof: int
+    gate_threshold: float
+    bound: CramerRaoBound
+    batch: BatchResult | None
+    reinitialisations: int
+    solve_time_s: float
+
+
+def estimator_settings(cfg: OacliConfig) -> EstimatorSettings:
+    """The core estimators' settings from the config's ``estimation`` section."""
+    est = cfg.estimation
+    noise = est.measurement_noise
+    return EstimatorSettings(
+        measurement=MeasurementModel(
+            position_std_m=noise.position_std_m,
+            velocity_std_mps=noise.velocity_std_mps,
+            attitude_std_rad=noise.attitude_std_rad,
+            angular_velocity_std_radps=noise.angular_velocity_std_radps,
+            linear_acceleration_std_mps2=noise.linear_acceleration_std_mps2,
+        ),
+        process=ProcessNoise(est.process_noise.force_std_N, est.process_noise.torque_std_Nm),
+        substep_s=est.substep_s if est.substep_s is not None else cfg.simulation.plant_period_s,
+        gate_probability=est.gate_probability,
+        max_iterations=est.max_iterations,
+        tolerance=est.tolerance,
+        max_gating_rounds=est.max_gating_rounds,
+        reorder_window=est.reorder_window,
+    )
+
+
+def prior_from_config(cfg: OacliConfig) -> ParameterEstimate:
+    """``N(θ₀, P₀)`` of the config (mean defaults to the robot model)."""
+    est = cfg.estimation
+    return ParameterEstimate(0.0, est.prior_theta(theta_of(cfg.robot_params())), est.prior_covariance(), "prior")
+
+
+def truth_from_config_yaml(text: str | None) -> np.ndarray | None:
+    """θ of the ``truth`` section of a run's resolved config (None when absent or not numeric)."""
+    if not text:
+        return None
+    try:
+        data = yaml.safe_load(text)
+        truth = data["truth"]
+        theta = np.array([float(truth["mass_kg"]), *(float(v) for v in truth["inertia_kgm2"])])
+    except (yaml.YAMLError, KeyError, TypeError, ValueError):
+        return None
+    return theta if theta.shape == (4,) and np.all(np.isfinite(theta)) and np.all(theta > 0) else None
+
+
+def run_estimation(
+    records: list[Measurement], settings: EstimatorSettings, prior: ParameterEstimate, method: str, *,
+    use_prior: bool = True, window_s: float = 10.0, progress: Callable[[float], None] | None = None,
+) -> EstimationRun:
+    """Run one estimator over time-ordered records and evaluate the Cramér-Rao bound along its estimate.
+
+    Parameters
+    ----------
+    records : list of Measurement
+        In time order (a track run's records are).
+    settings : EstimatorSettings
+    prior : ParameterEstimate
+        ``N(θ₀, P₀)``: the sequential filter's initial state; the batch's starting point, and its prior when
+        ``use_prior``.
+    method : str
+        ``"batch"`` or ``"sequential"``.
+    use_prior : bool
+        Batch only: include the prior in the likelihood.
+    window_s : float
+        Batch only: growing windows every ``window_s`` seconds (for the convergence record), then all records.
+    progress : callable, optional
+        Called with the completed fraction.
+    """
+    start = time.perf_counter()
+    t = np.array([r.t for r in records])
+    u = np.array([r.u_applied for r in records])
+    y = np.array([r.x_measured for r in records])
+    has_acc = bool(records) and all(np.any(np.isfinite(r.accelerations())) for r in records)
+    batch = None
+    reinitialisations = 0
+    if method == "batch":
+        ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
+        results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=progress)
+        batch = results[-1]
+        history = [r.estimate for r in results]
+        final, states, d2, dof = batch.estimate, batch.states, batch.d2, batch.dof
+        status = ["accepted" if ok else "rejected" for ok in batch.inliers]
+        threshold = batch.gate_threshold
+        used = batch.inliers
+    elif method == "sequential":
+        est = SequentialEstimator(settings, prior)
+        for i, rec in enumerate(records):
+            est.update(rec)
+            if progress is not None and (i % 25 == 0 or i == len(records) - 1):
+                progress((i + 1) / len(records))
+        final = est.flush()
+        steps = [s for s in est.history if s.status != "late"]
+        history = [s.estimate for s in steps]
+        states = np.array([s.state for s in steps])
+        status = [s.status for s in steps]
+        d2 = np.array([s.d2 for s in steps])
+        dof = max((s.dof for s in steps), default=0)
+        gate = settings.gate_probability
+        threshold = chi2_threshold(dof, gate) if gate is not None and dof > 0 else float("inf")
+        used = np.array([s.status in ("accepted", "initialised") for s in steps])
+        t = np.array([s.t for s in steps])
+        reinitialisations = est.reinitialisations
+    else:
+        raise ValueError(f"unknown method {method!r} (batch or sequential)")
+    bound = cramer_rao_bound(t, states, u[: len(t)], final.theta, settings.measurement, settings.substep_s,
+                             used=used, accelerations_measured=has_acc)
+    return EstimationRun(
+        method=method, final=final, history=history, t_records=t, states=states, inputs=u[: len(t)],
+        measured=y[: len(t)], status=status, d2=d2, dof=dof, gate_threshold=threshold, bound=bound, batch=batch,
+        reinitialisations=reinitialisations, solve_time_s=time.perf_counter() - start,
+    )
+
+
+def _by_name(values: np.ndarray) -> dict[str, float]:
+    return {name: float(v) for name, v in zip(PARAM_NAMES, values, strict=True)}
+
+
+def _estimate_summary(
+    run: EstimationRun, prior: ParameterEstimate, truth: np.ndarray | None, telemetry: Path
+) -> dict[str, Any]:
+    final = run.final
+    std = final.std
+    summary: dict[str, Any] = {
+        "stage": "estimate",
+        "status": "ok",
+        "method": run.method,
+        "telemetry": str(telemetry),
+        "mass_kg": float(final.theta[0]),
+        "inertia_kgm2": [float(v) for v in final.theta[1:4]],
+        "std": _by_name(std),
+        "crb_std": _by_name(run.bound.std),
+        "crb_std_known_initial_state": _by_name(run.bound.std_known_initial_state),
+        "std_over_crb": _by_name(std / run.bound.std),
+        "prior_theta": [float(v) for v in prior.theta],
+        "prior_std": _by_name(prior.std),
+        "cov_reduction_pct": _by_name(100.0 * (1.0 - np.diag(final.covariance) / np.diag(prior.covariance))),
+        "samples_used": int(final.samples_used),
+        "samples_rejected": int(final.samples_rejected),
+        "samples_total": len(run.status),
+        "gate_threshold": run.gate_threshold if np.isfinite(run.gate_threshold) else None,
+        "gate_dof": int(run.dof),
+        "duration_s": float(run.t_records[-1] - run.t_records[0]),
+        "solve_time_s": float(run.solve_time_s),
+    }
+    if truth is not None:
+        summary["truth_theta"] = [float(v) for v in truth]
+        summary["error_pct"] = _by_name(100.0 * np.abs(final.theta - truth) / truth)
+        summary["error_over_std"] = _by_name(np.abs(final.theta - truth) / std)
+    if run.batch is not None:
+        summary["iterations"] = int(run.batch.iterations)
+        summary["gating_rounds"] = int(run.batch.gating_rounds)
+        summary["converged"] = bool(run.batch.converged)
+        summary["cost_initial"] = float(run.batch.cost_history[0])
+        summary["cost_final"] = float(run.batch.cost_history[-1])
+        summary["windows"] = len(run.history)
+    else:
+        summary["state_reinitialisations"] = int(run.reinitialisations)
+    return summary
+
+
+def run_estimate(
+    cfg: OacliConfig,
+    *,
+    telemetry: Path,
+    method: str | None = None,
+    out: Path | None = None,
+    runs_root: Path = Path("runs"),
+    progress: Callable[[float], None] | None = None,
+) -> StageResult:
+    """Run the ``estimate`` stage and write its run folder.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration (its ``estimation`` section).
+    telemetry : Path
+        A ``track.mcap``.
+    method : str, optional
+        ``"batch"`` or ``"sequential"`` (default: ``cfg.estimation.method``).
+    out : Path, optional
+        Exact run folder (must not exist or be empty); otherwise ``runs_root/<name>-<UTC stamp>``.
+    runs_root : Path
+        Parent folder of automatically named runs.
+    progress : callable, optional
+        Called with the completed fraction of the estimation.
+
+    Returns
+    -------
+    StageResult
+
+    Raises
+    ------
+    InputError
+        Unreadable telemetry, or fewer than two control steps (exit code 2).
+    InfeasibleError
+        The telemetry does not identify every parameter (exit code 3); the message names them.
+    """
+    wall_start = time.perf_counter()
+    telemetry = Path(telemetry)
+    method = method or cfg.estimation.method
+    if method not in ("batch", "sequential"):
+        raise InputError(f"--method {method}: must be batch or sequential")
+    tel = read_telemetry(telemetry)
+    record = read_stage(telemetry, topics=[])
+    truth = truth_from_config_yaml(record.config_yaml)
+    records = measurements_from_telemetry(tel)
+    if len(records) < 2:
+        raise InputError(f"{telemetry}: {len(records)} control step(s); estimation needs at least 2")
+    settings = estimator_settings(cfg)
+    prior = prior_from_config(cfg)
+    run = run_estimation(records, settings, prior, method, use_prior=cfg.estimation.use_prior,
+                         window_s=cfg.estimation.window_s, progress=progress)
+    limit = cfg.estimation.max_relative_std
+    unobservable = unobservable_parameters(run.bound, run.final.theta, limit)
+    if unobservable:
+        raise InfeasibleError(
+            f"{telemetry} ({run.t_records[-1] - run.t_records[0]:.1f} s, {len(records)} records): "
+            + describe_unobservable(unobservable, limit)
+            + "; no estimate written. Track an exciting reference (forces on every axis for the mass, torques on "
+            "every axis for the inertias) for longer."
+        )
+
+    log: list[LogEntry] = [
+        (0.0, "info", f"telemetry {telemetry}: {len(records)} records over {run.t_records[-1]:.1f} s"),
+        (0.0, "info", f"method {method}, prior θ0 = {np.round(prior.theta, 6).tolist()}"),
+    ]
+    rejected_t = [t for t, s in zip(run.t_records, run.status, strict=True) if s not in ("accepted", "initialised")]
+    for t in rejected_t:
+        log.append((float(t), "warning", "record rejected by the χ² gate"))
+    final = run.final
+    log.append((float(run.t_records[-1]), "info",
+                f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
+                f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
+
+    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
+    files = {"config": run_dir / "config.yaml"}
+    config_yaml = dump_config(cfg)
+    write_text_atomic(files["config"], config_yaml)
+    try:
+        summary = _estimate_summary(run, prior, truth, telemetry)
+        files["mcap"] = run_dir / "estimate.mcap"
+        _write_estimate_mcap(files["mcap"], cfg, config_yaml, run, telemetry, log)
+        files["rrd"] = run_dir / "estimate.rrd"
+        write_estimate_recording(
+            files["rrd"],
+            t_est=np.array([e.t for e in run.history]),
+            theta=np.array([e.theta for e in run.history]),
+            std=np.array([e.std for e in run.history]),
+            truth=truth,
+            crb_std=run.bound.std,
+            t_records=run.t_records,
+            d2=run.d2,
+            gate_threshold=run.gate_threshold,
+            rejected=np.array([s not in ("accepted", "initialised") for s in run.status]),
+            measured_positions=run.measured[:, 0:3],
+            estimated_positions=run.states[:, 0:3],
+            log=log,
+            recording_name=f"{cfg.name}/estimate",
+        )
+        summary["wall_time_s"] = time.perf_counter() - wall_start
+        summary["run_dir"] = str(run_dir)
+        summary["files"] = {k: p.name for k, p in files.items()}
+        files["summary"] = write_summary(run_dir, summary)
+    except BaseException as exc:
+        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+        write_summary(run_dir, {"stage": "estimate", "status": "failed", "error": reason})
+        raise
+    return StageResult(run_dir, summary, files)
+
+
+def _params_record(estimate: ParameterEstimate, final: bool) -> dict[str, Any]:
+    return {
+        "method": estimate.method,
+        "mass_kg": float(estimate.theta[0]),
+        "inertia_kgm2": estimate.theta[1:4],
+        "covariance": estimate.covariance,
+        "std": estimate.std,
+        "samples_used": int(estimate.samples_used),
+        "samples_rejected": int(estimate.samples_rejected),
+        "final": final,
+    }
+
+
+def _write_estimate_mcap(
+    path: Path, cfg: OacliConfig, config_yaml: str, run: EstimationRun, telemetry: Path, log: list[LogEntry]
+) -> None:
+    metadata = {"stage": "estimate", "seed": cfg.seed, "git_commit": git_commit(), "version": __version__,
+                "config_name": cfg.name, "method": run.method, "telemetry": str(telemetry)}
+    gate = run.gate_threshold if np.isfinite(run.gate_threshold) else None
+    with StageMcapWriter(path, stage="estimate", config_yaml=config_yaml, metadata=metadata,
+                         frame=cfg.environment.frame) as writer:
+        for i, est in enumerate(run.history):
+            writer.write_json(TOPIC_PARAMS, PARAMETER_ESTIMATE, PARAMETER_ESTIMATE_SCHEMA, est.t,
+                              _params_record(est, final=i == len(run.history) - 1))
+        for t, status, d2 in zip(run.t_records, run.status, run.d2, strict=True):
+            writer.write_json(TOPIC_SAMPLES, ESTIMATION_SAMPLE, ESTIMATION_SAMPLE_SCHEMA, float(t),
+                              {"status": status, "d2": float(d2), "dof": int(run.dof), "gate": gate})
+        if run.batch is not None:
+            for i, cost in enumerate(run.batch.cost_history):
+                writer.write_json(TOPIC_COST, ESTIMATION_COST, ESTIMATION_COST_SCHEMA, float(run.t_records[-1]),
+                                  {"iteration": i, "cost": float(cost)})
+        writer.write_states(TOPIC_STATE, run.t_records, run.states, run.inputs, name="estimated")
+        writer.write_poses(run.t_records, run.states)
+        for t, level, message in log:
+            writer.write_log(t, level, message)
