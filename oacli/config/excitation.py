@@ -175,6 +175,12 @@ class RattleConfig(Section):
     step_s: PositiveReal = Field(default=0.3, description="Planning step [s] (rattle: 0.3 s).")
     replan_period_s: PositiveReal = Field(default=12.0, description="Time between replans [s] (flown: 12 s).")
     duration_s: PositiveReal = Field(default=60.0, description="Closed-loop run time [s].")
+    estimator: Literal["sequential", "oracle"] = Field(
+        default="sequential",
+        description="Estimator in the loop: 'sequential' (the error-state EKF of oacli.estimation, configured by "
+        "the estimation section) or 'oracle' (Cramér-Rao covariance around the true parameters: an upper bound "
+        "on what any estimator can deliver, for studies of the planner alone).",
+    )
     iterations: Annotated[StrictInt, Field(ge=1, le=100)] = Field(
         default=3, description="SCP iterations per replan (ACADO RTI ran up to 5 SQP iterations)."
     )

@@ -6,9 +6,9 @@ Two methods (``excitation.method`` or ``--method``):
   (:mod:`oacli.excitation.design`). The design is computed *before* the run folder is created, so an infeasible
   problem (exit 3) leaves no folder behind.
 * ``rattle``: RATTLE's online information-aware planner in closed loop with the simulated plant (the config's
-  ``truth``) and a sequential estimator (:mod:`oacli.excitation.rattle_loop`). Until the real estimator is wired in,
-  the estimator is the Cramér-Rao oracle (:class:`oacli.excitation.oracle.CramerRaoOracle`), named so in every
-  output.
+  ``truth``) and the sequential estimator of :mod:`oacli.estimation` (``excitation.rattle.estimator:
+  sequential``, configured by the ``estimation`` section), or the Cramér-Rao oracle
+  (:class:`oacli.excitation.oracle.CramerRaoOracle`, ``oracle``), named so in every output.
 
 Outputs in the run folder: ``config.yaml`` (first), ``excite.mcap`` (``/trajectory`` as ``oacli.TrajectorySample``
 at the design's sample period, the criterion per SCP iteration, the information over time, the scene),
@@ -29,6 +29,8 @@ from oacli.config import OacliConfig, dump_config
 from oacli.config.excitation import LimitsOverride
 from oacli.config.models import Pose
 from oacli.errors import ConfigError, InfeasibleError, InputError
+from oacli.estimation.online import OnlineSequentialEstimator
+from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.design import (
     ExcitationDesign,
     ExcitationProblem,
@@ -47,9 +49,10 @@ from oacli.io.rerun_excite import write_excite_recording
 from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.metrics import percentiles_ms
 from oacli.sim.sensors import Disturbance, SensorNoise
+from oacli.stages.estimate import estimator_settings
 from oacli.stages.track import StageResult
 from oacli.trajectory import sample_states
-from oacli.types import Trajectory
+from oacli.types import ParameterEstimate, Trajectory
 
 LogEntry = tuple[float, str, str]
 
@@ -385,7 +388,11 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     prior_cov = exc.prior.covariance()
     truth = cfg.truth_params()
     theta_true = np.array([truth.mass_kg, *truth.inertia_kgm2])
-    estimator = CramerRaoOracle(theta_true, prior_cov, problem.measurement, problem.start)
+    if rcfg.estimator == "oracle":
+        estimator = CramerRaoOracle(theta_true, prior_cov, problem.measurement, problem.start)
+    else:
+        prior = ParameterEstimate(0.0, prior_theta(cfg), prior_cov, "prior")
+        estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior))
     cw = cfg.controller.weights
     dist = cfg.truth.disturbance
 
@@ -417,6 +424,14 @@ def _flown_trajectory(run: RattleRun, frame: str) -> Trajectory:
     return Trajectory(t, x, u, name="rattle_flown", frame=frame)
 
 
+def _flown_crb(tel, theta_true: np.ndarray, prior_cov: np.ndarray, measurement: MeasurementModel) -> np.ndarray:
+    """Cramér-Rao bound (with the prior) of the measurements the loop took, excitation measurement model."""
+    oracle = CramerRaoOracle(theta_true, prior_cov, measurement, tel.x_measured[0])
+    for k in range(1, len(tel.t_ctrl)):
+        oracle.update(float(tel.t_ctrl[k]), tel.x_measured[k], tel.u_applied[k - 1])
+    return oracle.estimate.std
+
+
 def _rattle_summary(cfg, problem, limits, run: RattleRun, prior_cov, theta_true):
     exc = cfg.excitation
     d = scaling_matrix(theta_true, exc.parameter_scaling)
@@ -432,8 +447,10 @@ def _rattle_summary(cfg, problem, limits, run: RattleRun, prior_cov, theta_true)
     log: list[LogEntry] = [(r.t, "info", f"replan: std {np.array2string(r.std, precision=4)}, gamma "
                             f"{np.array2string(r.gamma, precision=3)}, {r.plan.accepted}/{r.plan.iterations} steps "
                             f"kept, {1e3 * r.plan.solve_time_s:.0f} ms") for r in run.replans]
-    log.insert(0, (0.0, "info", f"RATTLE closed loop, estimator: {final.method} (Cramér-Rao covariance around the "
-                                "true parameters; not a real estimator)"))
+    what = ("Cramér-Rao covariance around the true parameters; not a real estimator" if final.method == "oracle-crb"
+            else "error-state EKF with χ² gating")
+    crb = final.std if final.method == "oracle-crb" else _flown_crb(tel, theta_true, prior_cov, problem.measurement)
+    log.insert(0, (0.0, "info", f"RATTLE closed loop, estimator: {final.method} ({what})"))
     summary = {
         "stage": "excite",
         "status": "ok",
@@ -453,8 +470,15 @@ def _rattle_summary(cfg, problem, limits, run: RattleRun, prior_cov, theta_true)
         "max_speed_mps": float(np.max(np.abs(tel.x_true[:, 3:6]))),
         "max_angular_velocity_radps": float(np.max(np.abs(tel.x_true[:, 10:13]))),
         "collision_free": bool(np.all(inside)),
-        "crb_std": _named(final.std),
-        "crb_std_pct": _named(100.0 * final.std / theta_true),
+        "crb_std": _named(crb),
+        "crb_std_pct": _named(100.0 * crb / theta_true),
+        "estimate": {
+            "theta": _named(final.theta),
+            "std": _named(final.std),
+            "error_pct": _named(100.0 * (final.theta - theta_true) / theta_true),
+            "samples_used": final.samples_used,
+            "samples_rejected": final.samples_rejected,
+        },
         "prior_std": _named(np.sqrt(np.diag(prior_cov))),
         "gamma_final": _named(run.replans[-1].gamma),
         "goal_residual": {
