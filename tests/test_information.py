@@ -102,3 +102,29 @@ def test_mass_bound_closed_form_for_a_velocity_measured_push():
     expected = np.sum((f * k * dt / m**2) ** 2) / sigma**2
     assert fim[0, 0] == pytest.approx(expected, rel=1e-12)
     np.testing.assert_allclose(fim[1:, :], 0.0, atol=1e-20)
+
+
+def test_fisher_information_is_right_through_a_half_turn():
+    """A spin of more than π about z takes the propagated quaternion through w = 0 (where a w >= 0 convention would
+    flip its sign): the information must still match finite differences of the (sign-free) measurements."""
+    n, dt = 40, 0.5
+    x0 = np.zeros(13)
+    x0[6:10] = [0.0, 0.0, -0.7071068, 0.7071068]
+    x0[10:13] = [0.01, -0.02, 0.25]  # 0.25 rad/s for 20 s: 5 rad
+    rng = np.random.default_rng(4)
+    u = np.zeros((n, 6))
+    u[:, 0:3] = rng.uniform(-0.2, 0.2, (n, 3))
+    u[:, 3:6] = rng.uniform(-0.01, 0.01, (n, 3))
+    x, _ = propagate_with_sensitivities(x0, u, THETA, dt)
+    assert np.any(x[:, 9] < 0) and np.any(x[:, 9] > 0)  # w did change sign along the trajectory
+    model = MeasurementModel(attitude_std_rad=0.005, angular_velocity_std_radps=0.001)
+    fim = fisher_information(x0, u, THETA, dt, model)
+    cols = []
+    for i in range(4):
+        step = 1e-6 * THETA[i] * np.eye(4)[i]
+        yp, _ = measurements(x0, u, THETA + step, dt, x[:, 6:10])
+        ym, _ = measurements(x0, u, THETA - step, dt, x[:, 6:10])
+        cols.append((yp - ym) / (2 * step[i]))
+    jac = np.column_stack(cols).reshape(n, 12, 4)[:, 6:12].reshape(-1, 4)
+    w = np.tile(np.r_[[0.005**-2] * 3, [0.001**-2] * 3], n)
+    np.testing.assert_allclose(fim, jac.T @ (w[:, None] * jac), rtol=2e-5)

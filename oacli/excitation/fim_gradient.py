@@ -41,7 +41,6 @@ from oacli.excitation.information import (
     fisher_information,
     state_output_matrix,
 )
-from oacli.model import quaternion as quat
 from oacli.model import rigid_body as rb
 
 Criterion = Literal["A", "D", "E"]
@@ -287,7 +286,8 @@ def fim_gradients(
 
     for k in range(n):
         z_next, pz, pu, (g, gz, gu) = augmented_rk4_step(zs[k], u[k], theta, dt)
-        z_next[6:10] = quat.normalize(z_next[6:10])
+        # Rescale only (no flip to w >= 0): a flip would have to flip the sensitivities' quaternion rows too.
+        z_next[6:10] /= np.linalg.norm(z_next[6:10])
         zs[k + 1] = z_next
         phi_z[k] = pz
         phi_u[k] = pu

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.model import rigid_body as rb
-from oacli.model.quaternion import normalize
 
 N_PARAMS = rb.N_PARAMS
 PARAM_NAMES = ("mass_kg", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2")
@@ -111,7 +110,7 @@ def propagate_with_sensitivities(
     Returns
     -------
     x : ndarray, shape (N+1, 13)
-        States (quaternion renormalised each step).
+        States (quaternion rescaled to unit norm each step, on a continuous hemisphere).
     s : ndarray, shape (N+1, 13, 4)
         Sensitivities ``∂x_k/∂θ``.
     """
@@ -122,7 +121,9 @@ def propagate_with_sensitivities(
     xs[0] = x0
     for k in range(n):
         x_next, a, _, c = rb.rk4_step_jacobians(xs[k], u[k], theta, dt)
-        x_next[6:10] = normalize(x_next[6:10])
+        # Rescale only: flipping q to w >= 0 here would have to flip the quaternion rows of S too (q and −q are
+        # the same attitude, and the attitude measurement is sign-free, so the hemisphere is simply kept).
+        x_next[6:10] /= np.linalg.norm(x_next[6:10])
         xs[k + 1] = x_next
         ss[k + 1] = a @ ss[k] + c
     return xs, ss
