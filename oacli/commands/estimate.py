@@ -7,7 +7,16 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import Progress, app, load_config_with_seed, print_table, run_guarded
+from oacli.cli import (
+    OutOption,
+    Progress,
+    QuietOption,
+    RunsDirOption,
+    app,
+    load_config_with_seed,
+    print_table,
+    run_guarded,
+)
 
 ESTIMATE_TABLE = [
     "status", "method", "mass_kg", "inertia_kgm2", "std", "crb_std", "error_pct", "cov_reduction_pct",
@@ -26,11 +35,9 @@ def estimate(
         typer.Option("--method", "-m", help="batch (maximum likelihood over the run) or sequential (EKF); "
                      "default: the config's estimation.method."),
     ] = None,
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")] = None,
-    runs_root: Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")] = Path(
-        "runs"
-    ),
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")] = False,
+    out: OutOption = None,
+    runs_root: RunsDirOption = Path("runs"),
+    quiet: QuietOption = False,
 ) -> None:
     """Estimate mass and principal inertias from TRACK.mcap; write estimate.mcap, estimate.rrd, summary.json.
 

@@ -32,10 +32,9 @@ from oacli.estimation.models import EstimatorSettings, Measurement, MeasurementM
 from oacli.estimation.preprocessing import measurements_from_telemetry
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.information import PARAM_NAMES
-from oacli.io.atomic import write_text_atomic
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_telemetry
 from oacli.io.rerun_estimate import write_estimate_recording
-from oacli.io.runfolder import create_run_dir, git_commit, write_summary
+from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.model.rigid_body import theta_of
 from oacli.stages.track import StageResult
 from oacli.types import ParameterEstimate
@@ -371,17 +370,15 @@ def run_estimate(
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
 
-    run_dir = create_run_dir(cfg.name, out=out, runs_root=runs_root)
-    files = {"config": run_dir / "config.yaml"}
     config_yaml = dump_config(cfg)
-    write_text_atomic(files["config"], config_yaml)
-    try:
+    with open_stage_run(
+        "estimate", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start
+    ) as run_folder:
+        run_dir, files = run_folder.run_dir, run_folder.files
         summary = _estimate_summary(run, prior, truth, telemetry)
-        files["mcap"] = run_dir / "estimate.mcap"
-        _write_estimate_mcap(files["mcap"], cfg, config_yaml, run, telemetry, log)
-        files["rrd"] = run_dir / "estimate.rrd"
+        _write_estimate_mcap(run_folder.file("mcap", "estimate.mcap"), cfg, config_yaml, run, telemetry, log)
         write_estimate_recording(
-            files["rrd"],
+            run_folder.file("rrd", "estimate.rrd"),
             t_est=np.array([e.t for e in run.history]),
             theta=np.array([e.theta for e in run.history]),
             std=np.array([e.std for e in run.history]),
@@ -396,14 +393,7 @@ def run_estimate(
             log=log,
             recording_name=f"{cfg.name}/estimate",
         )
-        summary["wall_time_s"] = time.perf_counter() - wall_start
-        summary["run_dir"] = str(run_dir)
-        summary["files"] = {k: p.name for k, p in files.items()}
-        files["summary"] = write_summary(run_dir, summary)
-    except BaseException as exc:
-        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        write_summary(run_dir, {"stage": "estimate", "status": "failed", "error": reason})
-        raise
+        run_folder.finish(summary)
     return StageResult(run_dir, summary, files)
 
 

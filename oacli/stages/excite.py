@@ -336,8 +336,8 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     config_yaml = dump_config(cfg)
     with open_stage_run("excite", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall) as run:
         run_dir, files = run.run_dir, run.files
-        run.file("mcap", "excite.mcap")
-        with StageMcapWriter(files["mcap"], stage="excite", config_yaml=config_yaml, metadata=_metadata(cfg, "offline"),
+        with StageMcapWriter(run.file("mcap", "excite.mcap"), stage="excite", config_yaml=config_yaml,
+                             metadata=_metadata(cfg, "offline"),
                              frame=cfg.environment.frame) as writer:
             writer.write_scene(problem.scene, {"excitation": x[:, 0:3], "initial_guess": design.initial.x[:, 0:3]})
             writer.write_trajectory("/trajectory", Trajectory(traj.t, x, u, name="excitation",
@@ -355,9 +355,8 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             crb = _information_records(writer, traj.t, design.information_over_time, problem.theta)
             for t, level, message in log:
                 writer.write_log(t, level, message)
-        run.file("rrd", "excite.rrd")
         write_excite_recording(
-            files["rrd"], scene=problem.scene, t=traj.t, x=x, u=u, theta=problem.theta,
+            run.file("rrd", "excite.rrd"), scene=problem.scene, t=traj.t, x=x, u=u, theta=problem.theta,
             information=design.information_over_time, crb_std=crb,
             force_limit_N=problem.limits.force_N, torque_limit_Nm=problem.limits.torque_Nm,
             angular_velocity_limit_radps=problem.limits.angular_velocity_radps,

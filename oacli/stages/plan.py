@@ -420,12 +420,11 @@ def run_plan(
                         "path_length_m": float("nan"), "max_force_N": float("nan")}
             log.append((0.0, "error", f"no solution within the budget ({result.iterations} iterations, "
                                       f"{result.planning_time_s:.1f} s, {len(result.tree)} nodes)"))
-        run.file("mcap", "plan.mcap")
-        _write_plan_mcap(files["mcap"], cfg, config_yaml, scene, result, output, summary, log)
-        run.file("rrd", "plan.rrd")
+        _write_plan_mcap(run.file("mcap", "plan.mcap"), cfg, config_yaml, scene, result, output, summary, log)
         tree = result.tree
         write_plan_recording(
-            files["rrd"], scene=scene, start=seg.start[0:3], goal=seg.goal[0:3], tree_states=tree.states,
+            run.file("rrd", "plan.rrd"), scene=scene, start=seg.start[0:3], goal=seg.goal[0:3],
+            tree_states=tree.states,
             tree_edges=tree.edges, snapshots=[(s.iteration, s.parent, s.path) for s in result.snapshots],
             solutions=[(s.iteration, s.cost) for s in result.solutions],
             trajectory=None if output is None else (output.t, output.x, output.u),

@@ -307,13 +307,11 @@ def run_smooth(
                         f"polish ({polish.status}, {polish.reason}): path length {polish.length_before_m:.4f} m -> "
                         f"{polish.length_after_m:.4f} m, cost {polish.cost_before:.6g} -> {polish.cost_after:.6g}, "
                         f"{polish.accepted}/{len(polish.iterations)} SCP steps accepted"))
-        run.file("mcap", "smooth.mcap")
-        _write_smooth_mcap(files["mcap"], cfg, config_yaml, checker, input_path, traj_in, traj_shortcut, traj_out,
-                           result, polish, summary, log)
-        run.file("rrd", "smooth.rrd")
+        _write_smooth_mcap(run.file("mcap", "smooth.mcap"), cfg, config_yaml, checker, input_path, traj_in,
+                           traj_shortcut, traj_out, result, polish, summary, log)
         write_smooth_recording(
-            files["rrd"], scene=checker.scene, before=traj_in.x[:, 0:3], trajectory=(traj_out.t, traj_out.x,
-                                                                                      traj_out.u),
+            run.file("rrd", "smooth.rrd"),
+            scene=checker.scene, before=traj_in.x[:, 0:3], trajectory=(traj_out.t, traj_out.x, traj_out.u),
             shortcuts=[(i, sec.x[:, 0:3]) for i, sec in result.sections], cost_per_try=_cost_per_try(result),
             shortcut_path=traj_shortcut.x[:, 0:3] if polish is not None else None,
             polish_steps=[] if polish is None else [(i, c.x[:, 0:3]) for i, c in polish.accepted_trajectories],
