@@ -134,6 +134,15 @@ def run_guarded(action: Callable[[], Any]) -> Any:
         raise _fail(exc) from None
 
 
+def run_stage_command(action: Callable[[], Any], table: list[str], quiet: bool) -> None:
+    """Run a stage command's action (errors mapped by :func:`run_guarded`), then print its results table on
+    stdout (unless ``quiet``) and the run folder (on stderr when quiet, so stdout stays empty)."""
+    result = run_guarded(action)
+    if not quiet:
+        print_table(result.summary, table)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+
+
 def main() -> None:
     """Console-script entry point."""
     app()

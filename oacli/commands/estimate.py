@@ -14,8 +14,7 @@ from oacli.cli import (
     RunsDirOption,
     app,
     load_config_with_seed,
-    print_table,
-    run_guarded,
+    run_stage_command,
 )
 
 ESTIMATE_TABLE = [
@@ -54,7 +53,4 @@ def estimate(
         return run_estimate(cfg, telemetry=telemetry, method=method, out=out, runs_root=runs_root,
                             progress=Progress("estimate", not quiet))
 
-    result = run_guarded(action)
-    if not quiet:
-        print_table(result.summary, ESTIMATE_TABLE)
-    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+    run_stage_command(action, ESTIMATE_TABLE, quiet)

@@ -15,8 +15,7 @@ from oacli.cli import (
     SeedOption,
     app,
     load_config_with_seed,
-    print_table,
-    run_guarded,
+    run_stage_command,
 )
 
 EXCITE_TABLE = [
@@ -50,7 +49,4 @@ def excite(
         cfg = load_config_with_seed(config, seed)
         return run_excite(cfg, method=method, out=out, runs_root=runs_root, progress=Progress("excite", not quiet))
 
-    result = run_guarded(action)
-    if not quiet:
-        print_table(result.summary, EXCITE_TABLE)
-    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+    run_stage_command(action, EXCITE_TABLE, quiet)

@@ -16,8 +16,7 @@ from oacli.cli import (
     SeedOption,
     app,
     load_config_with_seed,
-    print_table,
-    run_guarded,
+    run_stage_command,
 )
 
 PLAN_TABLE = [
@@ -53,7 +52,4 @@ def plan(
         return run_plan(cfg, segment=segment, planner=planner, out=out, runs_root=runs_root,
                         progress=Progress("plan", not quiet))
 
-    result = run_guarded(action)
-    if not quiet:
-        print_table(result.summary, PLAN_TABLE)
-    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+    run_stage_command(action, PLAN_TABLE, quiet)

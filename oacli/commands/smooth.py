@@ -16,8 +16,7 @@ from oacli.cli import (
     SeedOption,
     app,
     load_config_with_seed,
-    print_table,
-    run_guarded,
+    run_stage_command,
 )
 
 SMOOTH_TABLE = [
@@ -48,7 +47,4 @@ def smooth(
         return run_smooth(cfg, input_path=input_path, out=out, runs_root=runs_root,
                           progress=Progress("smooth", not quiet))
 
-    result = run_guarded(action)
-    if not quiet:
-        print_table(result.summary, SMOOTH_TABLE)
-    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+    run_stage_command(action, SMOOTH_TABLE, quiet)

@@ -16,8 +16,7 @@ from oacli.cli import (
     SeedOption,
     app,
     load_config_with_seed,
-    print_table,
-    run_guarded,
+    run_stage_command,
 )
 
 TRACK_TABLE = [
@@ -57,7 +56,4 @@ def track(
             cfg = cfg.model_copy(update={"reference": new_ref})
         return run_track(cfg, reference=ref, out=out, runs_root=runs_root, progress=Progress("track", not quiet))
 
-    result = run_guarded(action)
-    if not quiet:
-        print_table(result.summary, TRACK_TABLE)
-    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+    run_stage_command(action, TRACK_TABLE, quiet)

@@ -89,13 +89,13 @@ def _log_texts(rec: StageRecording, log: Sequence[tuple[float, str, str]]) -> No
         rec.log_texts(np.array(t_log, dtype=float), list(levels), list(messages))
 
 
-def plan_blueprint() -> rrb.Blueprint:
-    """Layout of ``plan.rrd``: 3D scene and log on the left, force, velocity and solution cost on the right."""
-    world = rrb.Spatial3DView(origin=WORLD, name="World: tree, plan, obstacles")
+def _motion_blueprint(world_name: str, extra_plots: list, timeline: str) -> rrb.Blueprint:
+    """3D scene and log on the left; force, velocity and ``extra_plots`` on the right (plan and smooth layouts)."""
+    world = rrb.Spatial3DView(origin=WORLD, name=world_name)
     plots = rrb.Vertical(
         time_series_view(FORCE, "Force [N], world frame (mission_time)", legend=False),
         time_series_view(VELOCITY, "Velocity [m/s], world frame (mission_time)", legend=False),
-        time_series_view(SOLUTION_COST, "Best solution cost (iteration)"),
+        *extra_plots,
         name="Metrics",
     )
     return rrb.Blueprint(
@@ -104,7 +104,14 @@ def plan_blueprint() -> rrb.Blueprint:
             plots,
             column_shares=[1.4, 1.0],
         ),
-        rrb.TimePanel(timeline=ITERATION),
+        rrb.TimePanel(timeline=timeline),
+    )
+
+
+def plan_blueprint() -> rrb.Blueprint:
+    """Layout of ``plan.rrd``: 3D scene and log on the left, force, velocity and solution cost on the right."""
+    return _motion_blueprint(
+        "World: tree, plan, obstacles", [time_series_view(SOLUTION_COST, "Best solution cost (iteration)")], ITERATION
     )
 
 
@@ -182,21 +189,13 @@ def write_plan_recording(
 
 def smooth_blueprint() -> rrb.Blueprint:
     """Layout of ``smooth.rrd``: 3D scene and log, force, velocity, cost per shortcut try, length per polish step."""
-    world = rrb.Spatial3DView(origin=WORLD, name="World: before (blue), shortcut (grey), after (orange)")
-    plots = rrb.Vertical(
-        time_series_view(FORCE, "Force [N], world frame (mission_time)", legend=False),
-        time_series_view(VELOCITY, "Velocity [m/s], world frame (mission_time)", legend=False),
-        time_series_view(COST, "Trajectory cost after each shortcut try (shortcut)"),
-        time_series_view(POLISH_LENGTH, "Path length of each polish candidate [m] (polish)"),
-        name="Metrics",
-    )
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(world, rrb.TextLogView(origin=LOG, name="Log"), row_shares=[3.0, 1.0]),
-            plots,
-            column_shares=[1.4, 1.0],
-        ),
-        rrb.TimePanel(timeline=TIMELINE),
+    return _motion_blueprint(
+        "World: before (blue), shortcut (grey), after (orange)",
+        [
+            time_series_view(COST, "Trajectory cost after each shortcut try (shortcut)"),
+            time_series_view(POLISH_LENGTH, "Path length of each polish candidate [m] (polish)"),
+        ],
+        TIMELINE,
     )
 
 
