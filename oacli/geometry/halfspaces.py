@@ -1,0 +1,158 @@
+"""Convex pieces of the workspace for convex programs: keep-in boxes and supporting half-spaces of keep-out zones.
+
+The free space (Doerr et al. 2021, Eqs. 12-14) is a union of keep-in boxes minus keep-out ellipsoids: not convex.
+Every convex program of the project (the trajectory polish, the excitation design, the MPC controllers) replaces
+it, per step, by a convex inner piece: one keep-in box and one half-space per keep-out zone. This module holds
+the one implementation they share.
+
+Keep-out zone grown by the robot
+--------------------------------
+Zone j's set of forbidden centre positions is ``O_j = E_j ⊕ R``: the keep-out ellipsoid (safety factor applied)
+grown by the robot's bounding ellipsoid R (ReSWARM §4.2.2; a sphere of the robot's radius, or a point). An
+ellipsoid containing ``O_j`` is ``{p : ‖L (p − c_j)‖ ≤ 1}`` (``E_j`` itself for a point robot; for a body, the
+trace-minimal outer ellipsoid of the Minkowski sum, ``Σ = Σ_j/(1 − s) + Σ_R/s``, Kurzhanski & Vályi 1997). Its
+normalised coordinates ``w = L (p − c_j)`` give the *metric direction* of a point, ``m = w/‖w‖``. The half-space
+
+    nᵀ p ≥ β,   n = Lᵀ m / ‖Lᵀ m‖,   β = nᵀ c_j + sqrt(nᵀ Σ_j n) + sqrt(nᵀ Σ_R n) + μ
+
+is bounded by the supporting plane of ``O_j`` (its support function ``h_{E_j}(n) + h_R(n)``) moved out by a
+clearance μ: ``O_j`` lies entirely on the other side, so any centre position in it keeps the body out of the
+zone. For a point robot and a point p outside ``E_j`` this is the tangent plane of ``E_j`` at the point of its
+surface along ``p − c_j`` in its own metric (the gradient direction of ``(p − c)ᵀP(p − c)`` at p); a point
+satisfies its own half-space exactly when it is outside ``E_j``: ``nᵀp − β = (‖w‖ − 1)/‖Lᵀ m‖ − μ``.
+
+Keep-in box of a point
+----------------------
+:func:`best_box`: the box holding all the given points with the largest worst margin, or, when none holds them,
+the nearest one (least worst excess, an L∞ distance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from oacli.geometry.collision import RobotBody
+from oacli.geometry.shapes import Ellipsoid, Scene
+
+#: Below this norm [-] a metric direction is undefined (the point is the zone's centre).
+_DEGENERATE = 1e-12
+
+
+@dataclass(frozen=True)
+class KeepOutZone:
+    """A keep-out zone grown by the robot's body, as the convex programs see it.
+
+    Attributes
+    ----------
+    center : ndarray, shape (3,)
+        Zone centre c [m].
+    sigma_zone : ndarray, shape (3, 3)
+        ``Σ_j = P_j⁻¹`` [m²] of the keep-out ellipsoid (safety factor applied).
+    sigma_robot : ndarray, shape (3, 3)
+        Shape Σ_R [m²] of the robot's bounding ellipsoid (zero for a point).
+    metric : ndarray, shape (3, 3)
+        L [1/m] with ``‖L (p − c)‖ <= 1`` on an ellipsoid containing the zone grown by the robot.
+    """
+
+    center: np.ndarray
+    sigma_zone: np.ndarray
+    sigma_robot: np.ndarray
+    metric: np.ndarray
+
+    def support_m(self, normals: np.ndarray) -> np.ndarray:
+        """Support function of the grown zone, ``max_{p ∈ E ⊕ R} nᵀp`` [m], for unit normals ``(K, 3)``."""
+        n = np.atleast_2d(normals)
+        return (
+            n @ self.center
+            + np.sqrt(np.einsum("ki,ij,kj->k", n, self.sigma_zone, n))
+            + np.sqrt(np.clip(np.einsum("ki,ij,kj->k", n, self.sigma_robot, n), 0.0, None))
+        )
+
+
+def keep_out_zone(ellipsoid: Ellipsoid, robot: RobotBody | None = None) -> KeepOutZone:
+    """``ellipsoid`` grown by ``robot`` (a point when omitted) with its metric (module docstring)."""
+    sigma_r = np.zeros((3, 3)) if robot is None else np.asarray(robot.sigma, dtype=float)
+    sigma_o = np.linalg.inv(ellipsoid.shape)
+    sigma_o = 0.5 * (sigma_o + sigma_o.T)
+    if not np.any(sigma_r):
+        outer = sigma_o
+    else:  # trace-minimal outer ellipsoid of the Minkowski sum: Σ_o/(1−s) + Σ_r/s
+        ro, rr = np.sqrt(np.trace(sigma_o)), np.sqrt(np.trace(sigma_r))
+        s = rr / (ro + rr)
+        outer = sigma_o / (1.0 - s) + sigma_r / s
+    chol = np.linalg.cholesky(0.5 * (outer + outer.T))
+    return KeepOutZone(np.asarray(ellipsoid.center, dtype=float), sigma_o, sigma_r, np.linalg.inv(chol))
+
+
+def keep_out_zones(scene: Scene, robot: RobotBody | None = None) -> list[KeepOutZone]:
+    """Every keep-out zone of ``scene`` grown by ``robot`` (a point when omitted)."""
+    return [keep_out_zone(e, robot) for e in scene.keep_out]
+
+
+def supporting_halfspaces(
+    zone: KeepOutZone, directions: np.ndarray, clearance_m: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Half-spaces ``nᵀp ≥ β`` bounded by the supporting planes of the grown zone along metric directions.
+
+    Parameters
+    ----------
+    zone : KeepOutZone
+    directions : ndarray, shape (K, 3)
+        Directions m in the zone's normalised coordinates ``w = L (p − c)`` (non-zero; need not be unit).
+    clearance_m : float
+        μ: the plane is moved this far [m] away from the zone.
+
+    Returns
+    -------
+    normal : ndarray, shape (K, 3)
+        Unit world normals ``Lᵀm/‖Lᵀm‖``.
+    offset : ndarray, shape (K,)
+        β: support of the grown zone along the normal plus μ.
+    """
+    n = np.atleast_2d(directions) @ zone.metric  # rows: Lᵀ m
+    n = n / np.linalg.norm(n, axis=1)[:, None]
+    return n, zone.support_m(n) + clearance_m
+
+
+def metric_directions(zone: KeepOutZone, points: np.ndarray) -> np.ndarray:
+    """``w = L (p − c)`` of each point ``(K, 3)``; +x of the normalised coordinates for a point on the centre."""
+    w = (np.atleast_2d(points) - zone.center) @ zone.metric.T
+    degenerate = np.linalg.norm(w, axis=1) <= _DEGENERATE
+    if np.any(degenerate):
+        w[degenerate] = np.array([1.0, 0.0, 0.0])
+    return w
+
+
+def point_halfspaces(
+    zone: KeepOutZone, points: np.ndarray, clearance_m: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Supporting half-spaces of the grown zone along the metric direction of each point.
+
+    Returns ``(normal (K, 3), offset (K,), margin (K,))`` with ``margin = nᵀp − β`` [m]: >= 0 exactly when the
+    point satisfies its own half-space (it is at least μ outside the zone's outer ellipsoid along n).
+    """
+    p = np.atleast_2d(np.asarray(points, dtype=float))
+    n, beta = supporting_halfspaces(zone, metric_directions(zone, p), clearance_m)
+    return n, beta, np.einsum("ki,ki->k", n, p) - beta
+
+
+def best_box(scene: Scene, *point_sets: np.ndarray, margin: np.ndarray | float = 0.0) -> np.ndarray:
+    """Index of the keep-in box best holding the points ``point_sets[·][k]`` together, for each k.
+
+    Each point set has shape (K, 3); the score of a box for index k is the worst margin of the k-th points of
+    every set inside the box shrunk by ``margin`` (per axis) — the box with the largest score wins (it holds
+    them all, with the largest margin; or, when none does, it is the nearest in the L∞ sense).
+
+    Returns an int array (K,). Raises ValueError when the scene has no keep-in box.
+    """
+    if not scene.keep_in:
+        raise ValueError("the scene has no keep-in box")
+    scores = []
+    for box in scene.keep_in:
+        lo = box.lower + margin
+        hi = box.upper - margin
+        slack = np.minimum.reduce([np.minimum(p - lo, hi - p) for p in point_sets])  # (K, 3)
+        scores.append(slack.min(axis=1))
+    return np.argmax(np.array(scores), axis=0)
