@@ -9,11 +9,20 @@ Both minimise
 
     Σ_{k<N} ‖Q^½ (z_k − x_ref,k)‖² + ‖R^½ (v_k − u_ref,k)‖² + ‖L (z_N − x_ref,N)‖²,   P_N = L Lᵀ.
 
+A block may also keep its predicted positions in the workspace (:class:`PositionRowsSpec`,
+:mod:`oacli.control.workspace`): a keep-in box ``lower_k ≤ p_k ≤ upper_k`` and keep-out half-spaces
+``n_jkᵀ p_k ≥ β_jk`` with Parameter bounds and normals, on ``z_0..z_N`` and HARD in a tube block (the caller
+tightens them by Z, so that they hold for the true state), on ``y_1..y_N`` and soft with an exact ℓ1 penalty in a
+standard block. Optionally the tube block's *braking points* ``p_k + τ ⊙ v_k`` stay in the same box: with
+``τ_i = v̄_i / (2 ā_i)`` (v̄ the velocity bound, ā the braking acceleration) ``p + τ v`` bounds the point where
+braking at ā from ``(p, v)`` stops (``v|v|/(2ā) ≤ v τ`` for ``|v| ≤ v̄``), so the safe hold, which brakes the
+nominal at ā, stays in the box.
+
 Every constraint is a linear inequality ``H y ≤ h`` written without ``abs`` atoms (which would add hidden
 variables), and the references enter the cost through ``sum_squares(c ⊙ (z − r))`` with constant ``c``, which
 keeps the problem DPP (``quad_form(z − r, Q)`` with a Parameter ``r`` would not). Parameters enter only the
-linear cost term and the right-hand sides, so :class:`oacli.control.compiled_qp.CompiledQP` can solve it
-without re-canonicalising.
+linear cost term, the right-hand sides and (keep-out normals) the constraint matrix's values, so
+:class:`oacli.control.compiled_qp.CompiledQP` can solve it without re-canonicalising.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ import cvxpy as cp
 import numpy as np
 
 from oacli.control.compiled_qp import CompiledQP, timed_cvxpy_solve
+from oacli.control.workspace import PositionRows
 from oacli.types import SolveInfo
 
 _OK = {"optimal", "optimal_inaccurate"}
@@ -67,6 +77,34 @@ class LinearConstraint:
 
 
 @dataclass(frozen=True)
+class PositionRowsSpec:
+    """Workspace rows on a block's predicted positions (their values are set per solve, :meth:`NominalQP.set_rows`).
+
+    Attributes
+    ----------
+    keep_in : bool
+        Keep-in box rows.
+    keep_out_zones : int
+        Keep-out half-space rows per step (J).
+    position_index : int
+        First position component of the block's state (three components).
+    velocity_index : int
+        First velocity component (for the braking rows).
+    braking_s : ndarray, shape (3,), optional
+        τ per axis [s]: the braking points ``p + τ ⊙ v`` stay in the keep-in box too (tube block only).
+    penalty : float
+        Exact ℓ1 penalty of the soft rows of a standard block [1/m].
+    """
+
+    keep_in: bool = True
+    keep_out_zones: int = 0
+    position_index: int = 0
+    velocity_index: int = 3
+    braking_s: np.ndarray | None = None
+    penalty: float = 1e5
+
+
+@dataclass(frozen=True)
 class QPBlock:
     """One linear subsystem ``y_{k+1} = A y_k + B u_k`` of the nominal QP.
 
@@ -86,6 +124,8 @@ class QPBlock:
         ``Z`` as ``H e ≤ h``; given ⇒ tube block with the constraint ``x − z_0 ∈ Z``; omitted ⇒ ``y_0 = x``.
     soft_penalty : float
         ℓ1 weight of the soft state-limit slack (standard block).
+    positions : PositionRowsSpec, optional
+        Workspace rows on the predicted positions.
     """
 
     name: str
@@ -98,6 +138,7 @@ class QPBlock:
     input: LinearConstraint | None = None
     lasso: LinearConstraint | None = None
     soft_penalty: float = 1e4
+    positions: PositionRowsSpec | None = None
 
     @property
     def n(self) -> int:
@@ -119,6 +160,11 @@ class _BlockVars:
     z_n: cp.Variable
     v: cp.Variable
     slack: cp.Variable | None = None
+    box_lower: cp.Parameter | None = None
+    box_upper: cp.Parameter | None = None
+    out_normals: tuple[cp.Parameter, ...] = ()
+    out_offsets: tuple[cp.Parameter, ...] = ()
+    position_slack: cp.Variable | None = None
 
 
 @dataclass(frozen=True)
@@ -128,6 +174,7 @@ class BlockSolution:
     z: np.ndarray
     v: np.ndarray
     max_slack: float
+    position_slack_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -228,6 +275,8 @@ class NominalQP:
                             bv.z[1:] @ hx.h_matrix.T <= np.tile(hx.h_vector, (n_steps - 1, 1)) + bv.slack[:-1]
                         )
                     cost = cost + blk.soft_penalty * cp.sum(bv.slack)
+            if blk.positions is not None:
+                constraints, cost = self._position_rows(blk, bv, constraints, cost)
             self._vars[blk.name] = bv
         self.problem = cp.Problem(cp.Minimize(cost), constraints)
         self.clarabel_options = dict(CLARABEL_OPTIONS if clarabel_options is None else clarabel_options)
@@ -235,6 +284,59 @@ class NominalQP:
         for key, value in self.clarabel_options.items():
             setattr(settings, key, value)
         self.compiled = CompiledQP(self.problem, settings) if fast else None
+
+    def _position_rows(self, blk: QPBlock, bv: _BlockVars, constraints: list, cost):
+        """Add the workspace rows of ``blk`` (module docstring): hard on z_0..z_N for a tube block, soft on
+        y_1..y_N for a standard one."""
+        spec, n_steps = blk.positions, self.horizon
+        i, iv = spec.position_index, spec.velocity_index
+        hard = blk.lasso is not None
+        states = cp.vstack([bv.z, bv.z_n[None, :]]) if hard else cp.vstack([bv.z[1:], bv.z_n[None, :]])
+        k = n_steps + 1 if hard else n_steps
+        pos = states[:, i : i + 3]
+        sigma = 0.0
+        if not hard:
+            bv.position_slack = cp.Variable(k, name=f"{blk.name}_position_slack")
+            sigma = bv.position_slack[:, None]
+            constraints.append(bv.position_slack >= 0)
+            cost = cost + spec.penalty * cp.sum(bv.position_slack)
+        if spec.keep_in:
+            bv.box_lower = cp.Parameter((k, 3), name=f"{blk.name}_box_lower")
+            bv.box_upper = cp.Parameter((k, 3), name=f"{blk.name}_box_upper")
+            constraints += [pos >= bv.box_lower - sigma, pos <= bv.box_upper + sigma]
+            if hard and spec.braking_s is not None:
+                stop = pos + cp.multiply(np.tile(np.asarray(spec.braking_s, dtype=float), (k, 1)),
+                                         states[:, iv : iv + 3])
+                constraints += [stop >= bv.box_lower, stop <= bv.box_upper]
+        normals, offsets = [], []
+        for j in range(spec.keep_out_zones):
+            normals.append(cp.Parameter((k, 3), name=f"{blk.name}_out_normal_{j}"))
+            offsets.append(cp.Parameter(k, name=f"{blk.name}_out_offset_{j}"))
+            slack = 0.0 if hard else bv.position_slack
+            constraints.append(cp.sum(cp.multiply(normals[j], pos), axis=1) >= offsets[j] - slack)
+        bv.out_normals, bv.out_offsets = tuple(normals), tuple(offsets)
+        return constraints, cost
+
+    def rows_steps(self, name: str) -> int:
+        """Number of predicted positions block ``name``'s workspace rows apply to (N+1 tube, N standard)."""
+        blk = next(b for b in self.blocks if b.name == name)
+        return self.horizon + 1 if blk.lasso is not None else self.horizon
+
+    def set_rows(self, name: str, rows: PositionRows) -> None:
+        """Set block ``name``'s workspace rows (in the block's coordinates; steps as :meth:`rows_steps`)."""
+        bv = self._vars[name]
+        pairs = []
+        if bv.box_lower is not None:
+            pairs += [(bv.box_lower, rows.lower), (bv.box_upper, rows.upper)]
+        if len(bv.out_normals) != rows.normals.shape[0]:
+            raise ValueError(f"{name}: {len(bv.out_normals)} keep-out zones expected, got {rows.normals.shape[0]}")
+        pairs += list(zip(bv.out_normals, rows.normals, strict=True))
+        pairs += list(zip(bv.out_offsets, rows.offsets, strict=True))
+        for param, value in pairs:
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != param.shape or not np.all(np.isfinite(arr)):
+                raise ValueError(f"{param.name()}: expected finite values of shape {param.shape}, got {arr.shape}")
+            self._values[param.id] = arr
 
     def set_parameters(self, name: str, x: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> None:
         """Set block ``name``'s measured state ``x (n,)``, references ``x_ref (N+1, n)`` and ``u_ref (N, m)``.
@@ -288,8 +390,10 @@ class NominalQP:
                 blocks[name] = BlockSolution(nan_z, np.full(bv.v.shape, np.nan), np.nan)
             else:
                 slack = 0.0 if bv.slack is None else float(np.max(value(bv.slack), initial=0.0))
+                pos_slack = 0.0 if bv.position_slack is None else float(np.max(value(bv.position_slack),
+                                                                                initial=0.0))
                 z = np.vstack([value(bv.z), value(bv.z_n)[None, :]])
-                blocks[name] = BlockSolution(z, np.array(value(bv.v)), max(slack, 0.0))
+                blocks[name] = BlockSolution(z, np.array(value(bv.v)), max(slack, 0.0), max(pos_slack, 0.0))
         info = SolveInfo(status, value is not None, objective, iterations, solve_time, wall)
         return QPSolution(blocks, info)
 

@@ -25,6 +25,13 @@ Keep-in box of a point
 ----------------------
 :func:`best_box`: the box holding all the given points with the largest worst margin, or, when none holds them,
 the nearest one (least worst excess, an L∞ distance).
+
+Boxes of a union are not enough once they are shrunk (by the robot's radius, a tube): two boxes that touch along
+a face leave a gap between their shrunk copies, though the shrunk *union* is connected there.
+:func:`keep_in_pieces` adds, for every pair of boxes whose intervals along one axis overlap or touch and whose
+cross-sections across it intersect, the *bridge* box: that intersection of cross-sections times the union of the
+two intervals. Every point of a bridge is in one of the two boxes, so the bridges are convex pieces of the union,
+and a motion from one box to the other stays in the bridge.
 """
 
 from __future__ import annotations
@@ -138,21 +145,49 @@ def point_halfspaces(
     return n, beta, np.einsum("ki,ki->k", n, p) - beta
 
 
-def best_box(scene: Scene, *point_sets: np.ndarray, margin: np.ndarray | float = 0.0) -> np.ndarray:
-    """Index of the keep-in box best holding the points ``point_sets[·][k]`` together, for each k.
+def keep_in_pieces(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Convex box pieces of the keep-in union: the boxes and their pairwise bridges (module docstring).
+
+    Returns ``(lower (B, 3), upper (B, 3))`` [m], the scene's boxes first, then the bridges that are not
+    contained in one of the two boxes.
+    """
+    lower = [np.asarray(b.lower, dtype=float) for b in scene.keep_in]
+    upper = [np.asarray(b.upper, dtype=float) for b in scene.keep_in]
+    n_boxes = len(lower)
+    for i in range(n_boxes):
+        for j in range(i + 1, n_boxes):
+            lo_x, hi_x = np.maximum(lower[i], lower[j]), np.minimum(upper[i], upper[j])
+            for axis in range(3):
+                across = [a for a in range(3) if a != axis]
+                if lo_x[axis] > hi_x[axis] or np.any(lo_x[across] >= hi_x[across]):
+                    continue  # apart along the axis, or no common cross-section
+                lo, hi = lo_x.copy(), hi_x.copy()
+                lo[axis] = min(lower[i][axis], lower[j][axis])
+                hi[axis] = max(upper[i][axis], upper[j][axis])
+                inside = [np.all(lo >= lower[b]) and np.all(hi <= upper[b]) for b in (i, j)]
+                if not any(inside):
+                    lower.append(lo)
+                    upper.append(hi)
+    return np.array(lower).reshape(-1, 3), np.array(upper).reshape(-1, 3)
+
+
+def best_piece(lower: np.ndarray, upper: np.ndarray, *point_sets: np.ndarray,
+               margin: np.ndarray | float = 0.0) -> np.ndarray:
+    """Index of the box ``[lower[b], upper[b]]`` best holding the points ``point_sets[·][k]`` together, for each k.
 
     Each point set has shape (K, 3); the score of a box for index k is the worst margin of the k-th points of
     every set inside the box shrunk by ``margin`` (per axis) — the box with the largest score wins (it holds
-    them all, with the largest margin; or, when none does, it is the nearest in the L∞ sense).
-
-    Returns an int array (K,). Raises ValueError when the scene has no keep-in box.
+    them all, with the largest margin; or, when none does, it is the nearest in the L∞ sense). Returns (K,).
     """
+    lo = np.asarray(lower, dtype=float)[:, None, :] + margin  # (B, 1, 3)
+    hi = np.asarray(upper, dtype=float)[:, None, :] - margin
+    slack = np.minimum.reduce([np.minimum(np.asarray(p)[None] - lo, hi - np.asarray(p)[None]) for p in point_sets])
+    return np.argmax(slack.min(axis=2), axis=0)
+
+
+def best_box(scene: Scene, *point_sets: np.ndarray, margin: np.ndarray | float = 0.0) -> np.ndarray:
+    """:func:`best_piece` over the scene's keep-in boxes. Raises ValueError when the scene has none."""
     if not scene.keep_in:
         raise ValueError("the scene has no keep-in box")
-    scores = []
-    for box in scene.keep_in:
-        lo = box.lower + margin
-        hi = box.upper - margin
-        slack = np.minimum.reduce([np.minimum(p - lo, hi - p) for p in point_sets])  # (K, 3)
-        scores.append(slack.min(axis=1))
-    return np.argmax(np.array(scores), axis=0)
+    return best_piece(np.array([b.lower for b in scene.keep_in]), np.array([b.upper for b in scene.keep_in]),
+                      *point_sets, margin=margin)

@@ -1,0 +1,166 @@
+"""Keep-in and keep-out rows of the MPC problems, recomputed at every controller step.
+
+The controllers constrain each predicted position ``p_k`` (k = 0..N) to a convex inner piece of the free space
+(Doerr et al. 2021, Eqs. 12-14; the same pieces as the trajectory polish and the excitation design,
+:mod:`oacli.geometry.halfspaces`):
+
+* **keep-in**: the keep-in box that holds the reference position at step k (several: the one with the largest
+  margin; none: the nearest, :func:`oacli.geometry.halfspaces.best_piece`), shrunk on each axis by the robot's
+  half-extent (its radius for a sphere) and the tightening below: ``lower_k ≤ p_k ≤ upper_k``. The candidates
+  are the boxes and the bridges between touching boxes (:func:`oacli.geometry.halfspaces.keep_in_pieces`), so a
+  reference that passes from one box to the next keeps a feasible piece once the boxes are shrunk;
+* **keep-out**: for zone j, the half-space ``n_jkᵀ p_k ≥ β_jk`` bounded by the supporting plane of the zone grown
+  by the robot's body, along the metric direction of the linearisation point (the previous plan's predicted
+  position when there is one, else the reference position), moved out by the tightening below. A zone farther
+  than ``activation_m`` from every reference and linearisation point of the horizon gets inactive rows
+  ``n = 0, β = −1`` (always satisfied), so the number of rows — the Parameters' shapes — is fixed at construction
+  and the problem stays DPP.
+
+Tightening by an error set: when the true position is ``p_k + e`` with ``e_i ∈ [−ext_neg_i, ext_pos_i]`` (the tube
+MPC's Z projected on position, plus the measurement noise bound), the box shrinks by ``ext`` per face and
+``β_jk`` grows by the support ``max_e (−nᵀe) = Σ_i max(n_i, 0) ext_neg_i + max(−n_i, 0) ext_pos_i``, so
+``n ᵀ(p_k + e) ≥`` the zone's support: the true position is then inside the box and outside the grown zone.
+A further isotropic ``clearance_m`` covers motion between the instants the rows apply to (see the controllers).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from oacli.geometry.collision import RobotBody
+from oacli.geometry.halfspaces import best_piece, keep_in_pieces, keep_out_zones, point_halfspaces
+from oacli.geometry.shapes import Scene
+
+#: Offset of an inactive keep-out row (with a zero normal: ``0 ≥ −1`` always holds).
+INACTIVE_OFFSET = -1.0
+
+
+@dataclass(frozen=True)
+class PositionRows:
+    """The rows of one solve for K predicted positions (arrays; J keep-out zones).
+
+    Attributes
+    ----------
+    lower, upper : ndarray, shape (K, 3)
+        Keep-in bounds [m] (empty (K, 0) arrays when the scene has no keep-in box).
+    normals : ndarray, shape (J, K, 3)
+        Unit normals of the keep-out half-spaces (zero rows when inactive).
+    offsets : ndarray, shape (J, K)
+        β [m] (``INACTIVE_OFFSET`` when inactive).
+    """
+
+    lower: np.ndarray
+    upper: np.ndarray
+    normals: np.ndarray
+    offsets: np.ndarray
+
+    def shifted(self, origin_m: np.ndarray) -> PositionRows:
+        """The rows for positions relative to ``origin_m`` (``p' = p − origin``); inactive rows are unchanged."""
+        o = np.asarray(origin_m, dtype=float)
+        return PositionRows(self.lower - o if self.lower.size else self.lower,
+                            self.upper - o if self.upper.size else self.upper,
+                            self.normals, self.offsets - self.normals @ o)
+
+    def violation_m(self, positions: np.ndarray) -> np.ndarray:
+        """Largest violation of any row at each step [m] (0 when every row holds), shape (K,)."""
+        p = np.asarray(positions, dtype=float)
+        worst = np.zeros(p.shape[0])
+        if self.lower.size:
+            worst = np.maximum(worst, np.max(np.maximum(self.lower - p, p - self.upper), axis=1))
+        if self.offsets.size:
+            gap = self.offsets - np.einsum("jki,ki->jk", self.normals, p)
+            worst = np.maximum(worst, gap.max(axis=0))
+        return np.maximum(worst, 0.0)
+
+
+class WorkspaceRows:
+    """Builds :class:`PositionRows` for a scene and a robot body (see the module docstring).
+
+    Parameters
+    ----------
+    scene : Scene
+        Keep-in boxes (their union) and keep-out ellipsoids (safety factor applied).
+    robot : RobotBody, optional
+        The robot's bounding ellipsoid (a point when omitted).
+    extent_m : ndarray, shape (3, 2), optional
+        ``[ext_neg, ext_pos]`` per axis [m]: the error set the rows are tightened by (zero by default).
+    clearance_m : float
+        Extra isotropic margin [m] on every row.
+    activation_m : float
+        Keep-out zones farther than this [m] from the horizon's points get inactive rows.
+    """
+
+    def __init__(self, scene: Scene, robot: RobotBody | None = None, *, extent_m: np.ndarray | None = None,
+                 clearance_m: float = 0.0, activation_m: float = 2.0) -> None:
+        self.scene = scene
+        self.robot = RobotBody.point() if robot is None else robot
+        self.zones = keep_out_zones(scene, self.robot)
+        ext = np.zeros((3, 2)) if extent_m is None else np.asarray(extent_m, dtype=float).reshape(3, 2)
+        if np.any(ext < 0) or clearance_m < 0:
+            raise ValueError("tightening extents and clearance must be >= 0")
+        self.extent_m = ext
+        self.clearance_m = float(clearance_m)
+        self.activation_m = float(activation_m)
+        body = np.sqrt(np.clip(np.diag(self.robot.sigma), 0.0, None))  # half-extent of the body per axis
+        self._shrink_lower = body + ext[:, 0] + self.clearance_m
+        self._shrink_upper = body + ext[:, 1] + self.clearance_m
+        self._lower, self._upper = keep_in_pieces(scene)
+
+    @property
+    def has_keep_in(self) -> bool:
+        """True when the scene has keep-in boxes (else no box rows)."""
+        return bool(self.scene.keep_in)
+
+    @property
+    def n_zones(self) -> int:
+        """Number of keep-out zones J."""
+        return len(self.zones)
+
+    def tightening_m(self, normals: np.ndarray) -> np.ndarray:
+        """``max_e (−nᵀe)`` over the error box plus the clearance, for normals ``(..., 3)`` [m]."""
+        n = np.asarray(normals, dtype=float)
+        ext = self.extent_m
+        return np.maximum(n, 0.0) @ ext[:, 0] + np.maximum(-n, 0.0) @ ext[:, 1] + self.clearance_m
+
+    def rows(self, reference_m: np.ndarray, linearisation_m: np.ndarray | None = None) -> PositionRows:
+        """Rows for the predicted positions of one solve.
+
+        Parameters
+        ----------
+        reference_m : ndarray, shape (K, 3)
+            Reference positions at the K steps (choose the keep-in box).
+        linearisation_m : ndarray, shape (K, 3), optional
+            Points the keep-out half-spaces are linearised at (the reference positions when omitted).
+        """
+        ref = np.asarray(reference_m, dtype=float)
+        lin = ref if linearisation_m is None else np.asarray(linearisation_m, dtype=float)
+        k = ref.shape[0]
+        if self.has_keep_in:
+            idx = best_piece(self._lower, self._upper, ref, margin=0.5 * (self._shrink_lower + self._shrink_upper))
+            lower = self._lower[idx] + self._shrink_lower
+            upper = self._upper[idx] - self._shrink_upper
+        else:
+            lower = upper = np.zeros((k, 0))
+        normals = np.zeros((self.n_zones, k, 3))
+        offsets = np.full((self.n_zones, k), INACTIVE_OFFSET)
+        for j, zone in enumerate(self.zones):
+            n, beta, margin = point_halfspaces(zone, lin)
+            near = margin.min() < self.activation_m
+            if not near and lin is not ref:
+                near = point_halfspaces(zone, ref)[2].min() < self.activation_m
+            if near:
+                normals[j] = n
+                offsets[j] = beta + self.tightening_m(n)
+        return PositionRows(lower, upper, normals, offsets)
+
+
+def shifted_plan(plan_t_s: float, plan_step_s: float, plan_m: np.ndarray, times_s: np.ndarray) -> np.ndarray:
+    """Positions of a previous plan ``plan_m (M, 3)`` (sampled every ``plan_step_s`` from ``plan_t_s``) at
+    ``times_s`` (K,), linear between samples and held beyond its ends, shape (K, 3)."""
+    last = plan_m.shape[0] - 1
+    u = np.clip((np.asarray(times_s, dtype=float) - plan_t_s) / plan_step_s, 0.0, last)
+    i = np.minimum(np.floor(u).astype(int), max(last - 1, 0))
+    w = (u - i)[:, None]
+    return (1.0 - w) * plan_m[i] + w * plan_m[np.minimum(i + 1, last)]
