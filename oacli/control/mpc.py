@@ -15,11 +15,14 @@ constraint the MPC law equals the infinite-horizon LQR law). State limits are so
 slightly outside them (noise, a disturbance) never makes the problem infeasible; the slack is reported.
 
 Optionally the predicted positions ``p_k = x_k[i:i+3]`` (k = 1..N) are kept in the workspace
-(:mod:`oacli.control.workspace`): a keep-in box ``lower_k ≤ p_k ≤ upper_k`` and keep-out half-spaces
-``n_jkᵀ p_k ≥ β_jk``, all Parameters (the normals multiply the variables: the compiled path updates A's values),
-soft with one slack ``σ_k ≥ 0`` per step shared by the step's rows and the exact ℓ1 penalty ``ρ_p Σ σ_k``: when
-the rows can be met, the solution meets them (ρ_p above the sum of the step's Lagrange multipliers of the hard
-problem); when the measured state is already outside (noise, a disturbance), the QP stays feasible.
+(:mod:`oacli.control.workspace`): a keep-in box ``lower_k ≤ p_k ≤ upper_k``, braking rows that keep the point
+where each predicted state would stop (braking at half the given deceleration) in that box
+(:func:`oacli.control.workspace.braking_lines`), and keep-out half-spaces ``n_jkᵀ p_k ≥ β_jk``, all Parameters (the
+normals multiply the variables: the compiled path updates A's values), soft with one slack ``σ_k ≥ 0`` per step
+shared by the step's rows and the exact ℓ1 penalty ``ρ_p Σ σ_k``: when the rows can be met, the solution meets
+them (ρ_p above the sum of the step's Lagrange multipliers of the hard problem, :data:`POSITION_PENALTY`); when
+they cannot (the measured state already outside, a plant that brakes less than the model), the QP stays feasible
+and the slack is reported.
 """
 
 from __future__ import annotations
@@ -32,11 +35,14 @@ import numpy as np
 
 from oacli.control.compiled_qp import SUCCESS_STATUSES, CompiledQP, timed_cvxpy_solve
 from oacli.control.lqr import solve_dare
-from oacli.control.workspace import PositionRows
+from oacli.control.workspace import PositionRows, braking_lines
 from oacli.types import SolveInfo
 
-#: Default exact-penalty weight of the position slack [1/m]: ten times the largest sum of a step's Lagrange
-#: multipliers of the position rows seen with hard rows (benchmarks/bench_mpc_step.py prints it).
+#: Default exact-penalty weight of the position slack [1/m]. Exact when above the sum of the Lagrange multipliers
+#: of a step's rows in the problem with hard rows; the largest sum seen in closed loop (``problem.solve()`` duals,
+#: steps whose hard rows are feasible) was 86.6 (payload chain: 15 kg plant, 9.58 kg model, excitation reference)
+#: and 18.1 (configs/doerr2021.yaml, keep-out zones): 1e5 leaves three orders of magnitude for other weights.
+#: ``python benchmarks/bench_mpc_step.py`` prints the figure for doerr2021.
 POSITION_PENALTY = 1e5
 
 
@@ -96,6 +102,10 @@ class LinearMPC:
         Index of the first position component in the state.
     position_penalty : float
         ρ_p, the exact ℓ1 penalty on the position slack [1/m].
+    braking_mps2, braking_speed_mps : ndarray, shape (3,), optional
+        ā and v̄ per axis: braking rows keep the stop point of every predicted state in its keep-in box
+        (:func:`~oacli.control.workspace.braking_lines`; soft, same slack as the step's other rows). The velocity
+        components follow the positions (``position_index + 3``).
     """
 
     def __init__(
@@ -115,6 +125,8 @@ class LinearMPC:
         keep_out_zones: int = 0,
         position_index: int = 0,
         position_penalty: float = POSITION_PENALTY,
+        braking_mps2: np.ndarray | None = None,
+        braking_speed_mps: np.ndarray | None = None,
     ) -> None:
         a = np.asarray(a, dtype=float)
         b = np.asarray(b, dtype=float)
@@ -172,6 +184,14 @@ class LinearMPC:
                 self.box_lower = cp.Parameter((n_steps, 3), name="box_lower")
                 self.box_upper = cp.Parameter((n_steps, 3), name="box_upper")
                 constraints += [pos >= self.box_lower - sigma, pos <= self.box_upper + sigma]
+                if braking_mps2 is not None:
+                    p_n = self._x[1:, position_index : position_index + 3]
+                    v_n = self._x[1:, position_index + 3 : position_index + 6]
+                    s_n = sigma
+                    for slope, icpt in braking_lines(braking_mps2, braking_speed_mps):
+                        sl, ic = np.tile(slope, (n_steps, 1)), np.tile(icpt, (n_steps, 1))
+                        constraints += [v_n <= ic + cp.multiply(sl, self.box_upper - p_n) + s_n,
+                                        -v_n <= ic + cp.multiply(sl, p_n - self.box_lower) + s_n]
             for j in range(keep_out_zones):
                 normal = cp.Parameter((n_steps, 3), name=f"out_normal_{j}")
                 offset = cp.Parameter(n_steps, name=f"out_offset_{j}")

@@ -13,12 +13,14 @@ in a local error chart and solves the standard MPC of Doerr Eq. 26 on the exact 
 Reference inputs over the horizon are the model-consistent feed-forward (:func:`feedforward_inputs`).
 
 Workspace (optional, given a scene): the predicted positions of steps 1..N stay in the keep-in box of the
-reference and outside the keep-out zones grown by the robot's body (:mod:`oacli.control.workspace`), linearised
-at the previous plan when there is one. The rows are soft with an exact ℓ1 penalty (:class:`LinearMPC`): there is
-no robustness margin here (use the tube MPC for a guarantee), but a measured state outside a row never makes the
-QP infeasible. Each row is also moved in by ``½ ‖v_max dt + ½ a_max dt²‖`` (a_max = force limit / model mass),
-half the farthest the robot can travel in one control period: every point of the motion between two control
-instants is within that distance of one of them.
+reference and outside the keep-out zones grown by the robot's body (:mod:`oacli.control.workspace`, half-spaces
+linearised at the previous plan when there is one), and the point where each predicted state would stop, braking
+at half the model's deceleration (force limit / model mass), stays in the box too — so a plant up to twice as
+heavy as the model has room to stop. The rows are soft with an exact ℓ1 penalty (:class:`LinearMPC`):
+there is no robustness margin here (use the tube MPC for a guarantee), but a measured state outside a row never
+makes the QP infeasible. Each row is also moved in by ``½ ‖v_max dt + ½ a_max dt²‖``, half the farthest the robot
+can travel in one control period: every point of the motion between two control instants is within that distance
+of one of them.
 
 Failures: when a solve fails the controller follows the shifted previous plan, and once that is used up the LQR
 law of the same weights, clipped to the limits. After ``max_consecutive_failures`` failed solves in a row it
@@ -166,6 +168,8 @@ class TrackingMPC:
             a, b, weights.q_diag, weights.r_diag, self.horizon, limits.input, x_max=limits.error_state,
             keep_in=ws is not None and ws.has_keep_in, keep_out_zones=0 if ws is None else ws.n_zones,
             position_penalty=position_penalty,
+            braking_mps2=limits.force_N / params.mass_kg if ws is not None and ws.has_keep_in else None,
+            braking_speed_mps=limits.velocity_mps,
         )
         self.lqr_gain, _ = dlqr(a, b, np.diag(weights.q_diag), np.diag(weights.r_diag))
         self._k_att, _ = dlqr(a[6:, 6:], b[6:, 3:], np.diag(weights.q_diag[6:]), np.diag(weights.r_diag[3:]))

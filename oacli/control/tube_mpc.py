@@ -23,8 +23,11 @@ by Z's position extent (:meth:`TubeDesign.position_extent`) plus the noise bound
 ``Σ_i |n_i| ext_i`` for a half-space), by the parabola's distance from its chord between two nominal knots
 (``ū T²/(8m)``, so the fallback's shifted plan stays inside) and by half the farthest the robot can travel in one
 control period (``½‖v_max dt + ½ (u_max/m) dt²‖``, so the motion *between* control instants stays inside too).
-With the braking rows (``braking=True``, default) the nominal's braking points ``z_k + τ v_k``,
-``τ = v̄/(2ū/m)``, stay in the box as well, so the safe hold (which brakes the nominal at ū) keeps the keep-in.
+With the braking rows (``braking=True``, default) the point where the nominal would stop, braking at ``ū/m``
+from the plan's terminal knot, stays in the box too (linear rows invariant under braking,
+:mod:`oacli.control.tube_qp`): a plan can always be continued by braking (the rows stay feasible from step to
+step, up to a change of the box chosen for a step) and the safe hold, which finishes the plan and then brakes the
+nominal at ū, keeps the keep-in.
 Hence, while the disturbance of every control step lies in W and the QP solves (or the shifted plan is followed),
 the true robot body stays in the keep-in boxes and out of the keep-out zones. When the tightened rows cannot be
 met (e.g. a reference too close to a wall), the QP is infeasible and the failure handling below applies.
@@ -34,7 +37,9 @@ input for this time) with the ancillary law, which keeps every guarantee; after 
 failures in a row, or when the plan is used up, the controller enters a latched *safe hold*: the nominal brakes
 to rest with the largest tightened input (``v = clip(−m v_z / dt, Ū)``, so ``|v_z|`` never grows) and stays
 there, the ancillary law keeps the robot in ``z ⊕ Z``, and attitude is held by an LQR on the attitude at entry
-(clipped to the torque limits).
+(clipped to the torque limits). With workspace rows the hold first finishes the last plan (nominal input from the
+plan, as in the fallback) and brakes from its end, the state the braking rows certify; it brakes at once when
+there is no plan left.
 """
 
 from __future__ import annotations
@@ -186,7 +191,7 @@ class TubeMPC:
             v_bar = np.array([max(-lo, hi) for lo, hi in (ax.velocity_bounds_mps for ax in design.axes)])
             spec = PositionRowsSpec(
                 keep_in=self.workspace.has_keep_in, keep_out_zones=self.workspace.n_zones,
-                braking_s=v_bar * params.mass_kg / (2.0 * u_bar) if braking else None,
+                braking_mps2=u_bar / params.mass_kg if braking else None, braking_speed_mps=v_bar,
             )
         trans = QPBlock(
             "translation", a_t, b_t, q_t, weights.force, p_t,
@@ -303,7 +308,9 @@ class TubeMPC:
         if self._hold_q is not None:
             mode = "hold"
             z = z_pred if z_pred is not None else x_t
-            v, tau = self._brake(z), self._hold_torque(x)
+            planned = self._plan_input(t) if self.workspace is not None and z_pred is not None else None
+            v = self._brake(z) if planned is None else planned[0]  # with rows: finish the certified plan first
+            tau = self._hold_torque(x)
         anc = self._gain @ (x_t - z)
         u = np.concatenate([v + anc, tau])
         self._z_pred = self._a_c @ z + self._b_c @ v

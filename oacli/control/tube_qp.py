@@ -12,11 +12,19 @@ Both minimise
 A block may also keep its predicted positions in the workspace (:class:`PositionRowsSpec`,
 :mod:`oacli.control.workspace`): a keep-in box ``lower_k ≤ p_k ≤ upper_k`` and keep-out half-spaces
 ``n_jkᵀ p_k ≥ β_jk`` with Parameter bounds and normals, on ``z_0..z_N`` and HARD in a tube block (the caller
-tightens them by Z, so that they hold for the true state), on ``y_1..y_N`` and soft with an exact ℓ1 penalty in a
-standard block. Optionally the tube block's *braking points* ``p_k + τ ⊙ v_k`` stay in the same box: with
-``τ_i = v̄_i / (2 ā_i)`` (v̄ the velocity bound, ā the braking acceleration) ``p + τ v`` bounds the point where
-braking at ā from ``(p, v)`` stops (``v|v|/(2ā) ≤ v τ`` for ``|v| ≤ v̄``), so the safe hold, which brakes the
-nominal at ā, stays in the box.
+tightens them by Z, so that they hold for the true state; each half-space also holds at the next knot, so the
+whole segment ``z_k → z_{k+1}`` is in it), on ``y_1..y_N`` and soft with an exact ℓ1 penalty in a standard block.
+
+Optionally (tube block) *braking rows* at the terminal knot keep the point where braking at ā (per axis) from
+``(p, v) = z_N`` stops, ``p + v|v|/(2ā)``, inside the terminal box: with ``d = upper − p``, it does exactly when
+``v ≤ sqrt(2ā d)``, a convex set but a cone constraint; the rows are its piecewise-linear inner approximation for
+half the braking acceleration, ``v ≤ min(s₀ d, v̄/3 + s₁ d)`` (:func:`braking_lines`: the chords of ``sqrt(ā d)``
+through ``d = 0, d*/4, d*``, ``d* = v̄²/ā``, v̄ the velocity bound), and the mirror rows for the lower face. The
+halved acceleration makes them invariant under braking at ā (on each chord the braking trajectory's slope ``ā/v``
+is at least the chord's), so every plan ends in a state from which braking stays in the box: the previous plan
+followed by braking is feasible at the next step (recursive feasibility of the keep-in rows, up to a change of the
+box chosen for a step), and a safe hold that finishes the plan and then brakes stays in the keep-in. Linear rows at
+one knot keep the QP small: second-order cones, or these rows at every knot, cost 1.5× the solve time.
 
 Every constraint is a linear inequality ``H y ≤ h`` written without ``abs`` atoms (which would add hidden
 variables), and the references enter the cost through ``sum_squares(c ⊙ (z − r))`` with constant ``c``, which
@@ -35,7 +43,7 @@ import cvxpy as cp
 import numpy as np
 
 from oacli.control.compiled_qp import CompiledQP, timed_cvxpy_solve
-from oacli.control.workspace import PositionRows
+from oacli.control.workspace import PositionRows, braking_lines
 from oacli.types import SolveInfo
 
 _OK = {"optimal", "optimal_inaccurate"}
@@ -90,8 +98,10 @@ class PositionRowsSpec:
         First position component of the block's state (three components).
     velocity_index : int
         First velocity component (for the braking rows).
-    braking_s : ndarray, shape (3,), optional
-        τ per axis [s]: the braking points ``p + τ ⊙ v`` stay in the keep-in box too (tube block only).
+    braking_mps2 : ndarray, shape (3,), optional
+        ā per axis [m/s²]: add braking rows at the terminal knot (module docstring; tube block only).
+    braking_speed_mps : ndarray, shape (3,), optional
+        v̄ per axis [m/s], the velocity bound of the block's states (required with ``braking_mps2``).
     penalty : float
         Exact ℓ1 penalty of the soft rows of a standard block [1/m].
     """
@@ -100,7 +110,8 @@ class PositionRowsSpec:
     keep_out_zones: int = 0
     position_index: int = 0
     velocity_index: int = 3
-    braking_s: np.ndarray | None = None
+    braking_mps2: np.ndarray | None = None
+    braking_speed_mps: np.ndarray | None = None
     penalty: float = 1e5
 
 
@@ -304,16 +315,19 @@ class NominalQP:
             bv.box_lower = cp.Parameter((k, 3), name=f"{blk.name}_box_lower")
             bv.box_upper = cp.Parameter((k, 3), name=f"{blk.name}_box_upper")
             constraints += [pos >= bv.box_lower - sigma, pos <= bv.box_upper + sigma]
-            if hard and spec.braking_s is not None:
-                stop = pos + cp.multiply(np.tile(np.asarray(spec.braking_s, dtype=float), (k, 1)),
-                                         states[:, iv : iv + 3])
-                constraints += [stop >= bv.box_lower, stop <= bv.box_upper]
+            if hard and spec.braking_mps2 is not None:  # at the terminal knot (module docstring)
+                vel, p_n = bv.z_n[iv : iv + 3], bv.z_n[i : i + 3]
+                for slope, intercept in braking_lines(spec.braking_mps2, spec.braking_speed_mps):
+                    constraints += [vel <= intercept + cp.multiply(slope, bv.box_upper[k - 1] - p_n),
+                                    -vel <= intercept + cp.multiply(slope, p_n - bv.box_lower[k - 1])]
         normals, offsets = [], []
         for j in range(spec.keep_out_zones):
             normals.append(cp.Parameter((k, 3), name=f"{blk.name}_out_normal_{j}"))
             offsets.append(cp.Parameter(k, name=f"{blk.name}_out_offset_{j}"))
             slack = 0.0 if hard else bv.position_slack
             constraints.append(cp.sum(cp.multiply(normals[j], pos), axis=1) >= offsets[j] - slack)
+            if hard:  # both ends of each nominal segment in the segment's first half-space
+                constraints.append(cp.sum(cp.multiply(normals[j][:-1], pos[1:]), axis=1) >= offsets[j][:-1])
         bv.out_normals, bv.out_offsets = tuple(normals), tuple(offsets)
         return constraints, cost
 

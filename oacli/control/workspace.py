@@ -164,3 +164,17 @@ def shifted_plan(plan_t_s: float, plan_step_s: float, plan_m: np.ndarray, times_
     i = np.minimum(np.floor(u).astype(int), max(last - 1, 0))
     w = (u - i)[:, None]
     return (1.0 - w) * plan_m[i] + w * plan_m[np.minimum(i + 1, last)]
+
+
+def braking_lines(braking_mps2: np.ndarray, speed_mps: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(slope, intercept)`` per axis of the braking rows ``v ≤ intercept + slope · d`` (see
+    :mod:`oacli.control.tube_qp`): ``d`` is the distance to a box face [m], v the velocity towards it [m/s].
+
+    The chords of ``g(d) = sqrt(ā d)`` through ``d = 0, d*/4, d*`` with ``d* = v̄²/ā``: ``s₀ = 2ā/v̄`` (intercept
+    0) and ``s₁ = 2ā/(3v̄)`` (intercept v̄/3).
+    """
+    a = np.asarray(braking_mps2, dtype=float)
+    v = np.asarray(speed_mps, dtype=float)
+    if np.any(~(a > 0)) or np.any(~(v > 0)):
+        raise ValueError("braking acceleration and speed bound must be > 0")
+    return [(2.0 * a / v, np.zeros_like(v)), (2.0 * a / (3.0 * v), v / 3.0)]
