@@ -71,11 +71,9 @@ class KeepOutZone:
     def support_m(self, normals: np.ndarray) -> np.ndarray:
         """Support function of the grown zone, ``max_{p ∈ E ⊕ R} nᵀp`` [m], for unit normals ``(K, 3)``."""
         n = np.atleast_2d(normals)
-        return (
-            n @ self.center
-            + np.sqrt(np.einsum("ki,ij,kj->k", n, self.sigma_zone, n))
-            + np.sqrt(np.clip(np.einsum("ki,ij,kj->k", n, self.sigma_robot, n), 0.0, None))
-        )
+        zone = np.sum((n @ self.sigma_zone) * n, axis=1)
+        robot = np.sum((n @ self.sigma_robot) * n, axis=1)
+        return n @ self.center + np.sqrt(zone) + np.sqrt(np.maximum(robot, 0.0))
 
 
 def keep_out_zone(ellipsoid: Ellipsoid, robot: RobotBody | None = None) -> KeepOutZone:
@@ -119,15 +117,15 @@ def supporting_halfspaces(
         β: support of the grown zone along the normal plus μ.
     """
     n = np.atleast_2d(directions) @ zone.metric  # rows: Lᵀ m
-    n = n / np.linalg.norm(n, axis=1)[:, None]
+    n = n / np.sqrt(np.sum(n * n, axis=1))[:, None]
     return n, zone.support_m(n) + clearance_m
 
 
 def metric_directions(zone: KeepOutZone, points: np.ndarray) -> np.ndarray:
     """``w = L (p − c)`` of each point ``(K, 3)``; +x of the normalised coordinates for a point on the centre."""
     w = (np.atleast_2d(points) - zone.center) @ zone.metric.T
-    degenerate = np.linalg.norm(w, axis=1) <= _DEGENERATE
-    if np.any(degenerate):
+    degenerate = np.sum(w * w, axis=1) <= _DEGENERATE**2
+    if degenerate.any():
         w[degenerate] = np.array([1.0, 0.0, 0.0])
     return w
 
@@ -142,7 +140,7 @@ def point_halfspaces(
     """
     p = np.atleast_2d(np.asarray(points, dtype=float))
     n, beta = supporting_halfspaces(zone, metric_directions(zone, p), clearance_m)
-    return n, beta, np.einsum("ki,ki->k", n, p) - beta
+    return n, beta, np.sum(n * p, axis=1) - beta
 
 
 def keep_in_pieces(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
