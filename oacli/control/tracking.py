@@ -18,9 +18,9 @@ linearised at the previous plan when there is one), and the point where each pre
 at half the model's deceleration (force limit / model mass), stays in the box too — so a plant up to twice as
 heavy as the model has room to stop. The rows are soft with an exact ℓ1 penalty (:class:`LinearMPC`):
 there is no robustness margin here (use the tube MPC for a guarantee), but a measured state outside a row never
-makes the QP infeasible. Each row is also moved in by ``½ ‖v_max dt + ½ a_max dt²‖``, half the farthest the robot
-can travel in one control period: every point of the motion between two control instants is within that distance
-of one of them.
+makes the QP infeasible. The rows hold at the prediction instants, with no extra margin for the motion between
+them: a plan certified collision-free in continuous time (``oacli smooth``) is then followed as closely as
+without rows.
 
 Failures: when a solve fails the controller follows the shifted previous plan, and once that is used up the LQR
 law of the same weights, clipped to the limits. After ``max_consecutive_failures`` failed solves in a row it
@@ -99,13 +99,6 @@ def to_error_state(x: np.ndarray, origin_m: np.ndarray, q_anchor: np.ndarray) ->
     return np.concatenate([x[..., 0:3] - origin_m, x[..., 3:6], phi, x[..., 10:13]], axis=-1)
 
 
-def intra_step_clearance_m(velocity_mps: np.ndarray, accel_mps2: np.ndarray, dt_s: float) -> float:
-    """Half the farthest distance [m] covered in ``dt_s`` at per-axis speeds ≤ ``velocity_mps`` and
-    accelerations ≤ ``accel_mps2``: every point of such a motion is within it of one of its two ends."""
-    travel = np.asarray(velocity_mps, dtype=float) * dt_s + 0.5 * np.asarray(accel_mps2, dtype=float) * dt_s**2
-    return 0.5 * float(np.linalg.norm(travel))
-
-
 class TrackingMPC:
     """Standard MPC tracking a reference trajectory (Doerr Eq. 26), attitude included.
 
@@ -156,11 +149,9 @@ class TrackingMPC:
         self.max_failures = max_consecutive_failures
         self.workspace: WorkspaceRows | None = None
         if scene is not None and (scene.keep_in or scene.keep_out):
-            accel = limits.force_N / params.mass_kg
             horizon_s = self.horizon * self.dt_s
             self.workspace = WorkspaceRows(
-                scene, robot, clearance_m=intra_step_clearance_m(limits.velocity_mps, accel, self.dt_s),
-                activation_m=1.0 + float(np.max(limits.velocity_mps)) * horizon_s,
+                scene, robot, activation_m=1.0 + float(np.max(limits.velocity_mps)) * horizon_s,
             )
         ws = self.workspace
         a, b = hover_error_model(params, self.dt_s)
