@@ -60,7 +60,7 @@ def test_rakovic_2005_example_is_an_outer_epsilon_approximation(rng):
 def axis_systems():
     """Per-axis Astrobee translation at 0.2 s with the ReSWARM ancillary gain, and the RKKM05 example."""
     a, b = double_integrator(0.2, 1 / 9.5)
-    k, _ = dlqr(a, b, np.diag([5.0, 10.0]), np.array([[2.0]]))  # REFERENCE.md "Tube MPC": Q = diag(5, 10), R = 2
+    k, _ = dlqr(a, b, np.diag([5.0, 10.0]), np.array([[2.0]]))  # [RattleCode] z_poly_calc: Q = diag(5, 10), R = 2
     return [
         (RKKM_A_K, RKKM_W, 1e-4),
         (a + b @ k, Polytope.symmetric_box([6.8e-6, 6.8e-5]), 0.005),

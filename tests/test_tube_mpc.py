@@ -25,7 +25,7 @@ from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.types import InertialParams
 
-# ReSWARM tube MPC settings (REFERENCE.md "Tube MPC", rattle casadi_nmpc / z_poly_calc).
+# ReSWARM tube MPC settings ([RattleCode] casadi_nmpc / z_poly_calc).
 MASS = 9.5
 INERTIA = [0.153427995, 0.14271405, 0.162302759]  # astrobee iss.config
 DT = 0.2

@@ -70,7 +70,7 @@ class PlannerWeights(Section):
 
 
 class KinoRrtConfig(Section):
-    """Kinodynamic RRT with motion primitives (ReSWARM, seed 001 §4.1.2-4.1.3, Eqs. 26-27)."""
+    """Kinodynamic RRT with motion primitives ([ReSWARM2023] §4.1.2-4.1.3, Eqs. 26-27)."""
 
     primitive_fraction: Fraction = Field(
         default=0.5, description="α of Eq. 27 [-], in (0, 1]: primitives apply ±α × the force limit per axis."

@@ -12,7 +12,7 @@ axis in 2-D (Mayne, Seron & Raković 2005; Doerr et al. 2021, Eqs. 18-27):
 4. tightened sets ``Ū = U ⊖ K Z`` and ``X̄ = X ⊖ (Z ⊕ (−N))`` (N: measurement noise box; the true state is
    ``x = x̃ − n``), with X the velocity limit.
 
-If a tightened set loses the origin from its interior (W too large for the actuators, seed 001 §4.5), the design
+If a tightened set loses the origin from its interior (W too large for the actuators, [ReSWARM2023] §4.5), the design
 refuses with W and the actuator margin, unless the explicit policy ``"scale_w"`` is chosen: then W of that axis is
 scaled down to the largest factor that leaves ``min_nominal_fraction`` of each limit to the nominal MPC, and the
 factor is reported.

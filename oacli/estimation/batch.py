@@ -23,7 +23,7 @@ Choices the paper leaves open, and what is done here:
 * **Covariance.** ``cov(θ̂) = [(AᵀA)⁻¹]_θθ`` at the solution (Doerr: "extracted from (AᵀA)⁻¹"), mapped from φ
   to θ through ``dθ/dφ``.
 * **Outliers.** After convergence every record's normalised residual ``d²_k = ‖R^-½ (h(x̂_k) ⊟ ỹ_k)‖²`` is tested
-  against the χ² gate (seed 001 §6.2.1); records outside it are dropped and the problem is re-solved, until the
+  against the χ² gate ([ReSWARM2023] §6.2.1); records outside it are dropped and the problem is re-solved, until the
   inlier set no longer changes. The dynamics still tie the state of a dropped record to its neighbours.
 * **Continuation.** With a nearly rigid model (small process noise) the process residuals have tiny standard
   deviations, and the second-order terms a large parameter step leaves in them (``u Δt/m`` is not linear in m)

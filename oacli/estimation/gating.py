@@ -1,4 +1,4 @@
-"""χ² innovation gating for outlier rejection (seed 001 §6.2.1, Eqs. 40-42).
+"""χ² innovation gating for outlier rejection ([ReSWARM2023] §6.2.1, Eqs. 40-42).
 
 With Gaussian noise the normalised innovation squared ``d² = νᵀ S⁻¹ ν`` of a measurement with ``n`` independent
 components follows a χ² distribution with ``n`` degrees of freedom (the squared Mahalanobis distance between the
@@ -26,7 +26,7 @@ def chi2_threshold(dof: int, probability: float = 0.99) -> float:
 
 
 def normalised_innovation_squared(innovation: np.ndarray, covariance: np.ndarray) -> float:
-    """``d² = νᵀ S⁻¹ ν`` (seed 001 Eq. 42) via a Cholesky solve of the innovation covariance ``S``."""
+    """``d² = νᵀ S⁻¹ ν`` ([ReSWARM2023] Eq. 42) via a Cholesky solve of the innovation covariance ``S``."""
     chol = np.linalg.cholesky(0.5 * (covariance + covariance.T))
     z = np.linalg.solve(chol, innovation)
     return float(z @ z)

@@ -169,7 +169,7 @@ class EstimatorSettings:
         Integration grid of the process model [s] (the simulator's plant period; see
         :mod:`oacli.estimation.propagation`).
     gate_probability : float or None
-        χ² gate level for outlier rejection (seed 001 §6.2.1: 0.99); ``None`` disables gating.
+        χ² gate level for outlier rejection ([ReSWARM2023] §6.2.1: 0.99); ``None`` disables gating.
     max_iterations : int
         Batch: Gauss-Newton/Levenberg-Marquardt iterations per gating round.
     tolerance : float
@@ -177,7 +177,7 @@ class EstimatorSettings:
     max_gating_rounds : int
         Batch: re-solve with the current inlier set at most this many times.
     reorder_window : int
-        Sequential: records held back to restore time-stamp order (seed 001 §5.4.3); 0 processes at once.
+        Sequential: records held back to restore time-stamp order ([ReSWARM2023] §5.4.3); 0 processes at once.
     """
 
     measurement: MeasurementModel

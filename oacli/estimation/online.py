@@ -1,4 +1,4 @@
-"""The sequential estimator as an online planner consumes it (RATTLE closed loop, seed 001 §4.4).
+"""The sequential estimator as an online planner consumes it (RATTLE closed loop, [ReSWARM2023] §4.4).
 
 The RATTLE loop (:mod:`oacli.excitation.rattle_loop`) calls ``update(t_k, x_k, u_{k-1})`` at every control step:
 the state measured at ``t_k`` and the input held *since the previous* measurement. The estimator's records

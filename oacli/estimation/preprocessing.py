@@ -1,7 +1,7 @@
-"""From telemetry to measurement records, and back into time-stamp order (seed 001 §5.4.3, §6.2.1).
+"""From telemetry to measurement records, and back into time-stamp order ([ReSWARM2023] §5.4.3, §6.2.1).
 
 On Astrobee the localisation (EKF) and the applied wrench (inverse FAM) arrive on separate topics whose messages
-are often delayed and out of order; RATTLE sorted them by time stamp before the sequential estimator (seed 001
+are often delayed and out of order; RATTLE sorted them by time stamp before the sequential estimator ([ReSWARM2023]
 §6.2.1, Fig. 20). Here:
 
 * :func:`order_by_time` sorts a whole batch of records (stable) and sets aside duplicated time stamps;

@@ -1,6 +1,6 @@
 """The estimators' process model: the simulator's multi-rate RK4 integration with exact Jacobians, vectorised.
 
-Telemetry comes at the control rate (5 Hz on ReSWARM, seed 001 §5.4.3) while the plant is integrated at 62.5 Hz:
+Telemetry comes at the control rate (5 Hz on ReSWARM, [ReSWARM2023] §5.4.3) while the plant is integrated at 62.5 Hz:
 within each control period the input is held and :func:`oacli.sim.simulator.simulate` takes RK4 steps on the
 fixed grid ``n · h`` (``h`` = plant period), splitting a step where a control instant falls between two grid
 points, and renormalises the quaternion after every step. One RK4 step of 0.2 s would only approximate those 12.5

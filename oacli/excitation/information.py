@@ -16,7 +16,7 @@ The Cramér-Rao bound of any unbiased estimator is ``cov(θ̂) ⪰ F⁻¹``; the
 
 Measured quantities (each optional, see :class:`MeasurementModel`): position, velocity, attitude (as the
 body-frame rotation-vector error about the true attitude), angular velocity, linear acceleration ``f/m`` and
-angular acceleration ``ω̇`` (RATTLE's estimator uses velocities and accelerations, seed 001 §4.4.1).
+angular acceleration ``ω̇`` (RATTLE's estimator uses velocities and accelerations, [ReSWARM2023] §4.4.1).
 """
 
 from __future__ import annotations

@@ -2,8 +2,10 @@
 
 The information-aware planner (:mod:`oacli.excitation.rattle`) needs, at every replan, the latest estimate
 ``θ̂`` and its standard deviations. Any sequential estimator that can be fed one measurement at a time will do
-(:class:`SequentialEstimator`); the real one (recursive least squares / EKF with outlier gating, seed 001 §4.4.1)
-comes with the estimation half of issue 5 and only has to implement this protocol.
+(the :class:`SequentialEstimator` protocol below). ``oacli excite --method rattle`` uses the real one by default:
+the error-state EKF with χ² outlier gating of :mod:`oacli.estimation.sequential` ([ReSWARM2023] §4.4.1, §6.2.1),
+behind :class:`oacli.estimation.online.OnlineSequentialEstimator` (``excitation.rattle.estimator: sequential``);
+``estimator: oracle`` selects the oracle below instead.
 
 :class:`CramerRaoOracle` is **not** an estimator: it knows the true parameters and reports them, with the
 Cramér-Rao covariance ``(F_prior + F)⁻¹`` of the information accumulated so far along the flown trajectory (the

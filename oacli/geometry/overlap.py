@@ -1,4 +1,4 @@
-"""Ellipsoid-on-ellipsoid overlap (ReSWARM, seed 001 §4.2.2) in the form of Gilitschenski & Hanebeck.
+"""Ellipsoid-on-ellipsoid overlap ([ReSWARM2023] §4.2.2) in the form of Gilitschenski & Hanebeck.
 
 Two ellipsoids ``E1 = {x : (x - c1)ᵀ Σ1⁻¹ (x - c1) <= 1}`` and ``E2 = {x : (x - c2)ᵀ Σ2⁻¹ (x - c2) <= 1}``
 (Σ1 positive definite, Σ2 positive semidefinite; Σ2 = 0 is a point) have overlapping interiors if and only if

@@ -1,4 +1,4 @@
-"""Kinodynamic RRT with motion primitives (ReSWARM, seed 001 §4.1.2-4.1.3, Eqs. 26-27; LaValle 2001).
+"""Kinodynamic RRT with motion primitives ([ReSWARM2023] §4.1.2-4.1.3, Eqs. 26-27; LaValle 2001).
 
 * **Metric** (Eq. 26): weighted Euclidean distance ``|W (x - x_rand)|`` with ``W = diag(w_r, w_r, w_r, w_v, w_v,
   w_v)``; nearest-neighbour search is a vectorised scan of the weighted nodes.
