@@ -10,7 +10,7 @@ Units: times s, lengths m, speeds m/s; the cost weights make the trajectory cost
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, Strict, model_validator
 
@@ -187,7 +187,7 @@ class PlannerConfig(Section):
 
     @model_validator(mode="after")
     def _consistent_steps(self) -> PlannerConfig:
-        problems = []
+        problems: list[tuple[tuple[str | int, ...], Any, str]] = []
 
         def steps(value: float, unit: float) -> float:
             return value / unit

@@ -148,7 +148,7 @@ class LinearMPC:
             stats = self.problem.solver_stats if status in SUCCESS_STATUSES else None
             iterations = stats.num_iters if stats is not None and stats.num_iters is not None else -1
             objective = float(self.problem.value) if stats is not None else float("nan")
-            value = (lambda v: v.value) if stats is not None and self._u.value is not None else None
+            value = (lambda v: v.value) if stats is not None and self._u.value is not None else None  # type: ignore[assignment,return-value]
         wall = time.perf_counter() - start
         if value is not None:
             u, x = np.array(value(self._u)), np.array(value(self._x))

@@ -219,7 +219,7 @@ def design_axis(
     z = reduction.z
     u_set = Polytope.symmetric_box([force_limit_N])
     u_bar = u_set.pontryagin_difference(z.linear_map(gain))  # Ū = U ⊖ K Z
-    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), [velocity_limit_mps, velocity_limit_mps])
+    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), [velocity_limit_mps, velocity_limit_mps])  # type: ignore[arg-type]
     noise = dist.noise_bound
     z_true = z if not np.any(noise > 0) else z.minkowski_sum(Polytope.symmetric_box(noise))  # Z ⊕ (−N), N symmetric
     x_bar = x_set.pontryagin_difference(z_true)  # X̄ = X ⊖ (Z ⊕ −N)
@@ -303,13 +303,13 @@ def design_translation_tube(
     axes = []
     for i in range(3):
         limits = {"force_limit_N": float(force_limit_N[i]), "velocity_limit_mps": float(velocity_limit_mps[i])}
-        ax = design_axis(i, **common, **limits)
+        ax = design_axis(i, **common, **limits)  # type: ignore[arg-type]
         if not ax.feasible:
             if on_empty == "error":
                 raise InfeasibleError(_describe_infeasible(ax, dt_s))
             ax = _scaled_axis(i, common, limits, min_nominal_fraction)
         axes.append(ax)
-    return TubeDesign(axes=tuple(axes), dt_s=float(dt_s), mass_kg=float(mass_kg))
+    return TubeDesign(axes=tuple(axes), dt_s=float(dt_s), mass_kg=float(mass_kg))  # type: ignore[arg-type]
 
 
 def _keeps_fraction(ax: AxisTube, fraction: float) -> bool:

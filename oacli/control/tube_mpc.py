@@ -189,10 +189,10 @@ class TubeMPC:
         j = int(np.floor((t - self._plan_t) / self.step_s + 1e-9))
         if j >= self.horizon:
             return None
-        return self._plan_v[j], self._plan_tau[j]
+        return self._plan_v[j], self._plan_tau[j]  # type: ignore[index]
 
     def _hold_torque(self, x: np.ndarray) -> np.ndarray:
-        phi = quat.error_vector(self._hold_q, x[6:10])
+        phi = quat.error_vector(self._hold_q, x[6:10])  # type: ignore[arg-type]
         tau = self._k_att @ np.concatenate([phi, x[10:13]])
         return np.clip(tau, -self.limits.torque_Nm, self.limits.torque_Nm)
 

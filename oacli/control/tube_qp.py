@@ -266,9 +266,9 @@ class NominalQP:
             raise ValueError("the fast path was not compiled (fast=False at construction)")
         start = time.perf_counter()
         if use_fast:
-            out = self.compiled.solve(self._values)
+            out = self.compiled.solve(self._values)  # type: ignore[union-attr]
             status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
-            value = self.compiled.value if out.success else None
+            value = self.compiled.value if out.success else None  # type: ignore[union-attr]
         else:
             for param in self.problem.parameters():
                 param.value = self._values[param.id]

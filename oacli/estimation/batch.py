@@ -296,8 +296,8 @@ def _levenberg_marquardt(
     lam = _LAMBDA_INIT
     k = problem.k
     for it in range(1, settings.max_iterations + 1):
-        h = (a_mat.T @ a_mat).tocsc()
-        g = a_mat.T @ b
+        h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
+        g = a_mat.T @ b  # type: ignore[union-attr]
         diag = np.maximum(h.diagonal(), 1e-12 * max(h.diagonal().max(), 1.0))
         while True:
             step = _solve((h + sp.diags(lam * diag)).tocsc(), -g)
@@ -334,7 +334,7 @@ def _marginal_covariances(
     Singular ``AᵀA`` gives ``inf`` diagonals.
     """
     _, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
-    h = (a_mat.T @ a_mat).tocsc()
+    h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
     n = problem.n_var
     m = TANGENT_DIM + par.N_PARAMS
     rhs = np.zeros((n, m))
@@ -394,7 +394,7 @@ def estimate_batch(
         if prior is None:
             raise ValueError("give a prior or an initial_theta")
         initial_theta = prior.theta
-    phi = par.phi_from_theta(initial_theta) if initial_phi is None else np.array(initial_phi, dtype=float)
+    phi = par.phi_from_theta(initial_theta) if initial_phi is None else np.array(initial_phi, dtype=float)  # type: ignore[arg-type]
     theta_w = prior.theta if prior is not None else par.theta_from_phi(phi)
     problem = _Problem(recs, settings, prior, theta_w)
     x = problem.y.copy() if initial_states is None else np.array(initial_states, dtype=float)
@@ -490,7 +490,7 @@ def estimate_batch_windows(
     for i, end in enumerate(window_ends_s):
         n = int(np.searchsorted(t, end + TIME_TOL_S, side="right"))
         if n >= 2:
-            init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)
+            init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)  # type: ignore[arg-type]
             result = estimate_batch(ordered[:n], settings, prior, initial_theta=theta, initial_states=init,
                                     initial_phi=phi)
             results.append(result)

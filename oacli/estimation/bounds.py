@@ -118,13 +118,13 @@ def cramer_rao_bound(
             sens[i + 1] = a_t[i] @ sens[i]
             sens[i + 1, :, TANGENT_DIM:] += c_t[i]
     info = np.zeros((n, n))
-    for i in np.flatnonzero(used):
+    for i in np.flatnonzero(used):  # type: ignore[assignment]
         g = sens[i][state_rows] * w_state[:, None]
         info += g.T @ g
     if accel_rows.size:
         jac = dynamics_jacobians_batch(states, u, theta)[:, _ACCEL_ROWS]
         lifts = lift_matrix(states)
-        for i in np.flatnonzero(used):
+        for i in np.flatnonzero(used):  # type: ignore[assignment]
             g = jac[i, :, 0:13] @ lifts[i] @ sens[i]
             g[:, TANGENT_DIM:] += jac[i, :, 13:]
             g = g[accel_rows] * w_accel[:, None]

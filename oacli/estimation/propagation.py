@@ -76,8 +76,8 @@ def dynamics_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarra
         ]])
     m = theta[0]
     ix, iy, iz = theta[1], theta[2], theta[3]
-    qx, qy, qz, qw = x[:, 6], x[:, 7], x[:, 8], x[:, 9]
-    wx, wy, wz = x[:, 10], x[:, 11], x[:, 12]
+    qx, qy, qz, qw = x[:, 6], x[:, 7], x[:, 8], x[:, 9]  # type: ignore[assignment]
+    wx, wy, wz = x[:, 10], x[:, 11], x[:, 12]  # type: ignore[assignment]
     dx = np.empty_like(x)
     dx[:, 0:3] = x[:, 3:6]
     dx[:, 3:6] = u[:, 0:3] / m
@@ -160,7 +160,8 @@ def _rk4_substep(x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: np.ndarray
     eye[:, :, 0:STATE_DIM] = np.eye(STATE_DIM)
     h = dt[:, None]
     hj = dt[:, None, None]
-    ks, dks = [], []
+    ks: list[np.ndarray] = []
+    dks: list[np.ndarray] = []
     xs, dxs = x, eye
     for coef in (0.0, 0.5, 0.5, 1.0):
         if ks:

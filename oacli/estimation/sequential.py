@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.estimation import parametrization as par
-from oacli.estimation.batch import estimate_batch, extend_states
+from oacli.estimation.batch import BatchResult, estimate_batch, extend_states
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.manifold import (
     TANGENT_DIM,
@@ -149,7 +149,7 @@ class SequentialEstimator:
         self._next_check = self.bootstrap_check_every
         self._boot: list[Measurement] | None = [] if bootstrap_relative_std is not None else None
         self._boot_estimate: ParameterEstimate | None = None
-        self._boot_result = None
+        self._boot_result: BatchResult | None = None
         self.bootstrap_records = 0
         self._phi = par.phi_from_theta(prior.theta)
         jac_inv = np.linalg.inv(par.theta_jacobian(self._phi))

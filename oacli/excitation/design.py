@@ -574,7 +574,7 @@ class _Subproblem:
             return f"solver_error: {exc}", None, float("nan")
         if status not in _OK or self.du.value is None:
             return status, None, float("nan")
-        slack = float(sum(np.sum(np.maximum(s.value, 0.0)) for s in self.slacks))
+        slack = float(sum(np.sum(np.maximum(s.value, 0.0)) for s in self.slacks))  # type: ignore[arg-type]
         return status, np.array(self.du.value), slack
 
 
@@ -635,7 +635,7 @@ class _ScpRun:
         it = len(self.history) + 1
         current = self.current
         if self.lin is None:
-            self.lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)
+            self.lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)  # type: ignore[assignment]
         lin = self.lin
         sub.set_iterate(current, lin, self.d_force, self.d_torque)
         t0 = time.perf_counter()
@@ -651,7 +651,7 @@ class _ScpRun:
             if max(self.d_force, self.d_torque) < settings.trust_region_min:
                 self.stop = f"subproblem failed ({status})"
             return
-        dfim = _fim_step(lin.gradients, du)
+        dfim = _fim_step(lin.gradients, du)  # type: ignore[attr-defined]
         crit_model = criterion_value(current.fim + dfim, p.criterion, merit.d)
         predicted = merit.normalise(crit_model) + settings.penalty * slack if np.isfinite(crit_model) else np.inf
         predicted_decrease = current.merit - predicted

@@ -182,7 +182,7 @@ def augmented_rk4_step(
     """
     eye = np.eye(N_AUG)
     dz_z, dz_u = eye, np.zeros((N_AUG, 6))
-    ks, dks = [], []
+    ks, dks = [], []  # type: ignore[var-annotated]
     first = None
     for coef in (0.0, 0.5, 0.5, 1.0):
         zs = z

@@ -7,6 +7,8 @@ All functions accept a single quaternion (4,) or a stack (..., 4).
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
@@ -73,6 +75,7 @@ def from_rotation_matrix(r: np.ndarray) -> np.ndarray:
     tr = np.trace(r)
     cands = np.array([r[0, 0], r[1, 1], r[2, 2], tr])
     i = int(np.argmax(cands))
+    q: list[float] | np.ndarray
     if i == 3:
         w = 0.5 * np.sqrt(1.0 + tr)
         q = [(r[2, 1] - r[1, 2]) / (4 * w), (r[0, 2] - r[2, 0]) / (4 * w), (r[1, 0] - r[0, 1]) / (4 * w), w]
@@ -107,7 +110,7 @@ def log(q: np.ndarray) -> np.ndarray:
     angle = 2.0 * np.arctan2(s, w)
     small = s < 1e-9
     k = np.where(small, 2.0 / np.where(small, w, 1.0), angle / np.where(small, 1.0, s))
-    return k * v
+    return cast(np.ndarray, k * v)
 
 
 def error_vector(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -117,7 +120,7 @@ def error_vector(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 def angle_between(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Rotation angle [rad] between two attitudes, in [0, π]."""
-    return np.linalg.norm(error_vector(q1, q2), axis=-1)
+    return cast(np.ndarray, np.linalg.norm(error_vector(q1, q2), axis=-1))
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, s: np.ndarray | float) -> np.ndarray:

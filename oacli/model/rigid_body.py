@@ -19,6 +19,8 @@ gives the LTV matrices ``A_k = ∂x_{k+1}/∂x_k``, ``B_k = ∂x_{k+1}/∂u_k`` 
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from oacli.model import quaternion as quat
@@ -107,7 +109,7 @@ def rk4_step(x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float) -> np.n
     k2 = dynamics(x + 0.5 * dt * k1, u, theta)
     k3 = dynamics(x + 0.5 * dt * k2, u, theta)
     k4 = dynamics(x + dt * k3, u, theta)
-    return x + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return cast(np.ndarray, x + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4))
 
 
 def propagate(x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float) -> np.ndarray:
@@ -137,7 +139,8 @@ def rk4_step_jacobians(
     stages = []
     d_x = (eye, np.zeros((STATE_DIM, INPUT_DIM)), np.zeros((STATE_DIM, N_PARAMS)))
     xs = x
-    ks, dks = [], []
+    ks: list[np.ndarray] = []
+    dks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for coef in (0.0, 0.5, 0.5, 1.0):
         if ks:
             xs = x + coef * dt * ks[-1]
@@ -153,7 +156,7 @@ def rk4_step_jacobians(
     a = eye + (dt / 6.0) * sum(wi * d[0] for wi, d in zip(w, dks, strict=True))
     b = (dt / 6.0) * sum(wi * d[1] for wi, d in zip(w, dks, strict=True))
     c = (dt / 6.0) * sum(wi * d[2] for wi, d in zip(w, dks, strict=True))
-    return x_next, a, b, c
+    return x_next, a, cast(np.ndarray, b), cast(np.ndarray, c)
 
 
 def linearize_discrete(
@@ -170,7 +173,7 @@ def linearize_discrete(
 
 def angular_momentum_world(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """Angular momentum ``R(q) I ω`` in the world frame [kg·m²/s]; conserved when τ = 0."""
-    return quat.to_rotation_matrix(x[6:10]) @ (theta[1:4] * x[10:13])
+    return cast(np.ndarray, quat.to_rotation_matrix(x[6:10]) @ (theta[1:4] * x[10:13]))
 
 
 def rotational_energy(x: np.ndarray, theta: np.ndarray) -> float:

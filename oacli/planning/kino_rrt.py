@@ -193,7 +193,7 @@ def plan_kino_rrt(
         iteration += 1
         if rng.random() < s.goal_bias:
             stats["goal_samples"] += 1
-            x_rand = goal
+            x_rand: np.ndarray | None = goal
         else:
             stats["samples"] += 1
             x_rand = problem.sample_free_state(rng, attempts=1)
@@ -245,6 +245,6 @@ def plan_kino_rrt(
     common = dict(tree=record, rewires=(), solutions=tuple(solutions), snapshots=tuple(snapshots),
                   iterations=iteration, planning_time_s=clock() - t0, stop_reason=stop, stats=stats)
     if goal_node < 0:
-        return PlanResult(NO_SOLUTION, "kino-rrt", None, (), math.nan, **common)
+        return PlanResult(NO_SOLUTION, "kino-rrt", None, (), math.nan, **common)  # type: ignore[arg-type]
     traj = path_trajectory(tree, list(path), conn, goal, mass)
-    return PlanResult(SOLVED, "kino-rrt", traj, path, traj.cost(problem.weights, goal), **common)
+    return PlanResult(SOLVED, "kino-rrt", traj, path, traj.cost(problem.weights, goal), **common)  # type: ignore[arg-type]

@@ -675,14 +675,14 @@ def polish_trajectory(
         status = sub.solve()
         base = dict(index=i, trust_radius_m=radius, status=status, solve_time_s=time.perf_counter() - t0)
         if status not in _OK or sub.f.value is None:
-            iters.append(PolishIteration(**base, objective=np.nan, buffer_m=np.nan, length_m=np.nan,
+            iters.append(PolishIteration(**base, objective=np.nan, buffer_m=np.nan, length_m=np.nan,  # type: ignore[arg-type]
                                          duration_s=np.nan, cost=np.nan, outcome=SOLVER))
             radius *= 0.5
             continue
         full = exact_trajectory(traj.x[0], sub.f.value, goal, h, traj.mass_kg)
         coarse = trim_rest(full, goal, s.rest_tolerance)
         cand = coarse.refined(dt_s)  # the output, judged as it would be returned
-        buffer = float(np.max(sub.buffer.value))
+        buffer = float(np.max(sub.buffer.value))  # type: ignore[arg-type]
         certified = buffer <= _CERTIFIED_M
         length, cost = cand.path_length_m(), cand.cost(weights, goal)
         if not within_limits(cand, force_limit_N, velocity_limit_mps):
@@ -696,7 +696,7 @@ def polish_trajectory(
         else:
             outcome = ACCEPTED
         objective = float(sub.problem.value)
-        iters.append(PolishIteration(**base, objective=objective, buffer_m=buffer, length_m=length,
+        iters.append(PolishIteration(**base, objective=objective, buffer_m=buffer, length_m=length,  # type: ignore[arg-type]
                                      duration_s=cand.duration_s, cost=cost, outcome=outcome))
         if outcome == ACCEPTED:
             best, best_len = cand, length

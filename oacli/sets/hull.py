@@ -14,6 +14,8 @@ functions), so the H-polytope always contains every point given, whatever roundi
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
@@ -58,11 +60,11 @@ def minkowski_sum_polygons(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     edges = np.vstack([np.roll(p, -1, axis=0) - p, np.roll(q, -1, axis=0) - q])
     angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), 2 * np.pi)
     steps = edges[np.argsort(angles, kind="stable")]
-    return p[0] + q[0] + np.vstack([np.zeros(2), np.cumsum(steps[:-1], axis=0)])
+    return cast(np.ndarray, p[0] + q[0] + np.vstack([np.zeros(2), np.cumsum(steps[:-1], axis=0)]))
 
 
 def _unit_rows(a: np.ndarray) -> np.ndarray:
-    return a / np.linalg.norm(a, axis=1, keepdims=True)
+    return cast(np.ndarray, a / np.linalg.norm(a, axis=1, keepdims=True))
 
 
 def _dedupe_normals(normals: np.ndarray) -> np.ndarray:

@@ -19,8 +19,10 @@ from a linear program.
 from __future__ import annotations
 
 import itertools
+from typing import cast
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import linprog
 from scipy.spatial import HalfspaceIntersection, QhullError
 
@@ -93,7 +95,7 @@ class Polytope:
         return cls(np.vstack([eye, -eye]), np.concatenate([hi, -lo]), vertices=np.unique(corners, axis=0))
 
     @classmethod
-    def symmetric_box(cls, half_widths: np.ndarray) -> Polytope:
+    def symmetric_box(cls, half_widths: npt.ArrayLike) -> Polytope:
         """The box ``|x_i| ≤ half_widths_i``."""
         h = np.atleast_1d(np.asarray(half_widths, dtype=float))
         return cls.box(-h, h)
@@ -154,7 +156,7 @@ class Polytope:
     def is_empty(self) -> bool:
         """True when no point satisfies every inequality (a flat, lower-dimensional polytope is not empty)."""
         if self._vertices is not None:
-            return self._vertices.shape[0] == 0
+            return cast(bool, self._vertices.shape[0] == 0)
         _, radius = self.chebyshev_ball()
         scale = max(1.0, float(np.max(np.abs(self._b), initial=0.0)))
         return radius < -1e-12 * scale
@@ -287,7 +289,7 @@ class Polytope:
         pts = (self.vertices[:, None, :] + other.vertices[None, :, :]).reshape(-1, self.dim)
         normals, hull_vertices = hull_normals(pts)
         offsets = self.support(normals) + other.support(normals)
-        return Polytope(normals, offsets, vertices=hull_vertices)
+        return Polytope(normals, cast(np.ndarray, offsets), vertices=hull_vertices)
 
     def pontryagin_difference(self, other: Polytope) -> Polytope:
         """``P ⊖ Q = {x : x ⊕ Q ⊆ P} = {x : A x ≤ b − h_Q(A)}`` (Q bounded; may be empty)."""

@@ -15,6 +15,7 @@ The computation never caps the number of terms ``s`` silently: when ``max_terms`
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -154,7 +155,7 @@ def _scaled_minkowski_series(a_k: np.ndarray, w: Polytope, s: int, scale: float)
             _, points = hull_normals(points)  # keep the hull vertices only (a point dropped lies inside the hull)
     normals, hull_vertices = hull_normals(points)
     offsets = sum(w.support(normals @ p) for p in powers)
-    return Polytope(normals, scale * offsets, vertices=scale * hull_vertices)
+    return Polytope(normals, cast(np.ndarray, scale * offsets), vertices=scale * hull_vertices)
 
 
 def rpi_margins(a_closed: np.ndarray, z: Polytope, w: Polytope) -> np.ndarray:
