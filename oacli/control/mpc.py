@@ -134,7 +134,22 @@ class LinearMPC:
         self.compiled = CompiledQP(self.problem) if fast else None
 
     def solve(self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> MPCSolution:
-        """Solve for initial state ``x0 (n,)``, reference states ``x_ref (N+1, n)`` and inputs ``u_ref (N, m)``."""
+        """Solve for initial state ``x0 (n,)``, reference states ``x_ref (N+1, n)`` and inputs ``u_ref (N, m)``.
+
+        Parameters
+        ----------
+        x0 : ndarray, shape (n,)
+            Initial state.
+        x_ref : ndarray, shape (N+1, n)
+            Reference states.
+        u_ref : ndarray, shape (N, m)
+            Reference inputs.
+
+        Returns
+        -------
+        MPCSolution
+            Inputs, predicted states, slack and the solve record (NaN arrays when the solve failed).
+        """
         self.x0.value = np.asarray(x0, dtype=float)
         self.x_ref.value = np.asarray(x_ref, dtype=float)
         self.u_ref.value = np.asarray(u_ref, dtype=float)

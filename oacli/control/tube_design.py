@@ -156,16 +156,37 @@ class TubeDesign:
         return LinearConstraint.box(hi, lo)
 
     def error_margin(self, e: np.ndarray) -> float:
-        """``min_i (h_i − H_i e)`` for the 6-D error ``e``: ≥ 0 exactly when ``e ∈ Z``."""
+        """``min_i (h_i − H_i e)`` for the 6-D error ``e``: ≥ 0 exactly when ``e ∈ Z``.
+
+        Parameters
+        ----------
+        e : ndarray, shape (6,)
+            Error ``[r, v] − z``.
+
+        Returns
+        -------
+        float
+        """
         lasso = self.lasso
         return float(np.min(lasso.h_vector - lasso.h_matrix @ np.asarray(e, dtype=float)))
 
     def position_extent(self) -> np.ndarray:
-        """Half-extents of Z's projection on position ``(3, 2)``: ``[−min, max]`` per axis [m]."""
+        """Half-extents of Z's projection on position ``(3, 2)``: ``[−min, max]`` per axis [m].
+
+        Returns
+        -------
+        ndarray, shape (3, 2)
+        """
         return np.array([[ax.z.support(np.array([-1.0, 0.0])), ax.z.support(np.array([1.0, 0.0]))] for ax in self.axes])
 
     def summary(self) -> dict:
-        """Figures a reviewer wants: RPI size and cost, W, gains, tightened bounds (lists over x, y, z)."""
+        """Figures a reviewer wants: RPI size and cost, W, gains, tightened bounds (lists over x, y, z).
+
+        Returns
+        -------
+        dict
+            JSON-ready values.
+        """
         axes = self.axes
         return {
             "rpi": {
@@ -209,7 +230,23 @@ def design_axis(
     facet_growth: float = 0.05,
     w_scale: float = 1.0,
 ) -> AxisTube:
-    """Design the tube of one axis (no feasibility decision: see :attr:`AxisTube.feasible`)."""
+    """Design the tube of one axis (no feasibility decision: see :attr:`AxisTube.feasible`).
+
+    Parameters
+    ----------
+    axis : int
+        World axis 0, 1 or 2.
+    mass_kg, dt_s, weights, spec, epsilon, max_terms, facet_growth
+        As in :func:`design_translation_tube`.
+    force_limit_N, velocity_limit_mps : float
+        U and X of this axis.
+    w_scale : float, optional
+        Factor applied to W (1: none).
+
+    Returns
+    -------
+    AxisTube
+    """
     a, b = double_integrator(dt_s, 1.0 / mass_kg)
     gain, _ = dlqr(a, b, np.diag([weights.position, weights.velocity]), np.array([[weights.force]]))
     dist = spec.axis(axis, force_limit_N, dt_s, w_scale)
@@ -289,6 +326,11 @@ def design_translation_tube(
         What to do when a tightened set loses the origin: refuse, or scale W of that axis down (explicit).
     min_nominal_fraction : float
         With ``"scale_w"``: fraction of each limit the nominal MPC keeps.
+
+    Returns
+    -------
+    TubeDesign
+        The three axis tubes, the control period and the model mass.
 
     Raises
     ------

@@ -454,9 +454,26 @@ def estimate_batch(
 def extend_states(
     states: np.ndarray, records: Sequence[Measurement], theta: np.ndarray, substep_s: float
 ) -> np.ndarray:
-    """Warm start for a longer window: the solved ``states`` for the first records, then the process model
-    propagated from the last of them with the records' inputs (consistent with the dynamics: the stiff process
-    residuals start at zero)."""
+    """Warm start for a longer window.
+
+    The solved ``states`` for the first records, then the process model propagated from the last of them with the
+    records' inputs (consistent with the dynamics: the stiff process residuals start at zero).
+
+    Parameters
+    ----------
+    states : ndarray, shape (n, 13)
+        Solved states of the first n records.
+    records : sequence of Measurement
+        The records of the longer window (at least n), in time order.
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz].
+    substep_s : float
+        Integration substep [s].
+
+    Returns
+    -------
+    ndarray, shape (len(records), 13)
+    """
     out = np.array([r.x_measured for r in records])
     n = states.shape[0]
     out[:n] = states
@@ -480,6 +497,20 @@ def estimate_batch_windows(
     Each window is warm-started from the previous solution (states and θ); windows with fewer than two records
     are skipped. The last entry of ``window_ends_s`` should be the last record time to include all data.
     ``progress`` is called with the fraction of windows done.
+
+    Parameters
+    ----------
+    records : sequence of Measurement
+    settings : EstimatorSettings
+    prior : ParameterEstimate or None
+    window_ends_s : sequence of float
+        End time [s] of each window, increasing.
+    progress : callable, optional
+
+    Returns
+    -------
+    list of BatchResult
+        One per window that was solved.
     """
     ordered = order_by_time(records).records
     t = np.array([r.t for r in ordered])

@@ -35,7 +35,22 @@ class OnlineSequentialEstimator:
         return self.filter.estimate
 
     def update(self, t: float, x_measured: np.ndarray, u_applied: np.ndarray) -> ParameterEstimate:
-        """Fuse the previous measurement, now that the input held after it (``u_applied``) is known."""
+        """Fuse the previous measurement, now that the input held after it (``u_applied``) is known.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state.
+        u_applied : ndarray, shape (6,)
+            Input held since the previous measurement.
+
+        Returns
+        -------
+        ParameterEstimate
+            The filter's estimate (lags one control period).
+        """
         if self._pending is not None:
             t_prev, x_prev = self._pending
             self.filter.update(Measurement(t_prev, x_prev, np.asarray(u_applied, dtype=float)))

@@ -63,7 +63,19 @@ def substep_schedule(t0: np.ndarray, t1: np.ndarray, step_s: float) -> np.ndarra
 
 
 def dynamics_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """ẋ = f(x, u, θ) (Doerr Eqs. 34-35) for stacks ``x (K, 13)``, ``u (K, 6)``; same as ``rigid_body.dynamics``."""
+    """ẋ = f(x, u, θ) (Doerr Eqs. 34-35) for stacks ``x (K, 13)``, ``u (K, 6)``; same as ``rigid_body.dynamics``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (K, 13)
+    u : ndarray, shape (K, 6)
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz].
+
+    Returns
+    -------
+    ndarray, shape (K, 13)
+    """
     if x.shape[0] == 1:  # one state: Python floats are 10× faster than 1-element arrays
         m, ix, iy, iz = (float(v) for v in theta)
         vx, vy, vz, qx, qy, qz, qw, wx, wy, wz = (float(v) for v in x[0, 3:13])
@@ -119,7 +131,19 @@ def _jacobian_single(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndar
 
 
 def dynamics_jacobians_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """``[∂f/∂x | ∂f/∂θ]`` (K, 13, 17) of :func:`dynamics_batch` (same as ``rigid_body.dynamics_jacobians``)."""
+    """``[∂f/∂x | ∂f/∂θ]`` (K, 13, 17) of :func:`dynamics_batch` (same as ``rigid_body.dynamics_jacobians``).
+
+    Parameters
+    ----------
+    x : ndarray, shape (K, 13)
+    u : ndarray, shape (K, 6)
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz].
+
+    Returns
+    -------
+    ndarray, shape (K, 13, 17)
+    """
     k = x.shape[0]
     if k == 1:
         return _jacobian_single(x[0], u[0], theta)

@@ -196,6 +196,14 @@ class SequentialEstimator:
         """Take one record (possibly out of order) and return the current estimate.
 
         The record may be held in the reorder buffer; the estimate reflects every record released so far.
+
+        Parameters
+        ----------
+        record : Measurement
+
+        Returns
+        -------
+        ParameterEstimate
         """
         released, late = self._buffer.push(record)
         for rec in late:
@@ -205,7 +213,12 @@ class SequentialEstimator:
         return self.estimate
 
     def flush(self) -> ParameterEstimate:
-        """Process every record still in the reorder buffer and return the estimate."""
+        """Process every record still in the reorder buffer and return the estimate.
+
+        Returns
+        -------
+        ParameterEstimate
+        """
         released, late = self._buffer.flush()
         for rec in late:
             self._late(rec)

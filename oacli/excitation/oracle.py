@@ -35,7 +35,21 @@ class SequentialEstimator(Protocol):
     """
 
     def update(self, t: float, x_measured: np.ndarray, u_applied: np.ndarray) -> ParameterEstimate:
-        """Fuse one measurement and return the current estimate."""
+        """Fuse one measurement and return the current estimate.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state.
+        u_applied : ndarray, shape (6,)
+            Input held since the previous measurement.
+
+        Returns
+        -------
+        ParameterEstimate
+        """
         ...
 
     @property
@@ -94,7 +108,22 @@ class CramerRaoOracle:
         return self._estimate
 
     def update(self, t: float, x_measured: np.ndarray, u_applied: np.ndarray) -> ParameterEstimate:
-        """Add the information of the measurement at ``t`` (after the input ``u_applied`` held since the last one)."""
+        """Add the information of the measurement at ``t`` (after the input ``u_applied`` held since the last one).
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state.
+        u_applied : ndarray, shape (6,)
+            Input held since the previous measurement.
+
+        Returns
+        -------
+        ParameterEstimate
+            The truth with the Cramér-Rao covariance (unchanged when ``t`` is not later than the last time).
+        """
         dt = float(t) - self._t
         if dt <= 0:
             return self._estimate

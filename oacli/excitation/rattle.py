@@ -87,12 +87,33 @@ class InformationWeighting:
             object.__setattr__(self, name, value)
 
     def weights(self, std: np.ndarray) -> np.ndarray:
-        """γ (4,) for the current standard deviations σ (4,)."""
+        """γ (4,) for the current standard deviations σ (4,).
+
+        Parameters
+        ----------
+        std : ndarray, shape (4,)
+
+        Returns
+        -------
+        ndarray, shape (4,)
+        """
         return information_weights(std, self)
 
 
 def information_weights(std: np.ndarray, weighting: InformationWeighting) -> np.ndarray:
-    """RATTLE's decay rule ``γ_i = γ0_i exp(−β floor_i/σ_i)``, zero once ``σ_i ≤ α floor_i`` ([ReSWARM2023] §4.4)."""
+    """RATTLE's decay rule ``γ_i = γ0_i exp(−β floor_i/σ_i)``, zero once ``σ_i ≤ α floor_i`` ([ReSWARM2023] §4.4).
+
+    Parameters
+    ----------
+    std : ndarray, shape (4,)
+        Standard deviations σ.
+    weighting : InformationWeighting
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        γ.
+    """
     sigma = np.asarray(std, dtype=float)
     with np.errstate(divide="ignore", over="ignore"):
         gamma = weighting.gamma0 * np.exp(-weighting.beta * weighting.floor / np.maximum(sigma, 1e-300))
@@ -307,7 +328,17 @@ class InformationAwarePlanner:
         return margin, float(np.linalg.norm(margin - self.clearance_m)) + self.clearance_m
 
     def stop_distance(self, mass: float) -> np.ndarray:
-        """Per-axis braking distance [m] from the end-of-horizon speed bound at full force."""
+        """Per-axis braking distance [m] from the end-of-horizon speed bound at full force.
+
+        Parameters
+        ----------
+        mass : float
+            Model mass [kg].
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
         return self.stop_speed**2 * mass / (2.0 * self.limits.force_N)
 
     def _evaluate(self, x0, u, theta, std, gamma) -> dict:
@@ -403,6 +434,10 @@ class InformationAwarePlanner:
             Mission time of ``x0`` [s] (time stamps of the returned trajectory).
         u_warm : ndarray, shape (N, 6), optional
             Initial inputs (e.g. the previous plan shifted); zero (drift) by default.
+
+        Returns
+        -------
+        PlanResult
         """
         wall = time.perf_counter()
         theta = np.asarray(theta, dtype=float)

@@ -94,7 +94,22 @@ class KinoRrtSettings:
 
 
 def motion_primitives(force_limit_N: np.ndarray, fraction: float, kind: str = "axes") -> np.ndarray:
-    """The action set of ReSWARM Eq. 27, shape (P, 3) [N]: zero first, then the ± actions."""
+    """The action set of ReSWARM Eq. 27, shape (P, 3) [N]: zero first, then the ± actions.
+
+    Parameters
+    ----------
+    force_limit_N : ndarray, shape (3,)
+        Force limits [N].
+    fraction : float
+        Fraction of the limit each action uses.
+    kind : {"axes", "combinations"}, optional
+        One axis at a time (7 actions) or every combination of 0, +, − per axis (27).
+
+    Returns
+    -------
+    ndarray, shape (P, 3)
+        Forces [N].
+    """
     f = fraction * np.asarray(force_limit_N, dtype=float)
     if kind == "axes":
         out = [np.zeros(3)]

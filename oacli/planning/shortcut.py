@@ -108,7 +108,21 @@ class ShortcutResult:
 def splice(
     traj: TranslationalTrajectory, a: int, b: int, section: TranslationalTrajectory
 ) -> TranslationalTrajectory:
-    """Replace samples ``a..b`` of ``traj`` by ``section`` (which must start at ``x[a]`` and end at ``x[b]``)."""
+    """Replace samples ``a..b`` of ``traj`` by ``section`` (which must start at ``x[a]`` and end at ``x[b]``).
+
+    Parameters
+    ----------
+    traj : TranslationalTrajectory
+    a, b : int
+        Sample indices, ``a < b``.
+    section : TranslationalTrajectory
+        The replacement.
+
+    Returns
+    -------
+    TranslationalTrajectory
+        Later samples are shifted in time by the change of duration.
+    """
     shift = traj.t[a] - section.t[0]
     t_sec = section.t + shift
     delay = t_sec[-1] - traj.t[b]

@@ -63,7 +63,16 @@ class RPIApproximation:
 
 
 def spectral_radius(a: np.ndarray) -> float:
-    """Largest absolute eigenvalue of a square matrix."""
+    """Largest absolute eigenvalue of a square matrix.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n, n)
+
+    Returns
+    -------
+    float
+    """
     return float(np.max(np.abs(np.linalg.eigvals(np.asarray(a, dtype=float)))))
 
 
@@ -162,6 +171,20 @@ def rpi_margins(a_closed: np.ndarray, z: Polytope, w: Polytope) -> np.ndarray:
     """Robust invariance margins ``b_i − h_Z(A_Kᵀ a_i) − h_W(a_i)`` per facet ``a_iᵀ e ≤ b_i`` of Z.
 
     All margins ``≥ 0`` ⇔ ``A_K Z ⊕ W ⊆ Z`` (Z is RPI; Kolmanovsky & Gilbert 1998).
+
+    Parameters
+    ----------
+    a_closed : ndarray, shape (n, n)
+        Closed-loop matrix ``A_K = A + B K``.
+    z : Polytope
+        Candidate invariant set Z, bounded.
+    w : Polytope
+        Disturbance set W, bounded.
+
+    Returns
+    -------
+    ndarray, shape (n_facets,)
+        One margin per inequality of Z.
     """
     a = z.a
     return z.b - z.support(a @ np.asarray(a_closed, dtype=float)) - w.support(a)
@@ -217,6 +240,11 @@ def reduce_facets(a_closed: np.ndarray, z: Polytope, w: Polytope, growth: float)
     w : Polytope
     growth : float
         Allowed relative growth ≥ 0; 0 returns ``z`` unchanged.
+
+    Returns
+    -------
+    FacetReduction
+        The reduced set, the facet counts, the growth used and the smallest margin.
     """
     a_k = np.asarray(a_closed, dtype=float)
     before = z.n_facets
