@@ -12,9 +12,8 @@ from oacli.errors import InfeasibleError
 from oacli.model.double_integrator import double_integrator
 from oacli.sets import Polytope, minimal_rpi_outer, reduce_facets, rpi_margins
 
-# Raković, Kerrigan, Kouramas & Mayne, "Invariant approximations of the minimal robust positively invariant set",
-# IEEE Trans. Automatic Control 50(3):406-410, 2005, example of their Eq. (15): x⁺ = [[1, 1], [0, 1]] x + [1, 1]ᵀ u
-# + w, u = −[1.17, 1.03] x, W = {w : ‖w‖_∞ ≤ 1}.
+# [Rakovic2005], example of their Eq. (15): x⁺ = [[1, 1], [0, 1]] x + [1, 1]ᵀ u + w, u = −[1.17, 1.03] x,
+# W = {w : ‖w‖_∞ ≤ 1}.
 RKKM_A_K = np.array([[1.0, 1.0], [0.0, 1.0]]) - np.array([[1.0], [1.0]]) @ np.array([[1.17, 1.03]])
 RKKM_W = Polytope.symmetric_box([1.0, 1.0])
 
