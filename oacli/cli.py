@@ -48,7 +48,7 @@ def _root(
         bool, typer.Option("--version", callback=_version_callback, is_eager=True, help="Print the version.")
     ] = False,
 ) -> None:
-    """oacli: plan | smooth | excite | estimate | track | mission."""
+    """oacli: plan | smooth | excite | track | estimate."""
 
 
 class Progress:

@@ -35,7 +35,20 @@ class TrackingErrors:
 
 
 def tracking_errors(telemetry: Telemetry, reference: Trajectory, times: np.ndarray | None = None) -> TrackingErrors:
-    """Position and attitude errors of the true state at ``times`` (the plant samples by default)."""
+    """Position and attitude errors of the true state at ``times`` (the plant samples by default).
+
+    Parameters
+    ----------
+    telemetry : Telemetry
+        A simulated run.
+    reference : Trajectory
+    times : ndarray, shape (k,), optional
+        Evaluation times [s]; the true state is taken at the first plant sample at or after each.
+
+    Returns
+    -------
+    TrackingErrors
+    """
     t = telemetry.t_true if times is None else np.asarray(times, dtype=float)
     x_true = telemetry.x_true
     if times is not None:
@@ -57,10 +70,22 @@ def constraint_violations(
 ) -> dict[str, int]:
     """Count violated constraints.
 
-    Returns a dict of counts: ``input`` (control steps whose *commanded* input exceeds a per-axis limit; the
-    applied input is saturated anyway), ``velocity`` and ``angular_velocity`` (plant samples exceeding a
-    per-axis limit), ``keep_in`` (plant samples whose position is in no keep-in box) and ``keep_out`` (plant
-    samples inside a keep-out ellipsoid, safety factor included).
+    Parameters
+    ----------
+    telemetry : Telemetry
+    input_limits : ndarray, shape (6,)
+        Force [N] and torque [N·m] limits.
+    velocity_limit_mps, angular_velocity_limit_radps : ndarray, shape (3,)
+    scene : Scene, optional
+        Keep-in and keep-out zones (not checked without).
+
+    Returns
+    -------
+    dict of str to int
+        ``input`` (control steps whose *commanded* input exceeds a per-axis limit; the applied input is saturated
+        anyway), ``velocity`` and ``angular_velocity`` (plant samples exceeding a per-axis limit), ``keep_in`` (plant
+        samples whose position is in no keep-in box) and ``keep_out`` (plant samples inside a keep-out ellipsoid,
+        safety factor included).
     """
     x = telemetry.x_true
     over_u = np.abs(telemetry.u_command) > input_limits * (1 + _LIMIT_RTOL) + 1e-12
@@ -80,7 +105,18 @@ def constraint_violations(
 
 
 def percentiles_ms(seconds: np.ndarray) -> dict[str, float]:
-    """``{p50, p95, max}`` of durations given in seconds, in milliseconds (NaN entries ignored)."""
+    """``{p50, p95, max}`` of durations given in seconds, in milliseconds (NaN entries ignored).
+
+    Parameters
+    ----------
+    seconds : ndarray
+        Durations [s].
+
+    Returns
+    -------
+    dict of str to float
+        ``p50``, ``p95``, ``max`` [ms] (NaN when there is no finite entry).
+    """
     ms = 1e3 * np.asarray(seconds, dtype=float)
     ms = ms[np.isfinite(ms)]
     if ms.size == 0:
@@ -93,6 +129,16 @@ def percentiles_ms(seconds: np.ndarray) -> dict[str, float]:
 
 
 def rms(values: np.ndarray) -> float:
-    """Root mean square."""
+    """Root mean square.
+
+    Parameters
+    ----------
+    values : ndarray
+
+    Returns
+    -------
+    float
+        NaN for an empty array.
+    """
     v = np.asarray(values, dtype=float)
     return float(np.sqrt(np.mean(v * v))) if v.size else float("nan")

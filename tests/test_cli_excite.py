@@ -22,7 +22,7 @@ from tests.conftest import REPO
 from tests.test_cli_errors import assert_clean_failure
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
-PAYLOAD = {"mass_kg": 15.0, "inertia_kgm2": [0.1464, 0.1376, 0.1604]}  # seed 000 Table 1, Astrobee with object
+PAYLOAD = {"mass_kg": 15.0, "inertia_kgm2": [0.1464, 0.1376, 0.1604]}  # [Doerr2021] Table 1, Astrobee with object
 runner = CliRunner()
 
 
@@ -32,7 +32,7 @@ def run_cli(*args):
 
 def small_iss(path: Path, **excitation) -> Path:
     """The ISS preset's B→C excitation, shortened (40 steps of 1 s), with the payload as the simulated truth and
-    the impellers at 2500 RPM (seed 001 Table 2) so that the tracker has force to spare."""
+    the impellers at 2500 RPM ([ReSWARM2023] Table 2) so that the tracker has force to spare."""
     data = yaml.safe_load(ISS.read_text())
     data["truth"] = dict(PAYLOAD)
     data["robot"]["force_limit_N"] = [0.680, 0.332, 0.394]

@@ -12,9 +12,8 @@ from oacli.errors import InfeasibleError
 from oacli.model.double_integrator import double_integrator
 from oacli.sets import Polytope, minimal_rpi_outer, reduce_facets, rpi_margins
 
-# Raković, Kerrigan, Kouramas & Mayne, "Invariant approximations of the minimal robust positively invariant set",
-# IEEE Trans. Automatic Control 50(3):406-410, 2005, example of their Eq. (15): x⁺ = [[1, 1], [0, 1]] x + [1, 1]ᵀ u
-# + w, u = −[1.17, 1.03] x, W = {w : ‖w‖_∞ ≤ 1}.
+# [Rakovic2005], example of their Eq. (15): x⁺ = [[1, 1], [0, 1]] x + [1, 1]ᵀ u + w, u = −[1.17, 1.03] x,
+# W = {w : ‖w‖_∞ ≤ 1}.
 RKKM_A_K = np.array([[1.0, 1.0], [0.0, 1.0]]) - np.array([[1.0], [1.0]]) @ np.array([[1.17, 1.03]])
 RKKM_W = Polytope.symmetric_box([1.0, 1.0])
 
@@ -60,7 +59,7 @@ def test_rakovic_2005_example_is_an_outer_epsilon_approximation(rng):
 def axis_systems():
     """Per-axis Astrobee translation at 0.2 s with the ReSWARM ancillary gain, and the RKKM05 example."""
     a, b = double_integrator(0.2, 1 / 9.5)
-    k, _ = dlqr(a, b, np.diag([5.0, 10.0]), np.array([[2.0]]))  # REFERENCE.md "Tube MPC": Q = diag(5, 10), R = 2
+    k, _ = dlqr(a, b, np.diag([5.0, 10.0]), np.array([[2.0]]))  # [RattleCode] z_poly_calc: Q = diag(5, 10), R = 2
     return [
         (RKKM_A_K, RKKM_W, 1e-4),
         (a + b @ k, Polytope.symmetric_box([6.8e-6, 6.8e-5]), 0.005),

@@ -167,7 +167,7 @@ class RattleWeightsConfig(Section):
 
 
 class RattleConfig(Section):
-    """The online information-aware planner in closed loop (RATTLE, seed 001 §4.4, §4.6)."""
+    """The online information-aware planner in closed loop (RATTLE, [ReSWARM2023] §4.4, §4.6)."""
 
     horizon: Annotated[StrictInt, Field(ge=2, le=500)] = Field(
         default=40, description="Planning horizon N [steps] (rattle: 40)."

@@ -10,7 +10,7 @@ Units: times s, lengths m, speeds m/s; the cost weights make the trajectory cost
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, Strict, model_validator
 
@@ -70,7 +70,7 @@ class PlannerWeights(Section):
 
 
 class KinoRrtConfig(Section):
-    """Kinodynamic RRT with motion primitives (ReSWARM, seed 001 §4.1.2-4.1.3, Eqs. 26-27)."""
+    """Kinodynamic RRT with motion primitives ([ReSWARM2023] §4.1.2-4.1.3, Eqs. 26-27)."""
 
     primitive_fraction: Fraction = Field(
         default=0.5, description="α of Eq. 27 [-], in (0, 1]: primitives apply ±α × the force limit per axis."
@@ -187,7 +187,7 @@ class PlannerConfig(Section):
 
     @model_validator(mode="after")
     def _consistent_steps(self) -> PlannerConfig:
-        problems = []
+        problems: list[tuple[tuple[str | int, ...], Any, str]] = []
 
         def steps(value: float, unit: float) -> float:
             return value / unit

@@ -1,7 +1,7 @@
 """The ``controller.tube`` section: robust tube MPC settings (used when ``controller.type`` is ``tube``).
 
-Defaults follow the ReSWARM flight settings (REFERENCE.md, "Tube MPC": rattle ``casadi_nmpc``/``z_poly_calc``):
-ancillary LQR Q = diag(5, 10), R = 2; ε = 0.005; W from the 2σ mass bounds (Doerr et al. 2021, Eq. 28).
+Defaults follow the ReSWARM flight settings ([RattleCode] ``casadi_nmpc``/``z_poly_calc``):
+ancillary LQR Q = diag(5, 10), R = 2; ε = 0.005; W from the 2σ mass bounds ([Doerr2021] Eq. 28).
 Imported by :mod:`oacli.config.models` (import ``oacli.config``, not this module, to load it).
 """
 

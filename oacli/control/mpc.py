@@ -134,7 +134,22 @@ class LinearMPC:
         self.compiled = CompiledQP(self.problem) if fast else None
 
     def solve(self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> MPCSolution:
-        """Solve for initial state ``x0 (n,)``, reference states ``x_ref (N+1, n)`` and inputs ``u_ref (N, m)``."""
+        """Solve for initial state ``x0 (n,)``, reference states ``x_ref (N+1, n)`` and inputs ``u_ref (N, m)``.
+
+        Parameters
+        ----------
+        x0 : ndarray, shape (n,)
+            Initial state.
+        x_ref : ndarray, shape (N+1, n)
+            Reference states.
+        u_ref : ndarray, shape (N, m)
+            Reference inputs.
+
+        Returns
+        -------
+        MPCSolution
+            Inputs, predicted states, slack and the solve record (NaN arrays when the solve failed).
+        """
         self.x0.value = np.asarray(x0, dtype=float)
         self.x_ref.value = np.asarray(x_ref, dtype=float)
         self.u_ref.value = np.asarray(u_ref, dtype=float)
@@ -148,7 +163,7 @@ class LinearMPC:
             stats = self.problem.solver_stats if status in SUCCESS_STATUSES else None
             iterations = stats.num_iters if stats is not None and stats.num_iters is not None else -1
             objective = float(self.problem.value) if stats is not None else float("nan")
-            value = (lambda v: v.value) if stats is not None and self._u.value is not None else None
+            value = (lambda v: v.value) if stats is not None and self._u.value is not None else None  # type: ignore[assignment,return-value]
         wall = time.perf_counter() - start
         if value is not None:
             u, x = np.array(value(self._u)), np.array(value(self._x))

@@ -75,7 +75,21 @@ class TrackingWeights:
 
 
 def to_error_state(x: np.ndarray, origin_m: np.ndarray, q_anchor: np.ndarray) -> np.ndarray:
-    """Map full states ``x (..., 13)`` to the error chart ``[r − origin, v, φ, ω]`` (..., 12)."""
+    """Map full states to the error chart ``[r − origin, v, φ, ω]``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (..., 13)
+        Full states.
+    origin_m : ndarray, shape (3,)
+        Position origin [m].
+    q_anchor : ndarray, shape (4,)
+        Attitude the error φ is measured from.
+
+    Returns
+    -------
+    ndarray, shape (..., 12)
+    """
     x = np.asarray(x, dtype=float)
     phi = quat.error_vector(q_anchor, x[..., 6:10])
     return np.concatenate([x[..., 0:3] - origin_m, x[..., 3:6], phi, x[..., 10:13]], axis=-1)
@@ -123,7 +137,20 @@ class TrackingMPC:
         self._offsets = self.dt_s * np.arange(self.horizon + 1)
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """Solve once at time ``t`` [s] from the measured state; see :class:`oacli.sim.simulator.Controller`."""
+        """Solve once at time ``t`` [s] from the measured state; see :class:`oacli.sim.simulator.Controller`.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state ``[r, v, q, ω]``.
+
+        Returns
+        -------
+        ControlStep
+            The input to hold until the next step, the solve record and the reference state at ``t``.
+        """
         start = time.perf_counter()
         x_ref_full = sample_states(self.reference, t + self._offsets)
         u_ref = feedforward_inputs(x_ref_full, self.dt_s, self.params)

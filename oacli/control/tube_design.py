@@ -12,7 +12,7 @@ axis in 2-D (Mayne, Seron & Raković 2005; Doerr et al. 2021, Eqs. 18-27):
 4. tightened sets ``Ū = U ⊖ K Z`` and ``X̄ = X ⊖ (Z ⊕ (−N))`` (N: measurement noise box; the true state is
    ``x = x̃ − n``), with X the velocity limit.
 
-If a tightened set loses the origin from its interior (W too large for the actuators, seed 001 §4.5), the design
+If a tightened set loses the origin from its interior (W too large for the actuators, [ReSWARM2023] §4.5), the design
 refuses with W and the actuator margin, unless the explicit policy ``"scale_w"`` is chosen: then W of that axis is
 scaled down to the largest factor that leaves ``min_nominal_fraction`` of each limit to the nominal MPC, and the
 factor is reported.
@@ -156,16 +156,37 @@ class TubeDesign:
         return LinearConstraint.box(hi, lo)
 
     def error_margin(self, e: np.ndarray) -> float:
-        """``min_i (h_i − H_i e)`` for the 6-D error ``e``: ≥ 0 exactly when ``e ∈ Z``."""
+        """``min_i (h_i − H_i e)`` for the 6-D error ``e``: ≥ 0 exactly when ``e ∈ Z``.
+
+        Parameters
+        ----------
+        e : ndarray, shape (6,)
+            Error ``[r, v] − z``.
+
+        Returns
+        -------
+        float
+        """
         lasso = self.lasso
         return float(np.min(lasso.h_vector - lasso.h_matrix @ np.asarray(e, dtype=float)))
 
     def position_extent(self) -> np.ndarray:
-        """Half-extents of Z's projection on position ``(3, 2)``: ``[−min, max]`` per axis [m]."""
+        """Half-extents of Z's projection on position ``(3, 2)``: ``[−min, max]`` per axis [m].
+
+        Returns
+        -------
+        ndarray, shape (3, 2)
+        """
         return np.array([[ax.z.support(np.array([-1.0, 0.0])), ax.z.support(np.array([1.0, 0.0]))] for ax in self.axes])
 
     def summary(self) -> dict:
-        """Figures a reviewer wants: RPI size and cost, W, gains, tightened bounds (lists over x, y, z)."""
+        """Figures a reviewer wants: RPI size and cost, W, gains, tightened bounds (lists over x, y, z).
+
+        Returns
+        -------
+        dict
+            JSON-ready values.
+        """
         axes = self.axes
         return {
             "rpi": {
@@ -209,7 +230,23 @@ def design_axis(
     facet_growth: float = 0.05,
     w_scale: float = 1.0,
 ) -> AxisTube:
-    """Design the tube of one axis (no feasibility decision: see :attr:`AxisTube.feasible`)."""
+    """Design the tube of one axis (no feasibility decision: see :attr:`AxisTube.feasible`).
+
+    Parameters
+    ----------
+    axis : int
+        World axis 0, 1 or 2.
+    mass_kg, dt_s, weights, spec, epsilon, max_terms, facet_growth
+        As in :func:`design_translation_tube`.
+    force_limit_N, velocity_limit_mps : float
+        U and X of this axis.
+    w_scale : float, optional
+        Factor applied to W (1: none).
+
+    Returns
+    -------
+    AxisTube
+    """
     a, b = double_integrator(dt_s, 1.0 / mass_kg)
     gain, _ = dlqr(a, b, np.diag([weights.position, weights.velocity]), np.array([[weights.force]]))
     dist = spec.axis(axis, force_limit_N, dt_s, w_scale)
@@ -219,7 +256,7 @@ def design_axis(
     z = reduction.z
     u_set = Polytope.symmetric_box([force_limit_N])
     u_bar = u_set.pontryagin_difference(z.linear_map(gain))  # Ū = U ⊖ K Z
-    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), [velocity_limit_mps, velocity_limit_mps])
+    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), [velocity_limit_mps, velocity_limit_mps])  # type: ignore[arg-type]
     noise = dist.noise_bound
     z_true = z if not np.any(noise > 0) else z.minkowski_sum(Polytope.symmetric_box(noise))  # Z ⊕ (−N), N symmetric
     x_bar = x_set.pontryagin_difference(z_true)  # X̄ = X ⊖ (Z ⊕ −N)
@@ -290,6 +327,11 @@ def design_translation_tube(
     min_nominal_fraction : float
         With ``"scale_w"``: fraction of each limit the nominal MPC keeps.
 
+    Returns
+    -------
+    TubeDesign
+        The three axis tubes, the control period and the model mass.
+
     Raises
     ------
     InfeasibleError
@@ -303,13 +345,13 @@ def design_translation_tube(
     axes = []
     for i in range(3):
         limits = {"force_limit_N": float(force_limit_N[i]), "velocity_limit_mps": float(velocity_limit_mps[i])}
-        ax = design_axis(i, **common, **limits)
+        ax = design_axis(i, **common, **limits)  # type: ignore[arg-type]
         if not ax.feasible:
             if on_empty == "error":
                 raise InfeasibleError(_describe_infeasible(ax, dt_s))
             ax = _scaled_axis(i, common, limits, min_nominal_fraction)
         axes.append(ax)
-    return TubeDesign(axes=tuple(axes), dt_s=float(dt_s), mass_kg=float(mass_kg))
+    return TubeDesign(axes=tuple(axes), dt_s=float(dt_s), mass_kg=float(mass_kg))  # type: ignore[arg-type]
 
 
 def _keeps_fraction(ax: AxisTube, fraction: float) -> bool:

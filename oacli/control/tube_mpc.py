@@ -81,7 +81,17 @@ class TubeHistory:
     solver_failed: np.ndarray
 
     def count(self, mode: str) -> int:
-        """Number of steps in ``mode``."""
+        """Number of steps in ``mode``.
+
+        Parameters
+        ----------
+        mode : str
+            A mode name as recorded in ``mode``.
+
+        Returns
+        -------
+        int
+        """
         return sum(m == mode for m in self.mode)
 
 
@@ -189,10 +199,10 @@ class TubeMPC:
         j = int(np.floor((t - self._plan_t) / self.step_s + 1e-9))
         if j >= self.horizon:
             return None
-        return self._plan_v[j], self._plan_tau[j]
+        return self._plan_v[j], self._plan_tau[j]  # type: ignore[index]
 
     def _hold_torque(self, x: np.ndarray) -> np.ndarray:
-        phi = quat.error_vector(self._hold_q, x[6:10])
+        phi = quat.error_vector(self._hold_q, x[6:10])  # type: ignore[arg-type]
         tau = self._k_att @ np.concatenate([phi, x[10:13]])
         return np.clip(tau, -self.limits.torque_Nm, self.limits.torque_Nm)
 
@@ -204,7 +214,20 @@ class TubeMPC:
     # -- the controller step -----------------------------------------------------------------------------------
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """One control step at time ``t`` [s]; see :class:`oacli.sim.simulator.Controller`."""
+        """One control step at time ``t`` [s]; see :class:`oacli.sim.simulator.Controller`.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state ``[r, v, q, ω]``.
+
+        Returns
+        -------
+        ControlStep
+            The input to hold until the next step, the solve record and the reference state at ``t``.
+        """
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
         x_ref_full = sample_states(self.reference, t + self._offsets)
@@ -261,7 +284,12 @@ class TubeMPC:
         return ControlStep(u=u, info=step_info, x_reference=x_ref_full[0])
 
     def history(self) -> TubeHistory:
-        """Everything recorded so far."""
+        """Everything recorded so far.
+
+        Returns
+        -------
+        TubeHistory
+        """
         rec = self._rec
         k = len(rec["t"])
 

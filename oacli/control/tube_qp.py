@@ -53,7 +53,19 @@ class LinearConstraint:
 
     @classmethod
     def box(cls, bound: np.ndarray, lower: np.ndarray | None = None) -> LinearConstraint:
-        """``lower ≤ y ≤ bound`` (``lower = −bound`` by default); infinite entries are left out."""
+        """``lower ≤ y ≤ bound`` (``lower = −bound`` by default); infinite entries are left out.
+
+        Parameters
+        ----------
+        bound : ndarray, shape (n,)
+            Upper bounds (``inf`` for none).
+        lower : ndarray, shape (n,), optional
+            Lower bounds (``-inf`` for none).
+
+        Returns
+        -------
+        LinearConstraint
+        """
         upper = np.asarray(bound, dtype=float).reshape(-1)
         low = -upper if lower is None else np.asarray(lower, dtype=float).reshape(-1)
         eye = np.eye(upper.size)
@@ -241,6 +253,17 @@ class NominalQP:
 
         The values are checked here and handed to the solve path (cvxpy's Parameters receive them only for the
         ``problem.solve()`` path, where their own validation runs).
+
+        Parameters
+        ----------
+        name : str
+            Block name.
+        x : ndarray, shape (n,)
+            Measured state of the block.
+        x_ref : ndarray, shape (N+1, n)
+            Reference states.
+        u_ref : ndarray, shape (N, m)
+            Reference inputs.
         """
         bv = self._vars[name]
         for param, value in ((bv.x, x), (bv.x_ref, x_ref), (bv.u_ref, u_ref)):
@@ -259,16 +282,26 @@ class NominalQP:
         return total
 
     def solve(self, *, fast: bool | None = None) -> QPSolution:
-        """Solve with the current parameters: the direct Clarabel path (default when compiled) or
-        ``problem.solve(solver=CLARABEL)``."""
+        """Solve with the current parameters.
+
+        Parameters
+        ----------
+        fast : bool, optional
+            True: the direct Clarabel path (the default when compiled); False: ``problem.solve(solver=CLARABEL)``.
+
+        Returns
+        -------
+        QPSolution
+            Per-block solutions (NaN when the solve failed) and the solve record.
+        """
         use_fast = self.compiled is not None if fast is None else fast
         if use_fast and self.compiled is None:
             raise ValueError("the fast path was not compiled (fast=False at construction)")
         start = time.perf_counter()
         if use_fast:
-            out = self.compiled.solve(self._values)
+            out = self.compiled.solve(self._values)  # type: ignore[union-attr]
             status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
-            value = self.compiled.value if out.success else None
+            value = self.compiled.value if out.success else None  # type: ignore[union-attr]
         else:
             for param in self.problem.parameters():
                 param.value = self._values[param.id]

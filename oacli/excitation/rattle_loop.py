@@ -109,7 +109,19 @@ class RattleController:
         self._next_replan = t + self.replan_period_s
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """Input for ``[t, t + control period)`` (simulator ``Controller`` protocol)."""
+        """Input for ``[t, t + control period)`` (simulator ``Controller`` protocol).
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state.
+
+        Returns
+        -------
+        ControlStep
+        """
         start = time.perf_counter()
         if self._u_prev is not None:
             self.estimates.append(self.estimator.update(t, x_measured, self._u_prev))
@@ -170,7 +182,35 @@ def run_rattle(
     rng: np.random.Generator,
     progress: Callable[[float], None] | None = None,
 ) -> RattleRun:
-    """Simulate RATTLE in closed loop from ``x0`` for ``duration_s`` (see :class:`RattleController`)."""
+    """Simulate RATTLE in closed loop from ``x0`` for ``duration_s`` (see :class:`RattleController`).
+
+    Parameters
+    ----------
+    planner, estimator, weighting
+        As in :class:`RattleController`.
+    x0 : ndarray, shape (13,)
+        Initial state.
+    truth : InertialParams
+        The simulated plant.
+    duration_s : float
+    replan_period_s, control_period_s : float
+        As in :class:`RattleController`.
+    plant_period_s : float
+        Integration step of the plant [s].
+    input_limits : ndarray, shape (6,)
+    feedback_q, feedback_r : ndarray
+        As in :class:`RattleController`.
+    sensors : SensorNoise
+    disturbance : Disturbance
+    rng : numpy.random.Generator
+    progress : callable, optional
+        Called with the fraction done.
+
+    Returns
+    -------
+    RattleRun
+        Telemetry, replans and estimates.
+    """
     controller = RattleController(
         planner, estimator, weighting, replan_period_s=replan_period_s, control_period_s=control_period_s,
         feedback_q=feedback_q, feedback_r=feedback_r, input_limits=input_limits,

@@ -101,6 +101,13 @@ def dense_positions(t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: fl
         Held world-frame force [N].
     mass_kg : float
     spacing_m : float
+
+    Returns
+    -------
+    times : ndarray, shape (k,)
+        Sample times [s], starting at ``t[0]``.
+    positions : ndarray, shape (k, 3)
+        Positions [m] at those times.
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
@@ -122,7 +129,21 @@ def dense_check(
     t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: float, scene: Scene, robot_radius_m: float,
     spacing_m: float = 0.005,
 ) -> DenseCheck:
-    """Re-check a zero-order-hold trajectory every ``spacing_m`` against ``scene`` (module docstring)."""
+    """Re-check a zero-order-hold trajectory every ``spacing_m`` against ``scene`` (module docstring).
+
+    Parameters
+    ----------
+    t, x, force, mass_kg, spacing_m
+        The trajectory and sampling, as in :func:`dense_positions`.
+    scene : Scene
+        Keep-in boxes and keep-out ellipsoids.
+    robot_radius_m : float
+        The robot's radius [m] (its centre must stay this far from every keep-out zone).
+
+    Returns
+    -------
+    DenseCheck
+    """
     times, pts = dense_positions(t, x, force, mass_kg, spacing_m)
     spacing = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).max()) if len(pts) > 1 else 0.0
     bad_in = ~scene.in_keep_in(pts)

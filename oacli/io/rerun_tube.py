@@ -7,7 +7,7 @@ Entities (added to the track recording of :func:`oacli.io.rerun_io.write_track_r
 * ``world/tube`` — the tube ``z ⊕ Z`` along the nominal path: one box per control step, centred on the nominal
   position, spanning the projection of Z on position (exact: Z is a product over the world axes);
 * ``metrics/tube/force_nominal_N`` and ``metrics/tube/force_ancillary_N`` — nominal ``v`` and ancillary
-  ``K (x̃ − z)`` force per axis (seed 001, Fig. 24), each with ± the tightened bound ``Ū`` (nominal) or
+  ``K (x̃ − z)`` force per axis ([ReSWARM2023] Fig. 24), each with ± the tightened bound ``Ū`` (nominal) or
   ``max |K Z|`` (ancillary) as limits;
 * ``metrics/tube/nominal_velocity_mps`` — nominal velocity against the tightened velocity bound ``X̄``;
 * ``metrics/tube/tube_margin`` — ``min_i (h_i − H_i (x̃ − ẑ))`` (≥ 0: inside the promised tube).

@@ -15,6 +15,7 @@ The computation never caps the number of terms ``s`` silently: when ``max_terms`
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -62,7 +63,16 @@ class RPIApproximation:
 
 
 def spectral_radius(a: np.ndarray) -> float:
-    """Largest absolute eigenvalue of a square matrix."""
+    """Largest absolute eigenvalue of a square matrix.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n, n)
+
+    Returns
+    -------
+    float
+    """
     return float(np.max(np.abs(np.linalg.eigvals(np.asarray(a, dtype=float)))))
 
 
@@ -154,13 +164,27 @@ def _scaled_minkowski_series(a_k: np.ndarray, w: Polytope, s: int, scale: float)
             _, points = hull_normals(points)  # keep the hull vertices only (a point dropped lies inside the hull)
     normals, hull_vertices = hull_normals(points)
     offsets = sum(w.support(normals @ p) for p in powers)
-    return Polytope(normals, scale * offsets, vertices=scale * hull_vertices)
+    return Polytope(normals, cast(np.ndarray, scale * offsets), vertices=scale * hull_vertices)
 
 
 def rpi_margins(a_closed: np.ndarray, z: Polytope, w: Polytope) -> np.ndarray:
     """Robust invariance margins ``b_i − h_Z(A_Kᵀ a_i) − h_W(a_i)`` per facet ``a_iᵀ e ≤ b_i`` of Z.
 
     All margins ``≥ 0`` ⇔ ``A_K Z ⊕ W ⊆ Z`` (Z is RPI; Kolmanovsky & Gilbert 1998).
+
+    Parameters
+    ----------
+    a_closed : ndarray, shape (n, n)
+        Closed-loop matrix ``A_K = A + B K``.
+    z : Polytope
+        Candidate invariant set Z, bounded.
+    w : Polytope
+        Disturbance set W, bounded.
+
+    Returns
+    -------
+    ndarray, shape (n_facets,)
+        One margin per inequality of Z.
     """
     a = z.a
     return z.b - z.support(a @ np.asarray(a_closed, dtype=float)) - w.support(a)
@@ -216,6 +240,11 @@ def reduce_facets(a_closed: np.ndarray, z: Polytope, w: Polytope, growth: float)
     w : Polytope
     growth : float
         Allowed relative growth ≥ 0; 0 returns ``z`` unchanged.
+
+    Returns
+    -------
+    FacetReduction
+        The reduced set, the facet counts, the growth used and the smallest margin.
     """
     a_k = np.asarray(a_closed, dtype=float)
     before = z.n_facets

@@ -1,4 +1,4 @@
-"""The ``estimate`` stage: inertial parameters from a tracking run (Doerr 2021 Eqs. 31-32; seed 001 §4.4.1, §6.2.1).
+"""Stage ``estimate``: inertial parameters from a tracking run ([Doerr2021] Eqs. 31-32; [ReSWARM2023] §4.4.1, §6.2.1).
 
 Inputs: the config (its ``estimation`` section: method, prior, noise, gate; ``robot`` as the default prior mean;
 ``simulation.plant_rate_hz`` as the default integration grid) and a ``track.mcap`` (measured states and applied

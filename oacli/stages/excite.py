@@ -388,7 +388,9 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     truth = cfg.truth_params()
     theta_true = np.array([truth.mass_kg, *truth.inertia_kgm2])
     if rcfg.estimator == "oracle":
-        estimator = CramerRaoOracle(theta_true, prior_cov, problem.measurement, problem.start)
+        estimator: CramerRaoOracle | OnlineSequentialEstimator = CramerRaoOracle(
+            theta_true, prior_cov, problem.measurement, problem.start
+        )
     else:
         prior = ParameterEstimate(0.0, prior_theta(cfg), prior_cov, "prior")
         estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior))

