@@ -137,6 +137,24 @@ def add_safety_reasons(report: StatusReport, safety: Mapping[str, Any], samples:
             report.unsafe(kind, message)
 
 
+def add_output_trajectory_reasons(report: StatusReport, summary: Mapping[str, Any], what: str) -> None:
+    """Findings of a stage's output trajectory (plan, smooth): one that collides or breaks a limit is unsafe.
+
+    Reads ``collision_free`` (exact continuous check), ``dense_check.ok`` (independent re-check) and
+    ``within_limits`` (force, torque, velocity, angular rate) where present.
+    """
+    if summary.get("collision_free") is False:
+        first = summary.get("first_collision") or {}
+        at = f" at t = {first['t_s']:.2f} s ({first.get('kind')})" if "t_s" in first else ""
+        report.unsafe("collision", f"the {what} leaves the free space{at} (exact continuous check)")
+    dense = summary.get("dense_check")
+    if isinstance(dense, Mapping) and dense.get("ok") is False:
+        report.unsafe("dense_check", f"the {what} fails the independent dense re-check (min clearance "
+                                     f"{dense.get('min_clearance_m', float('nan')):.3g} m)")
+    if summary.get("within_limits") is False:
+        report.unsafe("limits", f"the {what} exceeds a force, torque, velocity or angular-rate limit")
+
+
 def mode_word(status: str) -> str:
     """The leading word of a controller step's status (``"fallback (infeasible)"`` → ``"fallback"``)."""
     m = re.match(r"[A-Za-z]+", status)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -247,6 +247,7 @@ class TubeMonitor:
         """One control step at time ``t`` [s] (simulator ``Controller`` protocol)."""
         x = np.asarray(x_measured, dtype=float)
         x_t = x[0:6]
+        start = self.clock()
         w, margin, violated = self._measure(t, x_t)
         if np.all(np.isfinite(w)):
             self._max_abs = np.maximum(self._max_abs, np.abs(w))
@@ -264,10 +265,13 @@ class TubeMonitor:
         for key, value in (("t", t), ("w", w), ("hw", half_widths(self.designs[design_used][1])),
                            ("margin", margin), ("violated", violated), ("design", self.redesigns)):
             rec[key].append(value)
+        before_step = self.clock()
         step = self.controller.step(t, x)
         self._prev = (t, x_t.copy(), np.clip(np.asarray(step.u[0:3], dtype=float), -self.force_limit,
                                               self.force_limit))
-        return step
+        # The step's wall time includes the check and any redesign done for it.
+        info = replace(step.info, step_time_s=step.info.step_time_s + (before_step - start))
+        return ControlStep(step.u, info, step.x_reference)
 
     # -- records -----------------------------------------------------------------------------------------------
 
