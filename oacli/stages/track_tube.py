@@ -162,7 +162,8 @@ def beyond_w_summary(monitor: TubeMonitor) -> dict[str, Any]:
         "redesigns": monitor.redesigns,
         "held": monitor.held,
         "responses": [{"t": e.t, "response": e.response, "reason": e.reason,
-                       "redesign_time_s": e.redesign_time_s, "w_before": _axis_lists(e.w_before),
+                       "redesign_time_s": e.redesign_time_s, "measured_max": _axis_lists(e.measured_max),
+                       "w_before": _axis_lists(e.w_before),
                        "w_after": _axis_lists(e.w_after)} for e in monitor.events],
         "final_w": _axis_lists(half_widths(monitor.design)),
     }
