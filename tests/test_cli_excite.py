@@ -65,7 +65,10 @@ def test_run_folder_and_summary(excite_run, config):
     for key in ("criterion_initial", "criterion_final", "iterations", "solve_time_s", "max_force_N", "max_torque_Nm",
                 "collision_free", "crb_std", "goal_residual"):
         assert key in summary, key
-    assert summary["status"] == "ok" and summary["stage"] == "excite" and summary["method"] == "offline"
+    assert summary["stage"] == "excite" and summary["method"] == "offline"
+    # 15 SCP iterations (kept short for the test) stop before convergence: an honest "degraded", still exit 0.
+    assert summary["stop_reason"] == "iteration limit"
+    assert summary["status"] == "degraded" and [r["kind"] for r in summary["status_reasons"]] == ["scp"]
     assert summary["criterion_final"] < summary["criterion_initial"]
     assert summary["collision_free"] is True
     assert summary["max_force_N"] <= 0.25 + 1e-9 and summary["max_torque_Nm"] <= 0.025 + 1e-9

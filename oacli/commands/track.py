@@ -21,8 +21,9 @@ from oacli.cli import (
 
 TRACK_TABLE = [
     "status", "rms_position_error_m", "max_position_error_m", "final_position_error_m", "rms_attitude_error_rad",
-    "constraint_violations", "solver_failures", "fallback_steps", "tube_violations", "rpi", "solve_time_ms",
-    "step_time_ms", "sim_time_s", "wall_time_s",
+    "constraint_violations", "constraint_violations_by_kind", "solver_failures", "fallback_steps",
+    "safe_hold_steps", "tube_violations", "w_violations", "rpi", "solve_time_ms", "step_time_ms", "sim_time_s",
+    "wall_time_s",
 ]
 
 

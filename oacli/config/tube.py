@@ -106,6 +106,13 @@ class TubeConfig(Section):
         default=0.05,
         description="Relative growth of Z allowed to drop facets (verified invariant); 0 keeps every facet.",
     )
+    beyond_w: Literal["redesign", "hold", "ignore"] = Field(
+        default="redesign",
+        description="When a realised one-step disturbance leaves W (measured every step, "
+        "oacli.control.tube_monitor): 'redesign' the tube with the measured bound (x 1.5) and continue, or the "
+        "safe hold when no tube exists for it; 'hold' the safe hold at once; 'ignore' log and count only. The "
+        "run's status is 'degraded' either way.",
+    )
     solver: Literal["direct", "cvxpy"] = Field(
         default="direct",
         description="'direct': cvxpy canonicalises once, Clarabel is called with updated data; 'cvxpy': "

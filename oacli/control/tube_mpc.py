@@ -211,6 +211,12 @@ class TubeMPC:
         v = -self.params.mass_kg * z[3:6] / self.dt_s
         return np.clip(v, *self._v_bounds)
 
+    def enter_safe_hold(self, q_hold: np.ndarray) -> None:
+        """Latch the safe hold from the next step on, attitude held at ``q_hold`` (e.g. when W no longer holds,
+        :mod:`oacli.control.tube_monitor`)."""
+        if self._hold_q is None:
+            self._hold_q = np.array(q_hold, dtype=float)
+
     # -- the controller step -----------------------------------------------------------------------------------
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:

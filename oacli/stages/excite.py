@@ -47,10 +47,11 @@ from oacli.geometry import Scene
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun_excite import write_excite_recording
 from oacli.io.runfolder import git_commit, open_stage_run
-from oacli.metrics import percentiles_ms
+from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.stages.estimate import estimator_settings
 from oacli.stages.track import StageResult
+from oacli.status import StatusReport, add_safety_reasons
 from oacli.trajectory import sample_states
 from oacli.types import ParameterEstimate, Trajectory
 
@@ -333,6 +334,8 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         "steps": problem.steps,
         "dt_s": problem.dt,
     }
+    offline_findings(summary, problem).apply(summary)
+    log.extend(status_log(summary))
     config_yaml = dump_config(cfg)
     with open_stage_run("excite", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall) as run:
         run_dir, files = run.run_dir, run.files
@@ -493,7 +496,63 @@ def _rattle_summary(cfg, problem, limits, run: RattleRun, prior_cov, theta_true)
         "force_limit_N": limits.force_N,
         "torque_limit_Nm": limits.torque_Nm,
     }
+    robot = cfg.robot
+    report = safety_report(
+        tel.t_true, tel.x_true, scene=scene, velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
+        angular_velocity_limit_radps=np.asarray(robot.angular_velocity_limit_radps), robot_radius_m=robot.radius_m,
+        t_ctrl=tel.t_ctrl, u_command=tel.u_command, input_limits=robot.input_limits,
+    )
+    summary["safety"] = safety_block(report, samples=len(tel.t_true), robot_radius_m=robot.radius_m,
+                                     keep_in_margin_m=0.0)
+    rattle_findings(summary, problem, run).apply(summary)
+    log.extend(status_log(summary, float(tel.t_true[-1])))
     return summary, traj, log
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Status (oacli.status)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _goal_reasons(report: StatusReport, residual: dict[str, float], problem: ExcitationProblem) -> None:
+    tol = problem.terminal
+    over = [f"{key} {residual[key]:.3g} > {bound:.3g}"
+            for key, bound in (("position_m", tol.position_m), ("velocity_mps", tol.velocity_mps),
+                               ("angular_velocity_radps", tol.angular_velocity_radps))
+            if key in residual and residual[key] > bound * 1.001]
+    if over:
+        report.degraded("goal", "the run ends away from the goal at rest (" + ", ".join(over)
+                        + "; excitation.terminal_tolerance)")
+
+
+def offline_findings(summary: dict[str, Any], problem: ExcitationProblem) -> StatusReport:
+    """An offline design that stopped before the SCP converged, or that misses the goal, is ``degraded``."""
+    report = StatusReport()
+    stop = summary["stop_reason"]
+    if not stop.startswith("converged"):
+        report.degraded("scp", f"the SCP did not converge (stop: {stop}, {summary['iterations']} iterations); the "
+                               "design is feasible but not shown optimal (excitation.scp.max_iterations)")
+    _goal_reasons(report, summary["goal_residual"], problem)
+    return report
+
+
+def rattle_findings(summary: dict[str, Any], problem: ExcitationProblem, run: RattleRun) -> StatusReport:
+    """The RATTLE loop's findings: the true state's safety block (robot limits: unsafe; a command beyond the
+    robot's actuators: degraded), replans without a solution and a final state away from the goal (degraded)."""
+    report = StatusReport()
+    add_safety_reasons(report, summary["safety"])
+    failed = [r for r in run.replans if r.plan.status not in ("optimal", "optimal_inaccurate")]
+    if failed:
+        report.degraded("replan", f"{len(failed)} of {len(run.replans)} replans ended without a solution (last "
+                                  f"status {failed[-1].plan.status}); the previous plan was kept")
+    _goal_reasons(report, summary["goal_residual"], problem)
+    return report
+
+
+def status_log(summary: dict[str, Any], t: float = 0.0) -> list[LogEntry]:
+    """One log line per finding of the status."""
+    return [(t, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
+            for r in summary["status_reasons"]]
 
 
 def _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, limits, run: RattleRun, traj, log, prior_cov,

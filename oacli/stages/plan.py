@@ -42,6 +42,7 @@ from oacli.planning.result import PlanResult
 from oacli.planning.translational import CostWeights, TranslationalTrajectory
 from oacli.planning.tree import EDGE_LQR, EDGE_PRIMITIVE
 from oacli.stages.track import StageResult
+from oacli.status import NO_SOLUTION, OK, StatusReport, add_output_trajectory_reasons
 from oacli.types import Trajectory
 
 LogEntry = tuple[float, str, str]
@@ -420,6 +421,12 @@ def run_plan(
                         "path_length_m": float("nan"), "max_force_N": float("nan")}
             log.append((0.0, "error", f"no solution within the budget ({result.iterations} iterations, "
                                       f"{result.planning_time_s:.1f} s, {len(result.tree)} nodes)"))
+        report = StatusReport(OK if result.solved else NO_SOLUTION)
+        if result.solved:
+            add_output_trajectory_reasons(report, summary, "plan")
+        report.apply(summary)
+        log.extend((0.0, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
+                   for r in summary["status_reasons"])
         _write_plan_mcap(run.file("mcap", "plan.mcap"), cfg, config_yaml, scene, result, output, summary, log)
         tree = result.tree
         write_plan_recording(

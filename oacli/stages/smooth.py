@@ -36,7 +36,7 @@ from oacli.io.mcap_io import StageMcapWriter, read_stage, read_trajectory
 from oacli.io.rerun_plan import write_smooth_recording
 from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.planning.full_state import minimum_time_lower_bound_s, translational_part
-from oacli.planning.polish import STEP_OUTCOMES, PolishResult, PolishSettings, polish_trajectory
+from oacli.planning.polish import SOLVER, STEP_OUTCOMES, PolishResult, PolishSettings, polish_trajectory
 from oacli.planning.shortcut import ACCEPTED, ShortcutResult, lqr_shortcut
 from oacli.planning.steering import LqrConnector
 from oacli.planning.translational import TranslationalTrajectory
@@ -49,6 +49,7 @@ from oacli.stages.plan import (
     trajectory_metrics,
 )
 from oacli.stages.track import StageResult
+from oacli.status import StatusReport, add_output_trajectory_reasons
 from oacli.types import Trajectory
 
 LogEntry = tuple[float, str, str]
@@ -220,6 +221,18 @@ def polish_summary(polish: PolishResult, wall_time_s: float) -> dict[str, Any]:
     }
 
 
+def smooth_findings(summary: dict[str, Any], polish: PolishResult | None) -> StatusReport:
+    """The smoothed trajectory colliding or beyond a limit is ``unsafe``; a polish whose every SCP subproblem
+    failed in the solver is ``degraded`` (the shortcut result is returned) (:mod:`oacli.status`)."""
+    report = StatusReport()
+    add_output_trajectory_reasons(report, summary, "smoothed trajectory")
+    if polish is not None and polish.iterations and all(it.outcome == SOLVER for it in polish.iterations):
+        report.degraded("polish", f"the polish failed: every one of its {len(polish.iterations)} subproblems failed "
+                                  f"in the solver (last status {polish.iterations[-1].status}); the shortcut result "
+                                  "is returned")
+    return report
+
+
 def run_smooth(
     cfg: OacliConfig,
     *,
@@ -298,6 +311,7 @@ def run_smooth(
             **{k: after[k] for k in after if k not in ("path_length_m", "impulse_Ns", "cost")},
         }
         summary["cost"] = after["cost"]
+        smooth_findings(summary, polish).apply(summary)
         log.append((traj_out.duration_s, "info",
                     f"shortcutting: cost {result.cost_before:.6g} -> {result.cost_after:.6g}, duration "
                     f"{traj_in.duration_s:.1f} s -> {traj_shortcut.duration_s:.1f} s, {result.accepted}/{result.tried} "
@@ -307,6 +321,8 @@ def run_smooth(
                         f"polish ({polish.status}, {polish.reason}): path length {polish.length_before_m:.4f} m -> "
                         f"{polish.length_after_m:.4f} m, cost {polish.cost_before:.6g} -> {polish.cost_after:.6g}, "
                         f"{polish.accepted}/{len(polish.iterations)} SCP steps accepted"))
+        log.extend((traj_out.duration_s, "error" if r["level"] == "unsafe" else "warning",
+                    f"status {r['level']}: {r['message']}") for r in summary["status_reasons"])
         _write_smooth_mcap(run.file("mcap", "smooth.mcap"), cfg, config_yaml, checker, input_path, traj_in,
                            traj_shortcut, traj_out, result, polish, summary, log)
         write_smooth_recording(
