@@ -34,7 +34,7 @@ from tests.conftest import REPO
 PRESET = REPO / "configs" / "iss_reswarm_tube.yaml"
 E4 = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])  # ±position, ±velocity
 MASS, DT = 9.5, 0.2
-WEIGHTS = AncillaryWeights(5.0, 10.0, 2.0)  # ReSWARM ancillary LQR (REFERENCE.md "Tube MPC")
+WEIGHTS = AncillaryWeights(5.0, 10.0, 2.0)  # ReSWARM ancillary LQR ([RattleCode] z_poly_calc)
 
 
 def direct_f_inf_support(a_k, w, d, terms=4000):

@@ -69,6 +69,13 @@ def split_relative_epsilon(epsilon: float, facet_growth: float) -> tuple[float, 
     the bound, geometrically) and Raković et al.'s algorithm the rest, ``ε_F = (1 + ε)/(1 + g) − 1``. After
     ``F(α, s)`` is built, the reduction may use what it left (:func:`reduction_growth`).
 
+    Parameters
+    ----------
+    epsilon : float
+        Relative bound ε > 0 of the set in use.
+    facet_growth : float
+        Largest growth the facet reduction may take, ≥ 0.
+
     Returns
     -------
     epsilon_rpi : float
@@ -83,8 +90,22 @@ def split_relative_epsilon(epsilon: float, facet_growth: float) -> tuple[float, 
 
 
 def reduction_growth(epsilon: float, facet_growth: float, alpha: float) -> float:
-    """Facet growth left to the reduction by ``F(α, s) = (1 − α)⁻¹ F_s ⊆ (1 − α)⁻¹ F_∞`` under a relative
-    bound ε: ``min(facet_growth, (1 + ε)(1 − α) − 1)`` (≥ 0), so that ``(1 − α)⁻¹ (1 + g) ≤ 1 + ε``."""
+    """Facet growth left to the reduction by ``F(α, s) = (1 − α)⁻¹ F_s ⊆ (1 − α)⁻¹ F_∞`` under a relative bound.
+
+    Parameters
+    ----------
+    epsilon : float
+        Relative bound ε of the set in use.
+    facet_growth : float
+        Largest growth the reduction may take.
+    alpha : float
+        ``α`` of ``F(α, s)``, in [0, 1).
+
+    Returns
+    -------
+    float
+        ``min(facet_growth, (1 + ε)(1 − α) − 1)`` (≥ 0), so that ``(1 − α)⁻¹ (1 + g) ≤ 1 + ε``.
+    """
     return max(0.0, min(float(facet_growth), (1.0 + epsilon) * (1.0 - alpha) - 1.0))
 
 
@@ -183,7 +204,13 @@ class AxisTube:
         return float(pos), float(vel)
 
     def ideal_bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
-        """The tightened ``(force, velocity)`` bounds with ``Z = F_∞`` itself: what no tube can beat."""
+        """The tightened ``(force, velocity)`` bounds with ``Z = F_∞`` itself: what no tube can beat.
+
+        Returns
+        -------
+        force_N, velocity_mps : tuple of float
+            ``(lower, upper)`` of ``U ⊖ K F_∞`` [N] and of ``X ⊖ (F_∞ ⊕ N)`` [m/s].
+        """
         h = self.minimal_support
         v = self.velocity_limit_mps - h["velocity"] - float(self.disturbance.noise_bound[1])
         u = self.force_limit_N - h["force"]
@@ -379,7 +406,7 @@ def design_axis(
     ----------
     axis : int
         World axis 0, 1 or 2.
-    mass_kg, dt_s, weights, spec, epsilon, max_terms, facet_growth
+    mass_kg, dt_s, weights, spec, epsilon, epsilon_mode, max_terms, facet_growth
         As in :func:`design_translation_tube`.
     force_limit_N, velocity_limit_mps : float
         U and X of this axis.

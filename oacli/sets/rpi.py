@@ -248,15 +248,14 @@ def minimal_rpi_support(
 
     Returns
     -------
-    support : float or ndarray, shape (k,)
-        The partial sums: lower bounds of ``h_{F_∞}`` (every term is ≥ 0 as 0 ∈ W).
-    tail : float or ndarray, shape (k,)
+    support : ndarray, shape (k,)
+        The partial sums (k = 1 for a single direction): lower bounds of ``h_{F_∞}`` (every term is ≥ 0 as
+        0 ∈ W).
+    tail : ndarray, shape (k,)
         Upper bounds of the neglected tails: ``support ≤ h_{F_∞}(d) ≤ support + tail``.
     """
     a_k = np.asarray(a_closed, dtype=float)
-    d = np.asarray(directions, dtype=float)
-    single = d.ndim == 1
-    d2 = np.atleast_2d(d)
+    d2 = np.atleast_2d(np.asarray(directions, dtype=float))
     if spectral_radius(a_k) >= 1.0:
         raise ValueError("A_K is not Schur stable: F_∞ is unbounded")
     r_w = float(np.max(np.linalg.norm(w.vertices, axis=1)))
@@ -274,7 +273,7 @@ def minimal_rpi_support(
             if q < 1.0:
                 tail = r_w * d_norm * q / (1.0 - q) * norm_sum
                 if np.all(tail <= max(rtol, 1e-15) * total):
-                    return (float(total[0]), float(tail[0])) if single else (total, tail)
+                    return total, tail
     raise ValueError(f"the sum of h_W over A_K's powers did not reach rtol = {rtol:g} within {max_terms} terms")
 
 
