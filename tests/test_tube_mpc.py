@@ -40,7 +40,8 @@ TERMINAL = TerminalWeights(np.full(3, 100.0), np.full(3, 10.0))
 def reswarm_design(mass_std=0.1, force=0.002, **kw):
     spec = DisturbanceSpec(MASS, mass_std, force_N=np.full(3, force))
     return design_translation_tube(mass_kg=MASS, dt_s=DT, force_limit_N=U_TUBE, velocity_limit_mps=V_MAX,
-                                   weights=AncillaryWeights(5.0, 10.0, 2.0), spec=spec, epsilon=0.005, **kw)
+                                   weights=AncillaryWeights(5.0, 10.0, 2.0), spec=spec, epsilon=0.005,
+                                   epsilon_mode="absolute", facet_growth=0.05, **kw)  # rattle z_poly_calc
 
 
 def two_block_qp(horizon, design, fast=True, **kw):
