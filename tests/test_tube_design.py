@@ -246,8 +246,6 @@ def test_config_epsilon_mode_defaults_to_relative_and_accepts_absolute(tmp_path)
         .rpi_epsilon_mode == "absolute"
 
 
-@pytest.mark.xfail(strict=True, reason="needs `epsilon_mode=tube.rpi_epsilon_mode` in tube_design_from_config "
-                   "(oacli/stages/track_tube.py, owned by another helper); remove this marker with that line")
 def test_the_stage_designs_with_the_configured_epsilon_mode(tmp_path):
     """rpi_epsilon_mode: absolute reaches the design: the flight settings' s = 53 (not the relative rule's)."""
     cfg = load_config(variant(tmp_path, rpi_epsilon_mode="absolute", rpi_epsilon=0.005, lasso_facet_growth=0.05))

@@ -81,6 +81,7 @@ def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = 
         mass_kg=robot.mass_kg, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
         velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
         weights=AncillaryWeights(anc.position, anc.velocity, anc.force), spec=spec, epsilon=tube.rpi_epsilon,
+        epsilon_mode=tube.rpi_epsilon_mode,
         max_terms=tube.rpi_max_terms if max_terms is None else min(max_terms, tube.rpi_max_terms),
         facet_growth=tube.lasso_facet_growth, on_empty=on_empty, min_nominal_fraction=dist.min_nominal_fraction,
     )
