@@ -69,6 +69,9 @@ class RattleController:
     feedback_q, feedback_r : ndarray, shape (12,), (6,)
         LQR weights on the error ``[r, v, φ, ω]`` and on ``[f, τ]``.
     input_limits : ndarray, shape (6,)
+        Actuator limits the input is clipped to (the plan keeps its own, lower, design limits).
+    rate_limit_radps : ndarray, shape (3,), optional
+        Body-rate limit of the rate governor (:func:`rate_governed_torque`); none by default.
     """
 
     def __init__(
