@@ -10,6 +10,12 @@ Two methods (``excitation.method`` or ``--method``):
   sequential``, configured by the ``estimation`` section), or the Cramér-Rao oracle
   (:class:`oacli.excitation.oracle.CramerRaoOracle`, ``oracle``), named so in every output.
 
+Both design within the limits of :func:`oacli.stages.design_limits.excitation_design_limits`: the robot's with
+``excitation.margin`` (the force also × m_prior/m_upper, Doerr Eq. 28), capped by ``excitation.limits`` (RATTLE:
+``excitation.rattle.limits`` over them); a cap above the robot's is refused (exit 2) or clipped with a warning. In
+RATTLE's closed loop the feedback may use the actuator's full limits and a rate governor keeps the body rate within
+``robot.angular_velocity_limit_radps``. ``summary.json`` records the limits used (``design_limits``).
+
 Outputs in the run folder: ``config.yaml`` (first), ``excite.mcap`` (``/trajectory`` as ``oacli.TrajectorySample``
 at the design's sample period, the criterion per SCP iteration, the information over time, the scene),
 ``excite.rrd`` and ``summary.json`` (last).
