@@ -94,7 +94,7 @@ def replan_speed(cfg, replans: int) -> None:
     exc = cfg.excitation
     rcfg = exc.rattle
     problem = excitation_problem(cfg)
-    limits = motion_limits(cfg, exc.limits, rcfg.limits)
+    limits = motion_limits(cfg, rattle=True)
     weighting = InformationWeighting(np.array(rcfg.gamma0), np.array(rcfg.floor), rcfg.alpha, rcfg.beta)
     rng = np.random.default_rng(0)
 

@@ -14,6 +14,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, Strict, model_validator
 
+from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
 from oacli.config.models import (
     NonNegativeReal,
     NonNegativeVector3,
@@ -174,6 +175,16 @@ class PlannerConfig(Section):
     )
     weights: Annotated[PlannerWeights, _none_to({})] = Field(
         default_factory=PlannerWeights, description="Cost weights (Doerr Eq. 5 plus a price on time)."
+    )
+    limits: Annotated[LimitsOverride, _none_to({})] = Field(
+        default_factory=LimitsOverride,
+        description="Caps of plan and smooth below the robot's (omitted ones: the robot's), with the margin "
+        "applied; a value above the robot's is refused or clipped (margin.on_excess).",
+    )
+    margin: Annotated[ReferenceMarginConfig, _none_to({})] = Field(
+        default_factory=ReferenceMarginConfig,
+        description="Share of the robot's limits plan and smooth may use, with the mass margin of Doerr Eq. 28 "
+        "(m_prior = robot.mass_kg, σ_m default: sqrt(estimation.prior.mass_variance_kg2)).",
     )
     kino: Annotated[KinoRrtConfig, _none_to({})] = Field(
         default_factory=KinoRrtConfig, description="Kinodynamic RRT settings."

@@ -31,6 +31,7 @@ from oacli.metrics import percentiles_ms, rms, tracking_errors
 from oacli.reference import waypoint_reference
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
+from oacli.stages.design_limits import check_reference_for_plant
 from oacli.stages.track_status import assess_track, controller_counts, status_log, track_safety
 from oacli.stages.track_tube import (
     add_tube_reasons,
@@ -145,6 +146,7 @@ def run_track(
     out: Path | None = None,
     runs_root: Path = Path("runs"),
     progress: Callable[[float], None] | None = None,
+    strict_reference: bool = False,
 ) -> StageResult:
     """Run the ``track`` stage and write its run folder.
 
@@ -160,6 +162,9 @@ def run_track(
         Parent folder of automatically named runs.
     progress : callable, optional
         Called with the completed fraction of the simulation.
+    strict_reference : bool
+        Refuse (InputError) a reference the plant cannot follow within the robot's limits instead of warning
+        (:func:`oacli.stages.design_limits.check_reference_for_plant`).
 
     Returns
     -------
@@ -171,6 +176,7 @@ def run_track(
         reference = reference_from_config(cfg)
     scene = cfg.scene()
     check_reference_in_workspace(reference, scene, log)
+    reference_check = check_reference_for_plant(cfg, reference, log, strict=strict_reference)
     log.append((0.0, "info", f"reference {reference.name}: {len(reference)} samples, {reference.duration_s:.1f} s"))
 
     robot = cfg.robot
@@ -211,6 +217,7 @@ def run_track(
             sensors=sensors, disturbance=disturbance, rng=rng, progress=progress,
         )
         summary, pos_err_ctrl, att_err_ctrl = _track_summary(cfg, reference, tel, limits)
+        summary["reference_check"] = reference_check.summary()
         monitor = controller if isinstance(controller, TubeMonitor) else None
         history = monitor.history() if monitor is not None else None
         findings = StatusReport()
