@@ -212,8 +212,13 @@ class TubeMPC:
         return np.clip(v, *self._v_bounds)
 
     def enter_safe_hold(self, q_hold: np.ndarray) -> None:
-        """Latch the safe hold from the next step on, attitude held at ``q_hold`` (e.g. when W no longer holds,
-        :mod:`oacli.control.tube_monitor`)."""
+        """Latch the safe hold from the next step on (e.g. when W no longer holds, :mod:`oacli.control.tube_monitor`).
+
+        Parameters
+        ----------
+        q_hold : ndarray, shape (4,)
+            Attitude to hold, scalar-last quaternion.
+        """
         if self._hold_q is None:
             self._hold_q = np.array(q_hold, dtype=float)
 
