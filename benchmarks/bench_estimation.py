@@ -1,6 +1,6 @@
 """Benchmark: inertial parameter estimation after the B → C excitation segment, against the Cramér-Rao bound.
 
-Scenario (issue 5 targets): simulated Astrobee carrying the 3D-printed object (seed 000, Table 1: 15 kg,
+Scenario (issue 5 targets): simulated Astrobee carrying the 3D-printed object ([Doerr2021] Table 1: 15 kg,
 0.1464 / 0.1376 / 0.1604 kg·m²) tracks RATTLE's flown ISS excitation trajectory (``excitation_iss_11.csv``, B → C,
 60 s) with the ISS preset's MPC whose model is the bare robot. Measurement noise: RATTLE's ``param_est`` R
 (variances, see below) for velocity and angular velocity, the ISS preset's localisation noise for position and
@@ -12,7 +12,7 @@ Printed per method × data: the median absolute error per parameter [%], the spr
 error) divided by the Cramér-Rao bound measured along each run in this benchmark (initial state unknown, as for the
 estimators), the median covariance reduction against the prior [%], the median time per estimate [s] and the
 records rejected. Targets: median error mass ≤ 0.39 %, each inertia ≤ 0.9 % (flight: 0.39 / 0.91 / 1.35 /
-6.92 %, seed 001), spread ≤ 1.2 × the bound.
+6.92 %, [ReSWARM2023]), spread ≤ 1.2 × the bound.
 
 RATTLE's R (albee/rattle-iros-2022, ``param_est/scripts/param_est_config.py``) is a covariance: ``R_6DOF =
 diag(vec_R)`` enters ``S = H P Hᵀ + R``; its velocity entry 0.5e-5 is a variance (std 2.24 mm/s), angular velocity
@@ -45,12 +45,12 @@ from oacli.types import ParameterEstimate
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_REFERENCE = REPO.parent / "shared" / "data" / "rattle-iros-2022" / "info-trajectories" / "excitation_iss_11.csv"
-TRUTH = np.array([15.0, 0.1464, 0.1376, 0.1604])  # seed 000, Table 1
+TRUTH = np.array([15.0, 0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1
 PRIOR = ParameterEstimate(0.0, [15.0, 0.1, 0.1, 0.1], np.diag([15.0, 0.005, 0.005, 0.005]), "prior")  # rattle
 NOISE = {"position_std_m": 0.01, "velocity_std_mps": math.sqrt(5e-6), "attitude_std_rad": 0.005,
          "angular_velocity_std_radps": math.sqrt(2.5e-4)}
 TARGET_ERROR_PCT = np.array([0.39, 0.9, 0.9, 0.9])
-FLIGHT_ERROR_PCT = np.array([0.39, 0.91, 1.35, 6.92])  # seed 001, RATTLE table
+FLIGHT_ERROR_PCT = np.array([0.39, 0.91, 1.35, 6.92])  # [ReSWARM2023] RATTLE table
 NAMES = ("m", "Ixx", "Iyy", "Izz")
 
 
@@ -137,7 +137,7 @@ def main() -> None:
     print("Cramér-Rao bound % (median, initial state unknown):", " / ".join(f"{v:.3f}" for v in crb_pct))
     print("Cramér-Rao bound % (initial state known, information.py's):", " / ".join(f"{v:.3f}" for v in crb0_pct))
     print("targets: median error % ≤", " / ".join(f"{v:.2f}" for v in TARGET_ERROR_PCT),
-          "(flight, seed 001:", " / ".join(f"{v:.2f}" for v in FLIGHT_ERROR_PCT) + "); spread ≤ 1.2 × CRB")
+          "(flight, [ReSWARM2023]:", " / ".join(f"{v:.2f}" for v in FLIGHT_ERROR_PCT) + "); spread ≤ 1.2 × CRB")
     for method, data_name, ok_err, ok_spread in verdicts:
         print(f"  {method:<11} {data_name:<10} error target {'met' if ok_err else 'MISSED'}, "
               f"spread target {'met' if ok_spread else 'MISSED'}")

@@ -6,16 +6,16 @@ problem of the flown files: B (10.8, -7.75, 5.2) → C (10.8, -7.75, 4.3), 60 s,
 which also keeps 0.1 m from the JEM walls). Everything is evaluated in this run with the same Fisher information
 (Doerr Eq. 29, measurements every 0.5 s as in the files) and the same noise model, RATTLE's sequential estimator
 (rattle ``param_est``: R = diag(5e-6 ×3 velocity, 2.5e-4 ×3 angular velocity, 5e-6 ×3 linear acceleration), read as
-variances since the filter forms S = H P Hᵀ + R), at θ = Astrobee with object (seed 000 Table 1: 15 kg,
+variances since the filter forms S = H P Hᵀ + R), at θ = Astrobee with object ([Doerr2021] Table 1: 15 kg,
 0.1464/0.1376/0.1604 kg·m²). The flown files' inputs (force world frame, torque body frame; SOURCE.md) are rolled out
 on that model from their first sample.
 
-Speed (targets: one replan of the information-aware planner at N = 40 ≤ 0.3 s — ACADO RTI SQP took 0.929 s, seed 001
-Table 5 — and the offline design ≤ 30 s). The planner baseline measured in the same run is the same planner with its
-cvxpy problem rebuilt at every replan.
+Speed (targets: one replan of the information-aware planner at N = 40 ≤ 0.3 s — ACADO RTI SQP took 0.929 s,
+[ReSWARM2023] Table 5 — and the offline design ≤ 30 s). The planner baseline measured in the same run is the same
+planner with its cvxpy problem rebuilt at every replan.
 
 Run: ``python benchmarks/bench_excitation.py [--replans 10]`` from the repository root. The information table needs
-the RATTLE data at ../shared/data (skipped with a message when absent).
+the RATTLE data ([RattleData], docs/references.md) at ../shared/data (skipped with a message when absent).
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ from oacli.stages.excite import excitation_problem, motion_limits, scp_settings
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "rattle-iros-2022" / "info-trajectories"
-THETA = np.array([15.0, 0.1464, 0.1376, 0.1604])  # seed 000 Table 1, Astrobee with object
-ACADO_REPLAN_S = 0.929  # seed 001 Table 5, information-aware local planner, N = 40, ACADO RTI SQP
+THETA = np.array([15.0, 0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1, Astrobee with object
+ACADO_REPLAN_S = 0.929  # [ReSWARM2023] Table 5, information-aware local planner, N = 40, ACADO RTI SQP
 
 
 def _fmt(v: float) -> str:
@@ -51,7 +51,7 @@ def _fmt(v: float) -> str:
 
 def information_table(cfg) -> None:
     problem = excitation_problem(cfg)
-    assert np.allclose(problem.theta, THETA), "the preset's prior should be seed 000 Table 1"
+    assert np.allclose(problem.theta, THETA), "the preset's prior should be [Doerr2021] Table 1"
     t0 = time.perf_counter()
     design = design_excitation(problem, scp_settings(cfg))
     wall = time.perf_counter() - t0
@@ -94,7 +94,7 @@ def replan_speed(cfg, replans: int) -> None:
     exc = cfg.excitation
     rcfg = exc.rattle
     problem = excitation_problem(cfg)
-    limits = motion_limits(cfg, exc.limits, rcfg.limits)
+    limits = motion_limits(cfg, rattle=True)
     weighting = InformationWeighting(np.array(rcfg.gamma0), np.array(rcfg.floor), rcfg.alpha, rcfg.beta)
     rng = np.random.default_rng(0)
 

@@ -9,7 +9,7 @@ sampling, feed-forward, chart, the QP, fallback logic, the ancillary law and the
 
 Figures: medians over the replayed steps [ms]; "first" is the wall time from building the controller (cvxpy
 problem, canonicalisation, Clarabel set-up) to the end of its first step [s]; "design" is the offline tube design
-(ancillary gain, RPI set, facet reduction, tightening) [s], once. Reference (seed 001, Table 5): the flight tube
+(ancillary gain, RPI set, facet reduction, tightening) [s], once. Reference ([ReSWARM2023] Table 5): the flight tube
 MPC step took 8.49 ms with qpOASES at N = 5 on a laptop.
 
 Second table — the cost of the workspace rows (issue 8; target: within 1.3× of the step without them): the preset

@@ -1,8 +1,11 @@
 """The ``oacli`` command line: thin wrappers that load a config, call one stage runner and report.
 
-Exit codes: 0 success; 1 internal error; 2 bad input (config, file, option); 3 infeasible problem;
-130 interrupted. Errors are printed on stderr as one line per problem, never as a traceback (set
-``OACLI_DEBUG=1`` to see one). Progress goes to stderr, the results table to stdout.
+Exit codes: 0 success (status ``ok``, or ``degraded`` with a warning); 1 internal error; 2 bad input (config, file,
+option); 3 infeasible problem (no plan within the budget, empty tightened sets, no feasible excitation); 4 the run
+was ``unsafe`` (the true state left a keep-in zone, entered a keep-out zone or broke a velocity or angular-rate
+limit; the run folder is complete); 130 interrupted. Every status other than ``ok`` prints one ``warning:`` line on
+stderr naming what happened (:mod:`oacli.status`). Errors are printed on stderr as one line per problem, never as a
+traceback (set ``OACLI_DEBUG=1`` to see one). Progress goes to stderr, the results table to stdout.
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ def _root(
         bool, typer.Option("--version", callback=_version_callback, is_eager=True, help="Print the version.")
     ] = False,
 ) -> None:
-    """oacli: plan | smooth | excite | estimate | track | mission."""
+    """oacli: plan | smooth | excite | track | estimate."""
 
 
 class Progress:
@@ -136,11 +139,23 @@ def run_guarded(action: Callable[[], Any]) -> Any:
 
 def run_stage_command(action: Callable[[], Any], table: list[str], quiet: bool) -> None:
     """Run a stage command's action (errors mapped by :func:`run_guarded`), then print its results table on
-    stdout (unless ``quiet``) and the run folder (on stderr when quiet, so stdout stays empty)."""
+    stdout (unless ``quiet``) and the run folder (on stderr when quiet, so stdout stays empty).
+
+    A status other than ``ok`` prints one ``warning:`` line on stderr (even when quiet) and exits with its code
+    (:data:`oacli.status.EXIT_CODES`: ``degraded`` 0, ``unsafe`` 4).
+    """
+    from oacli.status import exit_code, warning_line
+
     result = run_guarded(action)
+    warning = warning_line(result.summary)
+    if warning is not None:
+        typer.echo(warning, err=True)
     if not quiet:
         print_table(result.summary, table)
     typer.echo(f"run folder: {result.run_dir}", err=quiet)
+    code = exit_code(result.summary.get("status", "ok"))
+    if code:
+        raise typer.Exit(code)
 
 
 def main() -> None:

@@ -29,7 +29,24 @@ def _min_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def leg_duration(
     distance_m: float, angle_rad: float, speed: float, accel: float, rate: float, ang_accel: float
 ) -> float:
-    """Shortest minimum-jerk leg duration [s] within the speed/acceleration and angular limits."""
+    """Shortest minimum-jerk leg duration [s] within the speed/acceleration and angular limits.
+
+    Parameters
+    ----------
+    distance_m : float
+        Translation [m].
+    angle_rad : float
+        Rotation [rad].
+    speed, accel : float
+        Speed [m/s] and acceleration [m/s²] limits.
+    rate, ang_accel : float
+        Angular rate [rad/s] and angular acceleration [rad/s²] limits.
+
+    Returns
+    -------
+    float
+        At least 1 ms.
+    """
     return max(
         _PEAK_RATE * distance_m / speed,
         np.sqrt(_PEAK_ACCEL * distance_m / accel),
@@ -56,6 +73,27 @@ def waypoint_reference(
     """Rest-to-rest reference through ``positions (K, 3)`` [m] with attitudes ``quaternions (K, 4)``.
 
     The robot holds each waypoint for ``hold_s`` [s] (including the first and the last).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (K, 3)
+        Waypoints [m].
+    quaternions : ndarray, shape (K, 4)
+        Attitudes at the waypoints.
+    params : InertialParams
+        For the feedforward inputs.
+    speed_mps, accel_mps2, rate_radps, ang_accel_radps2 : float
+        Limits of each leg (:func:`leg_duration`).
+    hold_s : float, optional
+        Hold at each waypoint [s].
+    sample_period_s : float, optional
+        Sample period [s].
+    name, frame : str, optional
+        Trajectory name and coordinate frame.
+
+    Returns
+    -------
+    Trajectory
     """
     positions = np.asarray(positions, dtype=float)
     quaternions = quat.normalize(np.asarray(quaternions, dtype=float))

@@ -14,6 +14,16 @@ def sample_states(traj: Trajectory, times: np.ndarray) -> np.ndarray:
     Position, velocity and angular velocity are interpolated linearly, attitude by slerp. Before the first
     sample the first state is returned; after the last sample the robot holds the final pose at rest
     (zero velocity and angular velocity), which is what a tracking controller should converge to.
+
+    Parameters
+    ----------
+    traj : Trajectory
+    times : ndarray, shape (k,)
+        Times [s].
+
+    Returns
+    -------
+    ndarray, shape (k, 13)
     """
     times = np.atleast_1d(np.asarray(times, dtype=float))
     t = traj.t
@@ -41,6 +51,19 @@ def feedforward_inputs(x_ref: np.ndarray, dt: float, params: InertialParams) -> 
 
     Force ``f_k = m (v_{k+1} − v_k)/dt`` (exact for the discrete double integrator's velocity) and torque
     ``τ_k = I (ω_{k+1} − ω_k)/dt + ω_k × I ω_k`` (Doerr Eqs. 34b, 35b).
+
+    Parameters
+    ----------
+    x_ref : ndarray, shape (N+1, 13)
+        Reference states.
+    dt : float
+        Sample period [s].
+    params : InertialParams
+        The model.
+
+    Returns
+    -------
+    ndarray, shape (N, 6)
     """
     inertia = params.inertia_kgm2
     dv = np.diff(x_ref[:, 3:6], axis=0) / dt
@@ -51,7 +74,18 @@ def feedforward_inputs(x_ref: np.ndarray, dt: float, params: InertialParams) -> 
 
 
 def sample_inputs(traj: Trajectory, times: np.ndarray) -> np.ndarray:
-    """Inputs of ``traj`` at ``times`` [s] under its zero-order hold, shape (len(times), 6); zero after the end."""
+    """Inputs of ``traj`` at ``times`` [s] under its zero-order hold, shape (len(times), 6); zero after the end.
+
+    Parameters
+    ----------
+    traj : Trajectory
+    times : ndarray, shape (k,)
+        Times [s].
+
+    Returns
+    -------
+    ndarray, shape (k, 6)
+    """
     times = np.atleast_1d(np.asarray(times, dtype=float))
     idx = np.clip(np.searchsorted(traj.t, times, side="right") - 1, 0, len(traj) - 1)
     out = traj.u[idx].copy()

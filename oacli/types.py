@@ -231,5 +231,10 @@ class ParameterEstimate:
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
     def inertial_params(self) -> InertialParams:
-        """The estimate as :class:`InertialParams` (raises ValueError if it is not physical)."""
+        """The estimate as :class:`InertialParams` (raises ValueError if it is not physical).
+
+        Returns
+        -------
+        InertialParams
+        """
         return InertialParams(self.theta[0], self.theta[1:4])

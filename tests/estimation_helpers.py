@@ -13,7 +13,7 @@ from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import ControlStep, simulate
 from oacli.types import InertialParams, ParameterEstimate, SolveInfo, Telemetry
 
-THETA_TRUE = np.array([15.0, 0.1464, 0.1376, 0.1604])  # seed 000, Table 1: Astrobee with the printed object
+THETA_TRUE = np.array([15.0, 0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1: Astrobee with the printed object
 # rattle param_est_config.py: params_init_6DOF_simplified and P_6DOF_simplified (a covariance: variances).
 RATTLE_PRIOR = ParameterEstimate(0.0, [15.0, 0.1, 0.1, 0.1], np.diag([15.0, 0.005, 0.005, 0.005]), "prior")
 # Position/attitude: the ISS preset's localisation noise; velocity/angular velocity: rattle's R (variances 5e-6,

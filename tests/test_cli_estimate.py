@@ -17,7 +17,7 @@ from oacli.io.rerun_io import read_blueprint_views, read_recording_entities, rea
 from tests.conftest import INFO_TRAJECTORIES, REPO, require_shared
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
-TRUTH = [15.0, 0.1464, 0.1376, 0.1604]  # seed 000, Table 1: Astrobee with the 3D-printed object
+TRUTH = [15.0, 0.1464, 0.1376, 0.1604]  # [Doerr2021] Table 1: Astrobee with the 3D-printed object
 NAMES = ("mass_kg", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2")
 runner = CliRunner()
 
@@ -172,7 +172,7 @@ def test_flown_excitation_trajectory_tracked_with_the_payload_then_estimated(tmp
     for i, name in enumerate(NAMES):
         value = s["mass_kg"] if i == 0 else s["inertia_kgm2"][i - 1]
         assert abs(value - TRUTH[i]) < 4 * s["crb_std"][name], name
-    # seed 001 flight errors were 0.39 / 0.91 / 1.35 / 6.92 %; the simulated bound is far tighter.
+    # [ReSWARM2023] flight errors were 0.39 / 0.91 / 1.35 / 6.92 %; the simulated bound is far tighter.
     assert max(s["error_pct"].values()) < 0.9
     assert s["duration_s"] == pytest.approx(60.8, abs=0.3)  # 60 s reference + 1 s settling, 0.2 s steps
 

@@ -121,9 +121,9 @@ def test_iss_preset_values():
 
 def test_doerr_preset_values():
     cfg = load_config(CONFIGS / "doerr2021.yaml")
-    assert cfg.robot.mass_kg == 9.0877  # seed 000 Table 1
+    assert cfg.robot.mass_kg == 9.0877  # [Doerr2021] Table 1
     assert cfg.robot.inertia_kgm2 == (0.1454, 0.1366, 0.1594)
-    assert cfg.robot.force_limit_N == (0.5, 0.5, 0.5)  # seed 000 Results
+    assert cfg.robot.force_limit_N == (0.5, 0.5, 0.5)  # [Doerr2021] Results
     assert cfg.truth_params().mass_kg == 9.0877  # segment 1: model known
     assert cfg.environment.safety_factor > 1.0
     assert len(cfg.environment.keep_out) >= 2

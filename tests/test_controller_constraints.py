@@ -40,10 +40,11 @@ from oacli.trajectory import feedforward_inputs, sample_states
 from oacli.types import InertialParams
 from tests.conftest import REPO
 
-BARE = InertialParams(9.583788668, [0.153427995, 0.14271405, 0.162302759])  # astrobee iss.config (REFERENCE.md)
-PAYLOAD = InertialParams(15.0, [0.1464, 0.1376, 0.1604])  # Doerr 2021 Table 1, Astrobee with the printed object
-RADIUS = 0.25  # astrobee iss.config collision radius
-U_MAX = np.array([0.452, 0.216, 0.257, 0.0452, 0.0216, 0.0257])  # seed 001 Table 2 (2000 RPM), torque ≈ 1/10
+# [AstrobeeFSW] astrobee/config/worlds/iss.config: the bare robot
+BARE = InertialParams(9.583788668, [0.153427995, 0.14271405, 0.162302759])
+PAYLOAD = InertialParams(15.0, [0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1, Astrobee with the printed object
+RADIUS = 0.25  # [AstrobeeFSW] astrobee/config/worlds/iss.config, collision radius
+U_MAX = np.array([0.452, 0.216, 0.257, 0.0452, 0.0216, 0.0257])  # [ReSWARM2023] Table 2 (2000 RPM), torque ≈ 1/10
 LIMITS = TrackingLimits(U_MAX[:3], U_MAX[3:], np.full(3, 0.2), np.full(3, 0.1745))
 WEIGHTS = TrackingWeights(*[np.full(3, v) for v in (10.0, 1.0, 10.0, 1.0, 1.0, 100.0)])
 ISS = load_config(REPO / "configs" / "iss_reswarm.yaml").scene()

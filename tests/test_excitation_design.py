@@ -374,7 +374,7 @@ def test_initial_guess_is_rest_to_rest_and_within_limits():
 def test_design_beats_the_best_flown_iss_excitation_by_half():
     """Issue 5 target, checked in the same run with the same FIM and noise model: tr F⁻¹ of the design of the ISS
     B→C problem (configs/iss_reswarm.yaml) ≤ 0.5 × that of the best flown excitation_iss_* file (rolled out at
-    θ = seed 000 Table 1), and every parameter's Cramér-Rao bound lower."""
+    θ = [Doerr2021] Table 1), and every parameter's Cramér-Rao bound lower."""
     require_shared(INFO_TRAJECTORIES)
     cfg = load_config(REPO / "configs" / "iss_reswarm.yaml")
     p = excitation_problem(cfg)

@@ -1,4 +1,4 @@
-"""Kinodynamic RRT with motion primitives (ReSWARM, seed 001 §4.1.2-4.1.3, Eqs. 26-27)."""
+"""Kinodynamic RRT with motion primitives ([ReSWARM2023] §4.1.2-4.1.3, Eqs. 26-27)."""
 
 from __future__ import annotations
 

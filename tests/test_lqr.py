@@ -11,7 +11,7 @@ from oacli.errors import InfeasibleError
 from oacli.model.double_integrator import hover_error_model
 from oacli.types import InertialParams
 
-PARAMS = InertialParams(9.583788668, [0.153427995, 0.14271405, 0.162302759])  # Astrobee on ISS (REFERENCE.md)
+PARAMS = InertialParams(9.583788668, [0.153427995, 0.14271405, 0.162302759])  # Astrobee on ISS, [AstrobeeFSW]
 
 
 def random_system(rng, n=4, m=2):

@@ -15,10 +15,10 @@ from oacli.model.double_integrator import hover_error_model
 from oacli.reference import waypoint_reference
 from oacli.types import InertialParams
 
-PARAMS = InertialParams(9.583788668, [0.153427995, 0.14271405, 0.162302759])  # Astrobee on ISS (REFERENCE.md)
+PARAMS = InertialParams(9.583788668, [0.153427995, 0.14271405, 0.162302759])  # Astrobee on ISS, [AstrobeeFSW]
 Q = np.array([10.0] * 3 + [1.0] * 3 + [10.0] * 3 + [1.0] * 3)
 R = np.array([1.0] * 3 + [100.0] * 3)
-U_MAX = np.array([0.452, 0.216, 0.257, 0.0452, 0.0216, 0.0257])  # seed 001 Table 2 (2000 RPM), torque ≈ 1/10
+U_MAX = np.array([0.452, 0.216, 0.257, 0.0452, 0.0216, 0.0257])  # [ReSWARM2023] Table 2 (2000 RPM), torque ≈ 1/10
 X_MAX = np.r_[[np.inf] * 3, [0.2] * 3, [np.inf] * 3, [0.1745] * 3]
 
 

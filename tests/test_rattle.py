@@ -1,4 +1,4 @@
-"""RATTLE's information-aware planner (seed 001 §4.4, §4.6): decay rule, planner, closed loop with the oracle."""
+"""RATTLE's information-aware planner ([ReSWARM2023] §4.4, §4.6): decay rule, planner, closed loop with the oracle."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from oacli.model import rigid_body as rb
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.types import InertialParams
 
-TRUTH = np.array([15.0, 0.1464, 0.1376, 0.1604])  # seed 000 Table 1, Astrobee with object
+TRUTH = np.array([15.0, 0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1, Astrobee with object
 P0 = np.diag([15.0, 0.005, 0.005, 0.005])  # rattle param_est P0
 RATTLE_MODEL = MeasurementModel(velocity_std_mps=5e-6**0.5, angular_velocity_std_radps=2.5e-4**0.5,
                                 linear_acceleration_std_mps2=5e-6**0.5)
@@ -42,7 +42,7 @@ def state(position) -> np.ndarray:
 
 
 def test_decay_rule_published_constants():
-    """γ_i = γ0_i exp(−β floor_i/σ_i), 0 once σ_i ≤ α floor_i (REFERENCE.md; α 2.2, β 5)."""
+    """γ_i = γ0_i exp(−β floor_i/σ_i), 0 once σ_i ≤ α floor_i ([RATTLE2022]; [RattleCode] α 2.2, β 5)."""
     w = InformationWeighting()
     np.testing.assert_array_equal(w.gamma0, [50, 20, 20, 20])
     np.testing.assert_array_equal(w.floor, [0.03, 1e-4, 1e-4, 1e-4])

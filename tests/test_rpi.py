@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.optimize import linprog
 
 from oacli.control.lqr import dlqr
 from oacli.errors import InfeasibleError
 from oacli.model.double_integrator import double_integrator
-from oacli.sets import Polytope, minimal_rpi_outer, reduce_facets, rpi_margins
+from oacli.sets import Polytope, RPITermsError, minimal_rpi_outer, minimal_rpi_support, reduce_facets, rpi_margins
 
-# Raković, Kerrigan, Kouramas & Mayne, "Invariant approximations of the minimal robust positively invariant set",
-# IEEE Trans. Automatic Control 50(3):406-410, 2005, example of their Eq. (15): x⁺ = [[1, 1], [0, 1]] x + [1, 1]ᵀ u
-# + w, u = −[1.17, 1.03] x, W = {w : ‖w‖_∞ ≤ 1}.
+# [Rakovic2005], example of their Eq. (15): x⁺ = [[1, 1], [0, 1]] x + [1, 1]ᵀ u + w, u = −[1.17, 1.03] x,
+# W = {w : ‖w‖_∞ ≤ 1}.
 RKKM_A_K = np.array([[1.0, 1.0], [0.0, 1.0]]) - np.array([[1.0], [1.0]]) @ np.array([[1.17, 1.03]])
 RKKM_W = Polytope.symmetric_box([1.0, 1.0])
 
@@ -60,7 +60,7 @@ def test_rakovic_2005_example_is_an_outer_epsilon_approximation(rng):
 def axis_systems():
     """Per-axis Astrobee translation at 0.2 s with the ReSWARM ancillary gain, and the RKKM05 example."""
     a, b = double_integrator(0.2, 1 / 9.5)
-    k, _ = dlqr(a, b, np.diag([5.0, 10.0]), np.array([[2.0]]))  # REFERENCE.md "Tube MPC": Q = diag(5, 10), R = 2
+    k, _ = dlqr(a, b, np.diag([5.0, 10.0]), np.array([[2.0]]))  # [RattleCode] z_poly_calc: Q = diag(5, 10), R = 2
     return [
         (RKKM_A_K, RKKM_W, 1e-4),
         (a + b @ k, Polytope.symmetric_box([6.8e-6, 6.8e-5]), 0.005),
@@ -149,3 +149,126 @@ def test_facet_reduction_makes_the_reswarm_lasso_small():
     assert z.facets > 150  # F(α, s) of the flight settings: hundreds of facets
     assert red.facets_after <= 30
     assert red.growth <= 0.05 and red.min_margin >= 0.0
+
+
+# -- relative ε: F_∞ ⊆ F(α, s) ⊆ (1 + ε) F_∞ ---------------------------------------------------------------------
+
+
+def lp_support(p: Polytope, d: np.ndarray) -> float:
+    """h_P(d) by scipy's HiGHS LP on the inequalities only (independent of the stored vertices)."""
+    res = linprog(-d, A_ub=p.a, b_ub=p.b, bounds=[(None, None)] * p.dim, method="highs")
+    assert res.status == 0
+    return -res.fun
+
+
+def unit_directions(rng, n, k):
+    d = rng.standard_normal((k, n))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_minimal_rpi_support_is_the_geometric_series_for_a_diagonal_system(rng):
+    """A_K = diag(λ₁, λ₂), W = box(w): h_{F_∞}(d) = Σ_j |d_j| w_j / (1 − |λ_j|) in closed form."""
+    lam, half = np.array([0.9, -0.6]), np.array([0.3, 2.0])
+    d = unit_directions(rng, 2, 50)
+    h, tail = minimal_rpi_support(np.diag(lam), Polytope.symmetric_box(half), d)
+    exact = np.abs(d) @ (half / (1 - np.abs(lam)))
+    np.testing.assert_allclose(h, exact, rtol=1e-12)
+    assert np.all(h <= exact * (1 + 1e-14)) and np.all(h + tail >= exact * (1 - 1e-14))  # a true bracket
+    assert np.all(tail <= 1e-12 * h)
+
+
+def test_minimal_rpi_support_brackets_the_direct_sum(rng):
+    """Non-normal A_K (the RKKM05 example): the bracket [sum, sum + tail] holds a 5000-term direct sum."""
+    d = unit_directions(rng, 2, 40)
+    h, tail = minimal_rpi_support(RKKM_A_K, RKKM_W, d)
+    direct = infinite_sum_support(RKKM_A_K, RKKM_W, d, terms=5000)
+    assert np.all(h <= direct * (1 + 1e-13)) and np.all(direct <= (h + tail) * (1 + 1e-13))
+
+
+@pytest.mark.parametrize("eps", [0.01, 0.05, 0.3])
+def test_relative_epsilon_on_the_rakovic_example(eps, rng):
+    """RKKM05's example with the relative rule: α ≤ ε/(1 + ε) at the smallest such s (for the unit box W,
+    α°(s) = ‖A_Kˢ‖_∞ independently), F_∞ ⊆ F(α, s) ⊆ (1 + ε) F_∞ along 400 directions, and F(α, s) is RPI by LP."""
+    r = minimal_rpi_outer(RKKM_A_K, RKKM_W, eps, mode="relative")
+    alpha_of = [np.linalg.norm(np.linalg.matrix_power(RKKM_A_K, s), np.inf) for s in range(r.s + 1)]
+    assert r.alpha == pytest.approx(alpha_of[r.s], rel=1e-12) and r.alpha <= eps / (1 + eps)
+    assert all(a > eps / (1 + eps) for a in alpha_of[1:r.s])  # s is the first one
+    assert r.mode == "relative" and r.epsilon_achieved == pytest.approx(r.alpha / (1 - r.alpha))
+    assert r.epsilon_achieved <= eps
+    d = unit_directions(rng, 2, 400)
+    h_inf, _ = minimal_rpi_support(RKKM_A_K, RKKM_W, d)
+    h = r.z.support(d)
+    assert np.all(h >= h_inf * (1 - 1e-12))
+    assert np.all(h <= (1 + eps) * h_inf * (1 + 1e-12))
+    assert np.max(h / h_inf) > 1 + 0.2 * eps  # the rule is not vacuous: the bound is approached
+    for a_i, b_i in zip(r.z.a, r.z.b, strict=True):  # A_K F ⊕ W ⊆ F with LP support values
+        assert lp_support(r.z, RKKM_A_K.T @ a_i) + RKKM_W.support(a_i) <= b_i + 1e-9 * np.max(r.z.b)
+
+
+def test_absolute_mode_is_the_default_and_reproduces_the_published_example():
+    """mode="absolute" is Algorithm 1 as published: the same set as the default call, s = 10, α = 1.9e-5."""
+    r, default = minimal_rpi_outer(RKKM_A_K, RKKM_W, 1e-4, mode="absolute"), minimal_rpi_outer(RKKM_A_K, RKKM_W, 1e-4)
+    assert (r.s, f"{r.alpha:.1e}", r.mode) == (10, "1.9e-05", "absolute")
+    assert (default.s, default.alpha, default.mode) == (r.s, r.alpha, "absolute")
+    np.testing.assert_array_equal(r.z.b, default.z.b)
+    assert r.epsilon_achieved == r.absolute_accuracy <= 1e-4
+
+
+def test_relative_rule_refuses_beyond_max_terms_and_says_how_many():
+    eps = 1e-6
+    needed = next(s for s in range(1, 1000)
+                  if np.linalg.norm(np.linalg.matrix_power(RKKM_A_K, s), np.inf) <= eps / (1 + eps))
+    with pytest.raises(RPITermsError, match=rf"needs s = {needed} terms.*not truncated") as info:
+        minimal_rpi_outer(RKKM_A_K, RKKM_W, eps, mode="relative", max_terms=needed - 1)
+    assert info.value.needed == needed and info.value.max_terms == needed - 1
+    assert isinstance(info.value, InfeasibleError)
+    assert minimal_rpi_outer(RKKM_A_K, RKKM_W, eps, mode="relative", max_terms=needed).s == needed
+
+
+def test_rejects_a_bad_mode_or_epsilon():
+    with pytest.raises(ValueError, match="mode"):
+        minimal_rpi_outer(RKKM_A_K, RKKM_W, 0.1, mode="percent")
+    with pytest.raises(ValueError, match="epsilon"):
+        minimal_rpi_outer(RKKM_A_K, RKKM_W, float("inf"), mode="relative")
+
+
+def test_relative_rule_on_a_coupled_three_dimensional_system(rng):
+    """The general n-D (Qhull) path with the relative rule: the inclusions hold along 300 directions."""
+    while True:
+        a = rng.standard_normal((3, 3))
+        a *= 0.6 / np.max(np.abs(np.linalg.eigvals(a)))
+        if np.linalg.cond(a) < 20:
+            break
+    w = Polytope.symmetric_box([0.5, 0.3, 0.8])
+    r = minimal_rpi_outer(a, w, 0.05, mode="relative")
+    d = unit_directions(rng, 3, 300)
+    h_inf, _ = minimal_rpi_support(a, w, d)
+    h = r.z.support(d)
+    assert np.all(h >= h_inf * (1 - 1e-12)) and np.all(h <= 1.05 * h_inf * (1 + 1e-12))
+    assert np.all(rpi_margins(a, r.z, w) >= -1e-12 * np.max(r.z.b))
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.floats(0.2, 0.97), st.floats(-np.pi, np.pi), st.floats(-3.0, 3.0), st.floats(0.01, 2.0),
+    st.floats(0.1, 10.0), st.floats(0.005, 0.5), st.integers(0, 2**31 - 1),
+)
+def test_relative_rule_property_random_stable_system(radius, angle, shear, w1, w_ratio, eps, seed):
+    """Random Schur-stable 2×2 A_K (eigenvalues radius·e^{±iθ} or real, sheared by a random similarity) and a
+    random box W: F_∞ ⊆ F(α, s) ⊆ (1 + ε) F_∞ along 200 directions (F_∞ from the independent series) and
+    A_K F ⊕ W ⊆ F facet by facet."""
+    rng = np.random.default_rng(seed)
+    if abs(angle) < 0.3:  # real eigenvalues of both signs
+        core = np.diag([radius, -radius * rng.uniform(0.1, 1.0)])
+    else:
+        core = radius * np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    t = np.array([[1.0, shear], [0.0, 1.0]]) @ np.diag(rng.uniform(0.5, 2.0, 2))
+    a_k = t @ core @ np.linalg.inv(t)
+    w = Polytope.symmetric_box([w1, w1 * w_ratio])
+    r = minimal_rpi_outer(a_k, w, eps, mode="relative", max_terms=2000)
+    d = unit_directions(rng, 2, 200)
+    h_inf, _ = minimal_rpi_support(a_k, w, d)
+    h = r.z.support(d)
+    assert np.all(h >= h_inf * (1 - 1e-11))
+    assert np.all(h <= (1 + eps) * h_inf * (1 + 1e-11))
+    assert np.all(rpi_margins(a_k, r.z, w) >= -1e-11 * np.max(r.z.b))

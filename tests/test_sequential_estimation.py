@@ -46,7 +46,7 @@ def run_filter(recs, settings_=None, prior=RATTLE_PRIOR) -> SequentialEstimator:
 
 
 def test_chi2_gate_matches_scipy_and_the_flight_setting():
-    # seed 001 §6.2.1: the gate is the χ² quantile at probability 0.99 with one degree of freedom per measurement.
+    # [ReSWARM2023] §6.2.1: the gate is the χ² quantile at probability 0.99 with one degree of freedom per measurement.
     for dof in (1, 3, 6, 12, 15):
         assert chi2_threshold(dof, 0.99) == pytest.approx(chi2.ppf(0.99, dof), rel=1e-12)
     assert chi2_threshold(12, 0.99) == pytest.approx(26.217, abs=1e-3)

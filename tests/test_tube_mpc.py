@@ -25,7 +25,7 @@ from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.types import InertialParams
 
-# ReSWARM tube MPC settings (REFERENCE.md "Tube MPC", rattle casadi_nmpc / z_poly_calc).
+# ReSWARM tube MPC settings ([RattleCode] casadi_nmpc / z_poly_calc).
 MASS = 9.5
 INERTIA = [0.153427995, 0.14271405, 0.162302759]  # astrobee iss.config
 DT = 0.2
@@ -40,7 +40,8 @@ TERMINAL = TerminalWeights(np.full(3, 100.0), np.full(3, 10.0))
 def reswarm_design(mass_std=0.1, force=0.002, **kw):
     spec = DisturbanceSpec(MASS, mass_std, force_N=np.full(3, force))
     return design_translation_tube(mass_kg=MASS, dt_s=DT, force_limit_N=U_TUBE, velocity_limit_mps=V_MAX,
-                                   weights=AncillaryWeights(5.0, 10.0, 2.0), spec=spec, epsilon=0.005, **kw)
+                                   weights=AncillaryWeights(5.0, 10.0, 2.0), spec=spec, epsilon=0.005,
+                                   epsilon_mode="absolute", facet_growth=0.05, **kw)  # rattle z_poly_calc
 
 
 def two_block_qp(horizon, design, fast=True, **kw):
@@ -253,8 +254,7 @@ def disturbance_sequences(w: Polytope, steps, seeds):
 
 
 def test_mayne_seron_rakovic_2005_example_keeps_every_guarantee():
-    """Mayne, Seron & Raković, "Robust model predictive control of constrained linear systems with bounded
-    disturbances", Automatica 41(2):219-224, 2005, Section 4 example: x⁺ = [[1, 1], [0, 1]] x + [0.5, 1]ᵀ u + w,
+    """[Mayne2005] (Mayne, Seron & Raković 2005), Section 4 example: x⁺ = [[1, 1], [0, 1]] x + [0.5, 1]ᵀ u + w,
     X = {x : x₂ ≤ 2}, U = {|u| ≤ 1}, W = {‖w‖_∞ ≤ 0.1}, Q = I, R = 0.01, N = 9, from x₀ = (−5, −2) (their Fig. 2).
     K is the LQR gain of (Q, R) and there is no terminal constraint set here (terminal cost only): the paper's
     figure gives no number to compare with, so this checks the properties it illustrates."""

@@ -21,8 +21,9 @@ from oacli.cli import (
 
 TRACK_TABLE = [
     "status", "rms_position_error_m", "max_position_error_m", "final_position_error_m", "rms_attitude_error_rad",
-    "constraint_violations", "solver_failures", "fallback_steps", "tube_violations", "rpi", "solve_time_ms",
-    "step_time_ms", "sim_time_s", "wall_time_s",
+    "constraint_violations", "constraint_violations_by_kind", "solver_failures", "fallback_steps",
+    "safe_hold_steps", "tube_violations", "w_violations", "rpi", "solve_time_ms", "step_time_ms", "sim_time_s",
+    "wall_time_s",
 ]
 
 
@@ -38,6 +39,11 @@ def track(
     runs_root: RunsDirOption = Path("runs"),
     seed: SeedOption = None,
     quiet: QuietOption = False,
+    strict: Annotated[
+        bool,
+        typer.Option("--strict", help="Refuse (exit 2) a reference the simulated plant (truth) cannot follow within "
+                     "the robot's force, torque, velocity and angular-rate limits; without it: a warning."),
+    ] = False,
 ) -> None:
     """Track a reference with MPC or robust tube MPC (controller.type) in closed-loop simulation; write
     track.mcap, track.rrd and summary.json."""
@@ -54,6 +60,11 @@ def track(
                                  frame=cfg.environment.frame)
             new_ref = cfg.reference.model_copy(update={"source": "file", "file": str(ref_path)})
             cfg = cfg.model_copy(update={"reference": new_ref})
-        return run_track(cfg, reference=ref, out=out, runs_root=runs_root, progress=Progress("track", not quiet))
+        result = run_track(cfg, reference=ref, out=out, runs_root=runs_root, progress=Progress("track", not quiet),
+                           strict_reference=strict)
+        check = result.summary.get("reference_check", {})
+        if check and not check["ok"]:
+            typer.echo(f"warning: {check['message']} (tracked anyway; --strict refuses it)", err=True)
+        return result
 
     run_stage_command(action, TRACK_TABLE, quiet)

@@ -274,7 +274,7 @@ def _short_repr(value: Any) -> str:
     return text if len(text) <= VALUE_REPR_CHARS else text[: VALUE_REPR_CHARS - 3] + "..."
 
 
-def _reason(err: dict[str, Any], loc: tuple[str | int, ...]) -> str:
+def _reason(err: Mapping[str, Any], loc: tuple[str | int, ...]) -> str:
     kind = err["type"]
     ctx = err.get("ctx") or {}
     if kind == "missing":

@@ -1,10 +1,10 @@
 """The ``estimation`` section: inertial parameter estimation from a tracking run (``oacli estimate``).
 
 Sources of the defaults: RATTLE's sequential estimator (``param_est/scripts/param_est_config.py`` in
-albee/rattle-iros-2022, "rattle" below) and the ReSWARM flight paper (seed 001). In rattle the prior ``P`` and the
-measurement noise ``R`` are **covariances**: ``P = diag(vec_cov)`` and ``R = diag(vec_R)`` enter the EKF as
-``S = H P Hᵀ + R``, so their diagonals are variances. Here variances are given as variances and noise as standard
-deviations (``std = sqrt(variance)``).
+[RattleCode] albee/rattle-iros-2022, "rattle" below) and the ReSWARM flight paper ([ReSWARM2023]). In rattle the
+prior ``P`` and the measurement noise ``R`` are **covariances**: ``P = diag(vec_cov)`` and ``R = diag(vec_R)``
+enter the EKF as ``S = H P Hᵀ + R``, so their diagonals are variances. Here variances are given as variances and
+noise as standard deviations (``std = sqrt(variance)``).
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ class MeasurementNoiseConfig(Section):
     """Standard deviations of the measurements the estimators use; ``null`` leaves a quantity out."""
 
     position_std_m: PositiveReal | None = Field(
-        default=0.01, description="Position noise std per axis [m] (ISS localisation, seed 001 §5.4.2)."
+        default=0.01, description="Position noise std per axis [m] (ISS localisation, [ReSWARM2023] §5.4.2)."
     )
     velocity_std_mps: PositiveReal | None = Field(
         default=math.sqrt(5e-6), description="Velocity noise std per axis [m/s] (rattle R: variance 5e-6)."
@@ -91,7 +91,7 @@ class ProcessNoiseConfig(Section):
 
 
 class EstimationConfig(Section):
-    """Inertial parameter estimation (Doerr 2021 Eqs. 31-32; seed 001 §4.4.1, §6.2.1)."""
+    """Inertial parameter estimation ([Doerr2021] Eqs. 31-32; [ReSWARM2023] §4.4.1, §6.2.1)."""
 
     method: EstimationMethod = Field(
         default="batch", description="'batch' (maximum likelihood over the whole run) or 'sequential' (EKF)."
@@ -109,7 +109,7 @@ class EstimationConfig(Section):
         default_factory=ProcessNoiseConfig, description="Process noise model."
     )
     gate_probability: Annotated[Real, Field(gt=0.0, lt=1.0)] | None = Field(
-        default=0.99, description="χ² outlier gate level in (0, 1), null disables gating (seed 001 §6.2.1: 0.99)."
+        default=0.99, description="χ² outlier gate level in (0, 1), null disables gating ([ReSWARM2023] §6.2.1: 0.99)."
     )
     max_iterations: Annotated[StrictInt, Field(ge=1, le=1000)] = Field(
         default=30, description="Batch: Gauss-Newton iterations per gating round, 1..1000."

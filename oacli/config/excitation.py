@@ -13,9 +13,9 @@ import numpy as np
 from pydantic import BeforeValidator, Field, Strict, model_validator
 from pydantic_core import PydanticCustomError
 
+from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
 from oacli.config.models import (
     PositiveReal,
-    PositiveVector3,
     PrincipalInertia,
     Real,
     Section,
@@ -49,17 +49,6 @@ NonNegativeVector4 = Annotated[
 ]
 StrictBool = Annotated[bool, Strict()]
 Fraction = Annotated[Real, Field(gt=0, le=1)]
-
-
-class LimitsOverride(Section):
-    """Per-axis limits that replace the robot's for this design (each omitted one keeps the robot's)."""
-
-    force_N: PositiveVector3 | None = Field(default=None, description="Force bound per world axis [N].")
-    torque_Nm: PositiveVector3 | None = Field(default=None, description="Torque bound per body axis [N·m].")
-    velocity_mps: PositiveVector3 | None = Field(default=None, description="Velocity bound per world axis [m/s].")
-    angular_velocity_radps: PositiveVector3 | None = Field(
-        default=None, description="Angular velocity bound per body axis [rad/s]."
-    )
 
 
 class MeasurementNoiseConfig(Section):
@@ -167,7 +156,7 @@ class RattleWeightsConfig(Section):
 
 
 class RattleConfig(Section):
-    """The online information-aware planner in closed loop (RATTLE, seed 001 §4.4, §4.6)."""
+    """The online information-aware planner in closed loop (RATTLE, [ReSWARM2023] §4.4, §4.6)."""
 
     horizon: Annotated[StrictInt, Field(ge=2, le=500)] = Field(
         default=40, description="Planning horizon N [steps] (rattle: 40)."
@@ -203,7 +192,8 @@ class RattleConfig(Section):
     beta: PositiveReal = Field(default=5.0, description="Decay: γ_i = γ0_i exp(-beta floor_i / σ_i).")
     limits: Annotated[LimitsOverride, _none_to({})] = Field(
         default_factory=LimitsOverride,
-        description="Planner limits (rattle planner: 0.15 N, 0.015 N·m); omitted ones: excitation.limits, then robot.",
+        description="Planner limits (rattle planner: 0.15 N, 0.015 N·m); omitted ones: excitation.limits, then robot; "
+        "capped by excitation.margin like the offline design's.",
     )
 
 
@@ -233,7 +223,14 @@ class ExcitationConfig(Section):
         default=0.0, description="Extra distance kept from keep-in faces and keep-out surfaces [m], >= 0."
     )
     limits: Annotated[LimitsOverride, _none_to({})] = Field(
-        default_factory=LimitsOverride, description="Limits of the design (omitted ones: the robot's)."
+        default_factory=LimitsOverride,
+        description="Caps of the design below the robot's (omitted ones: the robot's); each with the margin applied "
+        "(see margin); a value above the robot's is refused or clipped (margin.on_excess).",
+    )
+    margin: Annotated[ReferenceMarginConfig, _none_to({})] = Field(
+        default_factory=ReferenceMarginConfig,
+        description="Share of the robot's limits the design (offline and RATTLE) may use, with the mass margin of "
+        "Doerr Eq. 28 (σ_m default: sqrt(excitation.prior.variance[0])).",
     )
     measurement: Annotated[MeasurementNoiseConfig, _none_to({})] = Field(
         default_factory=MeasurementNoiseConfig, description="The FIM's measurement model."
@@ -259,6 +256,7 @@ __all__ = [
     "PriorConfig",
     "RattleConfig",
     "RattleWeightsConfig",
+    "ReferenceMarginConfig",
     "ScpConfig",
     "TerminalToleranceConfig",
 ]

@@ -258,7 +258,7 @@ class RobotConfig(Section):
 
     def inertial_params(self) -> InertialParams:
         """Mass and principal inertias as :class:`oacli.types.InertialParams`."""
-        return InertialParams(self.mass_kg, self.inertia_kgm2)
+        return InertialParams(self.mass_kg, self.inertia_kgm2)  # type: ignore[arg-type]
 
     @property
     def input_limits(self) -> np.ndarray:
@@ -316,7 +316,7 @@ class TruthConfig(Section):
         """True mass and principal inertias (only valid once filled, i.e. on a validated :class:`OacliConfig`)."""
         if self.mass_kg is None or self.inertia_kgm2 is None:
             raise ValueError("truth inertial parameters are not set; use OacliConfig.truth_params()")
-        return InertialParams(self.mass_kg, self.inertia_kgm2)
+        return InertialParams(self.mass_kg, self.inertia_kgm2)  # type: ignore[arg-type]
 
 
 class Pose(Section):
@@ -354,7 +354,7 @@ class KeepInBox(Section):
 
     def box(self) -> Box:
         """The box as :class:`oacli.geometry.Box`."""
-        return Box(self.lower, self.upper)
+        return Box(self.lower, self.upper)  # type: ignore[arg-type]
 
 
 class KeepOutEllipsoid(Section):
@@ -390,9 +390,9 @@ class KeepOutEllipsoid(Section):
     def ellipsoid(self) -> Ellipsoid:
         """The keep-out zone as :class:`oacli.geometry.Ellipsoid` (without the environment's safety factor)."""
         if self.shape_matrix is not None:
-            return Ellipsoid(self.center, self.shape_matrix)
+            return Ellipsoid(self.center, self.shape_matrix)  # type: ignore[arg-type]
         rotation = None if self.quaternion is None else quat.to_rotation_matrix(np.array(self.quaternion))
-        return Ellipsoid.from_semi_axes(self.center, self.semi_axes_m, rotation)
+        return Ellipsoid.from_semi_axes(self.center, self.semi_axes_m, rotation)  # type: ignore[arg-type]
 
 
 class EnvironmentConfig(Section):

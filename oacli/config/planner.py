@@ -10,10 +10,11 @@ Units: times s, lengths m, speeds m/s; the cost weights make the trajectory cost
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, Strict, model_validator
 
+from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
 from oacli.config.models import (
     NonNegativeReal,
     NonNegativeVector3,
@@ -70,7 +71,7 @@ class PlannerWeights(Section):
 
 
 class KinoRrtConfig(Section):
-    """Kinodynamic RRT with motion primitives (ReSWARM, seed 001 §4.1.2-4.1.3, Eqs. 26-27)."""
+    """Kinodynamic RRT with motion primitives ([ReSWARM2023] §4.1.2-4.1.3, Eqs. 26-27)."""
 
     primitive_fraction: Fraction = Field(
         default=0.5, description="α of Eq. 27 [-], in (0, 1]: primitives apply ±α × the force limit per axis."
@@ -175,6 +176,16 @@ class PlannerConfig(Section):
     weights: Annotated[PlannerWeights, _none_to({})] = Field(
         default_factory=PlannerWeights, description="Cost weights (Doerr Eq. 5 plus a price on time)."
     )
+    limits: Annotated[LimitsOverride, _none_to({})] = Field(
+        default_factory=LimitsOverride,
+        description="Caps of plan and smooth below the robot's (omitted ones: the robot's), with the margin "
+        "applied; a value above the robot's is refused or clipped (margin.on_excess).",
+    )
+    margin: Annotated[ReferenceMarginConfig, _none_to({})] = Field(
+        default_factory=ReferenceMarginConfig,
+        description="Share of the robot's limits plan and smooth may use, with the mass margin of Doerr Eq. 28 "
+        "(m_prior = robot.mass_kg, σ_m default: sqrt(estimation.prior.mass_variance_kg2)).",
+    )
     kino: Annotated[KinoRrtConfig, _none_to({})] = Field(
         default_factory=KinoRrtConfig, description="Kinodynamic RRT settings."
     )
@@ -187,7 +198,7 @@ class PlannerConfig(Section):
 
     @model_validator(mode="after")
     def _consistent_steps(self) -> PlannerConfig:
-        problems = []
+        problems: list[tuple[tuple[str | int, ...], Any, str]] = []
 
         def steps(value: float, unit: float) -> float:
             return value / unit

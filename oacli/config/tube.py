@@ -1,7 +1,9 @@
 """The ``controller.tube`` section: robust tube MPC settings (used when ``controller.type`` is ``tube``).
 
-Defaults follow the ReSWARM flight settings (REFERENCE.md, "Tube MPC": rattle ``casadi_nmpc``/``z_poly_calc``):
-ancillary LQR Q = diag(5, 10), R = 2; ε = 0.005; W from the 2σ mass bounds (Doerr et al. 2021, Eq. 28).
+Defaults follow the ReSWARM flight settings ([RattleCode] ``casadi_nmpc``/``z_poly_calc``):
+ancillary LQR Q = diag(5, 10), R = 2; W from the 2σ mass bounds ([Doerr2021] Eq. 28). The invariant set differs:
+the flight code's absolute ε = 0.005 (``rpi_epsilon_mode: absolute``) almost doubles a tube of a few millimetres,
+so the default ε is relative, ``F_∞ ⊆ Z ⊆ 1.05 F_∞`` for the set in use ([Rakovic2005]).
 Imported by :mod:`oacli.config.models` (import ``oacli.config``, not this module, to load it).
 """
 
@@ -96,15 +98,32 @@ class TubeConfig(Section):
         default_factory=TubeDisturbanceConfig, description="The disturbance set W."
     )
     rpi_epsilon: PositiveReal = Field(
-        default=0.005,
-        description="Accuracy ε of the invariant-set outer approximation (Raković et al. 2005) [m, m/s], > 0.",
+        default=0.05,
+        description="Accuracy ε of the invariant set Z > 0. rpi_epsilon_mode relative: Z (the lasso in use, after "
+        "facet reduction) lies within (1 + ε) times the minimal invariant set F_∞, in every direction [-]; "
+        "absolute: Raković et al. 2005's F(α, s) ⊆ F_∞ ⊕ ε·B_∞ [m, m/s] (ReSWARM flight code: 0.005).",
     )
-    rpi_max_terms: Annotated[StrictInt, Field(ge=1)] = Field(
-        default=1000, description="Refuse (never truncate) when the invariant set needs more terms than this."
+    rpi_epsilon_mode: Literal["relative", "absolute"] = Field(
+        default="relative",
+        description="'relative' (default): ε scales F_∞; 'absolute': the paper's ∞-norm ball radius (reproduces "
+        "published examples and the flight settings).",
+    )
+    rpi_max_terms: Annotated[StrictInt, Field(ge=1, le=2000)] = Field(
+        default=1000,
+        description="Refuse (never truncate) when the invariant set needs more terms than this, 1..2000 (2000 "
+        "terms take about 2 s per axis).",
     )
     lasso_facet_growth: Annotated[NonNegativeReal, Field(le=1)] = Field(
-        default=0.05,
-        description="Relative growth of Z allowed to drop facets (verified invariant); 0 keeps every facet.",
+        default=0.02,
+        description="Relative growth of Z allowed to drop facets (verified invariant); 0 keeps every facet. With a "
+        "relative ε it is the largest share of (1 + ε) the reduction gets (at most half, geometrically).",
+    )
+    beyond_w: Literal["redesign", "hold", "ignore"] = Field(
+        default="redesign",
+        description="When a realised one-step disturbance leaves W (measured every step, "
+        "oacli.control.tube_monitor): 'redesign' the tube with the measured bound (x 1.5) and continue, or the "
+        "safe hold when no tube exists for it; 'hold' the safe hold at once; 'ignore' log and count only. The "
+        "run's status is 'degraded' either way.",
     )
     solver: Literal["direct", "cvxpy"] = Field(
         default="direct",

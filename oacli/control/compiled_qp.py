@@ -154,6 +154,17 @@ class CompiledQP:
 
         ``values`` maps a parameter's id to its value (shape of the parameter); parameters not in it use their
         ``.value``. Passing values directly skips cvxpy's per-assignment validation (the caller checks shapes).
+
+        Parameters
+        ----------
+        values : dict, optional
+            Parameter values by parameter id.
+        missing_as_zero : bool, optional
+            Leave parameters without a value at zero instead of raising.
+
+        Returns
+        -------
+        ndarray, shape (n_params + 1,)
         """
         theta = np.zeros(self._n_params + 1)
         for param, col, size in self._param_slices:
@@ -167,8 +178,18 @@ class CompiledQP:
         return theta
 
     def solve(self, values: dict | None = None) -> CompiledSolve:
-        """Solve with the parameters' values (``values`` by parameter id, else ``.value``); variables are then
-        read with :meth:`value`."""
+        """Solve with the parameters' values; variables are then read with :meth:`value`.
+
+        Parameters
+        ----------
+        values : dict, optional
+            Parameter values by parameter id; parameters not in it use their ``.value``.
+
+        Returns
+        -------
+        CompiledSolve
+            Status, objective, iterations and wall time.
+        """
         theta = self.parameter_vector(values)
         start = time.perf_counter()
         if self._t_a is None:
@@ -183,7 +204,18 @@ class CompiledQP:
         return CompiledSolve(status, objective, int(sol.iterations), wall)
 
     def value(self, variable: cp.Variable) -> np.ndarray:
-        """Value of ``variable`` in the last successful solve (shape of the variable)."""
+        """Value of ``variable`` in the last successful solve (shape of the variable).
+
+        Parameters
+        ----------
+        variable : cvxpy.Variable
+            A variable of the compiled problem.
+
+        Returns
+        -------
+        ndarray
+            Its value, in the variable's shape.
+        """
         if self._x is None:
             raise RuntimeError("no solution: the last solve failed or none was run")
         col = self._var_cols[variable.id]
@@ -191,8 +223,21 @@ class CompiledQP:
 
 
 def timed_cvxpy_solve(problem: cp.Problem, **clarabel_options) -> tuple[str, float]:
-    """``problem.solve(solver=CLARABEL, **clarabel_options)`` (the plain path) and its wall time [s]; status
-    ``solver_error: ...`` when Clarabel raises."""
+    """``problem.solve(solver=CLARABEL, **clarabel_options)`` (the plain path) and its wall time.
+
+    Parameters
+    ----------
+    problem : cvxpy.Problem
+    **clarabel_options
+        Passed to Clarabel.
+
+    Returns
+    -------
+    status : str
+        cvxpy's status, or ``solver_error: ...`` (first line, at most 120 characters) when Clarabel raises.
+    wall_s : float
+        Wall time of the call [s].
+    """
     start = time.perf_counter()
     try:
         problem.solve(solver=cp.CLARABEL, **clarabel_options)

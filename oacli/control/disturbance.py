@@ -26,7 +26,17 @@ from oacli.sets import Polytope
 
 
 def step_gain(dt_s: float) -> np.ndarray:
-    """``[dt²/2, dt]``: position and velocity change per unit acceleration held over one step."""
+    """``[dt²/2, dt]``: position and velocity change per unit acceleration held over one step.
+
+    Parameters
+    ----------
+    dt_s : float
+        Step [s].
+
+    Returns
+    -------
+    ndarray, shape (2,)
+    """
     return np.array([0.5 * dt_s * dt_s, dt_s])
 
 
@@ -48,6 +58,11 @@ def mass_uncertainty_bound(
     n_sigma : float
         Width of the mass interval in σ (2 in Eq. 28).
 
+    Returns
+    -------
+    ndarray, shape (2,)
+        Half-widths ``[position m, velocity m/s]`` of the one-step disturbance.
+
     Raises
     ------
     ValueError
@@ -63,7 +78,22 @@ def mass_uncertainty_bound(
 
 
 def force_disturbance_bound(force_N: float, mass_min_kg: float, dt_s: float) -> np.ndarray:
-    """One-step bound ``[position m, velocity m/s]`` of a force ``|d| ≤ force_N`` held over ``dt_s``."""
+    """One-step bound ``[position m, velocity m/s]`` of a force ``|d| ≤ force_N`` held over ``dt_s``.
+
+    Parameters
+    ----------
+    force_N : float
+        Bound of the disturbance force [N].
+    mass_min_kg : float
+        Smallest mass considered [kg].
+    dt_s : float
+        Step [s].
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        Half-widths ``[position m, velocity m/s]``.
+    """
     return force_N / mass_min_kg * step_gain(dt_s)
 
 
@@ -101,11 +131,38 @@ class DisturbanceSpec:
     noise_velocity_mps: np.ndarray = field(default_factory=_zeros3)
 
     def noise_box(self, axis: int) -> np.ndarray:
-        """Measurement noise half-widths ``[position, velocity]`` of one axis."""
+        """Measurement noise half-widths ``[position, velocity]`` of one axis.
+
+        Parameters
+        ----------
+        axis : int
+            World axis 0, 1 or 2.
+
+        Returns
+        -------
+        ndarray, shape (2,)
+        """
         return np.array([self.noise_position_m[axis], self.noise_velocity_mps[axis]], dtype=float)
 
     def axis(self, axis: int, force_max_N: float, dt_s: float, scale: float = 1.0) -> AxisDisturbance:
-        """W of world axis ``axis`` (0, 1, 2) for inputs ``|u| ≤ force_max_N`` and control step ``dt_s``."""
+        """W of world axis ``axis`` (0, 1, 2) for inputs ``|u| ≤ force_max_N`` and control step ``dt_s``.
+
+        Parameters
+        ----------
+        axis : int
+            World axis 0, 1 or 2.
+        force_max_N : float
+            Largest force magnitude the controller applies on this axis [N].
+        dt_s : float
+            Control step [s].
+        scale : float, optional
+            Factor applied to the whole W (1: none).
+
+        Returns
+        -------
+        AxisDisturbance
+            W and its parts.
+        """
         mass_term = (
             mass_uncertainty_bound(self.mass_kg, self.mass_std_kg, force_max_N, dt_s, self.n_sigma)
             if self.mass_std_kg > 0

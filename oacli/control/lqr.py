@@ -40,6 +40,15 @@ def solve_dare(
         Symmetric positive definite input weight.
     cross : ndarray, shape (n, m), optional
         Cross weight N.
+    tol : float, optional
+        Convergence tolerance of the doubling iteration (relative change of P).
+    max_iter : int, optional
+        Iteration limit.
+
+    Returns
+    -------
+    ndarray, shape (n, n)
+        P, symmetric positive semidefinite.
 
     Raises
     ------
@@ -93,6 +102,15 @@ def dlqr(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Infinite-horizon discrete LQR.
 
+    Parameters
+    ----------
+    a, b : ndarray, shapes (n, n), (n, m)
+        Discrete model ``x_{k+1} = A x_k + B u_k``.
+    q, r : ndarray, shapes (n, n), (m, m)
+        State and input weights.
+    cross : ndarray, shape (n, m), optional
+        Cross weight N.
+
     Returns
     -------
     K : ndarray, shape (m, n)
@@ -134,13 +152,38 @@ class RiccatiSolution:
     k: np.ndarray
 
     def value(self, step: int, dx: np.ndarray) -> float:
-        """Optimal cost-to-go ``V_step(δx)`` (Eq. 8)."""
+        """Optimal cost-to-go ``V_step(δx)`` (Eq. 8).
+
+        Parameters
+        ----------
+        step : int
+            Step index k (0..N).
+        dx : ndarray, shape (n,)
+            Deviation δx.
+
+        Returns
+        -------
+        float
+        """
         return float(0.5 * dx @ self.S[step] @ dx + dx @ self.s[step] + self.c[step])
 
     def rollout(
         self, a: np.ndarray, b: np.ndarray, g: np.ndarray, dx0: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Apply the policy to ``δx_{k+1} = A_k δx_k + B_k δu_k + g_k``: ``(δx (N+1, n), δu (N, m))``."""
+        """Apply the policy to ``δx_{k+1} = A_k δx_k + B_k δu_k + g_k``.
+
+        Parameters
+        ----------
+        a, b : ndarray, shapes (N, n, n), (N, n, m)
+        g : ndarray, shape (N, n)
+        dx0 : ndarray, shape (n,)
+            Initial deviation.
+
+        Returns
+        -------
+        dx : ndarray, shape (N+1, n)
+        du : ndarray, shape (N, m)
+        """
         n_steps = self.K.shape[0]
         xs = np.empty((n_steps + 1, dx0.shape[0]))
         us = np.empty((n_steps, self.K.shape[1]))
@@ -188,6 +231,11 @@ def tv_riccati(
         Linear cost terms q_k, r_k.
     q_final_lin : ndarray, shape (n,), optional
     c_final : float
+
+    Returns
+    -------
+    RiccatiSolution
+        Value function and affine policy per step.
     """
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)

@@ -185,6 +185,8 @@ class LinearMPC:
                 self.box_upper = cp.Parameter((n_steps, 3), name="box_upper")
                 constraints += [pos >= self.box_lower - sigma, pos <= self.box_upper + sigma]
                 if braking_mps2 is not None:
+                    if braking_speed_mps is None:
+                        raise ValueError("braking rows need braking_speed_mps")
                     p_n = self._x[1:, position_index : position_index + 3]
                     v_n = self._x[1:, position_index + 3 : position_index + 6]
                     s_n = sigma
@@ -210,15 +212,31 @@ class LinearMPC:
     def solve(
         self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, rows: PositionRows | None = None
     ) -> MPCSolution:
-        """Solve for initial state ``x0 (n,)``, reference states ``x_ref (N+1, n)`` and inputs ``u_ref (N, m)``;
-        ``rows`` (steps 1..N, in the state's coordinates) are required when the problem has workspace rows."""
+        """Solve for initial state ``x0 (n,)``, reference states ``x_ref (N+1, n)`` and inputs ``u_ref (N, m)``.
+
+        Parameters
+        ----------
+        x0 : ndarray, shape (n,)
+            Initial state.
+        x_ref : ndarray, shape (N+1, n)
+            Reference states.
+        u_ref : ndarray, shape (N, m)
+            Reference inputs.
+        rows : PositionRows, optional
+            Workspace rows of steps 1..N in the state's coordinates; required when the problem has them.
+
+        Returns
+        -------
+        MPCSolution
+            Inputs, predicted states, slacks and the solve record (NaN arrays when the solve failed).
+        """
         self.x0.value = np.asarray(x0, dtype=float)
         self.x_ref.value = np.asarray(x_ref, dtype=float)
         self.u_ref.value = np.asarray(u_ref, dtype=float)
         if self.has_position_rows:
             if rows is None:
                 raise ValueError("this MPC constrains positions: pass the workspace rows")
-            if self.box_lower is not None:
+            if self.box_lower is not None and self.box_upper is not None:
                 self.box_lower.value, self.box_upper.value = rows.lower, rows.upper
             for j, (normal, offset) in enumerate(zip(self.out_normals, self.out_offsets, strict=True)):
                 normal.value, offset.value = rows.normals[j], rows.offsets[j]
@@ -232,7 +250,7 @@ class LinearMPC:
             stats = self.problem.solver_stats if status in SUCCESS_STATUSES else None
             iterations = stats.num_iters if stats is not None and stats.num_iters is not None else -1
             objective = float(self.problem.value) if stats is not None else float("nan")
-            value = (lambda v: v.value) if stats is not None and self._u.value is not None else None
+            value = (lambda v: v.value) if stats is not None and self._u.value is not None else None  # type: ignore[assignment,return-value]
         wall = time.perf_counter() - start
         if value is not None:
             u, x = np.array(value(self._u)), np.array(value(self._x))

@@ -93,7 +93,21 @@ class TrackingWeights:
 
 
 def to_error_state(x: np.ndarray, origin_m: np.ndarray, q_anchor: np.ndarray) -> np.ndarray:
-    """Map full states ``x (..., 13)`` to the error chart ``[r − origin, v, φ, ω]`` (..., 12)."""
+    """Map full states to the error chart ``[r − origin, v, φ, ω]``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (..., 13)
+        Full states.
+    origin_m : ndarray, shape (3,)
+        Position origin [m].
+    q_anchor : ndarray, shape (4,)
+        Attitude the error φ is measured from.
+
+    Returns
+    -------
+    ndarray, shape (..., 12)
+    """
     x = np.asarray(x, dtype=float)
     phi = quat.error_vector(q_anchor, x[..., 6:10])
     return np.concatenate([x[..., 0:3] - origin_m, x[..., 3:6], phi, x[..., 10:13]], axis=-1)
@@ -176,22 +190,35 @@ class TrackingMPC:
         """True once the safe hold is latched."""
         return self._hold_q is not None
 
-    def _hold_input(self, x: np.ndarray) -> np.ndarray:
-        """Safe hold: brake the measured velocity as fast as the force limits allow, hold the entry attitude."""
+    def _hold_input(self, x: np.ndarray, q_hold: np.ndarray) -> np.ndarray:
+        """Safe hold: brake the measured velocity as fast as the force limits allow, hold the attitude ``q_hold``."""
         force = np.clip(-self.params.mass_kg * x[3:6] / self.dt_s, -self.limits.force_N, self.limits.force_N)
-        phi = quat.error_vector(self._hold_q, x[6:10])
+        phi = quat.error_vector(q_hold, x[6:10])
         torque = np.clip(self._k_att @ np.concatenate([phi, x[10:13]]), -self.limits.torque_Nm,
                          self.limits.torque_Nm)
         return np.concatenate([force, torque])
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """Solve once at time ``t`` [s] from the measured state; see :class:`oacli.sim.simulator.Controller`."""
+        """Solve once at time ``t`` [s] from the measured state; see :class:`oacli.sim.simulator.Controller`.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state ``[r, v, q, ω]``.
+
+        Returns
+        -------
+        ControlStep
+            The input to hold until the next step, the solve record and the reference state at ``t``.
+        """
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
         x_ref_full = sample_states(self.reference, t + self._offsets)
         if self._hold_q is not None:
             info = SolveInfo("hold (safe_hold)", False, solve_time_s=0.0, step_time_s=time.perf_counter() - start)
-            return ControlStep(u=self._hold_input(x), info=info, x_reference=x_ref_full[0])
+            return ControlStep(u=self._hold_input(x, self._hold_q), info=info, x_reference=x_ref_full[0])
         u_ref = feedforward_inputs(x_ref_full, self.dt_s, self.params)
         origin = x_ref_full[0, 0:3]
         anchor = x_ref_full[0, 6:10]
@@ -216,7 +243,7 @@ class TrackingMPC:
             success = False
             if self.max_failures is not None and self._failures >= self.max_failures:
                 self._hold_q = np.array(x[6:10])
-                u = self._hold_input(x)
+                u = self._hold_input(x, self._hold_q)
                 status = f"hold ({sol.info.status})"
             elif self._plan is not None and self._plan_age < self.horizon:
                 u = self._plan[self._plan_age]

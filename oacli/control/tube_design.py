@@ -8,11 +8,18 @@ axis in 2-D (Mayne, Seron & Raković 2005; Doerr et al. 2021, Eqs. 18-27):
 2. ``W``: :mod:`oacli.control.disturbance` (Doerr Eq. 28 and configured terms);
 3. ``Z``: the RPI outer ε-approximation ``F(α, s)`` of Raković et al. 2005 (Algorithm 1), then
    :func:`oacli.sets.reduce_facets` for a cheaper lasso constraint that is verified RPI and within
-   ``(1 + growth) F(α, s)``;
+   ``(1 + growth) F(α, s)``. With a *relative* ε (the default) the bound covers the set in use:
+   ``F_∞ ⊆ Z ⊆ (1 + ε) F_∞`` (see :func:`split_relative_epsilon`); with the paper's *absolute* ε,
+   ``Z ⊆ (1 + growth)(F_∞ ⊕ B_∞(ε))``;
 4. tightened sets ``Ū = U ⊖ K Z`` and ``X̄ = X ⊖ (Z ⊕ (−N))`` (N: measurement noise box; the true state is
    ``x = x̃ − n``), with X the velocity limit.
 
-If a tightened set loses the origin from its interior (W too large for the actuators, seed 001 §4.5), the design
+The summary measures Z against the minimal box, the box hull of ``F_∞`` from the independent series
+:func:`oacli.sets.minimal_rpi_support`, and states what the tightened bounds gain over the ReSWARM flight
+settings (absolute ε = 0.005, 5 % facet growth; :data:`BASELINE_EPSILON`) and how far they are from the ideal
+``U ⊖ K F_∞``, ``X ⊖ (F_∞ ⊕ N)``.
+
+If a tightened set loses the origin from its interior (W too large for the actuators, [ReSWARM2023] §4.5), the design
 refuses with W and the actuator margin, unless the explicit policy ``"scale_w"`` is chosen: then W of that axis is
 scaled down to the largest factor that leaves ``min_nominal_fraction`` of each limit to the nominal MPC, and the
 factor is reported.
@@ -30,9 +37,76 @@ from oacli.control.lqr import dlqr
 from oacli.control.tube_qp import LinearConstraint
 from oacli.errors import InfeasibleError
 from oacli.model.double_integrator import double_integrator
-from oacli.sets import FacetReduction, Polytope, RPIApproximation, minimal_rpi_outer, reduce_facets
+from oacli.sets import (
+    EpsilonMode,
+    FacetReduction,
+    Polytope,
+    RPIApproximation,
+    RPITermsError,
+    minimal_rpi_outer,
+    minimal_rpi_support,
+    reduce_facets,
+)
 
 AXIS_NAMES = ("x", "y", "z")
+
+#: Default facet growth of the lasso reduction (with a relative ε: its largest share of the bound).
+DEFAULT_FACET_GROWTH = 0.02
+
+#: The tube of the ReSWARM flight code (rattle ``z_poly_calc``: absolute ε = 0.005 [m, m/s]) with the 5 % facet
+#: growth oacli used before relative ε: the baseline the summary's ``tightening_gain`` is measured against.
+BASELINE_EPSILON = 0.005
+BASELINE_FACET_GROWTH = 0.05
+
+_E_POSITION = np.array([1.0, 0.0])
+_E_VELOCITY = np.array([0.0, 1.0])
+
+
+def split_relative_epsilon(epsilon: float, facet_growth: float) -> tuple[float, float]:
+    """Split a relative bound ``Z ⊆ (1 + ε) F_∞`` between ``F(α, s)`` and the facet reduction.
+
+    ``(1 + ε) = (1 + ε_F)(1 + g)``: the reduction gets ``g = min(facet_growth, √(1 + ε) − 1)`` (at most half of
+    the bound, geometrically) and Raković et al.'s algorithm the rest, ``ε_F = (1 + ε)/(1 + g) − 1``. After
+    ``F(α, s)`` is built, the reduction may use what it left (:func:`reduction_growth`).
+
+    Parameters
+    ----------
+    epsilon : float
+        Relative bound ε > 0 of the set in use.
+    facet_growth : float
+        Largest growth the facet reduction may take, ≥ 0.
+
+    Returns
+    -------
+    epsilon_rpi : float
+        Relative ε of ``F(α, s) ⊆ (1 + ε_F) F_∞``.
+    growth : float
+        Planned facet growth g.
+    """
+    if not (epsilon > 0 and np.isfinite(epsilon)) or not facet_growth >= 0:
+        raise ValueError(f"need epsilon > 0 and facet_growth >= 0, got {epsilon}, {facet_growth}")
+    growth = min(float(facet_growth), float(np.sqrt(1.0 + epsilon) - 1.0))
+    return (1.0 + epsilon) / (1.0 + growth) - 1.0, growth
+
+
+def reduction_growth(epsilon: float, facet_growth: float, alpha: float) -> float:
+    """Facet growth left to the reduction by ``F(α, s) = (1 − α)⁻¹ F_s ⊆ (1 − α)⁻¹ F_∞`` under a relative bound.
+
+    Parameters
+    ----------
+    epsilon : float
+        Relative bound ε of the set in use.
+    facet_growth : float
+        Largest growth the reduction may take.
+    alpha : float
+        ``α`` of ``F(α, s)``, in [0, 1).
+
+    Returns
+    -------
+    float
+        ``min(facet_growth, (1 + ε)(1 − α) − 1)`` (≥ 0), so that ``(1 − α)⁻¹ (1 + g) ≤ 1 + ε``.
+    """
+    return max(0.0, min(float(facet_growth), (1.0 + epsilon) * (1.0 - alpha) - 1.0))
 
 
 @dataclass(frozen=True)
@@ -64,6 +138,9 @@ class AxisTube:
         The constraints U and X of the axis.
     force_bounds_N, velocity_bounds_mps : tuple of float
         Tightened ``(lower, upper)`` bounds for the nominal MPC.
+    epsilon : float
+        The configured ε (relative [-] or absolute [m, m/s], by ``epsilon_mode``).
+    epsilon_mode : {"relative", "absolute"}
     """
 
     name: str
@@ -77,6 +154,8 @@ class AxisTube:
     velocity_limit_mps: float
     force_bounds_N: tuple[float, float]
     velocity_bounds_mps: tuple[float, float]
+    epsilon: float
+    epsilon_mode: EpsilonMode
 
     @property
     def z(self) -> Polytope:
@@ -99,6 +178,56 @@ class AxisTube:
         """True when both tightened sets keep the origin in their interior."""
         (ulo, uhi), (vlo, vhi) = self.force_bounds_N, self.velocity_bounds_mps
         return ulo < 0 < uhi and vlo < 0 < vhi
+
+    @property
+    def relative_bound(self) -> float:
+        """Guaranteed ``b`` with ``Z ⊆ (1 + b) F_∞`` in every direction: ``(1 − α)⁻¹ (1 + growth) − 1``
+        (``F(α, s) ⊆ (1 − α)⁻¹ F_∞`` and ``Z ⊆ (1 + growth) F(α, s)``, whichever ε mode was used)."""
+        return (1.0 + self.rpi.relative_accuracy) * (1.0 + self.reduction.growth) - 1.0
+
+    @cached_property
+    def minimal_support(self) -> dict[str, float]:
+        """Support values of ``F_∞`` (independent series, :func:`oacli.sets.minimal_rpi_support`), largest over
+        ``±d``: ``position`` [m], ``velocity`` [m/s] (the minimal box), ``force`` ``max |K e|`` [N]."""
+        k = self.gain[0]
+        dirs = np.vstack([_E_POSITION, -_E_POSITION, _E_VELOCITY, -_E_VELOCITY, k, -k])
+        h, _ = minimal_rpi_support(self.a_closed, self.disturbance.w, dirs)
+        return {"position": float(max(h[0], h[1])), "velocity": float(max(h[2], h[3])),
+                "force": float(max(h[4], h[5]))}
+
+    @property
+    def ratio_to_minimal_box(self) -> tuple[float, float]:
+        """``(position, velocity)``: Z's half-width over the minimal box's, largest over ``±e`` (≥ 1)."""
+        h = self.minimal_support
+        pos = max(self.z.support(_E_POSITION), self.z.support(-_E_POSITION)) / h["position"]
+        vel = max(self.z.support(_E_VELOCITY), self.z.support(-_E_VELOCITY)) / h["velocity"]
+        return float(pos), float(vel)
+
+    def ideal_bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The tightened ``(force, velocity)`` bounds with ``Z = F_∞`` itself: what no tube can beat.
+
+        Returns
+        -------
+        force_N, velocity_mps : tuple of float
+            ``(lower, upper)`` of ``U ⊖ K F_∞`` [N] and of ``X ⊖ (F_∞ ⊕ N)`` [m/s].
+        """
+        h = self.minimal_support
+        v = self.velocity_limit_mps - h["velocity"] - float(self.disturbance.noise_bound[1])
+        u = self.force_limit_N - h["force"]
+        return (-u, u), (-v, v)
+
+    @cached_property
+    def baseline(self) -> AxisTube | None:
+        """This axis designed with the ReSWARM flight settings (absolute ε = :data:`BASELINE_EPSILON`, facet
+        growth :data:`BASELINE_FACET_GROWTH`), same A, K and W; None when that design needs too many terms."""
+        try:
+            return _axis_from_parts(
+                self.name, self.a, self.b, self.gain, self.disturbance, force_limit_N=self.force_limit_N,
+                velocity_limit_mps=self.velocity_limit_mps, epsilon=BASELINE_EPSILON, epsilon_mode="absolute",
+                max_terms=2000, facet_growth=BASELINE_FACET_GROWTH,
+            )
+        except RPITermsError:
+            return None
 
 
 @dataclass(frozen=True)
@@ -156,17 +285,53 @@ class TubeDesign:
         return LinearConstraint.box(hi, lo)
 
     def error_margin(self, e: np.ndarray) -> float:
-        """``min_i (h_i − H_i e)`` for the 6-D error ``e``: ≥ 0 exactly when ``e ∈ Z``."""
+        """``min_i (h_i − H_i e)`` for the 6-D error ``e``: ≥ 0 exactly when ``e ∈ Z``.
+
+        Parameters
+        ----------
+        e : ndarray, shape (6,)
+            Error ``[r, v] − z``.
+
+        Returns
+        -------
+        float
+        """
         lasso = self.lasso
         return float(np.min(lasso.h_vector - lasso.h_matrix @ np.asarray(e, dtype=float)))
 
     def position_extent(self) -> np.ndarray:
-        """Half-extents of Z's projection on position ``(3, 2)``: ``[−min, max]`` per axis [m]."""
+        """Half-extents of Z's projection on position ``(3, 2)``: ``[−min, max]`` per axis [m].
+
+        Returns
+        -------
+        ndarray, shape (3, 2)
+        """
         return np.array([[ax.z.support(np.array([-1.0, 0.0])), ax.z.support(np.array([1.0, 0.0]))] for ax in self.axes])
 
     def summary(self) -> dict:
-        """Figures a reviewer wants: RPI size and cost, W, gains, tightened bounds (lists over x, y, z)."""
+        """Figures a reviewer wants: RPI size and cost, W, gains, tightened bounds (lists over x, y, z).
+
+        ``rpi.epsilon`` is the configured ε (``rpi.epsilon_mode``), ``rpi.epsilon_rpi`` the ε of ``F(α, s)``
+        (relative mode: its share of the bound), ``rpi.relative_bound`` the guaranteed ``Z ⊆ (1 + b) F_∞``.
+        ``minimal_box_*`` is the box hull of ``F_∞`` and ``z_to_minimal_box`` Z's ratio to it.
+        ``tightening_gain`` compares the tightened bounds with the ReSWARM flight settings (``baseline``) and
+        with the ideal ``Z = F_∞``: ``*_gain_*`` = upper bound now − upper bound of the baseline (> 0: the
+        nominal MPC got more room), ``*_to_ideal_*`` = ideal − now (≥ 0).
+
+        Returns
+        -------
+        dict
+            JSON-ready values.
+        """
         axes = self.axes
+        baselines = [ax.baseline for ax in axes]
+        ideal = [ax.ideal_bounds() for ax in axes]
+
+        def upper(bounds):
+            return None if bounds is None else float(bounds[1])
+
+        base_force = [None if b is None else list(b.force_bounds_N) for b in baselines]
+        base_vel = [None if b is None else list(b.velocity_bounds_mps) for b in baselines]
         return {
             "rpi": {
                 "s": [ax.rpi.s for ax in axes],
@@ -174,9 +339,34 @@ class TubeDesign:
                 "facets": [ax.reduction.facets_after for ax in axes],
                 "facets_before_reduction": [ax.reduction.facets_before for ax in axes],
                 "facet_growth": [ax.reduction.growth for ax in axes],
-                "epsilon": axes[0].rpi.epsilon,
+                "epsilon": axes[0].epsilon,
+                "epsilon_mode": axes[0].epsilon_mode,
+                "epsilon_rpi": [ax.rpi.epsilon for ax in axes],
                 "epsilon_achieved": [ax.rpi.epsilon_achieved for ax in axes],
+                "relative_bound": [ax.relative_bound for ax in axes],
+                "min_invariance_margin": [ax.reduction.min_margin for ax in axes],
                 "spectral_radius": [ax.rpi.spectral_radius for ax in axes],
+            },
+            "minimal_box_position_m": [ax.minimal_support["position"] for ax in axes],
+            "minimal_box_velocity_mps": [ax.minimal_support["velocity"] for ax in axes],
+            "z_to_minimal_box": {
+                "position": [ax.ratio_to_minimal_box[0] for ax in axes],
+                "velocity": [ax.ratio_to_minimal_box[1] for ax in axes],
+            },
+            "tightening_gain": {
+                "baseline": {"epsilon_mode": "absolute", "epsilon": BASELINE_EPSILON,
+                             "facet_growth": BASELINE_FACET_GROWTH},
+                "baseline_force_N": base_force,
+                "baseline_velocity_mps": base_vel,
+                "force_gain_N": [None if b is None else ax.force_bounds_N[1] - b.force_bounds_N[1]
+                                 for ax, b in zip(axes, baselines, strict=True)],
+                "velocity_gain_mps": [None if b is None else ax.velocity_bounds_mps[1] - b.velocity_bounds_mps[1]
+                                      for ax, b in zip(axes, baselines, strict=True)],
+                "ideal_force_N": [list(f) for f, _ in ideal],
+                "ideal_velocity_mps": [list(v) for _, v in ideal],
+                "force_to_ideal_N": [upper(f) - ax.force_bounds_N[1] for ax, (f, _) in zip(axes, ideal, strict=True)],
+                "velocity_to_ideal_mps": [upper(v) - ax.velocity_bounds_mps[1]
+                                          for ax, (_, v) in zip(axes, ideal, strict=True)],
             },
             "w_position_m": [float(ax.disturbance.half_widths[0]) for ax in axes],
             "w_velocity_mps": [float(ax.disturbance.half_widths[1]) for ax in axes],
@@ -205,27 +395,81 @@ def design_axis(
     weights: AncillaryWeights,
     spec: DisturbanceSpec,
     epsilon: float,
+    epsilon_mode: EpsilonMode = "relative",
     max_terms: int = 1000,
-    facet_growth: float = 0.05,
+    facet_growth: float = DEFAULT_FACET_GROWTH,
     w_scale: float = 1.0,
 ) -> AxisTube:
-    """Design the tube of one axis (no feasibility decision: see :attr:`AxisTube.feasible`)."""
+    """Design the tube of one axis (no feasibility decision: see :attr:`AxisTube.feasible`).
+
+    Parameters
+    ----------
+    axis : int
+        World axis 0, 1 or 2.
+    mass_kg, dt_s, weights, spec, epsilon, epsilon_mode, max_terms, facet_growth
+        As in :func:`design_translation_tube`.
+    force_limit_N, velocity_limit_mps : float
+        U and X of this axis.
+    w_scale : float, optional
+        Factor applied to W (1: none).
+
+    Returns
+    -------
+    AxisTube
+    """
     a, b = double_integrator(dt_s, 1.0 / mass_kg)
     gain, _ = dlqr(a, b, np.diag([weights.position, weights.velocity]), np.array([[weights.force]]))
     dist = spec.axis(axis, force_limit_N, dt_s, w_scale)
+    try:
+        return _axis_from_parts(AXIS_NAMES[axis], a, b, gain, dist, force_limit_N=force_limit_N,
+                                velocity_limit_mps=velocity_limit_mps, epsilon=epsilon, epsilon_mode=epsilon_mode,
+                                max_terms=max_terms, facet_growth=facet_growth)
+    except RPITermsError as exc:
+        needed = f"{exc.needed} terms" if exc.needed is not None else f"more than {20 * exc.max_terms} terms"
+        raise InfeasibleError(
+            f"controller.tube.rpi_max_terms: the invariant set of the {AXIS_NAMES[axis]} axis needs {needed} for "
+            f"the {epsilon_mode} rpi_epsilon = {epsilon:g}, more than rpi_max_terms = {exc.max_terms} (spectral "
+            f"radius of A + BK {exc.spectral_radius:.6g}); raise controller.tube.rpi_max_terms (at most 2000) or "
+            "controller.tube.rpi_epsilon, or choose faster ancillary weights (controller.tube.ancillary)"
+        ) from None
+
+
+def _axis_from_parts(
+    name: str,
+    a: np.ndarray,
+    b: np.ndarray,
+    gain: np.ndarray,
+    dist: AxisDisturbance,
+    *,
+    force_limit_N: float,
+    velocity_limit_mps: float,
+    epsilon: float,
+    epsilon_mode: EpsilonMode,
+    max_terms: int,
+    facet_growth: float,
+) -> AxisTube:
+    """Z (Raković et al. 2005 + facet reduction) and the tightened bounds of one axis from A, B, K and W."""
     a_k = a + b @ gain
-    rpi = minimal_rpi_outer(a_k, dist.w, epsilon, max_terms=max_terms)
-    reduction = reduce_facets(a_k, rpi.z, dist.w, facet_growth)
+    if epsilon_mode == "relative":
+        epsilon_rpi, _ = split_relative_epsilon(epsilon, facet_growth)
+        rpi = minimal_rpi_outer(a_k, dist.w, epsilon_rpi, mode="relative", max_terms=max_terms)
+        growth = reduction_growth(epsilon, facet_growth, rpi.alpha)
+    elif epsilon_mode == "absolute":
+        rpi = minimal_rpi_outer(a_k, dist.w, epsilon, mode="absolute", max_terms=max_terms)
+        growth = facet_growth
+    else:
+        raise ValueError(f"epsilon_mode must be 'relative' or 'absolute', got {epsilon_mode!r}")
+    reduction = reduce_facets(a_k, rpi.z, dist.w, growth)
     z = reduction.z
     u_set = Polytope.symmetric_box([force_limit_N])
     u_bar = u_set.pontryagin_difference(z.linear_map(gain))  # Ū = U ⊖ K Z
-    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), [velocity_limit_mps, velocity_limit_mps])
+    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), [velocity_limit_mps, velocity_limit_mps])  # type: ignore[arg-type]
     noise = dist.noise_bound
     z_true = z if not np.any(noise > 0) else z.minkowski_sum(Polytope.symmetric_box(noise))  # Z ⊕ (−N), N symmetric
     x_bar = x_set.pontryagin_difference(z_true)  # X̄ = X ⊖ (Z ⊕ −N)
     vel_hi, vel_neg_lo = x_bar.b  # rows [0, 1] and [0, −1]
     return AxisTube(
-        name=AXIS_NAMES[axis],
+        name=name,
         a=a,
         b=b,
         gain=gain,
@@ -236,6 +480,8 @@ def design_axis(
         velocity_limit_mps=float(velocity_limit_mps),
         force_bounds_N=_interval(u_bar),
         velocity_bounds_mps=(-float(vel_neg_lo), float(vel_hi)),
+        epsilon=float(epsilon),
+        epsilon_mode=epsilon_mode,
     )
 
 
@@ -264,8 +510,9 @@ def design_translation_tube(
     weights: AncillaryWeights,
     spec: DisturbanceSpec,
     epsilon: float,
+    epsilon_mode: EpsilonMode = "relative",
     max_terms: int = 1000,
-    facet_growth: float = 0.05,
+    facet_growth: float = DEFAULT_FACET_GROWTH,
     on_empty: str = "error",
     min_nominal_fraction: float = 0.1,
 ) -> TubeDesign:
@@ -281,14 +528,25 @@ def design_translation_tube(
         U and X per world axis.
     weights : AncillaryWeights
     spec : DisturbanceSpec
-    epsilon, max_terms : float, int
-        Raković et al. 2005 Algorithm 1 accuracy [m, m/s] and term limit.
+    epsilon : float
+        Accuracy of Z: relative, ``F_∞ ⊆ Z ⊆ (1 + ε) F_∞`` for the set in use [-], or Raković et al. 2005's
+        absolute ε of ``F(α, s) ⊆ F_∞ ⊕ B_∞(ε)`` [m, m/s], by ``epsilon_mode``.
+    epsilon_mode : {"relative", "absolute"}
+    max_terms : int
+        Largest number of terms s of ``F(α, s)`` (more needed: InfeasibleError naming
+        ``controller.tube.rpi_max_terms``).
     facet_growth : float
-        Allowed growth of Z by facet reduction (0: keep every facet of F(α, s)).
+        Allowed growth of Z by facet reduction (0: keep every facet of F(α, s)); with a relative ε it is the
+        largest share of the bound the reduction gets (:func:`split_relative_epsilon`).
     on_empty : {"error", "scale_w"}
         What to do when a tightened set loses the origin: refuse, or scale W of that axis down (explicit).
     min_nominal_fraction : float
         With ``"scale_w"``: fraction of each limit the nominal MPC keeps.
+
+    Returns
+    -------
+    TubeDesign
+        The three axis tubes, the control period and the model mass.
 
     Raises
     ------
@@ -299,17 +557,17 @@ def design_translation_tube(
     if on_empty not in ("error", "scale_w"):
         raise ValueError(f"on_empty must be 'error' or 'scale_w', got {on_empty!r}")
     common = {"mass_kg": mass_kg, "dt_s": dt_s, "weights": weights, "spec": spec, "epsilon": epsilon,
-              "max_terms": max_terms, "facet_growth": facet_growth}
+              "epsilon_mode": epsilon_mode, "max_terms": max_terms, "facet_growth": facet_growth}
     axes = []
     for i in range(3):
         limits = {"force_limit_N": float(force_limit_N[i]), "velocity_limit_mps": float(velocity_limit_mps[i])}
-        ax = design_axis(i, **common, **limits)
+        ax = design_axis(i, **common, **limits)  # type: ignore[arg-type]
         if not ax.feasible:
             if on_empty == "error":
                 raise InfeasibleError(_describe_infeasible(ax, dt_s))
             ax = _scaled_axis(i, common, limits, min_nominal_fraction)
         axes.append(ax)
-    return TubeDesign(axes=tuple(axes), dt_s=float(dt_s), mass_kg=float(mass_kg))
+    return TubeDesign(axes=tuple(axes), dt_s=float(dt_s), mass_kg=float(mass_kg))  # type: ignore[arg-type]
 
 
 def _keeps_fraction(ax: AxisTube, fraction: float) -> bool:

@@ -103,7 +103,17 @@ class TubeHistory:
     solver_failed: np.ndarray
 
     def count(self, mode: str) -> int:
-        """Number of steps in ``mode``."""
+        """Number of steps in ``mode``.
+
+        Parameters
+        ----------
+        mode : str
+            A mode name as recorded in ``mode``.
+
+        Returns
+        -------
+        int
+        """
         return sum(m == mode for m in self.mode)
 
 
@@ -246,10 +256,10 @@ class TubeMPC:
         j = int(np.floor((t - self._plan_t) / self.step_s + 1e-9))
         if j >= self.horizon:
             return None
-        return self._plan_v[j], self._plan_tau[j]
+        return self._plan_v[j], self._plan_tau[j]  # type: ignore[index]
 
     def _hold_torque(self, x: np.ndarray) -> np.ndarray:
-        phi = quat.error_vector(self._hold_q, x[6:10])
+        phi = quat.error_vector(self._hold_q, x[6:10])  # type: ignore[arg-type]
         tau = self._k_att @ np.concatenate([phi, x[10:13]])
         return np.clip(tau, -self.limits.torque_Nm, self.limits.torque_Nm)
 
@@ -258,10 +268,34 @@ class TubeMPC:
         v = -self.params.mass_kg * z[3:6] / self.dt_s
         return np.clip(v, *self._v_bounds)
 
+    def enter_safe_hold(self, q_hold: np.ndarray) -> None:
+        """Latch the safe hold from the next step on (e.g. when W no longer holds, :mod:`oacli.control.tube_monitor`).
+
+        Parameters
+        ----------
+        q_hold : ndarray, shape (4,)
+            Attitude to hold, scalar-last quaternion.
+        """
+        if self._hold_q is None:
+            self._hold_q = np.array(q_hold, dtype=float)
+
     # -- the controller step -----------------------------------------------------------------------------------
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """One control step at time ``t`` [s]; see :class:`oacli.sim.simulator.Controller`."""
+        """One control step at time ``t`` [s]; see :class:`oacli.sim.simulator.Controller`.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state ``[r, v, q, ω]``.
+
+        Returns
+        -------
+        ControlStep
+            The input to hold until the next step, the solve record and the reference state at ``t``.
+        """
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
         x_ref_full = sample_states(self.reference, t + self._offsets)
@@ -283,7 +317,7 @@ class TubeMPC:
             self.qp.set_parameters("attitude", x_r, ref_r, u_ref[:, 3:6])
             if self.workspace is not None:
                 lin = None
-                if self._plan_positions is not None:
+                if self._plan_positions is not None and self._plan_t is not None:
                     lin = shifted_plan(self._plan_t, self.step_s, self._plan_positions, t + self._offsets)
                 rows = self.workspace.rows(x_ref_full[:, 0:3], lin)
                 self.qp.set_rows("translation", rows.shifted(origin[0:3]))
@@ -327,7 +361,12 @@ class TubeMPC:
         return ControlStep(u=u, info=step_info, x_reference=x_ref_full[0])
 
     def history(self) -> TubeHistory:
-        """Everything recorded so far."""
+        """Everything recorded so far.
+
+        Returns
+        -------
+        TubeHistory
+        """
         rec = self._rec
         k = len(rec["t"])
 

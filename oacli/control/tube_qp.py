@@ -71,7 +71,19 @@ class LinearConstraint:
 
     @classmethod
     def box(cls, bound: np.ndarray, lower: np.ndarray | None = None) -> LinearConstraint:
-        """``lower ≤ y ≤ bound`` (``lower = −bound`` by default); infinite entries are left out."""
+        """``lower ≤ y ≤ bound`` (``lower = −bound`` by default); infinite entries are left out.
+
+        Parameters
+        ----------
+        bound : ndarray, shape (n,)
+            Upper bounds (``inf`` for none).
+        lower : ndarray, shape (n,), optional
+            Lower bounds (``-inf`` for none).
+
+        Returns
+        -------
+        LinearConstraint
+        """
         upper = np.asarray(bound, dtype=float).reshape(-1)
         low = -upper if lower is None else np.asarray(lower, dtype=float).reshape(-1)
         eye = np.eye(upper.size)
@@ -287,7 +299,7 @@ class NominalQP:
                         )
                     cost = cost + blk.soft_penalty * cp.sum(bv.slack)
             if blk.positions is not None:
-                constraints, cost = self._position_rows(blk, bv, constraints, cost)
+                constraints, cost = self._position_rows(blk, blk.positions, bv, constraints, cost)
             self._vars[blk.name] = bv
         self.problem = cp.Problem(cp.Minimize(cost), constraints)
         self.clarabel_options = dict(CLARABEL_OPTIONS if clarabel_options is None else clarabel_options)
@@ -296,16 +308,16 @@ class NominalQP:
             setattr(settings, key, value)
         self.compiled = CompiledQP(self.problem, settings) if fast else None
 
-    def _position_rows(self, blk: QPBlock, bv: _BlockVars, constraints: list, cost):
-        """Add the workspace rows of ``blk`` (module docstring): hard on z_0..z_N for a tube block, soft on
-        y_1..y_N for a standard one."""
-        spec, n_steps = blk.positions, self.horizon
+    def _position_rows(self, blk: QPBlock, spec: PositionRowsSpec, bv: _BlockVars, constraints: list, cost):
+        """Add the workspace rows ``spec`` of ``blk`` (module docstring): hard on z_0..z_N for a tube block, soft
+        on y_1..y_N for a standard one."""
+        n_steps = self.horizon
         i, iv = spec.position_index, spec.velocity_index
         hard = blk.lasso is not None
         states = cp.vstack([bv.z, bv.z_n[None, :]]) if hard else cp.vstack([bv.z[1:], bv.z_n[None, :]])
         k = n_steps + 1 if hard else n_steps
         pos = states[:, i : i + 3]
-        sigma = 0.0
+        sigma: float | cp.Expression = 0.0
         if not hard:
             bv.position_slack = cp.Variable(k, name=f"{blk.name}_position_slack")
             sigma = bv.position_slack[:, None]
@@ -316,6 +328,8 @@ class NominalQP:
             bv.box_upper = cp.Parameter((k, 3), name=f"{blk.name}_box_upper")
             constraints += [pos >= bv.box_lower - sigma, pos <= bv.box_upper + sigma]
             if hard and spec.braking_mps2 is not None:  # at the terminal knot (module docstring)
+                if spec.braking_speed_mps is None:
+                    raise ValueError(f"{blk.name}: braking rows need braking_speed_mps")
                 vel, p_n = bv.z_n[iv : iv + 3], bv.z_n[i : i + 3]
                 for slope, intercept in braking_lines(spec.braking_mps2, spec.braking_speed_mps):
                     constraints += [vel <= intercept + cp.multiply(slope, bv.box_upper[k - 1] - p_n),
@@ -332,15 +346,39 @@ class NominalQP:
         return constraints, cost
 
     def rows_steps(self, name: str) -> int:
-        """Number of predicted positions block ``name``'s workspace rows apply to (N+1 tube, N standard)."""
+        """Number of predicted positions block ``name``'s workspace rows apply to.
+
+        Parameters
+        ----------
+        name : str
+            Block name.
+
+        Returns
+        -------
+        int
+            N + 1 for a tube block (z_0..z_N), N for a standard block (y_1..y_N).
+        """
         blk = next(b for b in self.blocks if b.name == name)
         return self.horizon + 1 if blk.lasso is not None else self.horizon
 
     def set_rows(self, name: str, rows: PositionRows) -> None:
-        """Set block ``name``'s workspace rows (in the block's coordinates; steps as :meth:`rows_steps`)."""
+        """Set block ``name``'s workspace rows.
+
+        Parameters
+        ----------
+        name : str
+            Block name (its :class:`PositionRowsSpec` fixes the rows it has).
+        rows : PositionRows
+            Rows in the block's coordinates, for the steps of :meth:`rows_steps`.
+
+        Raises
+        ------
+        ValueError
+            When a shape differs from the block's Parameters or a value is not finite.
+        """
         bv = self._vars[name]
-        pairs = []
-        if bv.box_lower is not None:
+        pairs: list[tuple[cp.Parameter, np.ndarray]] = []
+        if bv.box_lower is not None and bv.box_upper is not None:
             pairs += [(bv.box_lower, rows.lower), (bv.box_upper, rows.upper)]
         if len(bv.out_normals) != rows.normals.shape[0]:
             raise ValueError(f"{name}: {len(bv.out_normals)} keep-out zones expected, got {rows.normals.shape[0]}")
@@ -357,6 +395,17 @@ class NominalQP:
 
         The values are checked here and handed to the solve path (cvxpy's Parameters receive them only for the
         ``problem.solve()`` path, where their own validation runs).
+
+        Parameters
+        ----------
+        name : str
+            Block name.
+        x : ndarray, shape (n,)
+            Measured state of the block.
+        x_ref : ndarray, shape (N+1, n)
+            Reference states.
+        u_ref : ndarray, shape (N, m)
+            Reference inputs.
         """
         bv = self._vars[name]
         for param, value in ((bv.x, x), (bv.x_ref, x_ref), (bv.u_ref, u_ref)):
@@ -375,16 +424,26 @@ class NominalQP:
         return total
 
     def solve(self, *, fast: bool | None = None) -> QPSolution:
-        """Solve with the current parameters: the direct Clarabel path (default when compiled) or
-        ``problem.solve(solver=CLARABEL)``."""
+        """Solve with the current parameters.
+
+        Parameters
+        ----------
+        fast : bool, optional
+            True: the direct Clarabel path (the default when compiled); False: ``problem.solve(solver=CLARABEL)``.
+
+        Returns
+        -------
+        QPSolution
+            Per-block solutions (NaN when the solve failed) and the solve record.
+        """
         use_fast = self.compiled is not None if fast is None else fast
         if use_fast and self.compiled is None:
             raise ValueError("the fast path was not compiled (fast=False at construction)")
         start = time.perf_counter()
         if use_fast:
-            out = self.compiled.solve(self._values)
+            out = self.compiled.solve(self._values)  # type: ignore[union-attr]
             status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
-            value = self.compiled.value if out.success else None
+            value = self.compiled.value if out.success else None  # type: ignore[union-attr]
         else:
             for param in self.problem.parameters():
                 param.value = self._values[param.id]

@@ -57,14 +57,34 @@ class PositionRows:
     offsets: np.ndarray
 
     def shifted(self, origin_m: np.ndarray) -> PositionRows:
-        """The rows for positions relative to ``origin_m`` (``p' = p − origin``); inactive rows are unchanged."""
+        """The rows for positions relative to an origin (``p' = p − origin``); inactive rows are unchanged.
+
+        Parameters
+        ----------
+        origin_m : ndarray, shape (3,)
+            The origin [m].
+
+        Returns
+        -------
+        PositionRows
+        """
         o = np.asarray(origin_m, dtype=float)
         return PositionRows(self.lower - o if self.lower.size else self.lower,
                             self.upper - o if self.upper.size else self.upper,
                             self.normals, self.offsets - self.normals @ o)
 
     def violation_m(self, positions: np.ndarray) -> np.ndarray:
-        """Largest violation of any row at each step [m] (0 when every row holds), shape (K,)."""
+        """Largest violation of any row at each step [m] (0 when every row holds).
+
+        Parameters
+        ----------
+        positions : ndarray, shape (K, 3)
+            One position per step [m], in the rows' coordinates.
+
+        Returns
+        -------
+        ndarray, shape (K,)
+        """
         p = np.asarray(positions, dtype=float)
         worst = np.zeros(p.shape[0])
         if self.lower.size:
@@ -119,7 +139,18 @@ class WorkspaceRows:
         return len(self.zones)
 
     def tightening_m(self, normals: np.ndarray) -> np.ndarray:
-        """``max_e (−nᵀe)`` over the error box plus the clearance, for normals ``(..., 3)`` [m]."""
+        """``max_e (−nᵀe)`` over the error box plus the clearance [m].
+
+        Parameters
+        ----------
+        normals : ndarray, shape (..., 3)
+            Unit normals.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            How far each half-space's offset moves out.
+        """
         n = np.asarray(normals, dtype=float)
         ext = self.extent_m
         return np.maximum(n, 0.0) @ ext[:, 0] + np.maximum(-n, 0.0) @ ext[:, 1] + self.clearance_m
@@ -133,6 +164,11 @@ class WorkspaceRows:
             Reference positions at the K steps (choose the keep-in box).
         linearisation_m : ndarray, shape (K, 3), optional
             Points the keep-out half-spaces are linearised at (the reference positions when omitted).
+
+        Returns
+        -------
+        PositionRows
+            World-frame rows of the K steps.
         """
         ref = np.asarray(reference_m, dtype=float)
         lin = ref if linearisation_m is None else np.asarray(linearisation_m, dtype=float)
@@ -157,8 +193,23 @@ class WorkspaceRows:
 
 
 def shifted_plan(plan_t_s: float, plan_step_s: float, plan_m: np.ndarray, times_s: np.ndarray) -> np.ndarray:
-    """Positions of a previous plan ``plan_m (M, 3)`` (sampled every ``plan_step_s`` from ``plan_t_s``) at
-    ``times_s`` (K,), linear between samples and held beyond its ends, shape (K, 3)."""
+    """Positions of a previous plan at new times, linear between its samples and held beyond its ends.
+
+    Parameters
+    ----------
+    plan_t_s : float
+        Time of the plan's first sample [s].
+    plan_step_s : float
+        Its sample period [s].
+    plan_m : ndarray, shape (M, 3)
+        Its positions [m].
+    times_s : ndarray, shape (K,)
+        The new times [s].
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+    """
     last = plan_m.shape[0] - 1
     u = np.clip((np.asarray(times_s, dtype=float) - plan_t_s) / plan_step_s, 0.0, last)
     i = np.minimum(np.floor(u).astype(int), max(last - 1, 0))
@@ -172,6 +223,18 @@ def braking_lines(braking_mps2: np.ndarray, speed_mps: np.ndarray) -> list[tuple
 
     The chords of ``g(d) = sqrt(ā d)`` through ``d = 0, d*/4, d*`` with ``d* = v̄²/ā``: ``s₀ = 2ā/v̄`` (intercept
     0) and ``s₁ = 2ā/(3v̄)`` (intercept v̄/3).
+
+    Parameters
+    ----------
+    braking_mps2 : ndarray, shape (3,)
+        ā per axis [m/s²], > 0 (the rows are invariant under braking at ā; they certify half of it).
+    speed_mps : ndarray, shape (3,)
+        v̄ per axis [m/s], > 0.
+
+    Returns
+    -------
+    list of (ndarray, ndarray)
+        ``(slope [1/s], intercept [m/s])`` of each row, each shape (3,).
     """
     a = np.asarray(braking_mps2, dtype=float)
     v = np.asarray(speed_mps, dtype=float)

@@ -1,4 +1,4 @@
-"""Inertial parameter estimation (Doerr et al. 2021, Eqs. 31-32; ReSWARM seed 001 §4.4.1, §6.2.1).
+"""Inertial parameter estimation ([Doerr2021] Eqs. 31-32; [ReSWARM2023] §4.4.1, §6.2.1).
 
 * :func:`estimate_batch` -- batch maximum likelihood over all states and θ (sparse Gauss-Newton/LM on the manifold);
 * :class:`SequentialEstimator` -- error-state EKF with θ as states, χ² gating, time-stamp reordering;

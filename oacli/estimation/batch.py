@@ -23,7 +23,7 @@ Choices the paper leaves open, and what is done here:
 * **Covariance.** ``cov(θ̂) = [(AᵀA)⁻¹]_θθ`` at the solution (Doerr: "extracted from (AᵀA)⁻¹"), mapped from φ
   to θ through ``dθ/dφ``.
 * **Outliers.** After convergence every record's normalised residual ``d²_k = ‖R^-½ (h(x̂_k) ⊟ ỹ_k)‖²`` is tested
-  against the χ² gate (seed 001 §6.2.1); records outside it are dropped and the problem is re-solved, until the
+  against the χ² gate ([ReSWARM2023] §6.2.1); records outside it are dropped and the problem is re-solved, until the
   inlier set no longer changes. The dynamics still tie the state of a dropped record to its neighbours.
 * **Continuation.** With a nearly rigid model (small process noise) the process residuals have tiny standard
   deviations, and the second-order terms a large parameter step leaves in them (``u Δt/m`` is not linear in m)
@@ -296,8 +296,8 @@ def _levenberg_marquardt(
     lam = _LAMBDA_INIT
     k = problem.k
     for it in range(1, settings.max_iterations + 1):
-        h = (a_mat.T @ a_mat).tocsc()
-        g = a_mat.T @ b
+        h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
+        g = a_mat.T @ b  # type: ignore[union-attr]
         diag = np.maximum(h.diagonal(), 1e-12 * max(h.diagonal().max(), 1.0))
         while True:
             step = _solve((h + sp.diags(lam * diag)).tocsc(), -g)
@@ -334,7 +334,7 @@ def _marginal_covariances(
     Singular ``AᵀA`` gives ``inf`` diagonals.
     """
     _, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
-    h = (a_mat.T @ a_mat).tocsc()
+    h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
     n = problem.n_var
     m = TANGENT_DIM + par.N_PARAMS
     rhs = np.zeros((n, m))
@@ -394,7 +394,7 @@ def estimate_batch(
         if prior is None:
             raise ValueError("give a prior or an initial_theta")
         initial_theta = prior.theta
-    phi = par.phi_from_theta(initial_theta) if initial_phi is None else np.array(initial_phi, dtype=float)
+    phi = par.phi_from_theta(initial_theta) if initial_phi is None else np.array(initial_phi, dtype=float)  # type: ignore[arg-type]
     theta_w = prior.theta if prior is not None else par.theta_from_phi(phi)
     problem = _Problem(recs, settings, prior, theta_w)
     x = problem.y.copy() if initial_states is None else np.array(initial_states, dtype=float)
@@ -454,9 +454,26 @@ def estimate_batch(
 def extend_states(
     states: np.ndarray, records: Sequence[Measurement], theta: np.ndarray, substep_s: float
 ) -> np.ndarray:
-    """Warm start for a longer window: the solved ``states`` for the first records, then the process model
-    propagated from the last of them with the records' inputs (consistent with the dynamics: the stiff process
-    residuals start at zero)."""
+    """Warm start for a longer window.
+
+    The solved ``states`` for the first records, then the process model propagated from the last of them with the
+    records' inputs (consistent with the dynamics: the stiff process residuals start at zero).
+
+    Parameters
+    ----------
+    states : ndarray, shape (n, 13)
+        Solved states of the first n records.
+    records : sequence of Measurement
+        The records of the longer window (at least n), in time order.
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz].
+    substep_s : float
+        Integration substep [s].
+
+    Returns
+    -------
+    ndarray, shape (len(records), 13)
+    """
     out = np.array([r.x_measured for r in records])
     n = states.shape[0]
     out[:n] = states
@@ -480,6 +497,20 @@ def estimate_batch_windows(
     Each window is warm-started from the previous solution (states and θ); windows with fewer than two records
     are skipped. The last entry of ``window_ends_s`` should be the last record time to include all data.
     ``progress`` is called with the fraction of windows done.
+
+    Parameters
+    ----------
+    records : sequence of Measurement
+    settings : EstimatorSettings
+    prior : ParameterEstimate or None
+    window_ends_s : sequence of float
+        End time [s] of each window, increasing.
+    progress : callable, optional
+
+    Returns
+    -------
+    list of BatchResult
+        One per window that was solved.
     """
     ordered = order_by_time(records).records
     t = np.array([r.t for r in ordered])
@@ -490,7 +521,7 @@ def estimate_batch_windows(
     for i, end in enumerate(window_ends_s):
         n = int(np.searchsorted(t, end + TIME_TOL_S, side="right"))
         if n >= 2:
-            init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)
+            init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)  # type: ignore[arg-type]
             result = estimate_batch(ordered[:n], settings, prior, initial_theta=theta, initial_states=init,
                                     initial_phi=phi)
             results.append(result)

@@ -118,13 +118,13 @@ def cramer_rao_bound(
             sens[i + 1] = a_t[i] @ sens[i]
             sens[i + 1, :, TANGENT_DIM:] += c_t[i]
     info = np.zeros((n, n))
-    for i in np.flatnonzero(used):
+    for i in np.flatnonzero(used):  # type: ignore[assignment]
         g = sens[i][state_rows] * w_state[:, None]
         info += g.T @ g
     if accel_rows.size:
         jac = dynamics_jacobians_batch(states, u, theta)[:, _ACCEL_ROWS]
         lifts = lift_matrix(states)
-        for i in np.flatnonzero(used):
+        for i in np.flatnonzero(used):  # type: ignore[assignment]
             g = jac[i, :, 0:13] @ lifts[i] @ sens[i]
             g[:, TANGENT_DIM:] += jac[i, :, 13:]
             g = g[accel_rows] * w_accel[:, None]
@@ -148,8 +148,25 @@ def cramer_rao_bound(
 def unobservable_parameters(
     bound: CramerRaoBound, theta: np.ndarray, max_relative_std: float
 ) -> list[tuple[str, float]]:
-    """Parameters the data cannot determine: ``(name, relative Cramér-Rao std)`` for each one that is unidentifiable
-    (null space of the information) or whose bound exceeds ``max_relative_std`` of its value."""
+    """Parameters the data cannot determine.
+
+    A parameter is listed when it is unidentifiable (null space of the information) or when its bound exceeds
+    ``max_relative_std`` of its value.
+
+    Parameters
+    ----------
+    bound : CramerRaoBound
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz].
+        The values the relative bounds refer to.
+    max_relative_std : float
+        Largest acceptable relative standard deviation.
+
+    Returns
+    -------
+    list of (str, float)
+        ``(name, relative Cramér-Rao std)`` per listed parameter.
+    """
     theta = np.asarray(theta, dtype=float)
     rel = bound.std / np.abs(theta)
     null = set(unidentifiable_parameters(bound.information, theta))
@@ -161,7 +178,18 @@ def unobservable_parameters(
 
 
 def describe_unobservable(items: Sequence[tuple[str, float]], max_relative_std: float) -> str:
-    """One line naming the unobservable parameters and their relative bounds."""
+    """One line naming the unobservable parameters and their relative bounds.
+
+    Parameters
+    ----------
+    items : sequence of (str, float)
+        As from :func:`unobservable_parameters`.
+    max_relative_std : float
+
+    Returns
+    -------
+    str
+    """
     parts = [f"{name} (Cramér-Rao bound {'∞' if not np.isfinite(r) else f'{100 * r:.3g} %'})" for name, r in items]
     return (
         f"unobservable from this telemetry: {', '.join(parts)}; the limit is {100 * max_relative_std:g} % of the "

@@ -22,7 +22,16 @@ TANGENT_DIM = 12
 
 
 def skew(v: np.ndarray) -> np.ndarray:
-    """Skew-symmetric matrices ``[v]×`` of vectors (..., 3) -> (..., 3, 3)."""
+    """Skew-symmetric matrices ``[v]×`` of vectors (..., 3) -> (..., 3, 3).
+
+    Parameters
+    ----------
+    v : ndarray, shape (..., 3)
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+    """
     v = np.asarray(v, dtype=float)
     out = np.zeros((*v.shape[:-1], 3, 3))
     out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
@@ -32,7 +41,17 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 
 def so3_right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
-    """``J_r⁻¹(φ)`` (..., 3, 3) of SO(3): ``I + ½[φ]× + (1/θ² − (1 + cos θ)/(2θ sin θ)) [φ]×²``, θ = ‖φ‖."""
+    """``J_r⁻¹(φ)`` (..., 3, 3) of SO(3): ``I + ½[φ]× + (1/θ² − (1 + cos θ)/(2θ sin θ)) [φ]×²``, θ = ‖φ‖.
+
+    Parameters
+    ----------
+    phi : ndarray, shape (..., 3)
+        Rotation vectors [rad].
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+    """
     phi = np.asarray(phi, dtype=float)
     theta = np.linalg.norm(phi, axis=-1)
     small = theta < 1e-5
@@ -44,12 +63,34 @@ def so3_right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
 
 
 def so3_left_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
-    """``J_l⁻¹(φ) = J_r⁻¹(−φ)`` (..., 3, 3)."""
+    """``J_l⁻¹(φ) = J_r⁻¹(−φ)`` (..., 3, 3).
+
+    Parameters
+    ----------
+    phi : ndarray, shape (..., 3)
+        Rotation vectors [rad].
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+    """
     return so3_right_jacobian_inverse(-np.asarray(phi, dtype=float))
 
 
 def boxplus(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
-    """``x ⊞ δx``: states (..., 13) perturbed by tangent vectors (..., 12); the quaternion is renormalised."""
+    """``x ⊞ δx``: states (..., 13) perturbed by tangent vectors (..., 12); the quaternion is renormalised.
+
+    Parameters
+    ----------
+    x : ndarray, shape (..., 13)
+        States.
+    dx : ndarray, shape (..., 12)
+        Tangent vectors ``[δr, δv, δφ, δω]``.
+
+    Returns
+    -------
+    ndarray, shape (..., 13)
+    """
     x = np.asarray(x, dtype=float)
     dx = np.asarray(dx, dtype=float)
     out = np.array(x, copy=True)
@@ -60,7 +101,17 @@ def boxplus(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
 
 
 def boxminus(y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``y ⊟ x`` (..., 12): the tangent vector with ``x ⊞ (y ⊟ x) = y`` (attitude: body frame of ``x``)."""
+    """``y ⊟ x`` (..., 12): the tangent vector with ``x ⊞ (y ⊟ x) = y`` (attitude: body frame of ``x``).
+
+    Parameters
+    ----------
+    y, x : ndarray, shape (..., 13)
+        States (broadcast).
+
+    Returns
+    -------
+    ndarray, shape (..., 12)
+    """
     y = np.asarray(y, dtype=float)
     x = np.asarray(x, dtype=float)
     out = np.empty((*np.broadcast_shapes(y.shape, x.shape)[:-1], TANGENT_DIM))
@@ -71,7 +122,16 @@ def boxminus(y: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def xi_stack(q: np.ndarray) -> np.ndarray:
-    """Ξ(q) of Doerr Eq. 36 for a stack of quaternions (..., 4) -> (..., 4, 3)."""
+    """Ξ(q) of Doerr Eq. 36 for a stack of quaternions (..., 4) -> (..., 4, 3).
+
+    Parameters
+    ----------
+    q : ndarray, shape (..., 4)
+
+    Returns
+    -------
+    ndarray, shape (..., 4, 3)
+    """
     q = np.asarray(q, dtype=float)
     x, y, z, w = (q[..., i] for i in range(4))
     out = np.empty((*q.shape[:-1], 4, 3))
@@ -83,7 +143,16 @@ def xi_stack(q: np.ndarray) -> np.ndarray:
 
 
 def lift_matrix(x: np.ndarray) -> np.ndarray:
-    """``∂(x ⊞ δx)/∂δx`` at ``δx = 0``, (..., 13, 12): identity blocks and ``½ Ξ(q)`` for the attitude."""
+    """``∂(x ⊞ δx)/∂δx`` at ``δx = 0``, (..., 13, 12): identity blocks and ``½ Ξ(q)`` for the attitude.
+
+    Parameters
+    ----------
+    x : ndarray, shape (..., 13)
+
+    Returns
+    -------
+    ndarray, shape (..., 13, 12)
+    """
     x = np.asarray(x, dtype=float)
     out = np.zeros((*x.shape[:-1], 13, TANGENT_DIM))
     out[..., 0:6, 0:6] = np.eye(6)
@@ -97,6 +166,14 @@ def project_matrix(x: np.ndarray) -> np.ndarray:
 
     For a unit ``q`` and a tangent change ``dq`` (``qᵀ dq = 0``), ``2 Ξ(q)ᵀ dq`` is the body-frame rotation
     vector ``δφ`` with ``q ⊗ exp(δφ) ≈ q + dq``; a radial component of ``dq`` is ignored.
+
+    Parameters
+    ----------
+    x : ndarray, shape (..., 13)
+
+    Returns
+    -------
+    ndarray, shape (..., 12, 13)
     """
     x = np.asarray(x, dtype=float)
     out = np.zeros((*x.shape[:-1], TANGENT_DIM, 13))

@@ -87,7 +87,12 @@ class Measurement:
                 object.__setattr__(self, name, _vector(name, value, 3))
 
     def accelerations(self) -> np.ndarray:
-        """``[linear (3), angular (3)]`` accelerations, NaN where not measured, shape (6,)."""
+        """``[linear (3), angular (3)]`` accelerations, NaN where not measured, shape (6,).
+
+        Returns
+        -------
+        ndarray, shape (6,)
+        """
         out = np.full(6, np.nan)
         if self.linear_acceleration_mps2 is not None:
             out[0:3] = self.linear_acceleration_mps2
@@ -98,6 +103,10 @@ class Measurement:
 
 def measured_rows(model: MeasurementModel) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the measured tangent components (of [r, v, φ, ω], 12) and of the accelerations (of 6).
+
+    Parameters
+    ----------
+    model : MeasurementModel
 
     Returns
     -------
@@ -132,6 +141,17 @@ class ProcessNoise:
         """Covariance (K, 12, 12) of ``x_{k+1} ⊟ f(x_k, u_k, θ)`` over intervals ``dt_s (K,)`` [s].
 
         Blocks couple ``(δr_i, δv_i)`` and ``(δφ_i, δω_i)`` per axis; ``theta`` gives m and I_ii.
+
+        Parameters
+        ----------
+        dt_s : ndarray, shape (K,)
+            Interval lengths [s].
+        theta : ndarray, shape (4,)
+            θ = [m, Ixx, Iyy, Izz].
+
+        Returns
+        -------
+        ndarray, shape (K, 12, 12)
         """
         dt = np.atleast_1d(np.asarray(dt_s, dtype=float))
         theta = np.asarray(theta, dtype=float)
@@ -149,7 +169,19 @@ class ProcessNoise:
         return out
 
     def sqrt_information(self, dt_s: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """Whitening matrices ``W_k`` (K, 12, 12) with ``W_kᵀ W_k = Q_k⁻¹`` (inverse Cholesky factors)."""
+        """Whitening matrices ``W_k`` (K, 12, 12) with ``W_kᵀ W_k = Q_k⁻¹`` (inverse Cholesky factors).
+
+        Parameters
+        ----------
+        dt_s : ndarray, shape (K,)
+            Interval lengths [s].
+        theta : ndarray, shape (4,)
+            θ = [m, Ixx, Iyy, Izz].
+
+        Returns
+        -------
+        ndarray, shape (K, 12, 12)
+        """
         q = self.covariance(dt_s, theta)
         chol = np.linalg.cholesky(q)
         return np.linalg.inv(chol)
@@ -169,7 +201,7 @@ class EstimatorSettings:
         Integration grid of the process model [s] (the simulator's plant period; see
         :mod:`oacli.estimation.propagation`).
     gate_probability : float or None
-        χ² gate level for outlier rejection (seed 001 §6.2.1: 0.99); ``None`` disables gating.
+        χ² gate level for outlier rejection ([ReSWARM2023] §6.2.1: 0.99); ``None`` disables gating.
     max_iterations : int
         Batch: Gauss-Newton/Levenberg-Marquardt iterations per gating round.
     tolerance : float
@@ -177,7 +209,7 @@ class EstimatorSettings:
     max_gating_rounds : int
         Batch: re-solve with the current inlier set at most this many times.
     reorder_window : int
-        Sequential: records held back to restore time-stamp order (seed 001 §5.4.3); 0 processes at once.
+        Sequential: records held back to restore time-stamp order ([ReSWARM2023] §5.4.3); 0 processes at once.
     """
 
     measurement: MeasurementModel

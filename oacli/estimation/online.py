@@ -1,4 +1,4 @@
-"""The sequential estimator as an online planner consumes it (RATTLE closed loop, seed 001 §4.4).
+"""The sequential estimator as an online planner consumes it (RATTLE closed loop, [ReSWARM2023] §4.4).
 
 The RATTLE loop (:mod:`oacli.excitation.rattle_loop`) calls ``update(t_k, x_k, u_{k-1})`` at every control step:
 the state measured at ``t_k`` and the input held *since the previous* measurement. The estimator's records
@@ -35,7 +35,22 @@ class OnlineSequentialEstimator:
         return self.filter.estimate
 
     def update(self, t: float, x_measured: np.ndarray, u_applied: np.ndarray) -> ParameterEstimate:
-        """Fuse the previous measurement, now that the input held after it (``u_applied``) is known."""
+        """Fuse the previous measurement, now that the input held after it (``u_applied``) is known.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state.
+        u_applied : ndarray, shape (6,)
+            Input held since the previous measurement.
+
+        Returns
+        -------
+        ParameterEstimate
+            The filter's estimate (lags one control period).
+        """
         if self._pending is not None:
             t_prev, x_prev = self._pending
             self.filter.update(Measurement(t_prev, x_prev, np.asarray(u_applied, dtype=float)))

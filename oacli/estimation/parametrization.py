@@ -32,6 +32,15 @@ def is_physical(theta: np.ndarray) -> bool:
 
     Equality is a planar body (a lamina); φ reaches it only in the limit ``log A → −∞``, where the computed
     inertias satisfy the inequality to rounding.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz].
+
+    Returns
+    -------
+    bool
     """
     theta = np.asarray(theta, dtype=float)
     second_moments = _SUMS_INV @ theta[1:4]
@@ -40,7 +49,18 @@ def is_physical(theta: np.ndarray) -> bool:
 
 
 def phi_from_theta(theta: np.ndarray) -> np.ndarray:
-    """φ of a physical θ (raises ``ValueError`` otherwise)."""
+    """φ of a physical θ (raises ``ValueError`` otherwise).
+
+    Parameters
+    ----------
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz].
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        φ.
+    """
     theta = np.asarray(theta, dtype=float)
     if not (theta[0] > 0 and np.all(_SUMS_INV @ theta[1:4] > 0)):
         raise ValueError(f"θ = {theta} is not physical: φ needs mass > 0 and strict inertia triangle inequalities")
@@ -48,13 +68,34 @@ def phi_from_theta(theta: np.ndarray) -> np.ndarray:
 
 
 def theta_from_phi(phi: np.ndarray) -> np.ndarray:
-    """θ = [m, Ixx, Iyy, Izz] of φ (always physical)."""
+    """θ = [m, Ixx, Iyy, Izz] of φ (always physical).
+
+    Parameters
+    ----------
+    phi : ndarray, shape (4,)
+        φ = [log m, log A, log B, log C].
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        θ.
+    """
     e = np.exp(np.asarray(phi, dtype=float))
     return np.concatenate([[e[0]], _SUMS @ e[1:4]])
 
 
 def theta_jacobian(phi: np.ndarray) -> np.ndarray:
-    """``dθ/dφ`` (4, 4) at φ."""
+    """``dθ/dφ`` (4, 4) at φ.
+
+    Parameters
+    ----------
+    phi : ndarray, shape (4,)
+        φ = [log m, log A, log B, log C].
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+    """
     e = np.exp(np.asarray(phi, dtype=float))
     jac = np.zeros((N_PARAMS, N_PARAMS))
     jac[0, 0] = e[0]

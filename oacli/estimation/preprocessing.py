@@ -1,7 +1,7 @@
-"""From telemetry to measurement records, and back into time-stamp order (seed 001 §5.4.3, §6.2.1).
+"""From telemetry to measurement records, and back into time-stamp order ([ReSWARM2023] §5.4.3, §6.2.1).
 
 On Astrobee the localisation (EKF) and the applied wrench (inverse FAM) arrive on separate topics whose messages
-are often delayed and out of order; RATTLE sorted them by time stamp before the sequential estimator (seed 001
+are often delayed and out of order; RATTLE sorted them by time stamp before the sequential estimator ([ReSWARM2023]
 §6.2.1, Fig. 20). Here:
 
 * :func:`order_by_time` sorts a whole batch of records (stable) and sets aside duplicated time stamps;
@@ -78,7 +78,17 @@ class OrderedRecords:
 
 
 def order_by_time(records: Iterable[Measurement]) -> OrderedRecords:
-    """Sort records by time stamp (stable), setting duplicated time stamps aside."""
+    """Sort records by time stamp (stable), setting duplicated time stamps aside.
+
+    Parameters
+    ----------
+    records : iterable of Measurement
+        In arrival order.
+
+    Returns
+    -------
+    OrderedRecords
+    """
     arrived = list(records)
     order = sorted(range(len(arrived)), key=lambda i: (arrived[i].t, i))
     kept: list[Measurement] = []
@@ -115,10 +125,20 @@ class ReorderBuffer:
         return len(self._heap)
 
     def push(self, record: Measurement) -> tuple[list[Measurement], list[Measurement]]:
-        """Add one record; returns ``(released in time order, late records)``.
+        """Add one record.
 
-        A record is *late* when its time stamp is not after the last released one (it arrived more than
-        ``window`` records too late, or repeats a time stamp): it cannot be used without rewinding the filter.
+        A record is *late* when its time stamp is not after the last released one (it arrived more than ``window``
+        records too late, or repeats a time stamp): it cannot be used without rewinding the filter.
+
+        Parameters
+        ----------
+        record : Measurement
+
+        Returns
+        -------
+        released : list of Measurement
+            In time order.
+        late : list of Measurement
         """
         if record.t <= self.last_released_t + TIME_TOL_S:
             return [], [record]
@@ -130,7 +150,14 @@ class ReorderBuffer:
         return released, late
 
     def flush(self) -> tuple[list[Measurement], list[Measurement]]:
-        """Release every held record in time order; returns ``(released, late)`` (late: duplicates)."""
+        """Release every held record in time order.
+
+        Returns
+        -------
+        released : list of Measurement
+        late : list of Measurement
+            Duplicated time stamps.
+        """
         released: list[Measurement] = []
         late: list[Measurement] = []
         while self._heap:
@@ -150,6 +177,17 @@ def shuffle_locally(records: Sequence[Measurement], max_displacement: int, rng: 
     """Permute records so that each lands fewer than ``max_displacement`` places from its own (arrival jitter).
 
     Sorting by ``index + uniform(0, max_displacement)`` moves no record by ``max_displacement`` places or more.
+
+    Parameters
+    ----------
+    records : sequence of Measurement
+    max_displacement : int
+        Bound on how far a record moves, >= 1.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    list of Measurement
     """
     keys = np.arange(len(records)) + rng.uniform(0.0, max_displacement, len(records))
     return [records[i] for i in np.argsort(keys, kind="stable")]

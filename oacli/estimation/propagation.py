@@ -1,6 +1,6 @@
 """The estimators' process model: the simulator's multi-rate RK4 integration with exact Jacobians, vectorised.
 
-Telemetry comes at the control rate (5 Hz on ReSWARM, seed 001 §5.4.3) while the plant is integrated at 62.5 Hz:
+Telemetry comes at the control rate (5 Hz on ReSWARM, [ReSWARM2023] §5.4.3) while the plant is integrated at 62.5 Hz:
 within each control period the input is held and :func:`oacli.sim.simulator.simulate` takes RK4 steps on the
 fixed grid ``n · h`` (``h`` = plant period), splitting a step where a control instant falls between two grid
 points, and renormalises the quaternion after every step. One RK4 step of 0.2 s would only approximate those 12.5
@@ -63,7 +63,19 @@ def substep_schedule(t0: np.ndarray, t1: np.ndarray, step_s: float) -> np.ndarra
 
 
 def dynamics_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """ẋ = f(x, u, θ) (Doerr Eqs. 34-35) for stacks ``x (K, 13)``, ``u (K, 6)``; same as ``rigid_body.dynamics``."""
+    """ẋ = f(x, u, θ) (Doerr Eqs. 34-35) for stacks ``x (K, 13)``, ``u (K, 6)``; same as ``rigid_body.dynamics``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (K, 13)
+    u : ndarray, shape (K, 6)
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz].
+
+    Returns
+    -------
+    ndarray, shape (K, 13)
+    """
     if x.shape[0] == 1:  # one state: Python floats are 10× faster than 1-element arrays
         m, ix, iy, iz = (float(v) for v in theta)
         vx, vy, vz, qx, qy, qz, qw, wx, wy, wz = (float(v) for v in x[0, 3:13])
@@ -76,8 +88,8 @@ def dynamics_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarra
         ]])
     m = theta[0]
     ix, iy, iz = theta[1], theta[2], theta[3]
-    qx, qy, qz, qw = x[:, 6], x[:, 7], x[:, 8], x[:, 9]
-    wx, wy, wz = x[:, 10], x[:, 11], x[:, 12]
+    qx, qy, qz, qw = x[:, 6], x[:, 7], x[:, 8], x[:, 9]  # type: ignore[assignment]
+    wx, wy, wz = x[:, 10], x[:, 11], x[:, 12]  # type: ignore[assignment]
     dx = np.empty_like(x)
     dx[:, 0:3] = x[:, 3:6]
     dx[:, 3:6] = u[:, 0:3] / m
@@ -119,7 +131,19 @@ def _jacobian_single(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndar
 
 
 def dynamics_jacobians_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """``[∂f/∂x | ∂f/∂θ]`` (K, 13, 17) of :func:`dynamics_batch` (same as ``rigid_body.dynamics_jacobians``)."""
+    """``[∂f/∂x | ∂f/∂θ]`` (K, 13, 17) of :func:`dynamics_batch` (same as ``rigid_body.dynamics_jacobians``).
+
+    Parameters
+    ----------
+    x : ndarray, shape (K, 13)
+    u : ndarray, shape (K, 6)
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz].
+
+    Returns
+    -------
+    ndarray, shape (K, 13, 17)
+    """
     k = x.shape[0]
     if k == 1:
         return _jacobian_single(x[0], u[0], theta)
@@ -160,7 +184,8 @@ def _rk4_substep(x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: np.ndarray
     eye[:, :, 0:STATE_DIM] = np.eye(STATE_DIM)
     h = dt[:, None]
     hj = dt[:, None, None]
-    ks, dks = [], []
+    ks: list[np.ndarray] = []
+    dks: list[np.ndarray] = []
     xs, dxs = x, eye
     for coef in (0.0, 0.5, 0.5, 1.0):
         if ks:

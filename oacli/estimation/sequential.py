@@ -1,6 +1,6 @@
 """Sequential estimation of the inertial parameters: an error-state EKF with the parameters as states.
 
-Seed 001 §4.4.1 ran recursive least squares on the Newton-Euler regressor, fed with linear accelerations and with
+[ReSWARM2023] §4.4.1 ran recursive least squares on the Newton-Euler regressor, fed with linear accelerations and with
 angular accelerations obtained by differentiating the angular rate -- which amplified the noise and made the
 localisation jumps of Fig. 21 dominate. RATTLE's code (``param_est``) is in fact an EKF whose state is θ and whose
 measurement is the one-step prediction of the velocities from the previous *measured* state, so every measurement
@@ -11,7 +11,7 @@ noise enters two consecutive innovations. Here the filter's state is the robot s
   (:mod:`oacli.estimation.propagation`) and its Jacobians ``A_k``, ``C_k``, plus the process noise ``Q_k`` of
   :class:`oacli.estimation.models.ProcessNoise`; θ is constant;
 * **gate** the innovation ``ν = ỹ_k ⊟ h(x̂⁻)`` with ``S = H P Hᵀ + R``: the record is rejected when
-  ``νᵀ S⁻¹ ν`` exceeds the χ² quantile at 0.99 (seed 001 §6.2.1, Eqs. 40-42);
+  ``νᵀ S⁻¹ ν`` exceeds the χ² quantile at 0.99 ([ReSWARM2023] §6.2.1, Eqs. 40-42);
 * **update** by Gauss-Newton on the last step (an iterated EKF: ``[x_{k-1}, φ, x_k]`` given their prior, the
   process model and the record), which re-linearises the process model about each iterate.
 
@@ -32,7 +32,7 @@ posterior, so the two estimators cross-check each other.
 The parameters are filtered as ``φ`` (:mod:`oacli.estimation.parametrization`), so every estimate is physical
 (mass > 0, inertia triangle inequalities) by construction: nothing is ever clipped or reset. The prior ``N(θ₀, P₀)``
 is mapped to φ by linearisation. Records go through a :class:`~oacli.estimation.preprocessing.ReorderBuffer`
-(seed 001 §5.4.3): out-of-order time stamps within the window are processed in order, later ones are reported as
+([ReSWARM2023] §5.4.3): out-of-order time stamps within the window are processed in order, later ones are reported as
 late. If the state itself is lost (``reinitialise_after`` consecutive rejections, e.g. after starting on a
 localisation jump), the robot state -- never θ -- is re-initialised from the current record and the event is
 recorded.
@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.estimation import parametrization as par
-from oacli.estimation.batch import estimate_batch, extend_states
+from oacli.estimation.batch import BatchResult, estimate_batch, extend_states
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.manifold import (
     TANGENT_DIM,
@@ -149,7 +149,7 @@ class SequentialEstimator:
         self._next_check = self.bootstrap_check_every
         self._boot: list[Measurement] | None = [] if bootstrap_relative_std is not None else None
         self._boot_estimate: ParameterEstimate | None = None
-        self._boot_result = None
+        self._boot_result: BatchResult | None = None
         self.bootstrap_records = 0
         self._phi = par.phi_from_theta(prior.theta)
         jac_inv = np.linalg.inv(par.theta_jacobian(self._phi))
@@ -196,6 +196,14 @@ class SequentialEstimator:
         """Take one record (possibly out of order) and return the current estimate.
 
         The record may be held in the reorder buffer; the estimate reflects every record released so far.
+
+        Parameters
+        ----------
+        record : Measurement
+
+        Returns
+        -------
+        ParameterEstimate
         """
         released, late = self._buffer.push(record)
         for rec in late:
@@ -205,7 +213,12 @@ class SequentialEstimator:
         return self.estimate
 
     def flush(self) -> ParameterEstimate:
-        """Process every record still in the reorder buffer and return the estimate."""
+        """Process every record still in the reorder buffer and return the estimate.
+
+        Returns
+        -------
+        ParameterEstimate
+        """
         released, late = self._buffer.flush()
         for rec in late:
             self._late(rec)

@@ -45,7 +45,13 @@ class RotationDynamics:
         self.constraints = [drot[0] == 0, drot[1:] == rhs]
 
     def set(self, a: np.ndarray, b: np.ndarray) -> None:
-        """Set the Jacobians ``a (N, 13, 13)``, ``b (N, 13, 6)`` of the full RK4 step (rotational block used)."""
+        """Set the Jacobians ``a (N, 13, 13)``, ``b (N, 13, 6)`` of the full RK4 step (rotational block used).
+
+        Parameters
+        ----------
+        a : ndarray, shape (N, 13, 13)
+        b : ndarray, shape (N, 13, 6)
+        """
         a_rot = a[:, 6:13, 6:13]
         b_rot = b[:, 6:13, 3:6]
         for j, param in enumerate(self.a_cols):
@@ -71,7 +77,13 @@ class AttitudeErrorModel:
         self.expr = self.e0 + sum(cp.multiply(c, q) for c, q in zip(self.e_cols, cols, strict=True))
 
     def set(self, e0: np.ndarray, jac: np.ndarray) -> None:
-        """Set the errors ``e0 (K, 3)`` and Jacobians ``jac (K, 3, 4)`` at the rollout."""
+        """Set the errors ``e0 (K, 3)`` and Jacobians ``jac (K, 3, 4)`` at the rollout.
+
+        Parameters
+        ----------
+        e0 : ndarray, shape (K, 3)
+        jac : ndarray, shape (K, 3, 4)
+        """
         self.e0.value = e0
         for j, param in enumerate(self.e_cols):
             param.value = jac[:, :, j]

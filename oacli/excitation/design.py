@@ -360,7 +360,18 @@ class _Merit:
 
 
 def terminal_residual(x_end: np.ndarray, goal: np.ndarray) -> dict[str, float]:
-    """Largest per-axis error of the final state against the goal at rest."""
+    """Largest per-axis error of the final state against the goal at rest.
+
+    Parameters
+    ----------
+    x_end : ndarray, shape (13,)
+    goal : ndarray, shape (13,)
+
+    Returns
+    -------
+    dict
+        ``position_m``, ``velocity_mps``, ``attitude_rad``, ``angular_velocity_radps``.
+    """
     err, _ = attitude_error(goal[6:10], x_end[6:10])
     return {
         "position_m": float(np.max(np.abs(x_end[0:3] - goal[0:3]))),
@@ -574,7 +585,7 @@ class _Subproblem:
             return f"solver_error: {exc}", None, float("nan")
         if status not in _OK or self.du.value is None:
             return status, None, float("nan")
-        slack = float(sum(np.sum(np.maximum(s.value, 0.0)) for s in self.slacks))
+        slack = float(sum(np.sum(np.maximum(s.value, 0.0)) for s in self.slacks))  # type: ignore[arg-type]
         return status, np.array(self.du.value), slack
 
 
@@ -589,6 +600,16 @@ def initial_guess(problem: ExcitationProblem, excitation_fraction: float = 0.3) 
     Forces: the transfer plus out-and-back patterns near the speed limit (:func:`translation_excitation`).
     Torques: the rotation plus zero-net harmonics at ``excitation_fraction`` of the limits, halved until the
     rollout keeps inputs, velocities and rates within 90 % of their limits.
+
+    Parameters
+    ----------
+    problem : ExcitationProblem
+    excitation_fraction : float, optional
+        Start amplitude of the harmonics, as a fraction of the limits.
+
+    Returns
+    -------
+    ndarray, shape (N, 6)
     """
     p = problem
     lim = p.limits
@@ -635,7 +656,7 @@ class _ScpRun:
         it = len(self.history) + 1
         current = self.current
         if self.lin is None:
-            self.lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)
+            self.lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)  # type: ignore[assignment]
         lin = self.lin
         sub.set_iterate(current, lin, self.d_force, self.d_torque)
         t0 = time.perf_counter()
@@ -651,7 +672,7 @@ class _ScpRun:
             if max(self.d_force, self.d_torque) < settings.trust_region_min:
                 self.stop = f"subproblem failed ({status})"
             return
-        dfim = _fim_step(lin.gradients, du)
+        dfim = _fim_step(lin.gradients, du)  # type: ignore[attr-defined]
         crit_model = criterion_value(current.fim + dfim, p.criterion, merit.d)
         predicted = merit.normalise(crit_model) + settings.penalty * slack if np.isfinite(crit_model) else np.inf
         predicted_decrease = current.merit - predicted
@@ -691,6 +712,15 @@ def perturbed_guess(problem: ExcitationProblem, rng: np.random.Generator) -> np.
 
     Each channel gets ``cos(2π h (k + ½)/N + φ)`` with a random harmonic h ∈ {1, ..., 4} and phase φ, projected so
     that the end state is unchanged to first order, at half the limit (halved until within 90 % of every limit).
+
+    Parameters
+    ----------
+    problem : ExcitationProblem
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray, shape (N, 6)
     """
     p = problem
     n = p.steps
@@ -823,6 +853,21 @@ def restore_rotation_endpoint(
     ``r(u) + J δτ = 0`` for ``r = [e_N, ω_N − ω_goal]`` (6) with the exact RK4 Jacobians along the trial rollout, in
     the least-norm sense weighted by the torque headroom ``(τ_max − |τ|)²`` (saturated steps barely move), then
     clips to the torque limits.
+
+    Parameters
+    ----------
+    problem : ExcitationProblem
+    u : ndarray, shape (N, 6)
+        Trial inputs.
+    iterations : int, optional
+        Gauss-Newton iterations.
+    target_fraction : float, optional
+        Stop once the residual is below this fraction of the terminal tolerance.
+
+    Returns
+    -------
+    ndarray, shape (N, 6)
+        Inputs with corrected torques.
     """
     p = problem
     u = np.array(u, dtype=float)
@@ -877,7 +922,22 @@ def _fim_step(gradients: np.ndarray, du: np.ndarray) -> np.ndarray:
 def cumulative_information(
     x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model: MeasurementModel
 ) -> np.ndarray:
-    """Fisher information of the measurements up to each sample, shape (N+1, 4, 4) (zero at t = 0)."""
+    """Fisher information of the measurements up to each sample, shape (N+1, 4, 4) (zero at t = 0).
+
+    Parameters
+    ----------
+    x : ndarray, shape (N+1, 13)
+        Rollout states (``x[0]`` is the start).
+    u : ndarray, shape (N, 6)
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+    dt : float
+    model : MeasurementModel
+
+    Returns
+    -------
+    ndarray, shape (N+1, 4, 4)
+    """
     _, s = propagate_with_sensitivities(x[0], u, theta, dt)
     g_state, g_acc = output_sensitivities(x, u, s, theta, model)
     per_step = np.einsum("kmi,kmj->kij", g_state, g_state) + np.einsum("kmi,kmj->kij", g_acc, g_acc)

@@ -141,9 +141,27 @@ def sensitivity_rate_jacobians(
 def augmented_dynamics(
     z: np.ndarray, u: np.ndarray, theta: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rate of the augmented state ``z = [x, vec S]`` (65,) and its Jacobians ``∂g/∂z`` (65, 65), ``∂g/∂u`` (65, 6).
+    """Rate of the augmented state ``z = [x, vec S]`` and its Jacobians.
 
     ``vec S`` is row-major: entry ``S[i, j]`` sits at ``13 + 4 i + j``.
+
+    Parameters
+    ----------
+    z : ndarray, shape (65,)
+        Augmented state.
+    u : ndarray, shape (6,)
+        Input.
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+
+    Returns
+    -------
+    g : ndarray, shape (65,)
+        ``ż``.
+    gz : ndarray, shape (65, 65)
+        ``∂g/∂z``.
+    gu : ndarray, shape (65, 6)
+        ``∂g/∂u``.
     """
     x = z[:N_STATE]
     s = z[N_STATE:].reshape(N_STATE, N_PARAMS)
@@ -169,6 +187,17 @@ def augmented_rk4_step(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """One RK4 step of the augmented system with its exact Jacobians.
 
+    Parameters
+    ----------
+    z : ndarray, shape (65,)
+        Augmented state.
+    u : ndarray, shape (6,)
+        Input held over the step.
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+    dt : float
+        Step [s].
+
     Returns
     -------
     z_next : ndarray, shape (65,)
@@ -182,7 +211,7 @@ def augmented_rk4_step(
     """
     eye = np.eye(N_AUG)
     dz_z, dz_u = eye, np.zeros((N_AUG, 6))
-    ks, dks = [], []
+    ks, dks = [], []  # type: ignore[var-annotated]
     first = None
     for coef in (0.0, 0.5, 0.5, 1.0):
         zs = z
@@ -328,7 +357,12 @@ def fim_gradients(
 
 
 def symmetric_basis() -> np.ndarray:
-    """The 10 symmetric 4×4 matrices ``E_ab`` (a ≤ b) with ``⟨E_ab, F⟩ = F_ab``, shape (10, 4, 4)."""
+    """The 10 symmetric 4×4 matrices ``E_ab`` (a ≤ b) with ``⟨E_ab, F⟩ = F_ab``, shape (10, 4, 4).
+
+    Returns
+    -------
+    ndarray, shape (10, 4, 4)
+    """
     out = []
     for a in range(N_PARAMS):
         for b in range(a, N_PARAMS):
@@ -342,7 +376,18 @@ def symmetric_basis() -> np.ndarray:
 
 
 def scaling_matrix(theta: np.ndarray, scaling: Scaling) -> np.ndarray:
-    """``D`` of ``F_s = D F D``: identity (absolute) or ``diag(θ)`` (relative parameters)."""
+    """``D`` of ``F_s = D F D``: identity (absolute) or ``diag(θ)`` (relative parameters).
+
+    Parameters
+    ----------
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+    scaling : {"absolute", "relative"}
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+    """
     if scaling == "absolute":
         return np.eye(N_PARAMS)
     if scaling == "relative":
@@ -351,7 +396,21 @@ def scaling_matrix(theta: np.ndarray, scaling: Scaling) -> np.ndarray:
 
 
 def criterion_value(fim: np.ndarray, criterion: Criterion, d: np.ndarray) -> float:
-    """Design criterion of ``F_s = D F D``: A = tr(F_s⁻¹), D = −log det F_s, E = −λ_min(F_s) (smaller is better)."""
+    """Design criterion of ``F_s = D F D``: A = tr(F_s⁻¹), D = −log det F_s, E = −λ_min(F_s) (smaller is better).
+
+    Parameters
+    ----------
+    fim : ndarray, shape (4, 4)
+        Fisher information F.
+    criterion : {"A", "D", "E"}
+    d : ndarray, shape (4, 4)
+        Scaling ``D`` (:func:`scaling_matrix`).
+
+    Returns
+    -------
+    float
+        ``inf`` for a singular F (A and D).
+    """
     fs = d @ fim @ d
     if criterion == "A":
         return a_optimality(fs)
@@ -367,6 +426,18 @@ def criterion_weight(fim: np.ndarray, criterion: Criterion, d: np.ndarray) -> np
 
     A: ``−D F_s⁻² D``; D: ``−D F_s⁻¹ D``; E: ``−D v vᵀ D`` with v the unit eigenvector of λ_min(F_s) (a
     subgradient when λ_min is repeated).
+
+    Parameters
+    ----------
+    fim : ndarray, shape (4, 4)
+        Fisher information F.
+    criterion : {"A", "D", "E"}
+    d : ndarray, shape (4, 4)
+        Scaling ``D`` (:func:`scaling_matrix`).
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
     """
     fs = d @ (0.5 * (fim + fim.T)) @ d
     if criterion == "A":
@@ -396,6 +467,28 @@ def criterion_gradient(
     """Design criterion J(u) and its exact gradient ``∂J/∂u`` (N, 6) (Doerr Eq. 30 and its adjoint).
 
     Two passes: the first finds F (to form ``M = ∂J/∂F``), the second the adjoint of ``⟨M, F⟩``.
+
+    Parameters
+    ----------
+    x0 : ndarray, shape (13,)
+        Initial state.
+    u : ndarray, shape (N, 6)
+        Inputs, each held for ``dt``.
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+    dt : float
+        Step [s].
+    model : MeasurementModel
+        What is measured, with which noise.
+    criterion : {"A", "D", "E"}, optional
+    scaling : {"absolute", "relative"}, optional
+
+    Returns
+    -------
+    value : float
+        J(u).
+    gradient : ndarray, shape (N, 6)
+        ``∂J/∂u``.
     """
     d = scaling_matrix(theta, scaling)
     fim = fisher_information(x0, u, theta, dt, model)

@@ -16,7 +16,7 @@ The Cramér-Rao bound of any unbiased estimator is ``cov(θ̂) ⪰ F⁻¹``; the
 
 Measured quantities (each optional, see :class:`MeasurementModel`): position, velocity, attitude (as the
 body-frame rotation-vector error about the true attitude), angular velocity, linear acceleration ``f/m`` and
-angular acceleration ``ω̇`` (RATTLE's estimator uses velocities and accelerations, seed 001 §4.4.1).
+angular acceleration ``ω̇`` (RATTLE's estimator uses velocities and accelerations, [ReSWARM2023] §4.4.1).
 """
 
 from __future__ import annotations
@@ -75,7 +75,17 @@ class MeasurementModel:
 
 
 def attitude_error_jacobian(q_bar: np.ndarray) -> np.ndarray:
-    """∂φ/∂q (3, 4) of the body-frame error ``φ = 2 vec(q̄⁻¹ ⊗ q)`` at ``q = q̄`` (first order)."""
+    """∂φ/∂q (3, 4) of the body-frame error ``φ = 2 vec(q̄⁻¹ ⊗ q)`` at ``q = q̄`` (first order).
+
+    Parameters
+    ----------
+    q_bar : ndarray, shape (4,)
+        Linearisation attitude.
+
+    Returns
+    -------
+    ndarray, shape (3, 4)
+    """
     v = q_bar[0:3]
     w = q_bar[3]
     skew = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
@@ -83,7 +93,17 @@ def attitude_error_jacobian(q_bar: np.ndarray) -> np.ndarray:
 
 
 def state_output_matrix(x: np.ndarray) -> np.ndarray:
-    """H (12, 13) mapping a state perturbation to [δr, δv, δφ, δω]."""
+    """H (12, 13) mapping a state perturbation to [δr, δv, δφ, δω].
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+        State (its attitude is used).
+
+    Returns
+    -------
+    ndarray, shape (12, 13)
+    """
     h = np.zeros((12, 13))
     h[0:6, 0:6] = np.eye(6)
     h[6:9, 6:10] = attitude_error_jacobian(x[6:10])
@@ -134,6 +154,18 @@ def output_sensitivities(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sensitivities of the measurements to θ, weighted by R^-½.
 
+    Parameters
+    ----------
+    x : ndarray, shape (N+1, 13)
+        States along the rollout.
+    u : ndarray, shape (N, 6)
+        Inputs.
+    s : ndarray, shape (N+1, 13, 4)
+        Parameter sensitivities ``∂x_k/∂θ``.
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+    model : MeasurementModel
+
     Returns
     -------
     g_state : ndarray, shape (N, 12, 4)
@@ -160,7 +192,25 @@ def output_sensitivities(
 def fisher_information(
     x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model: MeasurementModel
 ) -> np.ndarray:
-    """Fisher information F (4, 4) of θ from measuring the response to ``u (N, 6)`` from ``x0`` (Eq. 29)."""
+    """Fisher information F (4, 4) of θ from measuring the response to ``u (N, 6)`` from ``x0`` (Eq. 29).
+
+    Parameters
+    ----------
+    x0 : ndarray, shape (13,)
+        Initial state.
+    u : ndarray, shape (N, 6)
+        Inputs, each held for ``dt``.
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+    dt : float
+        Step [s].
+    model : MeasurementModel
+        What is measured, with which noise.
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+    """
     x, s = propagate_with_sensitivities(x0, u, theta, dt)
     g_state, g_accel = output_sensitivities(x, u, s, theta, model)
     return np.einsum("kmi,kmj->ij", g_state, g_state) + np.einsum("kmi,kmj->ij", g_accel, g_accel)
@@ -169,14 +219,42 @@ def fisher_information(
 def information_per_step(
     x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model: MeasurementModel
 ) -> np.ndarray:
-    """Fisher information of each step's measurements, shape (N, 4, 4); their sum is :func:`fisher_information`."""
+    """Fisher information of each step's measurements, shape (N, 4, 4); their sum is :func:`fisher_information`.
+
+    Parameters
+    ----------
+    x0 : ndarray, shape (13,)
+        Initial state.
+    u : ndarray, shape (N, 6)
+        Inputs, each held for ``dt``.
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+    dt : float
+        Step [s].
+    model : MeasurementModel
+        What is measured, with which noise.
+
+    Returns
+    -------
+    ndarray, shape (N, 4, 4)
+    """
     x, s = propagate_with_sensitivities(x0, u, theta, dt)
     g_state, g_accel = output_sensitivities(x, u, s, theta, model)
     return np.einsum("kmi,kmj->kij", g_state, g_state) + np.einsum("kmi,kmj->kij", g_accel, g_accel)
 
 
 def a_optimality(fim: np.ndarray) -> float:
-    """A-criterion tr(F⁻¹) (Doerr Eq. 30); ``inf`` when F is singular."""
+    """A-criterion tr(F⁻¹) (Doerr Eq. 30); ``inf`` when F is singular.
+
+    Parameters
+    ----------
+    fim : ndarray, shape (4, 4)
+        Fisher information F.
+
+    Returns
+    -------
+    float
+    """
     try:
         return float(np.trace(np.linalg.inv(fim))) if np.linalg.matrix_rank(fim) == fim.shape[0] else np.inf
     except np.linalg.LinAlgError:
@@ -184,13 +262,33 @@ def a_optimality(fim: np.ndarray) -> float:
 
 
 def d_optimality(fim: np.ndarray) -> float:
-    """D-criterion −log det F (smaller is better); ``inf`` when F is singular."""
+    """D-criterion −log det F (smaller is better); ``inf`` when F is singular.
+
+    Parameters
+    ----------
+    fim : ndarray, shape (4, 4)
+        Fisher information F.
+
+    Returns
+    -------
+    float
+    """
     sign, logdet = np.linalg.slogdet(fim)
     return float(-logdet) if sign > 0 else float("inf")
 
 
 def e_optimality(fim: np.ndarray) -> float:
-    """E-criterion −λ_min(F) (smaller is better)."""
+    """E-criterion −λ_min(F) (smaller is better).
+
+    Parameters
+    ----------
+    fim : ndarray, shape (4, 4)
+        Fisher information F.
+
+    Returns
+    -------
+    float
+    """
     return float(-np.linalg.eigvalsh(0.5 * (fim + fim.T)).min())
 
 
@@ -201,6 +299,20 @@ def unidentifiable_parameters(
 
     The check is made on the information of the *relative* parameters ``θ_i / scale_i`` (``D F D`` with
     ``D = diag(scale)``), so that mass [kg] and inertias [kg·m²] are compared fairly.
+
+    Parameters
+    ----------
+    fim : ndarray, shape (4, 4)
+        Fisher information F.
+    theta_scale : ndarray, shape (4,), optional
+        Scale of each parameter (typically θ itself); 1 by default.
+    rel_tol : float, optional
+        Eigenvalues below ``rel_tol`` times the largest count as zero.
+
+    Returns
+    -------
+    list of str
+        Names from ``PARAM_NAMES``; empty when every parameter is identifiable.
     """
     d = np.ones(fim.shape[0]) if theta_scale is None else np.abs(np.asarray(theta_scale, dtype=float))
     scaled = d[:, None] * (0.5 * (fim + fim.T)) * d[None, :]
@@ -214,7 +326,19 @@ def unidentifiable_parameters(
 
 
 def cramer_rao_std(fim: np.ndarray, theta_scale: np.ndarray | None = None) -> np.ndarray:
-    """Cramér-Rao lower bound on the standard deviations, ``sqrt(diag F⁻¹)`` (4,); ``inf`` where unidentifiable."""
+    """Cramér-Rao lower bound on the standard deviations, ``sqrt(diag F⁻¹)`` (4,); ``inf`` where unidentifiable.
+
+    Parameters
+    ----------
+    fim : ndarray, shape (4, 4)
+        Fisher information F.
+    theta_scale : ndarray, shape (4,), optional
+        As in :func:`unidentifiable_parameters`.
+
+    Returns
+    -------
+    ndarray, shape (4,)
+    """
     bad = unidentifiable_parameters(fim, theta_scale)
     if not bad:
         return np.sqrt(np.diag(np.linalg.inv(0.5 * (fim + fim.T))))

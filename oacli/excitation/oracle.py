@@ -2,8 +2,10 @@
 
 The information-aware planner (:mod:`oacli.excitation.rattle`) needs, at every replan, the latest estimate
 ``θ̂`` and its standard deviations. Any sequential estimator that can be fed one measurement at a time will do
-(:class:`SequentialEstimator`); the real one (recursive least squares / EKF with outlier gating, seed 001 §4.4.1)
-comes with the estimation half of issue 5 and only has to implement this protocol.
+(the :class:`SequentialEstimator` protocol below). ``oacli excite --method rattle`` uses the real one by default:
+the error-state EKF with χ² outlier gating of :mod:`oacli.estimation.sequential` ([ReSWARM2023] §4.4.1, §6.2.1),
+behind :class:`oacli.estimation.online.OnlineSequentialEstimator` (``excitation.rattle.estimator: sequential``);
+``estimator: oracle`` selects the oracle below instead.
 
 :class:`CramerRaoOracle` is **not** an estimator: it knows the true parameters and reports them, with the
 Cramér-Rao covariance ``(F_prior + F)⁻¹`` of the information accumulated so far along the flown trajectory (the
@@ -33,7 +35,21 @@ class SequentialEstimator(Protocol):
     """
 
     def update(self, t: float, x_measured: np.ndarray, u_applied: np.ndarray) -> ParameterEstimate:
-        """Fuse one measurement and return the current estimate."""
+        """Fuse one measurement and return the current estimate.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state.
+        u_applied : ndarray, shape (6,)
+            Input held since the previous measurement.
+
+        Returns
+        -------
+        ParameterEstimate
+        """
         ...
 
     @property
@@ -92,7 +108,22 @@ class CramerRaoOracle:
         return self._estimate
 
     def update(self, t: float, x_measured: np.ndarray, u_applied: np.ndarray) -> ParameterEstimate:
-        """Add the information of the measurement at ``t`` (after the input ``u_applied`` held since the last one)."""
+        """Add the information of the measurement at ``t`` (after the input ``u_applied`` held since the last one).
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state.
+        u_applied : ndarray, shape (6,)
+            Input held since the previous measurement.
+
+        Returns
+        -------
+        ParameterEstimate
+            The truth with the Cramér-Rao covariance (unchanged when ``t`` is not later than the last time).
+        """
         dt = float(t) - self._t
         if dt <= 0:
             return self._estimate

@@ -66,14 +66,39 @@ class TerminalTolerance:
 
 
 def chord_margin_m(force_limit_n: np.ndarray, mass_kg: float, dt_s: float) -> np.ndarray:
-    """Per-axis bound ``|a_i| dt²/8`` [m] on the distance between the parabola and its chord over one step."""
+    """Per-axis bound ``|a_i| dt²/8`` [m] on the distance between the parabola and its chord over one step.
+
+    Parameters
+    ----------
+    force_limit_n : ndarray, shape (3,)
+        Force limits [N].
+    mass_kg : float
+    dt_s : float
+        Step [s].
+
+    Returns
+    -------
+    ndarray, shape (3,)
+    """
     return np.asarray(force_limit_n, dtype=float) / mass_kg * dt_s**2 / 8.0
 
 
 def box_assignment(scene: Scene, p_start: np.ndarray, p_end: np.ndarray, margin: np.ndarray) -> np.ndarray:
     """Index of the keep-in box best containing each segment ``p_start[k] → p_end[k]`` (largest worst margin).
 
-    Returns an int array (N,); all zeros when the scene has a single box. Raises ValueError without boxes.
+    Parameters
+    ----------
+    scene : Scene
+        Has at least one keep-in box (ValueError otherwise).
+    p_start, p_end : ndarray, shape (N, 3)
+        Segment ends [m].
+    margin : ndarray, shape (3,)
+        Inward margin of the boxes [m].
+
+    Returns
+    -------
+    ndarray of int, shape (N,)
+        All zeros when the scene has a single box.
     """
     return best_box(scene, p_start, p_end, margin=margin)
 
@@ -90,6 +115,24 @@ def keep_in_violation(
     ``positions (N+1, 3)``: segment k runs from sample k to k+1. With ``boxes`` omitted the best box per segment is
     used (:func:`box_assignment`), which makes the violation a function of the positions alone. ``end_extra_m``
     shrinks the box further for the very last sample (room to stop, used by the receding-horizon planner).
+
+    Parameters
+    ----------
+    scene : Scene
+    positions : ndarray, shape (N+1, 3)
+        Sample positions [m].
+    margin : ndarray, shape (3,)
+        Inward margin of the boxes [m].
+    boxes : ndarray of int, shape (N,), optional
+        Box per segment.
+    end_extra_m : float or ndarray, optional
+        Extra margin [m] for the last sample.
+
+    Returns
+    -------
+    violation : ndarray, shape (N,)
+        [m], 0 where the segment is inside.
+    boxes : ndarray of int, shape (N,)
     """
     if not scene.keep_in:
         n = positions.shape[0] - 1
@@ -107,9 +150,24 @@ def keep_in_violation(
 
 
 def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end_extra_m: float = 0.0) -> np.ndarray:
-    """Violation [m] per keep-out zone and segment, shape (E, N): ``max(0, β̂ + δ − n̂ᵀp)`` over both chord ends,
-    the half-space taken at the chord midpoint (see the module docstring); the very last sample needs
-    ``end_extra_m`` more."""
+    """Violation [m] per keep-out zone and segment: ``max(0, β̂ + δ − n̂ᵀp)`` over both chord ends.
+
+    The half-space is taken at the chord midpoint (see the module docstring); the very last sample needs
+    ``end_extra_m`` more.
+
+    Parameters
+    ----------
+    scene : Scene
+    positions : ndarray, shape (N+1, 3)
+        Sample positions [m].
+    margin_m : float
+        Clearance δ [m].
+    end_extra_m : float, optional
+
+    Returns
+    -------
+    ndarray, shape (E, N)
+    """
     p0, p1 = positions[:-1], positions[1:]
     mid = 0.5 * (p0 + p1)
     out = np.zeros((len(scene.keep_out), p0.shape[0]))
@@ -124,9 +182,23 @@ def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end
 
 
 def dense_positions(x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, substeps: int = 20) -> np.ndarray:
-    """Positions between samples under the zero-order-hold force (exact parabola), shape (N·substeps + 1, 3).
+    """Positions between samples under the zero-order-hold force (exact parabola).
 
-    ``x (N+1, 13)``; ``u`` has N rows (or N+1, the last one unused).
+    Parameters
+    ----------
+    x : ndarray, shape (N+1, 13)
+        States.
+    u : ndarray, shape (N, 6) or (N+1, 6)
+        Inputs (a last row is unused).
+    dt_s : float
+        Step [s].
+    mass_kg : float
+    substeps : int, optional
+        Points per step.
+
+    Returns
+    -------
+    ndarray, shape (N·substeps + 1, 3)
     """
     tau = dt_s * np.arange(substeps) / substeps
     n = x.shape[0] - 1
@@ -136,21 +208,52 @@ def dense_positions(x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, s
 
 
 def collision_free(scene: Scene, x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, substeps: int = 20) -> bool:
-    """True when the continuous motion (dense re-check between samples) stays in a keep-in box and out of every
-    keep-out zone."""
+    """True when the continuous motion stays in a keep-in box and out of every keep-out zone (dense re-check).
+
+    Parameters
+    ----------
+    scene : Scene
+    x, u, dt_s, mass_kg, substeps
+        As in :func:`dense_positions`.
+
+    Returns
+    -------
+    bool
+    """
     pts = dense_positions(x, u, dt_s, mass_kg, substeps)
     return bool(np.all(scene.in_keep_in(pts)) and not np.any(scene.in_keep_out(pts)))
 
 
 def left_multiplication_matrix(p: np.ndarray) -> np.ndarray:
-    """``L(p)`` (4, 4) with ``p ⊗ q = L(p) q`` (Hamilton product, scalar last)."""
+    """``L(p)`` (4, 4) with ``p ⊗ q = L(p) q`` (Hamilton product, scalar last).
+
+    Parameters
+    ----------
+    p : ndarray, shape (4,)
+        Quaternion ``[x, y, z, w]``.
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+    """
     x, y, z, w = np.asarray(p, dtype=float)
     return np.array([[w, -z, y, x], [z, w, -x, y], [-y, x, w, z], [-x, -y, -z, w]])
 
 
 def attitude_errors(q_goal: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Small-angle attitude errors ``e = 2 vec(q_goal⁻¹ ⊗ q)`` (sign fixed so the scalar part is ≥ 0) of a stack of
-    quaternions ``q (K, 4)``, and their Jacobians ``∂e/∂q`` (K, 3, 4)."""
+    """Small-angle attitude errors ``e = 2 vec(q_goal⁻¹ ⊗ q)`` (sign fixed so the scalar part is ≥ 0).
+
+    Parameters
+    ----------
+    q_goal : ndarray, shape (4,)
+    q : ndarray, shape (K, 4)
+
+    Returns
+    -------
+    e : ndarray, shape (K, 3)
+    jac : ndarray, shape (K, 3, 4)
+        ``∂e/∂q``.
+    """
     left = left_multiplication_matrix(quat.conjugate(q_goal))
     rel = np.asarray(q, dtype=float) @ left.T
     sign = np.where(rel[:, 3] >= 0, 1.0, -1.0)
@@ -158,20 +261,58 @@ def attitude_errors(q_goal: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def attitude_error(q_goal: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`attitude_errors` of one quaternion: ``e`` (3,) and ``∂e/∂q`` (3, 4)."""
+    """:func:`attitude_errors` of one quaternion: ``e`` (3,) and ``∂e/∂q`` (3, 4).
+
+    Parameters
+    ----------
+    q_goal, q : ndarray, shape (4,)
+
+    Returns
+    -------
+    e : ndarray, shape (3,)
+    jac : ndarray, shape (3, 4)
+    """
     e, jac = attitude_errors(q_goal, np.asarray(q, dtype=float)[None, :])
     return e[0], jac[0]
 
 
 def rest_to_rest_profile(n: int, shape: np.ndarray, displacement_coeff: float) -> np.ndarray:
-    """Project ``shape (n,)`` so that ``Σ w = 0`` (rest to rest) and ``Σ w_k (n − k − ½) = displacement_coeff``."""
+    """Project ``shape (n,)`` so that ``Σ w = 0`` (rest to rest) and ``Σ w_k (n − k − ½) = displacement_coeff``.
+
+    Parameters
+    ----------
+    n : int
+        Number of steps.
+    shape : ndarray, shape (n,)
+        Profile to project.
+    displacement_coeff : float
+        Required ``Σ w_k (n − k − ½)``.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
     c = np.vstack([np.ones(n), n - np.arange(n) - 0.5])
     rhs = np.array([0.0, displacement_coeff])
     return shape - c.T @ np.linalg.solve(c @ c.T, c @ shape - rhs)
 
 
 def minimum_time_s(distance: float, accel: float, speed: float) -> float:
-    """Shortest rest-to-rest time [s] over ``distance`` with bounded acceleration and speed (bang-coast-bang)."""
+    """Shortest rest-to-rest time [s] over ``distance`` with bounded acceleration and speed (bang-coast-bang).
+
+    Parameters
+    ----------
+    distance : float
+        [m] or [rad].
+    accel : float
+        Acceleration bound, > 0.
+    speed : float
+        Speed bound, > 0.
+
+    Returns
+    -------
+    float
+    """
     if distance <= 0:
         return 0.0
     if speed * speed / accel >= distance:
@@ -187,6 +328,14 @@ def check_reachable(
     A necessary condition per axis: the bang-coast-bang minimum time of the translation along each world axis
     (force and velocity limits) and of the rotation angle about each body axis (torque and rate limits,
     gyroscopic coupling ignored) must not exceed the duration.
+
+    Parameters
+    ----------
+    start, goal : ndarray, shape (13,)
+    duration_s : float
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+    limits : MotionLimits
     """
     d = np.abs(goal[0:3] - start[0:3])
     rot = np.abs(quat.error_vector(start[6:10], goal[6:10]))
@@ -226,6 +375,23 @@ def rest_to_rest_inputs(
     on that axis). ``excitation (2, 3)`` adds amplitudes [force N, torque N·m] per axis of zero-net harmonics
     (``cos(2π h (k + ½)/N)``, h = 2, 3, 4 per axis, projected to leave both the end position and the end angle
     unchanged to first order).
+
+    Parameters
+    ----------
+    start, goal : ndarray, shape (13,)
+        At rest.
+    steps : int
+        N.
+    dt_s : float
+        Step [s].
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model.
+    excitation : ndarray, shape (2, 3), optional
+        Harmonic amplitudes (none by default).
+
+    Returns
+    -------
+    ndarray, shape (N, 6)
     """
     n = steps
     m = theta[0]
@@ -276,6 +442,26 @@ def translation_excitation(
     transfer, plateaus at 90 % of the speed left by it) returns to rest and to its start; of the cycle counts and
     signs whose motion stays in the keep-in box of the start (shrunk by ``margin_m``) and within the limits, the one
     with the largest ``Σ v²`` is kept (none when nothing fits).
+
+    Parameters
+    ----------
+    start : ndarray, shape (13,)
+    transfer_force : ndarray, shape (N, 3)
+        Forces [N] of the rest-to-rest transfer.
+    dt_s : float
+        Step [s].
+    mass_kg : float
+    limits : MotionLimits
+    scene : Scene
+    margin_m : ndarray, shape (3,)
+        Inward margin of the keep-in box [m].
+    max_cycles : int, optional
+        Largest number of cycles tried per axis.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Forces [N] to add to the transfer (zero on axes where nothing fits).
     """
     n = transfer_force.shape[0]
     duration = n * dt_s

@@ -1,4 +1,4 @@
-"""Online information-aware receding-horizon planning (RATTLE; ReSWARM, seed 001, §4.4 and §4.6).
+"""Online information-aware receding-horizon planning (RATTLE; [ReSWARM2023] §4.4 and §4.6).
 
 Every replan (12 s as flown) the planner solves, from the current measured state and with the latest parameter
 estimate ``θ̂`` and its standard deviations ``σ``, a horizon of N steps (40 × 0.3 s as flown)::
@@ -12,7 +12,7 @@ where ``x ⊖ x_goal = [r − r_goal, v, e(q), ω]`` (``e`` the small-angle atti
 information of the horizon's measurements (:mod:`oacli.excitation.information`). ``½ log(1 + F_ii σ_i²)`` is the
 information [nats] the horizon would add about parameter i alone given its current uncertainty: it is large while
 σ_i is large and fades as the parameter is learned. The per-parameter weight follows the published decay rule
-(seed 001 Fig. 4, REFERENCE.md)::
+([ReSWARM2023] Fig. 4; [RATTLE2022]; values of [RattleCode] execute_asap config)::
 
     γ_i = γ0_i · exp(−β · floor_i / σ_i),   and γ_i = 0 once σ_i ≤ α · floor_i,
 
@@ -61,7 +61,7 @@ _OK = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
 
 @dataclass(frozen=True)
 class InformationWeighting:
-    """The per-parameter information weight and its decay with the estimate's standard deviation (seed 001 §4.4).
+    """The per-parameter information weight and its decay with the estimate's standard deviation ([ReSWARM2023] §4.4).
 
     Attributes
     ----------
@@ -87,12 +87,33 @@ class InformationWeighting:
             object.__setattr__(self, name, value)
 
     def weights(self, std: np.ndarray) -> np.ndarray:
-        """γ (4,) for the current standard deviations σ (4,)."""
+        """γ (4,) for the current standard deviations σ (4,).
+
+        Parameters
+        ----------
+        std : ndarray, shape (4,)
+
+        Returns
+        -------
+        ndarray, shape (4,)
+        """
         return information_weights(std, self)
 
 
 def information_weights(std: np.ndarray, weighting: InformationWeighting) -> np.ndarray:
-    """RATTLE's decay rule ``γ_i = γ0_i exp(−β floor_i/σ_i)``, zero once ``σ_i ≤ α floor_i`` (seed 001 §4.4)."""
+    """RATTLE's decay rule ``γ_i = γ0_i exp(−β floor_i/σ_i)``, zero once ``σ_i ≤ α floor_i`` ([ReSWARM2023] §4.4).
+
+    Parameters
+    ----------
+    std : ndarray, shape (4,)
+        Standard deviations σ.
+    weighting : InformationWeighting
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        γ.
+    """
     sigma = np.asarray(std, dtype=float)
     with np.errstate(divide="ignore", over="ignore"):
         gamma = weighting.gamma0 * np.exp(-weighting.beta * weighting.floor / np.maximum(sigma, 1e-300))
@@ -307,7 +328,17 @@ class InformationAwarePlanner:
         return margin, float(np.linalg.norm(margin - self.clearance_m)) + self.clearance_m
 
     def stop_distance(self, mass: float) -> np.ndarray:
-        """Per-axis braking distance [m] from the end-of-horizon speed bound at full force."""
+        """Per-axis braking distance [m] from the end-of-horizon speed bound at full force.
+
+        Parameters
+        ----------
+        mass : float
+            Model mass [kg].
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
         return self.stop_speed**2 * mass / (2.0 * self.limits.force_N)
 
     def _evaluate(self, x0, u, theta, std, gamma) -> dict:
@@ -403,6 +434,10 @@ class InformationAwarePlanner:
             Mission time of ``x0`` [s] (time stamps of the returned trajectory).
         u_warm : ndarray, shape (N, 6), optional
             Initial inputs (e.g. the previous plan shifted); zero (drift) by default.
+
+        Returns
+        -------
+        PlanResult
         """
         wall = time.perf_counter()
         theta = np.asarray(theta, dtype=float)

@@ -7,6 +7,12 @@ control step it first feeds the estimator the new measurement (with the input he
 model (warm-started with the previous plan shifted). Between replans it follows the plan: the planned input plus
 an LQR correction of the error to the planned state (gain from the exact hover discretisation with the current
 estimate, :func:`oacli.model.double_integrator.hover_error_model`), clipped to the limits.
+
+The plan keeps its angular rate within the planner's (margined) limit, but the feedback that corrects attitude
+errors can push the rate past the robot's limit. With ``rate_limit_radps`` a rate governor bounds each body
+torque so that the rate predicted at the end of the control period with the current estimate,
+``ω_i + Δt (τ_i − (ω × I ω)_i) / I_i``, stays within the limit (:func:`rate_governed_torque`); under a held torque
+the rate moves monotonically over the period (up to the gyroscopic term), so the end bounds the whole period.
 """
 
 from __future__ import annotations
@@ -63,6 +69,9 @@ class RattleController:
     feedback_q, feedback_r : ndarray, shape (12,), (6,)
         LQR weights on the error ``[r, v, φ, ω]`` and on ``[f, τ]``.
     input_limits : ndarray, shape (6,)
+        Actuator limits the input is clipped to (the plan keeps its own, lower, design limits).
+    rate_limit_radps : ndarray, shape (3,), optional
+        Body-rate limit of the rate governor (:func:`rate_governed_torque`); none by default.
     """
 
     def __init__(
@@ -76,6 +85,7 @@ class RattleController:
         feedback_q: np.ndarray,
         feedback_r: np.ndarray,
         input_limits: np.ndarray,
+        rate_limit_radps: np.ndarray | None = None,
     ) -> None:
         self.planner = planner
         self.estimator = estimator
@@ -85,6 +95,8 @@ class RattleController:
         self.q = np.diag(feedback_q)
         self.r = np.diag(feedback_r)
         self.input_limits = np.asarray(input_limits, dtype=float)
+        self.rate_limit = None if rate_limit_radps is None else np.asarray(rate_limit_radps, dtype=float)
+        self.governed_steps = 0
         self.replans: list[ReplanRecord] = []
         self.estimates: list[ParameterEstimate] = []
         self._plan: Trajectory | None = None
@@ -109,7 +121,19 @@ class RattleController:
         self._next_replan = t + self.replan_period_s
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """Input for ``[t, t + control period)`` (simulator ``Controller`` protocol)."""
+        """Input for ``[t, t + control period)`` (simulator ``Controller`` protocol).
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state.
+
+        Returns
+        -------
+        ControlStep
+        """
         start = time.perf_counter()
         if self._u_prev is not None:
             self.estimates.append(self.estimator.update(t, x_measured, self._u_prev))
@@ -124,9 +148,63 @@ class RattleController:
         err[3:6] -= x_ref[3:6]
         err[9:12] -= x_ref[10:13]
         u = np.clip(u_ff + self._gain @ err, -self.input_limits, self.input_limits)
+        if self.rate_limit is not None:
+            theta = self.replans[-1].theta
+            tau = rate_governed_torque(u[3:6], x_measured[10:13], theta[1:4], self.control_period_s,
+                                       self.rate_limit, self.input_limits[3:6])
+            self.governed_steps += int(np.any(tau != u[3:6]))
+            u[3:6] = tau
         self._u_prev = u
         info = SolveInfo("optimal", True, solve_time_s=solve_time, step_time_s=time.perf_counter() - start)
         return ControlStep(u, info, x_ref)
+
+
+def rate_governed_torque(
+    torque_Nm: np.ndarray,
+    omega_radps: np.ndarray,
+    inertia_kgm2: np.ndarray,
+    dt_s: float,
+    rate_limit_radps: np.ndarray,
+    torque_limit_Nm: np.ndarray,
+) -> np.ndarray:
+    """The torque nearest to ``torque_Nm`` (per body axis) whose predicted rate after ``dt_s`` is within the limit.
+
+    Euler's equation (Doerr Eq. 35b) over one held step predicts ``ω_i⁺ = ω_i + Δt (τ_i − g_i) / I_i`` with the
+    gyroscopic term ``g = ω × I ω``; ``|ω_i⁺| ≤ ω_max,i`` is the interval
+    ``τ_i ∈ [g_i + I_i (−ω_max,i − ω_i)/Δt, g_i + I_i (ω_max,i − ω_i)/Δt]``. The torque is clipped to that interval
+    intersected with the actuator limits; when the two do not meet (the rate is already too high to be brought
+    back in one step) the actuator limit nearest to the interval is used (full braking).
+
+    Parameters
+    ----------
+    torque_Nm : ndarray, shape (3,)
+        Torque asked for [N·m], body frame.
+    omega_radps : ndarray, shape (3,)
+        Current body rate [rad/s].
+    inertia_kgm2 : ndarray, shape (3,)
+        Principal inertias [kg·m²].
+    dt_s : float
+        Hold time of the torque [s].
+    rate_limit_radps, torque_limit_Nm : ndarray, shape (3,)
+        Per-axis rate [rad/s] and actuator torque [N·m] limits.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+    """
+    tau = np.asarray(torque_Nm, dtype=float)
+    w = np.asarray(omega_radps, dtype=float)
+    inertia = np.asarray(inertia_kgm2, dtype=float)
+    gyro = np.cross(w, inertia * w)
+    w_max = np.asarray(rate_limit_radps, dtype=float)
+    t_max = np.asarray(torque_limit_Nm, dtype=float)
+    lo = gyro + inertia * (-w_max - w) / dt_s
+    hi = gyro + inertia * (w_max - w) / dt_s
+    lo_c, hi_c = np.maximum(lo, -t_max), np.minimum(hi, t_max)
+    out = np.clip(tau, lo_c, hi_c)
+    empty = lo_c > hi_c
+    out[empty] = np.where(lo[empty] > t_max[empty], t_max[empty], -t_max[empty])
+    return out
 
 
 @dataclass(frozen=True)
@@ -139,11 +217,14 @@ class RattleRun:
     replans : tuple of ReplanRecord
     estimates : tuple of ParameterEstimate
         The estimator's output after each measurement.
+    governed_steps : int
+        Control steps whose torque the rate governor changed.
     """
 
     telemetry: Telemetry
     replans: tuple[ReplanRecord, ...]
     estimates: tuple[ParameterEstimate, ...]
+    governed_steps: int = 0
 
     @property
     def final_estimate(self) -> ParameterEstimate:
@@ -169,15 +250,49 @@ def run_rattle(
     disturbance: Disturbance,
     rng: np.random.Generator,
     progress: Callable[[float], None] | None = None,
+    rate_limit_radps: np.ndarray | None = None,
 ) -> RattleRun:
-    """Simulate RATTLE in closed loop from ``x0`` for ``duration_s`` (see :class:`RattleController`)."""
+    """Simulate RATTLE in closed loop from ``x0`` for ``duration_s`` (see :class:`RattleController`).
+
+    ``input_limits`` are the actuator's (the feedback may use what the plan leaves of them); ``rate_limit_radps``
+    turns the rate governor on.
+
+    Parameters
+    ----------
+    planner, estimator, weighting
+        As in :class:`RattleController`.
+    x0 : ndarray, shape (13,)
+        Initial state.
+    truth : InertialParams
+        The simulated plant.
+    duration_s : float
+    replan_period_s, control_period_s : float
+        As in :class:`RattleController`.
+    plant_period_s : float
+        Integration step of the plant [s].
+    input_limits : ndarray, shape (6,)
+    feedback_q, feedback_r : ndarray
+        As in :class:`RattleController`.
+    sensors : SensorNoise
+    disturbance : Disturbance
+    rng : numpy.random.Generator
+    progress : callable, optional
+        Called with the fraction done.
+    rate_limit_radps : ndarray, shape (3,), optional
+        Body-rate limit of the rate governor [rad/s]; no governor when omitted.
+
+    Returns
+    -------
+    RattleRun
+        Telemetry, replans and estimates.
+    """
     controller = RattleController(
         planner, estimator, weighting, replan_period_s=replan_period_s, control_period_s=control_period_s,
-        feedback_q=feedback_q, feedback_r=feedback_r, input_limits=input_limits,
+        feedback_q=feedback_q, feedback_r=feedback_r, input_limits=input_limits, rate_limit_radps=rate_limit_radps,
     )
     tel = simulate(
         controller, x0, truth, duration_s=duration_s, control_period_s=control_period_s,
         plant_period_s=plant_period_s, input_limits=input_limits, sensors=sensors, disturbance=disturbance,
         rng=rng, progress=progress,
     )
-    return RattleRun(tel, tuple(controller.replans), tuple(controller.estimates))
+    return RattleRun(tel, tuple(controller.replans), tuple(controller.estimates), controller.governed_steps)

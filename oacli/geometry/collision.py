@@ -67,19 +67,46 @@ class RobotBody:
 
     @classmethod
     def point(cls) -> RobotBody:
-        """A point robot (Doerr's ellipsoid-on-point check)."""
+        """A point robot (Doerr's ellipsoid-on-point check).
+
+        Returns
+        -------
+        RobotBody
+        """
         return cls(np.zeros((3, 3)))
 
     @classmethod
     def sphere(cls, radius_m: float) -> RobotBody:
-        """A sphere of radius ``radius_m`` [m] (0 gives a point)."""
+        """A sphere of radius ``radius_m`` [m] (0 gives a point).
+
+        Parameters
+        ----------
+        radius_m : float
+            Radius [m], >= 0.
+
+        Returns
+        -------
+        RobotBody
+        """
         if radius_m < 0:
             raise ValueError(f"robot radius must be >= 0, got {radius_m}")
         return cls(radius_m**2 * np.eye(3))
 
     @classmethod
     def ellipsoid(cls, semi_axes_m: np.ndarray, rotation: np.ndarray | None = None) -> RobotBody:
-        """An ellipsoid with semi-axes [m] along the columns of ``rotation`` (body axes in the world frame)."""
+        """An ellipsoid with semi-axes [m] along the columns of ``rotation`` (body axes in the world frame).
+
+        Parameters
+        ----------
+        semi_axes_m : ndarray, shape (3,)
+            Semi-axes [m], >= 0.
+        rotation : ndarray, shape (3, 3), optional
+            Body axes in the world frame (columns); identity by default.
+
+        Returns
+        -------
+        RobotBody
+        """
         a = np.asarray(semi_axes_m, dtype=float).reshape(3)
         if np.any(a < 0):
             raise ValueError(f"semi-axes must be >= 0, got {a}")
@@ -120,7 +147,17 @@ class Pieces:
 
     @classmethod
     def segments(cls, start: np.ndarray, end: np.ndarray) -> Pieces:
-        """Straight segments ``start[i] -> end[i]`` (unit duration, zero acceleration)."""
+        """Straight segments ``start[i] -> end[i]`` (unit duration, zero acceleration).
+
+        Parameters
+        ----------
+        start, end : ndarray, shape (M, 3)
+            End points [m] of each segment.
+
+        Returns
+        -------
+        Pieces
+        """
         a = np.atleast_2d(np.asarray(start, dtype=float))
         b = np.atleast_2d(np.asarray(end, dtype=float))
         return cls(a, b - a, np.zeros_like(a), np.ones(a.shape[0]))
@@ -129,7 +166,18 @@ class Pieces:
         return int(self.h.shape[0])
 
     def position(self, tau: np.ndarray) -> np.ndarray:
-        """Positions at times ``tau`` (M,) into each piece, shape (M, 3)."""
+        """Positions at times ``tau`` (M,) into each piece, shape (M, 3).
+
+        Parameters
+        ----------
+        tau : ndarray, shape (M,)
+            Time [s] into each piece, ``0 <= tau <= h``.
+
+        Returns
+        -------
+        ndarray, shape (M, 3)
+            Positions [m].
+        """
         t = np.asarray(tau, dtype=float)[:, None]
         return self.p0 + self.v0 * t + 0.5 * self.acc * t * t
 
@@ -244,6 +292,11 @@ def quartic_minimum_at_least_zero(coeffs: np.ndarray) -> tuple[np.ndarray, np.nd
     ``min b >= 0`` certifies ``f >= 0`` without finding roots; ``f(0) < 0`` or ``f(1) < 0`` (the first and last
     coefficients) disproves it. Only the rows left open go to :func:`quartic_minimum`.
 
+    Parameters
+    ----------
+    coeffs : ndarray, shape (K, 5)
+        ``c_0 .. c_4`` per row, as in :func:`quartic_minimum`.
+
     Returns
     -------
     nonnegative : ndarray of bool, shape (K,)
@@ -325,7 +378,18 @@ class CollisionChecker:
     # -- points --------------------------------------------------------------------------------------------
 
     def clearance_sq(self, points: np.ndarray) -> np.ndarray:
-        """``g*`` of every point against every keep-out zone, shape (..., n_obstacles); < 1 means overlap."""
+        """``g*`` of every point against every keep-out zone, shape (..., n_obstacles); < 1 means overlap.
+
+        Parameters
+        ----------
+        points : ndarray, shape (..., 3)
+            Robot centre positions [m].
+
+        Returns
+        -------
+        ndarray, shape (..., n_obstacles)
+            ``g*`` per keep-out zone (:mod:`oacli.geometry.overlap`).
+        """
         p = np.asarray(points, dtype=float)
         delta = p[..., None, :] - self._centers
         w2 = np.einsum("nij,...nj->...ni", self._transform, delta) ** 2
@@ -335,7 +399,17 @@ class CollisionChecker:
         return g
 
     def in_keep_in(self, points: np.ndarray) -> np.ndarray:
-        """True where the centre lies in the union of the keep-in boxes (always True without boxes)."""
+        """True where the centre lies in the union of the keep-in boxes (always True without boxes).
+
+        Parameters
+        ----------
+        points : ndarray, shape (..., 3)
+            Robot centre positions [m].
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+        """
         p = np.asarray(points, dtype=float)
         if self._lower.shape[0] == 0:
             return np.ones(p.shape[:-1], dtype=bool)
@@ -344,7 +418,17 @@ class CollisionChecker:
         return np.any(inside, axis=-1)
 
     def points_free(self, points: np.ndarray) -> np.ndarray:
-        """True where the robot, centred at each point, is inside the keep-in union and touches no keep-out."""
+        """True where the robot, centred at each point, is inside the keep-in union and touches no keep-out.
+
+        Parameters
+        ----------
+        points : ndarray, shape (..., 3)
+            Robot centre positions [m].
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+        """
         p = np.asarray(points, dtype=float)
         ok = self.in_keep_in(p)
         if self._centers.shape[0]:
@@ -352,7 +436,18 @@ class CollisionChecker:
         return ok
 
     def point_violations(self, point: np.ndarray) -> list[tuple[str, int]]:
-        """Every violated constraint of one position: ``("keep_in", -1)`` and/or ``("keep_out", j)``."""
+        """Every violated constraint of one position: ``("keep_in", -1)`` and/or ``("keep_out", j)``.
+
+        Parameters
+        ----------
+        point : ndarray, shape (3,)
+            Robot centre [m].
+
+        Returns
+        -------
+        list of (str, int)
+            Empty when the position is free.
+        """
         p = np.asarray(point, dtype=float).reshape(3)
         out: list[tuple[str, int]] = []
         if not self.in_keep_in(p):
@@ -369,6 +464,15 @@ class CollisionChecker:
 
         Same verdict as ``check(pieces).free``, faster when a sample point already collides: the start and end
         positions are tested first (an exact reject), the continuous check runs only when they are all free.
+
+        Parameters
+        ----------
+        pieces : Pieces
+            The trajectory's constant-acceleration pieces.
+
+        Returns
+        -------
+        bool
         """
         if len(pieces) == 0:
             return True
@@ -378,11 +482,32 @@ class CollisionChecker:
         return self.check(pieces).free
 
     def pieces_free(self, pieces: Pieces) -> np.ndarray:
-        """Per piece: True when the whole piece (continuous time) is collision-free, shape (M,)."""
+        """Per piece: True when the whole piece (continuous time) is collision-free, shape (M,).
+
+        Parameters
+        ----------
+        pieces : Pieces
+            The trajectory's constant-acceleration pieces.
+
+        Returns
+        -------
+        ndarray of bool, shape (M,)
+        """
         return self.check(pieces).piece_free
 
     def check(self, pieces: Pieces) -> CollisionReport:
-        """Check every piece in continuous time; see the module docstring."""
+        """Check every piece in continuous time; see the module docstring.
+
+        Parameters
+        ----------
+        pieces : Pieces
+            The trajectory's constant-acceleration pieces.
+
+        Returns
+        -------
+        CollisionReport
+            The verdict per piece and the first collision (kind, zone, time).
+        """
         m = len(pieces)
         free = np.ones(m, dtype=bool)
         if m == 0:

@@ -69,7 +69,17 @@ class KeepOutZone:
     metric: np.ndarray
 
     def support_m(self, normals: np.ndarray) -> np.ndarray:
-        """Support function of the grown zone, ``max_{p ∈ E ⊕ R} nᵀp`` [m], for unit normals ``(K, 3)``."""
+        """Support function of the grown zone, ``max_{p ∈ E ⊕ R} nᵀp`` [m].
+
+        Parameters
+        ----------
+        normals : ndarray, shape (K, 3)
+            Unit normals.
+
+        Returns
+        -------
+        ndarray, shape (K,)
+        """
         n = np.atleast_2d(normals)
         zone = np.sum((n @ self.sigma_zone) * n, axis=1)
         robot = np.sum((n @ self.sigma_robot) * n, axis=1)
@@ -77,7 +87,19 @@ class KeepOutZone:
 
 
 def keep_out_zone(ellipsoid: Ellipsoid, robot: RobotBody | None = None) -> KeepOutZone:
-    """``ellipsoid`` grown by ``robot`` (a point when omitted) with its metric (module docstring)."""
+    """A keep-out ellipsoid grown by the robot's body, with its metric (module docstring).
+
+    Parameters
+    ----------
+    ellipsoid : Ellipsoid
+        The keep-out zone (safety factor applied).
+    robot : RobotBody, optional
+        The robot's bounding ellipsoid (a point when omitted).
+
+    Returns
+    -------
+    KeepOutZone
+    """
     sigma_r = np.zeros((3, 3)) if robot is None else np.asarray(robot.sigma, dtype=float)
     sigma_o = np.linalg.inv(ellipsoid.shape)
     sigma_o = 0.5 * (sigma_o + sigma_o.T)
@@ -92,7 +114,18 @@ def keep_out_zone(ellipsoid: Ellipsoid, robot: RobotBody | None = None) -> KeepO
 
 
 def keep_out_zones(scene: Scene, robot: RobotBody | None = None) -> list[KeepOutZone]:
-    """Every keep-out zone of ``scene`` grown by ``robot`` (a point when omitted)."""
+    """Every keep-out zone of a scene grown by the robot's body.
+
+    Parameters
+    ----------
+    scene : Scene
+    robot : RobotBody, optional
+        The robot's bounding ellipsoid (a point when omitted).
+
+    Returns
+    -------
+    list of KeepOutZone
+    """
     return [keep_out_zone(e, robot) for e in scene.keep_out]
 
 
@@ -122,7 +155,19 @@ def supporting_halfspaces(
 
 
 def metric_directions(zone: KeepOutZone, points: np.ndarray) -> np.ndarray:
-    """``w = L (p − c)`` of each point ``(K, 3)``; +x of the normalised coordinates for a point on the centre."""
+    """Metric directions ``w = L (p − c)`` of points; +x of the normalised coordinates for a point on the centre.
+
+    Parameters
+    ----------
+    zone : KeepOutZone
+    points : ndarray, shape (K, 3)
+        Points [m].
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        Non-zero directions in the zone's normalised coordinates (not unit).
+    """
     w = (np.atleast_2d(points) - zone.center) @ zone.metric.T
     degenerate = np.sum(w * w, axis=1) <= _DEGENERATE**2
     if degenerate.any():
@@ -135,8 +180,23 @@ def point_halfspaces(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Supporting half-spaces of the grown zone along the metric direction of each point.
 
-    Returns ``(normal (K, 3), offset (K,), margin (K,))`` with ``margin = nᵀp − β`` [m]: >= 0 exactly when the
-    point satisfies its own half-space (it is at least μ outside the zone's outer ellipsoid along n).
+    Parameters
+    ----------
+    zone : KeepOutZone
+    points : ndarray, shape (K, 3)
+        Linearisation points [m].
+    clearance_m : float
+        μ [m] (see :func:`supporting_halfspaces`).
+
+    Returns
+    -------
+    normal : ndarray, shape (K, 3)
+        Unit normals.
+    offset : ndarray, shape (K,)
+        β [m].
+    margin : ndarray, shape (K,)
+        ``nᵀp − β`` [m]: >= 0 exactly when the point satisfies its own half-space (it is at least μ outside the
+        zone's outer ellipsoid along n).
     """
     p = np.atleast_2d(np.asarray(points, dtype=float))
     n, beta = supporting_halfspaces(zone, metric_directions(zone, p), clearance_m)
@@ -146,8 +206,14 @@ def point_halfspaces(
 def keep_in_pieces(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """Convex box pieces of the keep-in union: the boxes and their pairwise bridges (module docstring).
 
-    Returns ``(lower (B, 3), upper (B, 3))`` [m], the scene's boxes first, then the bridges that are not
-    contained in one of the two boxes.
+    Parameters
+    ----------
+    scene : Scene
+
+    Returns
+    -------
+    lower, upper : ndarray, shape (B, 3)
+        Corners [m]: the scene's boxes first, then the bridges that are not contained in one of their two boxes.
     """
     lower = [np.asarray(b.lower, dtype=float) for b in scene.keep_in]
     upper = [np.asarray(b.upper, dtype=float) for b in scene.keep_in]
@@ -173,9 +239,22 @@ def best_piece(lower: np.ndarray, upper: np.ndarray, *point_sets: np.ndarray,
                margin: np.ndarray | float = 0.0) -> np.ndarray:
     """Index of the box ``[lower[b], upper[b]]`` best holding the points ``point_sets[·][k]`` together, for each k.
 
-    Each point set has shape (K, 3); the score of a box for index k is the worst margin of the k-th points of
-    every set inside the box shrunk by ``margin`` (per axis) — the box with the largest score wins (it holds
-    them all, with the largest margin; or, when none does, it is the nearest in the L∞ sense). Returns (K,).
+    The score of a box for index k is the worst margin of the k-th points of every set inside the box shrunk by
+    ``margin`` (per axis) — the box with the largest score wins (it holds them all, with the largest margin; or,
+    when none does, it is the nearest in the L∞ sense).
+
+    Parameters
+    ----------
+    lower, upper : ndarray, shape (B, 3)
+        Box corners [m].
+    *point_sets : ndarray, shape (K, 3)
+        Points [m]; the k-th points of all sets are scored together.
+    margin : ndarray of shape (3,) or float
+        Inward margin of the boxes [m].
+
+    Returns
+    -------
+    ndarray of int, shape (K,)
     """
     lo = np.asarray(lower, dtype=float)[:, None, :] + margin  # (B, 1, 3)
     hi = np.asarray(upper, dtype=float)[:, None, :] - margin
@@ -184,7 +263,26 @@ def best_piece(lower: np.ndarray, upper: np.ndarray, *point_sets: np.ndarray,
 
 
 def best_box(scene: Scene, *point_sets: np.ndarray, margin: np.ndarray | float = 0.0) -> np.ndarray:
-    """:func:`best_piece` over the scene's keep-in boxes. Raises ValueError when the scene has none."""
+    """:func:`best_piece` over the scene's keep-in boxes.
+
+    Parameters
+    ----------
+    scene : Scene
+        Has at least one keep-in box.
+    *point_sets : ndarray, shape (K, 3)
+        Points [m]; the k-th points of all sets are scored together.
+    margin : ndarray of shape (3,) or float
+        Inward margin of the boxes [m].
+
+    Returns
+    -------
+    ndarray of int, shape (K,)
+
+    Raises
+    ------
+    ValueError
+        When the scene has no keep-in box.
+    """
     if not scene.keep_in:
         raise ValueError("the scene has no keep-in box")
     return best_piece(np.array([b.lower for b in scene.keep_in]), np.array([b.upper for b in scene.keep_in]),

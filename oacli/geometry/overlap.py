@@ -1,4 +1,4 @@
-"""Ellipsoid-on-ellipsoid overlap (ReSWARM, seed 001 §4.2.2) in the form of Gilitschenski & Hanebeck.
+"""Ellipsoid-on-ellipsoid overlap ([ReSWARM2023] §4.2.2) in the form of Gilitschenski & Hanebeck.
 
 Two ellipsoids ``E1 = {x : (x - c1)ᵀ Σ1⁻¹ (x - c1) <= 1}`` and ``E2 = {x : (x - c2)ᵀ Σ2⁻¹ (x - c2) <= 1}``
 (Σ1 positive definite, Σ2 positive semidefinite; Σ2 = 0 is a point) have overlapping interiors if and only if
@@ -58,7 +58,21 @@ class EllipsoidPair:
 
     @classmethod
     def build(cls, center: np.ndarray, sigma_static: np.ndarray, sigma_robot: np.ndarray) -> EllipsoidPair:
-        """Pair of a static ellipsoid ``Σ1`` (= P⁻¹ of a keep-out zone) centred at ``center`` and a robot ``Σ2``."""
+        """Pair of a static ellipsoid ``Σ1`` (= P⁻¹ of a keep-out zone) centred at ``center`` and a robot ``Σ2``.
+
+        Parameters
+        ----------
+        center : ndarray, shape (3,)
+            Centre of the static ellipsoid [m].
+        sigma_static : ndarray, shape (3, 3)
+            Σ1, positive definite.
+        sigma_robot : ndarray, shape (3, 3)
+            Σ2, positive semidefinite (0 for a point robot).
+
+        Returns
+        -------
+        EllipsoidPair
+        """
         chol = np.linalg.cholesky(np.asarray(sigma_static, dtype=float))
         l_inv = np.linalg.inv(chol)
         sigma_robot = np.asarray(sigma_robot, dtype=float)
@@ -72,14 +86,34 @@ class EllipsoidPair:
         return cls(np.asarray(center, dtype=float).reshape(3), vec.T @ l_inv, lam, point)
 
     def weights(self, s: np.ndarray | float) -> np.ndarray:
-        """``d_i(s) = s (1 - s) / (s + λ_i (1 - s))``, shape (..., 3); ``M(s) = Tᵀ diag(d(s)) T``."""
+        """``d_i(s) = s (1 - s) / (s + λ_i (1 - s))``, shape (..., 3); ``M(s) = Tᵀ diag(d(s)) T``.
+
+        Parameters
+        ----------
+        s : float or ndarray, shape (...)
+            Family parameter in (0, 1).
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+        """
         s = np.asarray(s, dtype=float)[..., None]
         if self.point_robot:
             return np.broadcast_to(np.ones(3), (*s.shape[:-1], 3)).copy()
         return s * (1.0 - s) / (s + self.eigenvalues * (1.0 - s))
 
     def shape_matrix(self, s: np.ndarray | float) -> np.ndarray:
-        """``M(s)`` of the outer ellipsoid ``E_s`` of the Minkowski sum, shape (..., 3, 3)."""
+        """``M(s)`` of the outer ellipsoid ``E_s`` of the Minkowski sum, shape (..., 3, 3).
+
+        Parameters
+        ----------
+        s : float or ndarray, shape (...)
+            Family parameter in (0, 1).
+
+        Returns
+        -------
+        ndarray, shape (..., 3, 3)
+        """
         d = self.weights(s)
         return np.einsum("ai,...a,aj->...ij", self.transform, d, self.transform)
 
@@ -87,6 +121,18 @@ class EllipsoidPair:
         """``g*(δ)`` and its maximiser ``s*`` for offsets ``δ = p - c`` of shape (..., 3).
 
         ``g* >= 1``: separated or touching; ``g* < 1``: the interiors overlap. ``s*`` is 0 for a point robot.
+
+        Parameters
+        ----------
+        delta : ndarray, shape (..., 3)
+            Offsets ``p - c`` [m].
+
+        Returns
+        -------
+        g : ndarray, shape (...)
+            ``g*(δ)``.
+        s : ndarray, shape (...)
+            ``s*``.
         """
         w2 = np.einsum("ij,...j->...i", self.transform, np.asarray(delta, dtype=float)) ** 2
         if self.point_robot:
@@ -105,6 +151,20 @@ def max_clearance_sq(w2: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, np.nd
     Safeguarded Newton on ``g'(s) = Σ w_i² (λ_i - 2λ_i s - (1-λ_i) s²)/D_i²`` with ``g''(s) = -2 Σ w_i² λ_i/D_i³``
     (< 0: strictly concave for λ > 0), keeping a bracket ``g'(lo) > 0 > g'(hi)`` and bisecting whenever a Newton
     step would leave it. Vectorised over the leading axes of ``w2`` (λ broadcasts against ``w2``).
+
+    Parameters
+    ----------
+    w2 : ndarray, shape (..., 3)
+        ``w_i²``, the squared offset in the pair's reduced coordinates (:meth:`EllipsoidPair.clearance_sq`).
+    lam : ndarray, shape (3,) or broadcastable to ``w2``
+        Generalised eigenvalues ``λ_i`` of the pair (floored at a small positive value).
+
+    Returns
+    -------
+    g : ndarray, shape (...)
+        ``max_s g(s)``.
+    s : ndarray, shape (...)
+        The maximiser in (0, 1).
     """
     lam = np.broadcast_to(np.clip(lam, _LAMBDA_FLOOR, None), w2.shape)
     shape = w2.shape[:-1]
@@ -133,7 +193,21 @@ def max_clearance_sq(w2: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, np.nd
 def ellipsoids_overlap(
     center1: np.ndarray, sigma1: np.ndarray, center2: np.ndarray, sigma2: np.ndarray
 ) -> bool:
-    """True when the interiors of two ellipsoids ``(x - c)ᵀ Σ⁻¹ (x - c) < 1`` overlap (Σ1 definite, Σ2 >= 0)."""
+    """True when the interiors of two ellipsoids ``(x - c)ᵀ Σ⁻¹ (x - c) < 1`` overlap (Σ1 definite, Σ2 >= 0).
+
+    Parameters
+    ----------
+    center1 : ndarray, shape (3,)
+    sigma1 : ndarray, shape (3, 3)
+        Σ1, positive definite.
+    center2 : ndarray, shape (3,)
+    sigma2 : ndarray, shape (3, 3)
+        Σ2, positive semidefinite (0 for a point).
+
+    Returns
+    -------
+    bool
+    """
     pair = EllipsoidPair.build(center1, sigma1, sigma2)
     g, _ = pair.clearance_sq(np.asarray(center2, dtype=float) - pair.center)
     return bool(g < 1.0)

@@ -35,7 +35,19 @@ class Box:
         return self.upper - self.lower
 
     def contains(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
-        """True for each point (shape (..., 3)) inside the box shrunk by ``margin_m`` on every face."""
+        """True for each point (shape (..., 3)) inside the box shrunk by ``margin_m`` on every face.
+
+        Parameters
+        ----------
+        points : ndarray, shape (..., 3)
+            Positions [m].
+        margin_m : float, optional
+            Inward margin [m] on every face.
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+        """
         p = np.asarray(points, dtype=float)
         return np.all((p >= self.lower + margin_m) & (p <= self.upper - margin_m), axis=-1)
 
@@ -71,24 +83,65 @@ class Ellipsoid:
     def from_semi_axes(
         cls, center: np.ndarray, semi_axes_m: np.ndarray, rotation: np.ndarray | None = None
     ) -> Ellipsoid:
-        """Build from semi-axes a [m] along the columns of ``rotation`` (identity by default)."""
+        """Build from semi-axes a [m] along the columns of ``rotation`` (identity by default).
+
+        Parameters
+        ----------
+        center : ndarray, shape (3,)
+            Centre [m].
+        semi_axes_m : ndarray, shape (3,)
+            Semi-axes [m], > 0.
+        rotation : ndarray, shape (3, 3), optional
+            Principal axes (columns) in the world frame.
+
+        Returns
+        -------
+        Ellipsoid
+        """
         a = np.asarray(semi_axes_m, dtype=float).reshape(3)
         r = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float).reshape(3, 3)
         return cls(center, r @ np.diag(1.0 / a**2) @ r.T)
 
     def principal_axes(self) -> tuple[np.ndarray, np.ndarray]:
-        """Return ``(semi_axes_m (3,), rotation (3, 3))`` with ``shape = R diag(1/a²) Rᵀ`` and det R = +1."""
+        """Semi-axes and principal directions, with ``shape = R diag(1/a²) Rᵀ`` and det R = +1.
+
+        Returns
+        -------
+        semi_axes_m : ndarray, shape (3,)
+        rotation : ndarray, shape (3, 3)
+            ``R``, the principal directions as columns.
+        """
         eigval, eigvec = np.linalg.eigh(self.shape)
         if np.linalg.det(eigvec) < 0:
             eigvec[:, 2] *= -1.0
         return 1.0 / np.sqrt(eigval), eigvec
 
     def inflated(self, factor: float) -> Ellipsoid:
-        """The ellipsoid with every semi-axis multiplied by ``factor`` (a safety factor, Doerr Eq. 12)."""
+        """The ellipsoid with every semi-axis multiplied by ``factor`` (a safety factor, Doerr Eq. 12).
+
+        Parameters
+        ----------
+        factor : float
+            Scale factor of the semi-axes, > 0.
+
+        Returns
+        -------
+        Ellipsoid
+        """
         return Ellipsoid(self.center, self.shape / factor**2)
 
     def contains(self, points: np.ndarray) -> np.ndarray:
-        """True for each point (shape (..., 3)) strictly inside the keep-out zone."""
+        """True for each point (shape (..., 3)) strictly inside the keep-out zone.
+
+        Parameters
+        ----------
+        points : ndarray, shape (..., 3)
+            Positions [m].
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+        """
         d = np.asarray(points, dtype=float) - self.center
         return np.einsum("...i,ij,...j->...", d, self.shape, d) < 1.0
 
@@ -102,14 +155,36 @@ class Scene:
     frame: str = "world"
 
     def in_keep_in(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
-        """True where a point lies in at least one keep-in box (always True when there is none)."""
+        """True where a point lies in at least one keep-in box (always True when there is none).
+
+        Parameters
+        ----------
+        points : ndarray, shape (..., 3)
+            Positions [m].
+        margin_m : float, optional
+            Inward margin [m] of every box.
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+        """
         p = np.asarray(points, dtype=float)
         if not self.keep_in:
             return np.ones(p.shape[:-1], dtype=bool)
         return np.any([b.contains(p, margin_m) for b in self.keep_in], axis=0)
 
     def in_keep_out(self, points: np.ndarray) -> np.ndarray:
-        """True where a point lies inside at least one keep-out ellipsoid."""
+        """True where a point lies inside at least one keep-out ellipsoid.
+
+        Parameters
+        ----------
+        points : ndarray, shape (..., 3)
+            Positions [m].
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+        """
         p = np.asarray(points, dtype=float)
         if not self.keep_out:
             return np.zeros(p.shape[:-1], dtype=bool)

@@ -5,8 +5,9 @@ positions are at most ``spacing_m`` apart (5 mm by default), every position is e
 model ``r(τ) = r_k + v_k τ + ½ (f_k/m) τ²`` directly, and each sample is tested
 
 * against each keep-out ellipsoid by its Euclidean distance, computed by Eberly's method (the closest point of an
-  ellipsoid with semi-axes ``a`` to ``y`` is ``x_i = a_i² y_i / (t + a_i²)`` where ``t >= 0`` is the root of
-  ``Σ (a_i y_i / (t + a_i²))² = 1``, found by bisection), which must be at least the robot's radius; and
+  ellipsoid with semi-axes ``a`` to ``y`` is ``x_i = a_i² y_i / (t + a_i²)`` where ``t`` is the root of
+  ``Σ (a_i y_i / (t + a_i²))² = 1``, found by bisection; inside, the same gives the penetration depth), which
+  must be at least the robot's radius; and
 * against the keep-in boxes (the centre must lie in one of them).
 
 Sampling can still miss an excursion shorter than the spacing; it is a cross-check, not a proof.
@@ -25,7 +26,15 @@ _BISECTIONS = 200
 
 def point_ellipsoid_distance(points: np.ndarray, center: np.ndarray, semi_axes_m: np.ndarray,
                              rotation: np.ndarray) -> np.ndarray:
-    """Euclidean distance [m] from points (..., 3) to an ellipsoid's surface; negative inside (depth bound).
+    """Signed Euclidean distance [m] from points (..., 3) to an ellipsoid's surface: > 0 outside, < 0 inside.
+
+    Eberly's method ("Distance from a point to an ellipse, an ellipsoid, or a hyperellipsoid", 2013): in the
+    principal frame, with the point folded into the first octant ``y >= 0``, the closest surface point is
+    ``x_i = a_i² y_i / (t + a_i²)`` where ``t`` is the unique root in ``(−a_min², ∞)`` of
+    ``F(t) = Σ (a_i y_i / (t + a_i²))² − 1`` (``t > 0`` outside, ``t < 0`` inside). The root is bisected in
+    ``s = t + a_min² > 0``, so the denominators ``s + (a_i² − a_min²)`` carry no cancellation near the pole.
+    A coordinate that is zero along the shortest axis (the degenerate case, e.g. the centre) is raised to
+    ``1e-12 · a_max``: the distance is 1-Lipschitz in the point, so the result moves by at most ``√3 · 1e-12 a_max``.
 
     Parameters
     ----------
@@ -38,25 +47,27 @@ def point_ellipsoid_distance(points: np.ndarray, center: np.ndarray, semi_axes_m
     Returns
     -------
     ndarray, shape (...,)
-        The distance for points outside; for points inside, minus the distance to the surface along the
-        smallest-scaled direction (a lower bound of the true depth, enough to flag a collision).
+        The distance to the surface for points outside, minus the distance to the surface (the penetration
+        depth) for points inside.
     """
     a = np.asarray(semi_axes_m, dtype=float)
     y = np.abs(np.einsum("ji,...j->...i", rotation, np.asarray(points, dtype=float) - center))
-    level = np.sum((y / a) ** 2, axis=-1)
-    inside = level < 1.0
+    inside = np.sum((y / a) ** 2, axis=-1) < 1.0
+    y = np.maximum(y, 1e-12 * np.max(a))
+    a2 = a * a
+    a2_min = float(np.min(a2))
+    offset = a2 - a2_min  # t + a_i² = s + offset_i
     lo = np.zeros(y.shape[:-1])
-    hi = np.max(a) * np.linalg.norm(y, axis=-1) + 1e-300
+    hi = a2_min + np.max(a) * np.linalg.norm(y, axis=-1)  # F <= 0 there: t + a_i² >= a_max |y| >= a_i |y|
     for _ in range(_BISECTIONS):
         mid = 0.5 * (lo + hi)
-        f = np.sum((a * y / (mid[..., None] + a * a)) ** 2, axis=-1) - 1.0
+        f = np.sum((a * y / (mid[..., None] + offset)) ** 2, axis=-1) - 1.0
         lo = np.where(f > 0.0, mid, lo)
         hi = np.where(f > 0.0, hi, mid)
-    t = 0.5 * (lo + hi)
-    closest = a * a * y / (t[..., None] + a * a)
+    s = 0.5 * (lo + hi)
+    closest = a2 * y / (s[..., None] + offset)
     dist = np.linalg.norm(y - closest, axis=-1)
-    depth = (1.0 - np.sqrt(level)) * np.min(a)
-    return np.where(inside, -depth, dist)
+    return np.where(inside, -dist, dist)
 
 
 @dataclass(frozen=True)
@@ -101,6 +112,13 @@ def dense_positions(t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: fl
         Held world-frame force [N].
     mass_kg : float
     spacing_m : float
+
+    Returns
+    -------
+    times : ndarray, shape (k,)
+        Sample times [s], starting at ``t[0]``.
+    positions : ndarray, shape (k, 3)
+        Positions [m] at those times.
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
@@ -122,7 +140,21 @@ def dense_check(
     t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: float, scene: Scene, robot_radius_m: float,
     spacing_m: float = 0.005,
 ) -> DenseCheck:
-    """Re-check a zero-order-hold trajectory every ``spacing_m`` against ``scene`` (module docstring)."""
+    """Re-check a zero-order-hold trajectory every ``spacing_m`` against ``scene`` (module docstring).
+
+    Parameters
+    ----------
+    t, x, force, mass_kg, spacing_m
+        The trajectory and sampling, as in :func:`dense_positions`.
+    scene : Scene
+        Keep-in boxes and keep-out ellipsoids.
+    robot_radius_m : float
+        The robot's radius [m] (its centre must stay this far from every keep-out zone).
+
+    Returns
+    -------
+    DenseCheck
+    """
     times, pts = dense_positions(t, x, force, mass_kg, spacing_m)
     spacing = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).max()) if len(pts) > 1 else 0.0
     bad_in = ~scene.in_keep_in(pts)

@@ -108,7 +108,7 @@ def _timestamp(ns: int) -> Timestamp:
     return Timestamp(ns // _NS_PER_S, ns % _NS_PER_S)
 
 
-def _pose(position: Sequence[float], quat_xyzw: Sequence[float]) -> Pose:
+def _pose(position: Sequence[float] | np.ndarray, quat_xyzw: Sequence[float] | np.ndarray) -> Pose:
     x, y, z = (float(v) for v in position)
     qx, qy, qz, qw = (float(v) for v in quat_xyzw)
     return Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
@@ -119,7 +119,7 @@ def _color(rgba: Sequence[float]) -> Color:
     return Color(r=r, g=g, b=b, a=a)
 
 
-def _vec3(v: Sequence[float]) -> Vector3:
+def _vec3(v: Sequence[float] | np.ndarray) -> Vector3:
     x, y, z = (float(c) for c in v)
     return Vector3(x=x, y=y, z=z)
 

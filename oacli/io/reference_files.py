@@ -1,6 +1,6 @@
 """Load reference trajectories from files: RATTLE/ReSWARM result folders, 19-row CSVs, oacli MCAPs.
 
-Formats (see ../shared/data/rattle-iros-2022/SOURCE.md for the public data these follow):
+Formats (those of the public data of [RattleData], docs/references.md):
 
 * a folder of ``results_{pos,vel,ori,ome}_0.dat`` (optionally ``results_input_0.dat``): whitespace-separated
   columns, first column time [s], then position [m], velocity [m/s], quaternion [x, y, z, w], angular velocity

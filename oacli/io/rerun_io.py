@@ -226,7 +226,7 @@ class StageRecording:
         *,
         keep_in_color: Sequence[int] = KEEP_IN_COLOR,
         keep_out_color: Sequence[int] = KEEP_OUT_COLOR,
-        view_coordinates: rr.ViewCoordinates | None = rr.ViewCoordinates.RIGHT_HAND_Z_DOWN,
+        view_coordinates: rr.components.ViewCoordinates | None = rr.ViewCoordinates.RIGHT_HAND_Z_DOWN,
     ) -> None:
         """Log the workspace statically: keep-in boxes under ``world/keep_in``, keep-out zones under ``world/keep_out``.
 
@@ -236,7 +236,7 @@ class StageRecording:
             Keep-in boxes [m] and keep-out ellipsoids.
         keep_in_color, keep_out_color : sequence of int
             RGBA (0-255); both are drawn as a translucent fill with a wireframe.
-        view_coordinates : rerun.ViewCoordinates or None
+        view_coordinates : rerun.components.ViewCoordinates or None
             Axis convention logged on ``world``. The default, right-handed with +z down, is the ISS analysis
             frame Astrobee uses (+x forward, +y starboard, +z deck). ``None`` logs none.
 

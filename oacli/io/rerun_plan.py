@@ -77,7 +77,7 @@ def _log_motion(rec: StageRecording, t: np.ndarray, x: np.ndarray, u: np.ndarray
     rec.log_trajectory_over_time(ROBOT, t, x)
     if start_on_iteration:  # show the robot at the start on the iteration timeline too
         _sequence(rec, ITERATION, 0)
-        rec.stream.log(ROBOT, rr.Transform3D(translation=x[0, 0:3], quaternion=x[0, 6:10]))
+        rec.stream.log(ROBOT, rr.Transform3D(translation=x[0, 0:3], quaternion=x[0, 6:10]))  # type: ignore[arg-type]
         rec.stream.reset_time()
     rec.log_series(FORCE, t, u[:, 0:3], AXIS_NAMES, limits=np.asarray(force_limit_N, dtype=float))
     rec.log_series(VELOCITY, t, x[:, 3:6], AXIS_NAMES, limits=np.asarray(velocity_limit_mps, dtype=float))
@@ -168,7 +168,7 @@ def write_plan_recording(
         child = np.flatnonzero(parent >= 0)
         segs = np.stack([pos[parent[child]], pos[child]], axis=1) if child.size else np.zeros((0, 2, 3))
         _sequence(rec, ITERATION, iteration)
-        rec.stream.log(PLAN_GROWTH, rr.LineStrips3D(segs, colors=[GROWTH_COLOR], radii=[0.002]))
+        rec.stream.log(PLAN_GROWTH, rr.LineStrips3D(segs, colors=[GROWTH_COLOR], radii=[0.002]))  # type: ignore[arg-type]
         path_pts = pos[np.asarray(best, dtype=int)] if len(best) >= 2 else np.zeros((0, 3))
         rec.stream.log(PLAN_GROWTH_PATH, rr.LineStrips3D([path_pts] if len(path_pts) else [],
                                                          colors=[PATH_COLOR], radii=[0.006]))

@@ -7,10 +7,14 @@ Entities (added to the track recording of :func:`oacli.io.rerun_io.write_track_r
 * ``world/tube`` — the tube ``z ⊕ Z`` along the nominal path: one box per control step, centred on the nominal
   position, spanning the projection of Z on position (exact: Z is a product over the world axes);
 * ``metrics/tube/force_nominal_N`` and ``metrics/tube/force_ancillary_N`` — nominal ``v`` and ancillary
-  ``K (x̃ − z)`` force per axis (seed 001, Fig. 24), each with ± the tightened bound ``Ū`` (nominal) or
+  ``K (x̃ − z)`` force per axis ([ReSWARM2023] Fig. 24), each with ± the tightened bound ``Ū`` (nominal) or
   ``max |K Z|`` (ancillary) as limits;
 * ``metrics/tube/nominal_velocity_mps`` — nominal velocity against the tightened velocity bound ``X̄``;
-* ``metrics/tube/tube_margin`` — ``min_i (h_i − H_i (x̃ − ẑ))`` (≥ 0: inside the promised tube).
+* ``metrics/tube/tube_margin`` — ``min_i (h_i − H_i (x̃ − ẑ))`` (≥ 0: inside the promised tube);
+* ``metrics/tube/disturbance_position_m`` and ``metrics/tube/disturbance_velocity_mps`` — the realised one-step
+  disturbance ``w`` per axis (:mod:`oacli.control.tube_monitor`) against ± W's half-widths in use at each step
+  (children ``limit_upper`` / ``limit_lower``, changing when the tube is redesigned), and
+  ``metrics/tube/w_violation`` (1 where w left W).
 """
 
 from __future__ import annotations
@@ -39,6 +43,9 @@ FORCE_NOMINAL = "metrics/tube/force_nominal_N"
 FORCE_ANCILLARY = "metrics/tube/force_ancillary_N"
 NOMINAL_VELOCITY = "metrics/tube/nominal_velocity_mps"
 TUBE_MARGIN = "metrics/tube/tube_margin"
+DISTURBANCE_POSITION = "metrics/tube/disturbance_position_m"
+DISTURBANCE_VELOCITY = "metrics/tube/disturbance_velocity_mps"
+W_VIOLATION = "metrics/tube/w_violation"
 
 NOMINAL_COLOR = (60, 200, 200, 255)
 TUBE_COLOR = (60, 200, 200, 70)
@@ -70,8 +77,8 @@ def log_tube_layers(
         [N].
     tube_margin : ndarray, shape (K,)
         Tube margin per step (NaN where undefined).
-    z_position_extent : ndarray, shape (3, 2)
-        ``[−min, max]`` of Z's position projection per axis [m].
+    z_position_extent : ndarray, shape (3, 2) or (K, 3, 2)
+        ``[−min, max]`` of Z's position projection per axis [m], for every step or per step (after a redesign).
     tightened_force_N, ancillary_force_max_N, tightened_velocity_mps : ndarray, shape (3,)
         Symmetric bounds plotted as ± limits.
     """
@@ -79,7 +86,9 @@ def log_tube_layers(
     ext = np.asarray(z_position_extent, dtype=float)
     rec.log_path(NOMINAL, z[:, 0:3], color=NOMINAL_COLOR)
     rec.log_positions_over_time(f"{NOMINAL}/centre", t_ctrl, z[:, 0:3], color=NOMINAL_COLOR, radius_m=0.01)
-    lower, upper = z[:, 0:3] - ext[:, 0], z[:, 0:3] + ext[:, 1]
+    if ext.ndim == 2:
+        ext = np.broadcast_to(ext, (z.shape[0], 3, 2))
+    lower, upper = z[:, 0:3] - ext[:, :, 0], z[:, 0:3] + ext[:, :, 1]
     rec.stream.log(
         TUBE,
         rr.Boxes3D(
@@ -95,6 +104,29 @@ def log_tube_layers(
     rec.log_series(FORCE_ANCILLARY, t_ctrl, ancillary_force, AXIS_NAMES, limits=ancillary_force_max_N)
     rec.log_series(NOMINAL_VELOCITY, t_ctrl, z[:, 3:6], AXIS_NAMES, limits=tightened_velocity_mps)
     rec.log_series(TUBE_MARGIN, t_ctrl, tube_margin, ["tube margin"])
+
+
+def log_disturbance_layers(
+    rec: StageRecording, *, t_ctrl: np.ndarray, w: np.ndarray, w_half_widths: np.ndarray, violated: np.ndarray
+) -> None:
+    """Log the realised disturbance against W (see the module docstring).
+
+    Parameters
+    ----------
+    rec : StageRecording
+    t_ctrl : ndarray, shape (K,)
+        Controller times [s].
+    w : ndarray, shape (K, 3, 2)
+        Measured one-step disturbance per axis ``[position m, velocity m/s]`` (NaN where not measured).
+    w_half_widths : ndarray, shape (K, 3, 2)
+        W's half-widths in use at each step.
+    violated : ndarray of bool, shape (K,)
+    """
+    for entity, j in ((DISTURBANCE_POSITION, 0), (DISTURBANCE_VELOCITY, 1)):
+        rec.log_series(entity, t_ctrl, w[:, :, j], AXIS_NAMES)
+        rec.log_series(f"{entity}/limit_upper", t_ctrl, w_half_widths[:, :, j], AXIS_NAMES, width=0.75)
+        rec.log_series(f"{entity}/limit_lower", t_ctrl, -w_half_widths[:, :, j], AXIS_NAMES, width=0.75)
+    rec.log_series(W_VIOLATION, t_ctrl, np.asarray(violated, dtype=float), ["w outside W"])
 
 
 def tube_track_blueprint() -> rrb.Blueprint:
@@ -116,6 +148,9 @@ def tube_track_blueprint() -> rrb.Blueprint:
         time_series_view(FORCE_ANCILLARY, "Ancillary force K(x - z) [N]" + note + " (max over Z)", legend=False),
         time_series_view(NOMINAL_VELOCITY, "Nominal velocity [m/s]" + note + " (tightened X)", legend=False),
         time_series_view(TUBE_MARGIN, "Tube margin (>= 0: inside the tube z + Z)"),
+        time_series_view(DISTURBANCE_POSITION, "Realised disturbance w, position [m]" + note + " (W)", legend=False),
+        time_series_view(DISTURBANCE_VELOCITY, "Realised disturbance w, velocity [m/s]" + note + " (W)",
+                         legend=False),
         name="Tube",
     )
     return rrb.Blueprint(

@@ -1,9 +1,13 @@
 """Run folders: ``runs/<name>-<UTC timestamp>/`` holding the resolved config, one MCAP + one Rerun recording
 per stage, and ``summary.json``.
 
-A run folder is *complete* when its ``summary.json`` exists with ``"status": "ok"``; ``summary.json`` is written
-last, atomically. A run that fails after its folder was created gets a ``summary.json`` with
-``"status": "failed"`` and the error, so it never looks complete. Existing folders are never overwritten.
+``summary.json`` is written last, atomically. A run folder is *complete* when its ``summary.json`` exists with a
+status of :data:`oacli.status.COMPLETE_STATUSES` — ``ok``, ``degraded``, ``unsafe`` or ``no_solution``: the stage
+ran to its end and wrote every file it lists under ``files``; the status then says how the run went (see
+:mod:`oacli.status`; ``degraded`` and ``unsafe`` runs are complete records of a run that went wrong, kept for
+review). A run stopped after its folder was created gets a ``summary.json`` with ``"status": "interrupted"``
+(Ctrl-C) or ``"status": "failed"`` and the error, so it never looks complete (:func:`is_complete`). Existing folders
+are never overwritten.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import oacli
 from oacli.errors import InputError
 from oacli.io.atomic import write_text_atomic
 from oacli.io.jsonsafe import to_json_safe
+from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED
 
 
 def utc_stamp(now: _dt.datetime | None = None) -> str:
@@ -140,15 +145,31 @@ def open_stage_run(
 ) -> Iterator[StageRun]:
     """Create a run folder, write the resolved ``config.yaml`` first, and yield a :class:`StageRun`.
 
-    If the block raises (or is interrupted), ``summary.json`` records ``"status": "failed"`` and the error before
-    the exception propagates, so a failed run never looks complete. ``started`` (a ``time.perf_counter()``
-    value) is when the stage began, for ``wall_time_s``; the folder's creation by default.
+    If the block raises, ``summary.json`` records ``"status": "interrupted"`` (KeyboardInterrupt) or
+    ``"status": "failed"`` and the error before the exception propagates, so such a run never looks complete.
+    ``started`` (a ``time.perf_counter()`` value) is when the stage began, for ``wall_time_s``; the folder's
+    creation by default.
     """
     run = StageRun(stage, create_run_dir(name, out=out, runs_root=runs_root), started)
     write_text_atomic(run.file("config", "config.yaml"), config_yaml)
     try:
         yield run
     except BaseException as exc:
-        reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        write_summary(run.run_dir, {"stage": stage, "status": "failed", "error": reason})
+        if isinstance(exc, KeyboardInterrupt):
+            status, reason = INTERRUPTED, "interrupted by the user (KeyboardInterrupt)"
+        else:
+            status, reason = FAILED, f"{type(exc).__name__}: {exc}"
+        write_summary(run.run_dir, {"stage": stage, "status": status, "error": reason,
+                                    "wall_time_s": time.perf_counter() - run._start,
+                                    "files": {k: p.name for k, p in run.files.items() if p.exists()}})
         raise
+
+
+def is_complete(run_dir: Path) -> bool:
+    """True when ``run_dir/summary.json`` exists, parses and has a complete status (module docstring)."""
+    path = Path(run_dir) / "summary.json"
+    try:
+        status = json.loads(path.read_text()).get("status")
+    except (OSError, ValueError, AttributeError):
+        return False
+    return status in COMPLETE_STATUSES

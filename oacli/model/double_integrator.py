@@ -18,7 +18,20 @@ ERROR_STATE_DIM = 12  # [r (3), v (3), φ (3), ω (3)]
 
 
 def double_integrator(dt: float, gain: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Exact ZOH discretisation of ``ẍ = gain·u`` for one axis: ``(A (2, 2), B (2, 1))``."""
+    """Exact ZOH discretisation of ``ẍ = gain·u`` for one axis.
+
+    Parameters
+    ----------
+    dt : float
+        Step [s].
+    gain : float, optional
+        Input gain (``1/m`` for a force input).
+
+    Returns
+    -------
+    a : ndarray, shape (2, 2)
+    b : ndarray, shape (2, 1)
+    """
     a = np.array([[1.0, dt], [0.0, 1.0]])
     b = np.array([[0.5 * dt * dt * gain], [dt * gain]])
     return a, b
@@ -27,7 +40,17 @@ def double_integrator(dt: float, gain: float = 1.0) -> tuple[np.ndarray, np.ndar
 def translational_model(mass_kg: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact discrete translational model, state ``[r (3), v (3)]``, input ``f (3)`` (world frame).
 
-    Returns ``(A (6, 6), B (6, 3))``.
+    Parameters
+    ----------
+    mass_kg : float
+        Mass [kg].
+    dt : float
+        Step [s].
+
+    Returns
+    -------
+    a : ndarray, shape (6, 6)
+    b : ndarray, shape (6, 3)
     """
     eye = np.eye(3)
     a = np.block([[eye, dt * eye], [np.zeros((3, 3)), eye]])

@@ -19,6 +19,8 @@ gives the LTV matrices ``A_k = ∂x_{k+1}/∂x_k``, ``B_k = ∂x_{k+1}/∂u_k`` 
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from oacli.model import quaternion as quat
@@ -28,7 +30,16 @@ N_PARAMS = 4  # θ = [m, Ixx, Iyy, Izz]
 
 
 def theta_of(params: InertialParams) -> np.ndarray:
-    """θ = [m, Ixx, Iyy, Izz] as an array."""
+    """θ = [m, Ixx, Iyy, Izz] as an array.
+
+    Parameters
+    ----------
+    params : InertialParams
+
+    Returns
+    -------
+    ndarray, shape (4,)
+    """
     return np.concatenate([[params.mass_kg], params.inertia_kgm2])
 
 
@@ -71,7 +82,26 @@ def dynamics(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
 def dynamics_jacobians(
     x: np.ndarray, u: np.ndarray, theta: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Analytic Jacobians of :func:`dynamics`: ``(∂f/∂x (13, 13), ∂f/∂u (13, 6), ∂f/∂θ (13, 4))``."""
+    """Analytic Jacobians of :func:`dynamics`.
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+        State ``[r, v, q, ω]``.
+    u : ndarray, shape (6,)
+        Input ``[f (world frame) [N], τ (body frame) [N·m]]``.
+    theta : ndarray, shape (4,)
+        θ = [m [kg], Ixx, Iyy, Izz [kg·m²]].
+
+    Returns
+    -------
+    fx : ndarray, shape (13, 13)
+        ``∂f/∂x``.
+    fu : ndarray, shape (13, 6)
+        ``∂f/∂u``.
+    ft : ndarray, shape (13, 4)
+        ``∂f/∂θ``.
+    """
     m = theta[0]
     ix, iy, iz = theta[1:4]
     q = x[6:10]
@@ -102,16 +132,50 @@ def dynamics_jacobians(
 
 
 def rk4_step(x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float) -> np.ndarray:
-    """One RK4 step of length ``dt`` [s] with ``u`` held (zero-order hold); the quaternion is not renormalised."""
+    """One RK4 step of length ``dt`` [s] with ``u`` held (zero-order hold); the quaternion is not renormalised.
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+        State ``[r, v, q, ω]``.
+    u : ndarray, shape (6,)
+        Input ``[f (world frame) [N], τ (body frame) [N·m]]``.
+    theta : ndarray, shape (4,)
+        θ = [m [kg], Ixx, Iyy, Izz [kg·m²]].
+    dt : float
+        Step [s].
+
+    Returns
+    -------
+    ndarray, shape (13,)
+        The state after ``dt``.
+    """
     k1 = dynamics(x, u, theta)
     k2 = dynamics(x + 0.5 * dt * k1, u, theta)
     k3 = dynamics(x + 0.5 * dt * k2, u, theta)
     k4 = dynamics(x + dt * k3, u, theta)
-    return x + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return cast(np.ndarray, x + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4))
 
 
 def propagate(x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float) -> np.ndarray:
-    """One RK4 step followed by quaternion renormalisation (the truth plant's integrator step)."""
+    """One RK4 step followed by quaternion renormalisation (the truth plant's integrator step).
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+        State ``[r, v, q, ω]``.
+    u : ndarray, shape (6,)
+        Input ``[f (world frame) [N], τ (body frame) [N·m]]``.
+    theta : ndarray, shape (4,)
+        θ = [m [kg], Ixx, Iyy, Izz [kg·m²]].
+    dt : float
+        Step [s].
+
+    Returns
+    -------
+    ndarray, shape (13,)
+        The state after ``dt``, unit quaternion with ``w >= 0``.
+    """
     out = rk4_step(x, u, theta, dt)
     out[6:10] = quat.normalize(out[6:10])
     return out
@@ -121,6 +185,17 @@ def rk4_step_jacobians(
     x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """RK4 step and its exact Jacobians (Doerr Eq. 2 discretisation).
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+        State ``[r, v, q, ω]``.
+    u : ndarray, shape (6,)
+        Input ``[f (world frame) [N], τ (body frame) [N·m]]``.
+    theta : ndarray, shape (4,)
+        θ = [m [kg], Ixx, Iyy, Izz [kg·m²]].
+    dt : float
+        Step [s].
 
     Returns
     -------
@@ -137,7 +212,8 @@ def rk4_step_jacobians(
     stages = []
     d_x = (eye, np.zeros((STATE_DIM, INPUT_DIM)), np.zeros((STATE_DIM, N_PARAMS)))
     xs = x
-    ks, dks = [], []
+    ks: list[np.ndarray] = []
+    dks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for coef in (0.0, 0.5, 0.5, 1.0):
         if ks:
             xs = x + coef * dt * ks[-1]
@@ -153,7 +229,7 @@ def rk4_step_jacobians(
     a = eye + (dt / 6.0) * sum(wi * d[0] for wi, d in zip(w, dks, strict=True))
     b = (dt / 6.0) * sum(wi * d[1] for wi, d in zip(w, dks, strict=True))
     c = (dt / 6.0) * sum(wi * d[2] for wi, d in zip(w, dks, strict=True))
-    return x_next, a, b, c
+    return x_next, a, cast(np.ndarray, b), cast(np.ndarray, c)
 
 
 def linearize_discrete(
@@ -161,19 +237,58 @@ def linearize_discrete(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """LTV matrices of Doerr Eq. 2 about ``(x_bar, u_bar)``: ``δx_{k+1} = A δx_k + B δu_k + g``.
 
-    Returns ``(A (13, 13), B (13, 6), g (13,))`` where ``g = f_d(x_bar, u_bar) − x_bar`` is the affine drift of the
-    discrete map at the operating point (zero at an equilibrium).
+    Parameters
+    ----------
+    x_bar : ndarray, shape (13,)
+        Operating state.
+    u_bar : ndarray, shape (6,)
+        Operating input.
+    params : InertialParams
+    dt : float
+        Step [s].
+
+    Returns
+    -------
+    a : ndarray, shape (13, 13)
+    b : ndarray, shape (13, 6)
+    g : ndarray, shape (13,)
+        ``f_d(x_bar, u_bar) − x_bar``, the affine drift of the discrete map at the operating point (zero at an
+        equilibrium).
     """
     x_next, a, b, _ = rk4_step_jacobians(x_bar, u_bar, theta_of(params), dt)
     return a, b, x_next - x_bar
 
 
 def angular_momentum_world(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Angular momentum ``R(q) I ω`` in the world frame [kg·m²/s]; conserved when τ = 0."""
-    return quat.to_rotation_matrix(x[6:10]) @ (theta[1:4] * x[10:13])
+    """Angular momentum ``R(q) I ω`` in the world frame [kg·m²/s]; conserved when τ = 0.
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+        State ``[r, v, q, ω]``.
+    theta : ndarray, shape (4,)
+        θ = [m [kg], Ixx, Iyy, Izz [kg·m²]].
+
+    Returns
+    -------
+    ndarray, shape (3,)
+    """
+    return cast(np.ndarray, quat.to_rotation_matrix(x[6:10]) @ (theta[1:4] * x[10:13]))
 
 
 def rotational_energy(x: np.ndarray, theta: np.ndarray) -> float:
-    """Rotational kinetic energy ½ ωᵀ I ω [J]; conserved when τ = 0."""
+    """Rotational kinetic energy ½ ωᵀ I ω [J]; conserved when τ = 0.
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+        State ``[r, v, q, ω]``.
+    theta : ndarray, shape (4,)
+        θ = [m [kg], Ixx, Iyy, Izz [kg·m²]].
+
+    Returns
+    -------
+    float
+    """
     w = x[10:13]
     return 0.5 * float(np.sum(theta[1:4] * w * w))

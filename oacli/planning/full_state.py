@@ -26,6 +26,22 @@ def rotation_duration_s(angle_rad: float, params: InertialParams, rate_limit_rad
 
     Uses the smallest rate limit and the smallest ``τ_max,i / I_max`` (the rotation axis is arbitrary), ignoring
     the gyroscopic term (zero at rest, second order in ω).
+
+    Parameters
+    ----------
+    angle_rad : float
+        Rotation angle [rad].
+    params : InertialParams
+        Inertia of the robot.
+    rate_limit_radps : ndarray, shape (3,)
+        Angular velocity limits [rad/s].
+    torque_limit_Nm : ndarray, shape (3,)
+        Torque limits [N·m].
+
+    Returns
+    -------
+    float
+        Duration [s]; 0 for no rotation.
     """
     if angle_rad <= 0.0:
         return 0.0
@@ -35,7 +51,22 @@ def rotation_duration_s(angle_rad: float, params: InertialParams, rate_limit_rad
 
 
 def hold_until(trans: TranslationalTrajectory, end_s: float, dt_s: float) -> TranslationalTrajectory:
-    """Extend a trajectory that ends at rest by holding its final position (zero force) until ``end_s``."""
+    """Extend a trajectory that ends at rest by holding its final position (zero force) until ``end_s``.
+
+    Parameters
+    ----------
+    trans : TranslationalTrajectory
+        Ends at rest.
+    end_s : float
+        Time [s] to hold until.
+    dt_s : float
+        Sample period [s] of the added samples (the last one may overshoot ``end_s`` by less than ``dt_s``).
+
+    Returns
+    -------
+    TranslationalTrajectory
+        ``trans`` itself when it already lasts until ``end_s``.
+    """
     extra = end_s - trans.t[-1]
     if extra <= 1e-12:
         return trans
@@ -114,7 +145,19 @@ def full_state_trajectory(
 
 
 def translational_part(traj: Trajectory, mass_kg: float) -> TranslationalTrajectory:
-    """The translational plan inside a 13-state trajectory (position, velocity, held force)."""
+    """The translational plan inside a 13-state trajectory (position, velocity, held force).
+
+    Parameters
+    ----------
+    traj : Trajectory
+        A 13-state trajectory.
+    mass_kg : float
+        Mass [kg].
+
+    Returns
+    -------
+    TranslationalTrajectory
+    """
     return TranslationalTrajectory(traj.t, traj.x[:, 0:6], traj.u[:-1, 0:3], mass_kg)
 
 
@@ -126,6 +169,19 @@ def minimum_time_lower_bound_s(
     Each axis must cover its displacement ``d_i`` with ``|v_i| <= V_i`` and ``|a_i| <= F_i / m``; the fastest
     such 1-D motion is bang-coast-bang, ``d/V + V/a`` when ``d >= V²/a`` and ``2 sqrt(d/a)`` otherwise. Obstacles
     can only lengthen it, so the maximum over the axes bounds every collision-free plan from below.
+
+    Parameters
+    ----------
+    start, goal : ndarray, shape (>= 3,)
+        Start and goal states (positions first).
+    force_limit_N, velocity_limit_mps : ndarray, shape (3,)
+        Limits per axis.
+    mass_kg : float
+        Mass [kg].
+
+    Returns
+    -------
+    float
     """
     d = np.abs(np.asarray(goal, dtype=float)[0:3] - np.asarray(start, dtype=float)[0:3])
     v = np.asarray(velocity_limit_mps, dtype=float)

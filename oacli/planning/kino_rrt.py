@@ -1,4 +1,4 @@
-"""Kinodynamic RRT with motion primitives (ReSWARM, seed 001 §4.1.2-4.1.3, Eqs. 26-27; LaValle 2001).
+"""Kinodynamic RRT with motion primitives ([ReSWARM2023] §4.1.2-4.1.3, Eqs. 26-27; LaValle 2001).
 
 * **Metric** (Eq. 26): weighted Euclidean distance ``|W (x - x_rand)|`` with ``W = diag(w_r, w_r, w_r, w_v, w_v,
   w_v)``; nearest-neighbour search is a vectorised scan of the weighted nodes.
@@ -94,7 +94,22 @@ class KinoRrtSettings:
 
 
 def motion_primitives(force_limit_N: np.ndarray, fraction: float, kind: str = "axes") -> np.ndarray:
-    """The action set of ReSWARM Eq. 27, shape (P, 3) [N]: zero first, then the ± actions."""
+    """The action set of ReSWARM Eq. 27, shape (P, 3) [N]: zero first, then the ± actions.
+
+    Parameters
+    ----------
+    force_limit_N : ndarray, shape (3,)
+        Force limits [N].
+    fraction : float
+        Fraction of the limit each action uses.
+    kind : {"axes", "combinations"}, optional
+        One axis at a time (7 actions) or every combination of 0, +, − per axis (27).
+
+    Returns
+    -------
+    ndarray, shape (P, 3)
+        Forces [N].
+    """
     f = fraction * np.asarray(force_limit_N, dtype=float)
     if kind == "axes":
         out = [np.zeros(3)]
@@ -193,7 +208,7 @@ def plan_kino_rrt(
         iteration += 1
         if rng.random() < s.goal_bias:
             stats["goal_samples"] += 1
-            x_rand = goal
+            x_rand: np.ndarray | None = goal
         else:
             stats["samples"] += 1
             x_rand = problem.sample_free_state(rng, attempts=1)
@@ -245,6 +260,6 @@ def plan_kino_rrt(
     common = dict(tree=record, rewires=(), solutions=tuple(solutions), snapshots=tuple(snapshots),
                   iterations=iteration, planning_time_s=clock() - t0, stop_reason=stop, stats=stats)
     if goal_node < 0:
-        return PlanResult(NO_SOLUTION, "kino-rrt", None, (), math.nan, **common)
+        return PlanResult(NO_SOLUTION, "kino-rrt", None, (), math.nan, **common)  # type: ignore[arg-type]
     traj = path_trajectory(tree, list(path), conn, goal, mass)
-    return PlanResult(SOLVED, "kino-rrt", traj, path, traj.cost(problem.weights, goal), **common)
+    return PlanResult(SOLVED, "kino-rrt", traj, path, traj.cost(problem.weights, goal), **common)  # type: ignore[arg-type]

@@ -351,10 +351,10 @@ class _Planner:
             stop_reason=stop, stats=dict(self.stats),
         )
         if self.goal_node < 0:
-            return PlanResult(NO_SOLUTION, "lqr-rrt-star", None, (), math.nan, **common)
+            return PlanResult(NO_SOLUTION, "lqr-rrt-star", None, (), math.nan, **common)  # type: ignore[arg-type]
         path = tree.path_to(self.goal_node)
         traj = path_trajectory(tree, path, self.conn, self.goal, problem.mass_kg)
-        return PlanResult(SOLVED, "lqr-rrt-star", traj, tuple(path), traj.cost(problem.weights, self.goal), **common)
+        return PlanResult(SOLVED, "lqr-rrt-star", traj, tuple(path), traj.cost(problem.weights, self.goal), **common)  # type: ignore[arg-type]
 
 
 def plan_lqr_rrt_star(

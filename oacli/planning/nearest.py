@@ -32,7 +32,14 @@ class PointIndex:
         return self._n
 
     def add(self, point: np.ndarray, ident: int) -> None:
-        """Insert a point with an identifier (e.g. a tree node index)."""
+        """Insert a point with an identifier (e.g. a tree node index).
+
+        Parameters
+        ----------
+        point : ndarray, shape (d,)
+        ident : int
+            Identifier returned by the queries.
+        """
         if self._n == self._points.shape[0]:
             self._points = np.concatenate([self._points, np.empty_like(self._points)])
             self._ids = np.concatenate([self._ids, np.empty_like(self._ids)])
@@ -41,12 +48,33 @@ class PointIndex:
         self._n += 1
 
     def distances_sq(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(ids (n,), |p - query|² (n,))`` of every stored point."""
+        """Identifiers and squared distances to ``query`` of every stored point.
+
+        Parameters
+        ----------
+        query : ndarray, shape (d,)
+
+        Returns
+        -------
+        ids : ndarray of int, shape (n,)
+        d2 : ndarray, shape (n,)
+            ``|p - query|²``.
+        """
         diff = self._points[: self._n] - query
         return self._ids[: self._n], np.einsum("ij,ij->i", diff, diff)
 
     def nearest(self, query: np.ndarray) -> tuple[int, float]:
-        """Identifier and squared distance of the nearest point (ties: the first inserted)."""
+        """Identifier and squared distance of the nearest point (ties: the first inserted).
+
+        Parameters
+        ----------
+        query : ndarray, shape (d,)
+
+        Returns
+        -------
+        ident : int
+        d2 : float
+        """
         if self._n == 0:
             raise ValueError("the index is empty")
         ids, d2 = self.distances_sq(query)
@@ -54,7 +82,21 @@ class PointIndex:
         return int(ids[k]), float(d2[k])
 
     def within(self, query: np.ndarray, radius_sq: float, max_count: int | None = None) -> np.ndarray:
-        """Identifiers of the points with ``|p - query|² <= radius_sq``, nearest first (at most ``max_count``)."""
+        """Identifiers of the points with ``|p - query|² <= radius_sq``, nearest first (at most ``max_count``).
+
+        Parameters
+        ----------
+        query : ndarray, shape (d,)
+        radius_sq : float
+            Squared radius.
+        max_count : int, optional
+            Keep only the nearest ``max_count``.
+
+        Returns
+        -------
+        ndarray of int
+            Identifiers, nearest first.
+        """
         ids, d2 = self.distances_sq(query)
         hit = np.flatnonzero(d2 <= radius_sq)
         if hit.size == 0:

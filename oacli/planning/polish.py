@@ -257,7 +257,20 @@ def polish_grid(duration_s: float, step_s: float, dt_s: float) -> np.ndarray:
     """Piece lengths [s] covering ``duration_s``: pieces of ``step_s``, the last one shorter if need be.
 
     ``duration_s`` and ``step_s`` are rounded to multiples of ``dt_s`` (the duration down); every piece is then a
-    multiple of ``dt_s``. Returns shape (N,).
+    multiple of ``dt_s``.
+
+    Parameters
+    ----------
+    duration_s : float
+        Duration to cover [s].
+    step_s : float
+        Piece length [s].
+    dt_s : float
+        Output sample period [s].
+
+    Returns
+    -------
+    ndarray, shape (N,)
     """
     total = int(np.floor(duration_s / dt_s + 1e-9))
     per = max(1, round(step_s / dt_s))
@@ -279,6 +292,23 @@ def terminal_correction(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h:
 
     Per axis the final state is affine in the forces, ``x_N = Φ x_0 + Γ f`` with the columns
     ``Γ_k = (h_k/m) [h_k/2 + Σ_{j>k} h_j, 1]``; the correction is ``Γᵀ (Γ Γᵀ)⁻¹ (x_g − x_N)`` (N >= 2).
+
+    Parameters
+    ----------
+    x0 : ndarray, shape (6,)
+        Start state.
+    forces : ndarray, shape (N, 3)
+        Held forces [N].
+    goal : ndarray, shape (6,)
+        Required final state.
+    h : ndarray, shape (N,)
+        Piece lengths [s].
+    mass_kg : float
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        The corrected forces.
     """
     h = np.broadcast_to(np.asarray(h, dtype=float), (forces.shape[0],))
     gamma = _final_state_map(h, mass_kg)
@@ -290,7 +320,17 @@ def terminal_correction(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h:
 
 def exact_trajectory(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h: np.ndarray,
                      mass_kg: float) -> TranslationalTrajectory:
-    """The motion of held ``forces`` from ``x0`` corrected to end exactly at ``goal`` (last sample pinned)."""
+    """The motion of held ``forces`` from ``x0`` corrected to end exactly at ``goal`` (last sample pinned).
+
+    Parameters
+    ----------
+    x0, forces, goal, h, mass_kg
+        As in :func:`terminal_correction`.
+
+    Returns
+    -------
+    TranslationalTrajectory
+    """
     forces = terminal_correction(x0, np.asarray(forces, dtype=float), goal, h, mass_kg)
     traj = TranslationalTrajectory.from_forces(x0, forces, h, mass_kg)
     x = traj.x.copy()
@@ -299,8 +339,23 @@ def exact_trajectory(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h: np
 
 
 def trim_rest(traj: TranslationalTrajectory, goal: np.ndarray, tolerance: float) -> TranslationalTrajectory:
-    """Cut the trailing pieces that already rest at ``goal`` (states within ``tolerance``, forces within the
-    force that changes the speed by ``tolerance`` over the piece), keeping at least two pieces; exact again."""
+    """Cut the trailing pieces that already rest at ``goal``, keeping at least two pieces; exact again.
+
+    A piece rests when its states are within ``tolerance`` of the goal and its force changes the speed by at most
+    ``tolerance`` over the piece.
+
+    Parameters
+    ----------
+    traj : TranslationalTrajectory
+    goal : ndarray, shape (6,)
+    tolerance : float
+        [m, m/s].
+
+    Returns
+    -------
+    TranslationalTrajectory
+        ``traj`` itself when nothing is cut.
+    """
     h = traj.h
     near = np.all(np.abs(traj.x - goal) <= tolerance, axis=1)
     still = np.append(np.all(np.abs(traj.u) * h[:, None] / traj.mass_kg <= tolerance, axis=1), True)
@@ -319,6 +374,18 @@ def project_onto_grid(traj: TranslationalTrajectory, h: np.ndarray, goal: np.nda
     the forces, subject to the exact discretisation from the input's first state: an equality-constrained least
     squares problem, solved as one sparse KKT system (all three axes at once). Knots beyond the input's end take
     its final state (the goal at rest).
+
+    Parameters
+    ----------
+    traj : TranslationalTrajectory
+        The input.
+    h : ndarray, shape (n,)
+        Piece lengths [s] of the grid.
+    goal : ndarray, shape (6,)
+
+    Returns
+    -------
+    TranslationalTrajectory
     """
     h = np.asarray(h, dtype=float)
     n, m = h.shape[0], traj.mass_kg
@@ -345,7 +412,17 @@ def project_onto_grid(traj: TranslationalTrajectory, h: np.ndarray, goal: np.nda
 
 
 def within_limits(traj: TranslationalTrajectory, force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray) -> bool:
-    """Every held force and every velocity within its per-axis limit (relative tolerance 1e-9, as the stages)."""
+    """Every held force and every velocity within its per-axis limit (relative tolerance 1e-9, as the stages).
+
+    Parameters
+    ----------
+    traj : TranslationalTrajectory
+    force_limit_N, velocity_limit_mps : ndarray, shape (3,)
+
+    Returns
+    -------
+    bool
+    """
     return bool(np.all(traj.max_abs_force_N() <= force_limit_N * (1 + 1e-9))
                 and np.all(traj.max_abs_velocity_mps() <= velocity_limit_mps * (1 + 1e-9)))
 
@@ -370,6 +447,15 @@ def min_norm_on_triangles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.nda
 
     Exact: the minimum lies on an edge or, if the origin projects inside the triangle's plane region, at that
     projection; every candidate is in the triangle, and the least-norm one is returned.
+
+    Parameters
+    ----------
+    a, b, c : ndarray, shape (K, 3)
+        Corners.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
     """
     cands = [_closest_on_segments(a, b), _closest_on_segments(b, c), _closest_on_segments(a, c)]
     nrm = np.cross(b - a, c - a)
@@ -398,6 +484,14 @@ def keep_out_halfspaces(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Half-spaces ``nᵀ p >= b`` (unit n) that keep pieces with control points ``p0, p1, p2`` (K, 3) out of a zone.
 
+    Parameters
+    ----------
+    zone : KeepOutZone
+    p0, p1, p2 : ndarray, shape (K, 3)
+        Control points [m] of the K pieces (start, mid-piece control point, end).
+    clearance_m : float
+        Extra clearance [m].
+
     Returns
     -------
     normal : ndarray, shape (K, 3)
@@ -420,8 +514,21 @@ def keep_out_halfspaces(
 
 def keep_in_bounds(checker: CollisionChecker, p0: np.ndarray, p1: np.ndarray,
                    p2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per piece, the keep-in box its control points must stay in: the first box holding all three of them,
-    else the box holding most of them (the buffer then absorbs the difference). Returns (lower, upper), (K, 3)."""
+    """Per piece, the keep-in box its control points must stay in.
+
+    The first box holding all three of them, else the box holding most of them (the buffer then absorbs the
+    difference); without keep-in boxes, bounds far outside any scene.
+
+    Parameters
+    ----------
+    checker : CollisionChecker
+    p0, p1, p2 : ndarray, shape (K, 3)
+        Control points [m] of the K pieces (start, mid-piece control point, end).
+
+    Returns
+    -------
+    lower, upper : ndarray, shape (K, 3)
+    """
     boxes = checker.scene.keep_in
     k = p0.shape[0]
     if not boxes:
@@ -506,7 +613,12 @@ class PolishSubproblem:
         self.problem = cp.Problem(cp.Minimize(objective), cons)
 
     def solve(self) -> str:
-        """Solve with Clarabel; returns the cvxpy status (``"solver_error"`` when Clarabel raised)."""
+        """Solve with Clarabel; returns the cvxpy status (``"solver_error"`` when Clarabel raised).
+
+        Returns
+        -------
+        str
+        """
         try:
             with warnings.catch_warnings():  # an inaccurate solve is reported by its status, not a warning
                 warnings.simplefilter("ignore", UserWarning)
@@ -521,6 +633,23 @@ def lqr_cost_expression(r, v, f, h: np.ndarray, mass_kg: float, weights: CostWei
 
     Each piece contributes ``w_t h_k + Σ_axes ½ zᵀ W(h_k) z`` with ``z = [r_k − r_g, v_k, v_k − v_g, f_k]``
     (:func:`~oacli.planning.translational.interval_cost_matrix`), written as ``½ ‖G z‖²`` with ``W = Gᵀ G``.
+
+    Parameters
+    ----------
+    r, v : cvxpy.Expression, shape (n + 1, 3)
+        Positions and velocities at the knots.
+    f : cvxpy.Expression, shape (n, 3)
+        Held forces.
+    h : ndarray, shape (n,)
+        Piece lengths [s].
+    mass_kg : float
+    weights : CostWeights
+    goal : ndarray, shape (6,)
+
+    Returns
+    -------
+    cvxpy.Expression
+        Scalar, convex.
     """
     h = np.asarray(h, dtype=float)
     total = weights.time * float(h.sum())
@@ -629,14 +758,14 @@ def polish_trajectory(
         status = sub.solve()
         base = dict(index=i, trust_radius_m=radius, status=status, solve_time_s=time.perf_counter() - t0)
         if status not in _OK or sub.f.value is None:
-            iters.append(PolishIteration(**base, objective=np.nan, buffer_m=np.nan, length_m=np.nan,
+            iters.append(PolishIteration(**base, objective=np.nan, buffer_m=np.nan, length_m=np.nan,  # type: ignore[arg-type]
                                          duration_s=np.nan, cost=np.nan, outcome=SOLVER))
             radius *= 0.5
             continue
         full = exact_trajectory(traj.x[0], sub.f.value, goal, h, traj.mass_kg)
         coarse = trim_rest(full, goal, s.rest_tolerance)
         cand = coarse.refined(dt_s)  # the output, judged as it would be returned
-        buffer = float(np.max(sub.buffer.value))
+        buffer = float(np.max(sub.buffer.value))  # type: ignore[arg-type]
         certified = buffer <= _CERTIFIED_M
         length, cost = cand.path_length_m(), cand.cost(weights, goal)
         if not within_limits(cand, force_limit_N, velocity_limit_mps):
@@ -650,7 +779,7 @@ def polish_trajectory(
         else:
             outcome = ACCEPTED
         objective = float(sub.problem.value)
-        iters.append(PolishIteration(**base, objective=objective, buffer_m=buffer, length_m=length,
+        iters.append(PolishIteration(**base, objective=objective, buffer_m=buffer, length_m=length,  # type: ignore[arg-type]
                                      duration_s=cand.duration_s, cost=cost, outcome=outcome))
         if outcome == ACCEPTED:
             best, best_len = cand, length

@@ -61,7 +61,16 @@ class PlanningProblem:
             raise ValueError("force and velocity limits must be > 0")
 
     def sample_state(self, rng: np.random.Generator) -> np.ndarray:
-        """A state uniformly distributed over the sampling boxes × the velocity box (Doerr: random sampling)."""
+        """A state uniformly distributed over the sampling boxes × the velocity box (Doerr: random sampling).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray, shape (6,)
+        """
         volumes = np.prod(self.sample_upper - self.sample_lower, axis=1)
         b = 0 if volumes.shape[0] == 1 else int(rng.choice(volumes.shape[0], p=volumes / volumes.sum()))
         r = rng.uniform(self.sample_lower[b], self.sample_upper[b])
@@ -69,7 +78,18 @@ class PlanningProblem:
         return np.concatenate([r, v])
 
     def sample_free_state(self, rng: np.random.Generator, attempts: int = 100) -> np.ndarray | None:
-        """A sampled state whose position is collision-free (None after ``attempts`` rejections)."""
+        """A sampled state whose position is collision-free (None after ``attempts`` rejections).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+        attempts : int, optional
+            Samples to try.
+
+        Returns
+        -------
+        ndarray, shape (6,) or None
+        """
         for _ in range(attempts):
             x = self.sample_state(rng)
             if self.checker.points_free(x[0:3]):

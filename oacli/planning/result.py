@@ -162,7 +162,24 @@ class PlanResult:
 def edge_trajectory(
     tree: Tree | TreeRecord, node: int, connector: LqrConnector, goal: np.ndarray, mass_kg: float
 ) -> TranslationalTrajectory:
-    """The trajectory of ``node``'s incoming edge (from its parent's state to its own, exact)."""
+    """The trajectory of ``node``'s incoming edge (from its parent's state to its own, exact).
+
+    Parameters
+    ----------
+    tree : Tree or TreeRecord
+    node : int
+        A node other than the root.
+    connector : LqrConnector
+        The steering function that made the LQR edges.
+    goal : ndarray, shape (6,)
+        Goal state of the plan.
+    mass_kg : float
+        Mass [kg] (for motion-primitive edges).
+
+    Returns
+    -------
+    TranslationalTrajectory
+    """
     parent = int(tree.parent[node])
     x_p = tree.states[parent]
     kind = int(tree.kind[node])
@@ -179,7 +196,24 @@ def edge_trajectory(
 def path_trajectory(
     tree: Tree, path: list[int], connector: LqrConnector, goal: np.ndarray, mass_kg: float
 ) -> TranslationalTrajectory:
-    """Concatenate the edges along ``path`` (root first) into one trajectory starting at t = 0."""
+    """Concatenate the edges along ``path`` (root first) into one trajectory starting at t = 0.
+
+    Parameters
+    ----------
+    tree : Tree
+    path : list of int
+        Node indices, root first.
+    connector : LqrConnector
+        The steering function that made the LQR edges.
+    goal : ndarray, shape (6,)
+        Goal state of the plan.
+    mass_kg : float
+        Mass [kg] (for motion-primitive edges).
+
+    Returns
+    -------
+    TranslationalTrajectory
+    """
     if len(path) < 2:
         return TranslationalTrajectory(np.zeros(1), tree.states[path[0]][None, :], np.zeros((0, 3)), mass_kg)
     parts = [edge_trajectory(tree, n, connector, goal, mass_kg) for n in path[1:]]
@@ -189,7 +223,25 @@ def path_trajectory(
 def edge_polylines(
     tree: Tree, connector: LqrConnector, goal: np.ndarray, mass_kg: float, samples_per_edge: int = 8
 ) -> tuple[np.ndarray, ...]:
-    """Positions along every node's incoming edge (the root gets an empty array), for drawing the tree."""
+    """Positions along every node's incoming edge (the root gets an empty array), for drawing the tree.
+
+    Parameters
+    ----------
+    tree : Tree
+    connector : LqrConnector
+        The steering function that made the LQR edges.
+    goal : ndarray, shape (6,)
+        Goal state of the plan.
+    mass_kg : float
+        Mass [kg] (for motion-primitive edges).
+    samples_per_edge : int, optional
+        Segments per edge.
+
+    Returns
+    -------
+    tuple of ndarray, shape (samples_per_edge + 1, 3)
+        One per node, in node order.
+    """
     out: list[np.ndarray] = [np.zeros((0, 3))]
     for node in range(1, tree.n):
         traj = edge_trajectory(tree, node, connector, goal, mass_kg)
@@ -201,7 +253,24 @@ def edge_polylines(
 def tree_record(
     tree: Tree, goal_node: int, connector: LqrConnector, goal: np.ndarray, mass_kg: float
 ) -> TreeRecord:
-    """Freeze a :class:`~oacli.planning.tree.Tree` into a :class:`TreeRecord` (with edge polylines)."""
+    """Freeze a :class:`~oacli.planning.tree.Tree` into a :class:`TreeRecord` (with edge polylines).
+
+    Parameters
+    ----------
+    tree : Tree
+    goal_node : int
+        Node that reached the goal (-1: none).
+    connector : LqrConnector
+        The steering function that made the LQR edges.
+    goal : ndarray, shape (6,)
+        Goal state of the plan.
+    mass_kg : float
+        Mass [kg] (for motion-primitive edges).
+
+    Returns
+    -------
+    TreeRecord
+    """
     duration = np.where(tree.kind == EDGE_LQR, tree.steps * connector.dt_s, tree.duration_s)
     return TreeRecord(
         states=tree.states.copy(),

@@ -108,7 +108,21 @@ class ShortcutResult:
 def splice(
     traj: TranslationalTrajectory, a: int, b: int, section: TranslationalTrajectory
 ) -> TranslationalTrajectory:
-    """Replace samples ``a..b`` of ``traj`` by ``section`` (which must start at ``x[a]`` and end at ``x[b]``)."""
+    """Replace samples ``a..b`` of ``traj`` by ``section`` (which must start at ``x[a]`` and end at ``x[b]``).
+
+    Parameters
+    ----------
+    traj : TranslationalTrajectory
+    a, b : int
+        Sample indices, ``a < b``.
+    section : TranslationalTrajectory
+        The replacement.
+
+    Returns
+    -------
+    TranslationalTrajectory
+        Later samples are shifted in time by the change of duration.
+    """
     shift = traj.t[a] - section.t[0]
     t_sec = section.t + shift
     delay = t_sec[-1] - traj.t[b]
@@ -178,7 +192,7 @@ def lqr_shortcut(
         lower = costs < old - _IMPROVE_RTOL * max(1.0, abs(old))
         base = dict(index=i, a=a, b=b, t_a=float(traj.t[a]), t_b=float(traj.t[b]), old_cost=old)
         if not np.any(lower):
-            attempts.append(ShortcutAttempt(**base, steps=0, new_cost=np.nan, outcome=NOT_LOWER_COST))
+            attempts.append(ShortcutAttempt(**base, steps=0, new_cost=np.nan, outcome=NOT_LOWER_COST))  # type: ignore[arg-type]
             continue
         f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps)
         f_ok, v_ok = f_ok[0], v_ok[0]
@@ -186,7 +200,7 @@ def lqr_shortcut(
         if not np.any(ok):
             best = int(np.argmin(np.where(lower, costs, np.inf)))
             reason = INPUT_LIMIT if not np.any(lower & f_ok) else VELOCITY_LIMIT
-            attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))
+            attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))  # type: ignore[arg-type]
             continue
         order = np.flatnonzero(ok)[np.argsort(costs[ok], kind="stable")]
         outcome, steps = COLLISION, int(order[0])
@@ -199,5 +213,5 @@ def lqr_shortcut(
                 sections.append((i, section))
                 outcome, steps = ACCEPTED, int(n_steps)
                 break
-        attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))
+        attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))  # type: ignore[arg-type]
     return ShortcutResult(traj, cost_before, traj.cost(weights, goal), tuple(attempts), tuple(sections))

@@ -46,6 +46,17 @@ def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: f
     ν (the ν-block of ``P⁽ᴺ⁾`` is negative definite for N >= 2) gives the optimal cost and ``ν*``, and rolling
     the gains forward gives the forces and states as linear maps of ``y = [r_a, v_a, r_b, v_b, r_g, v_g]``.
 
+    Parameters
+    ----------
+    n_max : int
+        Longest horizon [steps].
+    dt : float
+        Step [s] of the held force.
+    mass : float
+        Mass [kg].
+    q_r, q_v, r_f : float
+        Position, velocity and force weights of this axis (:class:`~oacli.planning.translational.CostWeights`).
+
     Returns
     -------
     g : ndarray, shape (n_max + 1, n_max, 6)
@@ -182,7 +193,20 @@ class LqrConnector:
         return y
 
     def costs(self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """Optimal connection cost for every horizon, shape (K, max_steps + 1); ``inf`` for N < MIN_STEPS."""
+        """Optimal connection cost for every horizon, shape (K, max_steps + 1); ``inf`` for N < MIN_STEPS.
+
+        Parameters
+        ----------
+        x_a, x_b : ndarray, shape (6,) or (K, 6)
+            Start and end states ``[r, v]`` (broadcast against each other).
+        goal : ndarray, shape (6,)
+            Goal state of the plan (the cost's ``x_g``).
+
+        Returns
+        -------
+        ndarray, shape (K, max_steps + 1)
+            Cost per pair and horizon, time term included.
+        """
         y = self._y(x_a, x_b, goal)
         k = y.shape[0]
         j = np.tile(self._time_cost, (k, 1))
@@ -203,12 +227,19 @@ class LqrConnector:
 
         Parameters
         ----------
+        x_a, x_b : ndarray, shape (6,) or (K, 6)
+            Start and end states ``[r, v]`` (broadcast against each other).
+        goal : ndarray, shape (6,)
+            Goal state of the plan (the cost's ``x_g``).
+        force_limit_N, velocity_limit_mps : ndarray, shape (3,)
+            Limits ``F`` and ``V`` per axis.
         steps : ndarray of int, optional
             Horizons to test (all by default).
 
         Returns
         -------
         force_ok, velocity_ok : ndarray of bool, shape (K, len(steps))
+            False for horizons below ``MIN_STEPS``.
         """
         y = self._y(x_a, x_b, goal)
         if steps is None:
@@ -239,7 +270,22 @@ class LqrConnector:
     # -- one connection -------------------------------------------------------------------------------------
 
     def forces(self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray, steps: int) -> np.ndarray:
-        """Optimal held forces of the ``steps``-step connection, shape (steps, 3) [N]."""
+        """Optimal held forces of the ``steps``-step connection, shape (steps, 3) [N].
+
+        Parameters
+        ----------
+        x_a, x_b : ndarray, shape (6,)
+            Start and end states ``[r, v]``.
+        goal : ndarray, shape (6,)
+            Goal state of the plan (the cost's ``x_g``).
+        steps : int
+            Horizon N [steps], ``MIN_STEPS <= N <= max_steps``.
+
+        Returns
+        -------
+        ndarray, shape (steps, 3)
+            Held forces [N].
+        """
         self._check_steps(steps)
         y = self._y(x_a, x_b, goal)[0]
         return np.einsum("ija,ia->ji", self._g[:, steps, :steps], y)
@@ -247,7 +293,23 @@ class LqrConnector:
     def trajectory(
         self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray, steps: int, t0: float = 0.0
     ) -> TranslationalTrajectory:
-        """The ``steps``-step connection as a trajectory sampled every ``dt`` (end points exact)."""
+        """The ``steps``-step connection as a trajectory sampled every ``dt`` (end points exact).
+
+        Parameters
+        ----------
+        x_a, x_b : ndarray, shape (6,)
+            Start and end states ``[r, v]``.
+        goal : ndarray, shape (6,)
+            Goal state of the plan (the cost's ``x_g``).
+        steps : int
+            Horizon N [steps], ``MIN_STEPS <= N <= max_steps``.
+        t0 : float, optional
+            Time [s] of the first sample.
+
+        Returns
+        -------
+        TranslationalTrajectory
+        """
         self._check_steps(steps)
         y = self._y(x_a, x_b, goal)[0]
         u = np.einsum("ija,ia->ji", self._g[:, steps, :steps], y)
@@ -268,6 +330,24 @@ class LqrConnector:
         state to ``x_target`` (the last step matches the target velocity), clipped to ``|f_i| <= F_i`` and to the
         range that keeps ``|v_i| <= V_i`` at the next sample. The rollout reaches ``x_target`` when no limit is
         active and otherwise ends where the saturated motion gets to: a state reachable within the limits.
+
+        Parameters
+        ----------
+        x_a : ndarray, shape (6,)
+            Start state.
+        x_target : ndarray, shape (6,)
+            State to steer to.
+        goal : ndarray, shape (6,)
+            Goal state of the plan (the cost's ``x_g``).
+        steps : int
+            Number of steps of the rollout.
+        force_limit_N, velocity_limit_mps : ndarray, shape (3,)
+            Limits per axis.
+
+        Returns
+        -------
+        TranslationalTrajectory
+            ``steps`` intervals of ``dt_s`` from ``x_a``.
         """
         self._check_steps(steps)
         m, dt = self.mass_kg, self.dt_s
@@ -295,7 +375,22 @@ class LqrConnector:
         return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us), m)
 
     def value_function(self, steps: int, x_b: np.ndarray, goal: np.ndarray) -> ValueFunction:
-        """Cost-to-go ``V(x_a)`` of reaching ``x_b`` in ``steps`` steps, in the form of Doerr Eq. 8."""
+        """Cost-to-go ``V(x_a)`` of reaching ``x_b`` in ``steps`` steps, in the form of Doerr Eq. 8.
+
+        Parameters
+        ----------
+        steps : int
+            Horizon N [steps].
+        x_b : ndarray, shape (6,)
+            End state.
+        goal : ndarray, shape (6,)
+            Goal state of the plan.
+
+        Returns
+        -------
+        ValueFunction
+            ``S``, ``s``, ``c`` of ``V(x_a)`` (time term not included).
+        """
         self._check_steps(steps)
         x_b = np.asarray(x_b, dtype=float).reshape(6)
         goal = np.asarray(goal, dtype=float).reshape(6)
@@ -312,7 +407,17 @@ class LqrConnector:
         return ValueFunction(s_mat, s_vec, float(c))
 
     def metric(self, steps: int) -> LqrMetric:
-        """The cost-to-go metric at a fixed horizon (see :class:`LqrMetric`)."""
+        """The cost-to-go metric at a fixed horizon (see :class:`LqrMetric`).
+
+        Parameters
+        ----------
+        steps : int
+            Horizon N [steps].
+
+        Returns
+        -------
+        LqrMetric
+        """
         self._check_steps(steps)
         return LqrMetric(self._m[:, steps], steps)
 
@@ -379,17 +484,67 @@ class LqrMetric:
         return self._flat(np.einsum("iab,ib->ia", chol, m)), c
 
     def source_coords(self, x: np.ndarray) -> np.ndarray:
-        """Transformed coordinates of states used as connection *sources*, shape (..., 6)."""
+        """Transformed coordinates of states used as connection *sources*, shape (..., 6).
+
+        Parameters
+        ----------
+        x : ndarray, shape (..., 6)
+            States ``[r, v]``.
+
+        Returns
+        -------
+        ndarray, shape (..., 6)
+        """
         return self._coords(self._fwd, x)
 
     def target_coords(self, x: np.ndarray) -> np.ndarray:
-        """Transformed coordinates of states used as connection *targets*, shape (..., 6)."""
+        """Transformed coordinates of states used as connection *targets*, shape (..., 6).
+
+        Parameters
+        ----------
+        x : ndarray, shape (..., 6)
+            States ``[r, v]``.
+
+        Returns
+        -------
+        ndarray, shape (..., 6)
+        """
         return self._coords(self._bwd, x)
 
     def query_to(self, x_b: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, float]:
-        """``(z, c)``: ``J(x_a → x_b) = |source_coords(x_a) - z|² + c`` for every source ``x_a``."""
+        """``(z, c)``: ``J(x_a → x_b) = |source_coords(x_a) - z|² + c`` for every source ``x_a``.
+
+        Parameters
+        ----------
+        x_b : ndarray, shape (6,)
+            The target.
+        goal : ndarray, shape (6,)
+            Goal state of the plan.
+
+        Returns
+        -------
+        z : ndarray, shape (6,)
+            Centre in the transformed coordinates.
+        c : float
+            Constant cost offset.
+        """
         return self._query(self._fwd, x_b, goal)
 
     def query_from(self, x_a: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, float]:
-        """``(z, c)``: ``J(x_a → x_b) = |target_coords(x_b) - z|² + c`` for every target ``x_b``."""
+        """``(z, c)``: ``J(x_a → x_b) = |target_coords(x_b) - z|² + c`` for every target ``x_b``.
+
+        Parameters
+        ----------
+        x_a : ndarray, shape (6,)
+            The source.
+        goal : ndarray, shape (6,)
+            Goal state of the plan.
+
+        Returns
+        -------
+        z : ndarray, shape (6,)
+            Centre in the transformed coordinates.
+        c : float
+            Constant cost offset.
+        """
         return self._query(self._bwd, x_a, goal)

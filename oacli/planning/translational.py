@@ -70,7 +70,19 @@ def interval_cost_matrix(h: float, mass_kg: float, q_r: float, q_v: float, r_f: 
 
     ``z = [r₀ - r_g, v₀, v₀ - v_g, f]`` (start position error, start velocity, start velocity error, held force),
     ``v(τ) = v₀ + (f/m) τ``, ``r(τ) = r₀ + v₀ τ + ½ (f/m) τ²``; the entries are the exact polynomial integrals.
-    Returns shape (4, 4).
+
+    Parameters
+    ----------
+    h : float
+        Interval length [s].
+    mass_kg : float
+        Mass [kg].
+    q_r, q_v, r_f : float
+        Position, velocity and force weights of the axis.
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
     """
     m = mass_kg
     w = np.zeros((4, 4))
@@ -107,6 +119,10 @@ def interval_costs(
     weights : CostWeights
     goal : ndarray, shape (6,)
         Goal state ``x_g``.
+
+    Returns
+    -------
+    ndarray, shape (n,)
     """
     x = np.asarray(x, dtype=float)
     u = np.asarray(u, dtype=float)
@@ -189,7 +205,25 @@ class TranslationalTrajectory:
 
     @classmethod
     def from_forces(cls, x0: np.ndarray, forces: np.ndarray, h: np.ndarray, mass_kg: float, t0: float = 0.0):
-        """Propagate the exact double integrator from ``x0`` under held ``forces (n, 3)`` for durations ``h``."""
+        """Propagate the exact double integrator from ``x0`` under held ``forces (n, 3)`` for durations ``h``.
+
+        Parameters
+        ----------
+        x0 : ndarray, shape (6,)
+            Initial state ``[r, v]``.
+        forces : ndarray, shape (n, 3)
+            Held forces [N].
+        h : ndarray, shape (n,)
+            Interval lengths [s].
+        mass_kg : float
+            Mass [kg].
+        t0 : float, optional
+            Time [s] of the first sample.
+
+        Returns
+        -------
+        TranslationalTrajectory
+        """
         forces = np.asarray(forces, dtype=float).reshape(-1, 3)
         h = np.broadcast_to(np.asarray(h, dtype=float), (forces.shape[0],))
         x = np.empty((forces.shape[0] + 1, 6))
@@ -205,6 +239,15 @@ class TranslationalTrajectory:
         """Join trajectories end to start (each part's time restarts where the previous ended).
 
         The first state of each later part replaces the last state of the previous one; they must agree.
+
+        Parameters
+        ----------
+        parts : list of TranslationalTrajectory
+            At least one part, all with the same mass.
+
+        Returns
+        -------
+        TranslationalTrajectory
         """
         if not parts:
             raise ValueError("nothing to concatenate")
@@ -235,35 +278,92 @@ class TranslationalTrajectory:
         return float(self.t[-1] - self.t[0])
 
     def pieces(self) -> Pieces:
-        """The constant-acceleration pieces for continuous collision checking."""
+        """The constant-acceleration pieces for continuous collision checking.
+
+        Returns
+        -------
+        Pieces
+        """
         return Pieces(self.x[:-1, 0:3], self.x[:-1, 3:6], self.u / self.mass_kg, self.h)
 
     def interval_costs(self, weights: CostWeights, goal: np.ndarray) -> np.ndarray:
-        """Exact cost of each interval (module docstring), shape (n,)."""
+        """Exact cost of each interval (module docstring), shape (n,).
+
+        Parameters
+        ----------
+        weights : CostWeights
+        goal : ndarray, shape (6,)
+            Goal state ``x_g``.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
         return interval_costs(self.x[:-1], self.u, self.h, self.mass_kg, weights, np.asarray(goal, dtype=float))
 
     def cost(self, weights: CostWeights, goal: np.ndarray) -> float:
-        """Exact total cost ``J`` (module docstring)."""
+        """Exact total cost ``J`` (module docstring).
+
+        Parameters
+        ----------
+        weights : CostWeights
+        goal : ndarray, shape (6,)
+            Goal state ``x_g``.
+
+        Returns
+        -------
+        float
+        """
         return float(self.interval_costs(weights, goal).sum())
 
     def path_length_m(self) -> float:
-        """Exact length of the path traced by the position [m]."""
+        """Exact length of the path traced by the position [m].
+
+        Returns
+        -------
+        float
+        """
         return float(_arc_length(self.x[:-1, 3:6], self.u / self.mass_kg, self.h).sum())
 
     def impulse_Ns(self) -> float:
-        """Total impulse ``∫ Σ_i |f_i| dt`` [N·s] (what the thrusters spend)."""
+        """Total impulse ``∫ Σ_i |f_i| dt`` [N·s] (what the thrusters spend).
+
+        Returns
+        -------
+        float
+        """
         return float(np.sum(np.abs(self.u) * self.h[:, None]))
 
     def max_abs_force_N(self) -> np.ndarray:
-        """Largest ``|f_i|`` per axis [N], shape (3,)."""
+        """Largest ``|f_i|`` per axis [N], shape (3,).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
         return np.abs(self.u).max(axis=0) if self.u.shape[0] else np.zeros(3)
 
     def max_abs_velocity_mps(self) -> np.ndarray:
-        """Largest ``|v_i|`` per axis [m/s] (exact: velocity is linear between samples), shape (3,)."""
+        """Largest ``|v_i|`` per axis [m/s] (exact: velocity is linear between samples), shape (3,).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
         return np.abs(self.x[:, 3:6]).max(axis=0)
 
     def states_at(self, times: np.ndarray) -> np.ndarray:
-        """Exact states at ``times`` [s] inside ``[t[0], t[-1]]``, shape (len(times), 6)."""
+        """Exact states at ``times`` [s] inside ``[t[0], t[-1]]``, shape (len(times), 6).
+
+        Parameters
+        ----------
+        times : ndarray, shape (k,)
+            Times [s].
+
+        Returns
+        -------
+        ndarray, shape (k, 6)
+        """
         times = np.atleast_1d(np.asarray(times, dtype=float))
         if len(self) == 1:
             return np.tile(self.x[0], (times.size, 1))
@@ -276,7 +376,18 @@ class TranslationalTrajectory:
         return out
 
     def refined(self, dt_s: float) -> TranslationalTrajectory:
-        """The same motion sampled every ``dt_s`` (each interval must be an integer multiple of ``dt_s``)."""
+        """The same motion sampled every ``dt_s`` (each interval must be an integer multiple of ``dt_s``).
+
+        Parameters
+        ----------
+        dt_s : float
+            New sample period [s].
+
+        Returns
+        -------
+        TranslationalTrajectory
+            ``self`` when the samples are already ``dt_s`` apart.
+        """
         h = self.h
         counts = np.rint(h / dt_s).astype(int)
         if np.any(counts < 1) or np.any(np.abs(counts * dt_s - h) > 1e-9 * np.maximum(h, 1.0)):
@@ -297,7 +408,13 @@ class TranslationalTrajectory:
         return TranslationalTrajectory(t_all, x_all, np.vstack(u_new), self.mass_kg)
 
     def zoh_residual(self) -> float:
-        """Largest deviation [m or m/s] of the samples from the exact propagation of the held forces."""
+        """Largest deviation [m or m/s] of the samples from the exact propagation of the held forces.
+
+        Returns
+        -------
+        float
+            0 for fewer than two samples.
+        """
         if len(self) < 2:
             return 0.0
         h = self.h[:, None]
@@ -307,6 +424,11 @@ class TranslationalTrajectory:
         return float(max(np.abs(r_pred - self.x[1:, 0:3]).max(), np.abs(v_pred - self.x[1:, 3:6]).max()))
 
     def is_zoh_consistent(self) -> bool:
-        """True when the samples follow the held forces within :data:`ZOH_RTOL` of the motion's scale."""
+        """True when the samples follow the held forces within :data:`ZOH_RTOL` of the motion's scale.
+
+        Returns
+        -------
+        bool
+        """
         scale = max(1.0, float(np.abs(self.x).max()))
         return self.zoh_residual() <= ZOH_RTOL * scale

@@ -93,7 +93,32 @@ class Tree:
         iteration: int,
         wall_time_s: float,
     ) -> int:
-        """Append a node; returns its index."""
+        """Append a node; returns its index.
+
+        Parameters
+        ----------
+        state : ndarray, shape (6,)
+        parent : int
+            Parent index (-1 for the root).
+        cost : float
+            Cost-to-come.
+        kind : int
+            Edge kind (:data:`EDGE_ROOT`, :data:`EDGE_LQR`, :data:`EDGE_PRIMITIVE`).
+        steps : int, optional
+            Horizon [steps] of an LQR edge.
+        force : ndarray, shape (3,), optional
+            Held force [N] of a motion-primitive edge.
+        duration_s : float, optional
+            Duration [s] of a motion-primitive edge.
+        iteration : int
+            Planner iteration that added the node.
+        wall_time_s : float
+            Planner time [s] at which it was added.
+
+        Returns
+        -------
+        int
+        """
         if self.n == self._states.shape[0]:
             self._grow()
         i = self.n
@@ -160,13 +185,31 @@ class Tree:
         return self._time[: self.n]
 
     def children(self, node: int) -> list[int]:
-        """Children of ``node`` (a copy)."""
+        """Children of ``node`` (a copy).
+
+        Parameters
+        ----------
+        node : int
+
+        Returns
+        -------
+        list of int
+        """
         return list(self._children[node])
 
     # -- structure -------------------------------------------------------------------------------------------
 
     def path_to(self, node: int) -> list[int]:
-        """Node indices from the root to ``node``."""
+        """Node indices from the root to ``node``.
+
+        Parameters
+        ----------
+        node : int
+
+        Returns
+        -------
+        list of int
+        """
         out = []
         while node >= 0:
             out.append(int(node))
@@ -174,7 +217,16 @@ class Tree:
         return out[::-1]
 
     def is_ancestor(self, ancestor: int, node: int) -> bool:
-        """True when ``ancestor`` lies on the path from the root to ``node`` (a node is its own ancestor)."""
+        """True when ``ancestor`` lies on the path from the root to ``node`` (a node is its own ancestor).
+
+        Parameters
+        ----------
+        ancestor, node : int
+
+        Returns
+        -------
+        bool
+        """
         while node >= 0:
             if node == ancestor:
                 return True
@@ -182,7 +234,16 @@ class Tree:
         return False
 
     def descendants(self, node: int) -> list[int]:
-        """Every node below ``node`` (not ``node`` itself), breadth first."""
+        """Every node below ``node`` (not ``node`` itself), breadth first.
+
+        Parameters
+        ----------
+        node : int
+
+        Returns
+        -------
+        list of int
+        """
         out: list[int] = []
         frontier = list(self._children[node])
         while frontier:
@@ -197,6 +258,21 @@ class Tree:
         """Give ``node`` a new parent over an LQR edge of ``steps`` steps and cost-to-come ``new_cost``.
 
         The cost change is propagated to every descendant (their edges start at ``node``'s unchanged state).
+
+        Parameters
+        ----------
+        node : int
+        new_parent : int
+        new_cost : float
+            New cost-to-come of ``node``.
+        steps : int
+            Horizon [steps] of the new edge.
+        iteration : int
+            Planner iteration.
+
+        Returns
+        -------
+        RewireEvent
 
         Raises
         ------

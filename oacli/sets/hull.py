@@ -14,6 +14,8 @@ functions), so the H-polytope always contains every point given, whatever roundi
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
@@ -26,6 +28,16 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
     """Vertices of the convex hull of 2-D ``points (k, 2)``, counter-clockwise, without collinear points.
 
     Returns an array of shape (h, 2): h ≥ 3 for a full-dimensional hull, 2 for a segment, 1 for a point.
+
+    Parameters
+    ----------
+    points : ndarray, shape (k, 2)
+        The points (any order, duplicates allowed).
+
+    Returns
+    -------
+    ndarray, shape (h, 2)
+        The hull's vertices, counter-clockwise.
     """
     pts = np.unique(np.asarray(points, dtype=float).reshape(-1, 2), axis=0)  # sorted by x, then y
     if pts.shape[0] <= 2:
@@ -46,7 +58,19 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
 def minkowski_sum_polygons(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Vertices of ``conv(p) ⊕ conv(q)`` for convex polygons given counter-clockwise (as from
     :func:`convex_hull_2d`), by merging their edges in angular order (linear time; no point is dropped by a
-    tolerance: vertices are sums of input vertices up to rounding, collinear vertices may remain)."""
+    tolerance: vertices are sums of input vertices up to rounding, collinear vertices may remain).
+
+    Parameters
+    ----------
+    p, q : ndarray, shape (k, 2)
+        Vertices of the two convex polygons, counter-clockwise; with fewer than 3 vertices either one is treated
+        as a point set (the hull of all pairwise sums is returned).
+
+    Returns
+    -------
+    ndarray, shape (h, 2)
+        Vertices of the sum, counter-clockwise.
+    """
     p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
     if p.shape[0] < 3 or q.shape[0] < 3:
         return convex_hull_2d((p[:, None, :] + q[None, :, :]).reshape(-1, 2))
@@ -58,11 +82,11 @@ def minkowski_sum_polygons(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     edges = np.vstack([np.roll(p, -1, axis=0) - p, np.roll(q, -1, axis=0) - q])
     angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), 2 * np.pi)
     steps = edges[np.argsort(angles, kind="stable")]
-    return p[0] + q[0] + np.vstack([np.zeros(2), np.cumsum(steps[:-1], axis=0)])
+    return cast(np.ndarray, p[0] + q[0] + np.vstack([np.zeros(2), np.cumsum(steps[:-1], axis=0)]))
 
 
 def _unit_rows(a: np.ndarray) -> np.ndarray:
-    return a / np.linalg.norm(a, axis=1, keepdims=True)
+    return cast(np.ndarray, a / np.linalg.norm(a, axis=1, keepdims=True))
 
 
 def _dedupe_normals(normals: np.ndarray) -> np.ndarray:

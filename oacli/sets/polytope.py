@@ -19,8 +19,10 @@ from a linear program.
 from __future__ import annotations
 
 import itertools
+from typing import cast
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import linprog
 from scipy.spatial import HalfspaceIntersection, QhullError
 
@@ -80,7 +82,18 @@ class Polytope:
 
     @classmethod
     def box(cls, lower: np.ndarray, upper: np.ndarray) -> Polytope:
-        """The box ``lower ≤ x ≤ upper`` (componentwise, ``lower ≤ upper``)."""
+        """The box ``lower ≤ x ≤ upper`` (componentwise, ``lower ≤ upper``).
+
+        Parameters
+        ----------
+        lower, upper : ndarray, shape (n,)
+            Componentwise bounds, ``lower ≤ upper``.
+
+        Returns
+        -------
+        Polytope
+            The box, with its 2ⁿ corners as vertices.
+        """
         lo = np.atleast_1d(np.asarray(lower, dtype=float))
         hi = np.atleast_1d(np.asarray(upper, dtype=float))
         if lo.shape != hi.shape or lo.ndim != 1:
@@ -93,14 +106,35 @@ class Polytope:
         return cls(np.vstack([eye, -eye]), np.concatenate([hi, -lo]), vertices=np.unique(corners, axis=0))
 
     @classmethod
-    def symmetric_box(cls, half_widths: np.ndarray) -> Polytope:
-        """The box ``|x_i| ≤ half_widths_i``."""
+    def symmetric_box(cls, half_widths: npt.ArrayLike) -> Polytope:
+        """The box ``|x_i| ≤ half_widths_i``.
+
+        Parameters
+        ----------
+        half_widths : array_like, shape (n,)
+            Half-widths ``≥ 0`` per axis (a scalar gives a 1-D box).
+
+        Returns
+        -------
+        Polytope
+        """
         h = np.atleast_1d(np.asarray(half_widths, dtype=float))
         return cls.box(-h, h)
 
     @classmethod
     def from_vertices(cls, points: np.ndarray) -> Polytope:
-        """The convex hull of ``points (k, n)``; offsets are exact support values over all points."""
+        """The convex hull of ``points (k, n)``; offsets are exact support values over all points.
+
+        Parameters
+        ----------
+        points : ndarray, shape (k, n)
+            Points spanning a full-dimensional hull.
+
+        Returns
+        -------
+        Polytope
+            The hull, with its vertices.
+        """
         pts = np.array(points, dtype=float, ndmin=2)
         normals, hull_vertices = hull_normals(pts)
         offsets = np.max(pts @ normals.T, axis=0)
@@ -135,7 +169,15 @@ class Polytope:
 
     def chebyshev_ball(self) -> tuple[np.ndarray | None, float]:
         """Centre and radius of the largest inscribed ball (LP); ``(None, -inf)`` when empty, radius ``inf`` if
-        the polytope contains arbitrarily large balls."""
+        the polytope contains arbitrarily large balls.
+
+        Returns
+        -------
+        centre : ndarray, shape (n,) or None
+            Centre of the ball; None when the polytope is empty.
+        radius : float
+            Its radius: ``-inf`` when empty, ``inf`` when unbounded balls fit, ``≤ 0`` for a flat polytope.
+        """
         if self._empty_row:
             return None, -np.inf
         n = self.dim
@@ -152,15 +194,25 @@ class Polytope:
         return res.x[:n], float(res.x[-1])
 
     def is_empty(self) -> bool:
-        """True when no point satisfies every inequality (a flat, lower-dimensional polytope is not empty)."""
+        """True when no point satisfies every inequality (a flat, lower-dimensional polytope is not empty).
+
+        Returns
+        -------
+        bool
+        """
         if self._vertices is not None:
-            return self._vertices.shape[0] == 0
+            return cast(bool, self._vertices.shape[0] == 0)
         _, radius = self.chebyshev_ball()
         scale = max(1.0, float(np.max(np.abs(self._b), initial=0.0)))
         return radius < -1e-12 * scale
 
     def is_bounded(self) -> bool:
-        """True when the polytope is bounded (its normals positively span the space) or empty."""
+        """True when the polytope is bounded (its normals positively span the space) or empty.
+
+        Returns
+        -------
+        bool
+        """
         if self._vertices is not None:
             return True
         if self._bounded is None:
@@ -258,21 +310,52 @@ class Polytope:
     # -- set operations ----------------------------------------------------------------------------------------
 
     def scaled(self, factor: float) -> Polytope:
-        """``factor · P`` for ``factor > 0``."""
+        """``factor · P`` for ``factor > 0``.
+
+        Parameters
+        ----------
+        factor : float
+            Scale factor ``> 0`` about the origin.
+
+        Returns
+        -------
+        Polytope
+        """
         if not factor > 0:
             raise ValueError(f"factor must be > 0, got {factor}")
         v = None if self._vertices is None else factor * self._vertices
         return Polytope(self._a, factor * self._b, vertices=v)
 
     def translated(self, t: np.ndarray) -> Polytope:
-        """``P + t`` (a translation by ``t (n,)``)."""
+        """``P + t`` (a translation by ``t (n,)``).
+
+        Parameters
+        ----------
+        t : ndarray, shape (n,)
+            Translation.
+
+        Returns
+        -------
+        Polytope
+        """
         t = np.asarray(t, dtype=float).reshape(self.dim)
         v = None if self._vertices is None else self._vertices + t
         return Polytope(self._a, self._b + self._a @ t, vertices=v)
 
     def linear_map(self, m: np.ndarray) -> Polytope:
         """The image ``M P = {M x : x ∈ P}`` of a bounded polytope (``M`` of shape (p, n); for p ≥ 3 the image
-        must be full-dimensional)."""
+        must be full-dimensional).
+
+        Parameters
+        ----------
+        m : ndarray, shape (p, n)
+            The linear map.
+
+        Returns
+        -------
+        Polytope
+            The image, in ``p`` dimensions.
+        """
         m = np.array(m, dtype=float, ndmin=2)
         if m.shape[1] != self.dim:
             raise ValueError(f"M: expected {self.dim} columns, got {m.shape[1]}")
@@ -282,41 +365,109 @@ class Polytope:
         return Polytope.from_vertices(v @ m.T)
 
     def minkowski_sum(self, other: Polytope) -> Polytope:
-        """``P ⊕ Q = {p + q}`` of two bounded polytopes; offsets are ``h_P + h_Q`` along the hull normals."""
+        """``P ⊕ Q = {p + q}`` of two bounded polytopes; offsets are ``h_P + h_Q`` along the hull normals.
+
+        Parameters
+        ----------
+        other : Polytope
+            Q, bounded, of the same dimension.
+
+        Returns
+        -------
+        Polytope
+        """
         _check_same_dim(self, other)
         pts = (self.vertices[:, None, :] + other.vertices[None, :, :]).reshape(-1, self.dim)
         normals, hull_vertices = hull_normals(pts)
         offsets = self.support(normals) + other.support(normals)
-        return Polytope(normals, offsets, vertices=hull_vertices)
+        return Polytope(normals, cast(np.ndarray, offsets), vertices=hull_vertices)
 
     def pontryagin_difference(self, other: Polytope) -> Polytope:
-        """``P ⊖ Q = {x : x ⊕ Q ⊆ P} = {x : A x ≤ b − h_Q(A)}`` (Q bounded; may be empty)."""
+        """``P ⊖ Q = {x : x ⊕ Q ⊆ P} = {x : A x ≤ b − h_Q(A)}`` (Q bounded; may be empty).
+
+        Parameters
+        ----------
+        other : Polytope
+            Q, bounded, of the same dimension.
+
+        Returns
+        -------
+        Polytope
+            P's normals with tightened offsets (possibly empty).
+        """
         _check_same_dim(self, other)
         return Polytope(self._a, self._b - other.support(self._a))
 
     def intersection(self, other: Polytope) -> Polytope:
-        """``P ∩ Q``."""
+        """``P ∩ Q``.
+
+        Parameters
+        ----------
+        other : Polytope
+            Q, of the same dimension.
+
+        Returns
+        -------
+        Polytope
+            All inequalities of both (redundant ones are kept).
+        """
         _check_same_dim(self, other)
         return Polytope(np.vstack([self._a, other.a]), np.concatenate([self._b, other.b]))
 
     # -- membership --------------------------------------------------------------------------------------------
 
     def contains_points(self, points: np.ndarray, tol: float = 0.0) -> np.ndarray | bool:
-        """Whether each point satisfies every inequality within ``tol``; ``points (n,)`` or ``(k, n)``."""
+        """Whether each point satisfies every inequality within ``tol``; ``points (n,)`` or ``(k, n)``.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n,) or (k, n)
+            One point or a batch.
+        tol : float, optional
+            Slack added to every offset.
+
+        Returns
+        -------
+        bool or ndarray of bool, shape (k,)
+            A bool for one point, one per row otherwise.
+        """
         p = np.asarray(points, dtype=float)
         single = p.ndim == 1
         ok = np.all(np.atleast_2d(p) @ self._a.T <= self._b + tol, axis=1) & (not self._empty_row)
         return bool(ok[0]) if single else ok
 
     def containment_margin(self, other: Polytope) -> float:
-        """``min_i (b_i − h_Q(a_i))``: ≥ 0 exactly when ``Q ⊆ P`` (``inf`` for a P without inequalities)."""
+        """``min_i (b_i − h_Q(a_i))``: ≥ 0 exactly when ``Q ⊆ P`` (``inf`` for a P without inequalities).
+
+        Parameters
+        ----------
+        other : Polytope
+            Q, bounded, of the same dimension.
+
+        Returns
+        -------
+        float
+            The margin; negative when Q sticks out of P.
+        """
         _check_same_dim(self, other)
         if self.n_facets == 0:
             return np.inf
         return float(np.min(self._b - other.support(self._a)))
 
     def contains(self, other: Polytope, tol: float = 0.0) -> bool:
-        """True when ``Q ⊆ P`` (every support value of Q along P's normals is within P's offsets + ``tol``)."""
+        """True when ``Q ⊆ P`` (every support value of Q along P's normals is within P's offsets + ``tol``).
+
+        Parameters
+        ----------
+        other : Polytope
+            Q, bounded, of the same dimension.
+        tol : float, optional
+            Allowed violation of P's offsets.
+
+        Returns
+        -------
+        bool
+        """
         return self.containment_margin(other) >= -tol
 
 

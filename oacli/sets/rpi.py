@@ -3,8 +3,18 @@
 * :func:`minimal_rpi_outer`: Raković, Kerrigan, Kouramas & Mayne 2005 ("Invariant approximations of the
   minimal robust positively invariant set", IEEE TAC 50(3)), Algorithm 1: the RPI outer ε-approximation
   ``F(α, s) = (1 − α)⁻¹ F_s`` of the minimal RPI set ``F_∞``, with ``F_s = ⊕_{i<s} A_Kⁱ W`` (their Eq. 2),
-  ``α°(s) = max_i h_W((A_Kˢ)ᵀ f_i) / g_i`` (Eq. 11), ``M(s)`` of Eq. 13 and the stopping rule
-  ``α ≤ ε / (ε + M(s))`` (Eq. 14), so that ``F_∞ ⊆ F(α, s) ⊆ F_∞ ⊕ B_∞ⁿ(ε)``.
+  ``α°(s) = max_i h_W((A_Kˢ)ᵀ f_i) / g_i`` (Eq. 11), ``A_Kˢ W ⊆ α W`` (Eq. 4) and one of two stopping rules:
+
+  - ``"absolute"`` (the paper's Eq. 14): ``α ≤ ε / (ε + M(s))`` with ``M(s)`` of Eq. 13, so that
+    ``F_∞ ⊆ F(α, s) ⊆ F_∞ ⊕ B_∞ⁿ(ε)`` (ε in state units);
+  - ``"relative"``: ``α ≤ ε / (1 + ε)``, so that ``F_∞ ⊆ F(α, s) ⊆ (1 + ε) F_∞`` (ε dimensionless). It follows
+    from ``F_s ⊆ F_∞`` (0 ∈ W), hence ``F(α, s) ⊆ (1 − α)⁻¹ F_∞``, and ``(1 − α)⁻¹ ≤ 1 + ε`` ⇔ ``α ≤ ε/(1 + ε)``
+    (the scaling argument of the paper's Theorem 1; Mayne, Seron & Raković 2005 use such a Z as the tube
+    cross-section). Unlike the absolute rule it does not depend on the size of W, so it bounds the tube's
+    conservatism for a small W (the absolute ε = 0.005 of the ReSWARM flight code almost doubles a tube of a
+    few millimetres).
+* :func:`minimal_rpi_support`: the support function of ``F_∞`` itself, ``Σ_{k≥0} h_W((A_Kᵏ)ᵀ d)``, summed to a
+  rigorous tail bound (an independent reference for ``F(α, s)`` and for the tube's conservatism).
 * :func:`rpi_margins`: the robust invariance test facet by facet, ``h_Z(A_Kᵀ a_i) + h_W(a_i) ≤ b_i``.
 * :func:`reduce_facets`: fewer facets for a 2-D RPI set, each removal verified to keep the set RPI and within
   ``(1 + growth)`` times the original (an outer approximation of ``F_∞`` that stays RPI).
@@ -15,12 +25,19 @@ The computation never caps the number of terms ``s`` silently: when ``max_terms`
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, cast
 
 import numpy as np
 
 from oacli.errors import InfeasibleError
 from oacli.sets.hull import convex_hull_2d, hull_normals, minkowski_sum_polygons
 from oacli.sets.polytope import Polytope
+
+EpsilonMode = Literal["absolute", "relative"]
+"""Meaning of ε in :func:`minimal_rpi_outer`: a ∞-norm ball radius [state units] or a relative scale [-]."""
+
+#: How many times ``max_terms`` the α-only iteration goes on when refusing, to say how many terms are needed.
+_NEEDED_SEARCH_FACTOR = 20
 
 
 @dataclass(frozen=True)
@@ -38,9 +55,12 @@ class RPIApproximation:
     m_s : float
         ``M(s)`` of RKKM05 Eq. 13 [state units].
     epsilon : float
-        Requested accuracy ε (radius of the ∞-norm ball) [state units].
+        Requested accuracy ε: radius of the ∞-norm ball [state units] (``mode == "absolute"``) or relative
+        scale [-] (``mode == "relative"``).
     spectral_radius : float
         Spectral radius of ``A_K`` (< 1).
+    mode : {"absolute", "relative"}
+        The stopping rule used (see :func:`minimal_rpi_outer`).
     """
 
     z: Polytope
@@ -49,6 +69,7 @@ class RPIApproximation:
     m_s: float
     epsilon: float
     spectral_radius: float
+    mode: EpsilonMode = "absolute"
 
     @property
     def facets(self) -> int:
@@ -56,18 +77,61 @@ class RPIApproximation:
         return self.z.n_facets
 
     @property
-    def epsilon_achieved(self) -> float:
-        """``α M(s) / (1 − α)``: the accuracy ``F(α, s) ⊆ F_∞ ⊕ B(ε)`` actually holds with (≤ ε)."""
+    def absolute_accuracy(self) -> float:
+        """``α M(s) / (1 − α)`` [state units]: ``F(α, s) ⊆ F_∞ ⊕ B_∞(·)`` holds with this radius (any mode)."""
         return self.alpha * self.m_s / (1.0 - self.alpha)
+
+    @property
+    def relative_accuracy(self) -> float:
+        """``α / (1 − α)`` [-]: ``F(α, s) ⊆ (1 + ·) F_∞`` holds with this value (any mode)."""
+        return self.alpha / (1.0 - self.alpha)
+
+    @property
+    def epsilon_achieved(self) -> float:
+        """The accuracy actually reached in the requested sense (≤ ε): absolute or relative, by ``mode``."""
+        return self.relative_accuracy if self.mode == "relative" else self.absolute_accuracy
+
+
+class RPITermsError(InfeasibleError):
+    """:func:`minimal_rpi_outer` needs more terms than allowed (exit code 3, like every InfeasibleError).
+
+    Attributes
+    ----------
+    needed : int or None
+        Terms the stopping rule needs (None: more than ``max_terms`` × 20, not searched further).
+    max_terms : int
+    spectral_radius : float
+        Of ``A_K``: the closer to 1, the more terms.
+    """
+
+    def __init__(self, message: str, *, needed: int | None, max_terms: int, spectral_radius: float):
+        super().__init__(message)
+        self.needed = needed
+        self.max_terms = max_terms
+        self.spectral_radius = spectral_radius
 
 
 def spectral_radius(a: np.ndarray) -> float:
-    """Largest absolute eigenvalue of a square matrix."""
+    """Largest absolute eigenvalue of a square matrix.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n, n)
+
+    Returns
+    -------
+    float
+    """
     return float(np.max(np.abs(np.linalg.eigvals(np.asarray(a, dtype=float)))))
 
 
 def minimal_rpi_outer(
-    a_closed: np.ndarray, w: Polytope, epsilon: float, *, max_terms: int = 1000
+    a_closed: np.ndarray,
+    w: Polytope,
+    epsilon: float,
+    *,
+    mode: EpsilonMode = "absolute",
+    max_terms: int = 1000,
 ) -> RPIApproximation:
     """RPI outer ε-approximation of the minimal RPI set (Raković et al. 2005, Algorithm 1).
 
@@ -78,9 +142,13 @@ def minimal_rpi_outer(
     w : Polytope
         Disturbance set W (bounded, with the origin in its interior: every offset ``g_i > 0``).
     epsilon : float
-        Accuracy ε > 0 of the outer approximation [state units, ∞-norm].
+        Accuracy ε > 0: with ``mode="absolute"`` the radius of the ∞-norm ball of Eq. 14 [state units]; with
+        ``mode="relative"`` the scale of ``F(α, s) ⊆ (1 + ε) F_∞`` [-].
+    mode : {"absolute", "relative"}
+        Stopping rule: the paper's ``α ≤ ε / (ε + M(s))`` (default, reproduces the published example) or
+        ``α ≤ ε / (1 + ε)`` (see the module docstring).
     max_terms : int
-        Largest number of terms s tried. Reaching it raises; the set is never cut short.
+        Largest number of terms s allowed. Needing more raises; the set is never cut short.
 
     Returns
     -------
@@ -89,51 +157,124 @@ def minimal_rpi_outer(
     Raises
     ------
     InfeasibleError
-        When ``A_K`` is not Schur stable, when W does not contain the origin in its interior, or when
-        ``max_terms`` terms do not reach ε.
+        When ``A_K`` is not Schur stable or W does not contain the origin in its interior.
+    RPITermsError
+        (an InfeasibleError) When more than ``max_terms`` terms are needed to reach ε; ``needed`` says how many
+        when found within 20 × ``max_terms`` (a cheap search: no set is built).
     """
     a_k = np.asarray(a_closed, dtype=float)
     n = a_k.shape[0]
     if a_k.shape != (n, n) or w.dim != n:
         raise ValueError(f"A_K must be square and match W's dimension ({w.dim}), got {a_k.shape}")
-    if not epsilon > 0:
-        raise ValueError(f"epsilon must be > 0, got {epsilon}")
+    if not epsilon > 0 or not np.isfinite(epsilon):
+        raise ValueError(f"epsilon must be finite and > 0, got {epsilon}")
+    if mode not in ("absolute", "relative"):
+        raise ValueError(f"mode must be 'absolute' or 'relative', got {mode!r}")
+    if int(max_terms) < 1:
+        raise ValueError(f"max_terms must be >= 1, got {max_terms}")
     rho = spectral_radius(a_k)
     if rho >= 1.0:
         raise InfeasibleError(
             f"the ancillary closed loop A + BK is not Schur stable (spectral radius {rho:.6g} >= 1): "
             "no bounded robust positively invariant set exists; choose another ancillary gain"
         )
-    f, g = w.a, w.b
-    if np.any(g <= 0.0):
+    if np.any(w.b <= 0.0):
         raise InfeasibleError(
             "the disturbance set W does not contain the origin in its interior (an offset g_i <= 0): "
             "Raković et al. 2005 Algorithm 1 needs 0 ∈ int W"
         )
+    s, alpha, m_s = _terms_needed(a_k, w, float(epsilon), mode, int(max_terms) * _NEEDED_SEARCH_FACTOR)
+    if s is None or s > max_terms:
+        needed = f"s = {s} terms" if s is not None else f"more than {int(max_terms) * _NEEDED_SEARCH_FACTOR} terms"
+        unit = "" if mode == "relative" else " [state units]"
+        raise RPITermsError(
+            f"the minimal RPI approximation needs {needed} for the {mode} ε = {epsilon:g}{unit}, more than "
+            f"max_terms = {max_terms} (spectral radius of A + BK {rho:.6g}; α = {alpha:.4g} at the last term "
+            "tried); the set is not truncated: raise max_terms or ε, or use a faster ancillary gain",
+            needed=s, max_terms=int(max_terms), spectral_radius=rho,
+        )
+    z = _scaled_minkowski_series(a_k, w, s, 1.0 / (1.0 - alpha))
+    return RPIApproximation(z=z, s=s, alpha=alpha, m_s=m_s, epsilon=float(epsilon), spectral_radius=rho, mode=mode)
+
+
+def _terms_needed(
+    a_k: np.ndarray, w: Polytope, epsilon: float, mode: EpsilonMode, limit: int
+) -> tuple[int | None, float, float]:
+    """The smallest s ≤ ``limit`` meeting the stopping rule, with ``α°(s)`` (Eq. 11) and ``M(s)`` (Eq. 13).
+
+    Only 2n + m support values per term (no set is built), so searching past ``max_terms`` to report the
+    number of terms needed is cheap. Returns ``(None, α°(limit), M(limit))`` when ``limit`` is not enough.
+    """
+    n = a_k.shape[0]
+    f, g = w.a, w.b
     eye = np.eye(n)
     directions = np.vstack([eye, -eye])
     power = eye.copy()  # A_K^(s-1) during iteration s
     m_sums = np.zeros(2 * n)  # Σ_{i<s} h_W(±(A_Kⁱ)ᵀ e_j)
-    alpha = np.inf
-    s = 0
-    while s < max_terms:
-        s += 1
+    alpha, m_s = np.inf, 0.0
+    relative_bound = epsilon / (1.0 + epsilon)
+    for s in range(1, limit + 1):
         m_sums += w.support(directions @ power)  # rows ±e_jᵀ A^(s-1)  → directions (A^(s-1))ᵀ(±e_j)
         power = a_k @ power  # A_K^s
         alpha = float(np.max(w.support(f @ power) / g))  # α°(s), Eq. 11: h_W((A^s)ᵀ f_i) / g_i
         m_s = float(np.max(m_sums))  # M(s), Eq. 13
-        if alpha <= epsilon / (epsilon + m_s):  # Eq. 14
-            break
-    else:
-        raise InfeasibleError(
-            f"the minimal RPI approximation needs more than max_terms = {max_terms} terms for ε = {epsilon:g} "
-            f"(after {s} terms α = {alpha:.4g}, M = {m_s:.4g}, spectral radius {rho:.6g}); the set is not "
-            "truncated: raise max_terms or ε, or use a faster ancillary gain"
-        )
-    if alpha >= 1.0:  # cannot happen once Eq. 14 holds; kept as a guard for the scaling below
-        raise InfeasibleError(f"α = {alpha:.6g} >= 1: F(α, s) is not defined")
-    z = _scaled_minkowski_series(a_k, w, s, 1.0 / (1.0 - alpha))
-    return RPIApproximation(z=z, s=s, alpha=alpha, m_s=m_s, epsilon=float(epsilon), spectral_radius=rho)
+        bound = relative_bound if mode == "relative" else epsilon / (epsilon + m_s)  # Eq. 14 (absolute)
+        if alpha <= bound:  # bound < 1, so α < 1 and F(α, s) is defined
+            return s, alpha, m_s
+    return None, alpha, m_s
+
+
+def minimal_rpi_support(
+    a_closed: np.ndarray, w: Polytope, directions: np.ndarray, *, rtol: float = 1e-13, max_terms: int = 100_000
+) -> tuple[np.ndarray, np.ndarray]:
+    """Support function of the minimal RPI set, ``h_{F_∞}(d) = Σ_{k≥0} h_W((A_Kᵏ)ᵀ d)`` (RKKM05 Eq. 2, s → ∞).
+
+    Computed term by term, independently of :func:`minimal_rpi_outer` (no α, no Minkowski sum), until a rigorous
+    bound on the remaining tail is below ``rtol`` times the partial sum in every direction. Tail bound: with
+    ``q = ‖A_Kᴺ‖₂ < 1``, submultiplicativity gives ``Σ_{k≥N} ‖A_Kᵏ‖₂ ≤ q / (1 − q) · Σ_{k<N} ‖A_Kᵏ‖₂``, and
+    ``h_W(c) ≤ r_W ‖c‖₂`` with ``r_W`` the largest vertex norm of W.
+
+    Parameters
+    ----------
+    a_closed : ndarray, shape (n, n)
+        Schur-stable ``A_K``.
+    w : Polytope
+        Bounded disturbance set containing the origin.
+    directions : ndarray, shape (n,) or (k, n)
+    rtol : float
+        Relative accuracy of the sum (the tail bound); ≥ 1e-15.
+    max_terms : int
+        Refuse (ValueError) beyond this many terms.
+
+    Returns
+    -------
+    support : ndarray, shape (k,)
+        The partial sums (k = 1 for a single direction): lower bounds of ``h_{F_∞}`` (every term is ≥ 0 as
+        0 ∈ W).
+    tail : ndarray, shape (k,)
+        Upper bounds of the neglected tails: ``support ≤ h_{F_∞}(d) ≤ support + tail``.
+    """
+    a_k = np.asarray(a_closed, dtype=float)
+    d2 = np.atleast_2d(np.asarray(directions, dtype=float))
+    if spectral_radius(a_k) >= 1.0:
+        raise ValueError("A_K is not Schur stable: F_∞ is unbounded")
+    r_w = float(np.max(np.linalg.norm(w.vertices, axis=1)))
+    d_norm = np.linalg.norm(d2, axis=1)
+    total = np.zeros(d2.shape[0])
+    power = np.eye(a_k.shape[0])
+    norm_sum = 0.0
+    tail = np.full(d2.shape[0], np.inf)
+    for k in range(max_terms):
+        total += w.support(d2 @ power)  # rows dᵀ A_Kᵏ → h_W((A_Kᵏ)ᵀ d)
+        norm_sum += float(np.linalg.norm(power, 2))
+        power = a_k @ power
+        if k % 8 == 7:
+            q = float(np.linalg.norm(power, 2))
+            if q < 1.0:
+                tail = r_w * d_norm * q / (1.0 - q) * norm_sum
+                if np.all(tail <= max(rtol, 1e-15) * total):
+                    return total, tail
+    raise ValueError(f"the sum of h_W over A_K's powers did not reach rtol = {rtol:g} within {max_terms} terms")
 
 
 def _scaled_minkowski_series(a_k: np.ndarray, w: Polytope, s: int, scale: float) -> Polytope:
@@ -154,13 +295,27 @@ def _scaled_minkowski_series(a_k: np.ndarray, w: Polytope, s: int, scale: float)
             _, points = hull_normals(points)  # keep the hull vertices only (a point dropped lies inside the hull)
     normals, hull_vertices = hull_normals(points)
     offsets = sum(w.support(normals @ p) for p in powers)
-    return Polytope(normals, scale * offsets, vertices=scale * hull_vertices)
+    return Polytope(normals, cast(np.ndarray, scale * offsets), vertices=scale * hull_vertices)
 
 
 def rpi_margins(a_closed: np.ndarray, z: Polytope, w: Polytope) -> np.ndarray:
     """Robust invariance margins ``b_i − h_Z(A_Kᵀ a_i) − h_W(a_i)`` per facet ``a_iᵀ e ≤ b_i`` of Z.
 
     All margins ``≥ 0`` ⇔ ``A_K Z ⊕ W ⊆ Z`` (Z is RPI; Kolmanovsky & Gilbert 1998).
+
+    Parameters
+    ----------
+    a_closed : ndarray, shape (n, n)
+        Closed-loop matrix ``A_K = A + B K``.
+    z : Polytope
+        Candidate invariant set Z, bounded.
+    w : Polytope
+        Disturbance set W, bounded.
+
+    Returns
+    -------
+    ndarray, shape (n_facets,)
+        One margin per inequality of Z.
     """
     a = z.a
     return z.b - z.support(a @ np.asarray(a_closed, dtype=float)) - w.support(a)
@@ -216,6 +371,11 @@ def reduce_facets(a_closed: np.ndarray, z: Polytope, w: Polytope, growth: float)
     w : Polytope
     growth : float
         Allowed relative growth ≥ 0; 0 returns ``z`` unchanged.
+
+    Returns
+    -------
+    FacetReduction
+        The reduced set, the facet counts, the growth used and the smallest margin.
     """
     a_k = np.asarray(a_closed, dtype=float)
     before = z.n_facets

@@ -1,4 +1,4 @@
-"""Localisation faults: jumps of the measured pose (seed 001 §5.4.2, §6.2.1, Fig. 21).
+"""Localisation faults: jumps of the measured pose ([ReSWARM2023] §5.4.2, §6.2.1, Fig. 21).
 
 In flight Astrobee's localisation occasionally jumped when visual features were lost; the estimators must reject
 such records (χ² gating). :func:`inject_localisation_jumps` replaces a fraction of measured states by jumped ones:

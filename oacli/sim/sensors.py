@@ -25,7 +25,18 @@ class SensorNoise:
     angular_velocity_std_radps: float = 0.0
 
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Noisy copy of the true state ``x (13,)``; draws 12 normals from ``rng`` every call."""
+        """Noisy copy of the true state ``x (13,)``; draws 12 normals from ``rng`` every call.
+
+        Parameters
+        ----------
+        x : ndarray, shape (13,)
+            True state.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray, shape (13,)
+        """
         n = rng.standard_normal(12)
         y = x.copy()
         y[0:3] += self.position_std_m * n[0:3]
@@ -52,9 +63,24 @@ class Disturbance:
 
     @classmethod
     def none(cls) -> Disturbance:
-        """No disturbance."""
+        """No disturbance.
+
+        Returns
+        -------
+        Disturbance
+        """
         return cls(np.zeros(6), np.zeros(6))
 
     def sample(self, rng: np.random.Generator) -> np.ndarray:
-        """One disturbance value (6,); draws 6 uniforms from ``rng`` every call."""
+        """One disturbance value (6,); draws 6 uniforms from ``rng`` every call.
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray, shape (6,)
+            Force [N] and torque [N·m].
+        """
         return self.bias + self.random_bound * rng.uniform(-1.0, 1.0, 6)

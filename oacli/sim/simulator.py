@@ -35,7 +35,19 @@ class Controller(Protocol):
     """A sampled-data controller."""
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """Input to apply from time ``t`` [s] given the measured state ``x_measured (13,)``."""
+        """Input to apply from time ``t`` [s] given the measured state ``x_measured (13,)``.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s].
+        x_measured : ndarray, shape (13,)
+            Measured state.
+
+        Returns
+        -------
+        ControlStep
+        """
         ...
 
 

@@ -1,4 +1,4 @@
-"""The ``estimate`` stage: inertial parameters from a tracking run (Doerr 2021 Eqs. 31-32; seed 001 §4.4.1, §6.2.1).
+"""Stage ``estimate``: inertial parameters from a tracking run ([Doerr2021] Eqs. 31-32; [ReSWARM2023] §4.4.1, §6.2.1).
 
 Inputs: the config (its ``estimation`` section: method, prior, noise, gate; ``robot`` as the default prior mean;
 ``simulation.plant_rate_hz`` as the default integration grid) and a ``track.mcap`` (measured states and applied
@@ -37,6 +37,7 @@ from oacli.io.rerun_estimate import write_estimate_recording
 from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.model.rigid_body import theta_of
 from oacli.stages.track import StageResult
+from oacli.status import StatusReport
 from oacli.types import ParameterEstimate
 
 LogEntry = tuple[float, str, str]
@@ -260,7 +261,7 @@ def _estimate_summary(
     std = final.std
     summary: dict[str, Any] = {
         "stage": "estimate",
-        "status": "ok",
+        "status": "ok",  # set by estimate_findings
         "method": run.method,
         "telemetry": str(telemetry),
         "mass_kg": float(final.theta[0]),
@@ -293,7 +294,21 @@ def _estimate_summary(
         summary["windows"] = len(run.history)
     else:
         summary["state_reinitialisations"] = int(run.reinitialisations)
+    estimate_findings(summary).apply(summary)
     return summary
+
+
+def estimate_findings(summary: dict[str, Any]) -> StatusReport:
+    """An estimate that did not converge (batch: the last Levenberg-Marquardt round missed its tolerance;
+    sequential: the filter lost the state and re-initialised) is ``degraded`` (:mod:`oacli.status`)."""
+    report = StatusReport()
+    if summary.get("converged") is False:
+        report.degraded("not_converged", f"the batch estimate did not converge within {summary['iterations']} "
+                                         "iterations (estimation.batch settings)")
+    if summary.get("state_reinitialisations"):
+        report.degraded("reinitialised", f"the sequential filter lost the state and re-initialised "
+                                         f"{summary['state_reinitialisations']} times")
+    return report
 
 
 def run_estimate(
@@ -369,13 +384,15 @@ def run_estimate(
     log.append((float(run.t_records[-1]), "info",
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
+    summary = _estimate_summary(run, prior, truth, telemetry)
+    log.extend((float(run.t_records[-1]), "warning", f"status {r['level']}: {r['message']}")
+               for r in summary["status_reasons"])
 
     config_yaml = dump_config(cfg)
     with open_stage_run(
         "estimate", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start
     ) as run_folder:
         run_dir, files = run_folder.run_dir, run_folder.files
-        summary = _estimate_summary(run, prior, truth, telemetry)
         _write_estimate_mcap(run_folder.file("mcap", "estimate.mcap"), cfg, config_yaml, run, telemetry, log)
         write_estimate_recording(
             run_folder.file("rrd", "estimate.rrd"),

@@ -10,6 +10,12 @@ Two methods (``excitation.method`` or ``--method``):
   sequential``, configured by the ``estimation`` section), or the Cramér-Rao oracle
   (:class:`oacli.excitation.oracle.CramerRaoOracle`, ``oracle``), named so in every output.
 
+Both design within the limits of :func:`oacli.stages.design_limits.excitation_design_limits`: the robot's with
+``excitation.margin`` (the force also × m_prior/m_upper, Doerr Eq. 28), capped by ``excitation.limits`` (RATTLE:
+``excitation.rattle.limits`` over them); a cap above the robot's is refused (exit 2) or clipped with a warning. In
+RATTLE's closed loop the feedback may use the actuator's full limits and a rate governor keeps the body rate within
+``robot.angular_velocity_limit_radps``. ``summary.json`` records the limits used (``design_limits``).
+
 Outputs in the run folder: ``config.yaml`` (first), ``excite.mcap`` (``/trajectory`` as ``oacli.TrajectorySample``
 at the design's sample period, the criterion per SCP iteration, the information over time, the scene),
 ``excite.rrd`` and ``summary.json`` (last).
@@ -26,7 +32,6 @@ import numpy as np
 
 from oacli import __version__
 from oacli.config import OacliConfig, dump_config
-from oacli.config.excitation import LimitsOverride
 from oacli.config.models import Pose
 from oacli.errors import ConfigError, InfeasibleError, InputError
 from oacli.estimation.online import OnlineSequentialEstimator
@@ -47,10 +52,13 @@ from oacli.geometry import Scene
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun_excite import write_excite_recording
 from oacli.io.runfolder import git_commit, open_stage_run
-from oacli.metrics import percentiles_ms
+from oacli.metrics import percentiles_ms, safety_block, safety_report
+from oacli.reference_limits import DesignLimits
 from oacli.sim.sensors import Disturbance, SensorNoise
+from oacli.stages.design_limits import excitation_design_limits
 from oacli.stages.estimate import estimator_settings
 from oacli.stages.track import StageResult
+from oacli.status import StatusReport, add_safety_reasons
 from oacli.trajectory import sample_states
 from oacli.types import ParameterEstimate, Trajectory
 
@@ -125,20 +133,16 @@ def _resolve_pose(cfg: OacliConfig, ref: str | Pose | None, field: str) -> Pose:
     return ref
 
 
-def motion_limits(cfg: OacliConfig, *overrides: LimitsOverride) -> MotionLimits:
-    """The robot's limits with the given overrides applied in order (later ones win)."""
-    robot = cfg.robot
-    values = {
-        "force_N": robot.force_limit_N,
-        "torque_Nm": robot.torque_limit_Nm,
-        "velocity_mps": robot.velocity_limit_mps,
-        "angular_velocity_radps": robot.angular_velocity_limit_radps,
-    }
-    for override in overrides:
-        for name in values:
-            if getattr(override, name) is not None:
-                values[name] = getattr(override, name)
-    return MotionLimits(**{k: np.asarray(v, dtype=float) for k, v in values.items()})
+def to_motion_limits(limits: DesignLimits) -> MotionLimits:
+    """The design limits as the excitation core's :class:`~oacli.excitation.problem.MotionLimits`."""
+    lim = limits.limits
+    return MotionLimits(lim.force_N, lim.torque_Nm, lim.velocity_mps, lim.angular_velocity_radps)
+
+
+def motion_limits(cfg: OacliConfig, *, rattle: bool = False) -> MotionLimits:
+    """The limits the offline design (or, with ``rattle``, the RATTLE planner) must respect: the robot's with
+    ``excitation.margin`` and the section caps (:func:`oacli.stages.design_limits.excitation_design_limits`)."""
+    return to_motion_limits(excitation_design_limits(cfg, rattle=rattle))
 
 
 def measurement_model(cfg: OacliConfig) -> MeasurementModel:
@@ -169,9 +173,12 @@ def check_pose_in_workspace(label: str, position: np.ndarray, scene: Scene) -> N
         raise InputError(f"excitation.{label} {_describe(position)} is outside every keep-in box (environment.keep_in)")
 
 
-def excitation_problem(cfg: OacliConfig) -> ExcitationProblem:
-    """The offline design problem the config describes (start and goal checked against the workspace)."""
+def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> ExcitationProblem:
+    """The offline design problem the config describes (start and goal checked against the workspace), within
+    ``limits`` (default: :func:`~oacli.stages.design_limits.excitation_design_limits`)."""
     exc = cfg.excitation
+    if limits is None:
+        limits = excitation_design_limits(cfg)
     start = _resolve_pose(cfg, exc.start, "start").state()
     goal = _resolve_pose(cfg, exc.goal, "goal").state()
     scene = cfg.scene()
@@ -187,7 +194,7 @@ def excitation_problem(cfg: OacliConfig) -> ExcitationProblem:
         steps=exc.steps,
         theta=theta,
         measurement=measurement_model(cfg),
-        limits=motion_limits(cfg, exc.limits),
+        limits=to_motion_limits(limits),
         scene=scene,
         criterion=exc.criterion,
         scaling=exc.parameter_scaling,
@@ -214,6 +221,20 @@ def scp_settings(cfg: OacliConfig) -> ScpSettings:
 
 def _named(values: np.ndarray) -> dict[str, float]:
     return {name: float(v) for name, v in zip(PARAM_NAMES, values, strict=True)}
+
+
+def _limit_log(limits: DesignLimits) -> list[LogEntry]:
+    """Log entries stating the design limits and every clipped section limit (a warning each)."""
+    return [(0.0, "info", limits.describe()), *((0.0, "warning", note) for note in limits.notes)]
+
+
+def within_design_limits(x: np.ndarray, u: np.ndarray, limits: DesignLimits) -> bool:
+    """Every input, velocity and angular rate of a design within the design limits (relative tolerance 1e-9)."""
+    lim = limits.limits
+    tol = 1 + 1e-9
+    return bool(np.all(np.abs(u[:, 0:3]) <= lim.force_N * tol) and np.all(np.abs(u[:, 3:6]) <= lim.torque_Nm * tol)
+                and np.all(np.abs(x[:, 3:6]) <= lim.velocity_mps * tol)
+                and np.all(np.abs(x[:, 10:13]) <= lim.angular_velocity_radps * tol))
 
 
 def check_design(design: ExcitationDesign, problem: ExcitationProblem) -> None:
@@ -294,7 +315,8 @@ def _information_records(writer: StageMcapWriter, t: np.ndarray, info: np.ndarra
 def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
                  progress: Callable[[float], None] | None) -> StageResult:
     wall = time.perf_counter()
-    problem = excitation_problem(cfg)
+    limits = excitation_design_limits(cfg)
+    problem = excitation_problem(cfg, limits)
     design = design_excitation(problem, scp_settings(cfg), progress=progress, rng=np.random.default_rng(cfg.seed))
     check_design(design, problem)
 
@@ -303,6 +325,7 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
                       f"({problem.scaling}), {len(design.iterations)} SCP iterations ({design.accepted_iterations} "
                       f"accepted), stop: {design.stop_reason}"),
         (0.0, "info", f"criterion {design.criterion_initial:.6g} -> {design.criterion_final:.6g}"),
+        *_limit_log(limits),
     ]
     traj = design.trajectory
     x, u = traj.x, traj.u
@@ -324,6 +347,8 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         "max_torque_Nm": float(np.max(np.abs(u[:, 3:6]))),
         "max_speed_mps": float(np.max(np.abs(x[:, 3:6]))),
         "max_angular_velocity_radps": float(np.max(np.abs(x[:, 10:13]))),
+        "design_limits": limits.summary(),
+        "within_design_limits": within_design_limits(x, u, limits),
         "collision_free": bool(design.collision_free),
         "crb_std": _named(design.crb_std),
         "crb_std_pct": _named(100.0 * design.crb_std / problem.theta),
@@ -333,6 +358,8 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         "steps": problem.steps,
         "dt_s": problem.dt,
     }
+    offline_findings(summary, problem).apply(summary)
+    log.extend(status_log(summary))
     config_yaml = dump_config(cfg)
     with open_stage_run("excite", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall) as run:
         run_dir, files = run.run_dir, run.files
@@ -373,8 +400,10 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     wall = time.perf_counter()
     exc = cfg.excitation
     rcfg = exc.rattle
-    problem = excitation_problem(cfg)  # start, goal, workspace checks, measurement model
-    limits = motion_limits(cfg, exc.limits, rcfg.limits)
+    design_lim = excitation_design_limits(cfg, rattle=True)
+    problem = excitation_problem(cfg, design_lim)  # start, goal, workspace checks, measurement model
+    limits = to_motion_limits(design_lim)
+    actuator = cfg.robot.input_limits  # the plant's actuators: the feedback may use what the plan leaves
     w = rcfg.weights
     planner = InformationAwarePlanner(
         problem.goal, horizon=rcfg.horizon, dt_s=rcfg.step_s, limits=limits, measurement=problem.measurement,
@@ -388,7 +417,9 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     truth = cfg.truth_params()
     theta_true = np.array([truth.mass_kg, *truth.inertia_kgm2])
     if rcfg.estimator == "oracle":
-        estimator = CramerRaoOracle(theta_true, prior_cov, problem.measurement, problem.start)
+        estimator: CramerRaoOracle | OnlineSequentialEstimator = CramerRaoOracle(
+            theta_true, prior_cov, problem.measurement, problem.start
+        )
     else:
         prior = ParameterEstimate(0.0, prior_theta(cfg), prior_cov, "prior")
         estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior))
@@ -402,13 +433,13 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             planner, estimator, weighting, problem.start, truth,
             duration_s=rcfg.duration_s, replan_period_s=rcfg.replan_period_s,
             control_period_s=cfg.controller.period_s, plant_period_s=cfg.simulation.plant_period_s,
-            input_limits=limits.input, feedback_q=cw.state_weights(), feedback_r=cw.input_weights(),
+            input_limits=actuator, feedback_q=cw.state_weights(), feedback_r=cw.input_weights(),
             sensors=SensorNoise(**cfg.sensors.model_dump()), disturbance=Disturbance(dist.bias, dist.random_bound),
             rng=np.random.default_rng(cfg.seed), progress=progress,
+            rate_limit_radps=np.asarray(cfg.robot.angular_velocity_limit_radps),
         )
-        summary, traj, log = _rattle_summary(cfg, problem, limits, run, prior_cov, theta_true)
-        _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, limits, run, traj, log, prior_cov,
-                              theta_true)
+        summary, traj, log = _rattle_summary(cfg, problem, design_lim, run, prior_cov, theta_true)
+        _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, run, traj, log, prior_cov, theta_true)
         stage_run.finish(summary)
     return StageResult(run_dir, summary, files)
 
@@ -431,7 +462,7 @@ def _flown_crb(tel, theta_true: np.ndarray, prior_cov: np.ndarray, measurement: 
     return oracle.estimate.std
 
 
-def _rattle_summary(cfg, problem, limits, run: RattleRun, prior_cov, theta_true):
+def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prior_cov, theta_true):
     exc = cfg.excitation
     d = scaling_matrix(theta_true, exc.parameter_scaling)
     prior_info = np.linalg.inv(prior_cov)
@@ -450,6 +481,16 @@ def _rattle_summary(cfg, problem, limits, run: RattleRun, prior_cov, theta_true)
             else "error-state EKF with χ² gating")
     crb = final.std if final.method == "oracle-crb" else _flown_crb(tel, theta_true, prior_cov, problem.measurement)
     log.insert(0, (0.0, "info", f"RATTLE closed loop, estimator: {final.method} ({what})"))
+    log[1:1] = _limit_log(design_lim)
+    robot = cfg.robot
+    peak_rate = float(np.max(np.abs(tel.x_true[:, 10:13])))
+    peak_speed = float(np.max(np.abs(tel.x_true[:, 3:6])))
+    within_robot = bool(np.all(np.abs(tel.x_true[:, 10:13]) <= np.asarray(robot.angular_velocity_limit_radps)
+                               * (1 + 1e-9))
+                        and np.all(np.abs(tel.x_true[:, 3:6]) <= np.asarray(robot.velocity_limit_mps) * (1 + 1e-9)))
+    if not within_robot:
+        log.append((float(tel.t_true[-1]), "warning", f"the flown motion exceeds the robot's velocity or angular "
+                                                      f"rate limit (peak {peak_speed:.4g} m/s, {peak_rate:.4g} rad/s)"))
     summary = {
         "stage": "excite",
         "status": "ok",
@@ -466,8 +507,13 @@ def _rattle_summary(cfg, problem, limits, run: RattleRun, prior_cov, theta_true)
         "replan_time_ms": percentiles_ms(solve),
         "max_force_N": float(np.max(np.abs(tel.u_applied[:, 0:3]))),
         "max_torque_Nm": float(np.max(np.abs(tel.u_applied[:, 3:6]))),
-        "max_speed_mps": float(np.max(np.abs(tel.x_true[:, 3:6]))),
-        "max_angular_velocity_radps": float(np.max(np.abs(tel.x_true[:, 10:13]))),
+        "max_speed_mps": peak_speed,
+        "max_angular_velocity_radps": peak_rate,
+        "max_plan_angular_velocity_radps": float(max(np.max(np.abs(r.plan.trajectory.x[:, 10:13]))
+                                                     for r in run.replans)),
+        "within_robot_limits": within_robot,
+        "rate_governed_steps": run.governed_steps,
+        "design_limits": design_lim.summary(),
         "collision_free": bool(np.all(inside)),
         "crb_std": _named(crb),
         "crb_std_pct": _named(100.0 * crb / theta_true),
@@ -488,13 +534,69 @@ def _rattle_summary(cfg, problem, limits, run: RattleRun, prior_cov, theta_true)
         "final_position_error_m": float(np.linalg.norm(tel.x_true[-1, 0:3] - goal[0:3])),
         "duration_s": float(tel.t_true[-1]),
         "dt_s": cfg.controller.period_s,
-        "force_limit_N": limits.force_N,
-        "torque_limit_Nm": limits.torque_Nm,
+        "force_limit_N": design_lim.limits.force_N,
+        "torque_limit_Nm": design_lim.limits.torque_Nm,
     }
+    robot = cfg.robot
+    report = safety_report(
+        tel.t_true, tel.x_true, scene=scene, velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
+        angular_velocity_limit_radps=np.asarray(robot.angular_velocity_limit_radps), robot_radius_m=robot.radius_m,
+        t_ctrl=tel.t_ctrl, u_command=tel.u_command, input_limits=robot.input_limits,
+    )
+    summary["safety"] = safety_block(report, samples=len(tel.t_true), robot_radius_m=robot.radius_m,
+                                     keep_in_margin_m=0.0)
+    rattle_findings(summary, problem, run).apply(summary)
+    log.extend(status_log(summary, float(tel.t_true[-1])))
     return summary, traj, log
 
 
-def _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, limits, run: RattleRun, traj, log, prior_cov,
+# ----------------------------------------------------------------------------------------------------------------
+# Status (oacli.status)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _goal_reasons(report: StatusReport, residual: dict[str, float], problem: ExcitationProblem) -> None:
+    tol = problem.terminal
+    over = [f"{key} {residual[key]:.3g} > {bound:.3g}"
+            for key, bound in (("position_m", tol.position_m), ("velocity_mps", tol.velocity_mps),
+                               ("angular_velocity_radps", tol.angular_velocity_radps))
+            if key in residual and residual[key] > bound * 1.001]
+    if over:
+        report.degraded("goal", "the run ends away from the goal at rest (" + ", ".join(over)
+                        + "; excitation.terminal_tolerance)")
+
+
+def offline_findings(summary: dict[str, Any], problem: ExcitationProblem) -> StatusReport:
+    """An offline design that stopped before the SCP converged, or that misses the goal, is ``degraded``."""
+    report = StatusReport()
+    stop = summary["stop_reason"]
+    if not stop.startswith("converged"):
+        report.degraded("scp", f"the SCP did not converge (stop: {stop}, {summary['iterations']} iterations); the "
+                               "design is feasible but not shown optimal (excitation.scp.max_iterations)")
+    _goal_reasons(report, summary["goal_residual"], problem)
+    return report
+
+
+def rattle_findings(summary: dict[str, Any], problem: ExcitationProblem, run: RattleRun) -> StatusReport:
+    """The RATTLE loop's findings: the true state's safety block (robot limits: unsafe; a command beyond the
+    robot's actuators: degraded), replans without a solution and a final state away from the goal (degraded)."""
+    report = StatusReport()
+    add_safety_reasons(report, summary["safety"])
+    failed = [r for r in run.replans if r.plan.status not in ("optimal", "optimal_inaccurate")]
+    if failed:
+        report.degraded("replan", f"{len(failed)} of {len(run.replans)} replans ended without a solution (last "
+                                  f"status {failed[-1].plan.status}); the previous plan was kept")
+    _goal_reasons(report, summary["goal_residual"], problem)
+    return report
+
+
+def status_log(summary: dict[str, Any], t: float = 0.0) -> list[LogEntry]:
+    """One log line per finding of the status."""
+    return [(t, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
+            for r in summary["status_reasons"]]
+
+
+def _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, run: RattleRun, traj, log, prior_cov,
                           theta_true) -> None:
     tel = run.telemetry
     est_t = np.array([0.0] + [e.t for e in run.estimates])
@@ -527,8 +629,9 @@ def _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, limits, run
     files["rrd"] = run_dir / "excite.rrd"
     write_excite_recording(
         files["rrd"], scene=problem.scene, t=traj.t, x=traj.x, u=traj.u, theta=theta_true, information=info_traj,
-        crb_std=post_std, force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,
-        angular_velocity_limit_radps=limits.angular_velocity_radps,
+        crb_std=post_std, force_limit_N=np.asarray(cfg.robot.force_limit_N),
+        torque_limit_Nm=np.asarray(cfg.robot.torque_limit_Nm),
+        angular_velocity_limit_radps=np.asarray(cfg.robot.angular_velocity_limit_radps),
         plans=[(r.t, r.plan.trajectory.x[:, 0:3]) for r in run.replans],
         gamma=(np.array([r.t for r in run.replans]), np.array([r.gamma for r in run.replans])),
         log=log, recording_name=f"{cfg.name}/excite",

@@ -41,7 +41,10 @@ from oacli.planning.problem import PlanningProblem
 from oacli.planning.result import PlanResult
 from oacli.planning.translational import CostWeights, TranslationalTrajectory
 from oacli.planning.tree import EDGE_LQR, EDGE_PRIMITIVE
+from oacli.reference_limits import DesignLimits
+from oacli.stages.design_limits import planner_design_limits
 from oacli.stages.track import StageResult
+from oacli.status import NO_SOLUTION, OK, StatusReport, add_output_trajectory_reasons
 from oacli.types import Trajectory
 
 LogEntry = tuple[float, str, str]
@@ -189,7 +192,7 @@ def check_endpoint(label: str, where: str, position: np.ndarray, checker: Collis
 def cost_weights(cfg: OacliConfig) -> CostWeights:
     """The planner's cost weights as :class:`~oacli.planning.translational.CostWeights`."""
     w = cfg.planner.weights
-    return CostWeights(w.position, w.velocity, w.force, w.time)
+    return CostWeights(w.position, w.velocity, w.force, w.time)  # type: ignore[arg-type]
 
 
 def build_problem(cfg: OacliConfig, seg: Segment) -> tuple[PlanningProblem, RobotBody]:
@@ -202,9 +205,10 @@ def build_problem(cfg: OacliConfig, seg: Segment) -> tuple[PlanningProblem, Robo
     check_endpoint(f"start of segment {seg.name}", f"waypoints.{seg.start_name}", seg.start[0:3], checker, body)
     check_endpoint(f"goal of segment {seg.name}", f"waypoints.{seg.goal_name}", seg.goal[0:3], checker, body)
     robot = cfg.robot
+    limits = planner_design_limits(cfg).limits
     problem = PlanningProblem(
         start=seg.start[0:6], goal=seg.goal[0:6], mass_kg=robot.mass_kg,
-        force_limit_N=np.asarray(robot.force_limit_N), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
+        force_limit_N=limits.force_N, velocity_limit_mps=limits.velocity_mps,
         checker=checker, sample_lower=np.array([b.lower for b in scene.keep_in]),
         sample_upper=np.array([b.upper for b in scene.keep_in]),
         weights=cost_weights(cfg),
@@ -235,34 +239,43 @@ def kino_rrt_settings(cfg: OacliConfig) -> KinoRrtSettings:
 
 def to_output(cfg: OacliConfig, trans: TranslationalTrajectory, q_start: np.ndarray, q_goal: np.ndarray,
               name: str) -> Trajectory:
-    """The 13-state output trajectory sampled every ``planner.output_dt_s`` with the attitude slerped."""
-    robot = cfg.robot
+    """The 13-state output trajectory sampled every ``planner.output_dt_s`` with the attitude slerped within the
+    design limits' angular rate and torque."""
+    limits = planner_design_limits(cfg).limits
     return full_state_trajectory(
         trans.refined(cfg.planner.output_dt_s), q_start, q_goal, cfg.robot_params(),
-        rate_limit_radps=np.asarray(robot.angular_velocity_limit_radps),
-        torque_limit_Nm=np.asarray(robot.torque_limit_Nm), hold_dt_s=cfg.planner.output_dt_s, name=name,
+        rate_limit_radps=limits.angular_velocity_radps,
+        torque_limit_Nm=limits.torque_Nm, hold_dt_s=cfg.planner.output_dt_s, name=name,
         frame=cfg.environment.frame,
     )
 
 
 def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChecker, body: RobotBody,
                        goal6: np.ndarray) -> dict[str, Any]:
-    """Summary numbers of an output trajectory; collisions re-checked exactly and densely (every 5 mm)."""
+    """Summary numbers of an output trajectory; collisions re-checked exactly and densely (every 5 mm).
+
+    ``within_limits``: within the design limits (:func:`~oacli.stages.design_limits.planner_design_limits`);
+    ``within_robot_limits``: within the robot's own; ``min_time_lower_bound_s`` under the design limits.
+    """
     robot = cfg.robot
+    design = planner_design_limits(cfg)
+    lim = design.limits
     trans = translational_part(traj, robot.mass_kg)
     report = checker.check(trans.pieces())
     force = np.abs(traj.u[:, 0:3]).max(axis=0)
     torque = np.abs(traj.u[:, 3:6]).max(axis=0)
     vel = np.abs(traj.x[:, 3:6]).max(axis=0)
     omega = np.abs(traj.x[:, 10:13]).max(axis=0)
-    within = bool(
-        np.all(force <= np.asarray(robot.force_limit_N) * (1 + 1e-9))
-        and np.all(vel <= np.asarray(robot.velocity_limit_mps) * (1 + 1e-9))
-        and np.all(torque <= np.asarray(robot.torque_limit_Nm) * (1 + 1e-9))
-        and np.all(omega <= np.asarray(robot.angular_velocity_limit_radps) * (1 + 1e-9))
-    )
-    bound = minimum_time_lower_bound_s(traj.x[0, 0:3], traj.x[-1, 0:3], np.asarray(robot.force_limit_N),
-                                       np.asarray(robot.velocity_limit_mps), robot.mass_kg)
+
+    def within(limits) -> bool:
+        return bool(
+            np.all(force <= limits.force_N * (1 + 1e-9)) and np.all(vel <= limits.velocity_mps * (1 + 1e-9))
+            and np.all(torque <= limits.torque_Nm * (1 + 1e-9))
+            and np.all(omega <= limits.angular_velocity_radps * (1 + 1e-9))
+        )
+
+    bound = minimum_time_lower_bound_s(traj.x[0, 0:3], traj.x[-1, 0:3], lim.force_N, lim.velocity_mps,
+                                       robot.mass_kg)
     out: dict[str, Any] = {
         "cost": trans.cost(cost_weights(cfg), goal6),
         "path_length_m": trans.path_length_m(),
@@ -275,7 +288,8 @@ def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChe
         "max_velocity_mps": float(vel.max()),
         "max_torque_Nm": float(torque.max()),
         "max_angular_velocity_radps": float(omega.max()),
-        "within_limits": within,
+        "within_limits": within(lim),
+        "within_robot_limits": within(design.robot),
         "collision_free": bool(report.free),
     }
     if not report.free:
@@ -288,6 +302,11 @@ def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChe
         out["dense_check"] = {"ok": dense.ok, "samples": dense.samples, "max_spacing_m": dense.max_spacing_m,
                               "min_clearance_m": dense.min_clearance_m}
     return out
+
+
+def design_limit_log(limits: DesignLimits) -> list[LogEntry]:
+    """Log entries stating the design limits and every clipped ``planner.limits`` value (a warning each)."""
+    return [(0.0, "info", limits.describe()), *((0.0, "warning", note) for note in limits.notes)]
 
 
 def _edge_name(kind: int) -> str:
@@ -378,8 +397,9 @@ def run_plan(
     problem, body = build_problem(cfg, seg)
     scene = problem.checker.scene
     kind = cfg.planner.type
+    limits = planner_design_limits(cfg)
 
-    log: list[LogEntry] = []
+    log: list[LogEntry] = design_limit_log(limits)
     config_yaml = dump_config(cfg)
     with open_stage_run("plan", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start) as run:
         run_dir, files = run.run_dir, run.files
@@ -407,9 +427,10 @@ def run_plan(
             "solution_improvements": max(len(result.solutions) - 1, 0),
             "rewires": len(result.rewires),
             "stats": result.stats,
+            "design_limits": limits.summary(),
         }
         if result.solved:
-            output = to_output(cfg, result.trajectory, seg.start[6:10], seg.goal[6:10], "plan")
+            output = to_output(cfg, result.trajectory, seg.start[6:10], seg.goal[6:10], "plan")  # type: ignore[arg-type]
             summary |= trajectory_metrics(cfg, output, problem.checker, body, problem.goal)
             log.append((0.0, "info", f"solution after {result.iterations_to_first_solution} iterations "
                                      f"({result.time_to_first_solution_s:.3f} s), {len(result.tree)} nodes, "
@@ -420,6 +441,12 @@ def run_plan(
                         "path_length_m": float("nan"), "max_force_N": float("nan")}
             log.append((0.0, "error", f"no solution within the budget ({result.iterations} iterations, "
                                       f"{result.planning_time_s:.1f} s, {len(result.tree)} nodes)"))
+        report = StatusReport(OK if result.solved else NO_SOLUTION)
+        if result.solved:
+            add_output_trajectory_reasons(report, summary, "plan")
+        report.apply(summary)
+        log.extend((0.0, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
+                   for r in summary["status_reasons"])
         _write_plan_mcap(run.file("mcap", "plan.mcap"), cfg, config_yaml, scene, result, output, summary, log)
         tree = result.tree
         write_plan_recording(
@@ -428,8 +455,7 @@ def run_plan(
             tree_edges=tree.edges, snapshots=[(s.iteration, s.parent, s.path) for s in result.snapshots],
             solutions=[(s.iteration, s.cost) for s in result.solutions],
             trajectory=None if output is None else (output.t, output.x, output.u),
-            force_limit_N=np.asarray(cfg.robot.force_limit_N),
-            velocity_limit_mps=np.asarray(cfg.robot.velocity_limit_mps), log=log,
+            force_limit_N=limits.limits.force_N, velocity_limit_mps=limits.limits.velocity_mps, log=log,
             recording_name=f"{cfg.name}/plan",
         )
         run.finish(summary)

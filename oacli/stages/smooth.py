@@ -36,19 +36,22 @@ from oacli.io.mcap_io import StageMcapWriter, read_stage, read_trajectory
 from oacli.io.rerun_plan import write_smooth_recording
 from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.planning.full_state import minimum_time_lower_bound_s, translational_part
-from oacli.planning.polish import STEP_OUTCOMES, PolishResult, PolishSettings, polish_trajectory
+from oacli.planning.polish import SOLVER, STEP_OUTCOMES, PolishResult, PolishSettings, polish_trajectory
 from oacli.planning.shortcut import ACCEPTED, ShortcutResult, lqr_shortcut
 from oacli.planning.steering import LqrConnector
 from oacli.planning.translational import TranslationalTrajectory
+from oacli.stages.design_limits import planner_design_limits
 from oacli.stages.plan import (
     SMOOTH_STREAM,
     cost_weights,
     describe_body,
+    design_limit_log,
     robot_body,
     to_output,
     trajectory_metrics,
 )
 from oacli.stages.track import StageResult
+from oacli.status import StatusReport, add_output_trajectory_reasons
 from oacli.types import Trajectory
 
 LogEntry = tuple[float, str, str]
@@ -112,8 +115,13 @@ def load_plan(cfg: OacliConfig, path: Path) -> Trajectory:
 
 
 def check_input(cfg: OacliConfig, path: Path, traj: Trajectory, checker: CollisionChecker) -> None:
-    """Refuse an input the smoother cannot start from (InputError, exit 2)."""
+    """Refuse an input the smoother cannot start from (InputError, exit 2).
+
+    Its forces and velocities must be within the design limits (:func:`planner_design_limits`): the smoother only
+    ever replaces sections, so an input beyond them would leave an output beyond them.
+    """
     robot = cfg.robot
+    limits = planner_design_limits(cfg).limits
     trans = translational_part(traj, robot.mass_kg)
     if not trans.is_zoh_consistent():
         raise InputError(
@@ -123,11 +131,14 @@ def check_input(cfg: OacliConfig, path: Path, traj: Trajectory, checker: Collisi
     if np.any(np.abs(trans.x[-1, 3:6]) > 1e-9):
         raise InputError(f"{path}: /trajectory does not end at rest (final velocity {trans.x[-1, 3:6]} m/s)")
     force = trans.max_abs_force_N()
-    if np.any(force > np.asarray(robot.force_limit_N) * (1 + 1e-9)):
-        raise InputError(f"{path}: /trajectory exceeds robot.force_limit_N (largest |f| per axis {force} N)")
+    if np.any(force > limits.force_N * (1 + 1e-9)):
+        raise InputError(f"{path}: /trajectory exceeds the design force limit {limits.force_N} N (robot.force_limit_N "
+                         f"with planner.margin; largest |f| per axis {force} N): plan it with this config")
     vel = trans.max_abs_velocity_mps()
-    if np.any(vel > np.asarray(robot.velocity_limit_mps) * (1 + 1e-9)):
-        raise InputError(f"{path}: /trajectory exceeds robot.velocity_limit_mps (largest |v| per axis {vel} m/s)")
+    if np.any(vel > limits.velocity_mps * (1 + 1e-9)):
+        raise InputError(f"{path}: /trajectory exceeds the design velocity limit {limits.velocity_mps} m/s "
+                         f"(robot.velocity_limit_mps with planner.margin; largest |v| per axis {vel} m/s): plan it "
+                         "with this config")
     report = checker.check(trans.pieces())
     if not report.free:
         t_hit = float(trans.t[report.first_piece] + np.nan_to_num(report.time_in_piece_s))
@@ -194,15 +205,16 @@ def polish_settings(cfg: OacliConfig) -> PolishSettings:
 
 def run_polish(cfg: OacliConfig, trans: TranslationalTrajectory, checker: CollisionChecker, goal: np.ndarray,
                cost_cap: float | None) -> PolishResult:
-    """Polish a shortcut result as configured in ``planner.polish`` (duration budget from ``duration_factor``)."""
+    """Polish a shortcut result as configured in ``planner.polish`` (duration budget from ``duration_factor``),
+    within the design limits."""
     robot, p = cfg.robot, cfg.planner.polish
+    limits = planner_design_limits(cfg).limits
     budget = None
     if p.duration_factor is not None:
-        bound = minimum_time_lower_bound_s(trans.x[0], goal, np.asarray(robot.force_limit_N),
-                                           np.asarray(robot.velocity_limit_mps), robot.mass_kg)
+        bound = minimum_time_lower_bound_s(trans.x[0], goal, limits.force_N, limits.velocity_mps, robot.mass_kg)
         budget = p.duration_factor * bound
-    return polish_trajectory(trans, checker, goal, np.asarray(robot.force_limit_N),
-                             np.asarray(robot.velocity_limit_mps), cost_weights(cfg), dt_s=cfg.planner.output_dt_s,
+    return polish_trajectory(trans, checker, goal, limits.force_N, limits.velocity_mps, cost_weights(cfg),
+                             dt_s=cfg.planner.output_dt_s,
                              duration_budget_s=budget, cost_cap=cost_cap, settings=polish_settings(cfg))
 
 
@@ -218,6 +230,18 @@ def polish_summary(polish: PolishResult, wall_time_s: float) -> dict[str, Any]:
         "outcomes": {k: sum(it.outcome == k for it in polish.iterations) for k in STEP_OUTCOMES},
         "wall_time_s": wall_time_s,
     }
+
+
+def smooth_findings(summary: dict[str, Any], polish: PolishResult | None) -> StatusReport:
+    """The smoothed trajectory colliding or beyond a limit is ``unsafe``; a polish whose every SCP subproblem
+    failed in the solver is ``degraded`` (the shortcut result is returned) (:mod:`oacli.status`)."""
+    report = StatusReport()
+    add_output_trajectory_reasons(report, summary, "smoothed trajectory")
+    if polish is not None and polish.iterations and all(it.outcome == SOLVER for it in polish.iterations):
+        report.degraded("polish", f"the polish failed: every one of its {len(polish.iterations)} subproblems failed "
+                                  f"in the solver (last status {polish.iterations[-1].status}); the shortcut result "
+                                  "is returned")
+    return report
 
 
 def run_smooth(
@@ -247,16 +271,19 @@ def run_smooth(
     goal = trans.x[-1].copy()
     p = cfg.planner
     connector = LqrConnector(robot.mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
+    limits = planner_design_limits(cfg)
+    lim = limits.limits
 
     config_yaml = dump_config(cfg)
     log: list[LogEntry] = [(0.0, "info", f"smoothing {input_path} ({traj_in.duration_s:.1f} s) with "
                                          f"{p.shortcut.tries} LQR shortcut tries"
-                                         + (", then the path-length polish" if p.polish.enabled else ""))]
+                                         + (", then the path-length polish" if p.polish.enabled else "")),
+                           *design_limit_log(limits)]
     with open_stage_run("smooth", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start) as run:
         run_dir, files = run.run_dir, run.files
         rng = np.random.default_rng([cfg.seed, SMOOTH_STREAM])
         result = lqr_shortcut(
-            trans, connector, checker, goal, np.asarray(robot.force_limit_N), np.asarray(robot.velocity_limit_mps),
+            trans, connector, checker, goal, lim.force_N, lim.velocity_mps,
             rng, tries=p.shortcut.tries, sample_dt_s=p.output_dt_s,
         )
         if progress is not None:
@@ -295,9 +322,11 @@ def run_smooth(
             "shortcuts_accepted": result.accepted,
             "shortcuts_rejected": result.rejected,
             "polish": {"enabled": False} if polish is None else polish_summary(polish, polish_wall),
+            "design_limits": limits.summary(),
             **{k: after[k] for k in after if k not in ("path_length_m", "impulse_Ns", "cost")},
         }
         summary["cost"] = after["cost"]
+        smooth_findings(summary, polish).apply(summary)
         log.append((traj_out.duration_s, "info",
                     f"shortcutting: cost {result.cost_before:.6g} -> {result.cost_after:.6g}, duration "
                     f"{traj_in.duration_s:.1f} s -> {traj_shortcut.duration_s:.1f} s, {result.accepted}/{result.tried} "
@@ -307,6 +336,8 @@ def run_smooth(
                         f"polish ({polish.status}, {polish.reason}): path length {polish.length_before_m:.4f} m -> "
                         f"{polish.length_after_m:.4f} m, cost {polish.cost_before:.6g} -> {polish.cost_after:.6g}, "
                         f"{polish.accepted}/{len(polish.iterations)} SCP steps accepted"))
+        log.extend((traj_out.duration_s, "error" if r["level"] == "unsafe" else "warning",
+                    f"status {r['level']}: {r['message']}") for r in summary["status_reasons"])
         _write_smooth_mcap(run.file("mcap", "smooth.mcap"), cfg, config_yaml, checker, input_path, traj_in,
                            traj_shortcut, traj_out, result, polish, summary, log)
         write_smooth_recording(
@@ -316,7 +347,7 @@ def run_smooth(
             shortcut_path=traj_shortcut.x[:, 0:3] if polish is not None else None,
             polish_steps=[] if polish is None else [(i, c.x[:, 0:3]) for i, c in polish.accepted_trajectories],
             polish_lengths=None if polish is None else np.array([it.length_m for it in polish.iterations]),
-            force_limit_N=np.asarray(robot.force_limit_N), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
+            force_limit_N=lim.force_N, velocity_limit_mps=lim.velocity_mps,
             log=log, recording_name=f"{cfg.name}/smooth",
         )
         run.finish(summary)

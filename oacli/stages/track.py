@@ -18,7 +18,7 @@ import numpy as np
 from oacli import __version__
 from oacli.config import OacliConfig, dump_config
 from oacli.control.tracking import TrackingLimits, TrackingMPC, TrackingWeights
-from oacli.control.tube_design import TubeDesign
+from oacli.control.tube_monitor import TubeMonitor
 from oacli.control.tube_mpc import TubeHistory
 from oacli.errors import InputError
 from oacli.geometry import Scene
@@ -27,19 +27,24 @@ from oacli.io.reference_files import load_reference
 from oacli.io.rerun_io import write_track_recording
 from oacli.io.rerun_tube import tube_track_blueprint
 from oacli.io.runfolder import git_commit, open_stage_run
-from oacli.metrics import constraint_violations, percentiles_ms, rms, tracking_errors
+from oacli.metrics import percentiles_ms, rms, tracking_errors
 from oacli.reference import waypoint_reference
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
+from oacli.stages.design_limits import check_reference_for_plant
+from oacli.stages.track_status import assess_track, controller_counts, status_log, track_safety
 from oacli.stages.track_tube import (
+    add_tube_reasons,
+    describe_beyond_w,
     describe_tube_design,
-    tube_controller_from_config,
+    monitored_tube_controller,
     tube_design_from_config,
     tube_layers,
     tube_summary,
     workspace_arguments,
     write_tube_topics,
 )
+from oacli.status import StatusReport
 from oacli.trajectory import sample_inputs
 from oacli.types import Telemetry, Trajectory
 
@@ -60,6 +65,8 @@ def reference_from_config(cfg: OacliConfig) -> Trajectory:
     ref = cfg.reference
     frame = cfg.environment.frame
     if ref.source == "file":
+        if ref.file is None:  # the config validation requires a file for source: file
+            raise InputError("reference.file: missing: required when reference.source is 'file'")
         return load_reference(Path(ref.file), sample_period_s=ref.sample_period_s, frame=frame)
     poses = cfg.reference_poses()
     return waypoint_reference(
@@ -106,17 +113,12 @@ def _track_summary(
 ) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
     errors = tracking_errors(tel, reference)
     ctrl_errors = tracking_errors(tel, reference, tel.t_ctrl)
-    violations = constraint_violations(
-        tel,
-        input_limits=limits.input,
-        velocity_limit_mps=limits.velocity_mps,
-        angular_velocity_limit_radps=limits.angular_velocity_radps,
-        scene=cfg.scene(),
-    )
-    failures = sum(not info.success for info in tel.solve_info)
+    safety = track_safety(cfg, tel, limits)
+    violations = {kind: safety[kind]["count"] for kind in ("input", "velocity", "angular_velocity", "keep_in",
+                                                          "keep_out")}
     summary = {
         "stage": "track",
-        "status": "ok",
+        "status": "ok",  # set by assess_track once every entry is in
         "controller": cfg.controller.type,
         "reference": reference.name,
         "seed": cfg.seed,
@@ -128,8 +130,8 @@ def _track_summary(
         "final_attitude_error_rad": float(errors.attitude_rad[-1]),
         "constraint_violations": int(sum(violations.values())),
         "constraint_violations_by_kind": violations,
-        "solver_failures": int(failures),
-        "fallback_steps": int(failures),
+        "safety": safety,
+        **controller_counts(tel),
         "control_steps": len(tel.t_ctrl),
         "solve_time_ms": percentiles_ms(np.array([i.solve_time_s for i in tel.solve_info])),
         "step_time_ms": percentiles_ms(np.array([i.step_time_s for i in tel.solve_info])),
@@ -145,6 +147,7 @@ def run_track(
     out: Path | None = None,
     runs_root: Path = Path("runs"),
     progress: Callable[[float], None] | None = None,
+    strict_reference: bool = False,
 ) -> StageResult:
     """Run the ``track`` stage and write its run folder.
 
@@ -160,6 +163,9 @@ def run_track(
         Parent folder of automatically named runs.
     progress : callable, optional
         Called with the completed fraction of the simulation.
+    strict_reference : bool
+        Refuse (InputError) a reference the plant cannot follow within the robot's limits instead of warning
+        (:func:`oacli.stages.design_limits.check_reference_for_plant`).
 
     Returns
     -------
@@ -171,6 +177,7 @@ def run_track(
         reference = reference_from_config(cfg)
     scene = cfg.scene()
     check_reference_in_workspace(reference, scene, log)
+    reference_check = check_reference_for_plant(cfg, reference, log, strict=strict_reference)
     log.append((0.0, "info", f"reference {reference.name}: {len(reference)} samples, {reference.duration_s:.1f} s"))
 
     robot = cfg.robot
@@ -184,6 +191,7 @@ def run_track(
     weights = TrackingWeights(*(np.asarray(getattr(weights_cfg, f)) for f in
                                 ("position", "velocity", "attitude", "angular_velocity", "force", "torque")))
     design = tube_design_from_config(cfg) if cfg.controller.type == "tube" else None
+    controller: TrackingMPC | TubeMonitor
     if design is None:
         controller = TrackingMPC(
             reference, cfg.robot_params(), dt_s=cfg.controller.period_s, horizon=cfg.controller.horizon,
@@ -191,7 +199,7 @@ def run_track(
             **workspace_arguments(cfg),
         )
     else:
-        controller = tube_controller_from_config(cfg, reference, design, weights, limits)
+        controller = monitored_tube_controller(cfg, reference, design, weights, limits)
         log.extend(describe_tube_design(design))
     x0 = reference.x[0].copy()
     x0[0:3] += np.asarray(cfg.simulation.initial_offset_m)
@@ -211,20 +219,29 @@ def run_track(
             sensors=sensors, disturbance=disturbance, rng=rng, progress=progress,
         )
         summary, pos_err_ctrl, att_err_ctrl = _track_summary(cfg, reference, tel, limits)
-        history = controller.history() if design is not None else None
-        if design is not None:
-            summary.update(tube_summary(design, history, tel, cfg))
+        summary["reference_check"] = reference_check.summary()
+        monitor = controller if isinstance(controller, TubeMonitor) else None
+        history = monitor.history() if monitor is not None else None
+        findings = StatusReport()
+        if monitor is not None and history is not None:
+            summary.update(tube_summary(monitor, history, tel, cfg))
+            add_tube_reasons(findings, summary)
+            log.extend(describe_beyond_w(monitor))
             log.append((float(tel.t_true[-1]), "info" if summary["tube_violations"] == 0 else "warning",
                         f"tube: {summary['tube_violations']} steps outside the promised tube, "
-                        f"{summary['fallback_steps']} fallback steps, {summary['safe_hold_steps']} in safe hold"))
+                        f"{summary['w_violations']} beyond W, {summary['fallback_steps']} fallback steps, "
+                        f"{summary['safe_hold_steps']} in safe hold"))
+        assess_track(summary, findings).apply(summary)
         for t, info in zip(tel.t_ctrl, tel.solve_info, strict=True):
             if not info.success:
                 log.append((float(t), "warning", f"controller step failed: {info.status}"))
         log.append((float(tel.t_true[-1]), "info",
                     f"done: rms position error {summary['rms_position_error_m']:.4f} m, "
                     f"{summary['solver_failures']} solver failures, "
-                    f"{summary['constraint_violations']} constraint violations"))
-        _write_track_mcap(run.file("mcap", "track.mcap"), cfg, config_yaml, reference, tel, scene, log, design, history)
+                    f"{summary['constraint_violations']} constraint violations; status {summary['status']}"))
+        log.extend(status_log(summary, float(tel.t_true[-1])))
+        _write_track_mcap(run.file("mcap", "track.mcap"), cfg, config_yaml, reference, tel, scene, log, monitor,
+                          history)
         write_track_recording(
             run.file("rrd", "track.rrd"), scene=scene, t_ref=reference.t, x_ref=reference.x,
             t_true=tel.t_true, x_true=tel.x_true,
@@ -233,7 +250,7 @@ def run_track(
             solve_time_ms=1e3 * np.array([i.solve_time_s for i in tel.solve_info]),
             force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm, log=log,
             recording_name=f"{cfg.name}/track",
-            extra=None if design is None else tube_layers(design, history),
+            extra=None if monitor is None or history is None else tube_layers(monitor, history),
             blueprint=None if design is None else tube_track_blueprint(),
         )
         run.finish(summary)
@@ -242,7 +259,7 @@ def run_track(
 
 def _write_track_mcap(
     path: Path, cfg: OacliConfig, config_yaml: str, reference: Trajectory, tel: Telemetry, scene: Scene,
-    log: list[LogEntry], design: TubeDesign | None = None, history: TubeHistory | None = None,
+    log: list[LogEntry], monitor: TubeMonitor | None = None, history: TubeHistory | None = None,
 ) -> None:
     metadata = {"stage": "track", "seed": cfg.seed, "git_commit": git_commit(), "version": __version__,
                 "config_name": cfg.name}
@@ -255,10 +272,11 @@ def _write_track_mcap(
         writer.write_states("/state/measured", tel.t_ctrl, tel.x_measured, tel.u_command)
         writer.write_wrenches("/control/command", tel.t_ctrl, tel.u_command)
         writer.write_wrenches("/control/applied", tel.t_ctrl, tel.u_applied)
-        writer.write_wrenches("/disturbance", tel.t_ctrl, tel.disturbance)
+        if tel.disturbance is not None:  # always set once the Telemetry is built (zeros when none)
+            writer.write_wrenches("/disturbance", tel.t_ctrl, tel.disturbance)
         writer.write_solver_stats(tel.t_ctrl, tel.solve_info)
-        if design is not None and history is not None:
-            write_tube_topics(writer, tel, design, history)
+        if monitor is not None and history is not None:
+            write_tube_topics(writer, tel, monitor, history)
         writer.write_poses(tel.t_true, tel.x_true)
         for t, level, message in log:
             writer.write_log(t, level, message)
