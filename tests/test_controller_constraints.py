@@ -452,6 +452,41 @@ def test_payload_chain_of_the_issue_stays_in_the_jem_with_the_tube_and_leaves_it
     assert outcome == {("tube", True): True, ("tube", False): False, ("mpc", True): True}
 
 
+def body_excursion_m(scene: Scene, positions: np.ndarray, radius: float) -> np.ndarray:
+    """Per position, how far [m] the sphere's centre is from the nearest convex piece of the keep-in union shrunk by
+    the radius (L∞; 0 inside one): an upper bound of how far the body reaches out of the union."""
+    lo, hi = keep_in_pieces(scene)
+    p = np.asarray(positions, dtype=float)[:, None, :]
+    excess = np.max(np.maximum(lo + radius - p, p - hi + radius), axis=2)
+    return np.maximum(excess.min(axis=1), 0.0)
+
+
+def test_standard_mpc_with_rows_keeps_far_closer_to_the_corner_the_reference_cuts(tmp_path):
+    """The reference of tests/test_cli_status.py: from 0.086 m beside a JEM wall (less than the robot's radius)
+    across a concave corner of the keep-in, 0.128 m outside it. Without rows the body reaches far out of the JEM;
+    with the default rows (soft: no guarantee) the run is ok and, once clear of the start, the body stays within a
+    few centimetres of the keep-in (it does not cut the corner)."""
+    data = yaml.safe_load((REPO / "configs" / "iss_reswarm.yaml").read_text())
+    q = [0.0, 0.0, -0.7071068, 0.7071068]
+    data["waypoints"]["P"] = {"position": [12.25, -9.6, 4.8], "quaternion": q}
+    data["waypoints"]["Q"] = {"position": [11.9, -8.6, 4.8], "quaternion": q}
+    data["reference"]["waypoints"] = ["P", "Q"]
+    excursion = {}
+    for on in (True, False):
+        data["controller"]["position_constraints"] = on
+        cfg = tmp_path / f"corner-{on}.yaml"
+        cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+        result = runner.invoke(app, ["track", str(cfg), "--out", str(tmp_path / f"run-{on}"), "--quiet"])
+        summary = yaml.safe_load((tmp_path / f"run-{on}" / "summary.json").read_text())
+        assert result.exit_code == (0 if on else 4) and summary["status"] == ("ok" if on else "unsafe")
+        p, scene = true_positions(tmp_path / f"run-{on}")
+        depth = body_excursion_m(scene, p, RADIUS)
+        assert depth[0] > 0.16  # the start is too close to the wall for the body
+        clear = int(np.argmax(depth == 0.0)) if on else 0  # with rows: from the moment the body is clear
+        excursion[on] = float(depth[clear:].max())
+    assert excursion[True] < 0.05 and excursion[False] > 0.3
+
+
 def test_position_constraints_switch_reaches_the_controllers():
     cfg = load_config(REPO / "configs" / "iss_reswarm_tube.yaml")
     args = workspace_arguments(cfg)

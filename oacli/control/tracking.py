@@ -229,8 +229,8 @@ class TrackingMPC:
             lin = None
             if self._plan_positions is not None:
                 plan_t, plan_p = self._plan_positions
-                lin = shifted_plan(plan_t, self.dt_s, plan_p, t + self._offsets[1:])
-            rows = self.workspace.rows(x_ref_full[1:, 0:3], lin).shifted(origin)
+                lin = shifted_plan(plan_t, self.dt_s, plan_p, t + self._offsets)
+            rows = self.workspace.rows(x_ref_full[:, 0:3], lin).steps(slice(1, None)).shifted(origin)
         sol = self.mpc.solve(e0, e_ref, u_ref, rows)
         if sol.info.success:
             self._plan, self._plan_age, self._failures = sol.u, 0, 0

@@ -4,11 +4,16 @@ The controllers constrain each predicted position ``p_k`` (k = 0..N) to a convex
 (Doerr et al. 2021, Eqs. 12-14; the same pieces as the trajectory polish and the excitation design,
 :mod:`oacli.geometry.halfspaces`):
 
-* **keep-in**: the keep-in box that holds the reference position at step k (several: the one with the largest
-  margin; none: the nearest, :func:`oacli.geometry.halfspaces.best_piece`), shrunk on each axis by the robot's
-  half-extent (its radius for a sphere) and the tightening below: ``lower_k ≤ p_k ≤ upper_k``. The candidates
-  are the boxes and the bridges between touching boxes (:func:`oacli.geometry.halfspaces.keep_in_pieces`), so a
-  reference that passes from one box to the next keeps a feasible piece once the boxes are shrunk;
+* **keep-in**: each segment ``k → k+1`` gets the keep-in box that holds the ends of both the reference segment
+  and the linearisation segment (the previous plan's, when there is one) — several: the one with the largest
+  margin; none: the nearest (:func:`oacli.geometry.halfspaces.best_piece`) — and step k the intersection of the
+  boxes of its two segments (a box), shrunk on each axis by the robot's half-extent (its radius for a sphere) and
+  the tightening below: ``lower_k ≤ p_k ≤ upper_k``. Both ends of every predicted segment are then in one convex
+  piece, so the segment is too, also where the union turns a corner; scoring the previous plan too keeps the box
+  of a segment where the robot is until the plan reaches the next box (a reference that cuts a corner would
+  otherwise switch boxes before the robot can follow). The candidates are the boxes and the bridges between
+  touching boxes (:func:`oacli.geometry.halfspaces.keep_in_pieces`), so a motion from one box to the next keeps a
+  feasible piece once the boxes are shrunk;
 * **keep-out**: for zone j, the half-space ``n_jkᵀ p_k ≥ β_jk`` bounded by the supporting plane of the zone grown
   by the robot's body, along the metric direction of the linearisation point (the previous plan's predicted
   position when there is one, else the reference position), moved out by the tightening below. A zone farther
@@ -55,6 +60,20 @@ class PositionRows:
     upper: np.ndarray
     normals: np.ndarray
     offsets: np.ndarray
+
+    def steps(self, index: slice) -> PositionRows:
+        """The rows of some of the steps.
+
+        Parameters
+        ----------
+        index : slice
+            Steps to keep.
+
+        Returns
+        -------
+        PositionRows
+        """
+        return PositionRows(self.lower[index], self.upper[index], self.normals[:, index], self.offsets[:, index])
 
     def shifted(self, origin_m: np.ndarray) -> PositionRows:
         """The rows for positions relative to an origin (``p' = p − origin``); inactive rows are unchanged.
@@ -161,9 +180,10 @@ class WorkspaceRows:
         Parameters
         ----------
         reference_m : ndarray, shape (K, 3)
-            Reference positions at the K steps (choose the keep-in box).
+            Reference positions at the K steps (choose the keep-in pieces).
         linearisation_m : ndarray, shape (K, 3), optional
-            Points the keep-out half-spaces are linearised at (the reference positions when omitted).
+            The previous plan's positions at the K steps: the keep-out half-spaces are linearised there and the
+            keep-in pieces must hold them too (the reference positions when omitted).
 
         Returns
         -------
@@ -174,9 +194,17 @@ class WorkspaceRows:
         lin = ref if linearisation_m is None else np.asarray(linearisation_m, dtype=float)
         k = ref.shape[0]
         if self.has_keep_in:
-            idx = best_piece(self._lower, self._upper, ref, margin=0.5 * (self._shrink_lower + self._shrink_upper))
-            lower = self._lower[idx] + self._shrink_lower
-            upper = self._upper[idx] - self._shrink_upper
+            margin = 0.5 * (self._shrink_lower + self._shrink_upper)
+            if k == 1:
+                idx = best_piece(self._lower, self._upper, ref, margin=margin)
+                lower, upper = self._lower[idx], self._upper[idx]
+            else:  # the piece of each reference segment; a step is in those of both its segments
+                idx = best_piece(self._lower, self._upper, ref[:-1], ref[1:], lin[:-1], lin[1:], margin=margin)
+                seg_lo, seg_hi = self._lower[idx], self._upper[idx]
+                lower = np.vstack([seg_lo[:1], np.maximum(seg_lo[:-1], seg_lo[1:]), seg_lo[-1:]])
+                upper = np.vstack([seg_hi[:1], np.minimum(seg_hi[:-1], seg_hi[1:]), seg_hi[-1:]])
+            lower = lower + self._shrink_lower
+            upper = upper - self._shrink_upper
         else:
             lower = upper = np.zeros((k, 0))
         normals = np.zeros((self.n_zones, k, 3))
