@@ -40,8 +40,8 @@ from oacli.types import SolveInfo
 
 #: Default exact-penalty weight of the position slack [1/m]. Exact when above the sum of the Lagrange multipliers
 #: of a step's rows in the problem with hard rows; the largest sum seen in closed loop (``problem.solve()`` duals,
-#: steps whose hard rows are feasible) was 86.6 (payload chain: 15 kg plant, 9.58 kg model, excitation reference)
-#: and 18.1 (configs/doerr2021.yaml, keep-out zones): 1e5 leaves three orders of magnitude for other weights.
+#: steps whose hard rows are feasible) was 76.7 (payload chain: 15 kg plant, 9.58 kg model, excitation reference)
+#: and 3.8 (configs/doerr2021.yaml, keep-out zones): 1e5 leaves three orders of magnitude for other weights.
 #: ``python benchmarks/bench_mpc_step.py`` prints the figure for doerr2021.
 POSITION_PENALTY = 1e5
 
