@@ -78,13 +78,13 @@ from oacli.excitation.problem import (
     chord_margin_m,
     collision_free,
     keep_in_violation,
-    keep_out_halfspaces,
     keep_out_violation,
     rest_to_rest_inputs,
     rest_to_rest_profile,
     translation_excitation,
 )
 from oacli.geometry import Scene
+from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
 from oacli.model import quaternion as quat
 from oacli.model import rigid_body as rb
 from oacli.types import Trajectory
@@ -528,7 +528,7 @@ class _Subproblem:
             self.in_hi1.value = hi - pos[1:]
         mid = 0.5 * (pos[:-1] + pos[1:])
         for e, ell in enumerate(p.scene.keep_out):
-            n_hat, beta = keep_out_halfspaces(ell.center, ell.shape, mid)
+            n_hat, beta, _ = point_halfspaces(keep_out_zone(ell), mid)
             bound = beta + self.merit.keep_out_margin
             self.out_n[e].value = n_hat
             self.out_c0[e].value = bound - np.einsum("ki,ki->k", n_hat, pos[:-1])
