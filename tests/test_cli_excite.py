@@ -141,18 +141,10 @@ def test_recording_reads_back_with_the_logged_values(excite_run):
 
 
 def test_excite_then_track_with_the_payload(excite_run, config, tmp_path):
-    """The design is trackable: the MPC (model: bare Astrobee, 9.58 kg) follows it with the 15 kg payload.
-
-    The design keeps only 0.1 m from the keep-in walls, less than the robot's 0.25 m radius (issue 8 item 2), so
-    the controller's position rows (which keep the body inside, tests/test_controller_constraints.py) would pull
-    the robot off it near the ceiling: this test measures how well the design itself is followed, without them.
-    """
+    """The design is trackable: the MPC (model: bare Astrobee, 9.58 kg, with its keep-in/keep-out rows) follows it
+    with the 15 kg payload (keep-in boxes bound the robot's centre, as in the design's own collision checks)."""
     out = tmp_path / "track"
-    data = yaml.safe_load(config.read_text())
-    data["controller"]["position_constraints"] = False
-    free = tmp_path / "free.yaml"
-    free.write_text(yaml.safe_dump(data, sort_keys=False))
-    result = run_cli("track", free, "--reference", excite_run / "excite.mcap", "--out", out, "--quiet")
+    result = run_cli("track", config, "--reference", excite_run / "excite.mcap", "--out", out, "--quiet")
     assert result.exit_code == 0, result.output
     design = read_trajectory(excite_run / "excite.mcap")
     tel = read_telemetry(out / "track.mcap")

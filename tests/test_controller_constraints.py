@@ -5,6 +5,7 @@ chain ``oacli excite`` -> ``oacli track`` read back from the MCAP."""
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 
@@ -231,7 +232,7 @@ def _tube(reference, design, scene, fast=True):
     return TubeMPC(reference, InertialParams(design.mass_kg, BARE.inertia_kgm2), design, horizon=5,
                    prediction_step_s=1.0, weights=TUBE_WEIGHTS, limits=LIMITS,
                    terminal=TerminalWeights(np.full(3, 100.0), np.full(3, 10.0)), fast=fast, scene=scene,
-                   robot=RobotBody.sphere(RADIUS))
+                   robot=RobotBody.sphere(RADIUS), keep_in_margin_m=RADIUS)
 
 
 def test_tube_qp_with_rows_is_dpp_and_the_closed_loop_is_the_same_through_either_path():
@@ -285,7 +286,7 @@ def _bay_reference():
 def _fly_bay(scene, seed):
     ref = _bay_reference()
     ctrl = TrackingMPC(ref, BARE, dt_s=0.2, horizon=10, weights=WEIGHTS, limits=LIMITS, scene=scene,
-                       robot=RobotBody.sphere(RADIUS), max_consecutive_failures=5)
+                       robot=RobotBody.sphere(RADIUS), keep_in_margin_m=RADIUS, max_consecutive_failures=5)
     x0 = ref.x[0].copy()
     x0[2] -= 0.1  # start below the ceiling's margin (the reference start itself is too close to it)
     tel = simulate(ctrl, x0, PAYLOAD, duration_s=ref.duration_s + 4.0, control_period_s=0.2,
@@ -345,7 +346,7 @@ def test_tube_mpc_keeps_the_true_state_in_the_tightened_sets_under_disturbances_
 def test_standard_mpc_latches_a_safe_hold_after_consecutive_failures(monkeypatch):
     ref = _a_to_b(BARE, speed=0.1)
     ctrl = TrackingMPC(ref, BARE, dt_s=0.2, horizon=10, weights=WEIGHTS, limits=LIMITS, scene=ISS,
-                       robot=RobotBody.sphere(RADIUS), max_consecutive_failures=3)
+                       robot=RobotBody.sphere(RADIUS), keep_in_margin_m=RADIUS, max_consecutive_failures=3)
     real, calls = ctrl.mpc.compiled.solve, {"n": 0}
 
     def solve(*args, **kwargs):
@@ -376,7 +377,8 @@ def test_standard_mpc_latches_a_safe_hold_after_consecutive_failures(monkeypatch
 # -- the payload chain through the CLI -----------------------------------------------------------------------------
 
 
-def payload_config(tmp: Path, controller: str, *, keep_in=None, excitation=None, constraints=True) -> Path:
+def payload_config(tmp: Path, controller: str, *, keep_in=None, excitation=None, constraints=True,
+                   keep_in_margin_m: float = 0.0) -> Path:
     """iss_reswarm.yaml with the 15 kg payload as the plant and the bare robot as the model; for the tube, W covers
     the payload by Doerr Eq. 28's one-step deviation ``f(u, m₀) − f(u, m_true)`` at the largest force per axis."""
     data = yaml.safe_load((REPO / "configs" / "iss_reswarm.yaml").read_text())
@@ -385,6 +387,7 @@ def payload_config(tmp: Path, controller: str, *, keep_in=None, excitation=None,
                                      "angular_velocity_std_radps"), 0.0)  # the tube needs bounded noise
     if keep_in is not None:
         data["environment"]["keep_in"] = [{"corners": keep_in}]
+    data["environment"]["keep_in_margin_m"] = keep_in_margin_m
     if excitation:
         data["excitation"].update(excitation)
     ctrl = data["controller"]
@@ -414,9 +417,10 @@ def true_positions(run: Path) -> tuple[np.ndarray, Scene]:
 
 
 def test_payload_chain_with_the_tube_stays_in_the_keep_in_fast(tmp_path):
-    """Shrunk chain: a 20 s excitation in a tight keep-in box (its reference passes within 0.1 m of walls, closer
-    than the robot's radius), tracked by the tube MPC with the 15 kg plant, with and without the workspace rows;
-    /state/true read back from the MCAP."""
+    """Shrunk chain: a 20 s excitation in a tight keep-in box (its reference passes within 0.1 m of the walls,
+    closer than the robot's radius), tracked by the tube MPC with the 15 kg plant and
+    environment.keep_in_margin_m = the robot's radius (the body must stay in the box), with and without the
+    workspace rows; /state/true read back from the MCAP, the status checked against it."""
     box = [[10.4, -8.15, 3.9], [11.4, -7.35, 5.6]]
     excite_cfg = payload_config(tmp_path, "mpc", keep_in=box, excitation={"duration_s": 20.0, "steps": 40})
     run_cli("excite", excite_cfg, "--out", tmp_path / "excite", "--quiet")
@@ -425,19 +429,22 @@ def test_payload_chain_with_the_tube_stays_in_the_keep_in_fast(tmp_path):
     assert not np.all(body_inside(scene, reference.x[:, 0:3], RADIUS))  # tracking it exactly would hit a wall
     inside = {}
     for on in (True, False):
-        cfg = payload_config(tmp_path, "tube", keep_in=box, constraints=on)
+        cfg = payload_config(tmp_path, "tube", keep_in=box, constraints=on, keep_in_margin_m=RADIUS)
         out = tmp_path / f"track-{on}"
-        run_cli("track", cfg, "--reference", tmp_path / "excite" / "excite.mcap", "--out", out, "--quiet")
+        result = runner.invoke(app, ["track", str(cfg), "--reference", str(tmp_path / "excite" / "excite.mcap"),
+                                     "--out", str(out), "--quiet"])
         p, scene = true_positions(out)
         assert p.shape[0] > 1000  # every plant tick (62.5 Hz)
         inside[on] = bool(np.all(body_inside(scene, p, RADIUS)))
+        status = json.loads((out / "summary.json").read_text())["status"]
+        assert (result.exit_code, status) == ((0, "ok") if inside[on] else (4, "unsafe")), result.output
     assert inside == {True: True, False: False}  # with rows it stays in; the same tube without them does not
 
 
 @pytest.mark.slow
 def test_payload_chain_of_the_issue_stays_in_the_jem_with_the_tube_and_leaves_it_without_rows(tmp_path):
     """The issue's chain: oacli excite (60 s, the preset) then oacli track with the 15 kg plant and the bare-robot
-    model, in the JEM. Tube MPC with rows: the body stays in the keep-in at every plant tick; the same tube without
+    model, in the JEM. Tube MPC with rows: the centre stays in the keep-in at every plant tick; the same tube without
     rows leaves it (so the check can fail); standard MPC with rows stays inside too on this run."""
     excite_cfg = payload_config(tmp_path, "mpc")
     run_cli("excite", excite_cfg, "--out", tmp_path / "excite", "--quiet")
@@ -448,7 +455,7 @@ def test_payload_chain_of_the_issue_stays_in_the_jem_with_the_tube_and_leaves_it
         run_cli("track", payload_config(tmp_path, controller, constraints=on), "--reference", ref, "--out", out,
                 "--quiet")
         p, scene = true_positions(out)
-        outcome[controller, on] = bool(np.all(body_inside(scene, p, RADIUS)))
+        outcome[controller, on] = bool(np.all(body_inside(scene, p, 0.0)))
     assert outcome == {("tube", True): True, ("tube", False): False, ("mpc", True): True}
 
 
@@ -462,10 +469,10 @@ def body_excursion_m(scene: Scene, positions: np.ndarray, radius: float) -> np.n
 
 
 def test_standard_mpc_with_rows_keeps_far_closer_to_the_corner_the_reference_cuts(tmp_path):
-    """The reference of tests/test_cli_status.py: from 0.086 m beside a JEM wall (less than the robot's radius)
-    across a concave corner of the keep-in, 0.128 m outside it. Without rows the body reaches far out of the JEM;
-    with the default rows (soft: no guarantee) the run is ok and, once clear of the start, the body stays within a
-    few centimetres of the keep-in (it does not cut the corner)."""
+    """The reference of tests/test_cli_status.py: across a concave corner of the keep-in, 0.128 m outside it.
+    Without rows the robot's centre follows it out of the JEM (unsafe, exit 4); with the default rows (soft, at the
+    control instants: no guarantee) it stays within a centimetre of the keep-in, and the status says honestly
+    whether it left (unsafe, exit 4) or not (ok)."""
     data = yaml.safe_load((REPO / "configs" / "iss_reswarm.yaml").read_text())
     q = [0.0, 0.0, -0.7071068, 0.7071068]
     data["waypoints"]["P"] = {"position": [12.25, -9.6, 4.8], "quaternion": q}
@@ -478,13 +485,13 @@ def test_standard_mpc_with_rows_keeps_far_closer_to_the_corner_the_reference_cut
         cfg.write_text(yaml.safe_dump(data, sort_keys=False))
         result = runner.invoke(app, ["track", str(cfg), "--out", str(tmp_path / f"run-{on}"), "--quiet"])
         summary = yaml.safe_load((tmp_path / f"run-{on}" / "summary.json").read_text())
-        assert result.exit_code == (0 if on else 4) and summary["status"] == ("ok" if on else "unsafe")
         p, scene = true_positions(tmp_path / f"run-{on}")
-        depth = body_excursion_m(scene, p, RADIUS)
-        assert depth[0] > 0.16  # the start is too close to the wall for the body
-        clear = int(np.argmax(depth == 0.0)) if on else 0  # with rows: from the moment the body is clear
-        excursion[on] = float(depth[clear:].max())
-    assert excursion[True] < 0.05 and excursion[False] > 0.3
+        depth = body_excursion_m(scene, p, 0.0)
+        left = bool(np.any(depth > 1e-9))
+        assert summary["safety"]["keep_in"]["count"] == int(np.sum(depth > 1e-9))
+        assert (result.exit_code, summary["status"]) == ((4, "unsafe") if left else (0, "ok"))
+        excursion[on] = float(depth.max())
+    assert excursion[True] < 0.01 and excursion[False] > 0.05
 
 
 def test_position_constraints_switch_reaches_the_controllers():
@@ -495,6 +502,7 @@ def test_position_constraints_switch_reaches_the_controllers():
     assert args["robot"].bounding_radius_m == pytest.approx(cfg.robot.radius_m)
     off = cfg.model_copy(update={"controller": cfg.controller.model_copy(update={"position_constraints": False})})
     assert workspace_arguments(off) == {}
-    ws = WorkspaceRows(ISS, RobotBody.sphere(RADIUS))
+    assert args["keep_in_margin_m"] == cfg.environment.keep_in_margin_m == 0.0  # keep-in bounds the centre
+    ws = WorkspaceRows(ISS, RobotBody.sphere(RADIUS), keep_in_margin_m=RADIUS)
     rows = ws.rows(np.array([[10.8, -9.6, 4.8]]))
     np.testing.assert_allclose(rows.upper - rows.lower, [[2.1355 - 0.5, 6.4833 + 2.4 - 0.5, 2.1349 - 0.5]], atol=1e-9)

@@ -408,6 +408,12 @@ class EnvironmentConfig(Section):
     keep_out: Annotated[tuple[KeepOutEllipsoid, ...], _none_to(())] = Field(
         default=(), description="Keep-out ellipsoids."
     )
+    keep_in_margin_m: NonNegativeReal = Field(
+        default=0.0,
+        description="Distance the robot's centre keeps from the keep-in walls [m], >= 0. Keep-in boxes bound the "
+        "robot's centre (as the planners' collision checks and Astrobee's keep-in files do); keep-out zones are "
+        "grown by robot.radius_m. Used by the controllers' keep-in rows and the safety check of tracking runs.",
+    )
 
     def scene(self) -> Scene:
         """The workspace as :class:`oacli.geometry.Scene`, keep-out zones inflated by ``safety_factor``."""
@@ -498,7 +504,8 @@ class ControllerConfig(Section):
     )
     position_constraints: Annotated[bool, Strict()] = Field(
         default=True,
-        description="Keep the predicted positions in the keep-in boxes (shrunk by robot.radius_m) and out of the "
+        description="Keep the predicted positions in the keep-in boxes (shrunk by environment.keep_in_margin_m) "
+        "and out of the "
         "keep-out zones (grown by it): soft rows in the standard MPC, hard rows tightened by the tube in the tube "
         "MPC (oacli.control.workspace). false: positions are free.",
     )

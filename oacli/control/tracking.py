@@ -132,7 +132,9 @@ class TrackingMPC:
         Keep the predicted positions in its free space (soft rows, module docstring); None: positions are free
         (the controller is then exactly the one without workspace rows).
     robot : RobotBody, optional
-        The robot's bounding body the keep-in boxes shrink by and the keep-out zones grow by (a point if omitted).
+        The robot's bounding body the keep-out zones grow by (a point if omitted).
+    keep_in_margin_m : float
+        Distance the robot's centre keeps from the keep-in walls [m] (keep-in boxes bound the centre).
     max_consecutive_failures : int, optional
         Failed solves in a row before the latched safe hold; None: never hold.
     position_penalty : float
@@ -150,6 +152,7 @@ class TrackingMPC:
         limits: TrackingLimits,
         scene: Scene | None = None,
         robot: RobotBody | None = None,
+        keep_in_margin_m: float = 0.0,
         max_consecutive_failures: int | None = None,
         position_penalty: float = POSITION_PENALTY,
     ) -> None:
@@ -165,7 +168,7 @@ class TrackingMPC:
         if scene is not None and (scene.keep_in or scene.keep_out):
             horizon_s = self.horizon * self.dt_s
             self.workspace = WorkspaceRows(
-                scene, robot, activation_m=1.0 + float(np.max(limits.velocity_mps)) * horizon_s,
+                scene, robot, keep_in_margin_m=keep_in_margin_m, activation_m=1.0 + float(np.max(limits.velocity_mps)) * horizon_s,
             )
         ws = self.workspace
         a, b = hover_error_model(params, self.dt_s)

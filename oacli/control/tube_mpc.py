@@ -153,7 +153,9 @@ class TubeMPC:
         Keep the robot in its free space (hard, tightened rows; module docstring); None: positions are free (the
         controller is then exactly the one without workspace rows).
     robot : RobotBody, optional
-        The robot's bounding body (a point if omitted).
+        The robot's bounding body the keep-out zones grow by (a point if omitted).
+    keep_in_margin_m : float
+        Distance the robot's centre keeps from the keep-in walls [m] (keep-in boxes bound the centre).
     braking : bool
         Keep the nominal's braking points in the keep-in box too (module docstring).
     """
@@ -173,6 +175,7 @@ class TubeMPC:
         fast: bool = True,
         scene: Scene | None = None,
         robot: RobotBody | None = None,
+        keep_in_margin_m: float = 0.0,
         braking: bool = True,
     ) -> None:
         if abs(params.mass_kg - design.mass_kg) > 1e-12 * design.mass_kg:
@@ -196,7 +199,7 @@ class TubeMPC:
         self.workspace = None
         spec = None
         if scene is not None and (scene.keep_in or scene.keep_out):
-            self.workspace = self._workspace_rows(scene, robot)
+            self.workspace = self._workspace_rows(scene, robot, keep_in_margin_m)
             u_bar = np.array([min(-lo, hi) for lo, hi in (ax.force_bounds_N for ax in design.axes)])
             v_bar = np.array([max(-lo, hi) for lo, hi in (ax.velocity_bounds_mps for ax in design.axes)])
             spec = PositionRowsSpec(
@@ -236,7 +239,7 @@ class TubeMPC:
 
     # -- helpers -----------------------------------------------------------------------------------------------
 
-    def _workspace_rows(self, scene: Scene, robot: RobotBody | None) -> WorkspaceRows:
+    def _workspace_rows(self, scene: Scene, robot: RobotBody | None, keep_in_margin_m: float) -> WorkspaceRows:
         """The workspace rows tightened for the true state (module docstring)."""
         design, m = self.design, self.params.mass_kg
         noise = np.array([ax.disturbance.noise_bound[0] for ax in design.axes])
@@ -246,7 +249,7 @@ class TubeMPC:
         u_max = np.array([ax.force_limit_N for ax in design.axes])
         v_max = np.array([ax.velocity_limit_mps for ax in design.axes])
         travel = v_max * self.dt_s + 0.5 * u_max / m * self.dt_s**2
-        return WorkspaceRows(scene, robot, extent_m=extent, clearance_m=0.5 * float(np.linalg.norm(travel)),
+        return WorkspaceRows(scene, robot, keep_in_margin_m=keep_in_margin_m, extent_m=extent, clearance_m=0.5 * float(np.linalg.norm(travel)),
                              activation_m=1.0 + float(np.max(v_max)) * self.horizon * self.step_s)
 
     def _plan_input(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:

@@ -7,8 +7,8 @@ The controllers constrain each predicted position ``p_k`` (k = 0..N) to a convex
 * **keep-in**: each segment ``k → k+1`` gets the keep-in box that holds the ends of both the reference segment
   and the linearisation segment (the previous plan's, when there is one) — several: the one with the largest
   margin; none: the nearest (:func:`oacli.geometry.halfspaces.best_piece`) — and step k the intersection of the
-  boxes of its two segments (a box), shrunk on each axis by the robot's half-extent (its radius for a sphere) and
-  the tightening below: ``lower_k ≤ p_k ≤ upper_k``. Both ends of every predicted segment are then in one convex
+  boxes of its two segments (a box), shrunk on each axis by ``keep_in_margin_m`` (keep-in boxes bound the robot's
+  centre, as in the planners' collision checks; 0 by default) and the tightening below: ``lower_k ≤ p_k ≤ upper_k``. Both ends of every predicted segment are then in one convex
   piece, so the segment is too, also where the union turns a corner; scoring the previous plan too keeps the box
   of a segment where the robot is until the plan reaches the next box (a reference that cuts a corner would
   otherwise switch boxes before the robot can follow). The candidates are the boxes and the bridges between
@@ -122,7 +122,9 @@ class WorkspaceRows:
     scene : Scene
         Keep-in boxes (their union) and keep-out ellipsoids (safety factor applied).
     robot : RobotBody, optional
-        The robot's bounding ellipsoid (a point when omitted).
+        The robot's bounding ellipsoid the keep-out zones grow by (a point when omitted).
+    keep_in_margin_m : float
+        Distance kept from the keep-in walls [m] (the boxes bound the robot's centre).
     extent_m : ndarray, shape (3, 2), optional
         ``[ext_neg, ext_pos]`` per axis [m]: the error set the rows are tightened by (zero by default).
     clearance_m : float
@@ -131,20 +133,20 @@ class WorkspaceRows:
         Keep-out zones farther than this [m] from the horizon's points get inactive rows.
     """
 
-    def __init__(self, scene: Scene, robot: RobotBody | None = None, *, extent_m: np.ndarray | None = None,
-                 clearance_m: float = 0.0, activation_m: float = 2.0) -> None:
+    def __init__(self, scene: Scene, robot: RobotBody | None = None, *, keep_in_margin_m: float = 0.0,
+                 extent_m: np.ndarray | None = None, clearance_m: float = 0.0, activation_m: float = 2.0) -> None:
         self.scene = scene
         self.robot = RobotBody.point() if robot is None else robot
         self.zones = keep_out_zones(scene, self.robot)
         ext = np.zeros((3, 2)) if extent_m is None else np.asarray(extent_m, dtype=float).reshape(3, 2)
-        if np.any(ext < 0) or clearance_m < 0:
-            raise ValueError("tightening extents and clearance must be >= 0")
+        if np.any(ext < 0) or clearance_m < 0 or keep_in_margin_m < 0:
+            raise ValueError("keep-in margin, tightening extents and clearance must be >= 0")
         self.extent_m = ext
         self.clearance_m = float(clearance_m)
         self.activation_m = float(activation_m)
-        body = np.sqrt(np.clip(np.diag(self.robot.sigma), 0.0, None))  # half-extent of the body per axis
-        self._shrink_lower = body + ext[:, 0] + self.clearance_m
-        self._shrink_upper = body + ext[:, 1] + self.clearance_m
+        self.keep_in_margin_m = float(keep_in_margin_m)
+        self._shrink_lower = self.keep_in_margin_m + ext[:, 0] + self.clearance_m
+        self._shrink_upper = self.keep_in_margin_m + ext[:, 1] + self.clearance_m
         self._lower, self._upper = keep_in_pieces(scene)
 
     @property

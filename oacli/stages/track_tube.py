@@ -120,7 +120,8 @@ def workspace_arguments(cfg: OacliConfig) -> dict[str, Any]:
     """
     if not cfg.controller.position_constraints:
         return {}
-    return {"scene": cfg.scene(), "robot": RobotBody.sphere(cfg.robot.radius_m)}
+    return {"scene": cfg.scene(), "robot": RobotBody.sphere(cfg.robot.radius_m),
+            "keep_in_margin_m": cfg.environment.keep_in_margin_m}
 
 
 #: Term budget of the invariant set when the tube is redesigned beyond W during a run (bounds its time).
