@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 
 from oacli.cli import app
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun_estimate import D2, PARAM_ENTITIES
-from oacli.io.rerun_io import read_blueprint_views, read_recording_entities, read_recording_scalars
+from oacli.io.rerun.estimate import D2, PARAM_ENTITIES
+from oacli.io.rerun.read import read_blueprint_views, read_recording_entities, read_recording_scalars
 from tests.conftest import INFO_TRAJECTORIES, REPO, require_shared
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"

@@ -16,7 +16,7 @@ from oacli.excitation.information import MeasurementModel, cramer_rao_std, fishe
 from oacli.excitation.problem import dense_positions
 from oacli.excitation.rattle import InformationWeighting
 from oacli.io.mcap_io import read_stage, read_telemetry, read_trajectory
-from oacli.io.rerun_io import read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import read_recording_entities, read_recording_scalars
 from oacli.trajectory import sample_states
 from tests.conftest import REPO
 from tests.test_cli_errors import assert_clean_failure

@@ -15,7 +15,7 @@ from oacli.cli import app
 from oacli.config import load_config
 from oacli.geometry.verify import dense_check
 from oacli.io.mcap_io import read_stage, read_trajectory
-from oacli.io.rerun_io import read_recording_component, read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import read_recording_component, read_recording_entities, read_recording_scalars
 from oacli.planning.full_state import translational_part
 from oacli.planning.translational import CostWeights
 from tests.plan_checks import S1, S1_SHORTEST_M

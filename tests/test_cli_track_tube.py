@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.config import load_config
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun_io import read_recording_component, read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import read_recording_component, read_recording_entities, read_recording_scalars
 from oacli.model.double_integrator import double_integrator
 from oacli.sets import Polytope
 from tests.conftest import MIT_ISS, REPO, require_shared

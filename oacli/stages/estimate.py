@@ -33,7 +33,7 @@ from oacli.estimation.preprocessing import measurements_from_telemetry
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.information import PARAM_NAMES
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_telemetry
-from oacli.io.rerun_estimate import write_estimate_recording
+from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.model.rigid_body import theta_of
 from oacli.stages.track import StageResult
@@ -394,21 +394,14 @@ def run_estimate(
     ) as run_folder:
         run_dir, files = run_folder.run_dir, run_folder.files
         _write_estimate_mcap(run_folder.file("mcap", "estimate.mcap"), cfg, config_yaml, run, telemetry, log)
+        per_record = EstimationRecords(
+            run.t_records, run.d2, run.gate_threshold,
+            np.array([s not in ("accepted", "initialised") for s in run.status]), run.measured[:, 0:3],
+            run.states[:, 0:3],
+        )
         write_estimate_recording(
-            run_folder.file("rrd", "estimate.rrd"),
-            t_est=np.array([e.t for e in run.history]),
-            theta=np.array([e.theta for e in run.history]),
-            std=np.array([e.std for e in run.history]),
-            truth=truth,
-            crb_std=run.bound.std,
-            t_records=run.t_records,
-            d2=run.d2,
-            gate_threshold=run.gate_threshold,
-            rejected=np.array([s not in ("accepted", "initialised") for s in run.status]),
-            measured_positions=run.measured[:, 0:3],
-            estimated_positions=run.states[:, 0:3],
-            log=log,
-            recording_name=f"{cfg.name}/estimate",
+            run_folder.file("rrd", "estimate.rrd"), estimates=run.history, truth=truth, crb_std=run.bound.std,
+            records=per_record, log=log, recording_name=f"{cfg.name}/estimate",
         )
         run_folder.finish(summary)
     return StageResult(run_dir, summary, files)

@@ -50,12 +50,12 @@ from oacli.excitation.rattle import InformationAwarePlanner, InformationWeightin
 from oacli.excitation.rattle_loop import RattleRun, run_rattle
 from oacli.geometry import Scene
 from oacli.io.mcap_io import StageMcapWriter
-from oacli.io.rerun_excite import write_excite_recording
+from oacli.io.rerun.excite import InformationSeries, RattleSteps, ScpSteps, write_excite_recording
 from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.reference_limits import DesignLimits
 from oacli.sim.sensors import Disturbance, SensorNoise
-from oacli.stages.design_limits import excitation_design_limits
+from oacli.stages.design_limits import excitation_design_limits, robot_limit_set
 from oacli.stages.estimate import estimator_settings
 from oacli.stages.track import StageResult
 from oacli.status import StatusReport, add_safety_reasons
@@ -382,14 +382,12 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             crb = _information_records(writer, traj.t, design.information_over_time, problem.theta)
             for t, level, message in log:
                 writer.write_log(t, level, message)
+        scp = ScpSteps(np.array([it.criterion for it in design.iterations]),
+                       np.array([it.candidate_criterion for it in design.iterations]), design.initial.x[:, 0:3])
         write_excite_recording(
-            run.file("rrd", "excite.rrd"), scene=problem.scene, t=traj.t, x=x, u=u, theta=problem.theta,
-            information=design.information_over_time, crb_std=crb,
-            force_limit_N=problem.limits.force_N, torque_limit_Nm=problem.limits.torque_Nm,
-            angular_velocity_limit_radps=problem.limits.angular_velocity_radps,
-            criterion=np.array([it.criterion for it in design.iterations]),
-            candidate_criterion=np.array([it.candidate_criterion for it in design.iterations]),
-            initial_positions=design.initial.x[:, 0:3], log=log, recording_name=f"{cfg.name}/excite",
+            run.file("rrd", "excite.rrd"), scene=problem.scene, trajectory=traj,
+            information=InformationSeries(problem.theta, design.information_over_time, crb), limits=problem.limits,
+            scp=scp, log=log, recording_name=f"{cfg.name}/excite",
         )
         run.finish(summary)
     return StageResult(run_dir, summary, files)
@@ -627,12 +625,10 @@ def _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, run: Rattle
     # The recording shows the posterior std (prior included) over time, as the planner saw it.
     post_std = np.array([np.sqrt(np.diag(np.linalg.inv(prior_info + f))) for f in info_traj])
     files["rrd"] = run_dir / "excite.rrd"
+    rattle = RattleSteps([(r.t, r.plan.trajectory.x[:, 0:3]) for r in run.replans],
+                         np.array([r.t for r in run.replans]), np.array([r.gamma for r in run.replans]))
     write_excite_recording(
-        files["rrd"], scene=problem.scene, t=traj.t, x=traj.x, u=traj.u, theta=theta_true, information=info_traj,
-        crb_std=post_std, force_limit_N=np.asarray(cfg.robot.force_limit_N),
-        torque_limit_Nm=np.asarray(cfg.robot.torque_limit_Nm),
-        angular_velocity_limit_radps=np.asarray(cfg.robot.angular_velocity_limit_radps),
-        plans=[(r.t, r.plan.trajectory.x[:, 0:3]) for r in run.replans],
-        gamma=(np.array([r.t for r in run.replans]), np.array([r.gamma for r in run.replans])),
-        log=log, recording_name=f"{cfg.name}/excite",
+        files["rrd"], scene=problem.scene, trajectory=traj,
+        information=InformationSeries(theta_true, info_traj, post_std), limits=robot_limit_set(cfg.robot),
+        rattle=rattle, log=log, recording_name=f"{cfg.name}/excite",
     )

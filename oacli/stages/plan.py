@@ -31,7 +31,7 @@ from oacli.geometry import Scene
 from oacli.geometry.collision import CollisionChecker, RobotBody
 from oacli.geometry.verify import dense_check
 from oacli.io.mcap_io import StageMcapWriter
-from oacli.io.rerun_plan import write_plan_recording
+from oacli.io.rerun.plan import write_plan_recording
 from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.model import quaternion as quat
 from oacli.planning.full_state import full_state_trajectory, minimum_time_lower_bound_s, translational_part
@@ -448,15 +448,9 @@ def run_plan(
         log.extend((0.0, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
                    for r in summary["status_reasons"])
         _write_plan_mcap(run.file("mcap", "plan.mcap"), cfg, config_yaml, scene, result, output, summary, log)
-        tree = result.tree
         write_plan_recording(
-            run.file("rrd", "plan.rrd"), scene=scene, start=seg.start[0:3], goal=seg.goal[0:3],
-            tree_states=tree.states,
-            tree_edges=tree.edges, snapshots=[(s.iteration, s.parent, s.path) for s in result.snapshots],
-            solutions=[(s.iteration, s.cost) for s in result.solutions],
-            trajectory=None if output is None else (output.t, output.x, output.u),
-            force_limit_N=limits.limits.force_N, velocity_limit_mps=limits.limits.velocity_mps, log=log,
-            recording_name=f"{cfg.name}/plan",
+            run.file("rrd", "plan.rrd"), scene=scene, start=seg.start[0:3], goal=seg.goal[0:3], result=result,
+            trajectory=output, limits=limits.limits, log=log, recording_name=f"{cfg.name}/plan",
         )
         run.finish(summary)
     if not result.solved:

@@ -33,7 +33,7 @@ from oacli.config import OacliConfig, dump_config
 from oacli.errors import InputError
 from oacli.geometry.collision import CollisionChecker
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_trajectory
-from oacli.io.rerun_plan import write_smooth_recording
+from oacli.io.rerun.smooth import PolishSteps, ShortcutSteps, write_smooth_recording
 from oacli.io.runfolder import git_commit, open_stage_run
 from oacli.planning.full_state import minimum_time_lower_bound_s, translational_part
 from oacli.planning.polish import SOLVER, STEP_OUTCOMES, PolishResult, PolishSettings, polish_trajectory
@@ -340,15 +340,13 @@ def run_smooth(
                     f"status {r['level']}: {r['message']}") for r in summary["status_reasons"])
         _write_smooth_mcap(run.file("mcap", "smooth.mcap"), cfg, config_yaml, checker, input_path, traj_in,
                            traj_shortcut, traj_out, result, polish, summary, log)
+        shortcut_steps = ShortcutSteps([(i, sec.x[:, 0:3]) for i, sec in result.sections], _cost_per_try(result))
+        polish_steps = None if polish is None else PolishSteps(
+            traj_shortcut.x[:, 0:3], [(i, c.x[:, 0:3]) for i, c in polish.accepted_trajectories],
+            np.array([it.length_m for it in polish.iterations]))
         write_smooth_recording(
-            run.file("rrd", "smooth.rrd"),
-            scene=checker.scene, before=traj_in.x[:, 0:3], trajectory=(traj_out.t, traj_out.x, traj_out.u),
-            shortcuts=[(i, sec.x[:, 0:3]) for i, sec in result.sections], cost_per_try=_cost_per_try(result),
-            shortcut_path=traj_shortcut.x[:, 0:3] if polish is not None else None,
-            polish_steps=[] if polish is None else [(i, c.x[:, 0:3]) for i, c in polish.accepted_trajectories],
-            polish_lengths=None if polish is None else np.array([it.length_m for it in polish.iterations]),
-            force_limit_N=lim.force_N, velocity_limit_mps=lim.velocity_mps,
-            log=log, recording_name=f"{cfg.name}/smooth",
+            run.file("rrd", "smooth.rrd"), scene=checker.scene, before=traj_in, after=traj_out,
+            shortcuts=shortcut_steps, polish=polish_steps, limits=lim, log=log, recording_name=f"{cfg.name}/smooth",
         )
         run.finish(summary)
     return StageResult(run_dir, summary, files)

@@ -24,10 +24,10 @@ from oacli.errors import InputError
 from oacli.geometry import Scene
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.reference_files import load_reference
-from oacli.io.rerun_io import write_track_recording
-from oacli.io.rerun_tube import tube_track_blueprint
+from oacli.io.rerun.track import write_track_recording
+from oacli.io.rerun.tube import tube_track_blueprint
 from oacli.io.runfolder import git_commit, open_stage_run
-from oacli.metrics import percentiles_ms, rms, tracking_errors
+from oacli.metrics import TrackingErrors, percentiles_ms, rms, tracking_errors
 from oacli.reference import waypoint_reference
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
@@ -109,7 +109,7 @@ def check_reference_in_workspace(reference: Trajectory, scene: Scene, log: list[
 
 def _track_summary(
     cfg: OacliConfig, reference: Trajectory, tel: Telemetry, limits: TrackingLimits
-) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
+) -> tuple[dict[str, Any], TrackingErrors]:
     errors = tracking_errors(tel, reference)
     ctrl_errors = tracking_errors(tel, reference, tel.t_ctrl)
     safety = track_safety(cfg, tel, limits)
@@ -136,7 +136,7 @@ def _track_summary(
         "step_time_ms": percentiles_ms(np.array([i.step_time_s for i in tel.solve_info])),
         "sim_time_s": float(tel.t_true[-1]),
     }
-    return summary, ctrl_errors.position_m, ctrl_errors.attitude_rad
+    return summary, ctrl_errors
 
 
 def run_track(
@@ -216,7 +216,7 @@ def run_track(
             input_limits=limits.input,
             sensors=sensors, disturbance=disturbance, rng=rng, progress=progress,
         )
-        summary, pos_err_ctrl, att_err_ctrl = _track_summary(cfg, reference, tel, limits)
+        summary, ctrl_errors = _track_summary(cfg, reference, tel, limits)
         summary["reference_check"] = reference_check.summary()
         monitor = controller if isinstance(controller, TubeMonitor) else None
         history = monitor.history() if monitor is not None else None
@@ -241,13 +241,8 @@ def run_track(
         _write_track_mcap(run.file("mcap", "track.mcap"), cfg, config_yaml, reference, tel, scene, log, monitor,
                           history)
         write_track_recording(
-            run.file("rrd", "track.rrd"), scene=scene, t_ref=reference.t, x_ref=reference.x,
-            t_true=tel.t_true, x_true=tel.x_true,
-            t_ctrl=tel.t_ctrl, u_command=tel.u_command, u_applied=tel.u_applied,
-            position_error_m=pos_err_ctrl, attitude_error_rad=att_err_ctrl,
-            solve_time_ms=1e3 * np.array([i.solve_time_s for i in tel.solve_info]),
-            force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm, log=log,
-            recording_name=f"{cfg.name}/track",
+            run.file("rrd", "track.rrd"), scene=scene, reference=reference, telemetry=tel, errors=ctrl_errors,
+            limits=limits, log=log, recording_name=f"{cfg.name}/track",
             extra=None if monitor is None or history is None else tube_layers(monitor, history),
             blueprint=None if design is None else tube_track_blueprint(),
         )

@@ -6,6 +6,7 @@ robust tube MPC (Mayne, Seron & Raković 2005; Raković et al. 2005; Doerr et al
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -18,7 +19,8 @@ from oacli.control.tube_design import AncillaryWeights, TubeDesign, design_trans
 from oacli.control.tube_monitor import TubeMonitor, half_widths
 from oacli.control.tube_mpc import TerminalWeights, TubeHistory, TubeMPC
 from oacli.io.mcap_io import StageMcapWriter
-from oacli.io.rerun_tube import log_disturbance_layers, log_tube_layers
+from oacli.io.rerun.tube import log_disturbance_layers, log_tube_layers
+from oacli.io.rerun.writer import StageRecording
 from oacli.status import StatusReport
 from oacli.types import Telemetry, Trajectory
 
@@ -296,26 +298,13 @@ def write_tube_topics(writer: StageMcapWriter, tel: Telemetry, monitor: TubeMoni
         })
 
 
-def tube_layers(monitor: TubeMonitor, history: TubeHistory):
-    rec = monitor.disturbance_record()
+def tube_layers(monitor: TubeMonitor, history: TubeHistory) -> Callable[[StageRecording], None]:
+    """The tube layers of the track recording (:mod:`oacli.io.rerun.tube`), as its ``extra`` callback."""
     designs = [d for _, d in monitor.designs]
-    index = rec.design_index
+    record = monitor.disturbance_record()
 
-    def per_step(fn) -> np.ndarray:
-        values = np.array([fn(d) for d in designs])
-        return values[index]
-
-    def extra(rec_stream) -> None:
-        first = designs[0]
-        log_tube_layers(
-            rec_stream, t_ctrl=history.t, nominal_state=history.nominal_state, nominal_force=history.nominal_force,
-            ancillary_force=history.ancillary_force, tube_margin=history.tube_margin,
-            z_position_extent=per_step(lambda d: d.position_extent()),
-            tightened_force_N=np.array([ax.force_bounds_N[1] for ax in first.axes]),
-            ancillary_force_max_N=np.array([ax.ancillary_force_N for ax in first.axes]),
-            tightened_velocity_mps=np.array([ax.velocity_bounds_mps[1] for ax in first.axes]),
-        )
-        log_disturbance_layers(rec_stream, t_ctrl=rec.t, w=rec.w, w_half_widths=rec.w_half_widths,
-                               violated=rec.violated)
+    def extra(rec: StageRecording) -> None:
+        log_tube_layers(rec, history, designs, record.design_index)
+        log_disturbance_layers(rec, record)
 
     return extra
