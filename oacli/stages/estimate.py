@@ -36,7 +36,7 @@ from oacli.io.mcap_io import StageMcapWriter, read_stage, read_telemetry
 from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
-from oacli.status import StatusReport
+from oacli.status import StatusReport, status_log
 from oacli.types import ParameterEstimate
 
 LogEntry = tuple[float, str, str]
@@ -304,8 +304,7 @@ def run_estimate(
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
     summary = _estimate_summary(run, prior, truth, telemetry)
-    log.extend((float(run.t_records[-1]), "warning", f"status {r['level']}: {r['message']}")
-               for r in summary["status_reasons"])
+    log.extend(status_log(summary, float(run.t_records[-1])))  # estimate findings are never unsafe
 
     with open_run("estimate", cfg, out=out, runs_root=runs_root, started=wall_start) as run_folder:
         with run_folder.open_mcap(method=run.method, telemetry=str(telemetry)) as writer:

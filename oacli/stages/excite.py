@@ -64,7 +64,7 @@ from oacli.stages.settings import (
     terminal_tolerance,
     to_motion_limits,
 )
-from oacli.status import StatusReport, add_safety_reasons
+from oacli.status import StatusReport, add_safety_reasons, status_log
 from oacli.trajectory import sample_states
 from oacli.types import ParameterEstimate, Trajectory
 
@@ -506,12 +506,6 @@ def rattle_findings(summary: dict[str, Any], problem: ExcitationProblem, run: Ra
                                   f"status {failed[-1].plan.status}); the previous plan was kept")
     _goal_reasons(report, summary["goal_residual"], problem)
     return report
-
-
-def status_log(summary: dict[str, Any], t: float = 0.0) -> list[LogEntry]:
-    """One log line per finding of the status."""
-    return [(t, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
-            for r in summary["status_reasons"]]
 
 
 def _write_rattle_outputs(stage_run: StageRun, cfg: OacliConfig, problem: ExcitationProblem, run: RattleRun,

@@ -49,7 +49,7 @@ from oacli.stages.settings import (
     planner_design_limits,
     robot_body,
 )
-from oacli.status import NO_SOLUTION, OK, StatusReport, add_output_trajectory_reasons
+from oacli.status import NO_SOLUTION, OK, StatusReport, add_output_trajectory_reasons, status_log
 from oacli.types import Trajectory
 
 LogEntry = tuple[float, str, str]
@@ -358,8 +358,7 @@ def run_plan(
         if result.solved:
             add_output_trajectory_reasons(report, summary, "plan")
         report.apply(summary)
-        log.extend((0.0, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
-                   for r in summary["status_reasons"])
+        log.extend(status_log(summary))
         with run.open_mcap() as writer:
             write_plan_topics(writer, scene, result, output, summary, log)
         write_plan_recording(

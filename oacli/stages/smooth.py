@@ -50,7 +50,7 @@ from oacli.stages.settings import (
     robot_body,
     shortcut_connector,
 )
-from oacli.status import StatusReport, add_output_trajectory_reasons
+from oacli.status import StatusReport, add_output_trajectory_reasons, status_log
 from oacli.types import Trajectory
 
 LogEntry = tuple[float, str, str]
@@ -300,8 +300,7 @@ def run_smooth(
                         f"polish ({polish.status}, {polish.reason}): path length {polish.length_before_m:.4f} m -> "
                         f"{polish.length_after_m:.4f} m, cost {polish.cost_before:.6g} -> {polish.cost_after:.6g}, "
                         f"{polish.accepted}/{len(polish.iterations)} SCP steps accepted"))
-        log.extend((traj_out.duration_s, "error" if r["level"] == "unsafe" else "warning",
-                    f"status {r['level']}: {r['message']}") for r in summary["status_reasons"])
+        log.extend(status_log(summary, traj_out.duration_s))
         with run.open_mcap() as writer:
             write_smooth_topics(writer, checker.scene, input_path, traj_in, traj_shortcut, traj_out, result, polish,
                                 summary, log)

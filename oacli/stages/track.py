@@ -38,7 +38,7 @@ from oacli.stages.settings import (
     tracking_weights,
     tube_design_from_config,
 )
-from oacli.stages.track_status import assess_track, controller_counts, status_log, track_safety
+from oacli.stages.track_status import assess_track, controller_counts, track_safety
 from oacli.stages.track_tube import (
     add_tube_reasons,
     describe_beyond_w,
@@ -48,7 +48,7 @@ from oacli.stages.track_tube import (
     tube_summary,
     write_tube_topics,
 )
-from oacli.status import StatusReport
+from oacli.status import StatusReport, status_log
 from oacli.trajectory import sample_inputs
 from oacli.types import Telemetry, Trajectory
 

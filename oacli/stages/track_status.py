@@ -18,8 +18,6 @@ from oacli.metrics import safety_block, safety_report
 from oacli.status import SAFE_HOLD_MODE, StatusReport, add_safety_reasons, controller_mode_counts, mode_word
 from oacli.types import Telemetry
 
-LogEntry = tuple[float, str, str]
-
 #: Keep-in zones bound the robot's centre (Astrobee's keep-in files, the planners' collision checks): no margin.
 KEEP_IN_MARGIN_M = 0.0
 
@@ -62,10 +60,3 @@ def assess_track(summary: dict[str, Any], extra: StatusReport | None = None) -> 
     # Unsafe findings first: the warning line leads with what matters most.
     report.reasons.sort(key=lambda r: r.level != "unsafe")
     return report
-
-
-def status_log(summary: dict[str, Any], t_end: float) -> list[LogEntry]:
-    """One log line per finding (level ``error`` for unsafe, ``warning`` for degraded)."""
-    return [(t_end, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
-            for r in summary.get("status_reasons", ())]
-
