@@ -196,6 +196,20 @@ def add_tube_reasons(report: StatusReport, summary: dict[str, Any]) -> None:
 
 
 def write_tube_topics(writer: StageMcapWriter, tel: Telemetry, monitor: TubeMonitor, history: TubeHistory) -> None:
+    """Write the tube controller's topics (``/control/nominal``, ``/control/ancillary``, ``/state/nominal``,
+    ``/tube/design``, ``/tube/disturbance``; ``docs/mcap.md``) to the track MCAP.
+
+    Parameters
+    ----------
+    writer : StageMcapWriter
+        The open writer.
+    tel : Telemetry
+        The run.
+    monitor : TubeMonitor
+        The tube controller after the run.
+    history : TubeHistory
+        What it did at each step.
+    """
     k = len(tel.t_ctrl)
     zeros = np.zeros((k, 3))
     writer.write_wrenches(ms.TOPIC_CONTROL_NOMINAL, tel.t_ctrl, np.hstack([history.nominal_force, history.torque]))
@@ -226,7 +240,20 @@ def write_tube_topics(writer: StageMcapWriter, tel: Telemetry, monitor: TubeMoni
 
 
 def tube_layers(monitor: TubeMonitor, history: TubeHistory) -> Callable[[StageRecording], None]:
-    """The tube layers of the track recording (:mod:`oacli.io.rerun.tube`), as its ``extra`` callback."""
+    """The tube layers of the track recording (:mod:`oacli.io.rerun.tube`), as its ``extra`` callback.
+
+    Parameters
+    ----------
+    monitor : TubeMonitor
+        The tube controller after the run (its designs and the disturbance record).
+    history : TubeHistory
+        What it did at each step.
+
+    Returns
+    -------
+    callable
+        Logs the tube and the disturbance layers into a :class:`~oacli.io.rerun.writer.StageRecording`.
+    """
     designs = [d for _, d in monitor.designs]
     record = monitor.disturbance_record()
 
