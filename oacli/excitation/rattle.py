@@ -144,7 +144,7 @@ class PlannerWeights:
 
 
 @dataclass(frozen=True)
-class PlanResult:
+class ReplanResult:
     """One replan.
 
     Attributes
@@ -421,7 +421,7 @@ class InformationAwarePlanner:
         *,
         t0: float = 0.0,
         u_warm: np.ndarray | None = None,
-    ) -> PlanResult:
+    ) -> ReplanResult:
         """Plan N steps from ``x0`` with the model ``theta`` (the estimate), its std ``σ`` and weights ``γ``.
 
         Parameters
@@ -437,7 +437,7 @@ class InformationAwarePlanner:
 
         Returns
         -------
-        PlanResult
+        ReplanResult
         """
         wall = time.perf_counter()
         theta = np.asarray(theta, dtype=float)
@@ -486,7 +486,7 @@ class InformationAwarePlanner:
         n = self.n
         t = t0 + self.dt * np.arange(n + 1)
         traj = Trajectory(t, current["x"], np.vstack([current["u"], np.zeros((1, 6))]), name="rattle_plan")
-        return PlanResult(
+        return ReplanResult(
             trajectory=traj,
             cost=current["cost"],
             information_reward=current["reward"],
