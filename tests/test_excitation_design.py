@@ -11,14 +11,7 @@ from hypothesis import strategies as st
 
 from oacli.config import load_config
 from oacli.errors import InfeasibleError
-from oacli.excitation.design import (
-    ExcitationProblem,
-    ScpSettings,
-    _Merit,
-    _Subproblem,
-    design_excitation,
-    initial_guess,
-)
+from oacli.excitation.design import ExcitationProblem, ScpSettings, design_excitation, initial_guess
 from oacli.excitation.fim_gradient import (
     criterion_gradient,
     criterion_value,
@@ -32,6 +25,7 @@ from oacli.excitation.information import (
     fisher_information,
     propagate_with_sensitivities,
 )
+from oacli.excitation.merit import ScpMerit
 from oacli.excitation.problem import (
     MotionLimits,
     chord_margin_m,
@@ -39,6 +33,7 @@ from oacli.excitation.problem import (
     minimum_time_s,
     rest_to_rest_inputs,
 )
+from oacli.excitation.subproblem import ConvexSubproblem
 from oacli.geometry import Box, Ellipsoid, Scene
 from oacli.geometry.verify import dense_positions
 from oacli.io.reference_files import load_csv
@@ -195,9 +190,9 @@ def test_subproblem_is_dpp(criterion):
     p = problem(n=8, criterion=criterion, scene=Scene(
         keep_in=(Box((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)),),
         keep_out=(Ellipsoid.from_semi_axes([0.5, 0.5, 0.0], [0.2, 0.2, 0.2]),)))
-    merit = _Merit(p, 10.0)
+    merit = ScpMerit(p, 10.0)
     merit.reference = 1.0
-    assert _Subproblem(p, merit, 10.0).problem.is_dpp()
+    assert ConvexSubproblem(p, merit, 10.0).problem.is_dpp()
 
 
 @pytest.fixture(scope="module")
