@@ -12,7 +12,16 @@ problem, canonicalisation, Clarabel set-up) to the end of its first step [s]; "d
 (ancillary gain, RPI set, facet reduction, tightening) [s], once. Reference ([ReSWARM2023] Table 5): the flight tube
 MPC step took 8.49 ms with qpOASES at N = 5 on a laptop.
 
-Run: ``python benchmarks/bench_tube_mpc.py [--steps 200]``
+Second table — the cost of the workspace rows (issue 8; target: within 1.3× of the step without them): the preset
+controller (direct path, N = 5) with ``controller.position_constraints`` on (keep-in boxes shrunk by the robot and
+the tube, braking rows; :mod:`oacli.control.workspace`) against the same controller with it off (positions free,
+the problem before issue 8), and with the JEM plus one keep-out ellipsoid beside the path (its half-space normals
+are Parameters in the constraint matrix: the compiled path updates A's values every step). For each seed a closed
+loop (the preset's random force drawn from that seed) records the measured states; the controllers replay them,
+all stepped at every state in an order that rotates from step to step, so each sees the same inputs and the same
+machine load. Medians over all steps of all seeds; the ratio is with / without.
+
+Run: ``python benchmarks/bench_tube_mpc.py [--steps 200] [--seeds 5]``
 """
 
 from __future__ import annotations
@@ -25,6 +34,8 @@ import numpy as np
 
 from oacli.config import load_config
 from oacli.control.tracking import TrackingLimits, TrackingWeights
+from oacli.control.tube_mpc import TerminalWeights
+from oacli.geometry import Ellipsoid, Scene
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.stages.track import reference_from_config
@@ -42,20 +53,81 @@ def limits_and_weights(cfg):
     return limits, weights
 
 
-def record_states(cfg, reference, design, limits, weights):
-    """(t, x_measured) of a closed loop at the preset's horizon."""
+def record_states(cfg, reference, design, limits, weights, seed=None):
+    """(t, x_measured) of a closed loop at the config's horizon (random force drawn from ``seed``)."""
     ctrl = tube_controller_from_config(cfg, reference, design, weights, limits)
     dist = cfg.truth.disturbance
+    rng = np.random.default_rng(cfg.seed if seed is None else seed)
     tel = simulate(ctrl, reference.x[0], cfg.truth_params(), duration_s=reference.duration_s + 5.0,
                    control_period_s=cfg.controller.period_s, plant_period_s=cfg.simulation.plant_period_s,
                    input_limits=np.r_[limits.force_N, limits.torque_Nm], sensors=SensorNoise(),
-                   disturbance=Disturbance(dist.bias, dist.random_bound), rng=np.random.default_rng(cfg.seed))
+                   disturbance=Disturbance(dist.bias, dist.random_bound), rng=rng)
     return tel.t_ctrl, tel.x_measured
+
+
+def with_controller(cfg, **update):
+    """``cfg`` with ``controller`` fields replaced."""
+    return cfg.model_copy(update={"controller": cfg.controller.model_copy(update=update)})
+
+
+#: A keep-out ellipsoid beside the A -> B path of the preset (0.6 m from it in x): its rows are active.
+SIDE_ZONE = Ellipsoid.from_semi_axes([11.4, -8.6, 5.0], [0.15, 0.15, 0.15])
+
+
+def workspace_overhead(cfg, reference, design, limits, weights, seeds: int, steps: int) -> None:
+    """Second table of the module docstring."""
+    off = with_controller(cfg, position_constraints=False)
+    on = with_controller(cfg, position_constraints=True)
+    variants = {"without (free positions)": (off, None), "with (JEM keep-in)": (on, None),
+                "with (JEM + keep-out)": (on, SIDE_ZONE)}
+    step_ms = {name: [] for name in variants}
+    solve_ms = {name: [] for name in variants}
+    rows, fails = {}, dict.fromkeys(variants, 0)
+    for seed in range(seeds):
+        times, states = record_states(on, reference, design, limits, weights, seed=seed)
+        times, states = times[:steps], states[:steps]
+        ctrls = {}
+        for name, (c, zone) in variants.items():
+            ctrl = tube_controller_from_config(c, reference, design, weights, limits)
+            if zone is not None:  # same controller, scene with the extra zone
+                scene = c.scene()
+                scene = Scene(scene.keep_in, (*scene.keep_out, zone), scene.frame)
+                ctrl = type(ctrl)(reference, c.robot_params(), design, horizon=ctrl.horizon,
+                                  prediction_step_s=ctrl.step_s, weights=weights, limits=limits,
+                                  terminal=_terminal(c), max_consecutive_failures=ctrl.max_failures,
+                                  scene=scene, robot=ctrl.workspace.robot)
+            ctrls[name] = ctrl
+            rows[name] = ctrl.qp.compiled.n_constraints
+        names = list(ctrls)
+        for j, (t, x) in enumerate(zip(times, states, strict=True)):
+            order = names[j % len(names):] + names[: j % len(names)]  # rotate who goes first
+            for name in order:
+                out = ctrls[name].step(float(t), x)
+                if j:  # the first step builds caches: left out
+                    step_ms[name].append(1e3 * out.info.step_time_s)
+                    solve_ms[name].append(1e3 * out.info.solve_time_s)
+                fails[name] += not out.info.success
+    base = np.median(step_ms["without (free positions)"])
+    print(f"\nworkspace rows, N = {cfg.controller.horizon}, {seeds} seeds x {steps} steps (medians; ratio = step / "
+          "step without)")
+    print(f"{'controller':<26} {'rows':>5} {'step p50 [ms]':>14} {'solver p50 [ms]':>16} {'ratio':>6} "
+          f"{'not solved':>11}")
+    for name in variants:
+        med = np.median(step_ms[name])
+        print(f"{name:<26} {rows[name]:>5} {med:>14.3f} {np.median(solve_ms[name]):>16.3f} {med / base:>6.2f} "
+              f"{fails[name]:>11}")
+
+
+def _terminal(cfg):
+    term = cfg.controller.tube.terminal
+    return None if term is None else TerminalWeights(np.asarray(term.position), np.asarray(term.velocity))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=200, help="replayed steps per horizon")
+    parser.add_argument("--steps", type=int, default=200, help="replayed steps per horizon (and per seed)")
+    parser.add_argument("--seeds", type=int, default=5, help="closed loops replayed for the workspace table")
+    parser.add_argument("--only-workspace", action="store_true", help="print the workspace table only")
     args = parser.parse_args()
     cfg = load_config(PRESET)
     reference = reference_from_config(cfg)
@@ -63,6 +135,9 @@ def main() -> None:
     t0 = time.perf_counter()
     design = tube_design_from_config(cfg)
     design_s = time.perf_counter() - t0
+    if args.only_workspace:
+        workspace_overhead(cfg, reference, design, limits, weights, args.seeds, args.steps)
+        return
     times, states = record_states(cfg, reference, design, limits, weights)
     times, states = times[: args.steps], states[: args.steps]
     print(f"tube design (3 axes: K, RPI s={design.axes[0].rpi.s}, {design.axes[0].reduction.facets_before} -> "
@@ -93,6 +168,7 @@ def main() -> None:
         print(f"{horizon:>3} {compiled.n_variables:>5} {compiled.n_constraints:>5} {f:>16.3f} "
               f"{1e3 * np.median(solver):>11.3f} {s:>17.3f} {s / f:>6.2f} {first['direct']:>17.3f} "
               f"{first['cvxpy']:>18.3f} {max(du):>9.1e}")
+    workspace_overhead(cfg, reference, design, limits, weights, args.seeds, args.steps)
 
 
 if __name__ == "__main__":

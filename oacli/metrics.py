@@ -97,7 +97,13 @@ class Violation:
     unit: str
 
     def as_dict(self) -> dict[str, Any]:
-        """The entry of the ``safety`` block of ``summary.json``."""
+        """The entry of the ``safety`` block of ``summary.json``.
+
+        Returns
+        -------
+        dict
+            ``count``, ``first_time_s``, ``worst_depth`` and ``unit``.
+        """
         return {"count": self.count, "first_time_s": self.first_time_s, "worst_depth": self.worst_depth,
                 "unit": self.unit}
 
@@ -189,7 +195,23 @@ def safety_report(
 
 def safety_block(report: dict[str, Violation], *, samples: int, robot_radius_m: float,
                  keep_in_margin_m: float) -> dict[str, Any]:
-    """The ``safety`` block of ``summary.json``: one entry per kind plus what was evaluated."""
+    """The ``safety`` block of ``summary.json``: one entry per kind plus what was evaluated.
+
+    Parameters
+    ----------
+    report : dict of str to Violation
+        From :func:`safety_report`.
+    samples : int
+        Number of plant samples evaluated.
+    robot_radius_m : float
+        Robot radius used for the keep-out depths [m].
+    keep_in_margin_m : float
+        Margin kept from the keep-in walls [m].
+
+    Returns
+    -------
+    dict
+    """
     return {
         "evaluated_on": "/state/true (every plant sample); input: /control/command (every control step)",
         "samples": int(samples),

@@ -141,7 +141,8 @@ def test_recording_reads_back_with_the_logged_values(excite_run):
 
 
 def test_excite_then_track_with_the_payload(excite_run, config, tmp_path):
-    """The design is trackable: the MPC (model: bare Astrobee, 9.58 kg) follows it with the 15 kg payload."""
+    """The design is trackable: the MPC (model: bare Astrobee, 9.58 kg, with its keep-in/keep-out rows) follows it
+    with the 15 kg payload (keep-in boxes bound the robot's centre, as in the design's own collision checks)."""
     out = tmp_path / "track"
     result = run_cli("track", config, "--reference", excite_run / "excite.mcap", "--out", out, "--quiet")
     assert result.exit_code == 0, result.output

@@ -114,7 +114,7 @@ def test_designed_excitation_respects_the_design_limits_at_every_sample(clipped_
     assert summary["within_design_limits"] is True
 
 
-PAYLOAD = {"mass_kg": 15.0, "inertia_kgm2": [0.1464, 0.1376, 0.1604]}  # seed 000 Table 1, Astrobee with object
+PAYLOAD = {"mass_kg": 15.0, "inertia_kgm2": [0.1464, 0.1376, 0.1604]}  # [Doerr2021] Table 1, Astrobee with object
 
 
 def track_payload(reference: Path, tmp: Path) -> dict:

@@ -29,12 +29,12 @@ from oacli.excitation.merit import ScpMerit
 from oacli.excitation.problem import (
     MotionLimits,
     chord_margin_m,
-    keep_out_halfspaces,
     minimum_time_s,
     rest_to_rest_inputs,
 )
 from oacli.excitation.subproblem import ConvexSubproblem
 from oacli.geometry import Box, Ellipsoid, Scene
+from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
 from oacli.geometry.verify import dense_positions
 from oacli.io.reference_files import load_csv
 from oacli.model import quaternion as quat
@@ -146,7 +146,7 @@ def test_tangent_halfspace_lies_in_free_space(seed):
     rot = quat.to_rotation_matrix(quat.normalize(rng.standard_normal(4)))
     ell = Ellipsoid.from_semi_axes(rng.uniform(-1, 1, 3), rng.uniform(0.1, 1.0, 3), rot)
     anchor = ell.center + rng.normal(0, 1.0, (1, 3))
-    n_hat, beta = keep_out_halfspaces(ell.center, ell.shape, anchor)
+    n_hat, beta, _ = point_halfspaces(keep_out_zone(ell), anchor)
     pts = rng.uniform(-4, 4, (4000, 3))
     inside_half = pts @ n_hat[0] >= beta[0]
     assert not np.any(ell.contains(pts[inside_half]))

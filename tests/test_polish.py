@@ -23,6 +23,7 @@ from oacli.config import load_config
 from oacli.errors import ConfigError
 from oacli.geometry import Box, Ellipsoid, Scene
 from oacli.geometry.collision import CollisionChecker, RobotBody
+from oacli.geometry.halfspaces import keep_out_zones
 from oacli.geometry.verify import dense_check
 from oacli.io.mcap_io import read_stage, read_trajectory
 from oacli.io.rerun_io import read_recording_component, read_recording_entities
@@ -38,7 +39,6 @@ from oacli.planning.polish import (
     PolishSettings,
     PolishSubproblem,
     keep_out_halfspaces,
-    keep_out_zones,
     lqr_cost_expression,
     min_norm_on_triangles,
     polish_grid,
@@ -106,7 +106,7 @@ def _random_zone(draw_axes, draw_angles, robot_radius):
     scene = Scene(keep_out=(Ellipsoid.from_semi_axes([0.3, -0.2, 0.1], draw_axes, rot),))
     body = RobotBody.sphere(robot_radius) if robot_radius >= 0 else RobotBody.ellipsoid([0.1, 0.05, 0.08], rot.T)
     checker = CollisionChecker(scene, body)
-    return checker, keep_out_zones(checker)[0]
+    return checker, keep_out_zones(checker.scene, checker.robot)[0]
 
 
 @settings(max_examples=40, deadline=None)

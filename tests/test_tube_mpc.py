@@ -144,10 +144,12 @@ def test_standard_block_is_the_existing_linear_mpc(rng):
         np.testing.assert_allclose(ours.blocks["axis"].v, theirs.u, atol=1e-7)
 
 
-def test_compiled_qp_refuses_a_parameter_in_the_constraint_matrix():
-    x, p = cp.Variable(2), cp.Parameter(2, value=np.ones(2))
-    problem = cp.Problem(cp.Minimize(cp.sum_squares(x)), [p @ x >= 1])
-    with pytest.raises(ValueError, match="constraint matrix"):
+def test_compiled_qp_refuses_a_parameter_in_the_quadratic_term():
+    """A parameter in the constraint matrix is supported (tests/test_controller_constraints.py); in P it is not."""
+    x, p = cp.Variable(2), cp.Parameter(nonneg=True, value=1.0)
+    problem = cp.Problem(cp.Minimize(p * cp.sum_squares(x)), [x >= 1])
+    assert problem.is_dpp()
+    with pytest.raises(ValueError, match="quadratic term"):
         CompiledQP(problem)
 
 

@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
-from oacli.config.fields import PositiveReal, Section, StrictInt, Weight3, none_to, read_only
+from oacli.config.fields import PositiveReal, Section, StrictBool, StrictInt, Weight3, none_to, read_only
 from oacli.config.tube import TubeConfig
 
 MAX_HORIZON = 500
@@ -55,8 +55,15 @@ class ControllerConfig(Section):
     )
     max_consecutive_failures: Annotated[StrictInt, Field(ge=1)] = Field(
         default=5,
-        description="Consecutive failed solves tolerated [-], >= 1 (tube: then a latched safe hold, see "
-        "oacli.control.tube_mpc).",
+        description="Consecutive failed solves tolerated [-], >= 1; then a latched safe hold (brake to rest, hold "
+        "the attitude; see oacli.control.tracking and oacli.control.tube_mpc).",
+    )
+    position_constraints: StrictBool = Field(
+        default=True,
+        description="Keep the predicted positions in the keep-in boxes (shrunk by environment.keep_in_margin_m) "
+        "and out of the "
+        "keep-out zones (grown by it): soft rows in the standard MPC, hard rows tightened by the tube in the tube "
+        "MPC (oacli.control.workspace). false: positions are free.",
     )
     tube: Annotated[TubeConfig, none_to({})] = Field(
         default_factory=TubeConfig, description="Robust tube MPC settings (used when type is 'tube')."

@@ -12,6 +12,7 @@ from oacli.config.fields import (
     IDENTITY_QUATERNION,
     BoxCorners,
     Name,
+    NonNegativeReal,
     PositiveVector3,
     Quaternion,
     Real,
@@ -113,6 +114,12 @@ class EnvironmentConfig(Section):
     )
     keep_out: Annotated[tuple[KeepOutEllipsoid, ...], none_to(())] = Field(
         default=(), description="Keep-out ellipsoids."
+    )
+    keep_in_margin_m: NonNegativeReal = Field(
+        default=0.0,
+        description="Distance the robot's centre keeps from the keep-in walls [m], >= 0. Keep-in boxes bound the "
+        "robot's centre (as the planners' collision checks and Astrobee's keep-in files do); keep-out zones are "
+        "grown by robot.radius_m. Used by the controllers' keep-in rows and the safety check of tracking runs.",
     )
 
     def scene(self) -> Scene:

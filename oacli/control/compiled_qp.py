@@ -9,6 +9,13 @@ solver and inverts the solution through the reduction chain. When the parameters
 ``q = T_q θ``, ``b = T_b θ``, ``DefaultSolver.update(q=q, b=b)`` and ``solve()`` on one solver object, and the
 variables are slices of Clarabel's ``x`` (cvxpy's ``var_id_to_col``, column-major). The problem stays
 formulated in cvxpy; the tests check that both paths give the same solution.
+
+Parameters may also multiply variables in the constraints (``nᵀ p ≥ β`` with a Parameter normal n, as the
+controllers' keep-out half-spaces): the DPP tensor then maps θ to the *values* of A as well. Its sparsity pattern
+is every entry that some θ can make non-zero (the structural entries of the tensor, kept even when their current
+value is 0), fixed at construction; each solve computes the values ``T_A θ`` in that pattern's column-major order
+(Clarabel's CSC order) and passes them to ``update(A=...)``, which keeps the KKT system's symbolic structure.
+P must stay constant.
 """
 
 from __future__ import annotations
@@ -71,15 +78,16 @@ class CompiledQP:
     Parameters
     ----------
     problem : cvxpy.Problem
-        DPP problem whose parameters appear only in the linear objective term, the objective constant and the
-        constraint right-hand sides (the usual MPC: initial state and references).
+        DPP problem whose parameters appear only in the linear objective term, the objective constant, the
+        constraint right-hand sides (the usual MPC: initial state and references) and the constraint matrix
+        (linear in the parameters, e.g. half-space normals).
     settings : clarabel.DefaultSettings, optional
         Solver settings; Clarabel's defaults (as ``problem.solve(solver=CLARABEL)`` uses) when omitted.
 
     Raises
     ------
     ValueError
-        When the problem is not DPP or a parameter enters P or A.
+        When the problem is not DPP or a parameter enters P.
     """
 
     def __init__(self, problem: cp.Problem, settings: clarabel.DefaultSettings | None = None) -> None:
@@ -91,10 +99,21 @@ class CompiledQP:
         n = prog.x.size
         tensor_a = sp.csc_array(prog.A)
         m = tensor_a.shape[0] // (n + 1)
-        if tensor_a[: m * n, :-1].nnz or (prog.P is not None and sp.csc_array(prog.P)[:, :-1].nnz):
-            raise ValueError("a parameter enters the constraint matrix or the quadratic term: use problem.solve()")
-        # Clarabel's form A x + s = b: the data already hold A negated by ConicSolver.apply.
-        self._a = sp.csc_matrix(data[cps.A])
+        if prog.P is not None and sp.csc_array(prog.P)[:, :-1].nnz:
+            raise ValueError("a parameter enters the quadratic term: use problem.solve()")
+        tensor_a_mat = sp.csr_array(tensor_a[: m * n, :])
+        self._t_a: sp.csr_array | None = None
+        if tensor_a[: m * n, :-1].nnz:
+            # Structural entries of A (rows of the tensor = column-major positions in A), sorted = CSC order.
+            # Clarabel's form A x + s = b holds −A of cvxpy's A x + b ∈ K.
+            flat = np.flatnonzero(np.diff(tensor_a_mat.indptr))
+            self._t_a = sp.csr_array(-tensor_a_mat[flat, :])
+            counts = np.bincount(flat // m, minlength=n)
+            self._a_structure = (flat % m, np.concatenate([[0], np.cumsum(counts)]))
+            self._a_param_cols = np.unique(sp.csc_array(tensor_a_mat[:, :-1]).nonzero()[1])
+        else:
+            # Clarabel's form A x + s = b: the data already hold A negated by ConicSolver.apply.
+            self._a = sp.csc_matrix(data[cps.A])
         self._p = sp.csc_matrix(sp.triu(data[cps.P])) if cps.P in data else sp.csc_matrix((n, n))
         self._t_b = sp.csr_array(tensor_a[m * n :, :])
         t_q = sp.csr_array(prog.q)
@@ -115,6 +134,14 @@ class CompiledQP:
         self._settings = settings or clarabel.DefaultSettings()
         self._settings.verbose = False
         theta = self.parameter_vector(missing_as_zero=True)  # structure only: q and b are set at every solve
+        if self._t_a is not None:
+            # Clarabel equilibrates A once, here: unset parameters entering A count as 1 (a row of zeros would
+            # get an extreme scaling), then A's values are updated at every solve.
+            theta_a = theta.copy()
+            unset = self._a_param_cols[theta_a[self._a_param_cols] == 0.0]
+            theta_a[unset] = 1.0
+            self._a = sp.csc_matrix((self._t_a @ theta_a, *self._a_structure), shape=(m, n))
+        self._settings.input_sparse_dropzeros = False  # the pattern must survive values that are 0
         self._solver = clarabel.DefaultSolver(
             self._p, self._t_q @ theta, self._a, self._t_b @ theta, self._cones, self._settings
         )
@@ -165,7 +192,10 @@ class CompiledQP:
         """
         theta = self.parameter_vector(values)
         start = time.perf_counter()
-        self._solver.update(q=self._t_q @ theta, b=self._t_b @ theta)
+        if self._t_a is None:
+            self._solver.update(q=self._t_q @ theta, b=self._t_b @ theta)
+        else:
+            self._solver.update(q=self._t_q @ theta, b=self._t_b @ theta, A=self._t_a @ theta)
         sol = self._solver.solve()
         wall = time.perf_counter() - start
         status = _STATUS.get(str(sol.status), "solver_error")

@@ -13,6 +13,16 @@ directly with the updated data (:class:`oacli.control.compiled_qp.CompiledQP`); 
 with ``P = L Lᵀ`` the terminal weight (by default the discrete Riccati solution, so that with no active
 constraint the MPC law equals the infinite-horizon LQR law). State limits are soft so that a measured state
 slightly outside them (noise, a disturbance) never makes the problem infeasible; the slack is reported.
+
+Optionally the predicted positions ``p_k = x_k[i:i+3]`` (k = 1..N) are kept in the workspace
+(:mod:`oacli.control.workspace`): a keep-in box ``lower_k ≤ p_k ≤ upper_k``, braking rows that keep the point
+where each predicted state would stop (braking at half the given deceleration) in that box
+(:func:`oacli.control.workspace.braking_lines`), and keep-out half-spaces ``n_jkᵀ p_k ≥ β_jk``, all Parameters (the
+normals multiply the variables: the compiled path updates A's values), soft with one slack ``σ_k ≥ 0`` per step
+shared by the step's rows and the exact ℓ1 penalty ``ρ_p Σ σ_k``: when the rows can be met, the solution meets
+them (ρ_p above the sum of the step's Lagrange multipliers of the hard problem, :data:`POSITION_PENALTY`); when
+they cannot (the measured state already outside, a plant that brakes less than the model), the QP stays feasible
+and the slack is reported.
 """
 
 from __future__ import annotations
@@ -25,7 +35,15 @@ import numpy as np
 
 from oacli.control.compiled_qp import SUCCESS_STATUSES, CompiledQP, timed_cvxpy_solve
 from oacli.control.lqr import solve_dare
+from oacli.control.workspace import PositionRows, braking_lines
 from oacli.types import SolveInfo
+
+#: Default exact-penalty weight of the position slack [1/m]. Exact when above the sum of the Lagrange multipliers
+#: of a step's rows in the problem with hard rows; the largest sum seen in closed loop (``problem.solve()`` duals,
+#: steps whose hard rows are feasible) was 76.7 (payload chain: 15 kg plant, 9.58 kg model, excitation reference)
+#: and 3.8 (configs/doerr2021.yaml, keep-out zones): 1e5 leaves three orders of magnitude for other weights.
+#: ``python benchmarks/bench_mpc_step.py`` prints the figure for doerr2021.
+POSITION_PENALTY = 1e5
 
 
 @dataclass(frozen=True)
@@ -41,12 +59,15 @@ class MPCSolution:
     max_slack : float
         Largest state-limit slack used (0 when every state limit holds).
     info : SolveInfo
+    position_slack_m : float
+        Largest position-row slack used [m] (0 when every workspace row holds or there are none).
     """
 
     u: np.ndarray
     x: np.ndarray
     max_slack: float
     info: SolveInfo
+    position_slack_m: float = 0.0
 
 
 class LinearMPC:
@@ -72,6 +93,19 @@ class LinearMPC:
         ℓ1 penalty ρ on state-limit slack (exact penalty: large compared with the cost's sensitivity).
     fast : bool
         Solve through the compiled direct-Clarabel path (default) rather than ``problem.solve()``.
+    keep_in : bool
+        Add keep-in box rows on the predicted positions (Parameters ``box_lower``, ``box_upper``, shape (N, 3)).
+    keep_out_zones : int
+        Number J of keep-out half-space rows per step (Parameters ``out_normals[j]`` (N, 3), ``out_offsets[j]``
+        (N,)).
+    position_index : int
+        Index of the first position component in the state.
+    position_penalty : float
+        ρ_p, the exact ℓ1 penalty on the position slack [1/m].
+    braking_mps2, braking_speed_mps : ndarray, shape (3,), optional
+        ā and v̄ per axis: braking rows keep the stop point of every predicted state in its keep-in box
+        (:func:`~oacli.control.workspace.braking_lines`; soft, same slack as the step's other rows). The velocity
+        components follow the positions (``position_index + 3``).
     """
 
     def __init__(
@@ -86,6 +120,13 @@ class LinearMPC:
         terminal: np.ndarray | None = None,
         soft_penalty: float = 1e4,
         fast: bool = True,
+        *,
+        keep_in: bool = False,
+        keep_out_zones: int = 0,
+        position_index: int = 0,
+        position_penalty: float = POSITION_PENALTY,
+        braking_mps2: np.ndarray | None = None,
+        braking_speed_mps: np.ndarray | None = None,
     ) -> None:
         a = np.asarray(a, dtype=float)
         b = np.asarray(b, dtype=float)
@@ -130,10 +171,47 @@ class LinearMPC:
             bound = np.tile(self.x_max[self._limited], (n_steps, 1))
             constraints += [cp.abs(self._x[1:, self._limited]) <= bound + self._slack, self._slack >= 0]
             cost = cost + soft_penalty * cp.sum(self._slack)
+        self.box_lower = self.box_upper = None
+        self.out_normals: list[cp.Parameter] = []
+        self.out_offsets: list[cp.Parameter] = []
+        self._pos_slack = None
+        if keep_in or keep_out_zones:
+            pos = self._x[1:, position_index : position_index + 3]
+            self._pos_slack = cp.Variable(n_steps, name="position_slack")
+            sigma = self._pos_slack[:, None]
+            constraints.append(self._pos_slack >= 0)
+            if keep_in:
+                self.box_lower = cp.Parameter((n_steps, 3), name="box_lower")
+                self.box_upper = cp.Parameter((n_steps, 3), name="box_upper")
+                constraints += [pos >= self.box_lower - sigma, pos <= self.box_upper + sigma]
+                if braking_mps2 is not None:
+                    if braking_speed_mps is None:
+                        raise ValueError("braking rows need braking_speed_mps")
+                    p_n = self._x[1:, position_index : position_index + 3]
+                    v_n = self._x[1:, position_index + 3 : position_index + 6]
+                    s_n = sigma
+                    for slope, icpt in braking_lines(braking_mps2, braking_speed_mps):
+                        sl, ic = np.tile(slope, (n_steps, 1)), np.tile(icpt, (n_steps, 1))
+                        constraints += [v_n <= ic + cp.multiply(sl, self.box_upper - p_n) + s_n,
+                                        -v_n <= ic + cp.multiply(sl, p_n - self.box_lower) + s_n]
+            for j in range(keep_out_zones):
+                normal = cp.Parameter((n_steps, 3), name=f"out_normal_{j}")
+                offset = cp.Parameter(n_steps, name=f"out_offset_{j}")
+                constraints.append(cp.sum(cp.multiply(normal, pos), axis=1) >= offset - self._pos_slack)
+                self.out_normals.append(normal)
+                self.out_offsets.append(offset)
+            cost = cost + position_penalty * cp.sum(self._pos_slack)
         self.problem = cp.Problem(cp.Minimize(cost), constraints)
         self.compiled = CompiledQP(self.problem) if fast else None
 
-    def solve(self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> MPCSolution:
+    @property
+    def has_position_rows(self) -> bool:
+        """True when the problem has workspace rows on the predicted positions."""
+        return self._pos_slack is not None
+
+    def solve(
+        self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, rows: PositionRows | None = None
+    ) -> MPCSolution:
         """Solve for initial state ``x0 (n,)``, reference states ``x_ref (N+1, n)`` and inputs ``u_ref (N, m)``.
 
         Parameters
@@ -144,15 +222,24 @@ class LinearMPC:
             Reference states.
         u_ref : ndarray, shape (N, m)
             Reference inputs.
+        rows : PositionRows, optional
+            Workspace rows of steps 1..N in the state's coordinates; required when the problem has them.
 
         Returns
         -------
         MPCSolution
-            Inputs, predicted states, slack and the solve record (NaN arrays when the solve failed).
+            Inputs, predicted states, slacks and the solve record (NaN arrays when the solve failed).
         """
         self.x0.value = np.asarray(x0, dtype=float)
         self.x_ref.value = np.asarray(x_ref, dtype=float)
         self.u_ref.value = np.asarray(u_ref, dtype=float)
+        if self.has_position_rows:
+            if rows is None:
+                raise ValueError("this MPC constrains positions: pass the workspace rows")
+            if self.box_lower is not None and self.box_upper is not None:
+                self.box_lower.value, self.box_upper.value = rows.lower, rows.upper
+            for j, (normal, offset) in enumerate(zip(self.out_normals, self.out_offsets, strict=True)):
+                normal.value, offset.value = rows.normals[j], rows.offsets[j]
         start = time.perf_counter()
         if self.compiled is not None:
             out = self.compiled.solve()
@@ -168,8 +255,9 @@ class LinearMPC:
         if value is not None:
             u, x = np.array(value(self._u)), np.array(value(self._x))
             slack = 0.0 if self._slack is None else float(np.max(value(self._slack), initial=0.0))
+            pos_slack = 0.0 if self._pos_slack is None else float(np.max(value(self._pos_slack), initial=0.0))
             info = SolveInfo(status, True, float(objective), int(iterations), float(solve_time), wall)
-            return MPCSolution(u, x, slack, info)
+            return MPCSolution(u, x, slack, info, max(pos_slack, 0.0))
         nan_u = np.full(self._u.shape, np.nan)
         nan_x = np.full(self._x.shape, np.nan)
         return MPCSolution(nan_u, nan_x, float("nan"), SolveInfo(status, False, float("nan"), -1, wall, wall))

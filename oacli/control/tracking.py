@@ -11,8 +11,23 @@ in a local error chart and solves the standard MPC of Doerr Eq. 26 on the exact 
   (``q = q_a ⊗ exp(φ)``), body angular rate.
 
 Reference inputs over the horizon are the model-consistent feed-forward (:func:`feedforward_inputs`).
-When a solve fails the controller falls back to the shifted previous plan, and once that is used up to the
-LQR law of the same weights, clipped to the limits; each fallback is recorded in the step's SolveInfo.
+
+Workspace (optional, given a scene): the predicted positions of steps 1..N stay in the keep-in box of the
+reference and outside the keep-out zones grown by the robot's body (:mod:`oacli.control.workspace`, half-spaces
+linearised at the previous plan when there is one), and the point where each predicted state would stop, braking
+at half the model's deceleration (force limit / model mass), stays in the box too — so a plant up to twice as
+heavy as the model has room to stop. The rows are soft with an exact ℓ1 penalty (:class:`LinearMPC`):
+there is no robustness margin here (use the tube MPC for a guarantee), but a measured state outside a row never
+makes the QP infeasible. The rows hold at the prediction instants, with no extra margin for the motion between
+them: a plan certified collision-free in continuous time (``oacli smooth``) is then followed as closely as
+without rows.
+
+Failures: when a solve fails the controller follows the shifted previous plan, and once that is used up the LQR
+law of the same weights, clipped to the limits. After ``max_consecutive_failures`` failed solves in a row it
+latches a *safe hold*: it stops solving, brakes the measured velocity to rest as fast as the force limits allow
+(``f = clip(−m v / dt, ±f_max)``) and holds the attitude it had on entry with the attitude LQR (clipped). The
+step's SolveInfo.status starts with the mode: the solver's status for a fresh solve, ``"fallback (…)"``,
+``"lqr (…)"`` or ``"hold (…)"`` otherwise (with ``success`` False).
 """
 
 from __future__ import annotations
@@ -23,7 +38,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.control.lqr import dlqr
-from oacli.control.mpc import LinearMPC
+from oacli.control.mpc import POSITION_PENALTY, LinearMPC
+from oacli.control.workspace import WorkspaceRows, shifted_plan
+from oacli.geometry.collision import RobotBody
+from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
 from oacli.sim.simulator import ControlStep
@@ -110,6 +128,17 @@ class TrackingMPC:
         Number of prediction steps N.
     weights : TrackingWeights
     limits : TrackingLimits
+    scene : Scene, optional
+        Keep the predicted positions in its free space (soft rows, module docstring); None: positions are free
+        (the controller is then exactly the one without workspace rows).
+    robot : RobotBody, optional
+        The robot's bounding body the keep-out zones grow by (a point if omitted).
+    keep_in_margin_m : float
+        Distance the robot's centre keeps from the keep-in walls [m] (keep-in boxes bound the centre).
+    max_consecutive_failures : int, optional
+        Failed solves in a row before the latched safe hold; None: never hold.
+    position_penalty : float
+        Exact ℓ1 penalty on the position rows' slack [1/m].
     """
 
     def __init__(
@@ -121,20 +150,56 @@ class TrackingMPC:
         horizon: int,
         weights: TrackingWeights,
         limits: TrackingLimits,
+        scene: Scene | None = None,
+        robot: RobotBody | None = None,
+        keep_in_margin_m: float = 0.0,
+        max_consecutive_failures: int | None = None,
+        position_penalty: float = POSITION_PENALTY,
     ) -> None:
+        if max_consecutive_failures is not None and max_consecutive_failures < 1:
+            raise ValueError("max_consecutive_failures must be >= 1")
         self.reference = reference
         self.params = params
         self.dt_s = float(dt_s)
         self.horizon = int(horizon)
         self.limits = limits
+        self.max_failures = max_consecutive_failures
+        self.workspace: WorkspaceRows | None = None
+        if scene is not None and (scene.keep_in or scene.keep_out):
+            horizon_s = self.horizon * self.dt_s
+            self.workspace = WorkspaceRows(
+                scene, robot, keep_in_margin_m=keep_in_margin_m, activation_m=1.0 + float(np.max(limits.velocity_mps)) * horizon_s,
+            )
+        ws = self.workspace
         a, b = hover_error_model(params, self.dt_s)
         self.mpc = LinearMPC(
-            a, b, weights.q_diag, weights.r_diag, self.horizon, limits.input, x_max=limits.error_state
+            a, b, weights.q_diag, weights.r_diag, self.horizon, limits.input, x_max=limits.error_state,
+            keep_in=ws is not None and ws.has_keep_in, keep_out_zones=0 if ws is None else ws.n_zones,
+            position_penalty=position_penalty,
+            braking_mps2=limits.force_N / params.mass_kg if ws is not None and ws.has_keep_in else None,
+            braking_speed_mps=limits.velocity_mps,
         )
         self.lqr_gain, _ = dlqr(a, b, np.diag(weights.q_diag), np.diag(weights.r_diag))
+        self._k_att, _ = dlqr(a[6:, 6:], b[6:, 3:], np.diag(weights.q_diag[6:]), np.diag(weights.r_diag[3:]))
         self._plan: np.ndarray | None = None
         self._plan_age = 0
+        self._plan_positions: tuple[float, np.ndarray] | None = None  # (time, world positions (N+1, 3))
+        self._failures = 0
+        self._hold_q: np.ndarray | None = None
         self._offsets = self.dt_s * np.arange(self.horizon + 1)
+
+    @property
+    def in_safe_hold(self) -> bool:
+        """True once the safe hold is latched."""
+        return self._hold_q is not None
+
+    def _hold_input(self, x: np.ndarray, q_hold: np.ndarray) -> np.ndarray:
+        """Safe hold: brake the measured velocity as fast as the force limits allow, hold the attitude ``q_hold``."""
+        force = np.clip(-self.params.mass_kg * x[3:6] / self.dt_s, -self.limits.force_N, self.limits.force_N)
+        phi = quat.error_vector(q_hold, x[6:10])
+        torque = np.clip(self._k_att @ np.concatenate([phi, x[10:13]]), -self.limits.torque_Nm,
+                         self.limits.torque_Nm)
+        return np.concatenate([force, torque])
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
         """Solve once at time ``t`` [s] from the measured state; see :class:`oacli.sim.simulator.Controller`.
@@ -152,27 +217,44 @@ class TrackingMPC:
             The input to hold until the next step, the solve record and the reference state at ``t``.
         """
         start = time.perf_counter()
+        x = np.asarray(x_measured, dtype=float)
         x_ref_full = sample_states(self.reference, t + self._offsets)
+        if self._hold_q is not None:
+            info = SolveInfo("hold (safe_hold)", False, solve_time_s=0.0, step_time_s=time.perf_counter() - start)
+            return ControlStep(u=self._hold_input(x, self._hold_q), info=info, x_reference=x_ref_full[0])
         u_ref = feedforward_inputs(x_ref_full, self.dt_s, self.params)
         origin = x_ref_full[0, 0:3]
         anchor = x_ref_full[0, 6:10]
-        e0 = to_error_state(x_measured, origin, anchor)
+        e0 = to_error_state(x, origin, anchor)
         e_ref = to_error_state(x_ref_full, origin, anchor)
-        sol = self.mpc.solve(e0, e_ref, u_ref)
+        rows = None
+        if self.workspace is not None:
+            lin = None
+            if self._plan_positions is not None:
+                plan_t, plan_p = self._plan_positions
+                lin = shifted_plan(plan_t, self.dt_s, plan_p, t + self._offsets)
+            rows = self.workspace.rows(x_ref_full[:, 0:3], lin).steps(slice(1, None)).shifted(origin)
+        sol = self.mpc.solve(e0, e_ref, u_ref, rows)
         if sol.info.success:
-            self._plan, self._plan_age = sol.u, 0
+            self._plan, self._plan_age, self._failures = sol.u, 0, 0
+            self._plan_positions = (t, sol.x[:, 0:3] + origin)
             u = sol.u[0]
             status, success = sol.info.status, True
         else:
             self._plan_age += 1
-            if self._plan is not None and self._plan_age < self.horizon:
+            self._failures += 1
+            success = False
+            if self.max_failures is not None and self._failures >= self.max_failures:
+                self._hold_q = np.array(x[6:10])
+                u = self._hold_input(x, self._hold_q)
+                status = f"hold ({sol.info.status})"
+            elif self._plan is not None and self._plan_age < self.horizon:
                 u = self._plan[self._plan_age]
-                status = f"fallback_shifted_plan ({sol.info.status})"
+                status = f"fallback ({sol.info.status})"
             else:
                 u = u_ref[0] + self.lqr_gain @ (e0 - e_ref[0])
-                status = f"fallback_lqr ({sol.info.status})"
+                status = f"lqr ({sol.info.status})"
             u = np.clip(u, -self.limits.input, self.limits.input)
-            success = False
         info = SolveInfo(
             status=status,
             success=success,

@@ -103,12 +103,31 @@ class DisturbanceRecord:
 
 
 def half_widths(design: TubeDesign) -> np.ndarray:
-    """W's half-widths per axis ``[position m, velocity m/s]``, shape (3, 2)."""
+    """W's half-widths per axis ``[position m, velocity m/s]``.
+
+    Parameters
+    ----------
+    design : TubeDesign
+
+    Returns
+    -------
+    ndarray, shape (3, 2)
+    """
     return np.array([ax.disturbance.half_widths for ax in design.axes])
 
 
 def box_half_widths(design: TubeDesign) -> np.ndarray:
-    """The box part of W per axis (mass + force + given box terms, before noise and scaling), shape (3, 2)."""
+    """The box part of W per axis (mass + force + given box terms, before noise and scaling).
+
+    Parameters
+    ----------
+    design : TubeDesign
+
+    Returns
+    -------
+    ndarray, shape (3, 2)
+        Half-widths ``[position m, velocity m/s]`` per axis.
+    """
     return np.array([ax.disturbance.mass_term + ax.disturbance.force_term + ax.disturbance.box_term
                      for ax in design.axes])
 
@@ -118,6 +137,20 @@ def extra_box_for(design: TubeDesign, measured_max: np.ndarray, margin: float) -
 
     The new W is ``box(h + extra) ⊕ N ⊕ (−A N)`` (:mod:`oacli.control.disturbance`) with ``h`` the current box
     part: it contains the old W (``extra ≥ 0``) and the box ``(1 + margin)·measured_max`` (the noise sets hold 0).
+
+    Parameters
+    ----------
+    design : TubeDesign
+        The current design.
+    measured_max : ndarray, shape (3, 2)
+        Largest measured ``|w|`` per axis ``[position m, velocity m/s]``.
+    margin : float
+        Relative margin on the measured bound (>= 0).
+
+    Returns
+    -------
+    ndarray, shape (3, 2)
+        Extra box half-widths (>= 0).
     """
     return np.maximum((1.0 + margin) * np.asarray(measured_max, dtype=float) - box_half_widths(design), 0.0)
 
@@ -247,7 +280,20 @@ class TubeMonitor:
     # -- the controller step -----------------------------------------------------------------------------------
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """One control step at time ``t`` [s] (simulator ``Controller`` protocol)."""
+        """One control step at time ``t`` [s] (simulator ``Controller`` protocol).
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s].
+        x_measured : ndarray, shape (13,)
+            Measured state.
+
+        Returns
+        -------
+        ControlStep
+            The inner TubeMPC's step, its wall time including the check and any redesign.
+        """
         x = np.asarray(x_measured, dtype=float)
         x_t = x[0:6]
         start = self.clock()
@@ -279,7 +325,13 @@ class TubeMonitor:
     # -- records -----------------------------------------------------------------------------------------------
 
     def history(self) -> TubeHistory:
-        """The histories of the successive TubeMPCs, concatenated (one entry per control step)."""
+        """The histories of the successive TubeMPCs, concatenated.
+
+        Returns
+        -------
+        TubeHistory
+            One entry per control step.
+        """
         parts = [c.history() for c in self.controllers]
         if len(parts) == 1:
             return parts[0]
@@ -290,7 +342,12 @@ class TubeMonitor:
         return TubeHistory(**merged)
 
     def disturbance_record(self) -> DisturbanceRecord:
-        """The measured w against W at every step so far."""
+        """The measured w against W at every step so far.
+
+        Returns
+        -------
+        DisturbanceRecord
+        """
         rec = self._rec
         k = len(rec["t"])
         return DisturbanceRecord(

@@ -15,12 +15,31 @@ tracked by the standard MPC of Doerr Eq. 26 in the body-frame rotation-vector ch
 on rotation would need W to bound the gyroscopic and chart linearisation errors, which grow with the rate; we
 claim no guarantee there that we cannot prove.
 
+Workspace (optional, given a scene): the nominal positions ``z_0..z_N`` stay, HARD, in the keep-in box of the
+reference and outside the keep-out zones grown by the robot's body (:mod:`oacli.control.workspace`, half-spaces
+linearised at the previous nominal plan when there is one), tightened so that the guarantee covers the true
+state: the true position is ``z + ẽ − n`` with ``ẽ ∈ Z`` and ``|n| ≤`` the noise bound, so each row is tightened
+by Z's position extent (:meth:`TubeDesign.position_extent`) plus the noise bound (per face of the box; the support
+``Σ_i |n_i| ext_i`` for a half-space), by the parabola's distance from its chord between two nominal knots
+(``ū T²/(8m)``, so the fallback's shifted plan stays inside) and by half the farthest the robot can travel in one
+control period (``½‖v_max dt + ½ (u_max/m) dt²‖``, so the motion *between* control instants stays inside too).
+With the braking rows (``braking=True``, default) the point where the nominal would stop, braking at ``ū/m``
+from the plan's terminal knot, stays in the box too (linear rows invariant under braking,
+:mod:`oacli.control.tube_qp`): a plan can always be continued by braking (the rows stay feasible from step to
+step, up to a change of the box chosen for a step) and the safe hold, which finishes the plan and then brakes the
+nominal at ū, keeps the keep-in.
+Hence, while the disturbance of every control step lies in W and the QP solves (or the shifted plan is followed),
+the true robot body stays in the keep-in boxes and out of the keep-out zones. When the tightened rows cannot be
+met (e.g. a reference too close to a wall), the QP is infeasible and the failure handling below applies.
+
 Failures: when a solve fails, the step follows the shifted previous nominal plan (``z = ẑ``, ``v`` = the plan's
 input for this time) with the ancillary law, which keeps every guarantee; after ``max_consecutive_failures``
 failures in a row, or when the plan is used up, the controller enters a latched *safe hold*: the nominal brakes
 to rest with the largest tightened input (``v = clip(−m v_z / dt, Ū)``, so ``|v_z|`` never grows) and stays
 there, the ancillary law keeps the robot in ``z ⊕ Z``, and attitude is held by an LQR on the attitude at entry
-(clipped to the torque limits).
+(clipped to the torque limits). With workspace rows the hold first finishes the last plan (nominal input from the
+plan, as in the fallback) and brakes from its end, the state the braking rows certify; it brakes at once when
+there is no plan left.
 """
 
 from __future__ import annotations
@@ -33,7 +52,10 @@ import numpy as np
 from oacli.control.lqr import dlqr, solve_dare
 from oacli.control.tracking import TrackingLimits, TrackingWeights
 from oacli.control.tube_design import TubeDesign
-from oacli.control.tube_qp import LinearConstraint, NominalQP, QPBlock
+from oacli.control.tube_qp import LinearConstraint, NominalQP, PositionRowsSpec, QPBlock
+from oacli.control.workspace import WorkspaceRows, shifted_plan
+from oacli.geometry.collision import RobotBody
+from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
 from oacli.sim.simulator import ControlStep
@@ -127,6 +149,15 @@ class TubeMPC:
         Failed solves in a row before the safe hold.
     fast : bool
         Solve through the direct Clarabel path (True) or ``problem.solve()`` (False).
+    scene : Scene, optional
+        Keep the robot in its free space (hard, tightened rows; module docstring); None: positions are free (the
+        controller is then exactly the one without workspace rows).
+    robot : RobotBody, optional
+        The robot's bounding body the keep-out zones grow by (a point if omitted).
+    keep_in_margin_m : float
+        Distance the robot's centre keeps from the keep-in walls [m] (keep-in boxes bound the centre).
+    braking : bool
+        Keep the nominal's braking points in the keep-in box too (module docstring).
     """
 
     def __init__(
@@ -142,6 +173,10 @@ class TubeMPC:
         terminal: TerminalWeights | None = None,
         max_consecutive_failures: int = 5,
         fast: bool = True,
+        scene: Scene | None = None,
+        robot: RobotBody | None = None,
+        keep_in_margin_m: float = 0.0,
+        braking: bool = True,
     ) -> None:
         if abs(params.mass_kg - design.mass_kg) > 1e-12 * design.mass_kg:
             raise ValueError(f"model mass {params.mass_kg} differs from the tube design's {design.mass_kg}")
@@ -161,9 +196,20 @@ class TubeMPC:
             if terminal is None
             else np.diag(np.concatenate([terminal.position, terminal.velocity]))
         )
+        self.workspace = None
+        spec = None
+        if scene is not None and (scene.keep_in or scene.keep_out):
+            self.workspace = self._workspace_rows(scene, robot, keep_in_margin_m)
+            u_bar = np.array([min(-lo, hi) for lo, hi in (ax.force_bounds_N for ax in design.axes)])
+            v_bar = np.array([max(-lo, hi) for lo, hi in (ax.velocity_bounds_mps for ax in design.axes)])
+            spec = PositionRowsSpec(
+                keep_in=self.workspace.has_keep_in, keep_out_zones=self.workspace.n_zones,
+                braking_mps2=u_bar / params.mass_kg if braking else None, braking_speed_mps=v_bar,
+            )
         trans = QPBlock(
             "translation", a_t, b_t, q_t, weights.force, p_t,
             state=design.tightened_state, input=design.tightened_input, lasso=design.lasso_for_solver,
+            positions=spec,
         )
         rot = QPBlock(
             "attitude", a_r, b_r, q_r, weights.torque, solve_dare(a_r, b_r, np.diag(q_r), np.diag(weights.torque)),
@@ -182,6 +228,7 @@ class TubeMPC:
         self._v_bounds = (lo, hi)
         self._offsets = self.step_s * np.arange(self.horizon + 1)
         self._plan_t: float | None = None
+        self._plan_positions: np.ndarray | None = None  # nominal positions of the last plan, world (N+1, 3)
         self._plan_v: np.ndarray | None = None
         self._plan_tau: np.ndarray | None = None
         self._z_pred: np.ndarray | None = None
@@ -191,6 +238,19 @@ class TubeMPC:
             "t", "mode", "z", "v", "anc", "tau", "z_pred", "tube", "lasso", "failed")}
 
     # -- helpers -----------------------------------------------------------------------------------------------
+
+    def _workspace_rows(self, scene: Scene, robot: RobotBody | None, keep_in_margin_m: float) -> WorkspaceRows:
+        """The workspace rows tightened for the true state (module docstring)."""
+        design, m = self.design, self.params.mass_kg
+        noise = np.array([ax.disturbance.noise_bound[0] for ax in design.axes])
+        u_bar = np.array([max(-lo, hi) for lo, hi in (ax.force_bounds_N for ax in design.axes)])
+        chord = u_bar / m * self.step_s**2 / 8.0
+        extent = design.position_extent() + (noise + chord)[:, None]
+        u_max = np.array([ax.force_limit_N for ax in design.axes])
+        v_max = np.array([ax.velocity_limit_mps for ax in design.axes])
+        travel = v_max * self.dt_s + 0.5 * u_max / m * self.dt_s**2
+        return WorkspaceRows(scene, robot, keep_in_margin_m=keep_in_margin_m, extent_m=extent, clearance_m=0.5 * float(np.linalg.norm(travel)),
+                             activation_m=1.0 + float(np.max(v_max)) * self.horizon * self.step_s)
 
     def _plan_input(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Nominal force and torque of the stored plan at time ``t``; None when there is none or it is used up."""
@@ -212,8 +272,13 @@ class TubeMPC:
         return np.clip(v, *self._v_bounds)
 
     def enter_safe_hold(self, q_hold: np.ndarray) -> None:
-        """Latch the safe hold from the next step on, attitude held at ``q_hold`` (e.g. when W no longer holds,
-        :mod:`oacli.control.tube_monitor`)."""
+        """Latch the safe hold from the next step on (e.g. when W no longer holds, :mod:`oacli.control.tube_monitor`).
+
+        Parameters
+        ----------
+        q_hold : ndarray, shape (4,)
+            Attitude to hold, scalar-last quaternion.
+        """
         if self._hold_q is None:
             self._hold_q = np.array(q_hold, dtype=float)
 
@@ -253,12 +318,19 @@ class TubeMPC:
             x_r = np.concatenate([quat.error_vector(anchor, x[6:10]), x[10:13]])
             self.qp.set_parameters("translation", x_t - origin, ref_t, u_ref[:, 0:3])
             self.qp.set_parameters("attitude", x_r, ref_r, u_ref[:, 3:6])
+            if self.workspace is not None:
+                lin = None
+                if self._plan_positions is not None and self._plan_t is not None:
+                    lin = shifted_plan(self._plan_t, self.step_s, self._plan_positions, t + self._offsets)
+                rows = self.workspace.rows(x_ref_full[:, 0:3], lin)
+                self.qp.set_rows("translation", rows.shifted(origin[0:3]))
             sol = self.qp.solve(fast=self.fast)
             info = sol.info
             if info.success:
                 self._failures = 0
                 tr, at = sol.blocks["translation"], sol.blocks["attitude"]
                 self._plan_t, self._plan_v, self._plan_tau = t, tr.v, at.v
+                self._plan_positions = tr.z[:, 0:3] + origin[0:3]
                 mode, z, v, tau = "mpc", tr.z[0] + origin, tr.v[0], at.v[0]
             else:
                 self._failures += 1
@@ -273,7 +345,9 @@ class TubeMPC:
         if self._hold_q is not None:
             mode = "hold"
             z = z_pred if z_pred is not None else x_t
-            v, tau = self._brake(z), self._hold_torque(x)
+            planned = self._plan_input(t) if self.workspace is not None and z_pred is not None else None
+            v = self._brake(z) if planned is None else planned[0]  # with rows: finish the certified plan first
+            tau = self._hold_torque(x)
         anc = self._gain @ (x_t - z)
         u = np.concatenate([v + anc, tau])
         self._z_pred = self._a_c @ z + self._b_c @ v

@@ -9,11 +9,28 @@ Both minimise
 
     Σ_{k<N} ‖Q^½ (z_k − x_ref,k)‖² + ‖R^½ (v_k − u_ref,k)‖² + ‖L (z_N − x_ref,N)‖²,   P_N = L Lᵀ.
 
+A block may also keep its predicted positions in the workspace (:class:`PositionRowsSpec`,
+:mod:`oacli.control.workspace`): a keep-in box ``lower_k ≤ p_k ≤ upper_k`` and keep-out half-spaces
+``n_jkᵀ p_k ≥ β_jk`` with Parameter bounds and normals, on ``z_0..z_N`` and HARD in a tube block (the caller
+tightens them by Z, so that they hold for the true state; each half-space also holds at the next knot, so the
+whole segment ``z_k → z_{k+1}`` is in it), on ``y_1..y_N`` and soft with an exact ℓ1 penalty in a standard block.
+
+Optionally (tube block) *braking rows* at the terminal knot keep the point where braking at ā (per axis) from
+``(p, v) = z_N`` stops, ``p + v|v|/(2ā)``, inside the terminal box: with ``d = upper − p``, it does exactly when
+``v ≤ sqrt(2ā d)``, a convex set but a cone constraint; the rows are its piecewise-linear inner approximation for
+half the braking acceleration, ``v ≤ min(s₀ d, v̄/3 + s₁ d)`` (:func:`braking_lines`: the chords of ``sqrt(ā d)``
+through ``d = 0, d*/4, d*``, ``d* = v̄²/ā``, v̄ the velocity bound), and the mirror rows for the lower face. The
+halved acceleration makes them invariant under braking at ā (on each chord the braking trajectory's slope ``ā/v``
+is at least the chord's), so every plan ends in a state from which braking stays in the box: the previous plan
+followed by braking is feasible at the next step (recursive feasibility of the keep-in rows, up to a change of the
+box chosen for a step), and a safe hold that finishes the plan and then brakes stays in the keep-in. Linear rows at
+one knot keep the QP small: second-order cones, or these rows at every knot, cost 1.5× the solve time.
+
 Every constraint is a linear inequality ``H y ≤ h`` written without ``abs`` atoms (which would add hidden
 variables), and the references enter the cost through ``sum_squares(c ⊙ (z − r))`` with constant ``c``, which
 keeps the problem DPP (``quad_form(z − r, Q)`` with a Parameter ``r`` would not). Parameters enter only the
-linear cost term and the right-hand sides, so :class:`oacli.control.compiled_qp.CompiledQP` can solve it
-without re-canonicalising.
+linear cost term, the right-hand sides and (keep-out normals) the constraint matrix's values, so
+:class:`oacli.control.compiled_qp.CompiledQP` can solve it without re-canonicalising.
 """
 
 from __future__ import annotations
@@ -26,6 +43,7 @@ import cvxpy as cp
 import numpy as np
 
 from oacli.control.compiled_qp import CompiledQP, timed_cvxpy_solve
+from oacli.control.workspace import PositionRows, braking_lines
 from oacli.types import SolveInfo
 
 _OK = {"optimal", "optimal_inaccurate"}
@@ -79,6 +97,37 @@ class LinearConstraint:
 
 
 @dataclass(frozen=True)
+class PositionRowsSpec:
+    """Workspace rows on a block's predicted positions (their values are set per solve, :meth:`NominalQP.set_rows`).
+
+    Attributes
+    ----------
+    keep_in : bool
+        Keep-in box rows.
+    keep_out_zones : int
+        Keep-out half-space rows per step (J).
+    position_index : int
+        First position component of the block's state (three components).
+    velocity_index : int
+        First velocity component (for the braking rows).
+    braking_mps2 : ndarray, shape (3,), optional
+        ā per axis [m/s²]: add braking rows at the terminal knot (module docstring; tube block only).
+    braking_speed_mps : ndarray, shape (3,), optional
+        v̄ per axis [m/s], the velocity bound of the block's states (required with ``braking_mps2``).
+    penalty : float
+        Exact ℓ1 penalty of the soft rows of a standard block [1/m].
+    """
+
+    keep_in: bool = True
+    keep_out_zones: int = 0
+    position_index: int = 0
+    velocity_index: int = 3
+    braking_mps2: np.ndarray | None = None
+    braking_speed_mps: np.ndarray | None = None
+    penalty: float = 1e5
+
+
+@dataclass(frozen=True)
 class QPBlock:
     """One linear subsystem ``y_{k+1} = A y_k + B u_k`` of the nominal QP.
 
@@ -98,6 +147,8 @@ class QPBlock:
         ``Z`` as ``H e ≤ h``; given ⇒ tube block with the constraint ``x − z_0 ∈ Z``; omitted ⇒ ``y_0 = x``.
     soft_penalty : float
         ℓ1 weight of the soft state-limit slack (standard block).
+    positions : PositionRowsSpec, optional
+        Workspace rows on the predicted positions.
     """
 
     name: str
@@ -110,6 +161,7 @@ class QPBlock:
     input: LinearConstraint | None = None
     lasso: LinearConstraint | None = None
     soft_penalty: float = 1e4
+    positions: PositionRowsSpec | None = None
 
     @property
     def n(self) -> int:
@@ -131,6 +183,11 @@ class _BlockVars:
     z_n: cp.Variable
     v: cp.Variable
     slack: cp.Variable | None = None
+    box_lower: cp.Parameter | None = None
+    box_upper: cp.Parameter | None = None
+    out_normals: tuple[cp.Parameter, ...] = ()
+    out_offsets: tuple[cp.Parameter, ...] = ()
+    position_slack: cp.Variable | None = None
 
 
 @dataclass(frozen=True)
@@ -140,6 +197,7 @@ class BlockSolution:
     z: np.ndarray
     v: np.ndarray
     max_slack: float
+    position_slack_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -240,6 +298,8 @@ class NominalQP:
                             bv.z[1:] @ hx.h_matrix.T <= np.tile(hx.h_vector, (n_steps - 1, 1)) + bv.slack[:-1]
                         )
                     cost = cost + blk.soft_penalty * cp.sum(bv.slack)
+            if blk.positions is not None:
+                constraints, cost = self._position_rows(blk, blk.positions, bv, constraints, cost)
             self._vars[blk.name] = bv
         self.problem = cp.Problem(cp.Minimize(cost), constraints)
         self.clarabel_options = dict(CLARABEL_OPTIONS if clarabel_options is None else clarabel_options)
@@ -247,6 +307,88 @@ class NominalQP:
         for key, value in self.clarabel_options.items():
             setattr(settings, key, value)
         self.compiled = CompiledQP(self.problem, settings) if fast else None
+
+    def _position_rows(self, blk: QPBlock, spec: PositionRowsSpec, bv: _BlockVars, constraints: list, cost):
+        """Add the workspace rows ``spec`` of ``blk`` (module docstring): hard on z_0..z_N for a tube block, soft
+        on y_1..y_N for a standard one."""
+        n_steps = self.horizon
+        i, iv = spec.position_index, spec.velocity_index
+        hard = blk.lasso is not None
+        states = cp.vstack([bv.z, bv.z_n[None, :]]) if hard else cp.vstack([bv.z[1:], bv.z_n[None, :]])
+        k = n_steps + 1 if hard else n_steps
+        pos = states[:, i : i + 3]
+        sigma: float | cp.Expression = 0.0
+        if not hard:
+            bv.position_slack = cp.Variable(k, name=f"{blk.name}_position_slack")
+            sigma = bv.position_slack[:, None]
+            constraints.append(bv.position_slack >= 0)
+            cost = cost + spec.penalty * cp.sum(bv.position_slack)
+        if spec.keep_in:
+            bv.box_lower = cp.Parameter((k, 3), name=f"{blk.name}_box_lower")
+            bv.box_upper = cp.Parameter((k, 3), name=f"{blk.name}_box_upper")
+            constraints += [pos >= bv.box_lower - sigma, pos <= bv.box_upper + sigma]
+            if hard and spec.braking_mps2 is not None:  # at the terminal knot (module docstring)
+                if spec.braking_speed_mps is None:
+                    raise ValueError(f"{blk.name}: braking rows need braking_speed_mps")
+                vel, p_n = bv.z_n[iv : iv + 3], bv.z_n[i : i + 3]
+                for slope, intercept in braking_lines(spec.braking_mps2, spec.braking_speed_mps):
+                    constraints += [vel <= intercept + cp.multiply(slope, bv.box_upper[k - 1] - p_n),
+                                    -vel <= intercept + cp.multiply(slope, p_n - bv.box_lower[k - 1])]
+        normals, offsets = [], []
+        for j in range(spec.keep_out_zones):
+            normals.append(cp.Parameter((k, 3), name=f"{blk.name}_out_normal_{j}"))
+            offsets.append(cp.Parameter(k, name=f"{blk.name}_out_offset_{j}"))
+            slack = 0.0 if hard else bv.position_slack
+            constraints.append(cp.sum(cp.multiply(normals[j], pos), axis=1) >= offsets[j] - slack)
+            if hard:  # both ends of each nominal segment in the segment's first half-space
+                constraints.append(cp.sum(cp.multiply(normals[j][:-1], pos[1:]), axis=1) >= offsets[j][:-1])
+        bv.out_normals, bv.out_offsets = tuple(normals), tuple(offsets)
+        return constraints, cost
+
+    def rows_steps(self, name: str) -> int:
+        """Number of predicted positions block ``name``'s workspace rows apply to.
+
+        Parameters
+        ----------
+        name : str
+            Block name.
+
+        Returns
+        -------
+        int
+            N + 1 for a tube block (z_0..z_N), N for a standard block (y_1..y_N).
+        """
+        blk = next(b for b in self.blocks if b.name == name)
+        return self.horizon + 1 if blk.lasso is not None else self.horizon
+
+    def set_rows(self, name: str, rows: PositionRows) -> None:
+        """Set block ``name``'s workspace rows.
+
+        Parameters
+        ----------
+        name : str
+            Block name (its :class:`PositionRowsSpec` fixes the rows it has).
+        rows : PositionRows
+            Rows in the block's coordinates, for the steps of :meth:`rows_steps`.
+
+        Raises
+        ------
+        ValueError
+            When a shape differs from the block's Parameters or a value is not finite.
+        """
+        bv = self._vars[name]
+        pairs: list[tuple[cp.Parameter, np.ndarray]] = []
+        if bv.box_lower is not None and bv.box_upper is not None:
+            pairs += [(bv.box_lower, rows.lower), (bv.box_upper, rows.upper)]
+        if len(bv.out_normals) != rows.normals.shape[0]:
+            raise ValueError(f"{name}: {len(bv.out_normals)} keep-out zones expected, got {rows.normals.shape[0]}")
+        pairs += list(zip(bv.out_normals, rows.normals, strict=True))
+        pairs += list(zip(bv.out_offsets, rows.offsets, strict=True))
+        for param, value in pairs:
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != param.shape or not np.all(np.isfinite(arr)):
+                raise ValueError(f"{param.name()}: expected finite values of shape {param.shape}, got {arr.shape}")
+            self._values[param.id] = arr
 
     def set_parameters(self, name: str, x: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> None:
         """Set block ``name``'s measured state ``x (n,)``, references ``x_ref (N+1, n)`` and ``u_ref (N, m)``.
@@ -321,8 +463,10 @@ class NominalQP:
                 blocks[name] = BlockSolution(nan_z, np.full(bv.v.shape, np.nan), np.nan)
             else:
                 slack = 0.0 if bv.slack is None else float(np.max(value(bv.slack), initial=0.0))
+                pos_slack = 0.0 if bv.position_slack is None else float(np.max(value(bv.position_slack),
+                                                                                initial=0.0))
                 z = np.vstack([value(bv.z), value(bv.z_n)[None, :]])
-                blocks[name] = BlockSolution(z, np.array(value(bv.v)), max(slack, 0.0))
+                blocks[name] = BlockSolution(z, np.array(value(bv.v)), max(slack, 0.0), max(pos_slack, 0.0))
         info = SolveInfo(status, value is not None, objective, iterations, solve_time, wall)
         return QPSolution(blocks, info)
 

@@ -6,11 +6,12 @@ force the position between samples is the parabola ``p(τ) = p_k + v_k τ + ½ (
 ``δ = ‖a‖ dt²/8`` of the chord ``p_k → p_{k+1}`` (``a = f/m``). Hence:
 
 * keep-in box: both ends of the chord inside the box shrunk by ``δ`` (per axis) keeps the whole parabola inside;
-* keep-out ellipsoid ``h(p) = (p − c)ᵀP(p − c) − 1 ≥ 0`` (Doerr Eq. 12): ``h`` is convex, so its tangent plane
-  at any point ``p̄`` (here the chord midpoint of the current iterate) under-estimates it and the half-space
-  ``n̂ᵀp ≥ β̂`` with ``n = ∇h(p̄)``, ``n̂ = n/‖n‖``, ``β̂ = (nᵀp̄ − h(p̄))/‖n‖`` lies in free space. Both chord ends
-  ``≥ β̂ + δ`` put the chord in that half-space and the parabola within ``δ`` of it, so the *continuous* motion is
-  collision-free, not only its samples.
+* keep-out ellipsoid ``(p − c)ᵀP(p − c) ≥ 1`` (Doerr Eq. 12): the half-space ``n̂ᵀp ≥ β̂`` bounded by the
+  supporting plane of the ellipsoid at the point of its surface along ``p̄ − c`` in the ellipsoid's metric
+  (``n̂ ∝ P(p̄ − c)``, the gradient direction at ``p̄``; :func:`oacli.geometry.halfspaces.point_halfspaces`), with
+  ``p̄`` the chord midpoint of the current iterate, lies in free space. Both chord ends ``≥ β̂ + δ`` put the chord
+  in that half-space and the parabola within ``δ`` of it, so the *continuous* motion is collision-free, not only
+  its samples.
 
 The same functions measure the violation of a trajectory (for the SCP merit), with the linearisation taken at
 that trajectory, so the convexified constraints at zero step reproduce it exactly.
@@ -24,6 +25,7 @@ import numpy as np
 
 from oacli.errors import InfeasibleError
 from oacli.geometry import Scene
+from oacli.geometry.halfspaces import best_box, keep_out_zone, point_halfspaces
 from oacli.geometry.verify import dense_positions
 from oacli.model import quaternion as quat
 
@@ -99,15 +101,7 @@ def box_assignment(scene: Scene, p_start: np.ndarray, p_end: np.ndarray, margin:
     ndarray of int, shape (N,)
         All zeros when the scene has a single box.
     """
-    if not scene.keep_in:
-        raise ValueError("the scene has no keep-in box")
-    scores = []
-    for box in scene.keep_in:
-        lo = box.lower + margin
-        hi = box.upper - margin
-        slack = np.minimum.reduce([p_start - lo, hi - p_start, p_end - lo, hi - p_end])  # (N, 3)
-        scores.append(slack.min(axis=1))
-    return np.argmax(np.array(scores), axis=0)
+    return best_box(scene, p_start, p_end, margin=margin)
 
 
 def keep_in_violation(
@@ -156,41 +150,6 @@ def keep_in_violation(
     return np.maximum(excess.max(axis=1), 0.0), boxes
 
 
-def keep_out_halfspaces(center: np.ndarray, shape: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals ``n̂ (K, 3)`` and offsets ``β̂ (K,)`` of the tangent half-spaces ``n̂ᵀp ≥ β̂`` at ``points``.
-
-    Every point of such a half-space satisfies ``(p − c)ᵀP(p − c) ≥ 1``. At a point on the centre (no gradient)
-    the direction +x is used.
-
-    Parameters
-    ----------
-    center : ndarray, shape (3,)
-        Zone centre c [m].
-    shape : ndarray, shape (3, 3)
-        P of the zone ``(p − c)ᵀP(p − c) < 1``.
-    points : ndarray, shape (K, 3)
-        Tangency points [m].
-
-    Returns
-    -------
-    n_hat : ndarray, shape (K, 3)
-    beta : ndarray, shape (K,)
-    """
-    d = points - center
-    h = np.einsum("ki,ij,kj->k", d, shape, d) - 1.0
-    n = 2.0 * d @ shape
-    norm = np.linalg.norm(n, axis=1)
-    degenerate = norm < 1e-12
-    safe = np.where(degenerate, 1.0, norm)
-    n_hat = n / safe[:, None]
-    beta = (np.einsum("ki,ki->k", n, points) - h) / safe
-    if np.any(degenerate):
-        # On the centre: the half-space x >= c_x + (x-extent of the ellipsoid) lies in free space.
-        n_hat[degenerate] = np.array([1.0, 0.0, 0.0])
-        beta[degenerate] = center[0] + np.sqrt(np.linalg.inv(shape)[0, 0])
-    return n_hat, beta
-
-
 def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end_extra_m: float = 0.0) -> np.ndarray:
     """Violation [m] per keep-out zone and segment: ``max(0, β̂ + δ − n̂ᵀp)`` over both chord ends.
 
@@ -216,7 +175,7 @@ def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end
     extra = np.zeros(p0.shape[0])
     extra[-1] = end_extra_m
     for e, ell in enumerate(scene.keep_out):
-        n_hat, beta = keep_out_halfspaces(ell.center, ell.shape, mid)
+        n_hat, beta, _ = point_halfspaces(keep_out_zone(ell), mid)
         gap0 = np.einsum("ki,ki->k", n_hat, p0) - beta - margin_m
         gap1 = np.einsum("ki,ki->k", n_hat, p1) - beta - margin_m - extra
         out[e] = np.maximum(-np.minimum(gap0, gap1), 0.0)

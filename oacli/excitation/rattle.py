@@ -49,11 +49,11 @@ from oacli.excitation.problem import (
     attitude_errors,
     chord_margin_m,
     keep_in_violation,
-    keep_out_halfspaces,
     keep_out_violation,
     rest_to_rest_inputs,
 )
 from oacli.geometry import Scene
+from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
 from oacli.types import Trajectory
 
 _OK = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
@@ -403,7 +403,7 @@ class InformationAwarePlanner:
             self.in_lo1.value, self.in_hi1.value = lo - pos[1:], hi - pos[1:]
         mid = 0.5 * (pos[:-1] + pos[1:])
         for (n_hat, c0, c1), ell in zip(self.out_params, self.scene.keep_out, strict=True):
-            nh, beta = keep_out_halfspaces(ell.center, ell.shape, mid)
+            nh, beta, _ = point_halfspaces(keep_out_zone(ell), mid)
             n_hat.value = nh
             c0.value = beta + out_margin - np.einsum("ki,ki->k", nh, pos[:-1])
             bound1 = beta + out_margin - np.einsum("ki,ki->k", nh, pos[1:])

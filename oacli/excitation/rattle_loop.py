@@ -175,6 +175,19 @@ def rate_governed_torque(
     intersected with the actuator limits; when the two do not meet (the rate is already too high to be brought
     back in one step) the actuator limit nearest to the interval is used (full braking).
 
+    Parameters
+    ----------
+    torque_Nm : ndarray, shape (3,)
+        Torque asked for [N·m], body frame.
+    omega_radps : ndarray, shape (3,)
+        Current body rate [rad/s].
+    inertia_kgm2 : ndarray, shape (3,)
+        Principal inertias [kg·m²].
+    dt_s : float
+        Hold time of the torque [s].
+    rate_limit_radps, torque_limit_Nm : ndarray, shape (3,)
+        Per-axis rate [rad/s] and actuator torque [N·m] limits.
+
     Returns
     -------
     ndarray, shape (3,)

@@ -20,7 +20,8 @@ from oacli.excitation.design_types import ExcitationProblem
 from oacli.excitation.fim_gradient import SYMMETRIC_PAIRS
 from oacli.excitation.information import N_PARAMS
 from oacli.excitation.merit import Evaluation, ScpMerit
-from oacli.excitation.problem import LENGTH_UNIT_M, attitude_error, keep_in_violation, keep_out_halfspaces
+from oacli.excitation.problem import LENGTH_UNIT_M, attitude_error, keep_in_violation
+from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
 
 _OK = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
 
@@ -192,7 +193,7 @@ class ConvexSubproblem:
             self.in_hi1.value = hi - pos[1:]
         mid = 0.5 * (pos[:-1] + pos[1:])
         for e, ell in enumerate(p.scene.keep_out):
-            n_hat, beta = keep_out_halfspaces(ell.center, ell.shape, mid)
+            n_hat, beta, _ = point_halfspaces(keep_out_zone(ell), mid)
             bound = beta + self.merit.keep_out_margin
             self.out_n[e].value = n_hat
             self.out_c0[e].value = bound - np.einsum("ki,ki->k", n_hat, pos[:-1])

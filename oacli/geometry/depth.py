@@ -41,7 +41,20 @@ def _as_boxes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
 
 
 def distance_outside_boxes(points: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """``d(p, U)`` [m] for the union U of closed boxes ``lower <= p <= upper`` (0 inside), shape (...,)."""
+    """``d(p, U)`` [m] for the union U of closed boxes ``lower <= p <= upper`` (0 inside).
+
+    Parameters
+    ----------
+    points : ndarray, shape (..., 3)
+        Positions [m].
+    lower, upper : ndarray, shape (b, 3)
+        Opposite corners of the boxes [m].
+
+    Returns
+    -------
+    ndarray, shape (...,)
+        Euclidean distance to the union [m].
+    """
     p = np.asarray(points, dtype=float)
     flat = p.reshape(-1, 3)
     out = np.empty(flat.shape[0])
@@ -56,6 +69,16 @@ def outside_cells(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.
     Per axis the box faces ``c_0 < ... < c_m`` give the intervals ``(−∞, c_0], [c_0, c_1], ..., [c_m, ∞)``; a
     bounded cell is inside the union exactly when its centre is (box faces are grid lines); unbounded cells are
     outside.
+
+    Parameters
+    ----------
+    lower, upper : ndarray, shape (b, 3)
+        Opposite corners of the boxes [m].
+
+    Returns
+    -------
+    tuple of ndarray, each shape (c, 3)
+        Lower and upper corners of the outside cells (infinite where unbounded).
     """
     edges = [np.concatenate([[-np.inf], np.unique(np.r_[lower[:, k], upper[:, k]]), [np.inf]]) for k in range(3)]
     lo = np.stack(np.meshgrid(*(e[:-1] for e in edges), indexing="ij"), axis=-1).reshape(-1, 3)
@@ -71,6 +94,20 @@ def distance_to_complement(points: np.ndarray, lower: np.ndarray, upper: np.ndar
     """``min(d(p, ∁U), cap_m)`` [m] for the union U of the boxes (0 outside U), shape (...,).
 
     Only cells within ``cap_m`` of a block of points are examined, so a small cap keeps it cheap.
+
+    Parameters
+    ----------
+    points : ndarray, shape (..., 3)
+        Positions [m].
+    lower, upper : ndarray, shape (b, 3)
+        Opposite corners of the boxes [m].
+    cap_m : float
+        Largest distance of interest [m].
+
+    Returns
+    -------
+    ndarray, shape (...,)
+        Distance to the complement of the union, capped [m].
     """
     p = np.asarray(points, dtype=float)
     flat = p.reshape(-1, 3)
@@ -90,6 +127,20 @@ def keep_in_depth(points: np.ndarray, scene: Scene, margin_m: float = 0.0) -> np
 
     0 where the ball lies inside the union (and everywhere when the scene has no keep-in box); ``d(p, U)`` for a
     centre outside with ``margin_m = 0`` (module docstring). Non-finite points get ``inf``.
+
+    Parameters
+    ----------
+    points : ndarray, shape (..., 3)
+        Positions [m].
+    scene : Scene
+        Its keep-in boxes.
+    margin_m : float
+        Radius of the ball that must stay inside [m].
+
+    Returns
+    -------
+    ndarray, shape (...,)
+        Depth outside the keep-in [m].
     """
     p = np.asarray(points, dtype=float)
     if not scene.keep_in:
@@ -111,6 +162,20 @@ def keep_out_depth(points: np.ndarray, scene: Scene, robot_radius_m: float = 0.0
 
     ``max_j max(0, r − sd(p, E_j))`` (module docstring), shape (...,); 0 without keep-out zones; ``inf`` for
     non-finite points.
+
+    Parameters
+    ----------
+    points : ndarray, shape (..., 3)
+        Positions [m].
+    scene : Scene
+        Its keep-out ellipsoids.
+    robot_radius_m : float
+        Radius of the robot's ball [m].
+
+    Returns
+    -------
+    ndarray, shape (...,)
+        Penetration depth [m].
     """
     p = np.asarray(points, dtype=float)
     depth = np.zeros(p.shape[:-1])

@@ -94,6 +94,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from oacli.geometry.collision import CollisionChecker
+from oacli.geometry.halfspaces import KeepOutZone, keep_out_zones, supporting_halfspaces
 from oacli.planning.translational import CostWeights, TranslationalTrajectory, interval_cost_matrix
 
 IMPROVED = "improved"
@@ -478,55 +479,6 @@ def min_norm_on_triangles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.nda
     return stack[np.arange(a.shape[0]), np.argmin(norms, axis=1)]
 
 
-@dataclass(frozen=True)
-class KeepOutZone:
-    """A keep-out zone as the polish sees it.
-
-    Attributes
-    ----------
-    center : ndarray, shape (3,)
-        Zone centre c [m].
-    sigma_zone : ndarray, shape (3, 3)
-        ``Σ_j = P_j⁻¹`` [m²] of the keep-out ellipsoid (safety factor applied).
-    sigma_robot : ndarray, shape (3, 3)
-        Shape Σ_R [m²] of the robot's bounding ellipsoid (zero for a point).
-    metric : ndarray, shape (3, 3)
-        L [1/m] with ``‖L (p − c)‖ <= 1`` on an ellipsoid containing the zone grown by the robot.
-    """
-
-    center: np.ndarray
-    sigma_zone: np.ndarray
-    sigma_robot: np.ndarray
-    metric: np.ndarray
-
-
-def keep_out_zones(checker: CollisionChecker) -> list[KeepOutZone]:
-    """The checker's keep-out zones with the robot's body, for :func:`keep_out_halfspaces`.
-
-    Parameters
-    ----------
-    checker : CollisionChecker
-
-    Returns
-    -------
-    list of KeepOutZone
-    """
-    sigma_r = checker.robot.sigma
-    out = []
-    for e in checker.scene.keep_out:
-        sigma_o = np.linalg.inv(e.shape)
-        sigma_o = 0.5 * (sigma_o + sigma_o.T)
-        if checker.robot.is_point:
-            outer = sigma_o
-        else:  # trace-minimal outer ellipsoid of the Minkowski sum: Σ_o/(1−s) + Σ_r/s
-            ro, rr = np.sqrt(np.trace(sigma_o)), np.sqrt(np.trace(sigma_r))
-            s = rr / (ro + rr)
-            outer = sigma_o / (1.0 - s) + sigma_r / s
-        chol = np.linalg.cholesky(0.5 * (outer + outer.T))
-        out.append(KeepOutZone(np.asarray(e.center, dtype=float), sigma_o, sigma_r, np.linalg.inv(chol)))
-    return out
-
-
 def keep_out_halfspaces(
     zone: KeepOutZone, p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, clearance_m: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -555,14 +507,7 @@ def keep_out_halfspaces(
     # The hull contains the centre (no direction): point from the centre to the hull's mean instead.
     m = np.where(norm[:, None] > 1e-12, w_star, (w[0] + w[1] + w[2]) / 3.0)
     m = np.where(np.linalg.norm(m, axis=1)[:, None] > 1e-12, m, np.array([1.0, 0.0, 0.0]))
-    n = m @ lmat  # rows: world normals Lᵀ m
-    n = n / np.linalg.norm(n, axis=1)[:, None]
-    offset = (
-        n @ c
-        + np.sqrt(np.einsum("ki,ij,kj->k", n, zone.sigma_zone, n))
-        + np.sqrt(np.clip(np.einsum("ki,ij,kj->k", n, zone.sigma_robot, n), 0.0, None))
-        + clearance_m
-    )
+    n, offset = supporting_halfspaces(zone, m, clearance_m)
     current = np.minimum.reduce([np.einsum("ki,ki->k", n, p) for p in (p0, p1, p2)])
     return n, offset, current - offset
 
@@ -785,7 +730,7 @@ def polish_trajectory(
     n = h.shape[0]
     if n < 2:
         return result(SKIPPED, traj, f"the input is shorter than two polish steps of {s.step_s:g} s")
-    zones = keep_out_zones(checker)
+    zones = keep_out_zones(checker.scene, checker.robot)
     sub = PolishSubproblem(h, traj.mass_kg, traj.x[0], goal, force_limit_N, velocity_limit_mps, len(zones), s,
                            weights, with_cost_cap=cap is not None)
     if sub.cost_cap is not None:

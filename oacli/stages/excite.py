@@ -541,10 +541,11 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
     report = safety_report(
         tel.t_true, tel.x_true, scene=scene, velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
         angular_velocity_limit_radps=np.asarray(robot.angular_velocity_limit_radps), robot_radius_m=robot.radius_m,
+        keep_in_margin_m=cfg.environment.keep_in_margin_m,
         t_ctrl=tel.t_ctrl, u_command=tel.u_command, input_limits=robot.input_limits,
     )
     summary["safety"] = safety_block(report, samples=len(tel.t_true), robot_radius_m=robot.radius_m,
-                                     keep_in_margin_m=0.0)
+                                     keep_in_margin_m=cfg.environment.keep_in_margin_m)
     rattle_findings(summary, problem, run).apply(summary)
     log.extend(status_log(summary, float(tel.t_true[-1])))
     return summary, traj, log

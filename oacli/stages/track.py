@@ -41,6 +41,7 @@ from oacli.stages.track_tube import (
     tube_design_from_config,
     tube_layers,
     tube_summary,
+    workspace_arguments,
     write_tube_topics,
 )
 from oacli.status import StatusReport
@@ -194,7 +195,8 @@ def run_track(
     if design is None:
         controller = TrackingMPC(
             reference, cfg.robot_params(), dt_s=cfg.controller.period_s, horizon=cfg.controller.horizon,
-            weights=weights, limits=limits,
+            weights=weights, limits=limits, max_consecutive_failures=cfg.controller.max_consecutive_failures,
+            **workspace_arguments(cfg),
         )
     else:
         controller = monitored_tube_controller(cfg, reference, design, weights, limits)

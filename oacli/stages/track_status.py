@@ -20,19 +20,15 @@ from oacli.types import Telemetry
 
 LogEntry = tuple[float, str, str]
 
-#: Keep-in zones bound the robot's centre (Astrobee's keep-in files, the planners' collision checks): no margin.
-KEEP_IN_MARGIN_M = 0.0
-
-
 def track_safety(cfg: OacliConfig, tel: Telemetry, limits: TrackingLimits) -> dict[str, Any]:
     """The ``safety`` block of a tracking run: every kind of violation of the true state (see the module)."""
     report = safety_report(
         tel.t_true, tel.x_true, scene=cfg.scene(), velocity_limit_mps=limits.velocity_mps,
         angular_velocity_limit_radps=limits.angular_velocity_radps, robot_radius_m=cfg.robot.radius_m,
-        keep_in_margin_m=KEEP_IN_MARGIN_M, t_ctrl=tel.t_ctrl, u_command=tel.u_command, input_limits=limits.input,
+        keep_in_margin_m=cfg.environment.keep_in_margin_m, t_ctrl=tel.t_ctrl, u_command=tel.u_command, input_limits=limits.input,
     )
     return safety_block(report, samples=len(tel.t_true), robot_radius_m=cfg.robot.radius_m,
-                        keep_in_margin_m=KEEP_IN_MARGIN_M)
+                        keep_in_margin_m=cfg.environment.keep_in_margin_m)
 
 
 def controller_counts(tel: Telemetry) -> dict[str, int]:

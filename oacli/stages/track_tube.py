@@ -17,6 +17,7 @@ from oacli.control.tracking import TrackingLimits, TrackingWeights
 from oacli.control.tube_design import AncillaryWeights, TubeDesign, design_translation_tube
 from oacli.control.tube_monitor import TubeMonitor, half_widths
 from oacli.control.tube_mpc import TerminalWeights, TubeHistory, TubeMPC
+from oacli.geometry.collision import RobotBody
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun_tube import log_disturbance_layers, log_tube_layers
 from oacli.status import StatusReport
@@ -100,7 +101,27 @@ def tube_controller_from_config(
         reference, cfg.robot_params(), design, horizon=cfg.controller.horizon, prediction_step_s=step,
         weights=weights, limits=limits, terminal=terminal,
         max_consecutive_failures=cfg.controller.max_consecutive_failures, fast=tube.solver == "direct",
+        **workspace_arguments(cfg),
     )
+
+
+def workspace_arguments(cfg: OacliConfig) -> dict[str, Any]:
+    """``scene`` and ``robot`` for the controllers when ``controller.position_constraints`` is on, else none.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+
+    Returns
+    -------
+    dict
+        Keyword arguments for :class:`~oacli.control.tracking.TrackingMPC` and
+        :class:`~oacli.control.tube_mpc.TubeMPC`.
+    """
+    if not cfg.controller.position_constraints:
+        return {}
+    return {"scene": cfg.scene(), "robot": RobotBody.sphere(cfg.robot.radius_m),
+            "keep_in_margin_m": cfg.environment.keep_in_margin_m}
 
 
 #: Term budget of the invariant set when the tube is redesigned beyond W during a run (bounds its time).
