@@ -179,6 +179,14 @@ def test_core_imports_no_cli_recorder_or_io_even_indirectly():
     assert not problems, "the core reaches the CLI, a recorder or the run-folder I/O:\n" + "\n".join(problems)
 
 
+def test_controllers_do_not_import_the_simulator():
+    """The simulator runs controllers (the protocol and its step type live in oacli.types), not the reverse."""
+    internal, _ = import_graph(ROOT / "oacli")
+    sideways = sorted(f"{m} -> {d}" for m, deps in internal.items() if m.startswith("oacli.control")
+                      for d in deps if d == "oacli.sim" or d.startswith("oacli.sim."))
+    assert not sideways, sideways
+
+
 def test_core_loads_without_cli_recorder_or_io_modules():
     """Import every core module in a fresh interpreter; none of the forbidden modules may be loaded."""
     internal, _ = import_graph(ROOT / "oacli")

@@ -15,13 +15,7 @@ import numpy as np
 
 from oacli.model.rigid_body import propagate, theta_of
 from oacli.sim.sensors import Disturbance, SensorNoise
-from oacli.types import (
-    Controller,
-    ControlStep,  # noqa: F401  TEMPORARY re-export for control/ until the constraints merge
-    InertialParams,
-    SolveInfo,
-    Telemetry,
-)
+from oacli.types import Controller, InertialParams, SolveInfo, Telemetry
 
 _TIME_TOL = 1e-9
 
