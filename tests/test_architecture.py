@@ -4,7 +4,7 @@ the recorders and the run-folder I/O.
 Imports are read from the source with :mod:`ast` (module level and inside functions alike: a cycle through a lazy
 import is still a cycle), ``from package import name`` counts as an import of the submodule when ``name`` is one,
 otherwise of the package. The core is {model, geometry, sets, control, planning, excitation, estimation, sim} and
-the modules types, trajectory, reference, metrics and status; it must not import typer, rerun, mcap or foxglove,
+the modules types, trajectory, reference, metrics, status and solver; it must not import typer, rerun, mcap or foxglove,
 nor oacli.io, oacli.stages, oacli.commands or oacli.cli, directly or through another oacli module (importing a
 module also runs its parent packages' ``__init__``, so those count too). A second check imports the whole core in
 a fresh interpreter and looks at ``sys.modules``.
@@ -20,7 +20,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 CORE = ("model", "geometry", "sets", "control", "planning", "excitation", "estimation", "sim", "types", "trajectory",
-        "reference", "metrics", "status")
+        "reference", "metrics", "status", "solver")
 FORBIDDEN_LIBRARIES = ("typer", "rerun", "mcap", "foxglove")
 FORBIDDEN_OACLI = ("oacli.io", "oacli.stages", "oacli.commands", "oacli.cli")
 

@@ -167,7 +167,8 @@ class TrackingMPC:
         if scene is not None and (scene.keep_in or scene.keep_out):
             horizon_s = self.horizon * self.dt_s
             self.workspace = WorkspaceRows(
-                scene, robot, keep_in_margin_m=keep_in_margin_m, activation_m=1.0 + float(np.max(limits.velocity_mps)) * horizon_s,
+                scene, robot, keep_in_margin_m=keep_in_margin_m,
+                activation_m=1.0 + float(np.max(limits.velocity_mps)) * horizon_s,
             )
         ws = self.workspace
         a, b = hover_error_model(params, self.dt_s)

@@ -248,7 +248,8 @@ class TubeMPC:
         u_max = np.array([ax.force_limit_N for ax in design.axes])
         v_max = np.array([ax.velocity_limit_mps for ax in design.axes])
         travel = v_max * self.dt_s + 0.5 * u_max / m * self.dt_s**2
-        return WorkspaceRows(scene, robot, keep_in_margin_m=keep_in_margin_m, extent_m=extent, clearance_m=0.5 * float(np.linalg.norm(travel)),
+        return WorkspaceRows(scene, robot, keep_in_margin_m=keep_in_margin_m, extent_m=extent,
+                             clearance_m=0.5 * float(np.linalg.norm(travel)),
                              activation_m=1.0 + float(np.max(v_max)) * self.horizon * self.step_s)
 
     def _plan_input(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:

@@ -10,8 +10,6 @@ velocity, rate, keep-in, keep-out and terminal constraints (see the module docst
 
 from __future__ import annotations
 
-import warnings
-
 import cvxpy as cp
 import numpy as np
 
@@ -22,8 +20,7 @@ from oacli.excitation.information import N_PARAMS
 from oacli.excitation.merit import Evaluation, ScpMerit
 from oacli.excitation.problem import LENGTH_UNIT_M, attitude_error, keep_in_violation
 from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
-
-_OK = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
+from oacli.solver import solve_clarabel
 
 
 class ConvexSubproblem:
@@ -244,21 +241,16 @@ class ConvexSubproblem:
         Returns
         -------
         status : str
-            cvxpy's status, or ``solver_error: ...`` when the solver raised.
+            cvxpy's status, or ``solver_error: ...`` when the solver raised (:func:`oacli.solver.solve_clarabel`).
         du : ndarray, shape (N, 6) or None
             The step (None when the solve failed).
         slack : float
             Sum of the slacks (NaN when the solve failed).
         """
-        try:
-            with warnings.catch_warnings():
-                # An inaccurate solve is reported in the status (and judged by the merit test), not as a warning.
-                warnings.simplefilter("ignore", UserWarning)
-                self.problem.solve(solver=cp.CLARABEL)
-            status = str(self.problem.status)
-        except cp.SolverError as exc:
-            return f"solver_error: {exc}", None, float("nan")
-        if status not in _OK or self.du.value is None:
+        # An inaccurate solve is reported in the status (and judged by the merit test), not as a warning.
+        out = solve_clarabel(self.problem, quiet=True)
+        status = out.status
+        if not out.success or self.du.value is None:
             return status, None, float("nan")
         slack = float(sum(np.sum(np.maximum(s.value, 0.0)) for s in self.slacks))  # type: ignore[arg-type]
         return status, np.array(self.du.value), slack
