@@ -37,7 +37,8 @@ from oacli.excitation.information import (
 )
 from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting
 from oacli.io.reference_files import load_csv
-from oacli.stages.excite import excitation_problem, motion_limits, scp_settings
+from oacli.stages.excite import excitation_problem
+from oacli.stages.settings import motion_limits, scp_settings
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "rattle-iros-2022" / "info-trajectories"

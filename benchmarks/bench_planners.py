@@ -47,14 +47,8 @@ from oacli.planning.lqr_rrt_star import plan_lqr_rrt_star
 from oacli.planning.shortcut import lqr_shortcut
 from oacli.planning.steering import LqrConnector
 from oacli.planning.translational import TranslationalTrajectory
-from oacli.stages.plan import (
-    PLAN_STREAM,
-    SMOOTH_STREAM,
-    build_problem,
-    kino_rrt_settings,
-    lqr_rrt_star_settings,
-    resolve_segment,
-)
+from oacli.stages.plan import PLAN_STREAM, SMOOTH_STREAM, build_problem, resolve_segment
+from oacli.stages.settings import kino_rrt_settings, lqr_rrt_star_settings
 from oacli.stages.smooth import run_polish
 
 SCENES = {"S1": Path(__file__).parent / "scenes" / "s1_sphere.yaml",

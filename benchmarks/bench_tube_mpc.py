@@ -38,8 +38,9 @@ from oacli.control.tube_mpc import TerminalWeights
 from oacli.geometry import Ellipsoid, Scene
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
+from oacli.stages.settings import tube_design_from_config
 from oacli.stages.track import reference_from_config
-from oacli.stages.track_tube import tube_controller_from_config, tube_design_from_config
+from oacli.stages.track_tube import tube_controller_from_config
 
 PRESET = Path(__file__).resolve().parents[1] / "configs" / "iss_reswarm_tube.yaml"
 

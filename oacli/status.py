@@ -184,6 +184,25 @@ def warning_line(summary: Mapping[str, Any]) -> str | None:
     return f"warning: {stage} status {status}: {text}"
 
 
+def status_log(summary: Mapping[str, Any], t: float = 0.0) -> list[tuple[float, str, str]]:
+    """The stage log's lines about the status: one per finding of ``summary["status_reasons"]``.
+
+    Parameters
+    ----------
+    summary : Mapping
+        A stage's summary after :meth:`StatusReport.apply`.
+    t : float
+        Mission time of the lines [s] (the end of the run).
+
+    Returns
+    -------
+    list of (float, str, str)
+        ``(t, level, "status <level>: <message>")`` with level ``error`` for unsafe findings, ``warning`` else.
+    """
+    return [(t, "error" if r["level"] == UNSAFE else "warning", f"status {r['level']}: {r['message']}")
+            for r in summary.get("status_reasons", ())]
+
+
 def exit_code(status: str) -> int:
     """The process exit code of a run with ``status``."""
     return EXIT_CODES.get(status, 1)

@@ -12,9 +12,10 @@ from typer.testing import CliRunner
 
 from oacli.cli import app
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun_estimate import D2, PARAM_ENTITIES
-from oacli.io.rerun_io import read_blueprint_views, read_recording_entities, read_recording_scalars
+from oacli.io.rerun.estimate import D2, PARAM_ENTITIES
+from oacli.io.rerun.read import read_blueprint_views, read_recording_entities, read_recording_scalars
 from tests.conftest import INFO_TRAJECTORIES, REPO, require_shared
+from tests.mcap_checks import check_json_records
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
 TRUTH = [15.0, 0.1464, 0.1376, 0.1604]  # [Doerr2021] Table 1: Astrobee with the 3D-printed object
@@ -117,6 +118,14 @@ def test_estimate_mcap_reads_back_and_matches_the_summary(batch_run, track_run):
     est = record.trajectories["/state/estimated"]
     idx = np.searchsorted(tel.t_true, est.t[::2] - 1e-9)
     assert np.max(np.abs(est.x[::2, 0:3] - tel.x_true[idx, 0:3])) < 0.01
+
+
+def test_estimate_records_follow_the_contract_schemas(batch_run):
+    counts = check_json_records(batch_run / "estimate.mcap")
+    summary = json.loads((batch_run / "summary.json").read_text())
+    assert counts["oacli.ParameterEstimate"] == summary["windows"]
+    assert counts["oacli.EstimationSample"] == summary["samples_total"]
+    assert counts["oacli.EstimationCost"] >= 1
 
 
 def test_recording_shows_the_estimates_with_bands_truth_and_gate(batch_run):

@@ -16,9 +16,10 @@ from oacli.excitation.information import MeasurementModel, cramer_rao_std, fishe
 from oacli.excitation.rattle import InformationWeighting
 from oacli.geometry.verify import dense_positions
 from oacli.io.mcap_io import read_stage, read_telemetry, read_trajectory
-from oacli.io.rerun_io import read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import read_recording_entities, read_recording_scalars
 from oacli.trajectory import sample_states
 from tests.conftest import REPO
+from tests.mcap_checks import check_json_records
 from tests.test_cli_errors import assert_clean_failure
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
@@ -117,6 +118,13 @@ def test_mcap_reads_back_and_agrees_with_the_summary(excite_run, config):
     assert np.trace(np.linalg.inv(fim)) == pytest.approx(summary["criterion_final"], rel=1e-9)
 
 
+def test_excite_records_follow_the_contract_schemas(excite_run):
+    counts = check_json_records(excite_run / "excite.mcap")
+    summary = json.loads((excite_run / "summary.json").read_text())
+    assert counts["oacli.ScpIteration"] == summary["iterations"]
+    assert counts["oacli.Information"] == counts["oacli.TrajectorySample"] == summary["steps"] + 1
+
+
 def test_recording_reads_back_with_the_logged_values(excite_run):
     rrd = excite_run / "excite.rrd"
     entities = read_recording_entities(rrd)
@@ -210,6 +218,8 @@ def test_rattle_method_replans_and_records_the_weights(tmp_path):
     robot = load_config(cfg_path).robot
     assert np.all(np.abs(traj.u[:, 0:6]) <= robot.input_limits * (1 + 1e-12))
     assert summary["within_robot_limits"] is True
+    counts = check_json_records(out / "excite.mcap")
+    assert counts["oacli.Replan"] == 2 and counts["oacli.Information"] == len(traj)
     t_gamma, gamma = read_recording_scalars(out / "excite.rrd")["metrics/gamma"]
     np.testing.assert_allclose(t_gamma, [0.0, 12.0], atol=1e-9)
     np.testing.assert_allclose(gamma, [r["gamma"] for r in replans], rtol=1e-12)

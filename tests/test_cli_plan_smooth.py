@@ -15,9 +15,10 @@ from oacli.cli import app
 from oacli.config import load_config
 from oacli.geometry.verify import dense_check
 from oacli.io.mcap_io import read_stage, read_trajectory
-from oacli.io.rerun_io import read_recording_component, read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import read_recording_component, read_recording_entities, read_recording_scalars
 from oacli.planning.full_state import translational_part
 from oacli.planning.translational import CostWeights
+from tests.mcap_checks import check_json_records
 from tests.plan_checks import S1, S1_SHORTEST_M
 
 runner = CliRunner()
@@ -105,6 +106,17 @@ def test_plan_run_folder_summary_and_mcap_agree(runs):
     assert goal_nodes[0]["cost"] == pytest.approx(summary["cost"], rel=1e-9)
     solutions = record.json_records["/plan/solutions"]
     assert solutions[0]["iteration"] == summary["iterations_to_first_solution"]
+
+
+def test_plan_and_smooth_records_follow_the_contract_schemas(runs):
+    plan = check_json_records(runs["plan"] / "plan.mcap")
+    summary = json.loads((runs["plan"] / "summary.json").read_text())
+    assert plan["oacli.PlanTreeNode"] == summary["nodes"] and plan["oacli.PlanRewire"] == summary["rewires"]
+    assert plan["oacli.PlanSolution"] == summary["solution_improvements"] + 1
+    smooth = check_json_records(runs["smooth"] / "smooth.mcap")
+    summary = json.loads((runs["smooth"] / "summary.json").read_text())
+    assert smooth["oacli.ShortcutAttempt"] == summary["shortcuts_tried"]
+    assert smooth["oacli.PolishIteration"] == summary["polish"]["iterations"]
 
 
 def test_plan_recording_holds_the_tree_path_and_motion(runs):

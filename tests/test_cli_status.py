@@ -16,9 +16,9 @@ from oacli.cli import app
 from oacli.config import load_config
 from oacli.control.tube_monitor import half_widths
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun_io import read_recording_scalars
+from oacli.io.rerun.read import read_recording_scalars
 from oacli.model.double_integrator import double_integrator
-from oacli.stages.track_tube import tube_design_from_config
+from oacli.stages.settings import tube_design_from_config
 from tests.conftest import REPO
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"

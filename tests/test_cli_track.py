@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.config import load_config
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun_io import read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import read_recording_entities, read_recording_scalars
 from oacli.model import quaternion as quat
 from tests.conftest import MIT_ISS, REPO, require_shared
 

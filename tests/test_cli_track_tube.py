@@ -13,10 +13,11 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.config import load_config
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun_io import read_recording_component, read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import read_recording_component, read_recording_entities, read_recording_scalars
 from oacli.model.double_integrator import double_integrator
 from oacli.sets import Polytope
 from tests.conftest import MIT_ISS, REPO, require_shared
+from tests.mcap_checks import check_json_records
 
 TUBE = REPO / "configs" / "iss_reswarm_tube.yaml"
 runner = CliRunner()
@@ -54,6 +55,13 @@ def test_summary_reports_the_tube(tube_run):
         assert -0.15 < lo < 0 < hi < 0.15  # U ⊖ K Z strictly inside U = [−0.15, 0.15] N
     assert s["tube"]["lasso_violations"] == 0 and s["tube"]["force_limit_violations"] == 0
     assert load_config(tube_run / "config.yaml") == load_config(TUBE)
+
+
+def test_json_records_follow_the_contract_schemas(tube_run):
+    counts = check_json_records(tube_run / "track.mcap")
+    steps = json.loads((tube_run / "summary.json").read_text())["control_steps"]
+    assert counts["oacli.TubeDesign"] == 1 and counts["oacli.TubeDisturbance"] == steps
+    assert counts["oacli.SolverStats"] == steps
 
 
 def test_inputs_are_nominal_plus_ancillary_and_the_state_stays_in_the_tube(tube_run):

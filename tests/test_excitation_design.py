@@ -38,7 +38,8 @@ from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
 from oacli.geometry.verify import dense_positions
 from oacli.io.reference_files import load_csv
 from oacli.model import quaternion as quat
-from oacli.stages.excite import excitation_problem, scp_settings
+from oacli.stages.excite import excitation_problem
+from oacli.stages.settings import scp_settings
 from tests.conftest import INFO_TRAJECTORIES, REPO, require_shared
 
 THETA = np.array([15.0, 0.1464, 0.1376, 0.1604])  # Doerr 2021 Table 1, Astrobee with object

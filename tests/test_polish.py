@@ -26,7 +26,7 @@ from oacli.geometry.collision import CollisionChecker, RobotBody
 from oacli.geometry.halfspaces import keep_out_zones
 from oacli.geometry.verify import dense_check
 from oacli.io.mcap_io import read_stage, read_trajectory
-from oacli.io.rerun_io import read_recording_component, read_recording_entities
+from oacli.io.rerun.read import read_recording_component, read_recording_entities
 from oacli.planning.full_state import translational_part
 from oacli.planning.lqr_rrt_star import LqrRrtStarSettings, plan_lqr_rrt_star
 from oacli.planning.polish import (

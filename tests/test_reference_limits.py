@@ -22,12 +22,8 @@ from oacli.reference_limits import (
     mass_upper_bound_kg,
     required_inputs,
 )
-from oacli.stages.design_limits import (
-    check_reference_for_plant,
-    excitation_design_limits,
-    planner_design_limits,
-    robot_limit_set,
-)
+from oacli.stages.settings import excitation_design_limits, planner_design_limits, robot_limit_set
+from oacli.stages.track import check_reference_for_plant
 from oacli.trajectory import feedforward_inputs
 from oacli.types import InertialParams, Trajectory
 from tests.conftest import REPO

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,16 +19,18 @@ from scipy.spatial.transform import Rotation
 
 from oacli.errors import InputError
 from oacli.geometry import Box, Ellipsoid, Scene
-from oacli.io import rerun_io as rio
-from oacli.io.rerun_io import (
-    StageRecording,
+from oacli.io.rerun import writer as rerun_writer
+from oacli.io.rerun.read import (
     read_blueprint_views,
     read_recording_component,
     read_recording_entities,
     read_recording_scalars,
-    track_blueprint,
-    write_track_recording,
 )
+from oacli.io.rerun.track import track_blueprint, write_track_recording
+from oacli.io.rerun.writer import StageRecording
+from oacli.metrics import TrackingErrors
+from oacli.reference_limits import LimitSet
+from oacli.types import SolveInfo, Telemetry, Trajectory
 
 F32 = {"rtol": 2e-7, "atol": 2e-6}  # float32 storage of positions (|r| ~ 11 m)
 T_ATOL = 1e-9  # times are stored in integer nanoseconds
@@ -95,10 +98,29 @@ def _synthetic(duration_s: float = 20.0, true_hz: float = 62.5, ctrl_hz: float =
         "u_applied": u_applied,
         "position_error_m": 0.02 + 0.01 * np.sin(0.9 * t_ctrl),
         "attitude_error_rad": 0.05 * np.abs(np.cos(0.4 * t_ctrl)),
-        "solve_time_ms": 3.0 + rng.random(k),
+        "solve_time_s": 1e-3 * (3.0 + rng.random(k)),
         "force_limit_N": force_limit,
         "torque_limit_Nm": torque_limit,
         "log": [(0.0, "INFO", "track started"), (7.5, "WARNING", "force saturated"), (duration_s, "INFO", "done")],
+    }
+
+
+def _kwargs(run: dict) -> dict:
+    """The synthetic run as the arguments of ``write_track_recording`` (reference, telemetry, errors, limits)."""
+    t_true, x_true, t_ctrl = run["t_true"], run["x_true"], run["t_ctrl"]
+    at_ctrl = x_true[np.clip(np.searchsorted(t_true, t_ctrl), 0, len(t_true) - 1)]
+    telemetry = Telemetry(
+        t_true, x_true, t_ctrl, x_measured=at_ctrl, x_reference=at_ctrl, u_command=run["u_command"],
+        u_applied=run["u_applied"], solve_info=tuple(SolveInfo("optimal", True, solve_time_s=s)
+                                                     for s in run["solve_time_s"]),
+    )
+    return {
+        "scene": run["scene"],
+        "reference": Trajectory(run["t_ref"], run["x_ref"], np.zeros((len(run["t_ref"]), 6)), name="reference"),
+        "telemetry": telemetry,
+        "errors": TrackingErrors(t_ctrl, run["position_error_m"], run["attitude_error_rad"]),
+        "limits": LimitSet(run["force_limit_N"], run["torque_limit_Nm"], [0.2] * 3, [0.17] * 3),
+        "log": run["log"],
     }
 
 
@@ -110,7 +132,7 @@ def run() -> dict:
 @pytest.fixture(scope="module")
 def track_rrd(tmp_path_factory, run) -> Path:
     path = tmp_path_factory.mktemp("rrd") / "track.rrd"
-    write_track_recording(path, **run)
+    write_track_recording(path, **_kwargs(run))
     return path
 
 
@@ -144,7 +166,7 @@ def test_track_scalar_series_round_trip(track_rrd, run):
     expected = {
         "metrics/position_error_m": run["position_error_m"],
         "metrics/attitude_error_rad": run["attitude_error_rad"],
-        "metrics/solve_time_ms": run["solve_time_ms"],
+        "metrics/solve_time_ms": 1e3 * run["solve_time_s"],
         "metrics/force_N": run["u_applied"][:, 0:3],
         "metrics/torque_Nm": run["u_applied"][:, 3:6],
         "metrics/force_N/command": run["u_command"][:, 0:3],
@@ -271,8 +293,9 @@ def test_track_140s_run_writes_fast(tmp_path):
     run = _synthetic(duration_s=140.0)
     assert run["x_true"].shape == (8751, 13) and run["t_ctrl"].shape == (701,)
     path = tmp_path / "track.rrd"
+    kwargs = _kwargs(run)
     start = time.perf_counter()
-    write_track_recording(path, **run)
+    write_track_recording(path, **kwargs)
     elapsed = time.perf_counter() - start
     assert elapsed < 2.0, f"writing took {elapsed:.2f} s"
     s = read_recording_scalars(path)
@@ -296,33 +319,38 @@ def test_failure_mid_write_leaves_no_final_file(tmp_path, run, monkeypatch):
     monkeypatch.setattr(rr.RecordingStream, "disconnect", disconnect_then_fail)
     path = tmp_path / "track.rrd"
     with pytest.raises(OSError, match="disk full"):
-        write_track_recording(path, **run)
+        write_track_recording(path, **_kwargs(run))
     assert not path.exists()
     assert list(tmp_path.iterdir()) == []  # the temporary file is gone too
 
 
 def test_failed_save_keeps_previous_file(tmp_path, run, monkeypatch):
     path = tmp_path / "track.rrd"
-    write_track_recording(path, **run)
+    write_track_recording(path, **_kwargs(run))
     before = read_recording_scalars(path)["metrics/position_error_m"][1]
 
     def fail(*args, **kwargs):
         raise RuntimeError("truncated")
 
-    monkeypatch.setattr(rio, "_check_complete", fail)
+    monkeypatch.setattr(rerun_writer, "_check_complete", fail)
     changed = dict(run, position_error_m=run["position_error_m"] + 1.0)
     with pytest.raises(RuntimeError, match="truncated"):
-        write_track_recording(path, **changed)
+        write_track_recording(path, **_kwargs(changed))
     np.testing.assert_array_equal(read_recording_scalars(path)["metrics/position_error_m"][1], before)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["track.rrd"]
 
 
 def test_bad_shapes_raise_before_writing(tmp_path, run):
     path = tmp_path / "track.rrd"
-    with pytest.raises(ValueError, match="u_applied"):
-        write_track_recording(path, **dict(run, u_applied=run["u_applied"][:, :3]))
+    with pytest.raises(ValueError, match="position_error_m"):
+        write_track_recording(path, **_kwargs(dict(run, position_error_m=run["position_error_m"][:-1])))
+    with pytest.raises(ValueError, match="torque_limit_Nm"):
+        write_track_recording(path, **dict(_kwargs(run), limits=SimpleNamespace(force_N=np.ones(3),
+                                                                                  torque_Nm=np.ones(2))))
+    x_true = run["x_true"].copy()
+    x_true[5, 6:10] = 0.0  # a zero quaternion cannot be drawn
     with pytest.raises(ValueError, match="world/robot"):
-        write_track_recording(path, **dict(run, x_true=run["x_true"][:-1]))
+        write_track_recording(path, **_kwargs(dict(run, x_true=x_true)))
     assert list(tmp_path.iterdir()) == []
 
 

@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
+import oacli
 from oacli.geometry import Box, Ellipsoid, Scene
 from oacli.geometry.depth import keep_in_depth, keep_out_depth
 from oacli.geometry.verify import point_ellipsoid_distance
+from oacli.io.mcap_io import read_stage
 from oacli.io.runfolder import is_complete, open_stage_run
 from oacli.metrics import safety_block, safety_report
 from oacli.status import (
@@ -254,3 +256,24 @@ def test_complete_run_folders(tmp_path, status, complete):
         run.finish({"stage": "track", "status": status})
     assert is_complete(tmp_path / "run") is complete
     assert not is_complete(tmp_path / "missing")
+
+
+def test_stage_run_opens_its_mcap_with_the_run_metadata_and_returns_its_result(tmp_path):
+    """One place builds the MCAP's ``oacli`` metadata: the run's seed, name and frame, the stage's extras."""
+    config_yaml = "name: probe\nseed: 17\n"
+    with open_stage_run("estimate", "probe", config_yaml, seed=17, frame="iss", out=tmp_path / "run") as run:
+        with run.open_mcap(method="batch", telemetry="in/track.mcap") as writer:
+            writer.write_log(0.0, "info", "hello")
+        result = run.finish({"stage": "estimate", "status": "ok"})
+    assert result.run_dir == tmp_path / "run" and result.summary["status"] == "ok"
+    assert {k: p.name for k, p in result.files.items()} == {"config": "config.yaml", "mcap": "estimate.mcap",
+                                                           "summary": "summary.json"}
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["files"] == {
+        "config": "config.yaml", "mcap": "estimate.mcap"}
+    record = read_stage(result.files["mcap"])
+    meta = record.metadata["oacli"]
+    assert {k: meta[k] for k in ("stage", "seed", "config_name", "frame", "method", "telemetry")} == {
+        "stage": "estimate", "seed": "17", "config_name": "probe", "frame": "iss", "method": "batch",
+        "telemetry": "in/track.mcap"}
+    assert meta["version"] == oacli.__version__ and meta["git_commit"]
+    assert record.attachments["config.yaml"].decode() == config_yaml

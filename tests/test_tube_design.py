@@ -28,7 +28,7 @@ from oacli.control.tube_design import (
 )
 from oacli.errors import ConfigError, InfeasibleError
 from oacli.sets import Polytope
-from oacli.stages.track_tube import tube_design_from_config
+from oacli.stages.settings import tube_design_from_config
 from tests.conftest import REPO
 
 PRESET = REPO / "configs" / "iss_reswarm_tube.yaml"

@@ -8,11 +8,11 @@ The controllers constrain each predicted position ``p_k`` (k = 0..N) to a convex
   and the linearisation segment (the previous plan's, when there is one) — several: the one with the largest
   margin; none: the nearest (:func:`oacli.geometry.halfspaces.best_piece`) — and step k the intersection of the
   boxes of its two segments (a box), shrunk on each axis by ``keep_in_margin_m`` (keep-in boxes bound the robot's
-  centre, as in the planners' collision checks; 0 by default) and the tightening below: ``lower_k ≤ p_k ≤
-  upper_k``. Both ends of every predicted segment are then in one convex piece, so the segment is too, also where
-  the union turns a corner; scoring the previous plan too keeps the box of a segment where the robot is until the
-  plan reaches the next box (a reference that cuts a corner would otherwise switch boxes before the robot can
-  follow). The candidates are the boxes and the bridges between
+  centre, as in the planners' collision checks; 0 by default) and the tightening below:
+  ``lower_k ≤ p_k ≤ upper_k``. Both ends of every predicted segment are then in one convex piece, so the
+  segment is too, also where the union turns a corner; scoring the previous plan too keeps the box of a segment
+  where the robot is until the plan reaches the next box (a reference that cuts a corner would
+  otherwise switch boxes before the robot can follow). The candidates are the boxes and the bridges between
   touching boxes (:func:`oacli.geometry.halfspaces.keep_in_pieces`), so a motion from one box to the next keeps a
   feasible piece once the boxes are shrunk;
 * **keep-out**: for zone j, the half-space ``n_jkᵀ p_k ≥ β_jk`` bounded by the supporting plane of the zone grown

@@ -1,5 +1,6 @@
 """Run folders: ``runs/<name>-<UTC timestamp>/`` holding the resolved config, one MCAP + one Rerun recording
-per stage, and ``summary.json``.
+per stage, and ``summary.json``; the skeleton every stage runs in (:func:`open_stage_run`, :class:`StageRun`,
+:class:`StageResult`).
 
 ``summary.json`` is written last, atomically. A run folder is *complete* when its ``summary.json`` exists with a
 status of :data:`oacli.status.COMPLETE_STATUSES` — ``ok``, ``degraded``, ``unsafe`` or ``no_solution``: the stage
@@ -18,6 +19,7 @@ import json
 import subprocess
 import time
 from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +27,7 @@ import oacli
 from oacli.errors import InputError
 from oacli.io.atomic import write_text_atomic
 from oacli.io.jsonsafe import to_json_safe
+from oacli.io.mcap_write import StageMcapWriter
 from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED
 
 
@@ -99,6 +102,48 @@ def write_summary(run_dir: Path, summary: Mapping[str, Any], filename: str = "su
     return path
 
 
+@dataclass(frozen=True)
+class StageResult:
+    """What a stage produced: its run folder, its summary and the files it wrote.
+
+    Attributes
+    ----------
+    run_dir : Path
+        The run folder.
+    summary : dict
+        The content of ``summary.json``.
+    files : dict of str to Path
+        Files written, by role (``config``, ``mcap``, ``rrd``, ``summary``).
+    """
+
+    run_dir: Path
+    summary: dict[str, Any]
+    files: dict[str, Path]
+
+
+def run_metadata(stage: str, *, seed: object, config_name: str, **extra: object) -> dict[str, object]:
+    """The entries every stage puts in its MCAP's ``oacli`` metadata record (``docs/mcap.md``).
+
+    Parameters
+    ----------
+    stage : str
+        Stage name.
+    seed : object
+        The config's seed.
+    config_name : str
+        The config's ``name``.
+    **extra : object
+        Stage-specific entries (``method``, ``telemetry`` ...).
+
+    Returns
+    -------
+    dict
+        ``stage``, ``seed``, ``git_commit`` (:func:`git_commit`), ``version``, ``config_name`` and ``extra``.
+    """
+    return {"stage": stage, "seed": seed, "git_commit": git_commit(), "version": oacli.__version__,
+            "config_name": config_name, **extra}
+
+
 class StageRun:
     """A stage's run folder between its creation and its ``summary.json`` (see :func:`open_stage_run`).
 
@@ -110,27 +155,80 @@ class StageRun:
         The folder.
     files : dict of str to Path
         Files written so far, by role (``config``, ``mcap``, ``rrd`` ...); listed in the summary.
+    config_yaml : str
+        The resolved config (attached to the MCAP).
+    seed : object
+        The config's seed (MCAP metadata).
+    config_name : str
+        The config's ``name`` (MCAP metadata).
+    frame : str
+        The world frame's name (MCAP metadata, ``frame_id`` of poses).
     """
 
-    def __init__(self, stage: str, run_dir: Path, started: float | None = None) -> None:
+    def __init__(self, stage: str, run_dir: Path, started: float | None = None, *, config_yaml: str = "",
+                 seed: object = "unknown", config_name: str = "", frame: str = "world") -> None:
         self.stage = stage
         self.run_dir = run_dir
         self.files: dict[str, Path] = {}
+        self.config_yaml = config_yaml
+        self.seed = seed
+        self.config_name = config_name
+        self.frame = frame
         self._start = time.perf_counter() if started is None else started
 
     def file(self, role: str, name: str) -> Path:
-        """Register and return the path of an output file, e.g. ``run.file("mcap", "track.mcap")``."""
+        """Register and return the path of an output file, e.g. ``run.file("mcap", "track.mcap")``.
+
+        Parameters
+        ----------
+        role : str
+            Key in the summary's ``files``.
+        name : str
+            File name in the run folder.
+
+        Returns
+        -------
+        Path
+        """
         path = self.run_dir / name
         self.files[role] = path
         return path
 
-    def finish(self, summary: dict[str, Any]) -> Path:
-        """Add ``wall_time_s``, ``run_dir`` and ``files`` to ``summary`` and write it (last, atomically)."""
+    def open_mcap(self, **metadata: object) -> StageMcapWriter:
+        """The writer of the stage's MCAP ``<stage>.mcap`` (registered as ``mcap``); use it in a ``with`` block.
+
+        Parameters
+        ----------
+        **metadata : object
+            Stage-specific entries of the ``oacli`` metadata record, after those of :func:`run_metadata`.
+
+        Returns
+        -------
+        StageMcapWriter
+            With the resolved config attached, the run metadata and the world frame.
+        """
+        path = self.file("mcap", f"{self.stage}.mcap")
+        info = run_metadata(self.stage, seed=self.seed, config_name=self.config_name, **metadata)
+        return StageMcapWriter(path, stage=self.stage, config_yaml=self.config_yaml, metadata=info, frame=self.frame)
+
+    def finish(self, summary: dict[str, Any]) -> StageResult:
+        """Add ``wall_time_s``, ``run_dir`` and ``files`` to ``summary`` and write it (last, atomically).
+
+        Parameters
+        ----------
+        summary : dict
+            The stage's summary (its ``status`` set).
+
+        Returns
+        -------
+        StageResult
+            The run folder, the summary and the files (``summary.json`` included).
+        """
         summary["wall_time_s"] = time.perf_counter() - self._start
         summary["run_dir"] = str(self.run_dir)
         summary["files"] = {k: p.name for k, p in self.files.items()}
         self.files["summary"] = write_summary(self.run_dir, summary)
-        return self.files["summary"]
+        return StageResult(self.run_dir, summary, self.files)
 
 
 @contextlib.contextmanager
@@ -139,6 +237,8 @@ def open_stage_run(
     name: str,
     config_yaml: str,
     *,
+    seed: object = "unknown",
+    frame: str = "world",
     out: Path | None = None,
     runs_root: Path = Path("runs"),
     started: float | None = None,
@@ -147,10 +247,30 @@ def open_stage_run(
 
     If the block raises, ``summary.json`` records ``"status": "interrupted"`` (KeyboardInterrupt) or
     ``"status": "failed"`` and the error before the exception propagates, so such a run never looks complete.
-    ``started`` (a ``time.perf_counter()`` value) is when the stage began, for ``wall_time_s``; the folder's
-    creation by default.
+
+    Parameters
+    ----------
+    stage : str
+        Stage name.
+    name : str
+        The config's ``name``: the folder's prefix and the MCAP's ``config_name``.
+    config_yaml : str
+        The resolved config.
+    seed : object
+        The config's seed (MCAP metadata).
+    frame : str
+        The world frame's name (MCAP metadata).
+    out, runs_root : Path
+        The folder (see :func:`create_run_dir`).
+    started : float, optional
+        A ``time.perf_counter()`` value: when the stage began, for ``wall_time_s`` (default: the folder's creation).
+
+    Yields
+    ------
+    StageRun
     """
-    run = StageRun(stage, create_run_dir(name, out=out, runs_root=runs_root), started)
+    run = StageRun(stage, create_run_dir(name, out=out, runs_root=runs_root), started, config_yaml=config_yaml,
+                   seed=seed, config_name=name, frame=frame)
     write_text_atomic(run.file("config", "config.yaml"), config_yaml)
     try:
         yield run

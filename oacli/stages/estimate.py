@@ -22,77 +22,24 @@ from typing import Any
 import numpy as np
 import yaml
 
-from oacli import __version__
-from oacli.config import OacliConfig, dump_config
+from oacli.config import OacliConfig
 from oacli.errors import InfeasibleError, InputError
 from oacli.estimation.batch import BatchResult, estimate_batch_windows
 from oacli.estimation.bounds import CramerRaoBound, cramer_rao_bound, describe_unobservable, unobservable_parameters
 from oacli.estimation.gating import chi2_threshold
-from oacli.estimation.models import EstimatorSettings, Measurement, MeasurementModel, ProcessNoise
+from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.preprocessing import measurements_from_telemetry
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.information import PARAM_NAMES
+from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_telemetry
-from oacli.io.rerun_estimate import write_estimate_recording
-from oacli.io.runfolder import git_commit, open_stage_run
-from oacli.model.rigid_body import theta_of
-from oacli.stages.track import StageResult
-from oacli.status import StatusReport
+from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
+from oacli.io.runfolder import StageResult
+from oacli.stages.settings import estimation_prior, estimator_settings, open_run
+from oacli.status import StatusReport, status_log
 from oacli.types import ParameterEstimate
 
 LogEntry = tuple[float, str, str]
-
-TOPIC_PARAMS = "/estimate/params"
-TOPIC_SAMPLES = "/estimate/samples"
-TOPIC_COST = "/estimate/cost"
-TOPIC_STATE = "/state/estimated"
-
-PARAMETER_ESTIMATE = "oacli.ParameterEstimate"
-ESTIMATION_SAMPLE = "oacli.EstimationSample"
-ESTIMATION_COST = "oacli.EstimationCost"
-
-_NUM = {"type": "number"}
-_TIME = {"type": "number", "minimum": 0, "description": "mission time [s]"}
-PARAMETER_ESTIMATE_SCHEMA = {
-    "description": "Estimate of the inertial parameters θ = [m, Ixx, Iyy, Izz] from the records up to t "
-    "(Doerr 2021 Eqs. 31-32).",
-    "type": "object",
-    "properties": {
-        "t": {**_TIME, "description": "time of the last record used [s]"},
-        "method": {"type": "string", "description": "batch or sequential"},
-        "mass_kg": {**_NUM, "description": "mass estimate [kg]"},
-        "inertia_kgm2": {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3,
-                         "description": "principal inertias Ixx, Iyy, Izz [kg·m²]"},
-        "covariance": {"type": "array", "items": {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4},
-                       "minItems": 4, "maxItems": 4,
-                       "description": "covariance of [m, Ixx, Iyy, Izz] [kg², kg²·m², (kg·m²)²]"},
-        "std": {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4,
-                "description": "standard deviations sqrt(diag covariance) [kg, kg·m² ×3]"},
-        "samples_used": {"type": "integer", "description": "records used"},
-        "samples_rejected": {"type": "integer", "description": "records rejected (χ² gate, late, duplicate)"},
-        "final": {"type": "boolean", "description": "true for the estimate from all records"},
-    },
-    "required": ["t", "method", "mass_kg", "inertia_kgm2", "covariance", "std", "samples_used", "samples_rejected"],
-}
-ESTIMATION_SAMPLE_SCHEMA = {
-    "description": "What the estimator did with one telemetry record.",
-    "type": "object",
-    "properties": {
-        "t": _TIME,
-        "status": {"type": "string", "description": "accepted, rejected (χ² gate), initialised, reinitialised, late"},
-        "d2": {"type": ["number", "null"], "description": "normalised residual or innovation squared"},
-        "dof": {"type": "integer", "description": "degrees of freedom of d2"},
-        "gate": {"type": ["number", "null"], "description": "χ² threshold (null: no gate)"},
-    },
-    "required": ["t", "status", "d2", "dof", "gate"],
-}
-ESTIMATION_COST_SCHEMA = {
-    "description": "Batch solver: cost ‖b‖² after each accepted Gauss-Newton iteration of the final solve.",
-    "type": "object",
-    "properties": {"t": _TIME, "iteration": {"type": "integer"}, "cost": _NUM},
-    "required": ["t", "iteration", "cost"],
-}
-
 
 @dataclass(frozen=True)
 class EstimationRun:
@@ -139,34 +86,6 @@ class EstimationRun:
     batch: BatchResult | None
     reinitialisations: int
     solve_time_s: float
-
-
-def estimator_settings(cfg: OacliConfig) -> EstimatorSettings:
-    """The core estimators' settings from the config's ``estimation`` section."""
-    est = cfg.estimation
-    noise = est.measurement_noise
-    return EstimatorSettings(
-        measurement=MeasurementModel(
-            position_std_m=noise.position_std_m,
-            velocity_std_mps=noise.velocity_std_mps,
-            attitude_std_rad=noise.attitude_std_rad,
-            angular_velocity_std_radps=noise.angular_velocity_std_radps,
-            linear_acceleration_std_mps2=noise.linear_acceleration_std_mps2,
-        ),
-        process=ProcessNoise(est.process_noise.force_std_N, est.process_noise.torque_std_Nm),
-        substep_s=est.substep_s if est.substep_s is not None else cfg.simulation.plant_period_s,
-        gate_probability=est.gate_probability,
-        max_iterations=est.max_iterations,
-        tolerance=est.tolerance,
-        max_gating_rounds=est.max_gating_rounds,
-        reorder_window=est.reorder_window,
-    )
-
-
-def prior_from_config(cfg: OacliConfig) -> ParameterEstimate:
-    """``N(θ₀, P₀)`` of the config (mean defaults to the robot model)."""
-    est = cfg.estimation
-    return ParameterEstimate(0.0, est.prior_theta(theta_of(cfg.robot_params())), est.prior_covariance(), "prior")
 
 
 def truth_from_config_yaml(text: str | None) -> np.ndarray | None:
@@ -360,7 +279,7 @@ def run_estimate(
     if len(records) < 2:
         raise InputError(f"{telemetry}: {len(records)} control step(s); estimation needs at least 2")
     settings = estimator_settings(cfg)
-    prior = prior_from_config(cfg)
+    prior = estimation_prior(cfg)
     run = run_estimation(records, settings, prior, method, use_prior=cfg.estimation.use_prior,
                          window_s=cfg.estimation.window_s, progress=progress)
     limit = cfg.estimation.max_relative_std
@@ -385,33 +304,21 @@ def run_estimate(
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
     summary = _estimate_summary(run, prior, truth, telemetry)
-    log.extend((float(run.t_records[-1]), "warning", f"status {r['level']}: {r['message']}")
-               for r in summary["status_reasons"])
+    log.extend(status_log(summary, float(run.t_records[-1])))  # estimate findings are never unsafe
 
-    config_yaml = dump_config(cfg)
-    with open_stage_run(
-        "estimate", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start
-    ) as run_folder:
-        run_dir, files = run_folder.run_dir, run_folder.files
-        _write_estimate_mcap(run_folder.file("mcap", "estimate.mcap"), cfg, config_yaml, run, telemetry, log)
-        write_estimate_recording(
-            run_folder.file("rrd", "estimate.rrd"),
-            t_est=np.array([e.t for e in run.history]),
-            theta=np.array([e.theta for e in run.history]),
-            std=np.array([e.std for e in run.history]),
-            truth=truth,
-            crb_std=run.bound.std,
-            t_records=run.t_records,
-            d2=run.d2,
-            gate_threshold=run.gate_threshold,
-            rejected=np.array([s not in ("accepted", "initialised") for s in run.status]),
-            measured_positions=run.measured[:, 0:3],
-            estimated_positions=run.states[:, 0:3],
-            log=log,
-            recording_name=f"{cfg.name}/estimate",
+    with open_run("estimate", cfg, out=out, runs_root=runs_root, started=wall_start) as run_folder:
+        with run_folder.open_mcap(method=run.method, telemetry=str(telemetry)) as writer:
+            write_estimate_topics(writer, run, log)
+        per_record = EstimationRecords(
+            run.t_records, run.d2, run.gate_threshold,
+            np.array([s not in ("accepted", "initialised") for s in run.status]), run.measured[:, 0:3],
+            run.states[:, 0:3],
         )
-        run_folder.finish(summary)
-    return StageResult(run_dir, summary, files)
+        write_estimate_recording(
+            run_folder.file("rrd", "estimate.rrd"), estimates=run.history, truth=truth, crb_std=run.bound.std,
+            records=per_record, log=log, recording_name=f"{cfg.name}/estimate",
+        )
+        return run_folder.finish(summary)
 
 
 def _params_record(estimate: ParameterEstimate, final: bool) -> dict[str, Any]:
@@ -427,25 +334,31 @@ def _params_record(estimate: ParameterEstimate, final: bool) -> dict[str, Any]:
     }
 
 
-def _write_estimate_mcap(
-    path: Path, cfg: OacliConfig, config_yaml: str, run: EstimationRun, telemetry: Path, log: list[LogEntry]
-) -> None:
-    metadata = {"stage": "estimate", "seed": cfg.seed, "git_commit": git_commit(), "version": __version__,
-                "config_name": cfg.name, "method": run.method, "telemetry": str(telemetry)}
+def write_estimate_topics(writer: StageMcapWriter, run: EstimationRun, log: list[LogEntry]) -> None:
+    """Write an estimation's topics (``docs/mcap.md``, stage ``estimate``) to its MCAP.
+
+    Parameters
+    ----------
+    writer : StageMcapWriter
+        The open writer.
+    run : EstimationRun
+        The estimation.
+    log : list of (float, str, str)
+        The stage's log.
+    """
     gate = run.gate_threshold if np.isfinite(run.gate_threshold) else None
-    with StageMcapWriter(path, stage="estimate", config_yaml=config_yaml, metadata=metadata,
-                         frame=cfg.environment.frame) as writer:
-        for i, est in enumerate(run.history):
-            writer.write_json(TOPIC_PARAMS, PARAMETER_ESTIMATE, PARAMETER_ESTIMATE_SCHEMA, est.t,
-                              _params_record(est, final=i == len(run.history) - 1))
-        for t, status, d2 in zip(run.t_records, run.status, run.d2, strict=True):
-            writer.write_json(TOPIC_SAMPLES, ESTIMATION_SAMPLE, ESTIMATION_SAMPLE_SCHEMA, float(t),
-                              {"status": status, "d2": float(d2), "dof": int(run.dof), "gate": gate})
-        if run.batch is not None:
-            for i, cost in enumerate(run.batch.cost_history):
-                writer.write_json(TOPIC_COST, ESTIMATION_COST, ESTIMATION_COST_SCHEMA, float(run.t_records[-1]),
-                                  {"iteration": i, "cost": float(cost)})
-        writer.write_states(TOPIC_STATE, run.t_records, run.states, run.inputs, name="estimated")
-        writer.write_poses(run.t_records, run.states)
-        for t, level, message in log:
-            writer.write_log(t, level, message)
+    for i, est in enumerate(run.history):
+        writer.write_json(ms.TOPIC_ESTIMATE_PARAMS, ms.PARAMETER_ESTIMATE, ms.PARAMETER_ESTIMATE_SCHEMA, est.t,
+                          _params_record(est, final=i == len(run.history) - 1))
+    for t, status, d2 in zip(run.t_records, run.status, run.d2, strict=True):
+        writer.write_json(ms.TOPIC_ESTIMATE_SAMPLES, ms.ESTIMATION_SAMPLE, ms.ESTIMATION_SAMPLE_SCHEMA, float(t),
+                          {"status": status, "d2": float(d2), "dof": int(run.dof), "gate": gate})
+    if run.batch is not None:
+        t_end = float(run.t_records[-1])
+        for i, cost in enumerate(run.batch.cost_history):
+            writer.write_json(ms.TOPIC_ESTIMATE_COST, ms.ESTIMATION_COST, ms.ESTIMATION_COST_SCHEMA, t_end,
+                              {"iteration": i, "cost": float(cost)})
+    writer.write_states(ms.TOPIC_STATE_ESTIMATED, run.t_records, run.states, run.inputs, name="estimated")
+    writer.write_poses(run.t_records, run.states)
+    for t, level, message in log:
+        writer.write_log(t, level, message)

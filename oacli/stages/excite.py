@@ -10,7 +10,7 @@ Two methods (``excitation.method`` or ``--method``):
   sequential``, configured by the ``estimation`` section), or the Cramér-Rao oracle
   (:class:`oacli.excitation.oracle.CramerRaoOracle`, ``oracle``), named so in every output.
 
-Both design within the limits of :func:`oacli.stages.design_limits.excitation_design_limits`: the robot's with
+Both design within the limits of :func:`oacli.stages.settings.excitation_design_limits`: the robot's with
 ``excitation.margin`` (the force also × m_prior/m_upper, Doerr Eq. 28), capped by ``excitation.limits`` (RATTLE:
 ``excitation.rattle.limits`` over them); a cap above the robot's is refused (exit 2) or clipped with a warning. In
 RATTLE's closed loop the feedback may use the actuator's full limits and a rate governor keeps the body rate within
@@ -30,90 +30,45 @@ from typing import Any
 
 import numpy as np
 
-from oacli import __version__
-from oacli.config import OacliConfig, dump_config
+from oacli.config import OacliConfig
 from oacli.config.models import Pose
 from oacli.errors import ConfigError, InfeasibleError, InputError
 from oacli.estimation.online import OnlineSequentialEstimator
 from oacli.estimation.sequential import SequentialEstimator
-from oacli.excitation.design import (
-    ExcitationDesign,
-    ExcitationProblem,
-    ScpSettings,
-    design_excitation,
-)
+from oacli.excitation.design import ExcitationDesign, ExcitationProblem, design_excitation
 from oacli.excitation.fim_gradient import criterion_value, scaling_matrix
 from oacli.excitation.information import PARAM_NAMES, MeasurementModel, cramer_rao_std
 from oacli.excitation.oracle import CramerRaoOracle
-from oacli.excitation.problem import MotionLimits, TerminalTolerance
-from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, PlannerWeights
+from oacli.excitation.rattle import InformationAwarePlanner
 from oacli.excitation.rattle_loop import RattleRun, run_rattle
 from oacli.geometry import Scene
+from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
-from oacli.io.rerun_excite import write_excite_recording
-from oacli.io.runfolder import git_commit, open_stage_run
+from oacli.io.rerun.excite import InformationSeries, RattleSteps, ScpSteps, write_excite_recording
+from oacli.io.runfolder import StageResult, StageRun
 from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.reference_limits import DesignLimits
-from oacli.sim.sensors import Disturbance, SensorNoise
-from oacli.stages.design_limits import excitation_design_limits
-from oacli.stages.estimate import estimator_settings
-from oacli.stages.track import StageResult
-from oacli.status import StatusReport, add_safety_reasons
+from oacli.stages.settings import (
+    design_limit_log,
+    estimator_settings,
+    excitation_design_limits,
+    information_weighting,
+    measurement_model,
+    open_run,
+    plant_disturbance,
+    prior_theta,
+    rattle_planner_weights,
+    robot_limit_set,
+    scp_settings,
+    sensor_noise,
+    terminal_tolerance,
+    to_motion_limits,
+)
+from oacli.status import StatusReport, add_safety_reasons, status_log
 from oacli.trajectory import sample_states
 from oacli.types import ParameterEstimate, Trajectory
 
 LogEntry = tuple[float, str, str]
-
-ITERATION_TOPIC = "/excitation/iterations"
-ITERATION_SCHEMA_NAME = "oacli.ScpIteration"
-ITERATION_SCHEMA: dict[str, Any] = {
-    "description": "One sequential convex programming iteration of the excitation design (t is always 0).",
-    "properties": {
-        "t": {"type": "number", "description": "0 (iterations are not in mission time) [s]"},
-        "iteration": {"type": "integer", "description": "iteration number, from 1"},
-        "criterion": {"type": ["number", "null"], "description": "criterion of the design after the iteration"},
-        "merit": {"type": ["number", "null"], "description": "merit J/J_ref + μ V after the iteration"},
-        "violation": {"type": ["number", "null"], "description": "normalised constraint violation after it"},
-        "candidate_criterion": {"type": ["number", "null"], "description": "criterion at the trial point"},
-        "candidate_merit": {"type": ["number", "null"], "description": "merit at the trial point"},
-        "predicted_merit": {"type": ["number", "null"], "description": "convex model's merit at the trial point"},
-        "ratio": {"type": ["number", "null"], "description": "actual / predicted merit decrease"},
-        "trust_region_force": {"type": "number", "description": "trust region, fraction of the force limit"},
-        "trust_region_torque": {"type": "number", "description": "trust region, fraction of the torque limit"},
-        "accepted": {"type": "boolean", "description": "the trial point became the design"},
-        "status": {"type": "string", "description": "solver status of the subproblem"},
-        "solve_time_ms": {"type": "number", "description": "subproblem solve time [ms]"},
-    },
-}
-INFORMATION_TOPIC = "/excitation/information"
-INFORMATION_SCHEMA_NAME = "oacli.Information"
-INFORMATION_SCHEMA: dict[str, Any] = {
-    "description": "Cumulative Fisher information of the measurements up to t, and its Cramér-Rao bound.",
-    "properties": {
-        "t": {"type": "number", "description": "mission time [s]"},
-        "parameters": {"type": "array", "items": {"type": "string"}, "description": "θ names"},
-        "information": {"type": "array", "description": "Fisher information F (4x4) [1/unit²]"},
-        "crb_std": {"type": "array", "description": "sqrt(diag F⁻¹), null where unidentifiable [kg, kg·m²]"},
-    },
-}
-REPLAN_TOPIC = "/excitation/replans"
-REPLAN_SCHEMA_NAME = "oacli.Replan"
-REPLAN_SCHEMA: dict[str, Any] = {
-    "description": "One replan of the RATTLE information-aware planner.",
-    "properties": {
-        "t": {"type": "number", "description": "mission time [s]"},
-        "theta": {"type": "array", "description": "estimate used as the model [kg, kg·m²]"},
-        "std": {"type": "array", "description": "its standard deviations [kg, kg·m²]"},
-        "gamma": {"type": "array", "description": "information weights from the decay rule"},
-        "cost": {"type": "number", "description": "true cost of the plan"},
-        "information_reward": {"type": "number", "description": "Σ γ_i ½ log(1 + F_ii σ_i²) of the plan"},
-        "accepted_iterations": {"type": "integer", "description": "SCP steps kept"},
-        "solve_time_ms": {"type": "number", "description": "wall time of the replan [ms]"},
-        "status": {"type": "string", "description": "last solver status"},
-        "estimator": {"type": "string", "description": "method of the estimate"},
-    },
-}
-
 
 # ----------------------------------------------------------------------------------------------------------------
 # Config -> problem
@@ -133,31 +88,6 @@ def _resolve_pose(cfg: OacliConfig, ref: str | Pose | None, field: str) -> Pose:
     return ref
 
 
-def to_motion_limits(limits: DesignLimits) -> MotionLimits:
-    """The design limits as the excitation core's :class:`~oacli.excitation.problem.MotionLimits`."""
-    lim = limits.limits
-    return MotionLimits(lim.force_N, lim.torque_Nm, lim.velocity_mps, lim.angular_velocity_radps)
-
-
-def motion_limits(cfg: OacliConfig, *, rattle: bool = False) -> MotionLimits:
-    """The limits the offline design (or, with ``rattle``, the RATTLE planner) must respect: the robot's with
-    ``excitation.margin`` and the section caps (:func:`oacli.stages.design_limits.excitation_design_limits`)."""
-    return to_motion_limits(excitation_design_limits(cfg, rattle=rattle))
-
-
-def measurement_model(cfg: OacliConfig) -> MeasurementModel:
-    """The FIM's measurement model from ``excitation.measurement``."""
-    return MeasurementModel(**cfg.excitation.measurement.model_dump())
-
-
-def prior_theta(cfg: OacliConfig) -> np.ndarray:
-    """Prior θ = [m, Ixx, Iyy, Izz]: ``excitation.prior`` where given, else the robot model."""
-    prior = cfg.excitation.prior
-    mass = prior.mass_kg if prior.mass_kg is not None else cfg.robot.mass_kg
-    inertia = prior.inertia_kgm2 if prior.inertia_kgm2 is not None else cfg.robot.inertia_kgm2
-    return np.array([mass, *inertia], dtype=float)
-
-
 def _describe(p: np.ndarray) -> str:
     return "(" + ", ".join(f"{v:.4g}" for v in p) + ")"
 
@@ -175,7 +105,7 @@ def check_pose_in_workspace(label: str, position: np.ndarray, scene: Scene) -> N
 
 def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> ExcitationProblem:
     """The offline design problem the config describes (start and goal checked against the workspace), within
-    ``limits`` (default: :func:`~oacli.stages.design_limits.excitation_design_limits`)."""
+    ``limits`` (default: :func:`~oacli.stages.settings.excitation_design_limits`)."""
     exc = cfg.excitation
     if limits is None:
         limits = excitation_design_limits(cfg)
@@ -186,7 +116,6 @@ def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> 
     check_pose_in_workspace("goal", goal[0:3], scene)
     theta = prior_theta(cfg)
     prior_info = np.linalg.inv(exc.prior.covariance()) if exc.use_prior_information else None
-    tol = exc.terminal_tolerance
     return ExcitationProblem(
         start=start,
         goal=goal,
@@ -200,32 +129,12 @@ def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> 
         scaling=exc.parameter_scaling,
         prior_information=prior_info,
         clearance_m=exc.clearance_m,
-        terminal=TerminalTolerance(tol.position_m, tol.velocity_mps, tol.attitude_rad, tol.angular_velocity_radps),
-    )
-
-
-def scp_settings(cfg: OacliConfig) -> ScpSettings:
-    """SCP settings from ``excitation.scp``."""
-    s = cfg.excitation.scp
-    return ScpSettings(
-        max_iterations=s.max_iterations,
-        trust_region_initial=s.trust_region_initial,
-        trust_region_min=s.trust_region_min,
-        trust_region_max=s.trust_region_max,
-        penalty=s.penalty,
-        tolerance=s.tolerance,
-        starts=s.starts,
-        screening_iterations=s.screening_iterations,
+        terminal=terminal_tolerance(cfg),
     )
 
 
 def _named(values: np.ndarray) -> dict[str, float]:
     return {name: float(v) for name, v in zip(PARAM_NAMES, values, strict=True)}
-
-
-def _limit_log(limits: DesignLimits) -> list[LogEntry]:
-    """Log entries stating the design limits and every clipped section limit (a warning each)."""
-    return [(0.0, "info", limits.describe()), *((0.0, "warning", note) for note in limits.notes)]
 
 
 def within_design_limits(x: np.ndarray, u: np.ndarray, limits: DesignLimits) -> bool:
@@ -299,15 +208,10 @@ def run_excite(
     return _run_rattle(cfg, out=out, runs_root=runs_root, progress=progress)
 
 
-def _metadata(cfg: OacliConfig, method: str) -> dict[str, Any]:
-    return {"stage": "excite", "method": method, "seed": cfg.seed, "git_commit": git_commit(),
-            "version": __version__, "config_name": cfg.name}
-
-
 def _information_records(writer: StageMcapWriter, t: np.ndarray, info: np.ndarray, theta: np.ndarray) -> np.ndarray:
     crb = np.array([cramer_rao_std(f, theta) if np.any(f) else np.full(4, np.inf) for f in info])
     for tk, fk, ck in zip(t, info, crb, strict=True):
-        writer.write_json(INFORMATION_TOPIC, INFORMATION_SCHEMA_NAME, INFORMATION_SCHEMA, float(tk),
+        writer.write_json(ms.TOPIC_EXCITATION_INFORMATION, ms.INFORMATION, ms.INFORMATION_SCHEMA, float(tk),
                           {"parameters": list(PARAM_NAMES), "information": fk, "crb_std": ck})
     return crb
 
@@ -325,7 +229,7 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
                       f"({problem.scaling}), {len(design.iterations)} SCP iterations ({design.accepted_iterations} "
                       f"accepted), stop: {design.stop_reason}"),
         (0.0, "info", f"criterion {design.criterion_initial:.6g} -> {design.criterion_final:.6g}"),
-        *_limit_log(limits),
+        *design_limit_log(limits),
     ]
     traj = design.trajectory
     x, u = traj.x, traj.u
@@ -360,39 +264,59 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     }
     offline_findings(summary, problem).apply(summary)
     log.extend(status_log(summary))
-    config_yaml = dump_config(cfg)
-    with open_stage_run("excite", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall) as run:
-        run_dir, files = run.run_dir, run.files
-        with StageMcapWriter(run.file("mcap", "excite.mcap"), stage="excite", config_yaml=config_yaml,
-                             metadata=_metadata(cfg, "offline"),
-                             frame=cfg.environment.frame) as writer:
-            writer.write_scene(problem.scene, {"excitation": x[:, 0:3], "initial_guess": design.initial.x[:, 0:3]})
-            writer.write_trajectory("/trajectory", Trajectory(traj.t, x, u, name="excitation",
-                                                              frame=cfg.environment.frame))
-            writer.write_poses(traj.t, x)
-            for it in design.iterations:
-                writer.write_json(ITERATION_TOPIC, ITERATION_SCHEMA_NAME, ITERATION_SCHEMA, 0.0, {
-                    "iteration": it.iteration, "criterion": it.criterion, "merit": it.merit,
-                    "violation": it.violation, "candidate_criterion": it.candidate_criterion,
-                    "candidate_merit": it.candidate_merit, "predicted_merit": it.predicted_merit,
-                    "ratio": it.ratio, "trust_region_force": it.trust_region_force,
-                    "trust_region_torque": it.trust_region_torque, "accepted": it.accepted, "status": it.status,
-                    "solve_time_ms": 1e3 * it.solve_time_s,
-                })
-            crb = _information_records(writer, traj.t, design.information_over_time, problem.theta)
-            for t, level, message in log:
-                writer.write_log(t, level, message)
+    with open_run("excite", cfg, out=out, runs_root=runs_root, started=wall) as run:
+        with run.open_mcap(method="offline") as writer:
+            crb = write_offline_topics(writer, problem, design, log, cfg.environment.frame)
+        scp = ScpSteps(np.array([it.criterion for it in design.iterations]),
+                       np.array([it.candidate_criterion for it in design.iterations]), design.initial.x[:, 0:3])
         write_excite_recording(
-            run.file("rrd", "excite.rrd"), scene=problem.scene, t=traj.t, x=x, u=u, theta=problem.theta,
-            information=design.information_over_time, crb_std=crb,
-            force_limit_N=problem.limits.force_N, torque_limit_Nm=problem.limits.torque_Nm,
-            angular_velocity_limit_radps=problem.limits.angular_velocity_radps,
-            criterion=np.array([it.criterion for it in design.iterations]),
-            candidate_criterion=np.array([it.candidate_criterion for it in design.iterations]),
-            initial_positions=design.initial.x[:, 0:3], log=log, recording_name=f"{cfg.name}/excite",
+            run.file("rrd", "excite.rrd"), scene=problem.scene, trajectory=traj,
+            information=InformationSeries(problem.theta, design.information_over_time, crb), limits=problem.limits,
+            scp=scp, log=log, recording_name=f"{cfg.name}/excite",
         )
-        run.finish(summary)
-    return StageResult(run_dir, summary, files)
+        return run.finish(summary)
+
+
+def write_offline_topics(writer: StageMcapWriter, problem: ExcitationProblem, design: ExcitationDesign,
+                         log: list[LogEntry], frame: str) -> np.ndarray:
+    """Write the offline design's topics (module docstring) to its MCAP.
+
+    Parameters
+    ----------
+    writer : StageMcapWriter
+        The open writer.
+    problem : ExcitationProblem
+        The design problem.
+    design : ExcitationDesign
+        Its solution and the SCP's record.
+    log : list of (float, str, str)
+        The stage's log.
+    frame : str
+        The world frame's name.
+
+    Returns
+    -------
+    ndarray, shape (N, 4)
+        The Cramér-Rao standard deviation at each sample of the design (``inf`` where unidentifiable).
+    """
+    traj = design.trajectory
+    x, u = traj.x, traj.u
+    writer.write_scene(problem.scene, {"excitation": x[:, 0:3], "initial_guess": design.initial.x[:, 0:3]})
+    writer.write_trajectory("/trajectory", Trajectory(traj.t, x, u, name="excitation", frame=frame))
+    writer.write_poses(traj.t, x)
+    for it in design.iterations:
+        writer.write_json(ms.TOPIC_EXCITATION_ITERATIONS, ms.SCP_ITERATION, ms.SCP_ITERATION_SCHEMA, 0.0, {
+            "iteration": it.iteration, "criterion": it.criterion, "merit": it.merit,
+            "violation": it.violation, "candidate_criterion": it.candidate_criterion,
+            "candidate_merit": it.candidate_merit, "predicted_merit": it.predicted_merit,
+            "ratio": it.ratio, "trust_region_force": it.trust_region_force,
+            "trust_region_torque": it.trust_region_torque, "accepted": it.accepted, "status": it.status,
+            "solve_time_ms": 1e3 * it.solve_time_s,
+        })
+    crb = _information_records(writer, traj.t, design.information_over_time, problem.theta)
+    for t, level, message in log:
+        writer.write_log(t, level, message)
+    return crb
 
 
 def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
@@ -404,15 +328,13 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     problem = excitation_problem(cfg, design_lim)  # start, goal, workspace checks, measurement model
     limits = to_motion_limits(design_lim)
     actuator = cfg.robot.input_limits  # the plant's actuators: the feedback may use what the plan leaves
-    w = rcfg.weights
     planner = InformationAwarePlanner(
         problem.goal, horizon=rcfg.horizon, dt_s=rcfg.step_s, limits=limits, measurement=problem.measurement,
-        scene=problem.scene, weights=PlannerWeights(w.position, w.velocity, w.attitude, w.angular_velocity, w.force,
-                                                    w.torque, w.terminal),
+        scene=problem.scene, weights=rattle_planner_weights(cfg),
         iterations=rcfg.iterations, penalty=rcfg.penalty, clearance_m=exc.clearance_m,
         stop_speed_fraction=rcfg.stop_speed_fraction,
     )
-    weighting = InformationWeighting(np.array(rcfg.gamma0), np.array(rcfg.floor), rcfg.alpha, rcfg.beta)
+    weighting = information_weighting(cfg)
     prior_cov = exc.prior.covariance()
     truth = cfg.truth_params()
     theta_true = np.array([truth.mass_kg, *truth.inertia_kgm2])
@@ -424,24 +346,20 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         prior = ParameterEstimate(0.0, prior_theta(cfg), prior_cov, "prior")
         estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior))
     cw = cfg.controller.weights
-    dist = cfg.truth.disturbance
 
-    config_yaml = dump_config(cfg)
-    with open_stage_run("excite", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall) as stage_run:
-        run_dir, files = stage_run.run_dir, stage_run.files
+    with open_run("excite", cfg, out=out, runs_root=runs_root, started=wall) as stage_run:
         run = run_rattle(
             planner, estimator, weighting, problem.start, truth,
             duration_s=rcfg.duration_s, replan_period_s=rcfg.replan_period_s,
             control_period_s=cfg.controller.period_s, plant_period_s=cfg.simulation.plant_period_s,
             input_limits=actuator, feedback_q=cw.state_weights(), feedback_r=cw.input_weights(),
-            sensors=SensorNoise(**cfg.sensors.model_dump()), disturbance=Disturbance(dist.bias, dist.random_bound),
+            sensors=sensor_noise(cfg), disturbance=plant_disturbance(cfg),
             rng=np.random.default_rng(cfg.seed), progress=progress,
             rate_limit_radps=np.asarray(cfg.robot.angular_velocity_limit_radps),
         )
         summary, traj, log = _rattle_summary(cfg, problem, design_lim, run, prior_cov, theta_true)
-        _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, run, traj, log, prior_cov, theta_true)
-        stage_run.finish(summary)
-    return StageResult(run_dir, summary, files)
+        _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true)
+        return stage_run.finish(summary)
 
 
 def _flown_trajectory(run: RattleRun, frame: str) -> Trajectory:
@@ -481,7 +399,7 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
             else "error-state EKF with χ² gating")
     crb = final.std if final.method == "oracle-crb" else _flown_crb(tel, theta_true, prior_cov, problem.measurement)
     log.insert(0, (0.0, "info", f"RATTLE closed loop, estimator: {final.method} ({what})"))
-    log[1:1] = _limit_log(design_lim)
+    log[1:1] = design_limit_log(design_lim)
     robot = cfg.robot
     peak_rate = float(np.max(np.abs(tel.x_true[:, 10:13])))
     peak_speed = float(np.max(np.abs(tel.x_true[:, 3:6])))
@@ -591,14 +509,8 @@ def rattle_findings(summary: dict[str, Any], problem: ExcitationProblem, run: Ra
     return report
 
 
-def status_log(summary: dict[str, Any], t: float = 0.0) -> list[LogEntry]:
-    """One log line per finding of the status."""
-    return [(t, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
-            for r in summary["status_reasons"]]
-
-
-def _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, run: RattleRun, traj, log, prior_cov,
-                          theta_true) -> None:
+def _write_rattle_outputs(stage_run: StageRun, cfg: OacliConfig, problem: ExcitationProblem, run: RattleRun,
+                          traj: Trajectory, log: list[LogEntry], prior_cov: np.ndarray, theta_true: np.ndarray) -> None:
     tel = run.telemetry
     est_t = np.array([0.0] + [e.t for e in run.estimates])
     prior_info = np.linalg.inv(prior_cov)
@@ -607,16 +519,14 @@ def _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, run: Rattle
     # The flown trajectory's samples are the control instants (plus the end): information at the same instants.
     idx = np.clip(np.searchsorted(est_t, traj.t + 1e-9) - 1, 0, len(est_t) - 1)
     info_traj = info[idx]
-    files["mcap"] = run_dir / "excite.mcap"
-    with StageMcapWriter(files["mcap"], stage="excite", config_yaml=config_yaml, metadata=_metadata(cfg, "rattle"),
-                         frame=cfg.environment.frame) as writer:
+    with stage_run.open_mcap(method="rattle") as writer:
         plans = {f"plan_{i}": r.plan.trajectory.x[:, 0:3] for i, r in enumerate(run.replans)}
         writer.write_scene(problem.scene, {"flown": tel.x_true[:, 0:3], **plans})
         writer.write_trajectory("/trajectory", traj)
         writer.write_states("/state/true", tel.t_true, tel.x_true)
         writer.write_poses(tel.t_true, tel.x_true)
         for r in run.replans:
-            writer.write_json(REPLAN_TOPIC, REPLAN_SCHEMA_NAME, REPLAN_SCHEMA, r.t, {
+            writer.write_json(ms.TOPIC_EXCITATION_REPLANS, ms.REPLAN, ms.REPLAN_SCHEMA, r.t, {
                 "theta": r.theta, "std": r.std, "gamma": r.gamma, "cost": r.plan.cost,
                 "information_reward": r.plan.information_reward, "accepted_iterations": r.plan.accepted,
                 "solve_time_ms": 1e3 * r.plan.solve_time_s, "status": r.plan.status,
@@ -627,13 +537,10 @@ def _write_rattle_outputs(cfg, run_dir, files, config_yaml, problem, run: Rattle
             writer.write_log(t, level, message)
     # The recording shows the posterior std (prior included) over time, as the planner saw it.
     post_std = np.array([np.sqrt(np.diag(np.linalg.inv(prior_info + f))) for f in info_traj])
-    files["rrd"] = run_dir / "excite.rrd"
+    rattle = RattleSteps([(r.t, r.plan.trajectory.x[:, 0:3]) for r in run.replans],
+                         np.array([r.t for r in run.replans]), np.array([r.gamma for r in run.replans]))
     write_excite_recording(
-        files["rrd"], scene=problem.scene, t=traj.t, x=traj.x, u=traj.u, theta=theta_true, information=info_traj,
-        crb_std=post_std, force_limit_N=np.asarray(cfg.robot.force_limit_N),
-        torque_limit_Nm=np.asarray(cfg.robot.torque_limit_Nm),
-        angular_velocity_limit_radps=np.asarray(cfg.robot.angular_velocity_limit_radps),
-        plans=[(r.t, r.plan.trajectory.x[:, 0:3]) for r in run.replans],
-        gamma=(np.array([r.t for r in run.replans]), np.array([r.gamma for r in run.replans])),
-        log=log, recording_name=f"{cfg.name}/excite",
+        stage_run.file("rrd", "excite.rrd"), scene=problem.scene, trajectory=traj,
+        information=InformationSeries(theta_true, info_traj, post_std), limits=robot_limit_set(cfg.robot),
+        rattle=rattle, log=log, recording_name=f"{cfg.name}/excite",
     )

@@ -24,27 +24,32 @@ from typing import Any
 
 import numpy as np
 
-from oacli import __version__
-from oacli.config import OacliConfig, dump_config
+from oacli.config import OacliConfig
 from oacli.errors import ConfigError, InfeasibleError
 from oacli.geometry import Scene
 from oacli.geometry.collision import CollisionChecker, RobotBody
 from oacli.geometry.verify import dense_check
+from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
-from oacli.io.rerun_plan import write_plan_recording
-from oacli.io.runfolder import git_commit, open_stage_run
-from oacli.model import quaternion as quat
+from oacli.io.rerun.plan import write_plan_recording
+from oacli.io.runfolder import StageResult
 from oacli.planning.full_state import full_state_trajectory, minimum_time_lower_bound_s, translational_part
-from oacli.planning.kino_rrt import KinoRrtSettings, plan_kino_rrt
-from oacli.planning.lqr_rrt_star import LqrRrtStarSettings, plan_lqr_rrt_star
+from oacli.planning.kino_rrt import plan_kino_rrt
+from oacli.planning.lqr_rrt_star import plan_lqr_rrt_star
 from oacli.planning.problem import PlanningProblem
 from oacli.planning.result import PlanResult
-from oacli.planning.translational import CostWeights, TranslationalTrajectory
+from oacli.planning.translational import TranslationalTrajectory
 from oacli.planning.tree import EDGE_LQR, EDGE_PRIMITIVE
-from oacli.reference_limits import DesignLimits
-from oacli.stages.design_limits import planner_design_limits
-from oacli.stages.track import StageResult
-from oacli.status import NO_SOLUTION, OK, StatusReport, add_output_trajectory_reasons
+from oacli.stages.settings import (
+    cost_weights,
+    design_limit_log,
+    kino_rrt_settings,
+    lqr_rrt_star_settings,
+    open_run,
+    planner_design_limits,
+    robot_body,
+)
+from oacli.status import NO_SOLUTION, OK, StatusReport, add_output_trajectory_reasons, status_log
 from oacli.types import Trajectory
 
 LogEntry = tuple[float, str, str]
@@ -52,67 +57,6 @@ LogEntry = tuple[float, str, str]
 #: Stream keys of the per-stage random generators (``default_rng([seed, key])``).
 PLAN_STREAM = 0x504C414E  # "PLAN"
 SMOOTH_STREAM = 0x534D4F4F  # "SMOO"
-
-TREE_NODE = "oacli.PlanTreeNode"
-REWIRE = "oacli.PlanRewire"
-SOLUTION = "oacli.PlanSolution"
-
-_T = {"type": "number", "description": "0: planner records are not on the trajectory's time axis [s]"}
-_VEC3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
-
-TREE_NODE_SCHEMA: dict[str, Any] = {
-    "description": "One node of the planner's final tree and its incoming edge.",
-    "type": "object",
-    "properties": {
-        "t": _T,
-        "node": {"type": "integer", "description": "node index (0 = start)"},
-        "parent": {"type": "integer", "description": "parent index, -1 for the start"},
-        "iteration": {"type": "integer", "description": "iteration the node was added in"},
-        "wall_time_s": {"type": "number", "description": "planner wall time when the node was added [s]"},
-        "position": {**_VEC3, "description": "position r, world frame [m]"},
-        "velocity": {**_VEC3, "description": "velocity v, world frame [m/s]"},
-        "cost": {"type": "number", "description": "cost-to-come from the start [-]"},
-        "edge": {"type": "string", "description": "'root', 'lqr' (exact LQR connection) or 'primitive'"},
-        "edge_steps": {"type": "integer", "description": "horizon of an LQR edge [steps of steer_dt_s]"},
-        "edge_duration_s": {"type": "number", "description": "duration of the incoming edge [s]"},
-        "edge_force": {**_VEC3, "description": "held force of a primitive edge, world frame [N]"},
-        "in_path": {"type": "boolean", "description": "the node lies on the returned start-to-goal path"},
-        "goal": {"type": "boolean", "description": "the node is the goal"},
-    },
-    "required": ["t", "node", "parent", "position", "velocity", "cost", "edge"],
-}
-
-REWIRE_SCHEMA: dict[str, Any] = {
-    "description": "A rewiring of LQR-RRT*: node moved to a cheaper parent; its descendants' costs followed.",
-    "type": "object",
-    "properties": {
-        "t": _T,
-        "iteration": {"type": "integer"},
-        "node": {"type": "integer"},
-        "old_parent": {"type": "integer"},
-        "new_parent": {"type": "integer"},
-        "old_steps": {"type": "integer", "description": "old edge horizon [steps]"},
-        "new_steps": {"type": "integer", "description": "new edge horizon [steps]"},
-        "old_cost": {"type": "number", "description": "cost-to-come before [-]"},
-        "new_cost": {"type": "number", "description": "cost-to-come after [-]"},
-        "descendants_updated": {"type": "integer", "description": "nodes below whose cost changed too"},
-    },
-    "required": ["t", "iteration", "node", "old_parent", "new_parent", "old_cost", "new_cost"],
-}
-
-SOLUTION_SCHEMA: dict[str, Any] = {
-    "description": "The best start-to-goal solution improved (the first record is the first solution).",
-    "type": "object",
-    "properties": {
-        "t": _T,
-        "iteration": {"type": "integer"},
-        "wall_time_s": {"type": "number", "description": "planner wall time [s]"},
-        "cost": {"type": "number", "description": "cost of the best solution [-]"},
-        "nodes": {"type": "integer", "description": "tree size"},
-    },
-    "required": ["t", "iteration", "wall_time_s", "cost", "nodes"],
-}
-
 
 @dataclass(frozen=True)
 class Segment:
@@ -163,16 +107,6 @@ def resolve_segment(cfg: OacliConfig, segment: str | None) -> Segment:
     return Segment(text, a, b, cfg.waypoint(a).state(), cfg.waypoint(b).state())
 
 
-def robot_body(cfg: OacliConfig, q_start: np.ndarray, q_goal: np.ndarray) -> RobotBody:
-    """The robot's bounding ellipsoid for collision checks (see ``planner.robot_semi_axes_m``)."""
-    axes = cfg.planner.robot_semi_axes_m
-    if axes is None:
-        return RobotBody.sphere(cfg.robot.radius_m)
-    if float(quat.angle_between(np.asarray(q_start), np.asarray(q_goal))) < 1e-9:
-        return RobotBody.ellipsoid(np.asarray(axes), quat.to_rotation_matrix(np.asarray(q_start)))
-    return RobotBody.sphere(float(max(axes)))
-
-
 def describe_body(body: RobotBody) -> str:
     if body.is_point:
         return "the robot (a point)"
@@ -187,12 +121,6 @@ def check_endpoint(label: str, where: str, position: np.ndarray, checker: Collis
                               "(environment.keep_in)")
         raise ConfigError(f"{where}: {label} {_fmt_point(position)}: {describe_body(body)} overlaps keep-out zone "
                           f"environment.keep_out.{j} (safety factor included)")
-
-
-def cost_weights(cfg: OacliConfig) -> CostWeights:
-    """The planner's cost weights as :class:`~oacli.planning.translational.CostWeights`."""
-    w = cfg.planner.weights
-    return CostWeights(w.position, w.velocity, w.force, w.time)  # type: ignore[arg-type]
 
 
 def build_problem(cfg: OacliConfig, seg: Segment) -> tuple[PlanningProblem, RobotBody]:
@@ -216,27 +144,6 @@ def build_problem(cfg: OacliConfig, seg: Segment) -> tuple[PlanningProblem, Robo
     return problem, body
 
 
-def lqr_rrt_star_settings(cfg: OacliConfig) -> LqrRrtStarSettings:
-    p = cfg.planner
-    return LqrRrtStarSettings(
-        dt_s=p.steer_dt_s, metric_steps=p.steps(p.steer_horizon_s), max_steps=p.steps(p.max_connection_s),
-        max_iterations=p.max_iterations, time_budget_s=p.time_budget_s, anytime=p.anytime,
-        goal_bias=p.goal_bias, gamma=p.near_gamma, max_near=p.max_near,
-    )
-
-
-def kino_rrt_settings(cfg: OacliConfig) -> KinoRrtSettings:
-    p = cfg.planner
-    k = p.kino
-    return KinoRrtSettings(
-        primitive_fraction=k.primitive_fraction, primitive_dt_s=k.primitive_dt_s, primitive_set=k.primitive_set,
-        position_weight=k.position_weight, velocity_weight=k.velocity_weight,
-        goal_tolerance_m=p.goal_tolerance_m, goal_tolerance_mps=p.goal_tolerance_mps, dt_s=p.steer_dt_s,
-        max_link_steps=p.steps(p.max_connection_s), max_iterations=p.max_iterations,
-        time_budget_s=p.time_budget_s, goal_bias=k.goal_bias,
-    )
-
-
 def to_output(cfg: OacliConfig, trans: TranslationalTrajectory, q_start: np.ndarray, q_goal: np.ndarray,
               name: str) -> Trajectory:
     """The 13-state output trajectory sampled every ``planner.output_dt_s`` with the attitude slerped within the
@@ -254,7 +161,7 @@ def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChe
                        goal6: np.ndarray) -> dict[str, Any]:
     """Summary numbers of an output trajectory; collisions re-checked exactly and densely (every 5 mm).
 
-    ``within_limits``: within the design limits (:func:`~oacli.stages.design_limits.planner_design_limits`);
+    ``within_limits``: within the design limits (:func:`~oacli.stages.settings.planner_design_limits`);
     ``within_robot_limits``: within the robot's own; ``min_time_lower_bound_s`` under the design limits.
     """
     robot = cfg.robot
@@ -304,52 +211,60 @@ def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChe
     return out
 
 
-def design_limit_log(limits: DesignLimits) -> list[LogEntry]:
-    """Log entries stating the design limits and every clipped ``planner.limits`` value (a warning each)."""
-    return [(0.0, "info", limits.describe()), *((0.0, "warning", note) for note in limits.notes)]
-
-
 def _edge_name(kind: int) -> str:
     return {EDGE_LQR: "lqr", EDGE_PRIMITIVE: "primitive"}.get(int(kind), "root")
 
 
-def _write_plan_mcap(path: Path, cfg: OacliConfig, config_yaml: str, scene: Scene, result: PlanResult,
-                     output: Trajectory | None, summary: dict[str, Any], log: list[LogEntry]) -> None:
-    metadata = {"stage": "plan", "seed": cfg.seed, "git_commit": git_commit(), "version": __version__,
-                "config_name": cfg.name}
+def write_plan_topics(writer: StageMcapWriter, scene: Scene, result: PlanResult, output: Trajectory | None,
+                      summary: dict[str, Any], log: list[LogEntry]) -> None:
+    """Write the plan's topics (module docstring) to its MCAP.
+
+    Parameters
+    ----------
+    writer : StageMcapWriter
+        The open writer.
+    scene : Scene
+        The workspace.
+    result : PlanResult
+        The planner's output (tree, rewires, solutions).
+    output : Trajectory or None
+        The plan (None without a solution).
+    summary : dict
+        The stage's summary (for the ``oacli.plan`` metadata).
+    log : list of (float, str, str)
+        The stage's log.
+    """
     tree = result.tree
     in_path = np.zeros(len(tree), dtype=bool)
     in_path[list(result.path)] = True
-    with StageMcapWriter(path, stage="plan", config_yaml=config_yaml, metadata=metadata,
-                         frame=cfg.environment.frame) as writer:
-        writer.write_metadata("oacli.plan", {k: summary[k] for k in ("planner", "segment", "status", "iterations",
-                                                                       "nodes") if k in summary}
-                              | {"cost": summary.get("cost")})
-        paths = {"plan": output.x[:, 0:3]} if output is not None else {}
-        writer.write_scene(scene, paths)
-        if output is not None:
-            writer.write_trajectory("/trajectory", output)
-            writer.write_poses(output.t, output.x)
-        for i in range(len(tree)):
-            writer.write_json("/plan/tree", TREE_NODE, TREE_NODE_SCHEMA, 0.0, {
-                "node": i, "parent": int(tree.parent[i]), "iteration": int(tree.iteration[i]),
-                "wall_time_s": float(tree.wall_time_s[i]), "position": tree.states[i, 0:3],
-                "velocity": tree.states[i, 3:6], "cost": float(tree.cost[i]), "edge": _edge_name(tree.kind[i]),
-                "edge_steps": int(tree.steps[i]), "edge_duration_s": float(tree.duration_s[i]),
-                "edge_force": tree.force[i], "in_path": bool(in_path[i]), "goal": i == tree.goal_node,
-            })
-        for ev in result.rewires:
-            writer.write_json("/plan/rewires", REWIRE, REWIRE_SCHEMA, 0.0, {
-                "iteration": ev.iteration, "node": ev.node, "old_parent": ev.old_parent,
-                "new_parent": ev.new_parent, "old_steps": ev.old_steps, "new_steps": ev.new_steps,
-                "old_cost": ev.old_cost, "new_cost": ev.new_cost, "descendants_updated": ev.descendants_updated,
-            })
-        for sol in result.solutions:
-            writer.write_json("/plan/solutions", SOLUTION, SOLUTION_SCHEMA, 0.0, {
-                "iteration": sol.iteration, "wall_time_s": sol.wall_time_s, "cost": sol.cost, "nodes": sol.nodes,
-            })
-        for t, level, message in log:
-            writer.write_log(t, level, message)
+    writer.write_metadata("oacli.plan", {k: summary[k] for k in ("planner", "segment", "status", "iterations",
+                                                                   "nodes") if k in summary}
+                          | {"cost": summary.get("cost")})
+    paths = {"plan": output.x[:, 0:3]} if output is not None else {}
+    writer.write_scene(scene, paths)
+    if output is not None:
+        writer.write_trajectory("/trajectory", output)
+        writer.write_poses(output.t, output.x)
+    for i in range(len(tree)):
+        writer.write_json(ms.TOPIC_PLAN_TREE, ms.PLAN_TREE_NODE, ms.PLAN_TREE_NODE_SCHEMA, 0.0, {
+            "node": i, "parent": int(tree.parent[i]), "iteration": int(tree.iteration[i]),
+            "wall_time_s": float(tree.wall_time_s[i]), "position": tree.states[i, 0:3],
+            "velocity": tree.states[i, 3:6], "cost": float(tree.cost[i]), "edge": _edge_name(tree.kind[i]),
+            "edge_steps": int(tree.steps[i]), "edge_duration_s": float(tree.duration_s[i]),
+            "edge_force": tree.force[i], "in_path": bool(in_path[i]), "goal": i == tree.goal_node,
+        })
+    for ev in result.rewires:
+        writer.write_json(ms.TOPIC_PLAN_REWIRES, ms.PLAN_REWIRE, ms.PLAN_REWIRE_SCHEMA, 0.0, {
+            "iteration": ev.iteration, "node": ev.node, "old_parent": ev.old_parent,
+            "new_parent": ev.new_parent, "old_steps": ev.old_steps, "new_steps": ev.new_steps,
+            "old_cost": ev.old_cost, "new_cost": ev.new_cost, "descendants_updated": ev.descendants_updated,
+        })
+    for sol in result.solutions:
+        writer.write_json(ms.TOPIC_PLAN_SOLUTIONS, ms.PLAN_SOLUTION, ms.PLAN_SOLUTION_SCHEMA, 0.0, {
+            "iteration": sol.iteration, "wall_time_s": sol.wall_time_s, "cost": sol.cost, "nodes": sol.nodes,
+        })
+    for t, level, message in log:
+        writer.write_log(t, level, message)
 
 
 def run_plan(
@@ -400,9 +315,7 @@ def run_plan(
     limits = planner_design_limits(cfg)
 
     log: list[LogEntry] = design_limit_log(limits)
-    config_yaml = dump_config(cfg)
-    with open_stage_run("plan", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start) as run:
-        run_dir, files = run.run_dir, run.files
+    with open_run("plan", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
         rng = np.random.default_rng([cfg.seed, PLAN_STREAM])
         log.append((0.0, "info", f"{kind}: segment {seg.name} from {_fmt_point(seg.start[0:3])} to "
                                  f"{_fmt_point(seg.goal[0:3])}; {describe_body(body)}"))
@@ -445,24 +358,18 @@ def run_plan(
         if result.solved:
             add_output_trajectory_reasons(report, summary, "plan")
         report.apply(summary)
-        log.extend((0.0, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
-                   for r in summary["status_reasons"])
-        _write_plan_mcap(run.file("mcap", "plan.mcap"), cfg, config_yaml, scene, result, output, summary, log)
-        tree = result.tree
+        log.extend(status_log(summary))
+        with run.open_mcap() as writer:
+            write_plan_topics(writer, scene, result, output, summary, log)
         write_plan_recording(
-            run.file("rrd", "plan.rrd"), scene=scene, start=seg.start[0:3], goal=seg.goal[0:3],
-            tree_states=tree.states,
-            tree_edges=tree.edges, snapshots=[(s.iteration, s.parent, s.path) for s in result.snapshots],
-            solutions=[(s.iteration, s.cost) for s in result.solutions],
-            trajectory=None if output is None else (output.t, output.x, output.u),
-            force_limit_N=limits.limits.force_N, velocity_limit_mps=limits.limits.velocity_mps, log=log,
-            recording_name=f"{cfg.name}/plan",
+            run.file("rrd", "plan.rrd"), scene=scene, start=seg.start[0:3], goal=seg.goal[0:3], result=result,
+            trajectory=output, limits=limits.limits, log=log, recording_name=f"{cfg.name}/plan",
         )
-        run.finish(summary)
+        stage = run.finish(summary)
     if not result.solved:
         raise InfeasibleError(
             f"no solution from {seg.start_name} to {seg.goal_name} within the budget ({result.iterations} "
             f"iterations, {result.planning_time_s:.1f} s, {len(result.tree)} nodes; stopped by "
-            f"{result.stop_reason}); the partial tree is in {run_dir}"
+            f"{result.stop_reason}); the partial tree is in {stage.run_dir}"
         )
-    return StageResult(run_dir, summary, files)
+    return stage

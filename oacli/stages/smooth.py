@@ -28,76 +28,32 @@ from typing import Any
 
 import numpy as np
 
-from oacli import __version__
-from oacli.config import OacliConfig, dump_config
+from oacli.config import OacliConfig
 from oacli.errors import InputError
+from oacli.geometry import Scene
 from oacli.geometry.collision import CollisionChecker
+from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_trajectory
-from oacli.io.rerun_plan import write_smooth_recording
-from oacli.io.runfolder import git_commit, open_stage_run
+from oacli.io.rerun.smooth import PolishSteps, ShortcutSteps, write_smooth_recording
+from oacli.io.runfolder import StageResult
 from oacli.planning.full_state import minimum_time_lower_bound_s, translational_part
-from oacli.planning.polish import SOLVER, STEP_OUTCOMES, PolishResult, PolishSettings, polish_trajectory
+from oacli.planning.polish import SOLVER, STEP_OUTCOMES, PolishResult, polish_trajectory
 from oacli.planning.shortcut import ACCEPTED, ShortcutResult, lqr_shortcut
-from oacli.planning.steering import LqrConnector
 from oacli.planning.translational import TranslationalTrajectory
-from oacli.stages.design_limits import planner_design_limits
-from oacli.stages.plan import (
-    SMOOTH_STREAM,
+from oacli.stages.plan import SMOOTH_STREAM, describe_body, to_output, trajectory_metrics
+from oacli.stages.settings import (
     cost_weights,
-    describe_body,
     design_limit_log,
+    open_run,
+    planner_design_limits,
+    polish_settings,
     robot_body,
-    to_output,
-    trajectory_metrics,
+    shortcut_connector,
 )
-from oacli.stages.track import StageResult
-from oacli.status import StatusReport, add_output_trajectory_reasons
+from oacli.status import StatusReport, add_output_trajectory_reasons, status_log
 from oacli.types import Trajectory
 
 LogEntry = tuple[float, str, str]
-
-SHORTCUT_ATTEMPT = "oacli.ShortcutAttempt"
-SHORTCUT_SCHEMA: dict[str, Any] = {
-    "description": "One LQR shortcut try: the section between samples a and b, the best connection, the outcome.",
-    "type": "object",
-    "properties": {
-        "t": {"type": "number", "description": "0: shortcut records are not on the trajectory's time axis [s]"},
-        "try": {"type": "integer", "description": "try number"},
-        "a": {"type": "integer", "description": "first sample index (trajectory as it was at this try)"},
-        "b": {"type": "integer", "description": "last sample index"},
-        "t_a": {"type": "number", "description": "time of sample a [s]"},
-        "t_b": {"type": "number", "description": "time of sample b [s]"},
-        "steps": {"type": "integer", "description": "horizon of the best connection considered [steps]"},
-        "old_cost": {"type": "number", "description": "cost of the replaced section [-]"},
-        "new_cost": {"type": ["number", "null"], "description": "cost of the connection [-]"},
-        "outcome": {"type": "string", "description": "accepted, not_lower_cost, input_limit, velocity_limit or "
-                                                     "collision"},
-    },
-    "required": ["t", "try", "a", "b", "outcome"],
-}
-
-POLISH_ITERATION = "oacli.PolishIteration"
-POLISH_SCHEMA: dict[str, Any] = {
-    "description": "One SCP subproblem of the path-length polish and the verdict on its solution.",
-    "type": "object",
-    "properties": {
-        "t": {"type": "number", "description": "0: polish records are not on the trajectory's time axis [s]"},
-        "iteration": {"type": "integer", "description": "subproblem number"},
-        "trust_radius_m": {"type": "number", "description": "trust radius on the knot positions [m]"},
-        "status": {"type": "string", "description": "solver status"},
-        "objective": {"type": ["number", "null"], "description": "subproblem optimum (length bound + effort + "
-                                                                 "buffer penalty)"},
-        "buffer_m": {"type": ["number", "null"], "description": "largest virtual buffer (0: certified) [m]"},
-        "length_m": {"type": ["number", "null"], "description": "exact path length of the candidate [m]"},
-        "duration_s": {"type": ["number", "null"], "description": "candidate duration [s]"},
-        "cost": {"type": ["number", "null"], "description": "LQR cost J of the candidate [-]"},
-        "solve_time_s": {"type": "number", "description": "solve wall time [s]"},
-        "outcome": {"type": "string", "description": "accepted, not_shorter, collision, limits, cost or "
-                                                     "solver_failed"},
-    },
-    "required": ["t", "iteration", "status", "outcome"],
-}
-
 
 def load_plan(cfg: OacliConfig, path: Path) -> Trajectory:
     """Read the input trajectory and check it against the config (see the module docstring)."""
@@ -148,45 +104,62 @@ def check_input(cfg: OacliConfig, path: Path, traj: Trajectory, checker: Collisi
                          "a colliding plan cannot be smoothed")
 
 
-def _write_smooth_mcap(path: Path, cfg: OacliConfig, config_yaml: str, checker: CollisionChecker, source: Path,
-                       traj_in: Trajectory, traj_shortcut: Trajectory, traj_out: Trajectory, result: ShortcutResult,
-                       polish: PolishResult | None, summary: dict[str, Any], log: list[LogEntry]) -> None:
-    metadata = {"stage": "smooth", "seed": cfg.seed, "git_commit": git_commit(), "version": __version__,
-                "config_name": cfg.name}
-    with StageMcapWriter(path, stage="smooth", config_yaml=config_yaml, metadata=metadata,
-                         frame=cfg.environment.frame) as writer:
-        writer.write_metadata("oacli.smooth", {
-            "input": str(source), "cost_before": summary["cost_before"],
-            "cost_after_shortcut": result.cost_after, "cost_after": summary["cost_after"],
-            "accepted": result.accepted, "tried": result.tried,
-            "path_length_before_m": summary["path_length_before_m"],
-            "path_length_after_m": summary["path_length_after_m"],
-            "polish": "off" if polish is None else polish.status,
+def write_smooth_topics(writer: StageMcapWriter, scene: Scene, source: Path, traj_in: Trajectory,
+                        traj_shortcut: Trajectory, traj_out: Trajectory, result: ShortcutResult,
+                        polish: PolishResult | None, summary: dict[str, Any], log: list[LogEntry]) -> None:
+    """Write the smoothing's topics (module docstring) to its MCAP.
+
+    Parameters
+    ----------
+    writer : StageMcapWriter
+        The open writer.
+    scene : Scene
+        The workspace.
+    source : Path
+        The input MCAP (for the ``oacli.smooth`` metadata).
+    traj_in, traj_shortcut, traj_out : Trajectory
+        The input, the shortcut result (before the polish) and the output.
+    result : ShortcutResult
+        The shortcutting's record.
+    polish : PolishResult or None
+        The polish's record (None when it did not run).
+    summary : dict
+        The stage's summary (for the metadata).
+    log : list of (float, str, str)
+        The stage's log.
+    """
+    writer.write_metadata("oacli.smooth", {
+        "input": str(source), "cost_before": summary["cost_before"],
+        "cost_after_shortcut": result.cost_after, "cost_after": summary["cost_after"],
+        "accepted": result.accepted, "tried": result.tried,
+        "path_length_before_m": summary["path_length_before_m"],
+        "path_length_after_m": summary["path_length_after_m"],
+        "polish": "off" if polish is None else polish.status,
+    })
+    paths = {"before": traj_in.x[:, 0:3]}
+    if polish is not None:
+        paths["shortcut"] = traj_shortcut.x[:, 0:3]
+    paths["after"] = traj_out.x[:, 0:3]
+    writer.write_scene(scene, paths)
+    writer.write_trajectory("/trajectory", traj_out)
+    writer.write_trajectory("/trajectory/input", traj_in)
+    if polish is not None:
+        writer.write_trajectory("/trajectory/shortcut", traj_shortcut)
+    writer.write_poses(traj_out.t, traj_out.x)
+    for a in result.attempts:
+        writer.write_json(ms.TOPIC_SMOOTH_SHORTCUTS, ms.SHORTCUT_ATTEMPT, ms.SHORTCUT_ATTEMPT_SCHEMA, 0.0, {
+            "try": a.index, "a": a.a, "b": a.b, "t_a": a.t_a, "t_b": a.t_b, "steps": a.steps,
+            "old_cost": a.old_cost, "new_cost": a.new_cost, "outcome": a.outcome,
         })
-        paths = {"before": traj_in.x[:, 0:3]}
-        if polish is not None:
-            paths["shortcut"] = traj_shortcut.x[:, 0:3]
-        paths["after"] = traj_out.x[:, 0:3]
-        writer.write_scene(checker.scene, paths)
-        writer.write_trajectory("/trajectory", traj_out)
-        writer.write_trajectory("/trajectory/input", traj_in)
-        if polish is not None:
-            writer.write_trajectory("/trajectory/shortcut", traj_shortcut)
-        writer.write_poses(traj_out.t, traj_out.x)
-        for a in result.attempts:
-            writer.write_json("/smooth/shortcuts", SHORTCUT_ATTEMPT, SHORTCUT_SCHEMA, 0.0, {
-                "try": a.index, "a": a.a, "b": a.b, "t_a": a.t_a, "t_b": a.t_b, "steps": a.steps,
-                "old_cost": a.old_cost, "new_cost": a.new_cost, "outcome": a.outcome,
-            })
-        for it in polish.iterations if polish is not None else ():
-            writer.write_json("/smooth/polish", POLISH_ITERATION, POLISH_SCHEMA, 0.0, {
-                "iteration": it.index, "trust_radius_m": it.trust_radius_m, "status": it.status,
-                "objective": it.objective, "buffer_m": it.buffer_m, "length_m": it.length_m,
-                "duration_s": it.duration_s, "cost": it.cost, "solve_time_s": it.solve_time_s,
-                "outcome": it.outcome,
-            })
-        for t, level, message in log:
-            writer.write_log(t, level, message)
+    for it in polish.iterations if polish is not None else ():
+        writer.write_json(ms.TOPIC_SMOOTH_POLISH, ms.POLISH_ITERATION, ms.POLISH_ITERATION_SCHEMA, 0.0, {
+            "iteration": it.index, "trust_radius_m": it.trust_radius_m, "status": it.status,
+            "objective": it.objective, "buffer_m": it.buffer_m, "length_m": it.length_m,
+            "duration_s": it.duration_s, "cost": it.cost, "solve_time_s": it.solve_time_s,
+            "outcome": it.outcome,
+        })
+    for t, level, message in log:
+        writer.write_log(t, level, message)
 
 
 def _cost_per_try(result: ShortcutResult) -> np.ndarray:
@@ -194,13 +167,6 @@ def _cost_per_try(result: ShortcutResult) -> np.ndarray:
     for a in result.attempts:
         costs.append(costs[-1] - (a.old_cost - a.new_cost) if a.outcome == ACCEPTED else costs[-1])
     return np.array(costs)
-
-
-def polish_settings(cfg: OacliConfig) -> PolishSettings:
-    """The polish settings of ``planner.polish``."""
-    p = cfg.planner.polish
-    return PolishSettings(iterations=p.iterations, step_s=p.step_s, effort_weight=p.effort_weight,
-                          trust_radius_m=p.trust_radius_m, clearance_m=p.clearance_m)
 
 
 def run_polish(cfg: OacliConfig, trans: TranslationalTrajectory, checker: CollisionChecker, goal: np.ndarray,
@@ -270,17 +236,15 @@ def run_smooth(
     trans = translational_part(traj_in, robot.mass_kg)
     goal = trans.x[-1].copy()
     p = cfg.planner
-    connector = LqrConnector(robot.mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
+    connector = shortcut_connector(cfg)
     limits = planner_design_limits(cfg)
     lim = limits.limits
 
-    config_yaml = dump_config(cfg)
     log: list[LogEntry] = [(0.0, "info", f"smoothing {input_path} ({traj_in.duration_s:.1f} s) with "
                                          f"{p.shortcut.tries} LQR shortcut tries"
                                          + (", then the path-length polish" if p.polish.enabled else "")),
                            *design_limit_log(limits)]
-    with open_stage_run("smooth", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start) as run:
-        run_dir, files = run.run_dir, run.files
+    with open_run("smooth", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
         rng = np.random.default_rng([cfg.seed, SMOOTH_STREAM])
         result = lqr_shortcut(
             trans, connector, checker, goal, lim.force_N, lim.velocity_mps,
@@ -336,20 +300,17 @@ def run_smooth(
                         f"polish ({polish.status}, {polish.reason}): path length {polish.length_before_m:.4f} m -> "
                         f"{polish.length_after_m:.4f} m, cost {polish.cost_before:.6g} -> {polish.cost_after:.6g}, "
                         f"{polish.accepted}/{len(polish.iterations)} SCP steps accepted"))
-        log.extend((traj_out.duration_s, "error" if r["level"] == "unsafe" else "warning",
-                    f"status {r['level']}: {r['message']}") for r in summary["status_reasons"])
-        _write_smooth_mcap(run.file("mcap", "smooth.mcap"), cfg, config_yaml, checker, input_path, traj_in,
-                           traj_shortcut, traj_out, result, polish, summary, log)
+        log.extend(status_log(summary, traj_out.duration_s))
+        with run.open_mcap() as writer:
+            write_smooth_topics(writer, checker.scene, input_path, traj_in, traj_shortcut, traj_out, result, polish,
+                                summary, log)
+        shortcut_steps = ShortcutSteps([(i, sec.x[:, 0:3]) for i, sec in result.sections], _cost_per_try(result))
+        polish_steps = None if polish is None else PolishSteps(
+            traj_shortcut.x[:, 0:3], [(i, c.x[:, 0:3]) for i, c in polish.accepted_trajectories],
+            np.array([it.length_m for it in polish.iterations]))
         write_smooth_recording(
-            run.file("rrd", "smooth.rrd"),
-            scene=checker.scene, before=traj_in.x[:, 0:3], trajectory=(traj_out.t, traj_out.x, traj_out.u),
-            shortcuts=[(i, sec.x[:, 0:3]) for i, sec in result.sections], cost_per_try=_cost_per_try(result),
-            shortcut_path=traj_shortcut.x[:, 0:3] if polish is not None else None,
-            polish_steps=[] if polish is None else [(i, c.x[:, 0:3]) for i, c in polish.accepted_trajectories],
-            polish_lengths=None if polish is None else np.array([it.length_m for it in polish.iterations]),
-            force_limit_N=lim.force_N, velocity_limit_mps=lim.velocity_mps,
-            log=log, recording_name=f"{cfg.name}/smooth",
+            run.file("rrd", "smooth.rrd"), scene=checker.scene, before=traj_in, after=traj_out,
+            shortcuts=shortcut_steps, polish=polish_steps, limits=lim, log=log, recording_name=f"{cfg.name}/smooth",
         )
-        run.finish(summary)
-    return StageResult(run_dir, summary, files)
+        return run.finish(summary)
 

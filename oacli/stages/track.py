@@ -9,55 +9,51 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from oacli import __version__
-from oacli.config import OacliConfig, dump_config
-from oacli.control.tracking import TrackingLimits, TrackingMPC, TrackingWeights
+from oacli.config import OacliConfig
+from oacli.control.tracking import TrackingLimits, TrackingMPC
 from oacli.control.tube_monitor import TubeMonitor
 from oacli.control.tube_mpc import TubeHistory
 from oacli.errors import InputError
 from oacli.geometry import Scene
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.reference_files import load_reference
-from oacli.io.rerun_io import write_track_recording
-from oacli.io.rerun_tube import tube_track_blueprint
-from oacli.io.runfolder import git_commit, open_stage_run
-from oacli.metrics import percentiles_ms, rms, tracking_errors
+from oacli.io.rerun.track import write_track_recording
+from oacli.io.rerun.tube import tube_track_blueprint
+from oacli.io.runfolder import StageResult
+from oacli.metrics import TrackingErrors, percentiles_ms, rms, tracking_errors
 from oacli.reference import waypoint_reference
-from oacli.sim.sensors import Disturbance, SensorNoise
+from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
 from oacli.sim.simulator import simulate
-from oacli.stages.design_limits import check_reference_for_plant
-from oacli.stages.track_status import assess_track, controller_counts, status_log, track_safety
+from oacli.stages.settings import (
+    open_run,
+    plant_disturbance,
+    robot_limit_set,
+    sensor_noise,
+    tracking_limits,
+    tracking_weights,
+    tube_design_from_config,
+)
+from oacli.stages.track_status import assess_track, controller_counts, track_safety
 from oacli.stages.track_tube import (
     add_tube_reasons,
     describe_beyond_w,
     describe_tube_design,
     monitored_tube_controller,
-    tube_design_from_config,
     tube_layers,
     tube_summary,
     workspace_arguments,
     write_tube_topics,
 )
-from oacli.status import StatusReport
+from oacli.status import StatusReport, status_log
 from oacli.trajectory import sample_inputs
 from oacli.types import Telemetry, Trajectory
 
 LogEntry = tuple[float, str, str]
-
-
-@dataclass(frozen=True)
-class StageResult:
-    """What a stage produced: its run folder, its summary and the files it wrote."""
-
-    run_dir: Path
-    summary: dict[str, Any]
-    files: dict[str, Path]
 
 
 def reference_from_config(cfg: OacliConfig) -> Trajectory:
@@ -108,9 +104,49 @@ def check_reference_in_workspace(reference: Trajectory, scene: Scene, log: list[
         log.append((0.0, "warning", f"reference leaves the free space at t = {reference.t[k]:.2f} s"))
 
 
+def check_reference_for_plant(cfg: OacliConfig, reference: Trajectory, log: list[LogEntry], *,
+                              strict: bool = False) -> ReferenceLimitCheck:
+    """Check a reference against the simulated plant ``truth`` (mass, inertia, disturbance) and ``robot``'s limits.
+
+    A reference beyond a limit adds a warning to ``log`` (at the first time a limit is exceeded), or, with
+    ``strict``, is refused.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+    reference : Trajectory
+        The reference to follow.
+    log : list of (float, str, str)
+        The stage's log (a warning is appended).
+    strict : bool
+        Refuse instead of warning.
+
+    Returns
+    -------
+    ReferenceLimitCheck
+        The inputs and rates the plant needs, per quantity, against the robot's limits.
+
+    Raises
+    ------
+    InputError
+        With ``strict``, when the plant cannot follow the reference within the limits (naming the quantity, the
+        time and both values).
+    """
+    check = check_reference_limits(reference, cfg.truth_params(), robot_limit_set(cfg.robot),
+                                   disturbance_bias=np.asarray(cfg.truth.disturbance.bias),
+                                   disturbance_bound=np.asarray(cfg.truth.disturbance.random_bound))
+    if not check.ok:
+        if strict:
+            raise InputError(f"{check.message()} (robot limits, truth plant); refused by --strict")
+        first = min(t for q in check.exceeded if (t := check.checks[q].first_exceeded_t_s) is not None)
+        log.append((float(first), "warning", check.message()))
+    return check
+
+
 def _track_summary(
     cfg: OacliConfig, reference: Trajectory, tel: Telemetry, limits: TrackingLimits
-) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
+) -> tuple[dict[str, Any], TrackingErrors]:
     errors = tracking_errors(tel, reference)
     ctrl_errors = tracking_errors(tel, reference, tel.t_ctrl)
     safety = track_safety(cfg, tel, limits)
@@ -137,7 +173,7 @@ def _track_summary(
         "step_time_ms": percentiles_ms(np.array([i.step_time_s for i in tel.solve_info])),
         "sim_time_s": float(tel.t_true[-1]),
     }
-    return summary, ctrl_errors.position_m, ctrl_errors.attitude_rad
+    return summary, ctrl_errors
 
 
 def run_track(
@@ -165,7 +201,7 @@ def run_track(
         Called with the completed fraction of the simulation.
     strict_reference : bool
         Refuse (InputError) a reference the plant cannot follow within the robot's limits instead of warning
-        (:func:`oacli.stages.design_limits.check_reference_for_plant`).
+        (:func:`check_reference_for_plant`).
 
     Returns
     -------
@@ -180,16 +216,8 @@ def run_track(
     reference_check = check_reference_for_plant(cfg, reference, log, strict=strict_reference)
     log.append((0.0, "info", f"reference {reference.name}: {len(reference)} samples, {reference.duration_s:.1f} s"))
 
-    robot = cfg.robot
-    limits = TrackingLimits(
-        force_N=np.asarray(robot.force_limit_N),
-        torque_Nm=np.asarray(robot.torque_limit_Nm),
-        velocity_mps=np.asarray(robot.velocity_limit_mps),
-        angular_velocity_radps=np.asarray(robot.angular_velocity_limit_radps),
-    )
-    weights_cfg = cfg.controller.weights
-    weights = TrackingWeights(*(np.asarray(getattr(weights_cfg, f)) for f in
-                                ("position", "velocity", "attitude", "angular_velocity", "force", "torque")))
+    limits = tracking_limits(cfg)
+    weights = tracking_weights(cfg)
     design = tube_design_from_config(cfg) if cfg.controller.type == "tube" else None
     controller: TrackingMPC | TubeMonitor
     if design is None:
@@ -203,12 +231,9 @@ def run_track(
         log.extend(describe_tube_design(design))
     x0 = reference.x[0].copy()
     x0[0:3] += np.asarray(cfg.simulation.initial_offset_m)
-    sensors = SensorNoise(**cfg.sensors.model_dump())
-    dist_cfg = cfg.truth.disturbance
-    disturbance = Disturbance(dist_cfg.bias, dist_cfg.random_bound)
+    sensors, disturbance = sensor_noise(cfg), plant_disturbance(cfg)
 
-    config_yaml = dump_config(cfg)
-    with open_stage_run("track", cfg.name, config_yaml, out=out, runs_root=runs_root, started=wall_start) as run:
+    with open_run("track", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
         rng = np.random.default_rng(cfg.seed)
         tel = simulate(
             controller, x0, cfg.truth_params(),
@@ -218,7 +243,7 @@ def run_track(
             input_limits=limits.input,
             sensors=sensors, disturbance=disturbance, rng=rng, progress=progress,
         )
-        summary, pos_err_ctrl, att_err_ctrl = _track_summary(cfg, reference, tel, limits)
+        summary, ctrl_errors = _track_summary(cfg, reference, tel, limits)
         summary["reference_check"] = reference_check.summary()
         monitor = controller if isinstance(controller, TubeMonitor) else None
         history = monitor.history() if monitor is not None else None
@@ -240,43 +265,52 @@ def run_track(
                     f"{summary['solver_failures']} solver failures, "
                     f"{summary['constraint_violations']} constraint violations; status {summary['status']}"))
         log.extend(status_log(summary, float(tel.t_true[-1])))
-        _write_track_mcap(run.file("mcap", "track.mcap"), cfg, config_yaml, reference, tel, scene, log, monitor,
-                          history)
+        with run.open_mcap() as writer:
+            write_track_topics(writer, reference, tel, scene, log, monitor, history)
         write_track_recording(
-            run.file("rrd", "track.rrd"), scene=scene, t_ref=reference.t, x_ref=reference.x,
-            t_true=tel.t_true, x_true=tel.x_true,
-            t_ctrl=tel.t_ctrl, u_command=tel.u_command, u_applied=tel.u_applied,
-            position_error_m=pos_err_ctrl, attitude_error_rad=att_err_ctrl,
-            solve_time_ms=1e3 * np.array([i.solve_time_s for i in tel.solve_info]),
-            force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm, log=log,
-            recording_name=f"{cfg.name}/track",
+            run.file("rrd", "track.rrd"), scene=scene, reference=reference, telemetry=tel, errors=ctrl_errors,
+            limits=limits, log=log, recording_name=f"{cfg.name}/track",
             extra=None if monitor is None or history is None else tube_layers(monitor, history),
             blueprint=None if design is None else tube_track_blueprint(),
         )
-        run.finish(summary)
-    return StageResult(run.run_dir, summary, run.files)
+        return run.finish(summary)
 
 
-def _write_track_mcap(
-    path: Path, cfg: OacliConfig, config_yaml: str, reference: Trajectory, tel: Telemetry, scene: Scene,
-    log: list[LogEntry], monitor: TubeMonitor | None = None, history: TubeHistory | None = None,
+def write_track_topics(
+    writer: StageMcapWriter, reference: Trajectory, tel: Telemetry, scene: Scene, log: list[LogEntry],
+    monitor: TubeMonitor | None = None, history: TubeHistory | None = None,
 ) -> None:
-    metadata = {"stage": "track", "seed": cfg.seed, "git_commit": git_commit(), "version": __version__,
-                "config_name": cfg.name}
+    """Write a tracking run's topics to its MCAP (``docs/mcap.md``; the tube's with a tube controller).
+
+    Parameters
+    ----------
+    writer : StageMcapWriter
+        The open writer.
+    reference : Trajectory
+        The reference followed.
+    tel : Telemetry
+        The run.
+    scene : Scene
+        The workspace.
+    log : list of (float, str, str)
+        The stage's log.
+    monitor : TubeMonitor, optional
+        The tube controller (with ``history``).
+    history : TubeHistory, optional
+        What the tube controller did at each step.
+    """
     u_true = tel.u_applied[np.clip(np.searchsorted(tel.t_ctrl, tel.t_true, side="right") - 1, 0, None)]
-    with StageMcapWriter(path, stage="track", config_yaml=config_yaml, metadata=metadata,
-                         frame=cfg.environment.frame) as writer:
-        writer.write_scene(scene, {"reference": reference.x[:, 0:3], "actual": tel.x_true[:, 0:3]})
-        writer.write_states("/reference", tel.t_ctrl, tel.x_reference, sample_inputs(reference, tel.t_ctrl))
-        writer.write_states("/state/true", tel.t_true, tel.x_true, u_true)
-        writer.write_states("/state/measured", tel.t_ctrl, tel.x_measured, tel.u_command)
-        writer.write_wrenches("/control/command", tel.t_ctrl, tel.u_command)
-        writer.write_wrenches("/control/applied", tel.t_ctrl, tel.u_applied)
-        if tel.disturbance is not None:  # always set once the Telemetry is built (zeros when none)
-            writer.write_wrenches("/disturbance", tel.t_ctrl, tel.disturbance)
-        writer.write_solver_stats(tel.t_ctrl, tel.solve_info)
-        if monitor is not None and history is not None:
-            write_tube_topics(writer, tel, monitor, history)
-        writer.write_poses(tel.t_true, tel.x_true)
-        for t, level, message in log:
-            writer.write_log(t, level, message)
+    writer.write_scene(scene, {"reference": reference.x[:, 0:3], "actual": tel.x_true[:, 0:3]})
+    writer.write_states("/reference", tel.t_ctrl, tel.x_reference, sample_inputs(reference, tel.t_ctrl))
+    writer.write_states("/state/true", tel.t_true, tel.x_true, u_true)
+    writer.write_states("/state/measured", tel.t_ctrl, tel.x_measured, tel.u_command)
+    writer.write_wrenches("/control/command", tel.t_ctrl, tel.u_command)
+    writer.write_wrenches("/control/applied", tel.t_ctrl, tel.u_applied)
+    if tel.disturbance is not None:  # always set once the Telemetry is built (zeros when none)
+        writer.write_wrenches("/disturbance", tel.t_ctrl, tel.disturbance)
+    writer.write_solver_stats(tel.t_ctrl, tel.solve_info)
+    if monitor is not None and history is not None:
+        write_tube_topics(writer, tel, monitor, history)
+    writer.write_poses(tel.t_true, tel.x_true)
+    for t, level, message in log:
+        writer.write_log(t, level, message)

@@ -18,14 +18,14 @@ from oacli.metrics import safety_block, safety_report
 from oacli.status import SAFE_HOLD_MODE, StatusReport, add_safety_reasons, controller_mode_counts, mode_word
 from oacli.types import Telemetry
 
-LogEntry = tuple[float, str, str]
 
 def track_safety(cfg: OacliConfig, tel: Telemetry, limits: TrackingLimits) -> dict[str, Any]:
     """The ``safety`` block of a tracking run: every kind of violation of the true state (see the module)."""
     report = safety_report(
         tel.t_true, tel.x_true, scene=cfg.scene(), velocity_limit_mps=limits.velocity_mps,
         angular_velocity_limit_radps=limits.angular_velocity_radps, robot_radius_m=cfg.robot.radius_m,
-        keep_in_margin_m=cfg.environment.keep_in_margin_m, t_ctrl=tel.t_ctrl, u_command=tel.u_command, input_limits=limits.input,
+        keep_in_margin_m=cfg.environment.keep_in_margin_m, t_ctrl=tel.t_ctrl, u_command=tel.u_command,
+        input_limits=limits.input,
     )
     return safety_block(report, samples=len(tel.t_true), robot_radius_m=cfg.robot.radius_m,
                         keep_in_margin_m=cfg.environment.keep_in_margin_m)
@@ -58,10 +58,3 @@ def assess_track(summary: dict[str, Any], extra: StatusReport | None = None) -> 
     # Unsafe findings first: the warning line leads with what matters most.
     report.reasons.sort(key=lambda r: r.level != "unsafe")
     return report
-
-
-def status_log(summary: dict[str, Any], t_end: float) -> list[LogEntry]:
-    """One log line per finding (level ``error`` for unsafe, ``warning`` for degraded)."""
-    return [(t_end, "error" if r["level"] == "unsafe" else "warning", f"status {r['level']}: {r['message']}")
-            for r in summary.get("status_reasons", ())]
-

@@ -1,25 +1,28 @@
-"""The ``track`` stage with ``controller: tube``: the tube design from the config, its records and its summary.
+"""The ``track`` stage with ``controller: tube``: the controller from the config, its records and its summary.
 
 Split from :mod:`oacli.stages.track` so that the stage runner reads as one flow; everything here is specific to
-robust tube MPC (Mayne, Seron & Raković 2005; Raković et al. 2005; Doerr et al. 2021 Eqs. 15-28).
+robust tube MPC (Mayne, Seron & Raković 2005; Raković et al. 2005; Doerr et al. 2021 Eqs. 15-28). The tube's
+design from the config is :func:`oacli.stages.settings.tube_design_from_config`.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from oacli.config import OacliConfig
-from oacli.control.disturbance import DisturbanceSpec
 from oacli.control.tracking import TrackingLimits, TrackingWeights
-from oacli.control.tube_design import AncillaryWeights, TubeDesign, design_translation_tube
+from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_monitor import TubeMonitor, half_widths
 from oacli.control.tube_mpc import TerminalWeights, TubeHistory, TubeMPC
 from oacli.geometry.collision import RobotBody
+from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
-from oacli.io.rerun_tube import log_disturbance_layers, log_tube_layers
+from oacli.io.rerun.tube import log_disturbance_layers, log_tube_layers
+from oacli.io.rerun.writer import StageRecording
+from oacli.stages.settings import tube_design_from_config
 from oacli.status import StatusReport
 from oacli.types import Telemetry, Trajectory
 
@@ -32,60 +35,6 @@ LogEntry = tuple[float, str, str]
 
 #: A measured error counts as outside Z only beyond this fraction of Z's largest offset (rounding, solver tolerance).
 TUBE_TOLERANCE_REL = 1e-6
-
-TUBE_DESIGN_SCHEMA = {
-    "title": "oacli.TubeDesign",
-    "description": "Robust tube MPC design per world axis x, y, z (Mayne et al. 2005; Raković et al. 2005); one "
-    "record per design, at the time it took over.",
-    "type": "object",
-    "properties": {
-        "t": {"type": "number", "description": "mission time [s]"},
-        "dt_s": {"type": "number", "description": "control period, the step of W and of the ancillary law [s]"},
-        "design": {"type": "integer", "description": "0: the initial design; 1, 2 ...: redesigns beyond W, in use "
-                   "from t"},
-        "axes": {
-            "type": "array",
-            "description": "per axis: Z as {e = [position m, velocity m/s] : H e <= h}, W's vertices, gain K "
-            "(u = v + K e), RPI figures and tightened bounds",
-        },
-    },
-    "required": ["t", "dt_s", "axes"],
-}
-
-
-def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = None,
-                            max_terms: int | None = None) -> TubeDesign:
-    """The translational tube of ``cfg.controller.tube`` (raises InfeasibleError with W and the margin).
-
-    ``extra_box (3, 2)`` adds ``[position m, velocity m/s]`` half-widths per axis to W's box (a redesign beyond W,
-    :mod:`oacli.control.tube_monitor`; then an empty tightening always refuses); ``max_terms`` caps the
-    invariant-set terms below ``rpi_max_terms``.
-    """
-    tube = cfg.controller.tube
-    robot = cfg.robot
-    dist = tube.disturbance
-    force_limit = np.asarray(tube.force_limit_N if tube.force_limit_N is not None else robot.force_limit_N)
-    spec = DisturbanceSpec(
-        mass_kg=robot.mass_kg, mass_std_kg=dist.mass_std_kg, n_sigma=dist.mass_sigmas,
-        force_N=np.asarray(dist.force_N), box_position_m=np.asarray(dist.position_m),
-        box_velocity_mps=np.asarray(dist.velocity_mps), noise_position_m=np.asarray(dist.position_noise_m),
-        noise_velocity_mps=np.asarray(dist.velocity_noise_mps),
-    )
-    on_empty = dist.on_empty_tightening
-    if extra_box is not None:
-        extra = np.asarray(extra_box, dtype=float).reshape(3, 2)
-        spec = replace(spec, box_position_m=spec.box_position_m + extra[:, 0],
-                       box_velocity_mps=spec.box_velocity_mps + extra[:, 1])
-        on_empty = "error"
-    anc = tube.ancillary
-    return design_translation_tube(
-        mass_kg=robot.mass_kg, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
-        velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
-        weights=AncillaryWeights(anc.position, anc.velocity, anc.force), spec=spec, epsilon=tube.rpi_epsilon,
-        epsilon_mode=tube.rpi_epsilon_mode,
-        max_terms=tube.rpi_max_terms if max_terms is None else min(max_terms, tube.rpi_max_terms),
-        facet_growth=tube.lasso_facet_growth, on_empty=on_empty, min_nominal_fraction=dist.min_nominal_fraction,
-    )
 
 
 def tube_controller_from_config(
@@ -267,34 +216,28 @@ def add_tube_reasons(report: StatusReport, summary: dict[str, Any]) -> None:
         report.degraded("lasso", f"the nominal state's lasso x - z in Z was violated on {lasso} steps")
 
 
-DISTURBANCE_SCHEMA = {
-    "title": "oacli.TubeDisturbance",
-    "description": "Realised one-step disturbance w_k = x_k − (A x_{k−1} + B u_{k−1}) of the translational error "
-    "model per world axis, against the design's W (oacli.control.tube_monitor).",
-    "type": "object",
-    "properties": {
-        "t": {"type": "number", "description": "control step time [s]"},
-        "w_position_m": {"type": "array", "description": "measured w, position component, x y z [m] (null at the "
-                         "first step)"},
-        "w_velocity_mps": {"type": "array", "description": "measured w, velocity component, x y z [m/s]"},
-        "w_half_position_m": {"type": "array", "description": "W's half-width in position, x y z [m]"},
-        "w_half_velocity_mps": {"type": "array", "description": "W's half-width in velocity, x y z [m/s]"},
-        "margin": {"type": ["number", "null"], "description": "min over axes and facets of b − a·w (>= 0 in W)"},
-        "violation": {"type": "boolean", "description": "w left W on some axis"},
-        "design": {"type": "integer", "description": "index of the tube design driving the step (0: initial)"},
-    },
-    "required": ["t", "w_position_m", "w_velocity_mps", "w_half_position_m", "w_half_velocity_mps", "violation"],
-}
-
-
 def write_tube_topics(writer: StageMcapWriter, tel: Telemetry, monitor: TubeMonitor, history: TubeHistory) -> None:
+    """Write the tube controller's topics (``/control/nominal``, ``/control/ancillary``, ``/state/nominal``,
+    ``/tube/design``, ``/tube/disturbance``; ``docs/mcap.md``) to the track MCAP.
+
+    Parameters
+    ----------
+    writer : StageMcapWriter
+        The open writer.
+    tel : Telemetry
+        The run.
+    monitor : TubeMonitor
+        The tube controller after the run.
+    history : TubeHistory
+        What it did at each step.
+    """
     k = len(tel.t_ctrl)
     zeros = np.zeros((k, 3))
-    writer.write_wrenches("/control/nominal", tel.t_ctrl, np.hstack([history.nominal_force, history.torque]))
-    writer.write_wrenches("/control/ancillary", tel.t_ctrl, np.hstack([history.ancillary_force, zeros]))
+    writer.write_wrenches(ms.TOPIC_CONTROL_NOMINAL, tel.t_ctrl, np.hstack([history.nominal_force, history.torque]))
+    writer.write_wrenches(ms.TOPIC_CONTROL_ANCILLARY, tel.t_ctrl, np.hstack([history.ancillary_force, zeros]))
     nominal = tel.x_measured.copy()  # attitude columns: measured (attitude runs standard MPC, no tube)
     nominal[:, 0:6] = history.nominal_state
-    writer.write_states("/state/nominal", tel.t_ctrl, nominal,
+    writer.write_states(ms.TOPIC_STATE_NOMINAL, tel.t_ctrl, nominal,
                         np.hstack([history.nominal_force, history.torque]), name="nominal")
     for index, (t_design, design) in enumerate(monitor.designs):
         axes = []
@@ -306,37 +249,37 @@ def write_tube_topics(writer: StageMcapWriter, tel: Telemetry, monitor: TubeMoni
                 "force_bounds_N": ax.force_bounds_N, "velocity_bounds_mps": ax.velocity_bounds_mps,
                 "force_limit_N": ax.force_limit_N, "velocity_limit_mps": ax.velocity_limit_mps,
             })
-        writer.write_json("/tube/design", "oacli.TubeDesign", TUBE_DESIGN_SCHEMA, t_design,
+        writer.write_json(ms.TOPIC_TUBE_DESIGN, ms.TUBE_DESIGN, ms.TUBE_DESIGN_SCHEMA, t_design,
                           {"dt_s": design.dt_s, "design": index, "axes": axes})
     rec = monitor.disturbance_record()
     for i in range(len(rec.t)):
-        writer.write_json("/tube/disturbance", "oacli.TubeDisturbance", DISTURBANCE_SCHEMA, float(rec.t[i]), {
+        writer.write_json(ms.TOPIC_TUBE_DISTURBANCE, ms.TUBE_DISTURBANCE, ms.TUBE_DISTURBANCE_SCHEMA, float(rec.t[i]), {
             "w_position_m": rec.w[i, :, 0], "w_velocity_mps": rec.w[i, :, 1],
             "w_half_position_m": rec.w_half_widths[i, :, 0], "w_half_velocity_mps": rec.w_half_widths[i, :, 1],
             "margin": rec.margin[i], "violation": bool(rec.violated[i]), "design": int(rec.design_index[i]),
         })
 
 
-def tube_layers(monitor: TubeMonitor, history: TubeHistory):
-    rec = monitor.disturbance_record()
+def tube_layers(monitor: TubeMonitor, history: TubeHistory) -> Callable[[StageRecording], None]:
+    """The tube layers of the track recording (:mod:`oacli.io.rerun.tube`), as its ``extra`` callback.
+
+    Parameters
+    ----------
+    monitor : TubeMonitor
+        The tube controller after the run (its designs and the disturbance record).
+    history : TubeHistory
+        What it did at each step.
+
+    Returns
+    -------
+    callable
+        Logs the tube and the disturbance layers into a :class:`~oacli.io.rerun.writer.StageRecording`.
+    """
     designs = [d for _, d in monitor.designs]
-    index = rec.design_index
+    record = monitor.disturbance_record()
 
-    def per_step(fn) -> np.ndarray:
-        values = np.array([fn(d) for d in designs])
-        return values[index]
-
-    def extra(rec_stream) -> None:
-        first = designs[0]
-        log_tube_layers(
-            rec_stream, t_ctrl=history.t, nominal_state=history.nominal_state, nominal_force=history.nominal_force,
-            ancillary_force=history.ancillary_force, tube_margin=history.tube_margin,
-            z_position_extent=per_step(lambda d: d.position_extent()),
-            tightened_force_N=np.array([ax.force_bounds_N[1] for ax in first.axes]),
-            ancillary_force_max_N=np.array([ax.ancillary_force_N for ax in first.axes]),
-            tightened_velocity_mps=np.array([ax.velocity_bounds_mps[1] for ax in first.axes]),
-        )
-        log_disturbance_layers(rec_stream, t_ctrl=rec.t, w=rec.w, w_half_widths=rec.w_half_widths,
-                               violated=rec.violated)
+    def extra(rec: StageRecording) -> None:
+        log_tube_layers(rec, history, designs, record.design_index)
+        log_disturbance_layers(rec, record)
 
     return extra

@@ -1,6 +1,6 @@
 """Rerun layers and layout of a ``track`` run with the robust tube MPC (``controller: tube``).
 
-Entities (added to the track recording of :func:`oacli.io.rerun_io.write_track_recording`):
+Entities (added to the track recording of :func:`oacli.io.rerun.track.write_track_recording`):
 
 * ``world/nominal`` — the nominal path (static polyline of the tube centres ``z``), and
   ``world/nominal/centre`` the nominal position moving over ``mission_time``;
@@ -19,22 +19,20 @@ Entities (added to the track recording of :func:`oacli.io.rerun_io.write_track_r
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from oacli.io.rerun_blueprints import (
-    ATTITUDE_ERROR,
-    FORCE,
-    LOG,
-    POSITION_ERROR,
-    SOLVE_TIME,
-    TIMELINE,
-    TORQUE,
-    WORLD,
-    time_series_view,
-)
-from oacli.io.rerun_io import AXIS_NAMES, StageRecording
+from oacli.io.rerun.track import ATTITUDE_ERROR, FORCE, POSITION_ERROR, SOLVE_TIME, TORQUE
+from oacli.io.rerun.writer import AXIS_NAMES, LOG, TIMELINE, WORLD, StageRecording, time_series_view
+
+if TYPE_CHECKING:
+    from oacli.control.tube_design import TubeDesign
+    from oacli.control.tube_monitor import DisturbanceRecord
+    from oacli.control.tube_mpc import TubeHistory
 
 NOMINAL = "world/nominal"
 TUBE = "world/tube"
@@ -52,42 +50,28 @@ TUBE_COLOR = (60, 200, 200, 70)
 
 
 def log_tube_layers(
-    rec: StageRecording,
-    *,
-    t_ctrl: np.ndarray,
-    nominal_state: np.ndarray,
-    nominal_force: np.ndarray,
-    ancillary_force: np.ndarray,
-    tube_margin: np.ndarray,
-    z_position_extent: np.ndarray,
-    tightened_force_N: np.ndarray,
-    ancillary_force_max_N: np.ndarray,
-    tightened_velocity_mps: np.ndarray,
+    rec: StageRecording, history: TubeHistory, designs: Sequence[TubeDesign], design_index: np.ndarray
 ) -> None:
     """Log the tube layers (see the module docstring).
 
     Parameters
     ----------
     rec : StageRecording
-    t_ctrl : ndarray, shape (K,)
-        Controller times [s].
-    nominal_state : ndarray, shape (K, 6)
-        Nominal ``[r (world) m, v m/s]`` per step.
-    nominal_force, ancillary_force : ndarray, shape (K, 3)
-        [N].
-    tube_margin : ndarray, shape (K,)
-        Tube margin per step (NaN where undefined).
-    z_position_extent : ndarray, shape (3, 2) or (K, 3, 2)
-        ``[−min, max]`` of Z's position projection per axis [m], for every step or per step (after a redesign).
-    tightened_force_N, ancillary_force_max_N, tightened_velocity_mps : ndarray, shape (3,)
-        Symmetric bounds plotted as ± limits.
+        The track recording.
+    history : oacli.control.tube_mpc.TubeHistory
+        What the tube controller did at each step: nominal state ``[r (world) m, v m/s]``, nominal and ancillary
+        force [N] and the tube margin (NaN where undefined).
+    designs : sequence of oacli.control.tube_design.TubeDesign
+        The designs in use during the run (0: the initial one; the ± limits are the initial design's).
+    design_index : ndarray of int, shape (K,)
+        Which design drove each step (the tube's extent changes after a redesign).
     """
-    z = np.asarray(nominal_state, dtype=float)
-    ext = np.asarray(z_position_extent, dtype=float)
+    first = designs[0]
+    z = np.asarray(history.nominal_state, dtype=float)
+    t_ctrl = history.t
+    ext = np.array([d.position_extent() for d in designs])[design_index]  # (K, 3, 2): [−min, max] per axis [m]
     rec.log_path(NOMINAL, z[:, 0:3], color=NOMINAL_COLOR)
     rec.log_positions_over_time(f"{NOMINAL}/centre", t_ctrl, z[:, 0:3], color=NOMINAL_COLOR, radius_m=0.01)
-    if ext.ndim == 2:
-        ext = np.broadcast_to(ext, (z.shape[0], 3, 2))
     lower, upper = z[:, 0:3] - ext[:, :, 0], z[:, 0:3] + ext[:, :, 1]
     rec.stream.log(
         TUBE,
@@ -100,37 +84,42 @@ def log_tube_layers(
         static=True,
         strict=True,
     )
-    rec.log_series(FORCE_NOMINAL, t_ctrl, nominal_force, AXIS_NAMES, limits=tightened_force_N)
-    rec.log_series(FORCE_ANCILLARY, t_ctrl, ancillary_force, AXIS_NAMES, limits=ancillary_force_max_N)
-    rec.log_series(NOMINAL_VELOCITY, t_ctrl, z[:, 3:6], AXIS_NAMES, limits=tightened_velocity_mps)
-    rec.log_series(TUBE_MARGIN, t_ctrl, tube_margin, ["tube margin"])
+    rec.log_series(FORCE_NOMINAL, t_ctrl, history.nominal_force, AXIS_NAMES,
+                   limits=np.array([ax.force_bounds_N[1] for ax in first.axes]))
+    rec.log_series(FORCE_ANCILLARY, t_ctrl, history.ancillary_force, AXIS_NAMES,
+                   limits=np.array([ax.ancillary_force_N for ax in first.axes]))
+    rec.log_series(NOMINAL_VELOCITY, t_ctrl, z[:, 3:6], AXIS_NAMES,
+                   limits=np.array([ax.velocity_bounds_mps[1] for ax in first.axes]))
+    rec.log_series(TUBE_MARGIN, t_ctrl, history.tube_margin, ["tube margin"])
 
 
-def log_disturbance_layers(
-    rec: StageRecording, *, t_ctrl: np.ndarray, w: np.ndarray, w_half_widths: np.ndarray, violated: np.ndarray
-) -> None:
+def log_disturbance_layers(rec: StageRecording, record: DisturbanceRecord) -> None:
     """Log the realised disturbance against W (see the module docstring).
 
     Parameters
     ----------
     rec : StageRecording
-    t_ctrl : ndarray, shape (K,)
-        Controller times [s].
-    w : ndarray, shape (K, 3, 2)
-        Measured one-step disturbance per axis ``[position m, velocity m/s]`` (NaN where not measured).
-    w_half_widths : ndarray, shape (K, 3, 2)
-        W's half-widths in use at each step.
-    violated : ndarray of bool, shape (K,)
+        The track recording.
+    record : oacli.control.tube_monitor.DisturbanceRecord
+        Per controller step: the measured one-step disturbance per axis ``[position m, velocity m/s]`` (NaN where
+        not measured), W's half-widths in use, and whether w left W.
     """
+    t_ctrl, w, w_half_widths = record.t, record.w, record.w_half_widths
     for entity, j in ((DISTURBANCE_POSITION, 0), (DISTURBANCE_VELOCITY, 1)):
         rec.log_series(entity, t_ctrl, w[:, :, j], AXIS_NAMES)
         rec.log_series(f"{entity}/limit_upper", t_ctrl, w_half_widths[:, :, j], AXIS_NAMES, width=0.75)
         rec.log_series(f"{entity}/limit_lower", t_ctrl, -w_half_widths[:, :, j], AXIS_NAMES, width=0.75)
-    rec.log_series(W_VIOLATION, t_ctrl, np.asarray(violated, dtype=float), ["w outside W"])
+    rec.log_series(W_VIOLATION, t_ctrl, np.asarray(record.violated, dtype=float), ["w outside W"])
 
 
 def tube_track_blueprint() -> rrb.Blueprint:
-    """Layout: the track layout's scene and log, its metrics, and a column of tube metrics."""
+    """Layout: the track layout's scene and log, its metrics, and a column of tube metrics.
+
+    Returns
+    -------
+    rerun.blueprint.Blueprint
+        Pass it to :func:`oacli.io.rerun.track.write_track_recording` as ``blueprint``.
+    """
     world = rrb.Spatial3DView(origin=WORLD, name="World (ISS frame): reference, flown path, nominal tube")
     log = rrb.TextLogView(origin=LOG, name="Log")
     # View names use glyphs of the viewer's font only (it panics on e.g. U+2295 ⊕ or combining macrons).

@@ -1,7 +1,8 @@
-"""Rerun recordings of the oacli stages: writing (``StageRecording``) and reading back (``read_recording_*``).
+"""The Rerun recording writer: :class:`StageRecording`, the entity names every stage shares, and view helpers.
 
 Every stage writes one ``.rrd`` next to its MCAP. A recording is derived data (the MCAP is the record of truth):
-it exists for a human to look at in the Rerun viewer, and tests read its values back.
+it exists for a human to look at in the Rerun viewer, and tests read its values back (:mod:`oacli.io.rerun.read`).
+Each stage's entities and default layout live in their own module of :mod:`oacli.io.rerun`.
 
 Conventions
 -----------
@@ -25,63 +26,61 @@ logging afterwards raises ``RuntimeError``.
 from __future__ import annotations
 
 import uuid
-import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
-import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import RrdReader
 from scipy.spatial.transform import Rotation
 
-from oacli.errors import InputError
 from oacli.geometry import Scene
 from oacli.io.atomic import atomic_path
-from oacli.io.rerun_blueprints import (
-    ACTUAL,
-    ATTITUDE_ERROR,
-    FORCE,
-    KEEP_IN,
-    KEEP_OUT,
-    LIMIT_LOWER,
-    LIMIT_UPPER,
-    LOG,
-    POSITION_ERROR,
-    REFERENCE,
-    ROBOT,
-    SOLVE_TIME,
-    TIMELINE,
-    TORQUE,
-    WORLD,
-    track_blueprint,
-)
 
-__all__ = [
-    "ACTUAL",
-    "ATTITUDE_ERROR",
-    "FORCE",
-    "KEEP_IN",
-    "KEEP_OUT",
-    "LIMIT_LOWER",
-    "LIMIT_UPPER",
-    "LOG",
-    "POSITION_ERROR",
-    "REFERENCE",
-    "ROBOT",
-    "SOLVE_TIME",
-    "TIMELINE",
-    "TORQUE",
-    "WORLD",
-    "StageRecording",
-    "read_blueprint_views",
-    "read_recording_component",
-    "read_recording_entities",
-    "read_recording_scalars",
-    "track_blueprint",
-    "write_track_recording",
-]
+#: Timeline every oacli recording uses: simulated mission time since the start of the stage [s].
+TIMELINE = "mission_time"
+
+# Entity paths shared by the stage recordings (a fixed contract: tests and other stages read them).
+WORLD = "world"
+KEEP_IN = "world/keep_in"
+KEEP_OUT = "world/keep_out"
+ROBOT = "world/robot"
+LOG = "log"
+
+#: Child entities that :meth:`StageRecording.log_series` adds for ± limits.
+LIMIT_UPPER = "limit_upper"
+LIMIT_LOWER = "limit_lower"
+
+LogEntry = tuple[float, str, str]
+"""A text log line: ``(t [s], level, message)``."""
+
+
+class AxisLimits(Protocol):
+    """Per-axis bounds a recording plots as ± limits (:class:`oacli.reference_limits.LimitSet`,
+    :class:`oacli.excitation.problem.MotionLimits`, :class:`oacli.control.tracking.TrackingLimits`)."""
+
+    @property
+    def force_N(self) -> np.ndarray:
+        """Force bound per world axis [N], shape (3,)."""
+        ...
+
+    @property
+    def torque_Nm(self) -> np.ndarray:
+        """Torque bound per body axis [N·m], shape (3,)."""
+        ...
+
+    @property
+    def velocity_mps(self) -> np.ndarray:
+        """Velocity bound per world axis [m/s], shape (3,)."""
+        ...
+
+    @property
+    def angular_velocity_radps(self) -> np.ndarray:
+        """Angular-rate bound per body axis [rad/s], shape (3,)."""
+        ...
+
 
 #: Astrobee is a 30 cm cube.
 ASTROBEE_SIZE_M = 0.30
@@ -104,8 +103,18 @@ _TEXT_LEVELS = {"WARNING": "WARN", "FATAL": "CRITICAL", "ERR": "ERROR"}
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def _time_column(t_s: np.ndarray) -> rr.TimeColumn:
-    """``mission_time`` column from times [s], rounded to the nearest nanosecond (Rerun truncates floats)."""
+def time_column(t_s: np.ndarray) -> rr.TimeColumn:
+    """The ``mission_time`` column of ``send_columns`` from times [s], rounded to the nearest nanosecond.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (N,)
+        Mission times [s] (Rerun would truncate floats).
+
+    Returns
+    -------
+    rerun.TimeColumn
+    """
     ns = np.rint(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)
     return rr.TimeColumn(TIMELINE, duration=ns.astype("timedelta64[ns]"))
 
@@ -216,7 +225,7 @@ class StageRecording:
 
     def _send(self, entity: str, t_s: np.ndarray, columns) -> None:
         self._check_open()
-        self._rec.send_columns(entity, indexes=[_time_column(t_s)], columns=columns, strict=True)
+        self._rec.send_columns(entity, indexes=[time_column(t_s)], columns=columns, strict=True)
 
     # -- 3D scene ------------------------------------------------------------------------------------------------
 
@@ -587,6 +596,18 @@ class StageRecording:
             return
         self._send(LOG, tt, rr.TextLog.columns(text=[str(m) for m in messages], level=[_level(lv) for lv in levels]))
 
+    def log_entries(self, log: Sequence[LogEntry]) -> None:
+        """Log a stage's text log (``(t [s], level, message)`` lines) under ``log``; see :meth:`log_texts`.
+
+        Parameters
+        ----------
+        log : sequence of (float, str, str)
+            The lines; nothing is logged when empty.
+        """
+        if log:
+            t_log, levels, messages = zip(*log, strict=True)
+            self.log_texts(np.array(t_log, dtype=float), list(levels), list(messages))
+
     # -- output --------------------------------------------------------------------------------------------------
 
     def save(self, path: Path, blueprint: rrb.Blueprint | None = None) -> None:
@@ -638,310 +659,32 @@ def _check_complete(path: Path, recording_id: str) -> None:
         raise RuntimeError(f"the Rerun recording {path} does not hold recording {recording_id} (Rerun disabled?)")
 
 
-def write_track_recording(
-    path: Path,
-    *,
-    scene: Scene,
-    t_ref: np.ndarray,
-    x_ref: np.ndarray,
-    t_true: np.ndarray,
-    x_true: np.ndarray,
-    t_ctrl: np.ndarray,
-    u_command: np.ndarray,
-    u_applied: np.ndarray,
-    position_error_m: np.ndarray,
-    attitude_error_rad: np.ndarray,
-    solve_time_ms: np.ndarray,
-    force_limit_N: np.ndarray,
-    torque_limit_Nm: np.ndarray,
-    log: Sequence[tuple[float, str, str]] = (),
-    recording_name: str = "track",
-    extra: Callable[[StageRecording], None] | None = None,
-    blueprint: rrb.Blueprint | None = None,
-) -> None:
-    """Write the ``track`` stage's recording with :func:`track_blueprint` as its layout.
-
-    Entities: ``world/keep_in``, ``world/keep_out`` (static scene), ``world/reference`` (static path, plus a
-    moving target point ``world/reference/target``), ``world/actual`` (static path flown), ``world/robot`` (pose
-    over time and body), ``metrics/position_error_m``, ``metrics/attitude_error_rad``, ``metrics/force_N`` and
-    ``metrics/torque_Nm`` (applied, series ``x, y, z``, with ``limit_upper``/``limit_lower`` children and the
-    commanded value under ``.../command``), ``metrics/solve_time_ms`` and ``log``.
-
-    Parameters
-    ----------
-    path : Path
-        Output ``.rrd``, written atomically.
-    scene : oacli.geometry.Scene
-        Keep-in boxes and keep-out ellipsoids.
-    t_ref : ndarray, shape (N,)
-        Reference times [s].
-    x_ref : ndarray, shape (N, 13)
-        Reference states (positions [m] used).
-    t_true : ndarray, shape (M,)
-        Plant times [s].
-    x_true : ndarray, shape (M, 13)
-        True states (position [m] and attitude quaternion x, y, z, w used).
-    t_ctrl : ndarray, shape (K,)
-        Controller update times [s].
-    u_command, u_applied : ndarray, shape (K, 6)
-        Commanded and applied (saturated) input ``[force (3) N world frame, torque (3) N·m body frame]``.
-    position_error_m : ndarray, shape (K,)
-        ``‖r - r_ref‖`` [m] at ``t_ctrl``.
-    attitude_error_rad : ndarray, shape (K,)
-        Attitude error angle [rad] at ``t_ctrl``.
-    solve_time_ms : ndarray, shape (K,)
-        Solver wall time [ms] per step (NaN where unknown).
-    force_limit_N : ndarray, shape (3,)
-        Per-axis force bound [N] (plotted as ±).
-    torque_limit_Nm : ndarray, shape (3,)
-        Per-axis torque bound [N·m] (plotted as ±).
-    log : sequence of (float, str, str)
-        ``(t [s], level, message)`` lines for the text log.
-    recording_name : str
-        Recording name shown in the viewer.
-    extra : callable, optional
-        Called with the :class:`StageRecording` before it is saved, to log controller-specific layers.
-    blueprint : rerun.blueprint.Blueprint, optional
-        Layout to store instead of :func:`track_blueprint`.
-    """
-    t_ctrl = _times("t_ctrl", t_ctrl)
-    k = t_ctrl.shape[0]
-    for name, arr, shape in (
-        ("u_command", u_command, (k, 6)),
-        ("u_applied", u_applied, (k, 6)),
-        ("position_error_m", position_error_m, (k,)),
-        ("attitude_error_rad", attitude_error_rad, (k,)),
-        ("solve_time_ms", solve_time_ms, (k,)),
-        ("force_limit_N", force_limit_N, (3,)),
-        ("torque_limit_Nm", torque_limit_Nm, (3,)),
-    ):
-        if np.shape(arr) != shape:
-            raise ValueError(f"{name}: expected shape {shape}, got {np.shape(arr)}")
-    x_ref = np.asarray(x_ref, dtype=float)
-    t_ref = _times("t_ref", t_ref)
-    if x_ref.shape != (t_ref.shape[0], 13):
-        raise ValueError(f"x_ref: expected shape ({t_ref.shape[0]}, 13), got {x_ref.shape}")
-    u_command = np.asarray(u_command, dtype=float)
-    u_applied = np.asarray(u_applied, dtype=float)
-
-    rec = StageRecording(recording_name=recording_name)
-    rec.log_scene(scene)
-    rec.log_path(REFERENCE, x_ref[:, 0:3], color=REFERENCE_COLOR)
-    rec.log_positions_over_time(f"{REFERENCE}/target", t_ref, x_ref[:, 0:3], color=REFERENCE_COLOR, radius_m=0.03)
-    rec.log_trajectory_over_time(ROBOT, t_true, x_true, path_entity=ACTUAL, path_color=ACTUAL_COLOR)
-
-    rec.log_series(POSITION_ERROR, t_ctrl, position_error_m, ["position error"])
-    rec.log_series(ATTITUDE_ERROR, t_ctrl, attitude_error_rad, ["attitude error"])
-    rec.log_series(FORCE, t_ctrl, u_applied[:, 0:3], AXIS_NAMES, limits=force_limit_N)
-    rec.log_series(TORQUE, t_ctrl, u_applied[:, 3:6], AXIS_NAMES, limits=torque_limit_Nm)
-    faded = [(*c[:3], 110) for c in AXIS_COLORS]
-    rec.log_series(f"{FORCE}/command", t_ctrl, u_command[:, 0:3], [f"{a} cmd" for a in AXIS_NAMES], colors=faded)
-    rec.log_series(f"{TORQUE}/command", t_ctrl, u_command[:, 3:6], [f"{a} cmd" for a in AXIS_NAMES], colors=faded)
-    rec.log_series(SOLVE_TIME, t_ctrl, solve_time_ms, ["solve time"])
-
-    if log:
-        t_log, levels, messages = zip(*log, strict=True)
-        rec.log_texts(np.array(t_log, dtype=float), list(levels), list(messages))
-    if extra is not None:
-        extra(rec)
-    rec.save(Path(path), track_blueprint() if blueprint is None else blueprint)
-
-
 # ----------------------------------------------------------------------------------------------------------------
-# Reading back (tests, the logs stage)
+# Layout helpers (each stage's blueprint is in its own module)
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def _reader(path: Path) -> RrdReader:
-    """Open an ``.rrd`` and list its stores (which decodes every frame header: a truncated file fails here)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"Rerun recording {path} does not exist")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # "no footer/manifest" on truncated or legacy files
-            reader = RrdReader(path)
-            reader.recordings()
-    except Exception as exc:  # rerun raises plain RuntimeErrors for unreadable files
-        raise InputError(f"cannot read Rerun recording {path}: {exc}") from exc
-    return reader
-
-
-def _entity(chunk_path: str) -> str:
-    return chunk_path.lstrip("/")
-
-
-def _arrow_values(arr: pa.Array) -> np.ndarray:
-    """Arrow values as numpy: fixed-size lists become (n, size) arrays, lists object arrays of per-item arrays
-    (e.g. the points of each line strip), strings object arrays, primitives plain arrays."""
-    kind = arr.type
-    if pa.types.is_fixed_size_list(kind):
-        return _arrow_values(arr.flatten()).reshape(-1, kind.list_size)
-    if pa.types.is_list(kind) or pa.types.is_large_list(kind):
-        parts = _column_rows(arr)
-        out = np.empty(len(parts), dtype=object)
-        for i, part in enumerate(parts):
-            out[i] = part
-        return out
-    if pa.types.is_string(kind) or pa.types.is_large_string(kind):
-        return np.array(arr.to_pylist(), dtype=object)
-    return arr.to_numpy(zero_copy_only=False)
-
-
-def _column_rows(column: pa.Array) -> list[np.ndarray]:
-    """Split a Rerun component column (a list array, one list per row) into one ndarray per row.
-
-    A row of ``Vec3D`` becomes an array of shape (n, 3), a row of scalars shape (n,), a row of strings an object
-    array, a row of line strips an object array of (n_i, 3) arrays. Null rows become empty arrays.
-    """
-    if isinstance(column, pa.ChunkedArray):
-        column = column.combine_chunks()
-    lengths = column.value_lengths().fill_null(0).to_numpy(zero_copy_only=False).astype(np.int64)
-    flat = _arrow_values(column.flatten())
-    return list(np.split(flat, np.cumsum(lengths)[:-1]))
-
-
-def _index_seconds(batch: pa.RecordBatch, timeline: str) -> np.ndarray:
-    col = batch.column(timeline)
-    if pa.types.is_duration(col.type) or pa.types.is_timestamp(col.type):
-        unit = col.type.unit
-        scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[unit]
-        return col.cast(pa.int64()).to_numpy(zero_copy_only=False) * scale
-    return col.to_numpy(zero_copy_only=False).astype(float)
-
-
-def read_recording_entities(path: Path) -> set[str]:
-    """Entity paths (without the leading ``/``) of the first recording store in an ``.rrd``.
-
-    Rerun's reserved entities (``__properties`` ...) are left out.
-
-    Raises
-    ------
-    oacli.errors.InputError
-        The file is missing or not a readable recording.
-    """
-    reader = _reader(path)
-    return {e for ch in reader.stream() if not (e := _entity(ch.entity_path)).startswith("__")}
-
-
-def read_recording_component(
-    path: Path, entity: str, component: str, *, timeline: str = TIMELINE
-) -> tuple[np.ndarray | None, list[np.ndarray]]:
-    """All values of one component of one entity, e.g. ``("world/keep_out", "Ellipsoids3D:half_sizes")``.
+def time_series_view(origin: str, name: str, *, legend: bool = True) -> rrb.TimeSeriesView:
+    """A time series view of ``origin`` and its children whose time axis spans the whole run.
 
     Parameters
     ----------
-    path : Path
-        The ``.rrd``.
-    entity : str
-        Entity path (with or without the leading ``/``).
-    component : str
-        Component identifier ``"<Archetype>:<field>"`` as Rerun names it.
-    timeline : str
-        Timeline of temporal rows.
+    origin : str
+        Entity path; every ``Scalars`` series at or below it is plotted.
+    name : str
+        Panel title (give the unit, e.g. ``"Position error [m]"``).
+    legend : bool
+        Show the legend (hide it when the many series would not fit and the title explains the colours).
 
     Returns
     -------
-    times_s : ndarray, shape (R,), or None
-        Row times [s] sorted ascending (stable), or None when the component is static.
-    rows : list of ndarray
-        One array per row (see ``_column_rows``), in the order of ``times_s``.
-
-    Raises
-    ------
-    KeyError
-        The entity does not have the component.
+    rerun.blueprint.TimeSeriesView
+        The view (Rerun's default would show only a window around the time cursor).
     """
-    want = _entity(entity)
-    static_rows: list[np.ndarray] = []
-    times: list[np.ndarray] = []
-    rows: list[np.ndarray] = []
-    for ch in _reader(path).stream().filter(content=f"/{want}", components=component):
-        if _entity(ch.entity_path) != want:
-            continue
-        batch = ch.to_record_batch()
-        if component not in batch.schema.names:
-            continue
-        values = _column_rows(batch.column(component))
-        if ch.is_static:
-            static_rows = values  # the latest static write wins, as in the viewer
-        elif timeline in batch.schema.names:
-            times.append(_index_seconds(batch, timeline))
-            rows.extend(values)
-    if rows:
-        t = np.concatenate(times)
-        order = np.argsort(t, kind="stable")
-        return t[order], [rows[i] for i in order]
-    if static_rows:
-        return None, static_rows
-    raise KeyError(f"{want} has no component {component} in {path}")
-
-
-def read_recording_scalars(path: Path, *, timeline: str = TIMELINE) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Every temporal ``Scalars`` series of a recording.
-
-    Parameters
-    ----------
-    path : Path
-        The ``.rrd``.
-    timeline : str
-        Timeline to read the times from.
-
-    Returns
-    -------
-    dict
-        ``entity path -> (times_s (N,), values (N,) or (N, k))``, rows sorted by time (stable); ``k > 1`` when the
-        entity holds several series (e.g. force x, y, z).
-    """
-    parts: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
-    stream = _reader(path).stream().filter(has_timeline=timeline, components="Scalars:scalars")
-    for ch in stream:
-        batch = ch.to_record_batch()
-        if "Scalars:scalars" not in batch.schema.names:
-            continue
-        t_list, v_list = parts.setdefault(_entity(ch.entity_path), ([], []))
-        t_list.append(_index_seconds(batch, timeline))
-        v_list.extend(_column_rows(batch.column("Scalars:scalars")))
-    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for entity, (t_list, v_list) in parts.items():
-        t = np.concatenate(t_list)
-        widths = {v.shape[0] for v in v_list}
-        if len(widths) != 1:
-            raise InputError(f"{entity}: scalar rows of different lengths {sorted(widths)} in {path}")
-        v = np.stack(v_list).astype(float)
-        order = np.argsort(t, kind="stable")
-        v = v[order]
-        out[entity] = (t[order], v[:, 0] if v.shape[1] == 1 else v)
-    return out
-
-
-def read_blueprint_views(path: Path) -> list[dict[str, str | None]]:
-    """The views of the (first) blueprint stored in an ``.rrd``.
-
-    Returns
-    -------
-    list of dict
-        One ``{"class": "TimeSeries" | "3D" | "TextLog" ..., "origin": str, "name": str | None}`` per view;
-        empty when the file holds no blueprint.
-    """
-    reader = _reader(path)
-    blueprints = reader.blueprints()
-    if not blueprints:
-        return []
-    views: dict[str, dict[str, str | None]] = {}
-    for ch in reader.stream(store=blueprints[0]):
-        entity = _entity(ch.entity_path)
-        if not entity.startswith("view/") or entity.count("/") != 1:
-            continue
-        batch = ch.to_record_batch()
-        view = views.setdefault(entity, {"class": None, "origin": None, "name": None})
-        for key, component in (
-            ("class", "ViewBlueprint:class_identifier"),
-            ("origin", "ViewBlueprint:space_origin"),
-            ("name", "ViewBlueprint:display_name"),
-        ):
-            if component in batch.schema.names:
-                values = batch.column(component).to_pylist()
-                if values and values[-1]:
-                    view[key] = values[-1][0]
-    return list(views.values())
+    whole_run = rr.TimeRange(start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.infinite())
+    return rrb.TimeSeriesView(
+        origin=origin,
+        name=name,
+        axis_x=rrb.TimeAxis(view_range=whole_run),
+        plot_legend=None if legend else rrb.PlotLegend(visible=False),
+    )

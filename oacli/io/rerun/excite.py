@@ -19,6 +19,7 @@ Entities (a fixed contract: tests read them back):
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,13 +27,24 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from oacli.geometry import Scene
-from oacli.io.rerun_blueprints import LOG, TIMELINE, WORLD, time_series_view
-from oacli.io.rerun_io import ACTUAL_COLOR, AXIS_NAMES, REFERENCE_COLOR, StageRecording
+from oacli.io.rerun.writer import (
+    ACTUAL_COLOR,
+    AXIS_NAMES,
+    LOG,
+    REFERENCE_COLOR,
+    ROBOT,
+    TIMELINE,
+    WORLD,
+    AxisLimits,
+    LogEntry,
+    StageRecording,
+    time_series_view,
+)
+from oacli.types import Trajectory
 
 EXCITATION = "world/excitation"
 INITIAL_GUESS = "world/initial_guess"
 PLANS = "world/plans"
-ROBOT = "world/robot"
 CRITERION = "metrics/criterion"
 CRITERION_CANDIDATE = "metrics/criterion/candidate"
 INFORMATION = "metrics/information"
@@ -48,9 +60,69 @@ _PARAM_COLORS = ((230, 60, 60, 255), (60, 180, 75, 255), (60, 110, 230, 255), (2
 _PLAN_COLOR = (150, 150, 150, 200)
 
 
+@dataclass(frozen=True)
+class InformationSeries:
+    """The Fisher information along a trajectory, for the recording.
+
+    Attributes
+    ----------
+    theta : ndarray, shape (4,)
+        Parameters the information is relative to [kg, kg·m²].
+    information : ndarray, shape (N, 4, 4)
+        Cumulative Fisher information at each sample.
+    crb_std : ndarray, shape (N, 4)
+        Cramér-Rao standard deviation at each sample (``inf`` where unidentifiable: not drawn).
+    """
+
+    theta: np.ndarray
+    information: np.ndarray
+    crb_std: np.ndarray
+
+
+@dataclass(frozen=True)
+class ScpSteps:
+    """What the offline design's sequential convex programming did, for the recording.
+
+    Attributes
+    ----------
+    criterion, candidate_criterion : ndarray, shape (I,)
+        Criterion of the design and of the trial point after each iteration (``nan`` where the subproblem failed).
+    initial_positions : ndarray, shape (M, 3)
+        Path of the initial guess [m].
+    """
+
+    criterion: np.ndarray
+    candidate_criterion: np.ndarray
+    initial_positions: np.ndarray
+
+
+@dataclass(frozen=True)
+class RattleSteps:
+    """What RATTLE's replanning did, for the recording.
+
+    Attributes
+    ----------
+    plans : sequence of (float, ndarray (K, 3))
+        Each replan's time [s] and planned positions [m].
+    replan_t : ndarray, shape (R,)
+        Replan times [s].
+    gamma : ndarray, shape (R, 4)
+        Information weights at each replan.
+    """
+
+    plans: Sequence[tuple[float, np.ndarray]]
+    replan_t: np.ndarray
+    gamma: np.ndarray
+
+
 def excite_blueprint() -> rrb.Blueprint:
     """Default layout: 3D world and log on the left; information, bounds and inputs over mission time on the right,
-    and the criterion per SCP iteration (switch the time panel to the ``scp_iteration`` timeline to see it)."""
+    and the criterion per SCP iteration (switch the time panel to the ``scp_iteration`` timeline to see it).
+
+    Returns
+    -------
+    rerun.blueprint.Blueprint
+    """
     world = rrb.Spatial3DView(origin=WORLD, name="World")
     log = rrb.TextLogView(origin=LOG, name="Log")
     plots = rrb.Vertical(
@@ -72,21 +144,12 @@ def write_excite_recording(
     path: Path,
     *,
     scene: Scene,
-    t: np.ndarray,
-    x: np.ndarray,
-    u: np.ndarray,
-    theta: np.ndarray,
-    information: np.ndarray,
-    crb_std: np.ndarray,
-    force_limit_N: np.ndarray,
-    torque_limit_Nm: np.ndarray,
-    angular_velocity_limit_radps: np.ndarray,
-    criterion: np.ndarray | None = None,
-    candidate_criterion: np.ndarray | None = None,
-    initial_positions: np.ndarray | None = None,
-    plans: Sequence[tuple[float, np.ndarray]] = (),
-    gamma: tuple[np.ndarray, np.ndarray] | None = None,
-    log: Sequence[tuple[float, str, str]] = (),
+    trajectory: Trajectory,
+    information: InformationSeries,
+    limits: AxisLimits,
+    scp: ScpSteps | None = None,
+    rattle: RattleSteps | None = None,
+    log: Sequence[LogEntry] = (),
     recording_name: str = "excite",
 ) -> None:
     """Write the ``excite`` recording (entities in the module docstring) with :func:`excite_blueprint`.
@@ -96,65 +159,53 @@ def write_excite_recording(
     path : Path
         Output ``.rrd`` (written atomically).
     scene : Scene
-    t : ndarray, shape (N,)
-        Sample times [s] of the trajectory.
-    x : ndarray, shape (N, 13)
-        States.
-    u : ndarray, shape (N, 6)
-        Inputs [N, N·m] held from each sample.
-    theta : ndarray, shape (4,)
-        Parameters the information is relative to.
-    information : ndarray, shape (N, 4, 4)
-        Cumulative Fisher information at each sample.
-    crb_std : ndarray, shape (N, 4)
-        Cramér-Rao standard deviation at each sample (``inf`` where unidentifiable: not drawn).
-    force_limit_N, torque_limit_Nm, angular_velocity_limit_radps : ndarray, shape (3,)
-    criterion, candidate_criterion : ndarray, shape (I,), optional
-        Per SCP iteration (``nan`` where the subproblem failed).
-    initial_positions : ndarray, shape (M, 3), optional
-        Path of the initial guess.
-    plans : sequence of (float, ndarray (K, 3))
-        RATTLE plans (replan time, planned positions).
-    gamma : (ndarray (R,), ndarray (R, 4)), optional
-        Replan times and information weights.
+        Keep-in boxes and keep-out ellipsoids.
+    trajectory : Trajectory
+        The output trajectory (inputs [N, N·m] held from each sample).
+    information : InformationSeries
+        Fisher information and Cramér-Rao bound at each sample of ``trajectory``.
+    limits : AxisLimits
+        Force [N], torque [N·m] and angular-rate [rad/s] bounds plotted as ±.
+    scp : ScpSteps, optional
+        The offline design's iterations and initial guess.
+    rattle : RattleSteps, optional
+        RATTLE's plans and information weights.
     log : sequence of (float, str, str)
+        The stage's text log.
     recording_name : str
+        Recording name shown in the viewer.
     """
-    t = np.asarray(t, dtype=float)
+    t, x, u = trajectory.t, trajectory.x, trajectory.u
+    theta = information.theta
     rec = StageRecording(recording_name=recording_name)
     rec.log_scene(scene)
     rec.log_trajectory_over_time(ROBOT, t, x, path_entity=EXCITATION, path_color=ACTUAL_COLOR)
-    if initial_positions is not None:
-        rec.log_path(INITIAL_GUESS, initial_positions, color=REFERENCE_COLOR, radius_m=0.003)
-    for t_plan, positions in plans:
+    if scp is not None:
+        rec.log_path(INITIAL_GUESS, scp.initial_positions, color=REFERENCE_COLOR, radius_m=0.003)
+    for t_plan, positions in rattle.plans if rattle is not None else ():
         rec.log_path(PLANS, positions, color=_PLAN_COLOR, radius_m=0.004, static=False, t=float(t_plan))
 
-    diag = np.einsum("kii->ki", np.asarray(information, dtype=float)) * np.asarray(theta, dtype=float) ** 2
+    diag = np.einsum("kii->ki", np.asarray(information.information, dtype=float)) * np.asarray(theta, dtype=float) ** 2
     rec.log_series(INFORMATION, t, diag, PARAMETER_SERIES, colors=_PARAM_COLORS)
-    pct = 100.0 * np.asarray(crb_std, dtype=float) / np.abs(theta)
+    pct = 100.0 * np.asarray(information.crb_std, dtype=float) / np.abs(theta)
     pct = np.where(np.isfinite(pct), pct, np.nan)
     rec.log_series(CRB_STD_PCT, t, pct, PARAMETER_SERIES, colors=_PARAM_COLORS)
-    rec.log_series(FORCE, t, u[:, 0:3], AXIS_NAMES, limits=force_limit_N)
-    rec.log_series(TORQUE, t, u[:, 3:6], AXIS_NAMES, limits=torque_limit_Nm)
+    rec.log_series(FORCE, t, u[:, 0:3], AXIS_NAMES, limits=limits.force_N)
+    rec.log_series(TORQUE, t, u[:, 3:6], AXIS_NAMES, limits=limits.torque_Nm)
     rec.log_series(VELOCITY, t, x[:, 3:6], AXIS_NAMES)
-    rec.log_series(ANGULAR_VELOCITY, t, x[:, 10:13], AXIS_NAMES, limits=angular_velocity_limit_radps)
-    if gamma is not None:
-        rec.log_series(GAMMA, gamma[0], gamma[1], PARAMETER_SERIES, colors=_PARAM_COLORS)
+    rec.log_series(ANGULAR_VELOCITY, t, x[:, 10:13], AXIS_NAMES, limits=limits.angular_velocity_radps)
+    if rattle is not None:
+        rec.log_series(GAMMA, rattle.replan_t, rattle.gamma, PARAMETER_SERIES, colors=_PARAM_COLORS)
 
-    if criterion is not None and len(criterion):
-        stream = rec.stream
-        iterations = np.arange(1, len(criterion) + 1)
-        for entity, values, name in ((CRITERION, criterion, "design"), (CRITERION_CANDIDATE, candidate_criterion,
-                                                                          "candidate")):
-            if values is None:
-                continue
-            stream.log(entity, rr.SeriesLines(names=[name]), static=True)
-            stream.send_columns(
+    if scp is not None and len(scp.criterion):
+        iterations = np.arange(1, len(scp.criterion) + 1)
+        for entity, values, name in ((CRITERION, scp.criterion, "design"),
+                                     (CRITERION_CANDIDATE, scp.candidate_criterion, "candidate")):
+            rec.stream.log(entity, rr.SeriesLines(names=[name]), static=True)
+            rec.stream.send_columns(
                 entity,
                 indexes=[rr.TimeColumn(ITERATION_TIMELINE, sequence=iterations)],
                 columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)),
             )
-    if log:
-        t_log, levels, messages = zip(*log, strict=True)
-        rec.log_texts(np.array(t_log, dtype=float), list(levels), list(messages))
+    rec.log_entries(log)
     rec.save(Path(path), excite_blueprint())

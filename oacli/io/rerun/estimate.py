@@ -1,4 +1,4 @@
-"""Rerun recording of the ``estimate`` stage: parameter estimates converging with their 2σ bands.
+"""The ``estimate`` stage's Rerun recording: parameter estimates converging with their 2σ bands.
 
 Entities (a fixed contract; tests read them back):
 
@@ -15,14 +15,15 @@ Entities (a fixed contract; tests read them back):
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from oacli.io.rerun_blueprints import LOG, TIMELINE, WORLD, time_series_view
-from oacli.io.rerun_io import StageRecording, _time_column
+from oacli.io.rerun.writer import LOG, TIMELINE, WORLD, LogEntry, StageRecording, time_column, time_series_view
+from oacli.types import ParameterEstimate
 
 PARAM_ENTITIES = ("estimate/mass_kg", "estimate/Ixx_kgm2", "estimate/Iyy_kgm2", "estimate/Izz_kgm2")
 PARAM_TITLES = ("Mass [kg]", "Ixx [kg·m²]", "Iyy [kg·m²]", "Izz [kg·m²]")
@@ -38,8 +39,39 @@ _CRB_COLOR = (150, 150, 150, 150)
 _REJECTED_COLOR = (230, 40, 40, 255)
 
 
+@dataclass(frozen=True)
+class EstimationRecords:
+    """What the estimator did with each telemetry record, for the recording.
+
+    Attributes
+    ----------
+    t : ndarray, shape (K,)
+        Record times [s].
+    d2 : ndarray, shape (K,)
+        Normalised residual/innovation squared per record (NaN where not computed).
+    gate_threshold : float
+        χ² gate (``inf``: no gate drawn).
+    rejected : ndarray of bool, shape (K,)
+        Records rejected by the gate (or late).
+    measured_positions, estimated_positions : ndarray, shape (K, 3)
+        Positions [m].
+    """
+
+    t: np.ndarray
+    d2: np.ndarray
+    gate_threshold: float
+    rejected: np.ndarray
+    measured_positions: np.ndarray
+    estimated_positions: np.ndarray
+
+
 def estimate_blueprint() -> rrb.Blueprint:
-    """Default layout: the four parameters (estimate, 2σ band, truth) in a grid, d² with the gate, 3D, log."""
+    """Default layout: the four parameters (estimate, 2σ band, truth) in a grid, d² with the gate, 3D, log.
+
+    Returns
+    -------
+    rerun.blueprint.Blueprint
+    """
     params = rrb.Grid(
         *(time_series_view(entity, f"{title}: estimate ± 2σ, truth green, ± 2 CRB grey")
           for entity, title in zip(PARAM_ENTITIES, PARAM_TITLES, strict=True)),
@@ -61,18 +93,11 @@ def _constant(rec: StageRecording, entity: str, t_span: np.ndarray, value: float
 def write_estimate_recording(
     path: Path,
     *,
-    t_est: np.ndarray,
-    theta: np.ndarray,
-    std: np.ndarray,
+    estimates: Sequence[ParameterEstimate],
     truth: np.ndarray | None,
     crb_std: np.ndarray,
-    t_records: np.ndarray,
-    d2: np.ndarray,
-    gate_threshold: float,
-    rejected: np.ndarray,
-    measured_positions: np.ndarray,
-    estimated_positions: np.ndarray,
-    log: Sequence[tuple[float, str, str]] = (),
+    records: EstimationRecords,
+    log: Sequence[LogEntry] = (),
     recording_name: str = "estimate",
 ) -> None:
     """Write the ``estimate`` stage's recording (see the module docstring) with :func:`estimate_blueprint`.
@@ -81,32 +106,25 @@ def write_estimate_recording(
     ----------
     path : Path
         Output ``.rrd`` (written atomically).
-    t_est : ndarray, shape (E,)
-        Times of the estimates [s].
-    theta, std : ndarray, shape (E, 4)
-        Estimates and their standard deviations [kg, kg·m²].
+    estimates : sequence of ParameterEstimate
+        The estimates over mission time (their θ and standard deviations [kg, kg·m²] are drawn).
     truth : ndarray, shape (4,), optional
         True θ when known.
     crb_std : ndarray, shape (4,)
         Cramér-Rao bound of the final estimate (drawn as ± 2 bounds around it; ``inf`` is not drawn).
-    t_records : ndarray, shape (K,)
-        Record times [s].
-    d2 : ndarray, shape (K,)
-        Normalised residual/innovation squared per record (NaN where not computed).
-    gate_threshold : float
-        χ² gate (``inf``: no gate drawn).
-    rejected : ndarray of bool, shape (K,)
-        Records rejected by the gate (or late).
-    measured_positions, estimated_positions : ndarray, shape (K, 3)
-        Positions [m].
+    records : EstimationRecords
+        Per telemetry record: d², the gate, rejection and positions.
     log : sequence of (t, level, message)
+        The stage's text log.
     recording_name : str
+        Recording name shown in the viewer.
     """
-    t_est = np.asarray(t_est, dtype=float)
-    theta = np.asarray(theta, dtype=float).reshape(-1, 4)
-    std = np.asarray(std, dtype=float).reshape(-1, 4)
-    t_records = np.asarray(t_records, dtype=float)
-    rejected = np.asarray(rejected, dtype=bool)
+    t_est = np.array([e.t for e in estimates], dtype=float)
+    theta = np.array([e.theta for e in estimates], dtype=float).reshape(-1, 4)
+    std = np.array([e.std for e in estimates], dtype=float).reshape(-1, 4)
+    t_records = np.asarray(records.t, dtype=float)
+    d2 = records.d2
+    rejected = np.asarray(records.rejected, dtype=bool)
     rec = StageRecording(recording_name=recording_name)
     span = np.array([min(t_est.min(), t_records.min()), max(t_est.max(), t_records.max())])
     for i, entity in enumerate(PARAM_ENTITIES):
@@ -126,19 +144,18 @@ def write_estimate_recording(
     finite = np.isfinite(d2)
     if np.any(finite):
         rec.log_series(D2, t_records[finite], d2[finite], ["d²"], colors=[_ESTIMATE_COLOR], width=1.0)
-        if np.isfinite(gate_threshold):
-            _constant(rec, f"{D2}/gate", span, float(gate_threshold), "χ² gate", _REJECTED_COLOR)
+        if np.isfinite(records.gate_threshold):
+            _constant(rec, f"{D2}/gate", span, float(records.gate_threshold), "χ² gate", _REJECTED_COLOR)
         bad = rejected & finite
         if np.any(bad):
             rec.stream.log(f"{D2}/rejected", rr.SeriesPoints(colors=[_REJECTED_COLOR], names=["rejected"],
                                                               marker_sizes=[4.0]), static=True)
-            rec.stream.send_columns(f"{D2}/rejected", indexes=[_time_column(t_records[bad])],
+            rec.stream.send_columns(f"{D2}/rejected", indexes=[time_column(t_records[bad])],
                                     columns=rr.Scalars.columns(scalars=d2[bad]), strict=True)
-    rec.log_points(MEASURED, measured_positions[~rejected], color=(120, 120, 120, 255), radius_m=0.005)
+    measured = records.measured_positions
+    rec.log_points(MEASURED, measured[~rejected], color=(120, 120, 120, 255), radius_m=0.005)
     if np.any(rejected):
-        rec.log_points(REJECTED, measured_positions[rejected], color=_REJECTED_COLOR, radius_m=0.02)
-    rec.log_path(ESTIMATED, estimated_positions, color=_ESTIMATE_COLOR)
-    if log:
-        t_log, levels, messages = zip(*log, strict=True)
-        rec.log_texts(np.array(t_log, dtype=float), list(levels), list(messages))
+        rec.log_points(REJECTED, measured[rejected], color=_REJECTED_COLOR, radius_m=0.02)
+    rec.log_path(ESTIMATED, records.estimated_positions, color=_ESTIMATE_COLOR)
+    rec.log_entries(log)
     rec.save(Path(path), estimate_blueprint())

@@ -1,0 +1,163 @@
+"""The ``track`` stage's Rerun recording and its default layout.
+
+Entities (a fixed contract: tests and other stages read them back): ``world/keep_in``, ``world/keep_out`` (static
+scene), ``world/reference`` (static path, plus a moving target point ``world/reference/target``), ``world/actual``
+(static path flown), ``world/robot`` (pose over time and body), ``metrics/position_error_m``,
+``metrics/attitude_error_rad``, ``metrics/force_N`` and ``metrics/torque_Nm`` (applied, series ``x, y, z``, with
+``limit_upper``/``limit_lower`` children and the commanded value under ``.../command``), ``metrics/solve_time_ms``
+and ``log``. The tube controller's layers are in :mod:`oacli.io.rerun.tube`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import rerun.blueprint as rrb
+
+from oacli.geometry import Scene
+from oacli.io.rerun.writer import (
+    ACTUAL_COLOR,
+    AXIS_COLORS,
+    AXIS_NAMES,
+    LOG,
+    REFERENCE_COLOR,
+    ROBOT,
+    TIMELINE,
+    WORLD,
+    AxisLimits,
+    LogEntry,
+    StageRecording,
+    time_series_view,
+)
+from oacli.types import Telemetry, Trajectory
+
+if TYPE_CHECKING:
+    from oacli.metrics import TrackingErrors
+
+REFERENCE = "world/reference"
+ACTUAL = "world/actual"
+POSITION_ERROR = "metrics/position_error_m"
+ATTITUDE_ERROR = "metrics/attitude_error_rad"
+FORCE = "metrics/force_N"
+TORQUE = "metrics/torque_Nm"
+SOLVE_TIME = "metrics/solve_time_ms"
+
+_AXES_NOTE = ": x red, y green, z blue; thin = ± limit, faded = commanded"
+
+
+def track_blueprint() -> rrb.Blueprint:
+    """Default layout of the ``track`` recording.
+
+    Left: a 3D view of ``world/`` (keep-in box, keep-out ellipsoids, reference and actual path, the robot body
+    moving along ``mission_time``) above the text log. Right: stacked time series of position error [m],
+    attitude error [rad], force [N] and torque [N·m] per axis against their ± limits (and the commanded value),
+    and the solver time [ms].
+
+    Returns
+    -------
+    rerun.blueprint.Blueprint
+        The blueprint; pass it to :meth:`oacli.io.rerun.writer.StageRecording.save`.
+    """
+    world = rrb.Spatial3DView(origin=WORLD, name="World (ISS frame)")
+    log = rrb.TextLogView(origin=LOG, name="Log")
+    plots = rrb.Vertical(
+        time_series_view(POSITION_ERROR, "Position error [m]"),
+        time_series_view(ATTITUDE_ERROR, "Attitude error [rad]"),
+        time_series_view(FORCE, f"Force [N], world frame{_AXES_NOTE}", legend=False),
+        time_series_view(TORQUE, f"Torque [N·m], body frame{_AXES_NOTE}", legend=False),
+        time_series_view(SOLVE_TIME, "Solve time [ms]"),
+        name="Metrics",
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(world, log, row_shares=[3.0, 1.0], name="Scene"),
+            plots,
+            column_shares=[1.2, 1.0],
+        ),
+        rrb.TimePanel(timeline=TIMELINE),
+    )
+
+
+def write_track_recording(
+    path: Path,
+    *,
+    scene: Scene,
+    reference: Trajectory,
+    telemetry: Telemetry,
+    errors: TrackingErrors,
+    limits: AxisLimits,
+    log: Sequence[LogEntry] = (),
+    recording_name: str = "track",
+    extra: Callable[[StageRecording], None] | None = None,
+    blueprint: rrb.Blueprint | None = None,
+) -> None:
+    """Write the ``track`` stage's recording (entities in the module docstring) with :func:`track_blueprint`.
+
+    Parameters
+    ----------
+    path : Path
+        Output ``.rrd``, written atomically.
+    scene : oacli.geometry.Scene
+        Keep-in boxes and keep-out ellipsoids.
+    reference : Trajectory
+        The reference (positions [m] drawn).
+    telemetry : Telemetry
+        The run: true states (position [m] and attitude drawn), commanded and applied inputs at the controller
+        times, and the solver time of each step (NaN where unknown, or when ``solve_info`` is empty).
+    errors : oacli.metrics.TrackingErrors
+        Position [m] and attitude [rad] errors at the controller times ``telemetry.t_ctrl``.
+    limits : AxisLimits
+        Force [N] and torque [N·m] bounds per axis (plotted as ±).
+    log : sequence of (float, str, str)
+        ``(t [s], level, message)`` lines for the text log.
+    recording_name : str
+        Recording name shown in the viewer.
+    extra : callable, optional
+        Called with the :class:`~oacli.io.rerun.writer.StageRecording` before it is saved, to log
+        controller-specific layers.
+    blueprint : rerun.blueprint.Blueprint, optional
+        Layout to store instead of :func:`track_blueprint`.
+
+    Raises
+    ------
+    ValueError
+        Errors or limits of the wrong shape, or a state the recording cannot draw (nothing is written).
+    """
+    tel = telemetry
+    t_ctrl = tel.t_ctrl
+    k = t_ctrl.shape[0]
+    solve_time_ms = (1e3 * np.array([i.solve_time_s for i in tel.solve_info]) if tel.solve_info
+                     else np.full(k, np.nan))
+    for name, arr, shape in (
+        ("position_error_m", errors.position_m, (k,)),
+        ("attitude_error_rad", errors.attitude_rad, (k,)),
+        ("force_limit_N", limits.force_N, (3,)),
+        ("torque_limit_Nm", limits.torque_Nm, (3,)),
+    ):
+        if np.shape(arr) != shape:
+            raise ValueError(f"{name}: expected shape {shape}, got {np.shape(arr)}")
+    u_command, u_applied = tel.u_command, tel.u_applied
+
+    rec = StageRecording(recording_name=recording_name)
+    rec.log_scene(scene)
+    rec.log_path(REFERENCE, reference.x[:, 0:3], color=REFERENCE_COLOR)
+    rec.log_positions_over_time(f"{REFERENCE}/target", reference.t, reference.x[:, 0:3], color=REFERENCE_COLOR,
+                                radius_m=0.03)
+    rec.log_trajectory_over_time(ROBOT, tel.t_true, tel.x_true, path_entity=ACTUAL, path_color=ACTUAL_COLOR)
+
+    rec.log_series(POSITION_ERROR, t_ctrl, errors.position_m, ["position error"])
+    rec.log_series(ATTITUDE_ERROR, t_ctrl, errors.attitude_rad, ["attitude error"])
+    rec.log_series(FORCE, t_ctrl, u_applied[:, 0:3], AXIS_NAMES, limits=limits.force_N)
+    rec.log_series(TORQUE, t_ctrl, u_applied[:, 3:6], AXIS_NAMES, limits=limits.torque_Nm)
+    faded = [(*c[:3], 110) for c in AXIS_COLORS]
+    rec.log_series(f"{FORCE}/command", t_ctrl, u_command[:, 0:3], [f"{a} cmd" for a in AXIS_NAMES], colors=faded)
+    rec.log_series(f"{TORQUE}/command", t_ctrl, u_command[:, 3:6], [f"{a} cmd" for a in AXIS_NAMES], colors=faded)
+    rec.log_series(SOLVE_TIME, t_ctrl, solve_time_ms, ["solve time"])
+
+    rec.log_entries(log)
+    if extra is not None:
+        extra(rec)
+    rec.save(Path(path), track_blueprint() if blueprint is None else blueprint)

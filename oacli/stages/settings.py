@@ -1,0 +1,712 @@
+"""From the config to the algorithm core's settings: one adapter per core object, shared by every stage.
+
+A stage runner reads the config's sections only through these functions (plus ``cfg.scene()``,
+``cfg.robot_params()`` and ``cfg.truth_params()``), so a new stage (mission, campaign) builds its core objects
+here, runs them and writes its records (:mod:`oacli.io`): a short file.
+
+Sections: the run folder; the robot and the simulated plant; the design limits of ``plan``, ``smooth`` and
+``excite``; the planners and the smoother; the excitation design; the estimators; the robust tube.
+
+Design limits
+-------------
+Which prior mass and which σ_m (the "prior mass uncertainty" of ``m_upper = m_prior + n_σ σ_m``, [Doerr2021]
+Eq. 28), :mod:`oacli.reference_limits`:
+
+* ``excite``: the design's model is ``excitation.prior`` (mass default ``robot.mass_kg``), so ``m_prior`` is that
+  mass and σ_m the square root of its variance ``excitation.prior.variance[0]``;
+* ``plan`` and ``smooth``: the model is ``robot.mass_kg``; σ_m is the prior standard deviation of the mass the
+  estimator starts from, ``sqrt(estimation.prior.mass_variance_kg2)`` (its mean defaults to the robot's).
+
+``<section>.margin.mass_std_kg`` overrides σ_m (0 for a model known exactly); ``controller.tube.disturbance.
+mass_std_kg`` is not used: it is the spread of the estimate the tube's disturbance set W is sized for, not a
+prior. Section caps above the robot's limits are refused (:class:`~oacli.errors.ConfigError`, exit 2) or, with
+``margin.on_excess: clip``, clipped with a note that the stage writes to its log and summary.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from oacli.config import OacliConfig, dump_config
+from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
+from oacli.config.models import RobotConfig
+from oacli.control.disturbance import DisturbanceSpec
+from oacli.control.tracking import TrackingLimits, TrackingWeights
+from oacli.control.tube_design import AncillaryWeights, TubeDesign, design_translation_tube
+from oacli.errors import ConfigError
+from oacli.estimation.models import EstimatorSettings, ProcessNoise
+from oacli.estimation.models import MeasurementModel as EstimationMeasurementModel
+from oacli.excitation.design import ScpSettings
+from oacli.excitation.information import MeasurementModel
+from oacli.excitation.problem import MotionLimits, TerminalTolerance
+from oacli.excitation.rattle import InformationWeighting, PlannerWeights
+from oacli.geometry.collision import RobotBody
+from oacli.io.runfolder import StageRun, open_stage_run
+from oacli.model import quaternion as quat
+from oacli.model.rigid_body import theta_of
+from oacli.planning.kino_rrt import KinoRrtSettings
+from oacli.planning.lqr_rrt_star import LqrRrtStarSettings
+from oacli.planning.polish import PolishSettings
+from oacli.planning.steering import LqrConnector
+from oacli.planning.translational import CostWeights
+from oacli.reference_limits import (
+    QUANTITIES,
+    UNITS,
+    DesignLimits,
+    LimitSet,
+    ReferenceMargin,
+    design_limits,
+    limits_above_robot,
+)
+from oacli.sim.sensors import Disturbance, SensorNoise
+from oacli.types import ParameterEstimate
+
+# ----------------------------------------------------------------------------------------------------------------
+# The run folder
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def open_run(stage: str, cfg: OacliConfig, *, out: Path | None, runs_root: Path,
+             started: float | None = None) -> contextlib.AbstractContextManager[StageRun]:
+    """The stage's run folder (:func:`oacli.io.runfolder.open_stage_run`) for ``cfg``: its resolved YAML written
+    first, its seed, name and world frame in the MCAP's metadata.
+
+    Parameters
+    ----------
+    stage : str
+        Stage name.
+    cfg : OacliConfig
+        Resolved configuration, as it ran (overrides applied).
+    out, runs_root : Path
+        The folder (see :func:`oacli.io.runfolder.create_run_dir`).
+    started : float, optional
+        ``time.perf_counter()`` when the stage began.
+
+    Returns
+    -------
+    context manager of StageRun
+    """
+    return open_stage_run(stage, cfg.name, dump_config(cfg), seed=cfg.seed, frame=cfg.environment.frame, out=out,
+                          runs_root=runs_root, started=started)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The robot and the simulated plant
+# ----------------------------------------------------------------------------------------------------------------
+
+ROBOT_FIELDS = {"force_N": "force_limit_N", "torque_Nm": "torque_limit_Nm", "velocity_mps": "velocity_limit_mps",
+                "angular_velocity_radps": "angular_velocity_limit_radps"}
+"""The ``robot`` field of each limited quantity."""
+
+
+def robot_limit_set(robot: RobotConfig) -> LimitSet:
+    """The robot's actuator and flight-mode limits.
+
+    Parameters
+    ----------
+    robot : RobotConfig
+        The config's ``robot`` section.
+
+    Returns
+    -------
+    LimitSet
+        Force, torque, velocity and angular-rate limits per axis.
+    """
+    return LimitSet(**{q: np.asarray(getattr(robot, ROBOT_FIELDS[q]), dtype=float) for q in QUANTITIES})
+
+
+def tracking_limits(cfg: OacliConfig) -> TrackingLimits:
+    """The tracking controllers' limits: the robot's actuators and flight mode (``robot``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    TrackingLimits
+    """
+    robot = cfg.robot
+    return TrackingLimits(
+        force_N=np.asarray(robot.force_limit_N),
+        torque_Nm=np.asarray(robot.torque_limit_Nm),
+        velocity_mps=np.asarray(robot.velocity_limit_mps),
+        angular_velocity_radps=np.asarray(robot.angular_velocity_limit_radps),
+    )
+
+
+def tracking_weights(cfg: OacliConfig) -> TrackingWeights:
+    """The tracking controllers' weights (``controller.weights``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    TrackingWeights
+    """
+    w = cfg.controller.weights
+    return TrackingWeights(*(np.asarray(getattr(w, f)) for f in
+                             ("position", "velocity", "attitude", "angular_velocity", "force", "torque")))
+
+
+def sensor_noise(cfg: OacliConfig) -> SensorNoise:
+    """The simulated sensors' noise (``sensors``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    SensorNoise
+    """
+    return SensorNoise(**cfg.sensors.model_dump())
+
+
+def plant_disturbance(cfg: OacliConfig) -> Disturbance:
+    """The force and torque disturbance acting on the simulated plant (``truth.disturbance``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    Disturbance
+    """
+    dist = cfg.truth.disturbance
+    return Disturbance(dist.bias, dist.random_bound)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Design limits (module docstring)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def resolve_design_limits(
+    robot: RobotConfig,
+    margin: ReferenceMarginConfig,
+    caps: list[tuple[str, LimitsOverride]],
+    *,
+    mass_prior_kg: float,
+    default_mass_std_kg: float,
+    margin_path: str,
+) -> DesignLimits:
+    """Design limits from the robot, a margin section and section caps (later caps win per quantity).
+
+    Parameters
+    ----------
+    robot : RobotConfig
+    margin : ReferenceMarginConfig
+    caps : list of (str, LimitsOverride)
+        Config path of each cap section (``"excitation.limits"``) and its values, in override order.
+    mass_prior_kg : float
+        Mass of the designer's model [kg].
+    default_mass_std_kg : float
+        σ_m used when ``margin.mass_std_kg`` is not given [kg].
+    margin_path : str
+        Config path of the margin section (for messages).
+
+    Returns
+    -------
+    DesignLimits
+        The limits a designer must respect, the robot's, and a note per clipped cap.
+
+    Raises
+    ------
+    ConfigError
+        A cap above the robot's limit with ``on_excess: error``: one line per axis, naming the field, both values.
+    """
+    robot_limits = robot_limit_set(robot)
+    effective: dict[str, tuple[str, np.ndarray]] = {}
+    for path, section in caps:
+        for quantity in QUANTITIES:
+            value = getattr(section, quantity)
+            if value is not None:
+                effective[quantity] = (path, np.asarray(value, dtype=float))
+    excess = limits_above_robot(robot_limits, {q: v for q, (_, v) in effective.items()})
+    notes = []
+    if excess:
+        lines = []
+        for e in excess:
+            unit = UNITS[e.quantity]
+            where = f"{effective[e.quantity][0]}.{e.quantity}.{e.axis}"
+            robot_field = f"robot.{ROBOT_FIELDS[e.quantity]}.{e.axis}"
+            if margin.on_excess == "error":
+                lines.append(f"{where}: {e.requested:g}: above the robot's limit {robot_field} = {e.robot:g} {unit}; "
+                             f"lower or omit it, or set {margin_path}.on_excess: clip")
+            else:
+                notes.append(f"{where} = {e.requested:g} {unit} is above the robot's limit {robot_field} = "
+                             f"{e.robot:g} {unit}: clipped to {e.robot:g} {unit} ({margin_path}.on_excess: clip)")
+        if lines:
+            raise ConfigError(lines)
+    caps_clipped = {q: np.minimum(v, robot_limits.get(q)) for q, (_, v) in effective.items()}
+    std = default_mass_std_kg if margin.mass_std_kg is None else margin.mass_std_kg
+    ref_margin = ReferenceMargin(
+        mass_prior_kg=mass_prior_kg, mass_std_kg=std, mass_sigmas=margin.mass_sigmas,
+        force_fraction=margin.reference_force_fraction, torque_fraction=margin.reference_torque_fraction,
+        velocity_fraction=margin.reference_velocity_fraction,
+        angular_velocity_fraction=margin.reference_angular_velocity_fraction,
+    )
+    return design_limits(robot_limits, ref_margin, caps_clipped, tuple(notes))
+
+
+def excitation_design_limits(cfg: OacliConfig, *, rattle: bool = False) -> DesignLimits:
+    """Design limits of ``oacli excite`` (module docstring).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+    rattle : bool
+        RATTLE (``excitation.rattle.limits`` over ``excitation.limits``) instead of the offline design
+        (``excitation.limits``); both with ``excitation.margin``.
+
+    Returns
+    -------
+    DesignLimits
+    """
+    exc = cfg.excitation
+    caps = [("excitation.limits", exc.limits)]
+    if rattle:
+        caps.append(("excitation.rattle.limits", exc.rattle.limits))
+    mass = exc.prior.mass_kg if exc.prior.mass_kg is not None else cfg.robot.mass_kg
+    return resolve_design_limits(cfg.robot, exc.margin, caps, mass_prior_kg=mass,
+                                 default_mass_std_kg=math.sqrt(exc.prior.variance[0]),
+                                 margin_path="excitation.margin")
+
+
+def planner_design_limits(cfg: OacliConfig) -> DesignLimits:
+    """Design limits of ``oacli plan`` and ``oacli smooth``: ``planner.limits`` with ``planner.margin``.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    DesignLimits
+    """
+    p = cfg.planner
+    return resolve_design_limits(cfg.robot, p.margin, [("planner.limits", p.limits)], mass_prior_kg=cfg.robot.mass_kg,
+                                 default_mass_std_kg=math.sqrt(cfg.estimation.prior.mass_variance_kg2),
+                                 margin_path="planner.margin")
+
+
+def design_limit_log(limits: DesignLimits) -> list[tuple[float, str, str]]:
+    """The log lines a stage writes about its design limits.
+
+    Parameters
+    ----------
+    limits : DesignLimits
+
+    Returns
+    -------
+    list of (float, str, str)
+        ``(0, "info", the limits)`` and a warning per clipped section cap.
+    """
+    return [(0.0, "info", limits.describe()), *((0.0, "warning", note) for note in limits.notes)]
+
+
+def to_motion_limits(limits: DesignLimits) -> MotionLimits:
+    """The design limits as the excitation core's limits.
+
+    Parameters
+    ----------
+    limits : DesignLimits
+
+    Returns
+    -------
+    MotionLimits
+    """
+    lim = limits.limits
+    return MotionLimits(lim.force_N, lim.torque_Nm, lim.velocity_mps, lim.angular_velocity_radps)
+
+
+def motion_limits(cfg: OacliConfig, *, rattle: bool = False) -> MotionLimits:
+    """The limits the offline design (or, with ``rattle``, the RATTLE planner) must respect.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+    rattle : bool
+        The RATTLE planner's (see :func:`excitation_design_limits`).
+
+    Returns
+    -------
+    MotionLimits
+    """
+    return to_motion_limits(excitation_design_limits(cfg, rattle=rattle))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Planners and smoother (planner)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def robot_body(cfg: OacliConfig, q_start: np.ndarray, q_goal: np.ndarray) -> RobotBody:
+    """The robot's bounding ellipsoid for collision checks (``planner.robot_semi_axes_m``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+    q_start, q_goal : ndarray, shape (4,)
+        Attitudes at both ends ``[x, y, z, w]``: the ellipsoid is used only when they agree (the body does not
+        turn), else its bounding sphere.
+
+    Returns
+    -------
+    RobotBody
+        A sphere of ``robot.radius_m`` when no semi-axes are given.
+    """
+    axes = cfg.planner.robot_semi_axes_m
+    if axes is None:
+        return RobotBody.sphere(cfg.robot.radius_m)
+    if float(quat.angle_between(np.asarray(q_start), np.asarray(q_goal))) < 1e-9:
+        return RobotBody.ellipsoid(np.asarray(axes), quat.to_rotation_matrix(np.asarray(q_start)))
+    return RobotBody.sphere(float(max(axes)))
+
+
+def cost_weights(cfg: OacliConfig) -> CostWeights:
+    """The planners' LQR cost weights (``planner.weights``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    CostWeights
+    """
+    w = cfg.planner.weights
+    return CostWeights(w.position, w.velocity, w.force, w.time)  # type: ignore[arg-type]
+
+
+def lqr_rrt_star_settings(cfg: OacliConfig) -> LqrRrtStarSettings:
+    """LQR-RRT*'s settings (``planner``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    LqrRrtStarSettings
+    """
+    p = cfg.planner
+    return LqrRrtStarSettings(
+        dt_s=p.steer_dt_s, metric_steps=p.steps(p.steer_horizon_s), max_steps=p.steps(p.max_connection_s),
+        max_iterations=p.max_iterations, time_budget_s=p.time_budget_s, anytime=p.anytime,
+        goal_bias=p.goal_bias, gamma=p.near_gamma, max_near=p.max_near,
+    )
+
+
+def kino_rrt_settings(cfg: OacliConfig) -> KinoRrtSettings:
+    """The kinodynamic RRT's settings (``planner`` and ``planner.kino``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    KinoRrtSettings
+    """
+    p = cfg.planner
+    k = p.kino
+    return KinoRrtSettings(
+        primitive_fraction=k.primitive_fraction, primitive_dt_s=k.primitive_dt_s, primitive_set=k.primitive_set,
+        position_weight=k.position_weight, velocity_weight=k.velocity_weight,
+        goal_tolerance_m=p.goal_tolerance_m, goal_tolerance_mps=p.goal_tolerance_mps, dt_s=p.steer_dt_s,
+        max_link_steps=p.steps(p.max_connection_s), max_iterations=p.max_iterations,
+        time_budget_s=p.time_budget_s, goal_bias=k.goal_bias,
+    )
+
+
+def shortcut_connector(cfg: OacliConfig) -> LqrConnector:
+    """The LQR steering of the shortcutting (``planner.weights``, ``planner.shortcut.max_horizon_s``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    LqrConnector
+    """
+    p = cfg.planner
+    return LqrConnector(cfg.robot.mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
+
+
+def polish_settings(cfg: OacliConfig) -> PolishSettings:
+    """The path-length polish's settings (``planner.polish``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    PolishSettings
+    """
+    p = cfg.planner.polish
+    return PolishSettings(iterations=p.iterations, step_s=p.step_s, effort_weight=p.effort_weight,
+                          trust_radius_m=p.trust_radius_m, clearance_m=p.clearance_m)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Excitation (excitation)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def measurement_model(cfg: OacliConfig) -> MeasurementModel:
+    """The Fisher information's measurement model (``excitation.measurement``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    oacli.excitation.information.MeasurementModel
+    """
+    return MeasurementModel(**cfg.excitation.measurement.model_dump())
+
+
+def prior_theta(cfg: OacliConfig) -> np.ndarray:
+    """The excitation design's prior θ = [m, Ixx, Iyy, Izz]: ``excitation.prior`` where given, else ``robot``.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        [kg, kg·m² ×3].
+    """
+    prior = cfg.excitation.prior
+    mass = prior.mass_kg if prior.mass_kg is not None else cfg.robot.mass_kg
+    inertia = prior.inertia_kgm2 if prior.inertia_kgm2 is not None else cfg.robot.inertia_kgm2
+    return np.array([mass, *inertia], dtype=float)
+
+
+def terminal_tolerance(cfg: OacliConfig) -> TerminalTolerance:
+    """How close to the goal at rest an excitation must end (``excitation.terminal_tolerance``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    TerminalTolerance
+    """
+    tol = cfg.excitation.terminal_tolerance
+    return TerminalTolerance(tol.position_m, tol.velocity_mps, tol.attitude_rad, tol.angular_velocity_radps)
+
+
+def scp_settings(cfg: OacliConfig) -> ScpSettings:
+    """The offline design's sequential convex programming settings (``excitation.scp``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    ScpSettings
+    """
+    s = cfg.excitation.scp
+    return ScpSettings(
+        max_iterations=s.max_iterations,
+        trust_region_initial=s.trust_region_initial,
+        trust_region_min=s.trust_region_min,
+        trust_region_max=s.trust_region_max,
+        penalty=s.penalty,
+        tolerance=s.tolerance,
+        starts=s.starts,
+        screening_iterations=s.screening_iterations,
+    )
+
+
+def rattle_planner_weights(cfg: OacliConfig) -> PlannerWeights:
+    """The RATTLE planner's cost weights (``excitation.rattle.weights``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    PlannerWeights
+    """
+    w = cfg.excitation.rattle.weights
+    return PlannerWeights(w.position, w.velocity, w.attitude, w.angular_velocity, w.force, w.torque, w.terminal)
+
+
+def information_weighting(cfg: OacliConfig) -> InformationWeighting:
+    """RATTLE's information weights γ and their decay rule (``excitation.rattle``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    InformationWeighting
+    """
+    r = cfg.excitation.rattle
+    return InformationWeighting(np.array(r.gamma0), np.array(r.floor), r.alpha, r.beta)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Estimation (estimation)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def estimator_settings(cfg: OacliConfig) -> EstimatorSettings:
+    """The batch and sequential estimators' settings (``estimation``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    EstimatorSettings
+        Measurement and process noise, integration step (default: the plant period), gate and iterations.
+    """
+    est = cfg.estimation
+    noise = est.measurement_noise
+    return EstimatorSettings(
+        measurement=EstimationMeasurementModel(
+            position_std_m=noise.position_std_m,
+            velocity_std_mps=noise.velocity_std_mps,
+            attitude_std_rad=noise.attitude_std_rad,
+            angular_velocity_std_radps=noise.angular_velocity_std_radps,
+            linear_acceleration_std_mps2=noise.linear_acceleration_std_mps2,
+        ),
+        process=ProcessNoise(est.process_noise.force_std_N, est.process_noise.torque_std_Nm),
+        substep_s=est.substep_s if est.substep_s is not None else cfg.simulation.plant_period_s,
+        gate_probability=est.gate_probability,
+        max_iterations=est.max_iterations,
+        tolerance=est.tolerance,
+        max_gating_rounds=est.max_gating_rounds,
+        reorder_window=est.reorder_window,
+    )
+
+
+def estimation_prior(cfg: OacliConfig) -> ParameterEstimate:
+    """The estimators' prior ``N(θ₀, P₀)`` (``estimation.prior``; the mean defaults to the robot model).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    ParameterEstimate
+        At t = 0, method ``"prior"``.
+    """
+    est = cfg.estimation
+    return ParameterEstimate(0.0, est.prior_theta(theta_of(cfg.robot_params())), est.prior_covariance(), "prior")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Robust tube (controller.tube)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def tube_disturbance_spec(cfg: OacliConfig) -> DisturbanceSpec:
+    """The disturbance set W's ingredients (``controller.tube.disturbance``, ``robot.mass_kg``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    DisturbanceSpec
+    """
+    robot = cfg.robot
+    dist = cfg.controller.tube.disturbance
+    return DisturbanceSpec(
+        mass_kg=robot.mass_kg, mass_std_kg=dist.mass_std_kg, n_sigma=dist.mass_sigmas,
+        force_N=np.asarray(dist.force_N), box_position_m=np.asarray(dist.position_m),
+        box_velocity_mps=np.asarray(dist.velocity_mps), noise_position_m=np.asarray(dist.position_noise_m),
+        noise_velocity_mps=np.asarray(dist.velocity_noise_mps),
+    )
+
+
+def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = None,
+                            max_terms: int | None = None) -> TubeDesign:
+    """The translational tube of ``controller.tube`` ([Mayne2005]; [Rakovic2005]; [Doerr2021] Eqs. 15-28).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+    extra_box : ndarray, shape (3, 2), optional
+        ``[position m, velocity m/s]`` half-widths per axis added to W's box (a redesign beyond W,
+        :mod:`oacli.control.tube_monitor`; then an empty tightening always refuses).
+    max_terms : int, optional
+        Caps the invariant-set terms below ``rpi_max_terms``.
+
+    Returns
+    -------
+    TubeDesign
+
+    Raises
+    ------
+    InfeasibleError
+        No tube for this W (the message gives W and the margin).
+    """
+    tube = cfg.controller.tube
+    robot = cfg.robot
+    dist = tube.disturbance
+    force_limit = np.asarray(tube.force_limit_N if tube.force_limit_N is not None else robot.force_limit_N)
+    spec = tube_disturbance_spec(cfg)
+    on_empty = dist.on_empty_tightening
+    if extra_box is not None:
+        extra = np.asarray(extra_box, dtype=float).reshape(3, 2)
+        spec = replace(spec, box_position_m=spec.box_position_m + extra[:, 0],
+                       box_velocity_mps=spec.box_velocity_mps + extra[:, 1])
+        on_empty = "error"
+    anc = tube.ancillary
+    return design_translation_tube(
+        mass_kg=robot.mass_kg, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
+        velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
+        weights=AncillaryWeights(anc.position, anc.velocity, anc.force), spec=spec, epsilon=tube.rpi_epsilon,
+        epsilon_mode=tube.rpi_epsilon_mode,
+        max_terms=tube.rpi_max_terms if max_terms is None else min(max_terms, tube.rpi_max_terms),
+        facet_growth=tube.lasso_facet_growth, on_empty=on_empty, min_nominal_fraction=dist.min_nominal_fraction,
+    )

@@ -1,0 +1,36 @@
+"""Check a stage's MCAP against the contract's JSON schemas (:data:`oacli.io.mcap_schema.SCHEMAS`)."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from oacli.io import mcap_schema as ms
+
+
+def check_json_records(path: Path) -> Counter[str]:
+    """Every JSON record of ``path`` against its schema; returns the number of records per schema name.
+
+    Each channel's schema must be the contract's schema of that name (with its ``title``), each record must carry
+    the schema's required fields and no field the schema does not declare.
+    """
+    counts: Counter[str] = Counter()
+    with Path(path).open("rb") as f:
+        reader = make_reader(f)
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if channel.message_encoding != "json":
+                continue
+            assert schema is not None and schema.encoding == "jsonschema", channel.topic
+            assert schema.name in ms.SCHEMAS, f"{channel.topic}: schema {schema.name} is not in mcap_schema.SCHEMAS"
+            declared = json.loads(schema.data)
+            expected = {"type": "object", **ms.SCHEMAS[schema.name], "title": schema.name}
+            assert declared == expected, f"{channel.topic}: the file's {schema.name} differs from the contract's"
+            record = json.loads(message.data)
+            properties = set(declared["properties"])
+            assert set(declared.get("required", ())) <= set(record), (channel.topic, sorted(record))
+            assert set(record) <= properties, f"{channel.topic}: undeclared fields {sorted(set(record) - properties)}"
+            counts[schema.name] += 1
+    return counts
