@@ -14,6 +14,7 @@ Doerr Eq. 34b and in the RATTLE planner's model) and the torque ``tau`` in the *
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -138,6 +139,45 @@ class SolveInfo:
     iterations: int = -1
     solve_time_s: float = float("nan")
     step_time_s: float = float("nan")
+
+
+@dataclass(frozen=True)
+class ControlStep:
+    """What a controller returns each update: the input it asks for, its solve record, its reference.
+
+    Attributes
+    ----------
+    u : ndarray, shape (6,)
+        Input ``[f N world frame, τ N·m body frame]`` to hold until the next update.
+    info : SolveInfo
+        The update's optimisation record.
+    x_reference : ndarray, shape (13,)
+        Reference state the controller aimed at this update.
+    """
+
+    u: np.ndarray
+    info: SolveInfo
+    x_reference: np.ndarray
+
+
+class Controller(Protocol):
+    """A sampled-data controller (what :func:`oacli.sim.simulator.simulate` runs in closed loop)."""
+
+    def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
+        """Input to apply from time ``t`` [s] given the measured state ``x_measured (13,)``.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s].
+        x_measured : ndarray, shape (13,)
+            Measured state.
+
+        Returns
+        -------
+        ControlStep
+        """
+        ...
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,8 @@ from oacli.estimation.models import EstimatorSettings, Measurement, MeasurementM
 from oacli.estimation.preprocessing import measurements_from_telemetry
 from oacli.model import quaternion as quat
 from oacli.sim.sensors import Disturbance, SensorNoise
-from oacli.sim.simulator import ControlStep, simulate
-from oacli.types import InertialParams, ParameterEstimate, SolveInfo, Telemetry
+from oacli.sim.simulator import simulate
+from oacli.types import ControlStep, InertialParams, ParameterEstimate, SolveInfo, Telemetry
 
 THETA_TRUE = np.array([15.0, 0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1: Astrobee with the printed object
 # rattle param_est_config.py: params_init_6DOF_simplified and P_6DOF_simplified (a covariance: variances).

@@ -261,6 +261,25 @@ def test_point_to_ellipsoid_distance_matches_sampling_its_surface():
             assert Ellipsoid.from_semi_axes(center, axes, rot).contains(p)
 
 
+def test_dense_positions_fixed_substeps_follow_the_held_force_parabola():
+    """With ``substeps`` every step gets that many points, the last on the next sample (exact under the held
+    force: p_k + v_k τ + ½ (f_k/m) τ²)."""
+    t = np.array([0.0, 0.5, 1.5])
+    x = np.zeros((3, 6))
+    x[0, 3:6] = [0.1, -0.2, 0.0]
+    f = np.array([[2.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    mass = 4.0
+    for k in range(2):
+        h = t[k + 1] - t[k]
+        x[k + 1, 0:3] = x[k, 0:3] + x[k, 3:6] * h + 0.5 * f[k] / mass * h**2
+        x[k + 1, 3:6] = x[k, 3:6] + f[k] / mass * h
+    times, pts = dense_positions(t, x, f, mass, substeps=4)
+    np.testing.assert_allclose(times, [0.0, 0.125, 0.25, 0.375, 0.5, 0.75, 1.0, 1.25, 1.5])
+    np.testing.assert_allclose(pts[[0, 4, 8]], x[:, 0:3], atol=1e-15)
+    tau = times[5] - t[1]
+    np.testing.assert_allclose(pts[5], x[1, 0:3] + x[1, 3:6] * tau + 0.5 * f[1] / mass * tau**2, atol=1e-15)
+
+
 def test_dense_check_spacing_and_verdicts():
     t = np.array([0.0, 1.0, 2.0])
     x = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 1.0, 0.0, 0.0], [2.0, 0.0, 0.0, 1.0, 0.0, 0.0]])

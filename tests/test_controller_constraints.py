@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 from oacli.cli import app
 from oacli.config import load_config
-from oacli.control.compiled_qp import CompiledQP, CompiledSolve
+from oacli.control.compiled_qp import CompiledQP
 from oacli.control.disturbance import DisturbanceSpec
 from oacli.control.mpc import LinearMPC
 from oacli.control.tracking import TrackingLimits, TrackingMPC, TrackingWeights, to_error_state
@@ -38,7 +38,7 @@ from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.stages.track_tube import workspace_arguments
 from oacli.trajectory import feedforward_inputs, sample_states
-from oacli.types import InertialParams
+from oacli.types import InertialParams, SolveInfo
 from tests.conftest import REPO
 
 # [AstrobeeFSW] astrobee/config/worlds/iss.config: the bare robot
@@ -352,7 +352,7 @@ def test_standard_mpc_latches_a_safe_hold_after_consecutive_failures(monkeypatch
     def solve(*args, **kwargs):
         calls["n"] += 1
         if calls["n"] > 60:  # every solve after 12 s fails
-            return CompiledSolve("infeasible", float("nan"), -1, 0.0)
+            return SolveInfo("infeasible", False, float("nan"), -1, 0.0)
         return real(*args, **kwargs)
 
     monkeypatch.setattr(ctrl.mpc.compiled, "solve", solve)

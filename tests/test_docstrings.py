@@ -25,7 +25,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "oacli"
 CORE_PACKAGES = ("model", "geometry", "sets", "control", "planning", "excitation", "estimation", "sim")
-CORE_MODULES = ("types.py", "trajectory.py", "reference.py", "metrics.py")
+CORE_MODULES = ("types.py", "trajectory.py", "reference.py", "metrics.py", "solver.py")
 
 _SECTION = re.compile(r"^\s*(?P<name>[A-Z][A-Za-z ]+)\n\s*-{3,}\s*$", re.MULTILINE)
 

@@ -11,14 +11,7 @@ from hypothesis import strategies as st
 
 from oacli.config import load_config
 from oacli.errors import InfeasibleError
-from oacli.excitation.design import (
-    ExcitationProblem,
-    ScpSettings,
-    _Merit,
-    _Subproblem,
-    design_excitation,
-    initial_guess,
-)
+from oacli.excitation.design import ExcitationProblem, ScpSettings, design_excitation, initial_guess
 from oacli.excitation.fim_gradient import (
     criterion_gradient,
     criterion_value,
@@ -32,15 +25,17 @@ from oacli.excitation.information import (
     fisher_information,
     propagate_with_sensitivities,
 )
+from oacli.excitation.merit import ScpMerit
 from oacli.excitation.problem import (
     MotionLimits,
     chord_margin_m,
-    dense_positions,
     minimum_time_s,
     rest_to_rest_inputs,
 )
+from oacli.excitation.subproblem import ConvexSubproblem
 from oacli.geometry import Box, Ellipsoid, Scene
 from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
+from oacli.geometry.verify import dense_positions
 from oacli.io.reference_files import load_csv
 from oacli.model import quaternion as quat
 from oacli.stages.excite import excitation_problem
@@ -168,7 +163,7 @@ def test_parabola_stays_within_the_chord_margin(seed):
     x[0, 0:6] = rng.uniform(-1, 1, 6) * [1, 1, 1, 0.2, 0.2, 0.2]
     f = rng.uniform(-1, 1, 3) * LIMITS.force_N
     x[1, 0:3] = x[0, 0:3] + x[0, 3:6] * dt + 0.5 * f / mass * dt**2
-    pts = dense_positions(x, np.r_[f, 0, 0, 0][None, :], dt, mass, substeps=64)
+    _, pts = dense_positions(np.array([0.0, dt]), x, f[None, :], mass, substeps=64)
     s = np.linspace(0, 1, 65)[:, None]
     chord = x[0, 0:3] + s * (x[1, 0:3] - x[0, 0:3])
     assert np.all(np.abs(pts - chord) <= chord_margin_m(np.abs(f), mass, dt) + 1e-12)
@@ -196,9 +191,9 @@ def test_subproblem_is_dpp(criterion):
     p = problem(n=8, criterion=criterion, scene=Scene(
         keep_in=(Box((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)),),
         keep_out=(Ellipsoid.from_semi_axes([0.5, 0.5, 0.0], [0.2, 0.2, 0.2]),)))
-    merit = _Merit(p, 10.0)
+    merit = ScpMerit(p, 10.0)
     merit.reference = 1.0
-    assert _Subproblem(p, merit, 10.0).problem.is_dpp()
+    assert ConvexSubproblem(p, merit, 10.0).problem.is_dpp()
 
 
 @pytest.fixture(scope="module")
@@ -220,7 +215,7 @@ def test_design_respects_keep_in_and_keep_out_between_samples(obstacle_design):
     traj = design.trajectory
     # The initial guess flies straight through the keep-out zone: the design had to restore feasibility.
     assert np.any(p.scene.in_keep_out(design.initial.x[:, 0:3]))
-    pts = dense_positions(traj.x, traj.u, p.dt, p.theta[0], substeps=100)
+    _, pts = dense_positions(traj.t, traj.x, traj.u[:-1, 0:3], p.theta[0], substeps=100)
     ell = p.scene.keep_out[0]
     d = pts - ell.center
     assert np.einsum("ki,ij,kj->k", d, ell.shape, d).min() >= 1.0

@@ -7,13 +7,12 @@ import warnings
 import numpy as np
 import pytest
 
-from oacli.control.compiled_qp import CompiledSolve
 from oacli.control.lqr import dlqr
 from oacli.control.mpc import LinearMPC
 from oacli.control.tracking import TrackingLimits, TrackingMPC, TrackingWeights
 from oacli.model.double_integrator import hover_error_model
 from oacli.reference import waypoint_reference
-from oacli.types import InertialParams
+from oacli.types import InertialParams, SolveInfo
 
 PARAMS = InertialParams(9.583788668, [0.153427995, 0.14271405, 0.162302759])  # Astrobee on ISS, [AstrobeeFSW]
 Q = np.array([10.0] * 3 + [1.0] * 3 + [10.0] * 3 + [1.0] * 3)
@@ -113,7 +112,7 @@ def test_failed_solves_fall_back_to_the_shifted_plan_then_lqr(monkeypatch):
     plan = ctrl._plan.copy()
 
     def broken_solve(*args, **kwargs):
-        return CompiledSolve("solver_error: injected failure", float("nan"), -1, 0.0)
+        return SolveInfo("solver_error: injected failure", False, float("nan"), -1, 0.0)
 
     monkeypatch.setattr(ctrl.mpc.compiled, "solve", broken_solve)
     steps = [ctrl.step(5.0 + 0.2 * i, x) for i in range(1, 13)]

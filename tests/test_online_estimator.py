@@ -6,7 +6,7 @@ import numpy as np
 
 from oacli.estimation.online import OnlineSequentialEstimator
 from oacli.estimation.sequential import SequentialEstimator
-from oacli.excitation.oracle import SequentialEstimator as EstimatorProtocol
+from oacli.excitation.oracle import OnlineEstimator
 from tests.estimation_helpers import RATTLE_PRIOR, THETA_TRUE, records, settings, simulate_open_loop
 
 
@@ -19,7 +19,7 @@ def test_online_adapter_gives_the_filter_the_records_it_would_get_offline():
     for rec in recs[1:-1]:
         offline.update(rec)
     online = OnlineSequentialEstimator(SequentialEstimator(settings(), RATTLE_PRIOR))
-    assert isinstance(online, EstimatorProtocol)
+    assert isinstance(online, OnlineEstimator)
     for k in range(1, len(tel.t_ctrl)):  # the loop's first call comes at its second control step
         est = online.update(float(tel.t_ctrl[k]), tel.x_measured[k], tel.u_applied[k - 1])
     np.testing.assert_allclose(est.theta, offline.estimate.theta, rtol=1e-12)

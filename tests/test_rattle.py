@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from oacli.excitation.information import MeasurementModel, fisher_information
-from oacli.excitation.oracle import CramerRaoOracle, SequentialEstimator
+from oacli.excitation.oracle import CramerRaoOracle, OnlineEstimator
 from oacli.excitation.problem import MotionLimits
 from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, information_weights
 from oacli.excitation.rattle_loop import run_rattle
@@ -120,7 +120,7 @@ def test_oracle_accumulates_the_fisher_information_of_the_flown_trajectory(rng):
     for k in range(n):
         x.append(rb.propagate(x[-1], u[k], TRUTH, dt))
     oracle = CramerRaoOracle(TRUTH, P0, RATTLE_MODEL, x[0])
-    assert isinstance(oracle, SequentialEstimator)
+    assert isinstance(oracle, OnlineEstimator)
     np.testing.assert_allclose(oracle.estimate.covariance, P0)
     for k in range(n):
         est = oracle.update((k + 1) * dt, x[k + 1], u[k])

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from oacli.sim.sensors import Disturbance, SensorNoise
-from oacli.sim.simulator import ControlStep, simulate
-from oacli.types import InertialParams, SolveInfo
+from oacli.sim.simulator import simulate
+from oacli.types import ControlStep, InertialParams, SolveInfo
 
 TRUTH = InertialParams(15.0, [0.1464, 0.1376, 0.1604])  # Doerr 2021 Table 1, Astrobee with object
 LIMITS = np.array([0.5, 0.5, 0.5, 0.05, 0.05, 0.05])

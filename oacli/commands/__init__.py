@@ -1,1 +1,4 @@
-"""CLI commands, one module each; importing a module registers its command on ``oacli.cli.app``."""
+"""CLI commands, one module each; shared options and helpers in :mod:`oacli.commands.common`.
+
+:mod:`oacli.cli` registers the commands on its Typer app.
+"""

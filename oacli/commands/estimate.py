@@ -7,12 +7,11 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import (
+from oacli.commands.common import (
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
-    app,
     load_config_with_seed,
     run_stage_command,
 )
@@ -23,7 +22,6 @@ ESTIMATE_TABLE = [
 ]
 
 
-@app.command("estimate")
 def estimate(
     config: Annotated[Path, typer.Argument(help="YAML configuration file (its estimation section; see configs/).")],
     telemetry: Annotated[

@@ -7,13 +7,12 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import (
+from oacli.commands.common import (
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
-    app,
     load_config_with_seed,
     run_stage_command,
 )
@@ -24,7 +23,6 @@ EXCITE_TABLE = [
 ]
 
 
-@app.command("excite")
 def excite(
     config: Annotated[Path, typer.Argument(help="YAML configuration file with an excitation section (see configs/).")],
     method: Annotated[

@@ -7,14 +7,13 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import (
+from oacli.commands.common import (
     ConfigArgument,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
-    app,
     load_config_with_seed,
     run_stage_command,
 )
@@ -25,7 +24,6 @@ PLAN_TABLE = [
 ]
 
 
-@app.command("plan")
 def plan(
     config: ConfigArgument,
     segment: Annotated[

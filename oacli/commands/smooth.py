@@ -7,14 +7,13 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import (
+from oacli.commands.common import (
     ConfigArgument,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
-    app,
     load_config_with_seed,
     run_stage_command,
 )
@@ -26,7 +25,6 @@ SMOOTH_TABLE = [
 ]
 
 
-@app.command("smooth")
 def smooth(
     config: ConfigArgument,
     input_path: Annotated[

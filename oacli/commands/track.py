@@ -7,14 +7,13 @@ from typing import Annotated
 
 import typer
 
-from oacli.cli import (
+from oacli.commands.common import (
     ConfigArgument,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
-    app,
     load_config_with_seed,
     run_stage_command,
 )
@@ -27,7 +26,6 @@ TRACK_TABLE = [
 ]
 
 
-@app.command("track")
 def track(
     config: ConfigArgument,
     reference: Annotated[

@@ -16,14 +16,14 @@ import numpy as np
 from pydantic import Field, model_validator
 from pydantic_core import PydanticCustomError
 
-from oacli.config.models import (
+from oacli.config.fields import (
     PositiveReal,
     PositiveVector3,
     PrincipalInertia,
     Real,
     Section,
     StrictInt,
-    _none_to,
+    none_to,
 )
 
 EstimationMethod = Literal["batch", "sequential"]
@@ -96,16 +96,16 @@ class EstimationConfig(Section):
     method: EstimationMethod = Field(
         default="batch", description="'batch' (maximum likelihood over the whole run) or 'sequential' (EKF)."
     )
-    prior: Annotated[PriorConfig, _none_to({})] = Field(
+    prior: Annotated[PriorConfig, none_to({})] = Field(
         default_factory=PriorConfig, description="Prior on θ (also the starting point of the batch solver)."
     )
     use_prior: bool = Field(
         default=True, description="Batch: include the prior in the likelihood (the sequential filter always does)."
     )
-    measurement_noise: Annotated[MeasurementNoiseConfig, _none_to({})] = Field(
+    measurement_noise: Annotated[MeasurementNoiseConfig, none_to({})] = Field(
         default_factory=MeasurementNoiseConfig, description="Measurement noise model."
     )
-    process_noise: Annotated[ProcessNoiseConfig, _none_to({})] = Field(
+    process_noise: Annotated[ProcessNoiseConfig, none_to({})] = Field(
         default_factory=ProcessNoiseConfig, description="Process noise model."
     )
     gate_probability: Annotated[Real, Field(gt=0.0, lt=1.0)] | None = Field(

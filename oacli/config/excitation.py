@@ -10,20 +10,22 @@ import math
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BeforeValidator, Field, Strict, model_validator
+from pydantic import BeforeValidator, Field, model_validator
 from pydantic_core import PydanticCustomError
 
-from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
-from oacli.config.models import (
+from oacli.config.environment import WaypointRef
+from oacli.config.fields import (
+    Fraction,
     PositiveReal,
     PrincipalInertia,
     Real,
     Section,
+    StrictBool,
     StrictInt,
-    WaypointRef,
-    _none_to,
-    _sequence,
+    none_to,
+    sequence_of,
 )
+from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
 
 MAX_EXCITATION_STEPS = 2000
 """Largest accepted number of design steps."""
@@ -37,7 +39,7 @@ RATTLE_ACCELERATION_STD = math.sqrt(5e-6)
 """rattle ``param_est``: R_6DOF linear acceleration entries 0.5e-5 (variances) -> 2.236e-3 m/s²."""
 
 PositiveVector4 = Annotated[
-    tuple[PositiveReal, PositiveReal, PositiveReal, PositiveReal], BeforeValidator(_sequence(4))
+    tuple[PositiveReal, PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(4))
 ]
 """Four positive numbers, one per parameter [m, Ixx, Iyy, Izz]."""
 NonNegativeVector4 = Annotated[
@@ -45,10 +47,8 @@ NonNegativeVector4 = Annotated[
         Annotated[Real, Field(ge=0)], Annotated[Real, Field(ge=0)], Annotated[Real, Field(ge=0)],
         Annotated[Real, Field(ge=0)],
     ],
-    BeforeValidator(_sequence(4)),
+    BeforeValidator(sequence_of(4)),
 ]
-StrictBool = Annotated[bool, Strict()]
-Fraction = Annotated[Real, Field(gt=0, le=1)]
 
 
 class MeasurementNoiseConfig(Section):
@@ -179,7 +179,7 @@ class RattleConfig(Section):
         description="End-of-horizon speed bound as a fraction of the velocity limit; the last planned sample keeps "
         "the braking distance from walls and obstacles (recursive feasibility), in (0, 1].",
     )
-    weights: Annotated[RattleWeightsConfig, _none_to({})] = Field(
+    weights: Annotated[RattleWeightsConfig, none_to({})] = Field(
         default_factory=RattleWeightsConfig, description="Quadratic tracking weights of the planner."
     )
     gamma0: NonNegativeVector4 = Field(
@@ -190,7 +190,7 @@ class RattleConfig(Section):
     )
     alpha: PositiveReal = Field(default=2.2, description="Shut-off: γ_i = 0 once σ_i <= alpha · floor_i.")
     beta: PositiveReal = Field(default=5.0, description="Decay: γ_i = γ0_i exp(-beta floor_i / σ_i).")
-    limits: Annotated[LimitsOverride, _none_to({})] = Field(
+    limits: Annotated[LimitsOverride, none_to({})] = Field(
         default_factory=LimitsOverride,
         description="Planner limits (rattle planner: 0.15 N, 0.015 N·m); omitted ones: excitation.limits, then robot; "
         "capped by excitation.margin like the offline design's.",
@@ -222,29 +222,29 @@ class ExcitationConfig(Section):
     clearance_m: Annotated[Real, Field(ge=0)] = Field(
         default=0.0, description="Extra distance kept from keep-in faces and keep-out surfaces [m], >= 0."
     )
-    limits: Annotated[LimitsOverride, _none_to({})] = Field(
+    limits: Annotated[LimitsOverride, none_to({})] = Field(
         default_factory=LimitsOverride,
         description="Caps of the design below the robot's (omitted ones: the robot's); each with the margin applied "
         "(see margin); a value above the robot's is refused or clipped (margin.on_excess).",
     )
-    margin: Annotated[ReferenceMarginConfig, _none_to({})] = Field(
+    margin: Annotated[ReferenceMarginConfig, none_to({})] = Field(
         default_factory=ReferenceMarginConfig,
         description="Share of the robot's limits the design (offline and RATTLE) may use, with the mass margin of "
         "Doerr Eq. 28 (σ_m default: sqrt(excitation.prior.variance[0])).",
     )
-    measurement: Annotated[MeasurementNoiseConfig, _none_to({})] = Field(
+    measurement: Annotated[MeasurementNoiseConfig, none_to({})] = Field(
         default_factory=MeasurementNoiseConfig, description="The FIM's measurement model."
     )
-    terminal_tolerance: Annotated[TerminalToleranceConfig, _none_to({})] = Field(
+    terminal_tolerance: Annotated[TerminalToleranceConfig, none_to({})] = Field(
         default_factory=TerminalToleranceConfig, description="How close to the goal, at rest, the design must end."
     )
-    scp: Annotated[ScpConfig, _none_to({})] = Field(
+    scp: Annotated[ScpConfig, none_to({})] = Field(
         default_factory=ScpConfig, description="Sequential convex programming settings of the offline design."
     )
-    prior: Annotated[PriorConfig, _none_to({})] = Field(
+    prior: Annotated[PriorConfig, none_to({})] = Field(
         default_factory=PriorConfig, description="Prior estimate of θ (the design's model) and its variance."
     )
-    rattle: Annotated[RattleConfig, _none_to({})] = Field(
+    rattle: Annotated[RattleConfig, none_to({})] = Field(
         default_factory=RattleConfig, description="Online information-aware planner (method 'rattle')."
     )
 

@@ -9,13 +9,11 @@ to the robot's with a warning. Imported by :mod:`oacli.config.models` through th
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Literal
 
 from pydantic import Field
 
-from oacli.config.models import NonNegativeReal, PositiveReal, PositiveVector3, Real, Section
-
-Fraction = Annotated[Real, Field(gt=0, le=1)]
+from oacli.config.fields import Fraction, NonNegativeReal, PositiveReal, PositiveVector3, Section
 
 
 class LimitsOverride(Section):
@@ -72,4 +70,4 @@ class ReferenceMarginConfig(Section):
     )
 
 
-__all__ = ["Fraction", "LimitsOverride", "ReferenceMarginConfig"]
+__all__ = ["LimitsOverride", "ReferenceMarginConfig"]

@@ -12,21 +12,23 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, Strict, model_validator
+from pydantic import Field, model_validator
 
-from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
-from oacli.config.models import (
+from oacli.config.fields import (
+    Fraction,
     NonNegativeReal,
     NonNegativeVector3,
     PositiveReal,
     PositiveVector3,
     Real,
     Section,
+    StrictBool,
     StrictInt,
     Weight3,
-    _none_to,
-    _raise_at,
+    none_to,
+    raise_at,
 )
+from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
 
 PlannerType = Literal["lqr-rrt-star", "kino-rrt"]
 """Planner kinds: LQR-RRT* (Doerr et al. 2021) or kinodynamic RRT with motion primitives (ReSWARM §4.1.2)."""
@@ -34,8 +36,6 @@ PlannerType = Literal["lqr-rrt-star", "kino-rrt"]
 #: Largest connection or shortcut horizon in planner steps (the LQR maps are precomputed for every horizon).
 MAX_STEPS = 400
 
-StrictBool = Annotated[bool, Strict()]
-Fraction = Annotated[Real, Field(gt=0, le=1)]
 Probability = Annotated[Real, Field(ge=0, lt=1)]
 
 
@@ -173,26 +173,26 @@ class PlannerConfig(Section):
         "robot.radius_m). Oriented by the start attitude when the segment keeps the attitude, else replaced by "
         "the sphere of its largest semi-axis (the body turns along the path).",
     )
-    weights: Annotated[PlannerWeights, _none_to({})] = Field(
+    weights: Annotated[PlannerWeights, none_to({})] = Field(
         default_factory=PlannerWeights, description="Cost weights (Doerr Eq. 5 plus a price on time)."
     )
-    limits: Annotated[LimitsOverride, _none_to({})] = Field(
+    limits: Annotated[LimitsOverride, none_to({})] = Field(
         default_factory=LimitsOverride,
         description="Caps of plan and smooth below the robot's (omitted ones: the robot's), with the margin "
         "applied; a value above the robot's is refused or clipped (margin.on_excess).",
     )
-    margin: Annotated[ReferenceMarginConfig, _none_to({})] = Field(
+    margin: Annotated[ReferenceMarginConfig, none_to({})] = Field(
         default_factory=ReferenceMarginConfig,
         description="Share of the robot's limits plan and smooth may use, with the mass margin of Doerr Eq. 28 "
         "(m_prior = robot.mass_kg, σ_m default: sqrt(estimation.prior.mass_variance_kg2)).",
     )
-    kino: Annotated[KinoRrtConfig, _none_to({})] = Field(
+    kino: Annotated[KinoRrtConfig, none_to({})] = Field(
         default_factory=KinoRrtConfig, description="Kinodynamic RRT settings."
     )
-    shortcut: Annotated[ShortcutConfig, _none_to({})] = Field(
+    shortcut: Annotated[ShortcutConfig, none_to({})] = Field(
         default_factory=ShortcutConfig, description="LQR shortcutting settings (oacli smooth)."
     )
-    polish: Annotated[PolishConfig, _none_to({})] = Field(
+    polish: Annotated[PolishConfig, none_to({})] = Field(
         default_factory=PolishConfig, description="Path-length polish after the shortcutting (oacli smooth)."
     )
 
@@ -244,7 +244,7 @@ class PlannerConfig(Section):
                 )
         if self.segment is not None and "-" not in self.segment:
             problems.append((("segment",), self.segment, "must look like 'A-B' (two waypoint names joined by '-')"))
-        _raise_at("PlannerConfig", problems)
+        raise_at("PlannerConfig", problems)
         return self
 
     def steps(self, seconds: float) -> int:

@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
-from oacli.config.models import (
+from oacli.config.fields import (
     NonNegativeReal,
     NonNegativeVector3,
     PositiveReal,
@@ -22,7 +22,7 @@ from oacli.config.models import (
     Section,
     StrictInt,
     Weight3,
-    _none_to,
+    none_to,
 )
 
 
@@ -88,13 +88,13 @@ class TubeConfig(Section):
         description="Force limit U of the tube per world axis [N], <= robot.force_limit_N (ReSWARM: 0.15). "
         "Default: robot.force_limit_N.",
     )
-    terminal: Annotated[TubeTerminalWeights | None, _none_to(None)] = Field(
+    terminal: Annotated[TubeTerminalWeights | None, none_to(None)] = Field(
         default=None, description="Diagonal terminal weights; default: the discrete Riccati solution."
     )
-    ancillary: Annotated[AncillaryConfig, _none_to({})] = Field(
+    ancillary: Annotated[AncillaryConfig, none_to({})] = Field(
         default_factory=AncillaryConfig, description="Ancillary LQR weights."
     )
-    disturbance: Annotated[TubeDisturbanceConfig, _none_to({})] = Field(
+    disturbance: Annotated[TubeDisturbanceConfig, none_to({})] = Field(
         default_factory=TubeDisturbanceConfig, description="The disturbance set W."
     )
     rpi_epsilon: PositiveReal = Field(

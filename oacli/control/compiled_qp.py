@@ -21,7 +21,6 @@ P must stay constant.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import clarabel
 import cvxpy as cp
@@ -30,6 +29,9 @@ import scipy.sparse as sp
 from cvxpy import settings as cps
 from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import dims_to_solver_cones
 from cvxpy.reductions.solvers.conic_solvers.conic_solver import ConicSolver
+
+from oacli.solver import SUCCESS_STATUSES, solver_error_status
+from oacli.types import SolveInfo
 
 #: Clarabel status strings and what they mean for the caller (as cvxpy maps them).
 _STATUS = {
@@ -42,34 +44,6 @@ _STATUS = {
     "MaxIterations": "user_limit",
     "MaxTime": "user_limit",
 }
-SUCCESS_STATUSES = frozenset({"optimal", "optimal_inaccurate"})
-
-
-@dataclass(frozen=True)
-class CompiledSolve:
-    """Outcome of one :meth:`CompiledQP.solve`.
-
-    Attributes
-    ----------
-    status : str
-        cvxpy-style status (``"optimal"``, ``"infeasible"``, ..., ``"solver_error"``).
-    objective : float
-        Optimal value of the cvxpy objective (NaN unless solved).
-    iterations : int
-    solve_time_s : float
-        Wall time of the data update and the Clarabel solve [s] (Clarabel's own ``solve_time`` reads higher
-        than the wall time around the call, so it is not used).
-    """
-
-    status: str
-    objective: float
-    iterations: int
-    solve_time_s: float
-
-    @property
-    def success(self) -> bool:
-        """True for an optimal (or almost optimal) solution."""
-        return self.status in SUCCESS_STATUSES
 
 
 class CompiledQP:
@@ -177,7 +151,7 @@ class CompiledQP:
         theta[self._const_col] = 1.0
         return theta
 
-    def solve(self, values: dict | None = None) -> CompiledSolve:
+    def solve(self, values: dict | None = None) -> SolveInfo:
         """Solve with the parameters' values; variables are then read with :meth:`value`.
 
         Parameters
@@ -187,8 +161,11 @@ class CompiledQP:
 
         Returns
         -------
-        CompiledSolve
-            Status, objective, iterations and wall time.
+        SolveInfo
+            cvxpy-style status (``"optimal"``, ``"infeasible"``, ...; :func:`oacli.solver.solver_error_status` for
+            a Clarabel status cvxpy does not know), success, the objective of the cvxpy problem (NaN unless solved),
+            Clarabel's iterations and the wall time of the data update and the solve [s] (Clarabel's own
+            ``solve_time`` reads higher than the wall time around the call, so it is not used); ``step_time_s`` NaN.
         """
         theta = self.parameter_vector(values)
         start = time.perf_counter()
@@ -198,10 +175,10 @@ class CompiledQP:
             self._solver.update(q=self._t_q @ theta, b=self._t_b @ theta, A=self._t_a @ theta)
         sol = self._solver.solve()
         wall = time.perf_counter() - start
-        status = _STATUS.get(str(sol.status), "solver_error")
+        status = _STATUS.get(str(sol.status)) or solver_error_status(f"Clarabel status {sol.status}")
         self._x = np.asarray(sol.x) if status in SUCCESS_STATUSES else None
         objective = float(sol.obj_val + self._t_d @ theta) if self._x is not None else float("nan")
-        return CompiledSolve(status, objective, int(sol.iterations), wall)
+        return SolveInfo(status, self._x is not None, objective, int(sol.iterations), wall)
 
     def value(self, variable: cp.Variable) -> np.ndarray:
         """Value of ``variable`` in the last successful solve (shape of the variable).
@@ -220,28 +197,3 @@ class CompiledQP:
             raise RuntimeError("no solution: the last solve failed or none was run")
         col = self._var_cols[variable.id]
         return self._x[col : col + variable.size].reshape(variable.shape, order="F")
-
-
-def timed_cvxpy_solve(problem: cp.Problem, **clarabel_options) -> tuple[str, float]:
-    """``problem.solve(solver=CLARABEL, **clarabel_options)`` (the plain path) and its wall time.
-
-    Parameters
-    ----------
-    problem : cvxpy.Problem
-    **clarabel_options
-        Passed to Clarabel.
-
-    Returns
-    -------
-    status : str
-        cvxpy's status, or ``solver_error: ...`` (first line, at most 120 characters) when Clarabel raises.
-    wall_s : float
-        Wall time of the call [s].
-    """
-    start = time.perf_counter()
-    try:
-        problem.solve(solver=cp.CLARABEL, **clarabel_options)
-        status = str(problem.status)
-    except cp.error.SolverError as exc:
-        status = f"solver_error: {exc}".splitlines()[0][:120]
-    return status, time.perf_counter() - start

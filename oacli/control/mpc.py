@@ -33,9 +33,10 @@ from dataclasses import dataclass
 import cvxpy as cp
 import numpy as np
 
-from oacli.control.compiled_qp import SUCCESS_STATUSES, CompiledQP, timed_cvxpy_solve
+from oacli.control.compiled_qp import CompiledQP
 from oacli.control.lqr import solve_dare
 from oacli.control.workspace import PositionRows, braking_lines
+from oacli.solver import solve_clarabel
 from oacli.types import SolveInfo
 
 #: Default exact-penalty weight of the position slack [1/m]. Exact when above the sum of the Lagrange multipliers
@@ -243,14 +244,11 @@ class LinearMPC:
         start = time.perf_counter()
         if self.compiled is not None:
             out = self.compiled.solve()
-            status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
             value = self.compiled.value if out.success else None
         else:
-            status, solve_time = timed_cvxpy_solve(self.problem)
-            stats = self.problem.solver_stats if status in SUCCESS_STATUSES else None
-            iterations = stats.num_iters if stats is not None and stats.num_iters is not None else -1
-            objective = float(self.problem.value) if stats is not None else float("nan")
-            value = (lambda v: v.value) if stats is not None and self._u.value is not None else None  # type: ignore[assignment,return-value]
+            out = solve_clarabel(self.problem)
+            value = (lambda v: v.value) if out.success and self._u.value is not None else None  # type: ignore[assignment,return-value]
+        status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
         wall = time.perf_counter() - start
         if value is not None:
             u, x = np.array(value(self._u)), np.array(value(self._x))

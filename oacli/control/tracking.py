@@ -44,9 +44,8 @@ from oacli.geometry.collision import RobotBody
 from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
-from oacli.sim.simulator import ControlStep
 from oacli.trajectory import feedforward_inputs, sample_states
-from oacli.types import InertialParams, SolveInfo, Trajectory
+from oacli.types import ControlStep, InertialParams, SolveInfo, Trajectory
 
 
 @dataclass(frozen=True)
@@ -203,7 +202,7 @@ class TrackingMPC:
         return np.concatenate([force, torque])
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """Solve once at time ``t`` [s] from the measured state; see :class:`oacli.sim.simulator.Controller`.
+        """Solve once at time ``t`` [s] from the measured state; see :class:`oacli.types.Controller`.
 
         Parameters
         ----------

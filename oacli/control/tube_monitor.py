@@ -38,7 +38,7 @@ import numpy as np
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_mpc import TubeHistory, TubeMPC
 from oacli.errors import InfeasibleError
-from oacli.sim.simulator import ControlStep
+from oacli.types import ControlStep
 
 RESPONSES = ("redesign", "hold", "ignore")
 

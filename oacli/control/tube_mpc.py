@@ -58,9 +58,8 @@ from oacli.geometry.collision import RobotBody
 from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
-from oacli.sim.simulator import ControlStep
 from oacli.trajectory import feedforward_inputs, sample_states
-from oacli.types import InertialParams, SolveInfo, Trajectory
+from oacli.types import ControlStep, InertialParams, SolveInfo, Trajectory
 
 MODES = ("mpc", "fallback", "hold")
 
@@ -286,7 +285,7 @@ class TubeMPC:
     # -- the controller step -----------------------------------------------------------------------------------
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """One control step at time ``t`` [s]; see :class:`oacli.sim.simulator.Controller`.
+        """One control step at time ``t`` [s]; see :class:`oacli.types.Controller`.
 
         Parameters
         ----------

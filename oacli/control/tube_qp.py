@@ -42,11 +42,10 @@ import clarabel
 import cvxpy as cp
 import numpy as np
 
-from oacli.control.compiled_qp import CompiledQP, timed_cvxpy_solve
+from oacli.control.compiled_qp import CompiledQP
 from oacli.control.workspace import PositionRows, braking_lines
+from oacli.solver import solve_clarabel
 from oacli.types import SolveInfo
-
-_OK = {"optimal", "optimal_inaccurate"}
 
 #: Clarabel settings of both solve paths: the defaults except iterative refinement of the KKT solves, which
 #: costs more than half the solve time on these small, well-scaled QPs; the interior-point method still stops
@@ -442,17 +441,13 @@ class NominalQP:
         start = time.perf_counter()
         if use_fast:
             out = self.compiled.solve(self._values)  # type: ignore[union-attr]
-            status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
             value = self.compiled.value if out.success else None  # type: ignore[union-attr]
         else:
             for param in self.problem.parameters():
                 param.value = self._values[param.id]
-            status, solve_time = timed_cvxpy_solve(self.problem, **self.clarabel_options)  # wall of solve()
-            ok = status in _OK
-            objective = float(self.problem.value) if ok else float("nan")
-            stats = self.problem.solver_stats if ok else None
-            iterations = int(stats.num_iters) if stats is not None and stats.num_iters is not None else -1
-            value = (lambda var: np.asarray(var.value)) if ok else None
+            out = solve_clarabel(self.problem, **self.clarabel_options)  # solve_time_s: wall of solve()
+            value = (lambda var: np.asarray(var.value)) if out.success else None
+        status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
         wall = time.perf_counter() - start
         if value is not None:
             objective += self._reference_constant()

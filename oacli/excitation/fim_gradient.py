@@ -356,6 +356,11 @@ def fim_gradients(
     )
 
 
+SYMMETRIC_PAIRS = tuple((a, b) for a in range(N_PARAMS) for b in range(a, N_PARAMS))
+"""Index pairs ``(a, b)``, ``a ≤ b``, of the 10 distinct entries of a symmetric 4×4 matrix, in the order of
+:func:`symmetric_basis` (and of :func:`fim_gradients`)."""
+
+
 def symmetric_basis() -> np.ndarray:
     """The 10 symmetric 4×4 matrices ``E_ab`` (a ≤ b) with ``⟨E_ab, F⟩ = F_ab``, shape (10, 4, 4).
 

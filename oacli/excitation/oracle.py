@@ -2,7 +2,7 @@
 
 The information-aware planner (:mod:`oacli.excitation.rattle`) needs, at every replan, the latest estimate
 ``θ̂`` and its standard deviations. Any sequential estimator that can be fed one measurement at a time will do
-(the :class:`SequentialEstimator` protocol below). ``oacli excite --method rattle`` uses the real one by default:
+(the :class:`OnlineEstimator` protocol below). ``oacli excite --method rattle`` uses the real one by default:
 the error-state EKF with χ² outlier gating of :mod:`oacli.estimation.sequential` ([ReSWARM2023] §4.4.1, §6.2.1),
 behind :class:`oacli.estimation.online.OnlineSequentialEstimator` (``excitation.rattle.estimator: sequential``);
 ``estimator: oracle`` selects the oracle below instead.
@@ -26,7 +26,7 @@ from oacli.types import ParameterEstimate
 
 
 @runtime_checkable
-class SequentialEstimator(Protocol):
+class OnlineEstimator(Protocol):
     """A parameter estimator updated with one measurement at a time.
 
     ``update(t, x_measured, u_applied)``: ``x_measured (13,)`` is the state measured at mission time ``t`` [s]

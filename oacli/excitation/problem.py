@@ -26,6 +26,7 @@ import numpy as np
 from oacli.errors import InfeasibleError
 from oacli.geometry import Scene
 from oacli.geometry.halfspaces import best_box, keep_out_zone, point_halfspaces
+from oacli.geometry.verify import dense_positions
 from oacli.model import quaternion as quat
 
 LENGTH_UNIT_M = 0.01
@@ -181,11 +182,12 @@ def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end
     return out
 
 
-def dense_positions(x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, substeps: int = 20) -> np.ndarray:
-    """Positions between samples under the zero-order-hold force (exact parabola).
+def collision_free(scene: Scene, x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, substeps: int = 20) -> bool:
+    """True when the continuous motion stays in a keep-in box and out of every keep-out zone (dense re-check).
 
     Parameters
     ----------
+    scene : Scene
     x : ndarray, shape (N+1, 13)
         States.
     u : ndarray, shape (N, 6) or (N+1, 6)
@@ -194,33 +196,14 @@ def dense_positions(x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, s
         Step [s].
     mass_kg : float
     substeps : int, optional
-        Points per step.
-
-    Returns
-    -------
-    ndarray, shape (N·substeps + 1, 3)
-    """
-    tau = dt_s * np.arange(substeps) / substeps
-    n = x.shape[0] - 1
-    acc = u[:n, 0:3] / mass_kg
-    pts = x[:n, None, 0:3] + x[:n, None, 3:6] * tau[None, :, None] + 0.5 * acc[:, None, :] * tau[None, :, None] ** 2
-    return np.vstack([pts.reshape(-1, 3), x[n, 0:3]])
-
-
-def collision_free(scene: Scene, x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, substeps: int = 20) -> bool:
-    """True when the continuous motion stays in a keep-in box and out of every keep-out zone (dense re-check).
-
-    Parameters
-    ----------
-    scene : Scene
-    x, u, dt_s, mass_kg, substeps
-        As in :func:`dense_positions`.
+        Points per step (:func:`oacli.geometry.verify.dense_positions`).
 
     Returns
     -------
     bool
     """
-    pts = dense_positions(x, u, dt_s, mass_kg, substeps)
+    n = x.shape[0] - 1
+    _, pts = dense_positions(dt_s * np.arange(n + 1), x, u[:n, 0:3], mass_kg, substeps=substeps)
     return bool(np.all(scene.in_keep_in(pts)) and not np.any(scene.in_keep_out(pts)))
 
 

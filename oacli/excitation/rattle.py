@@ -29,7 +29,6 @@ lowers the true cost plus the exact penalty of the constraint violation.
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import cvxpy as cp
@@ -54,9 +53,8 @@ from oacli.excitation.problem import (
 )
 from oacli.geometry import Scene
 from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
+from oacli.solver import solve_clarabel
 from oacli.types import Trajectory
-
-_OK = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
 
 
 @dataclass(frozen=True)
@@ -144,7 +142,7 @@ class PlannerWeights:
 
 
 @dataclass(frozen=True)
-class PlanResult:
+class ReplanResult:
     """One replan.
 
     Attributes
@@ -421,7 +419,7 @@ class InformationAwarePlanner:
         *,
         t0: float = 0.0,
         u_warm: np.ndarray | None = None,
-    ) -> PlanResult:
+    ) -> ReplanResult:
         """Plan N steps from ``x0`` with the model ``theta`` (the estimate), its std ``σ`` and weights ``γ``.
 
         Parameters
@@ -437,7 +435,7 @@ class InformationAwarePlanner:
 
         Returns
         -------
-        PlanResult
+        ReplanResult
         """
         wall = time.perf_counter()
         theta = np.asarray(theta, dtype=float)
@@ -461,14 +459,9 @@ class InformationAwarePlanner:
         status = "not run"
         for _ in range(self.iterations):
             self._set(current, theta, std, gamma, delta)
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", UserWarning)
-                    self.problem.solve(solver=cp.CLARABEL)
-                status = str(self.problem.status)
-            except cp.SolverError as exc:
-                status = f"solver_error: {exc}"
-            if status not in _OK or self.du.value is None:
+            out = solve_clarabel(self.problem, quiet=True)
+            status = out.status
+            if not out.success or self.du.value is None:
                 delta *= 0.5
                 continue
             predicted = float(self.problem.value) - current["reward"]
@@ -486,7 +479,7 @@ class InformationAwarePlanner:
         n = self.n
         t = t0 + self.dt * np.arange(n + 1)
         traj = Trajectory(t, current["x"], np.vstack([current["u"], np.zeros((1, 6))]), name="rattle_plan")
-        return PlanResult(
+        return ReplanResult(
             trajectory=traj,
             cost=current["cost"],
             information_reward=current["reward"],

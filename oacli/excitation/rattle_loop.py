@@ -25,13 +25,13 @@ import numpy as np
 
 from oacli.control.lqr import dlqr
 from oacli.control.tracking import to_error_state
-from oacli.excitation.oracle import SequentialEstimator
-from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, PlanResult
+from oacli.excitation.oracle import OnlineEstimator
+from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, ReplanResult
 from oacli.model.double_integrator import hover_error_model
 from oacli.sim.sensors import Disturbance, SensorNoise
-from oacli.sim.simulator import ControlStep, simulate
+from oacli.sim.simulator import simulate
 from oacli.trajectory import sample_inputs, sample_states
-from oacli.types import InertialParams, ParameterEstimate, SolveInfo, Telemetry, Trajectory
+from oacli.types import ControlStep, InertialParams, ParameterEstimate, SolveInfo, Telemetry, Trajectory
 
 
 @dataclass(frozen=True)
@@ -44,14 +44,14 @@ class ReplanRecord:
         Mission time [s].
     theta, std, gamma : ndarray, shape (4,)
         Estimate used as the model, its standard deviations, and the information weights set from them.
-    plan : PlanResult
+    plan : ReplanResult
     """
 
     t: float
     theta: np.ndarray
     std: np.ndarray
     gamma: np.ndarray
-    plan: PlanResult
+    plan: ReplanResult
 
 
 class RattleController:
@@ -60,7 +60,7 @@ class RattleController:
     Parameters
     ----------
     planner : InformationAwarePlanner
-    estimator : SequentialEstimator
+    estimator : OnlineEstimator
     weighting : InformationWeighting
     replan_period_s : float
         Time between replans [s] (12 s as flown).
@@ -77,7 +77,7 @@ class RattleController:
     def __init__(
         self,
         planner: InformationAwarePlanner,
-        estimator: SequentialEstimator,
+        estimator: OnlineEstimator,
         weighting: InformationWeighting,
         *,
         replan_period_s: float,
@@ -234,7 +234,7 @@ class RattleRun:
 
 def run_rattle(
     planner: InformationAwarePlanner,
-    estimator: SequentialEstimator,
+    estimator: OnlineEstimator,
     weighting: InformationWeighting,
     x0: np.ndarray,
     truth: InertialParams,

@@ -100,8 +100,11 @@ class DenseCheck:
 
 
 def dense_positions(t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: float,
-                    spacing_m: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
+                    spacing_m: float = 0.005, substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Times and positions of a zero-order-hold trajectory sampled at most ``spacing_m`` apart.
+
+    Between samples the force is held, so the position is the exact parabola ``p_k + v_k τ + ½ (f_k/m) τ²``
+    (Doerr Eq. 34 with a world-frame force); each step is cut into equal parts, ending at the step's end.
 
     Parameters
     ----------
@@ -112,6 +115,9 @@ def dense_positions(t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: fl
         Held world-frame force [N].
     mass_kg : float
     spacing_m : float
+        Largest distance between consecutive points [m] (bounded per step by the step's top speed).
+    substeps : int, optional
+        A fixed number of points per step instead of the spacing.
 
     Returns
     -------
@@ -129,7 +135,7 @@ def dense_positions(t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: fl
         h = t[k + 1] - t[k]
         v, acc = x[k, 3:6], force[k] / mass_kg
         top_speed = np.linalg.norm(v) + np.linalg.norm(acc) * h  # bounds the speed over the whole interval
-        m = max(1, int(np.ceil(top_speed * h / spacing_m)))
+        m = substeps if substeps is not None else max(1, int(np.ceil(top_speed * h / spacing_m)))
         tau = h * np.arange(1, m + 1) / m
         times.append(t[k] + tau)
         pos.append(x[k, 0:3] + np.outer(tau, v) + 0.5 * np.outer(tau * tau, acc))

@@ -85,7 +85,6 @@ followed by the polish never returns a trajectory costlier than the plan it was 
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass
 
 import cvxpy as cp
@@ -96,6 +95,7 @@ import scipy.sparse.linalg as spla
 from oacli.geometry.collision import CollisionChecker
 from oacli.geometry.halfspaces import KeepOutZone, keep_out_zones, supporting_halfspaces
 from oacli.planning.translational import CostWeights, TranslationalTrajectory, interval_cost_matrix
+from oacli.solver import SUCCESS_STATUSES, solve_clarabel
 
 IMPROVED = "improved"
 NOT_IMPROVED = "not_improved"
@@ -109,7 +109,6 @@ COST = "cost"
 SOLVER = "solver_failed"
 STEP_OUTCOMES = (ACCEPTED, NOT_SHORTER, COLLISION, LIMITS, COST, SOLVER)
 
-_OK = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
 #: Stand-in for an unbounded keep-in coordinate [m] (a scene without keep-in boxes).
 _FAR_M = 1e6
 #: Largest buffer [m] for which a solution counts as certified (solver tolerance).
@@ -613,19 +612,15 @@ class PolishSubproblem:
         self.problem = cp.Problem(cp.Minimize(objective), cons)
 
     def solve(self) -> str:
-        """Solve with Clarabel; returns the cvxpy status (``"solver_error"`` when Clarabel raised).
+        """Solve with Clarabel (:func:`oacli.solver.solve_clarabel`; an inaccurate solve is reported by its status,
+        not a warning).
 
         Returns
         -------
         str
+            cvxpy's status, or ``solver_error: ...`` when Clarabel raised.
         """
-        try:
-            with warnings.catch_warnings():  # an inaccurate solve is reported by its status, not a warning
-                warnings.simplefilter("ignore", UserWarning)
-                self.problem.solve(solver=cp.CLARABEL, canon_backend="COO")
-        except cp.error.SolverError:
-            return "solver_error"
-        return str(self.problem.status)
+        return solve_clarabel(self.problem, quiet=True, canon_backend="COO").status
 
 
 def lqr_cost_expression(r, v, f, h: np.ndarray, mass_kg: float, weights: CostWeights, goal: np.ndarray):
@@ -757,7 +752,7 @@ def polish_trajectory(
         t0 = time.perf_counter()
         status = sub.solve()
         base = dict(index=i, trust_radius_m=radius, status=status, solve_time_s=time.perf_counter() - t0)
-        if status not in _OK or sub.f.value is None:
+        if status not in SUCCESS_STATUSES or sub.f.value is None:
             iters.append(PolishIteration(**base, objective=np.nan, buffer_m=np.nan, length_m=np.nan,  # type: ignore[arg-type]
                                          duration_s=np.nan, cost=np.nan, outcome=SOLVER))
             radius *= 0.5

@@ -10,45 +10,14 @@ Actuators saturate each axis at its limit. Every random draw comes from the gene
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
 from oacli.model.rigid_body import propagate, theta_of
 from oacli.sim.sensors import Disturbance, SensorNoise
-from oacli.types import InertialParams, SolveInfo, Telemetry
+from oacli.types import Controller, InertialParams, SolveInfo, Telemetry
 
 _TIME_TOL = 1e-9
-
-
-@dataclass(frozen=True)
-class ControlStep:
-    """What a controller returns each update: the input it asks for, its solve record, its reference."""
-
-    u: np.ndarray
-    info: SolveInfo
-    x_reference: np.ndarray
-
-
-class Controller(Protocol):
-    """A sampled-data controller."""
-
-    def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        """Input to apply from time ``t`` [s] given the measured state ``x_measured (13,)``.
-
-        Parameters
-        ----------
-        t : float
-            Mission time [s].
-        x_measured : ndarray, shape (13,)
-            Measured state.
-
-        Returns
-        -------
-        ControlStep
-        """
-        ...
 
 
 def simulate(

@@ -1,0 +1,111 @@
+"""The robot model (``robot``) and the simulated plant (``truth``, with its ``disturbance``)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import numpy as np
+from pydantic import Field
+
+from oacli.config.fields import (
+    NonNegativeReal,
+    NonNegativeVector3,
+    PositiveReal,
+    PositiveVector3,
+    PrincipalInertia,
+    Section,
+    Vector3,
+    none_to,
+    read_only,
+)
+from oacli.types import InertialParams
+
+
+class RobotConfig(Section):
+    """The robot model the planner, controller and estimator use (Doerr et al. 2021, Eqs. 33-36)."""
+
+    mass_kg: PositiveReal = Field(description="Mass m [kg], > 0.")
+    inertia_kgm2: PrincipalInertia = Field(
+        description="Principal moments of inertia (Ixx, Iyy, Izz) [kg·m²] about the body axes through the CoM; "
+        "each > 0 and each sum of two >= the third."
+    )
+    force_limit_N: PositiveVector3 = Field(description="Force bound per world axis, |f_i| <= limit [N].")
+    torque_limit_Nm: PositiveVector3 = Field(description="Torque bound per body axis, |tau_i| <= limit [N·m].")
+    velocity_limit_mps: PositiveVector3 = Field(
+        default=(0.2, 0.2, 0.2),
+        description="Velocity bound per world axis [m/s] (default: Astrobee nominal flight mode).",
+    )
+    angular_velocity_limit_radps: PositiveVector3 = Field(
+        default=(0.1745, 0.1745, 0.1745),
+        description="Angular velocity bound per body axis [rad/s] (default: Astrobee nominal flight mode).",
+    )
+    radius_m: NonNegativeReal = Field(default=0.25, description="Collision radius of the robot [m], >= 0.")
+
+    def inertial_params(self) -> InertialParams:
+        """Mass and principal inertias as :class:`oacli.types.InertialParams`."""
+        return InertialParams(self.mass_kg, self.inertia_kgm2)  # type: ignore[arg-type]
+
+    @property
+    def input_limits(self) -> np.ndarray:
+        """Input bounds ``[force (3) N, torque (3) N·m]``, shape (6,), read-only; ``|u_i| <= input_limits[i]``."""
+        return read_only(self.force_limit_N + self.torque_limit_Nm)
+
+    @property
+    def velocity_limits(self) -> np.ndarray:
+        """``[velocity (3) m/s, angular velocity (3) rad/s]`` bounds, shape (6,), read-only."""
+        return read_only(self.velocity_limit_mps + self.angular_velocity_limit_radps)
+
+
+class DisturbanceConfig(Section):
+    """Additive force/torque disturbance on the simulated plant: ``bias + uniform(-random, +random)`` per axis."""
+
+    force_bias_N: Vector3 = Field(default=(0.0, 0.0, 0.0), description="Constant force, world frame [N].")
+    force_random_N: NonNegativeVector3 = Field(
+        default=(0.0, 0.0, 0.0),
+        description="Bound of the uniform random force per world axis [N], >= 0; redrawn each control period.",
+    )
+    torque_bias_Nm: Vector3 = Field(default=(0.0, 0.0, 0.0), description="Constant torque, body frame [N·m].")
+    torque_random_Nm: NonNegativeVector3 = Field(
+        default=(0.0, 0.0, 0.0),
+        description="Bound of the uniform random torque per body axis [N·m], >= 0; redrawn each control period.",
+    )
+
+    @property
+    def bias(self) -> np.ndarray:
+        """Constant part ``[force (3) N, torque (3) N·m]``, shape (6,), read-only."""
+        return read_only(self.force_bias_N + self.torque_bias_Nm)
+
+    @property
+    def random_bound(self) -> np.ndarray:
+        """Half-width of the uniform random part ``[force (3) N, torque (3) N·m]``, shape (6,), read-only."""
+        return read_only(self.force_random_N + self.torque_random_Nm)
+
+    @property
+    def is_zero(self) -> bool:
+        """True when the disturbance is identically zero."""
+        return not (np.any(self.bias) or np.any(self.random_bound))
+
+
+class TruthConfig(Section):
+    """The simulated plant. Missing inertial values are filled from ``robot`` when the config is validated."""
+
+    mass_kg: PositiveReal | None = Field(default=None, description="True mass [kg], > 0 (default: robot's).")
+    inertia_kgm2: PrincipalInertia | None = Field(
+        default=None, description="True principal inertias (Ixx, Iyy, Izz) [kg·m²] (default: robot's)."
+    )
+    disturbance: Annotated[DisturbanceConfig, none_to({})] = Field(
+        default_factory=DisturbanceConfig, description="Additive disturbance acting on the plant."
+    )
+
+    def inertial_params(self) -> InertialParams:
+        """True mass and principal inertias (only valid once filled, i.e. on a validated :class:`OacliConfig`)."""
+        if self.mass_kg is None or self.inertia_kgm2 is None:
+            raise ValueError("truth inertial parameters are not set; use OacliConfig.truth_params()")
+        return InertialParams(self.mass_kg, self.inertia_kgm2)  # type: ignore[arg-type]
+
+
+__all__ = [
+    "DisturbanceConfig",
+    "RobotConfig",
+    "TruthConfig",
+]

@@ -1,0 +1,259 @@
+"""The convex subproblem of the offline excitation design's SCP (:mod:`oacli.excitation.design`), built once
+with cvxpy Parameters (DPP) and solved with Clarabel.
+
+Around the current rollout it finds the step ``δu`` that minimises the exact convex criterion of the linearised
+Fisher information (Doerr et al. 2021, Eq. 30) plus the ℓ1 penalty of the slacks, subject to the linearised
+dynamics (translation exact, rotation by the RK4 Jacobians), the input bounds, the trust region and the softened
+velocity, rate, keep-in, keep-out and terminal constraints (see the module docstring of
+:mod:`oacli.excitation.design`).
+"""
+
+from __future__ import annotations
+
+import cvxpy as cp
+import numpy as np
+
+from oacli.excitation.convex import RotationDynamics
+from oacli.excitation.design_types import ExcitationProblem
+from oacli.excitation.fim_gradient import SYMMETRIC_PAIRS
+from oacli.excitation.information import N_PARAMS
+from oacli.excitation.merit import Evaluation, ScpMerit
+from oacli.excitation.problem import LENGTH_UNIT_M, attitude_error, keep_in_violation
+from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
+from oacli.solver import solve_clarabel
+
+
+class ConvexSubproblem:
+    """The convexified design problem around an iterate; cvxpy problem built once with Parameters.
+
+    Parameters
+    ----------
+    problem : ExcitationProblem
+    merit : ScpMerit
+        The merit whose margins and reference the subproblem mirrors.
+    penalty : float
+        Exact-penalty weight μ on the slacks.
+    linearisation_margin : float, optional
+        κ: constraints the model predicts only to first order (final attitude and rate) aim at κ × their bound,
+        never tighter than the current value.
+    rate_margin_fraction : float, optional
+        The rate limits aim at ``1 − (1 − κ) × rate_margin_fraction`` of the limit, likewise.
+    """
+
+    def __init__(
+        self, problem: ExcitationProblem, merit: ScpMerit, penalty: float, linearisation_margin: float = 0.5,
+        rate_margin_fraction: float = 0.05,
+    ) -> None:
+        p = problem
+        self.linearisation_margin = linearisation_margin
+        self.rate_margin_fraction = rate_margin_fraction
+        n = p.steps
+        dt = p.dt
+        m = p.theta[0]
+        lim = p.limits
+        self.p = p
+        self.n = n
+        u_max = lim.input
+        self.du = cp.Variable((n, 6), name="du")
+        dr = cp.Variable((n + 1, 3), name="dr")
+        dv = cp.Variable((n + 1, 3), name="dv")
+        drot = cp.Variable((n + 1, 7), name="drot")  # [δq (4), δω (3)]
+        du = self.du
+
+        self.u_bar = cp.Parameter((n, 6), name="u_bar")
+        self.v_bar = cp.Parameter((n + 1, 3), name="v_bar")
+        self.w_bar = cp.Parameter((n + 1, 3), name="w_bar")
+        self.delta = cp.Parameter(6, nonneg=True, name="trust_region")  # per channel [N, N·m]
+
+        self.rotation = RotationDynamics(drot, du[:, 3:6])
+        cons = [dr[0] == 0, dv[0] == 0, *self.rotation.constraints]
+        cons += [
+            dr[1:] == dr[:-1] + dt * dv[:-1] + (dt**2 / (2.0 * m)) * du[:, 0:3],
+            dv[1:] == dv[:-1] + (dt / m) * du[:, 0:3],
+        ]
+        u_row = u_max[None, :]
+        cons += [
+            cp.abs(self.u_bar + du) <= np.tile(u_row, (n, 1)),
+            cp.abs(du) <= np.ones((n, 1)) @ cp.reshape(self.delta, (1, 6), order="C"),
+        ]
+
+        slacks = []
+        s_v = cp.Variable(n, nonneg=True, name="s_velocity")
+        s_w = cp.Variable(n, nonneg=True, name="s_rate")
+        self.w_bound = cp.Parameter((n, 3), nonneg=True, name="rate_bound")
+        cons += [
+            cp.abs(self.v_bar[1:] + dv[1:]) <= cp.reshape(1.0 + s_v, (n, 1), order="C") @ lim.velocity_mps[None, :],
+            cp.abs(self.w_bar[1:] + drot[1:, 4:7])
+            <= self.w_bound + cp.reshape(s_w, (n, 1), order="C") @ lim.angular_velocity_radps[None, :],
+        ]
+        slacks += [s_v, s_w]
+
+        self.has_keep_in = bool(p.scene.keep_in)
+        if self.has_keep_in:
+            # Bounds on dr relative to the iterate: lower/upper for the start and the end sample of each segment.
+            self.in_lo0 = cp.Parameter((n, 3), name="in_lo0")
+            self.in_hi0 = cp.Parameter((n, 3), name="in_hi0")
+            self.in_lo1 = cp.Parameter((n, 3), name="in_lo1")
+            self.in_hi1 = cp.Parameter((n, 3), name="in_hi1")
+            s_in = cp.Variable(n, nonneg=True, name="s_keep_in")
+            ls = cp.reshape(LENGTH_UNIT_M * s_in, (n, 1), order="C") @ np.ones((1, 3))
+            cons += [
+                dr[:-1] >= self.in_lo0 - ls, dr[:-1] <= self.in_hi0 + ls,
+                dr[1:] >= self.in_lo1 - ls, dr[1:] <= self.in_hi1 + ls,
+            ]
+            slacks.append(s_in)
+        self.out_n: list[cp.Parameter] = []
+        self.out_c0: list[cp.Parameter] = []
+        self.out_c1: list[cp.Parameter] = []
+        for e in range(len(p.scene.keep_out)):
+            n_hat = cp.Parameter((n, 3), name=f"out_n{e}")
+            c0 = cp.Parameter(n, name=f"out_c0_{e}")
+            c1 = cp.Parameter(n, name=f"out_c1_{e}")
+            s_out = cp.Variable(n, nonneg=True, name=f"s_keep_out{e}")
+            cons += [
+                cp.sum(cp.multiply(n_hat, dr[:-1]), axis=1) >= c0 - LENGTH_UNIT_M * s_out,
+                cp.sum(cp.multiply(n_hat, dr[1:]), axis=1) >= c1 - LENGTH_UNIT_M * s_out,
+            ]
+            self.out_n.append(n_hat)
+            self.out_c0.append(c0)
+            self.out_c1.append(c1)
+            slacks.append(s_out)
+
+        tol = p.terminal
+        self.r_end = cp.Parameter(3, name="r_end_minus_goal")
+        self.att_err = cp.Parameter(3, name="attitude_error_end")
+        self.att_jac = cp.Parameter((3, 4), name="attitude_error_jacobian")
+        self.att_bound = cp.Parameter(3, nonneg=True, name="attitude_bound")
+        self.w_end_bound = cp.Parameter(3, nonneg=True, name="rate_end_bound")
+        s_t = cp.Variable(4, nonneg=True, name="s_terminal")
+        cons += [
+            cp.abs(self.r_end + dr[n]) <= tol.position_m * (1.0 + s_t[0]),
+            cp.abs(self.v_bar[n] + dv[n]) <= tol.velocity_mps * (1.0 + s_t[1]),
+            cp.abs(self.att_err + self.att_jac @ drot[n, 0:4]) <= self.att_bound + tol.attitude_rad * s_t[2],
+            cp.abs(self.w_bar[n] + drot[n, 4:7]) <= self.w_end_bound + tol.angular_velocity_radps * s_t[3],
+        ]
+        slacks.append(s_t)
+        self.slacks = slacks
+
+        # Affine model of the (scaled) FIM: F̃(δu) = F̃0 + reshape(Gm vec δu).
+        self.f0 = cp.Parameter((N_PARAMS, N_PARAMS), name="fim0")
+        self.gm = cp.Parameter((N_PARAMS * N_PARAMS, 6 * n), name="fim_gradient")
+        fim_var = cp.Variable((N_PARAMS, N_PARAMS), symmetric=True, name="fim")
+        cons.append(
+            fim_var == self.f0 + cp.reshape(self.gm @ cp.vec(du, order="C"), (N_PARAMS, N_PARAMS), order="C")
+        )
+        self.crit_param = cp.Parameter((N_PARAMS, N_PARAMS), name="criterion_weight")
+        if p.criterion == "A":
+            z = cp.Variable((2 * N_PARAMS, 2 * N_PARAMS), PSD=True, name="schur")
+            cons += [z[:N_PARAMS, :N_PARAMS] == fim_var, z[:N_PARAMS, N_PARAMS:] == self.crit_param]
+            crit_expr = cp.trace(z[N_PARAMS:, N_PARAMS:])
+        elif p.criterion == "D":
+            crit_expr = -cp.log_det(fim_var) / N_PARAMS
+        else:
+            t_min = cp.Variable(name="lambda_min")
+            z = cp.Variable((N_PARAMS, N_PARAMS), PSD=True, name="lmi")
+            cons.append(z == fim_var - t_min * self.crit_param)
+            crit_expr = -t_min
+        penalty_expr = sum(cp.sum(s) for s in slacks)
+        self.problem = cp.Problem(cp.Minimize(crit_expr + penalty * penalty_expr), cons)
+        self.merit = merit
+
+    def set_iterate(self, ev: Evaluation, lin, delta_force: float, delta_torque: float) -> None:
+        """Linearise around an iterate: set every Parameter of the subproblem.
+
+        Parameters
+        ----------
+        ev : Evaluation
+            The current iterate.
+        lin : FimGradient
+            Its rotational RK4 Jacobians and FIM gradients (:func:`oacli.excitation.fim_gradient.fim_gradients`).
+        delta_force, delta_torque : float
+            Trust regions Δ as fractions of the force and torque limits.
+        """
+        p = self.p
+        n = self.n
+        x = ev.x
+        self.u_bar.value = ev.u
+        self.v_bar.value = x[:, 3:6]
+        self.w_bar.value = x[:, 10:13]
+        self.rotation.set(lin.a, lin.b)
+        self.delta.value = np.concatenate([delta_force * p.limits.force_N, delta_torque * p.limits.torque_Nm])
+        pos = x[:, 0:3]
+        margin = self.merit.margin
+        if self.has_keep_in:
+            _, boxes = keep_in_violation(p.scene, pos, margin)
+            lo = np.array([p.scene.keep_in[i].lower for i in boxes]) + margin
+            hi = np.array([p.scene.keep_in[i].upper for i in boxes]) - margin
+            self.in_lo0.value = lo - pos[:-1]
+            self.in_hi0.value = hi - pos[:-1]
+            self.in_lo1.value = lo - pos[1:]
+            self.in_hi1.value = hi - pos[1:]
+        mid = 0.5 * (pos[:-1] + pos[1:])
+        for e, ell in enumerate(p.scene.keep_out):
+            n_hat, beta, _ = point_halfspaces(keep_out_zone(ell), mid)
+            bound = beta + self.merit.keep_out_margin
+            self.out_n[e].value = n_hat
+            self.out_c0[e].value = bound - np.einsum("ki,ki->k", n_hat, pos[:-1])
+            self.out_c1[e].value = bound - np.einsum("ki,ki->k", n_hat, pos[1:])
+        self.r_end.value = pos[n] - p.goal[0:3]
+        err, jac = attitude_error(p.goal[6:10], x[n, 6:10])
+        self.att_err.value = err
+        self.att_jac.value = jac
+        # Constraints the linear model predicts only to first order (rotation) are aimed at a tightened bound
+        # (κ × the true one) but never tighter than the current value, so the slacks at zero step still equal the
+        # true violations: linearisation errors of a step then stay inside the true bound (no Maratos effect).
+        kappa = self.linearisation_margin
+        tol = p.terminal
+        self.att_bound.value = np.minimum(tol.attitude_rad, np.maximum(kappa * tol.attitude_rad, np.abs(err)))
+        w_end = np.abs(x[n, 10:13])
+        self.w_end_bound.value = np.minimum(
+            tol.angular_velocity_radps, np.maximum(kappa * tol.angular_velocity_radps, w_end)
+        )
+        w_max = p.limits.angular_velocity_radps[None, :]
+        rate_kappa = 1.0 - (1.0 - kappa) * self.rate_margin_fraction
+        self.w_bound.value = np.minimum(w_max, np.maximum(rate_kappa * w_max, np.abs(x[1:, 10:13])))
+
+        # Scaled FIM model: F̃ = Dθ F Dθ / c with c = tr(Dθ F Dθ)/4 (O(1) numbers for the conic solver).
+        d_theta = np.abs(p.theta)
+        f_rel = d_theta[:, None] * ev.fim * d_theta[None, :]
+        c = float(np.trace(f_rel)) / N_PARAMS
+        self.f0.value = f_rel / c
+        gm = np.zeros((N_PARAMS * N_PARAMS, 6 * n))
+        for idx, (a, b) in enumerate(SYMMETRIC_PAIRS):
+            row = lin.gradients[idx].reshape(-1) * d_theta[a] * d_theta[b] / c
+            gm[a * N_PARAMS + b] = row
+            gm[b * N_PARAMS + a] = row
+        self.gm.value = gm
+        # Criterion on F_s = D_s F D_s = c T F̃ T with T = D_s Dθ⁻¹ (see the module docstring of fim_gradient).
+        t_diag = np.diag(self.merit.d) / d_theta
+        ref = self.merit.reference
+        assert ref is not None
+        if p.criterion == "A":
+            self.crit_param.value = np.diag(1.0 / t_diag) / np.sqrt(c * ref)
+        elif p.criterion == "E":
+            self.crit_param.value = np.diag(1.0 / t_diag**2) * abs(ref) / c
+        else:
+            self.crit_param.value = np.eye(N_PARAMS)
+
+    def solve(self) -> tuple[str, np.ndarray | None, float]:
+        """Solve with Clarabel.
+
+        Returns
+        -------
+        status : str
+            cvxpy's status, or ``solver_error: ...`` when the solver raised (:func:`oacli.solver.solve_clarabel`).
+        du : ndarray, shape (N, 6) or None
+            The step (None when the solve failed).
+        slack : float
+            Sum of the slacks (NaN when the solve failed).
+        """
+        # An inaccurate solve is reported in the status (and judged by the merit test), not as a warning.
+        out = solve_clarabel(self.problem, quiet=True)
+        status = out.status
+        if not out.success or self.du.value is None:
+            return status, None, float("nan")
+        slack = float(sum(np.sum(np.maximum(s.value, 0.0)) for s in self.slacks))  # type: ignore[arg-type]
+        return status, np.array(self.du.value), slack
+
+
+__all__ = ["ConvexSubproblem"]
