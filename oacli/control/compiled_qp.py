@@ -21,6 +21,7 @@ P must stay constant.
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import clarabel
 import cvxpy as cp
@@ -123,7 +124,7 @@ class CompiledQP:
             raise ValueError("Clarabel does not allow data updates with these settings (presolve/chordal)")
         self._x: np.ndarray | None = None
 
-    def parameter_vector(self, values: dict | None = None, *, missing_as_zero: bool = False) -> np.ndarray:
+    def parameter_vector(self, values: dict[Any, Any] | None = None, *, missing_as_zero: bool = False) -> np.ndarray:
         """θ: parameter values, column-major, with the constant 1 at its column (cvxpy's layout).
 
         ``values`` maps a parameter's id to its value (shape of the parameter); parameters not in it use their
@@ -151,7 +152,7 @@ class CompiledQP:
         theta[self._const_col] = 1.0
         return theta
 
-    def solve(self, values: dict | None = None) -> SolveInfo:
+    def solve(self, values: dict[Any, Any] | None = None) -> SolveInfo:
         """Solve with the parameters' values; variables are then read with :meth:`value`.
 
         Parameters

@@ -76,10 +76,11 @@ def solve_dare(
         raise InfeasibleError(f"Riccati doubling failed ({exc}): is (A, B) stabilisable?") from exc
     if not np.all(np.isfinite(hk)):
         raise InfeasibleError("Riccati doubling diverged: is (A, B) stabilisable and (Q, A) detectable?")
-    return hk
+    return np.asarray(hk)
 
 
-def _doubling(ak, gk, hk, eye, tol, max_iter):
+def _doubling(ak: np.ndarray, gk: np.ndarray, hk: np.ndarray, eye: np.ndarray, tol: float,
+              max_iter: int) -> np.ndarray:
     """Structure-preserving doubling iterations; returns H (NaN/inf when it diverges)."""
     for _ in range(max_iter):
         w = eye + gk @ hk
@@ -92,7 +93,7 @@ def _doubling(ak, gk, hk, eye, tol, max_iter):
         gk = 0.5 * (g_next + g_next.T)
         if not np.all(np.isfinite(hk)):
             return hk
-        if np.linalg.norm(hk - hk_old, 1) <= tol * max(1.0, np.linalg.norm(hk, 1)):
+        if np.linalg.norm(hk - hk_old, 1) <= tol * max(1.0, float(np.linalg.norm(hk, 1))):
             return hk
     raise InfeasibleError("Riccati doubling did not converge: is (A, B) stabilisable and (Q, A) detectable?")
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -165,7 +166,7 @@ class AxisTube:
     @property
     def a_closed(self) -> np.ndarray:
         """``A_K = A + B K``."""
-        return self.a + self.b @ self.gain
+        return np.asarray(self.a + self.b @ self.gain)
 
     @property
     def ancillary_force_N(self) -> float:
@@ -308,7 +309,7 @@ class TubeDesign:
         """
         return np.array([[ax.z.support(np.array([-1.0, 0.0])), ax.z.support(np.array([1.0, 0.0]))] for ax in self.axes])
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """Figures a reviewer wants: RPI size and cost, W, gains, tightened bounds (lists over x, y, z).
 
         ``rpi.epsilon`` is the configured ε (``rpi.epsilon_mode``), ``rpi.epsilon_rpi`` the ε of ``F(α, s)``
@@ -327,7 +328,7 @@ class TubeDesign:
         baselines = [ax.baseline for ax in axes]
         ideal = [ax.ideal_bounds() for ax in axes]
 
-        def upper(bounds):
+        def upper(bounds: Any) -> Any:
             return None if bounds is None else float(bounds[1])
 
         base_force = [None if b is None else list(b.force_bounds_N) for b in baselines]
@@ -576,7 +577,7 @@ def _keeps_fraction(ax: AxisTube, fraction: float) -> bool:
     return ulo <= -f and uhi >= f and vlo <= -v and vhi >= v
 
 
-def _scaled_axis(i: int, common: dict, limits: dict, fraction: float) -> AxisTube:
+def _scaled_axis(i: int, common: dict[str, Any], limits: dict[str, Any], fraction: float) -> AxisTube:
     """Largest W scale (bisection, 1e-3 resolution) for which the axis keeps ``fraction`` of its limits."""
     lo, hi = 0.0, 1.0
     best = None

@@ -152,7 +152,7 @@ def extra_box_for(design: TubeDesign, measured_max: np.ndarray, margin: float) -
     ndarray, shape (3, 2)
         Extra box half-widths (>= 0).
     """
-    return np.maximum((1.0 + margin) * np.asarray(measured_max, dtype=float) - box_half_widths(design), 0.0)
+    return np.asarray(np.maximum((1.0 + margin) * np.asarray(measured_max, dtype=float) - box_half_widths(design), 0.0))
 
 
 class TubeMonitor:
@@ -205,7 +205,7 @@ class TubeMonitor:
         self.held = False
         self._prev: tuple[float, np.ndarray, np.ndarray] | None = None  # (t, x̃ translation (6,), applied force)
         self._max_abs = np.zeros((3, 2))
-        self._rec: dict[str, list] = {k: [] for k in ("t", "w", "hw", "margin", "violated", "design")}
+        self._rec: dict[str, list[Any]] = {k: [] for k in ("t", "w", "hw", "margin", "violated", "design")}
 
     # -- properties --------------------------------------------------------------------------------------------
 

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -233,7 +234,7 @@ class TubeMPC:
         self._z_pred: np.ndarray | None = None
         self._failures = 0
         self._hold_q: np.ndarray | None = None
-        self._rec: dict[str, list] = {k: [] for k in (
+        self._rec: dict[str, list[Any]] = {k: [] for k in (
             "t", "mode", "z", "v", "anc", "tau", "z_pred", "tube", "lasso", "failed")}
 
     # -- helpers -----------------------------------------------------------------------------------------------
@@ -264,7 +265,7 @@ class TubeMPC:
     def _hold_torque(self, x: np.ndarray) -> np.ndarray:
         phi = quat.error_vector(self._hold_q, x[6:10])  # type: ignore[arg-type]
         tau = self._k_att @ np.concatenate([phi, x[10:13]])
-        return np.clip(tau, -self.limits.torque_Nm, self.limits.torque_Nm)
+        return np.asarray(np.clip(tau, -self.limits.torque_Nm, self.limits.torque_Nm))
 
     def _brake(self, z: np.ndarray) -> np.ndarray:
         """Nominal input of the safe hold: stop the nominal velocity as fast as Ū allows (never overshoots)."""

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import clarabel
 import cvxpy as cp
@@ -50,7 +51,7 @@ from oacli.types import SolveInfo
 #: Clarabel settings of both solve paths: the defaults except iterative refinement of the KKT solves, which
 #: costs more than half the solve time on these small, well-scaled QPs; the interior-point method still stops
 #: only when Clarabel's residual and gap tolerances (1e-8) are met (tests compare with the default settings).
-CLARABEL_OPTIONS: dict = {"iterative_refinement_enable": False}
+CLARABEL_OPTIONS: dict[str, Any] = {"iterative_refinement_enable": False}
 
 
 @dataclass(frozen=True)
@@ -227,7 +228,7 @@ class NominalQP:
         horizon: int,
         *,
         fast: bool = True,
-        clarabel_options: dict | None = None,
+        clarabel_options: dict[str, Any] | None = None,
     ) -> None:
         if horizon < 1:
             raise ValueError("horizon must be >= 1")
@@ -307,7 +308,8 @@ class NominalQP:
             setattr(settings, key, value)
         self.compiled = CompiledQP(self.problem, settings) if fast else None
 
-    def _position_rows(self, blk: QPBlock, spec: PositionRowsSpec, bv: _BlockVars, constraints: list, cost):
+    def _position_rows(self, blk: QPBlock, spec: PositionRowsSpec, bv: _BlockVars, constraints: list[Any],
+                       cost: Any) -> Any:
         """Add the workspace rows ``spec`` of ``blk`` (module docstring): hard on z_0..z_N for a tube block, soft
         on y_1..y_N for a standard one."""
         n_steps = self.horizon

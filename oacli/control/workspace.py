@@ -175,7 +175,7 @@ class WorkspaceRows:
         """
         n = np.asarray(normals, dtype=float)
         ext = self.extent_m
-        return np.maximum(n, 0.0) @ ext[:, 0] + np.maximum(-n, 0.0) @ ext[:, 1] + self.clearance_m
+        return np.asarray(np.maximum(n, 0.0) @ ext[:, 0] + np.maximum(-n, 0.0) @ ext[:, 1] + self.clearance_m)
 
     def rows(self, reference_m: np.ndarray, linearisation_m: np.ndarray | None = None) -> PositionRows:
         """Rows for the predicted positions of one solve.
@@ -245,7 +245,7 @@ def shifted_plan(plan_t_s: float, plan_step_s: float, plan_m: np.ndarray, times_
     u = np.clip((np.asarray(times_s, dtype=float) - plan_t_s) / plan_step_s, 0.0, last)
     i = np.minimum(np.floor(u).astype(int), max(last - 1, 0))
     w = (u - i)[:, None]
-    return (1.0 - w) * plan_m[i] + w * plan_m[np.minimum(i + 1, last)]
+    return np.asarray((1.0 - w) * plan_m[i] + w * plan_m[np.minimum(i + 1, last)])
 
 
 def braking_lines(braking_mps2: np.ndarray, speed_mps: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
