@@ -87,15 +87,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-import cvxpy as cp
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from oacli.geometry.collision import CollisionChecker
-from oacli.geometry.halfspaces import KeepOutZone, keep_out_zones, supporting_halfspaces
-from oacli.planning.translational import CostWeights, TranslationalTrajectory, interval_cost_matrix
-from oacli.solver import SUCCESS_STATUSES, solve_clarabel
+from oacli.geometry.halfspaces import keep_out_zones
+from oacli.planning.translational import CostWeights, TranslationalTrajectory
+from oacli.solver import SUCCESS_STATUSES
 
 IMPROVED = "improved"
 NOT_IMPROVED = "not_improved"
@@ -109,53 +106,10 @@ COST = "cost"
 SOLVER = "solver_failed"
 STEP_OUTCOMES = (ACCEPTED, NOT_SHORTER, COLLISION, LIMITS, COST, SOLVER)
 
-#: Stand-in for an unbounded keep-in coordinate [m] (a scene without keep-in boxes).
-_FAR_M = 1e6
 #: Largest buffer [m] for which a solution counts as certified (solver tolerance).
 _CERTIFIED_M = 1e-7
 #: Least relative shortening that counts (the closed-form arc length rounds at ~1e-8 in near-straight pieces).
 MIN_GAIN = 1e-7
-
-
-@dataclass(frozen=True)
-class PolishSettings:
-    """Settings of :func:`polish_trajectory`.
-
-    Attributes
-    ----------
-    iterations : int
-        SCP subproblems solved at most.
-    step_s : float
-        Piece length of the polish grid [s] (a multiple of the output step).
-    effort_weight : float
-        ``w_e`` [m/(N²·s)], >= 0: weight of ``Σ h ‖f‖²`` against the length [m] (regularises the forces).
-    buffer_penalty : float
-        λ [-], > 0: exact penalty on the virtual buffers (metres of length per metre of violation).
-    trust_radius_m : float
-        Initial trust radius Δ [m] (per axis, on the knot positions).
-    min_trust_radius_m, max_trust_radius_m : float
-        The polish stops when Δ falls below the minimum; Δ never grows beyond the maximum [m].
-    clearance_m : float
-        μ [m], >= 0: extra distance kept from every keep-out zone (covers the exact re-propagation).
-    limit_margin : float
-        ε [-]: the subproblem keeps ``|f_i| <= (1 − ε) F_i`` and ``|v_i| <= (1 − ε) V_i``.
-    tolerance : float
-        Stop when a certified step lowers the subproblem objective by less than this fraction.
-    rest_tolerance : float
-        A trailing piece within this distance [m] and speed [m/s] of the goal at rest counts as arrived.
-    """
-
-    iterations: int = 30
-    step_s: float = 0.5
-    effort_weight: float = 0.01
-    buffer_penalty: float = 1e3
-    trust_radius_m: float = 0.05
-    min_trust_radius_m: float = 1e-4
-    max_trust_radius_m: float = 0.4
-    clearance_m: float = 1e-4
-    limit_margin: float = 1e-6
-    tolerance: float = 1e-5
-    rest_tolerance: float = 1e-7
 
 
 @dataclass(frozen=True)
@@ -247,422 +201,31 @@ class PolishResult:
         return sum(it.outcome == ACCEPTED for it in self.iterations)
 
 
-# ------------------------------------------------------------------------------------------------------------
-# Grid, projection and exact propagation
-# ------------------------------------------------------------------------------------------------------------
-
-
-def polish_grid(duration_s: float, step_s: float, dt_s: float) -> np.ndarray:
-    """Piece lengths [s] covering ``duration_s``: pieces of ``step_s``, the last one shorter if need be.
-
-    ``duration_s`` and ``step_s`` are rounded to multiples of ``dt_s`` (the duration down); every piece is then a
-    multiple of ``dt_s``.
-
-    Parameters
-    ----------
-    duration_s : float
-        Duration to cover [s].
-    step_s : float
-        Piece length [s].
-    dt_s : float
-        Output sample period [s].
-
-    Returns
-    -------
-    ndarray, shape (N,)
-    """
-    total = int(np.floor(duration_s / dt_s + 1e-9))
-    per = max(1, round(step_s / dt_s))
-    if total < 1:
-        raise ValueError(f"duration {duration_s} s is shorter than the output step {dt_s} s")
-    counts = [per] * (total // per) + ([total % per] if total % per else [])
-    return np.array(counts, dtype=float) * dt_s
-
-
-def _final_state_map(h: np.ndarray, mass_kg: float) -> np.ndarray:
-    """Per axis, the effect ``Γ`` (2, N) of each held force on the final ``[r, v]`` (steps ``h``)."""
-    after = np.concatenate([np.cumsum(h[::-1])[::-1][1:], [0.0]])  # time left after each piece
-    return np.stack([(h / mass_kg) * (0.5 * h + after), h / mass_kg])
-
-
-def terminal_correction(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h: np.ndarray,
-                        mass_kg: float) -> np.ndarray:
-    """Least-norm change of the held forces (N, 3) after which the propagated final state is ``goal``.
-
-    Per axis the final state is affine in the forces, ``x_N = Φ x_0 + Γ f`` with the columns
-    ``Γ_k = (h_k/m) [h_k/2 + Σ_{j>k} h_j, 1]``; the correction is ``Γᵀ (Γ Γᵀ)⁻¹ (x_g − x_N)`` (N >= 2).
-
-    Parameters
-    ----------
-    x0 : ndarray, shape (6,)
-        Start state.
-    forces : ndarray, shape (N, 3)
-        Held forces [N].
-    goal : ndarray, shape (6,)
-        Required final state.
-    h : ndarray, shape (N,)
-        Piece lengths [s].
-    mass_kg : float
-
-    Returns
-    -------
-    ndarray, shape (N, 3)
-        The corrected forces.
-    """
-    h = np.broadcast_to(np.asarray(h, dtype=float), (forces.shape[0],))
-    gamma = _final_state_map(h, mass_kg)
-    final = TranslationalTrajectory.from_forces(x0, forces, h, mass_kg).x[-1]
-    err = np.asarray(goal, dtype=float) - final
-    lam = np.linalg.solve(gamma @ gamma.T, np.stack([err[0:3], err[3:6]]))  # (2, 3)
-    return forces + gamma.T @ lam
-
-
-def exact_trajectory(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h: np.ndarray,
-                     mass_kg: float) -> TranslationalTrajectory:
-    """The motion of held ``forces`` from ``x0`` corrected to end exactly at ``goal`` (last sample pinned).
-
-    Parameters
-    ----------
-    x0, forces, goal, h, mass_kg
-        As in :func:`terminal_correction`.
-
-    Returns
-    -------
-    TranslationalTrajectory
-    """
-    forces = terminal_correction(x0, np.asarray(forces, dtype=float), goal, h, mass_kg)
-    traj = TranslationalTrajectory.from_forces(x0, forces, h, mass_kg)
-    x = traj.x.copy()
-    x[-1] = goal  # equal up to rounding after the correction
-    return TranslationalTrajectory(traj.t, x, traj.u, mass_kg)
-
-
-def trim_rest(traj: TranslationalTrajectory, goal: np.ndarray, tolerance: float) -> TranslationalTrajectory:
-    """Cut the trailing pieces that already rest at ``goal``, keeping at least two pieces; exact again.
-
-    A piece rests when its states are within ``tolerance`` of the goal and its force changes the speed by at most
-    ``tolerance`` over the piece.
-
-    Parameters
-    ----------
-    traj : TranslationalTrajectory
-    goal : ndarray, shape (6,)
-    tolerance : float
-        [m, m/s].
-
-    Returns
-    -------
-    TranslationalTrajectory
-        ``traj`` itself when nothing is cut.
-    """
-    h = traj.h
-    near = np.all(np.abs(traj.x - goal) <= tolerance, axis=1)
-    still = np.append(np.all(np.abs(traj.u) * h[:, None] / traj.mass_kg <= tolerance, axis=1), True)
-    resting = np.flip(np.cumprod(np.flip(near & still))).astype(bool)  # this sample and every later one rest
-    k = max(int(np.argmax(resting)) if resting.any() else len(h), 2)
-    if k >= len(h):
-        return traj
-    return exact_trajectory(traj.x[0], traj.u[:k], goal, h[:k], traj.mass_kg)
-
-
-def project_onto_grid(traj: TranslationalTrajectory, h: np.ndarray, goal: np.ndarray) -> TranslationalTrajectory:
-    """The input as a trajectory on the polish grid: held forces fitted by least squares to its states at the
-    knots, then corrected to reach ``goal`` exactly (:func:`exact_trajectory`).
-
-    Minimises ``Σ_k ‖r_k − r̂_k‖² + (h̄)² ‖v_k − v̂_k‖²`` (h̄ the mean piece length, so both terms are lengths) over
-    the forces, subject to the exact discretisation from the input's first state: an equality-constrained least
-    squares problem, solved as one sparse KKT system (all three axes at once). Knots beyond the input's end take
-    its final state (the goal at rest).
-
-    Parameters
-    ----------
-    traj : TranslationalTrajectory
-        The input.
-    h : ndarray, shape (n,)
-        Piece lengths [s] of the grid.
-    goal : ndarray, shape (6,)
-
-    Returns
-    -------
-    TranslationalTrajectory
-    """
-    h = np.asarray(h, dtype=float)
-    n, m = h.shape[0], traj.mass_kg
-    t_knots = np.concatenate([[0.0], np.cumsum(h)]) + traj.t[0]
-    target = traj.states_at(np.minimum(t_knots, traj.t[-1]))[1:]  # (n, 6): knots 1..n
-    w_v = float(np.mean(h)) ** 2
-    # Unknowns per axis z = [r_1..r_n, v_1..v_n, f_0..f_{n-1}]; constraints: the dynamics of pieces 0..n-1.
-    eye = sp.identity(n, format="csr")
-    shift = sp.diags(np.ones(n - 1), -1, shape=(n, n), format="csr")  # picks x_{k-1} for row k
-    dyn = sp.bmat([
-        [eye - shift, -sp.diags(h) @ shift, sp.diags(-0.5 * h * h / m)],
-        [None, eye - shift, sp.diags(-h / m)],
-    ], format="csr")
-    hess = sp.diags(np.concatenate([np.ones(n), np.full(n, w_v), np.full(n, 1e-12)]))
-    kkt = sp.bmat([[hess, dyn.T], [dyn, None]], format="csc")
-    x0 = traj.x[0]
-    rhs_dyn = np.zeros((2 * n, 3))
-    rhs_dyn[0] = x0[0:3] + h[0] * x0[3:6]  # piece 0 starts from the known first state
-    rhs_dyn[n] = x0[3:6]
-    rhs = np.vstack([target[:, 0:3], w_v * target[:, 3:6], np.zeros((n, 3)), rhs_dyn])
-    sol = spla.spsolve(kkt, rhs)
-    forces = np.asarray(sol).reshape(-1, 3)[2 * n:3 * n]
-    return exact_trajectory(x0, forces, goal, h, m)
-
-
-def within_limits(traj: TranslationalTrajectory, force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray) -> bool:
-    """Every held force and every velocity within its per-axis limit (relative tolerance 1e-9, as the stages).
-
-    Parameters
-    ----------
-    traj : TranslationalTrajectory
-    force_limit_N, velocity_limit_mps : ndarray, shape (3,)
-
-    Returns
-    -------
-    bool
-    """
-    return bool(np.all(traj.max_abs_force_N() <= force_limit_N * (1 + 1e-9))
-                and np.all(traj.max_abs_velocity_mps() <= velocity_limit_mps * (1 + 1e-9)))
-
-
-# ------------------------------------------------------------------------------------------------------------
-# Geometry of the convexification
-# ------------------------------------------------------------------------------------------------------------
-
-
-def _closest_on_segments(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Point of least norm on each segment ``a[i] → b[i]``, shape (K, 3)."""
-    d = b - a
-    dd = np.einsum("ki,ki->k", d, d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(dd > 1e-300, -np.einsum("ki,ki->k", a, d) / dd, 0.0)
-    t = np.clip(np.nan_to_num(t), 0.0, 1.0)
-    return a + t[:, None] * d
-
-
-def min_norm_on_triangles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Point of least Euclidean norm in each triangle ``conv{a, b, c}`` (degenerate triangles allowed), (K, 3).
-
-    Exact: the minimum lies on an edge or, if the origin projects inside the triangle's plane region, at that
-    projection; every candidate is in the triangle, and the least-norm one is returned.
-
-    Parameters
-    ----------
-    a, b, c : ndarray, shape (K, 3)
-        Corners.
-
-    Returns
-    -------
-    ndarray, shape (K, 3)
-    """
-    cands = [_closest_on_segments(a, b), _closest_on_segments(b, c), _closest_on_segments(a, c)]
-    nrm = np.cross(b - a, c - a)
-    n2 = np.einsum("ki,ki->k", nrm, nrm)
-    scale = np.maximum.reduce([np.einsum("ki,ki->k", e, e) for e in (b - a, c - a, c - b)]) + 1e-300
-    face = n2 > 1e-12 * scale * scale
-    if np.any(face):
-        af, bf, cf, nf = a[face], b[face], c[face], nrm[face]
-        p = nf * (np.einsum("ki,ki->k", af, nf) / n2[face])[:, None]
-        # Barycentric signs: p inside iff it is on the inner side of the three edges.
-        s1 = np.einsum("ki,ki->k", np.cross(bf - af, p - af), nf)
-        s2 = np.einsum("ki,ki->k", np.cross(cf - bf, p - bf), nf)
-        s3 = np.einsum("ki,ki->k", np.cross(af - cf, p - cf), nf)
-        inside = (s1 >= 0) & (s2 >= 0) & (s3 >= 0)
-        proj = np.full_like(a, np.inf)
-        idx = np.flatnonzero(face)[inside]
-        proj[idx] = p[inside]
-        cands.append(proj)
-    stack = np.stack(cands, axis=1)  # (K, C, 3)
-    norms = np.linalg.norm(stack, axis=2)
-    return stack[np.arange(a.shape[0]), np.argmin(norms, axis=1)]
-
-
-def keep_out_halfspaces(
-    zone: KeepOutZone, p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, clearance_m: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Half-spaces ``nᵀ p >= b`` (unit n) that keep pieces with control points ``p0, p1, p2`` (K, 3) out of a zone.
-
-    Parameters
-    ----------
-    zone : KeepOutZone
-    p0, p1, p2 : ndarray, shape (K, 3)
-        Control points [m] of the K pieces (start, mid-piece control point, end).
-    clearance_m : float
-        Extra clearance [m].
-
-    Returns
-    -------
-    normal : ndarray, shape (K, 3)
-    offset : ndarray, shape (K,)
-        ``b``: the support of the zone (robot included) in direction n plus the clearance (module docstring).
-    margin : ndarray, shape (K,)
-        ``min_P nᵀ P − b`` over the three control points [m]: >= 0 where these pieces satisfy their half-space.
-    """
-    lmat, c = zone.metric, zone.center
-    w = [(p - c) @ lmat.T for p in (p0, p1, p2)]
-    w_star = min_norm_on_triangles(*w)
-    norm = np.linalg.norm(w_star, axis=1)
-    # The hull contains the centre (no direction): point from the centre to the hull's mean instead.
-    m = np.where(norm[:, None] > 1e-12, w_star, (w[0] + w[1] + w[2]) / 3.0)
-    m = np.where(np.linalg.norm(m, axis=1)[:, None] > 1e-12, m, np.array([1.0, 0.0, 0.0]))
-    n, offset = supporting_halfspaces(zone, m, clearance_m)
-    current = np.minimum.reduce([np.einsum("ki,ki->k", n, p) for p in (p0, p1, p2)])
-    return n, offset, current - offset
-
-
-def keep_in_bounds(checker: CollisionChecker, p0: np.ndarray, p1: np.ndarray,
-                   p2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per piece, the keep-in box its control points must stay in.
-
-    The first box holding all three of them, else the box holding most of them (the buffer then absorbs the
-    difference); without keep-in boxes, bounds far outside any scene.
-
-    Parameters
-    ----------
-    checker : CollisionChecker
-    p0, p1, p2 : ndarray, shape (K, 3)
-        Control points [m] of the K pieces (start, mid-piece control point, end).
-
-    Returns
-    -------
-    lower, upper : ndarray, shape (K, 3)
-    """
-    boxes = checker.scene.keep_in
-    k = p0.shape[0]
-    if not boxes:
-        return np.full((k, 3), -_FAR_M), np.full((k, 3), _FAR_M)
-    lo = np.array([b.lower for b in boxes])
-    hi = np.array([b.upper for b in boxes])
-    count = sum(np.all((p[:, None, :] >= lo) & (p[:, None, :] <= hi), axis=2).astype(int) for p in (p0, p1, p2))
-    chosen = np.argmax(count, axis=1)  # first box with the most control points inside
-    return lo[chosen], hi[chosen]
-
-
-# ------------------------------------------------------------------------------------------------------------
-# The subproblem
-# ------------------------------------------------------------------------------------------------------------
-
-
-class PolishSubproblem:
-    """The SCP subproblem of the module docstring as one DPP cvxpy problem, built once per grid.
-
-    Parameters (``cp.Parameter``, set before each :meth:`solve`): ``r_ref`` (N+1, 3) trust-region centre [m],
-    ``radius`` Δ [m], ``box_lower``/``box_upper`` (N, 3) keep-in box of each piece [m], ``normals[j]`` (N, 3) and
-    ``offsets[j]`` (N,) the half-spaces of keep-out zone j, and ``cost_cap`` (when built with one).
-
-    Parameters
-    ----------
-    h : ndarray, shape (N,)
-        Piece lengths [s].
-    mass_kg : float
-    start, goal : ndarray, shape (6,)
-        Fixed first and last states.
-    force_limit_N, velocity_limit_mps : ndarray, shape (3,)
-    n_zones : int
-        Keep-out zones.
-    settings : PolishSettings
-    weights : CostWeights
-        Weights of ``J`` (for the cost cap).
-    with_cost_cap : bool
-        Add the constraint ``J <= cost_cap``.
-    """
-
-    def __init__(self, h: np.ndarray, mass_kg: float, start: np.ndarray, goal: np.ndarray,
-                 force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray, n_zones: int, settings: PolishSettings,
-                 weights: CostWeights, with_cost_cap: bool = False) -> None:
-        h = np.asarray(h, dtype=float)
-        n, m = h.shape[0], float(mass_kg)
-        hc = h[:, None]
-        self.h = h
-        self.r = cp.Variable((n + 1, 3), name="r")
-        self.v = cp.Variable((n + 1, 3), name="v")
-        self.f = cp.Variable((n, 3), name="f")
-        self.buffer = cp.Variable(n, nonneg=True, name="buffer")
-        r, v, f = self.r, self.v, self.f
-        s = cp.reshape(self.buffer, (n, 1), order="F")
-        self.r_ref = cp.Parameter((n + 1, 3), name="r_ref")
-        self.radius = cp.Parameter(nonneg=True, name="trust_radius")
-        self.box_lower = cp.Parameter((n, 3), name="box_lower")
-        self.box_upper = cp.Parameter((n, 3), name="box_upper")
-        self.normals = [cp.Parameter((n, 3), name=f"normal_{j}") for j in range(n_zones)]
-        self.offsets = [cp.Parameter(n, name=f"offset_{j}") for j in range(n_zones)]
-        eps = settings.limit_margin
-        p0, p1, p2 = r[:-1], r[:-1] + cp.multiply(0.5 * hc, v[:-1]), r[1:]
-        cons = [
-            r[0] == start[0:3], v[0] == start[3:6], r[n] == goal[0:3], v[n] == goal[3:6],
-            r[1:] == r[:-1] + cp.multiply(hc, v[:-1]) + cp.multiply(0.5 * hc * hc / m, f),
-            v[1:] == v[:-1] + cp.multiply(hc / m, f),
-            cp.abs(f) <= np.tile((1.0 - eps) * force_limit_N, (n, 1)),
-            cp.abs(r - self.r_ref) <= self.radius,
-        ]
-        if n > 1:
-            cons.append(cp.abs(v[1:n]) <= np.tile((1.0 - eps) * velocity_limit_mps, (n - 1, 1)))
-        for p in (p0, p1, p2):
-            cons += [p >= self.box_lower - s, p <= self.box_upper + s]
-            for nrm, off in zip(self.normals, self.offsets, strict=True):
-                cons.append(cp.sum(cp.multiply(nrm, p), axis=1) >= off - self.buffer)
-        length = cp.sum(cp.norm(p1 - p0, 2, axis=1)) + cp.sum(cp.norm(p2 - p1, 2, axis=1))
-        effort = cp.sum(cp.multiply(h, cp.sum(cp.square(f), axis=1)))
-        objective = length + settings.effort_weight * effort + settings.buffer_penalty * cp.sum(self.buffer)
-        self.cost_cap = None
-        if with_cost_cap:
-            self.cost_cap = cp.Parameter(name="cost_cap")
-            cons.append(lqr_cost_expression(r, v, f, h, m, weights, goal) <= self.cost_cap)
-        self.problem = cp.Problem(cp.Minimize(objective), cons)
-
-    def solve(self) -> str:
-        """Solve with Clarabel (:func:`oacli.solver.solve_clarabel`; an inaccurate solve is reported by its status,
-        not a warning).
-
-        Returns
-        -------
-        str
-            cvxpy's status, or ``solver_error: ...`` when Clarabel raised.
-        """
-        return solve_clarabel(self.problem, quiet=True, canon_backend="COO").status
-
-
-def lqr_cost_expression(r, v, f, h: np.ndarray, mass_kg: float, weights: CostWeights, goal: np.ndarray):
-    """``J`` of :mod:`oacli.planning.translational` as a convex cvxpy expression on pieces of lengths ``h``.
-
-    Each piece contributes ``w_t h_k + Σ_axes ½ zᵀ W(h_k) z`` with ``z = [r_k − r_g, v_k, v_k − v_g, f_k]``
-    (:func:`~oacli.planning.translational.interval_cost_matrix`), written as ``½ ‖G z‖²`` with ``W = Gᵀ G``.
-
-    Parameters
-    ----------
-    r, v : cvxpy.Expression, shape (n + 1, 3)
-        Positions and velocities at the knots.
-    f : cvxpy.Expression, shape (n, 3)
-        Held forces.
-    h : ndarray, shape (n,)
-        Piece lengths [s].
-    mass_kg : float
-    weights : CostWeights
-    goal : ndarray, shape (6,)
-
-    Returns
-    -------
-    cvxpy.Expression
-        Scalar, convex.
-    """
-    h = np.asarray(h, dtype=float)
-    total = weights.time * float(h.sum())
-    for step in np.unique(h):
-        idx = np.flatnonzero(h == step)
-        for i in range(3):
-            w = interval_cost_matrix(float(step), mass_kg, weights.position[i], weights.velocity[i], weights.force[i])
-            lam, vec = np.linalg.eigh(0.5 * (w + w.T))
-            keep = lam > 1e-14 * max(float(lam.max()), 1e-300)
-            g = np.sqrt(lam[keep])[:, None] * vec[:, keep].T
-            z = cp.vstack([r[idx, i] - goal[i], v[idx, i], v[idx, i] - goal[3 + i], f[idx, i]])  # (4, K)
-            total = total + 0.5 * cp.sum_squares(g @ z)
-    return total
-
-
-# ------------------------------------------------------------------------------------------------------------
-# The polish
-# ------------------------------------------------------------------------------------------------------------
+# The polish is split in four modules: polish_grid (time grid, projection, exact propagation), polish_geometry
+# (half-spaces and bounds of the convexification), polish_subproblem (the convex subproblem) and this one (types
+# and the SCP loop); their public names are re-exported here.
+from oacli.planning.polish_geometry import (  # noqa: E402
+    keep_in_bounds,
+    keep_out_halfspaces,
+    min_norm_on_triangles,
+)
+from oacli.planning.polish_grid import (  # noqa: E402
+    exact_trajectory,
+    polish_grid,
+    project_onto_grid,
+    terminal_correction,
+    trim_rest,
+    within_limits,
+)
+from oacli.planning.polish_settings import PolishSettings  # noqa: E402
+from oacli.planning.polish_subproblem import PolishSubproblem, lqr_cost_expression  # noqa: E402
+
+__all__ = [
+    "ACCEPTED", "COLLISION", "COST", "IMPROVED", "LIMITS", "MIN_GAIN", "NOT_IMPROVED", "NOT_SHORTER", "SKIPPED",
+    "SOLVER", "STEP_OUTCOMES", "PolishIteration", "PolishResult", "PolishSettings", "PolishSubproblem",
+    "exact_trajectory", "keep_in_bounds", "keep_out_halfspaces", "lqr_cost_expression", "min_norm_on_triangles",
+    "polish_grid", "polish_trajectory", "project_onto_grid", "terminal_correction", "trim_rest", "within_limits",
+]
 
 
 def polish_trajectory(

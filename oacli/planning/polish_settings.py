@@ -1,0 +1,46 @@
+"""Settings of the trajectory polish (:mod:`oacli.planning.polish`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class PolishSettings:
+    """Settings of :func:`polish_trajectory`.
+
+    Attributes
+    ----------
+    iterations : int
+        SCP subproblems solved at most.
+    step_s : float
+        Piece length of the polish grid [s] (a multiple of the output step).
+    effort_weight : float
+        ``w_e`` [m/(N²·s)], >= 0: weight of ``Σ h ‖f‖²`` against the length [m] (regularises the forces).
+    buffer_penalty : float
+        λ [-], > 0: exact penalty on the virtual buffers (metres of length per metre of violation).
+    trust_radius_m : float
+        Initial trust radius Δ [m] (per axis, on the knot positions).
+    min_trust_radius_m, max_trust_radius_m : float
+        The polish stops when Δ falls below the minimum; Δ never grows beyond the maximum [m].
+    clearance_m : float
+        μ [m], >= 0: extra distance kept from every keep-out zone (covers the exact re-propagation).
+    limit_margin : float
+        ε [-]: the subproblem keeps ``|f_i| <= (1 − ε) F_i`` and ``|v_i| <= (1 − ε) V_i``.
+    tolerance : float
+        Stop when a certified step lowers the subproblem objective by less than this fraction.
+    rest_tolerance : float
+        A trailing piece within this distance [m] and speed [m/s] of the goal at rest counts as arrived.
+    """
+
+    iterations: int = 30
+    step_s: float = 0.5
+    effort_weight: float = 0.01
+    buffer_penalty: float = 1e3
+    trust_radius_m: float = 0.05
+    min_trust_radius_m: float = 1e-4
+    max_trust_radius_m: float = 0.4
+    clearance_m: float = 1e-4
+    limit_margin: float = 1e-6
+    tolerance: float = 1e-5
+    rest_tolerance: float = 1e-7
