@@ -444,18 +444,22 @@ def test_payload_chain_with_the_tube_stays_in_the_keep_in_fast(tmp_path):
 @pytest.mark.slow
 def test_payload_chain_of_the_issue_stays_in_the_jem_with_the_tube_and_leaves_it_without_rows(tmp_path):
     """The issue's chain: oacli excite (60 s, the preset) then oacli track with the 15 kg plant and the bare-robot
-    model, in the JEM. Tube MPC with rows: the centre stays in the keep-in at every plant tick; the same tube without
-    rows leaves it (so the check can fail); standard MPC with rows stays inside too on this run."""
+    model, in the JEM, with environment.keep_in_margin_m = the robot's radius (its body must stay inside). Tube MPC
+    with rows: the body stays in the keep-in at every plant tick; the same tube without rows leaves it (so the check
+    can fail); standard MPC with rows stays inside too on this run. The status agrees with /state/true."""
     excite_cfg = payload_config(tmp_path, "mpc")
     run_cli("excite", excite_cfg, "--out", tmp_path / "excite", "--quiet")
     ref = tmp_path / "excite" / "excite.mcap"
     outcome = {}
     for controller, on in (("tube", True), ("tube", False), ("mpc", True)):
         out = tmp_path / f"track-{controller}-{on}"
-        run_cli("track", payload_config(tmp_path, controller, constraints=on), "--reference", ref, "--out", out,
-                "--quiet")
+        cfg = payload_config(tmp_path, controller, constraints=on, keep_in_margin_m=RADIUS)
+        result = runner.invoke(app, ["track", str(cfg), "--reference", str(ref), "--out", str(out), "--quiet"])
         p, scene = true_positions(out)
-        outcome[controller, on] = bool(np.all(body_inside(scene, p, 0.0)))
+        outcome[controller, on] = bool(np.all(body_inside(scene, p, RADIUS)))
+        summary = json.loads((out / "summary.json").read_text())
+        assert (summary["safety"]["keep_in"]["count"] == 0) == outcome[controller, on]
+        assert result.exit_code == (4 if summary["status"] == "unsafe" else 0), result.output
     assert outcome == {("tube", True): True, ("tube", False): False, ("mpc", True): True}
 
 
