@@ -28,6 +28,7 @@ and the slack is reported.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cvxpy as cp
@@ -242,12 +243,13 @@ class LinearMPC:
             for j, (normal, offset) in enumerate(zip(self.out_normals, self.out_offsets, strict=True)):
                 normal.value, offset.value = rows.normals[j], rows.offsets[j]
         start = time.perf_counter()
+        value: Callable[[cp.Variable], np.ndarray] | None
         if self.compiled is not None:
             out = self.compiled.solve()
             value = self.compiled.value if out.success else None
         else:
             out = solve_clarabel(self.problem)
-            value = (lambda v: v.value) if out.success and self._u.value is not None else None  # type: ignore[assignment,return-value]
+            value = (lambda v: np.asarray(v.value)) if out.success and self._u.value is not None else None
         status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
         wall = time.perf_counter() - start
         if value is not None:

@@ -464,7 +464,7 @@ def _axis_from_parts(
     z = reduction.z
     u_set = Polytope.symmetric_box([force_limit_N])
     u_bar = u_set.pontryagin_difference(z.linear_map(gain))  # Ū = U ⊖ K Z
-    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), [velocity_limit_mps, velocity_limit_mps])  # type: ignore[arg-type]
+    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), np.array([velocity_limit_mps, velocity_limit_mps]))
     noise = dist.noise_bound
     z_true = z if not np.any(noise > 0) else z.minkowski_sum(Polytope.symmetric_box(noise))  # Z ⊕ (−N), N symmetric
     x_bar = x_set.pontryagin_difference(z_true)  # X̄ = X ⊖ (Z ⊕ −N)

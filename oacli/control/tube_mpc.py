@@ -255,15 +255,16 @@ class TubeMPC:
 
     def _plan_input(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Nominal force and torque of the stored plan at time ``t``; None when there is none or it is used up."""
-        if self._plan_t is None:
+        if self._plan_t is None or self._plan_v is None or self._plan_tau is None:  # set together
             return None
         j = int(np.floor((t - self._plan_t) / self.step_s + 1e-9))
         if j >= self.horizon:
             return None
-        return self._plan_v[j], self._plan_tau[j]  # type: ignore[index]
+        return self._plan_v[j], self._plan_tau[j]
 
     def _hold_torque(self, x: np.ndarray) -> np.ndarray:
-        phi = quat.error_vector(self._hold_q, x[6:10])  # type: ignore[arg-type]
+        q_hold = x[6:10] if self._hold_q is None else self._hold_q  # called in the hold, where it is set
+        phi = quat.error_vector(q_hold, x[6:10])
         tau = self._k_att @ np.concatenate([phi, x[10:13]])
         return np.asarray(np.clip(tau, -self.limits.torque_Nm, self.limits.torque_Nm))
 

@@ -36,6 +36,7 @@ linear cost term, the right-hand sides and (keep-out normals) the constraint mat
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -438,12 +439,14 @@ class NominalQP:
             Per-block solutions (NaN when the solve failed) and the solve record.
         """
         use_fast = self.compiled is not None if fast is None else fast
-        if use_fast and self.compiled is None:
+        compiled = self.compiled
+        if use_fast and compiled is None:
             raise ValueError("the fast path was not compiled (fast=False at construction)")
         start = time.perf_counter()
-        if use_fast:
-            out = self.compiled.solve(self._values)  # type: ignore[union-attr]
-            value = self.compiled.value if out.success else None  # type: ignore[union-attr]
+        value: Callable[[cp.Variable], np.ndarray] | None
+        if use_fast and compiled is not None:
+            out = compiled.solve(self._values)
+            value = compiled.value if out.success else None
         else:
             for param in self.problem.parameters():
                 param.value = self._values[param.id]
