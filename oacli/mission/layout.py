@@ -1,0 +1,132 @@
+"""Where a mission keeps its files: one run folder, one sub-folder per segment and stage.
+
+A mission run folder ``runs/mission-<name>-<UTC stamp>/`` holds::
+
+    config.yaml                       the mission config as given (resolved, defaults filled)
+    segment-1/plan/                   A -> B, model known: LQR-RRT* (or kino-RRT)
+    segment-1/smooth/                 LQR shortcutting + polish of segment-1/plan/plan.mcap
+    segment-1/track/                  standard MPC tracking segment-1/smooth/smooth.mcap
+    segment-2/excite/                 B -> C, payload grasped: A-optimal excitation (or RATTLE)
+    segment-2/track/                  tube MPC tracking segment-2/excite/excite.mcap, W from the prior (Eq. 28)
+    segment-2/estimate-sequential/    sequential estimate from segment-2/track/track.mcap (during the segment)
+    segment-2/estimate/               batch estimate from segment-2/track/track.mcap (at C)
+    segment-3/plan/                   C -> A with the learned model
+    segment-3/smooth/
+    segment-3/track/                  tube MPC, W from the estimate's 2σ bounds (Doerr Eq. 28)
+    segment-3/baseline-mpc-prior/     the same reference, standard MPC, prior model (Fig. 3(d), cyan)
+    segment-3/baseline-tube-prior/    the same reference, tube MPC, prior model and W (Fig. 3(d), magenta)
+    mission.rrd                       one recording on the ``mission_time`` timeline
+    plots/*.png                       tracking error per segment with baselines, estimate convergence, top view
+    summary.json                      written last
+
+Every stage sub-folder is exactly what that stage command writes (``config.yaml``, ``<stage>.mcap``,
+``<stage>.rrd``, ``summary.json``); a baseline or ``estimate-sequential`` folder is a ``track`` or ``estimate``
+folder under another name. :data:`MISSION_STAGES` lists them in the order they run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class MissionStage:
+    """One stage of the mission.
+
+    Attributes
+    ----------
+    segment : str
+        ``segment-1``, ``segment-2`` or ``segment-3``.
+    name : str
+        The sub-folder's name (``plan``, ``track``, ``baseline-mpc-prior`` ...).
+    command : str
+        The stage command that writes such a folder (``plan``, ``smooth``, ``excite``, ``track``, ``estimate``).
+    """
+
+    segment: str
+    name: str
+    command: str
+
+    @property
+    def key(self) -> str:
+        """``segment/name``, e.g. ``segment-3/track`` (what ``--from`` takes)."""
+        return f"{self.segment}/{self.name}"
+
+    def folder(self, mission_dir: Path) -> Path:
+        """This stage's run folder inside ``mission_dir``.
+
+        Parameters
+        ----------
+        mission_dir : Path
+            The mission run folder.
+
+        Returns
+        -------
+        Path
+        """
+        return Path(mission_dir) / self.segment / self.name
+
+    def mcap(self, mission_dir: Path) -> Path:
+        """The stage's MCAP (``<command>.mcap``) inside its folder.
+
+        Parameters
+        ----------
+        mission_dir : Path
+            The mission run folder.
+
+        Returns
+        -------
+        Path
+        """
+        return self.folder(mission_dir) / f"{self.command}.mcap"
+
+
+MISSION_STAGES: tuple[MissionStage, ...] = (
+    MissionStage("segment-1", "plan", "plan"),
+    MissionStage("segment-1", "smooth", "smooth"),
+    MissionStage("segment-1", "track", "track"),
+    MissionStage("segment-2", "excite", "excite"),
+    MissionStage("segment-2", "track", "track"),
+    MissionStage("segment-2", "estimate-sequential", "estimate"),
+    MissionStage("segment-2", "estimate", "estimate"),
+    MissionStage("segment-3", "plan", "plan"),
+    MissionStage("segment-3", "smooth", "smooth"),
+    MissionStage("segment-3", "track", "track"),
+    MissionStage("segment-3", "baseline-mpc-prior", "track"),
+    MissionStage("segment-3", "baseline-tube-prior", "track"),
+)
+"""Every stage of a mission, in the order they run."""
+
+SEGMENTS: tuple[str, ...] = ("segment-1", "segment-2", "segment-3")
+"""The three segments: A → B (model known), B → C (payload uncertain), C → A (model learned)."""
+
+BASELINES: dict[str, str] = {
+    "segment-3/track": "tube MPC, estimate",
+    "segment-3/baseline-mpc-prior": "standard MPC, prior",
+    "segment-3/baseline-tube-prior": "tube MPC, prior",
+}
+"""The three ways segment 3 is flown ([Doerr2021] Fig. 3(d): green, cyan, magenta)."""
+
+
+def stage_by_key(key: str) -> MissionStage:
+    """The stage named ``segment/name``.
+
+    Parameters
+    ----------
+    key : str
+        E.g. ``segment-3/track``.
+
+    Returns
+    -------
+    MissionStage
+
+    Raises
+    ------
+    KeyError
+        Unknown key (the message lists the known ones).
+    """
+    for stage in MISSION_STAGES:
+        if stage.key == key.strip("/"):
+            return stage
+    raise KeyError(f"{key!r}: not a mission stage; one of " + ", ".join(s.key for s in MISSION_STAGES))
