@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated
 
 import numpy as np
-from pydantic import Field
+from pydantic import BeforeValidator, Field, field_validator
 
 from oacli.config.fields import (
     NonNegativeReal,
@@ -13,12 +13,16 @@ from oacli.config.fields import (
     PositiveReal,
     PositiveVector3,
     PrincipalInertia,
+    Real,
     Section,
     Vector3,
     none_to,
     read_only,
+    sequence_of,
 )
 from oacli.types import InertialParams
+
+ActuatorScale = Annotated[Real, Field(ge=0.5, le=1.5)]
 
 
 class RobotConfig(Section):
@@ -96,6 +100,27 @@ class TruthConfig(Section):
     disturbance: Annotated[DisturbanceConfig, none_to({})] = Field(
         default_factory=DisturbanceConfig, description="Additive disturbance acting on the plant."
     )
+    actuator_scale: Annotated[tuple[ActuatorScale, ActuatorScale, ActuatorScale, ActuatorScale, ActuatorScale,
+                                    ActuatorScale], BeforeValidator(sequence_of(6))] = Field(
+        default=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
+        description="Per-axis factor between the applied and the delivered input [force x, y, z (world), torque "
+                    "x, y, z (body)], in [0.5, 1.5]; 1 = perfect actuators. Unmodelled: controllers and estimators "
+                    "see the commanded (saturated) input ([ReSWARM2023] §5.3: impeller thrust varies).",
+    )
+    com_offset_m: Vector3 = Field(
+        default=(0.0, 0.0, 0.0),
+        description="Centre of mass relative to the geometric centre the thrust acts on, body frame [m], each "
+                    "|value| <= 0.05. Unmodelled: the force then also torques the body by -r × F (astrobee "
+                    "iss.config measured (0.0037, -0.0003, -0.0025) m).",
+    )
+
+    @field_validator("com_offset_m")
+    @classmethod
+    def _small_offset(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
+        if max(abs(v) for v in value) > 0.05:
+            raise ValueError("each component must be within ±0.05 m (a centre of mass outside the 30 cm body "
+                             "is not a small offset)")
+        return value
 
     def inertial_params(self) -> InertialParams:
         """True mass and principal inertias (only valid once filled, i.e. on a validated :class:`OacliConfig`)."""

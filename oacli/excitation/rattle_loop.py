@@ -251,6 +251,8 @@ def run_rattle(
     rng: np.random.Generator,
     progress: Callable[[float], None] | None = None,
     rate_limit_radps: np.ndarray | None = None,
+    actuator_scale: np.ndarray | None = None,
+    com_offset_m: np.ndarray | None = None,
 ) -> RattleRun:
     """Simulate RATTLE in closed loop from ``x0`` for ``duration_s`` (see :class:`RattleController`).
 
@@ -280,6 +282,8 @@ def run_rattle(
         Called with the fraction done.
     rate_limit_radps : ndarray, shape (3,), optional
         Body-rate limit of the rate governor [rad/s]; no governor when omitted.
+    actuator_scale, com_offset_m : ndarray, optional
+        The plant's unmodelled actuator scale error and centre-of-mass offset (:func:`oacli.sim.simulator.simulate`).
 
     Returns
     -------
@@ -293,6 +297,6 @@ def run_rattle(
     tel = simulate(
         controller, x0, truth, duration_s=duration_s, control_period_s=control_period_s,
         plant_period_s=plant_period_s, input_limits=input_limits, sensors=sensors, disturbance=disturbance,
-        rng=rng, progress=progress,
+        rng=rng, progress=progress, actuator_scale=actuator_scale, com_offset_m=com_offset_m,
     )
     return RattleRun(tel, tuple(controller.replans), tuple(controller.estimates), controller.governed_steps)

@@ -4,7 +4,11 @@ The truth plant (its own inertial parameters, which may differ from the controll
 with RK4 on a fixed grid of ``plant_period_s`` (62.5 Hz on Astrobee). The controller runs every
 ``control_period_s`` and its input is held (zero-order hold) until the next update; when a controller instant
 falls between two plant ticks the integration step is split there, so both rates are honoured exactly.
-Actuators saturate each axis at its limit. Every random draw comes from the generator passed in.
+Actuators saturate each axis at its limit. Two unmodelled actuator effects of a real free-flyer may be switched on:
+a per-axis scale error between the applied and the delivered input, and a centre-of-mass offset ``r`` from the
+geometric centre the thrust acts on, which adds the torque ``-r × F_body`` (recomputed at every plant step from the
+current attitude). The recorded ``u_applied`` stays what the robot believes it applied (the saturated command), as
+a flight log would. Every random draw comes from the generator passed in.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from oacli.model import quaternion as quat
 from oacli.model.rigid_body import propagate, theta_of
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.types import Controller, InertialParams, SolveInfo, Telemetry
@@ -33,6 +38,8 @@ def simulate(
     disturbance: Disturbance,
     rng: np.random.Generator,
     progress: Callable[[float], None] | None = None,
+    actuator_scale: np.ndarray | None = None,
+    com_offset_m: np.ndarray | None = None,
 ) -> Telemetry:
     """Run the closed loop from ``x0`` for ``duration_s`` [s].
 
@@ -53,6 +60,10 @@ def simulate(
         Source of every random draw (measurement noise, then disturbance, each control step).
     progress : callable, optional
         Called with the completed fraction in [0, 1] after each control step.
+    actuator_scale : ndarray, shape (6,), optional
+        Delivered ÷ applied input per axis (default: ones, perfect actuators).
+    com_offset_m : ndarray, shape (3,), optional
+        Centre of mass relative to the geometric centre, body frame [m] (default: zero).
 
     Returns
     -------
@@ -63,6 +74,8 @@ def simulate(
     if duration_s <= 0 or control_period_s <= 0 or plant_period_s <= 0:
         raise ValueError("duration and periods must be > 0")
     theta = theta_of(truth)
+    scale = np.ones(6) if actuator_scale is None else np.asarray(actuator_scale, dtype=float).reshape(6)
+    offset = None if com_offset_m is None or not np.any(com_offset_m) else np.asarray(com_offset_m, float).reshape(3)
     n_ctrl = int(np.floor(duration_s / control_period_s + _TIME_TOL))
     n_ctrl = max(n_ctrl, 1)
     t_end = n_ctrl * control_period_s
@@ -87,12 +100,13 @@ def simulate(
         w = disturbance.sample(rng)
         rec_meas[j], rec_ref[j], rec_cmd[j], rec_app[j], rec_dist[j] = y, step.x_reference, u_cmd, u_app, w
         infos.append(step.info)
-        u_total = u_app + w
+        u_total = scale * u_app + w
         t = t0
         while t < t1 - _TIME_TOL:
             tick = next_tick * plant_period_s
             t_next = min(tick, t1)
-            x = propagate(x, u_total, theta, t_next - t)
+            u_step = u_total if offset is None else _with_offset_torque(u_total, x, offset)
+            x = propagate(x, u_step, theta, t_next - t)
             t = t_next
             if abs(t - tick) <= _TIME_TOL:
                 next_tick += 1
@@ -114,3 +128,15 @@ def simulate(
         solve_info=tuple(infos),
         disturbance=rec_dist,
     )
+
+
+def _with_offset_torque(u: np.ndarray, x: np.ndarray, com_offset_m: np.ndarray) -> np.ndarray:
+    """``u`` plus the torque of its force about a centre of mass displaced by ``com_offset_m`` (body frame).
+
+    The force acts at the geometric centre, at ``-r`` from the centre of mass, so it adds ``τ = (-r) × F_body``
+    with ``F_body = Rᵀ F_world`` ([Doerr2021] Eq. 34 for the frames).
+    """
+    force_body = quat.to_rotation_matrix(x[6:10]).T @ u[0:3]
+    out = np.array(u, dtype=float)
+    out[3:6] += np.cross(-com_offset_m, force_body)
+    return out

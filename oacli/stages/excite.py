@@ -356,6 +356,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             sensors=sensor_noise(cfg), disturbance=plant_disturbance(cfg),
             rng=np.random.default_rng(cfg.seed), progress=progress,
             rate_limit_radps=np.asarray(cfg.robot.angular_velocity_limit_radps),
+            actuator_scale=np.asarray(cfg.truth.actuator_scale), com_offset_m=np.asarray(cfg.truth.com_offset_m),
         )
         summary, traj, log = _rattle_summary(cfg, problem, design_lim, run, prior_cov, theta_true)
         _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true)

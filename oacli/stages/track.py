@@ -242,6 +242,7 @@ def run_track(
             plant_period_s=cfg.simulation.plant_period_s,
             input_limits=limits.input,
             sensors=sensors, disturbance=disturbance, rng=rng, progress=progress,
+            actuator_scale=np.asarray(cfg.truth.actuator_scale), com_offset_m=np.asarray(cfg.truth.com_offset_m),
         )
         summary, ctrl_errors = _track_summary(cfg, reference, tel, limits)
         summary["reference_check"] = reference_check.summary()
