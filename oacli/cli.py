@@ -17,6 +17,7 @@ import typer
 from oacli import __version__
 from oacli.commands.estimate import estimate
 from oacli.commands.excite import excite
+from oacli.commands.mission import mission
 from oacli.commands.plan import plan
 from oacli.commands.smooth import smooth
 from oacli.commands.track import track
@@ -33,6 +34,7 @@ app = typer.Typer(
 # registered here, in this order (the order of `oacli --help`).
 app.command("estimate")(estimate)
 app.command("excite")(excite)
+app.command("mission")(mission)
 app.command("plan")(plan)
 app.command("smooth")(smooth)
 app.command("track")(track)
@@ -50,7 +52,7 @@ def _root(
         bool, typer.Option("--version", callback=_version_callback, is_eager=True, help="Print the version.")
     ] = False,
 ) -> None:
-    """oacli: plan | smooth | excite | track | estimate."""
+    """oacli: mission | plan | smooth | excite | track | estimate."""
 
 
 def main() -> None:

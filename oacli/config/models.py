@@ -40,6 +40,7 @@ from oacli.config.fields import (
     none_to,
     raise_at,
 )
+from oacli.config.mission import MissionConfig
 from oacli.config.planner import PlannerConfig
 from oacli.config.reference import ReferenceConfig
 from oacli.config.robot import DisturbanceConfig, RobotConfig, TruthConfig
@@ -87,6 +88,9 @@ class OacliConfig(Section):
     estimation: Annotated[EstimationConfig, none_to({})] = Field(
         default_factory=EstimationConfig, description="Inertial parameter estimation (oacli estimate)."
     )
+    mission: MissionConfig | None = Field(
+        default=None, description="The three-segment assembly mission (oacli mission); other commands ignore it."
+    )
 
     @model_validator(mode="after")
     def _resolve_and_cross_check(self) -> OacliConfig:
@@ -110,6 +114,11 @@ class OacliConfig(Section):
                 problems.append(
                     (("reference", "waypoints", i), item, f"unknown waypoint name (defined in waypoints: {defined})")
                 )
+        if self.mission is not None:
+            for i, name in enumerate(self.mission.route):
+                if name not in self.waypoints:
+                    problems.append((("mission", "route", i), name,
+                                     f"unknown waypoint name (defined in waypoints: {defined})"))
         if ref.source == "file" and ref.file is None:
             problems.append((("reference", "file"), None, "required when reference.source is 'file'"))
         vmin = min(self.robot.velocity_limit_mps)

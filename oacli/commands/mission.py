@@ -1,0 +1,129 @@
+"""``oacli mission``: the three-segment assembly mission in one command (``docs/mission.md``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from oacli.commands.common import (
+    OutOption,
+    Progress,
+    QuietOption,
+    RunsDirOption,
+    SeedOption,
+    format_value,
+    load_config_with_seed,
+    run_guarded,
+)
+
+COMPARISON_COLUMNS = [
+    ("status", "status"), ("rms_position_error_m", "RMS err m"), ("max_position_error_m", "max err m"),
+    ("overshoot_m", "overshoot m"), ("control_effort_Ns", "effort N·s"), ("time_saturated_s", "saturated s"),
+    ("arrival_time_s", "arrival s"), ("keep_in_violations", "keep-in"), ("keep_out_violations", "keep-out"),
+    ("limit_violations", "limits"),
+]
+
+
+def print_mission_tables(summary: dict[str, Any]) -> None:
+    """The stages (status, wall time), the estimate and the segment-3 comparison, as aligned text on stdout.
+
+    Parameters
+    ----------
+    summary : dict
+        The mission's summary.
+    """
+    typer.echo(f"mission {summary['name']}: status {summary['status']}, {summary['mission_time_s']:.1f} s of robot "
+               f"time in {summary.get('wall_time_s', 0.0):.1f} s")
+    width = max(len(k) for k in summary["stages"])
+    for key, entry in summary["stages"].items():
+        wall = entry.get("wall_time_s")
+        typer.echo(f"  {key:<{width}}  {entry['status']:<10} {'' if wall is None else f'{wall:7.1f} s'}")
+    est = summary["estimate"]
+    if est.get("error_pct"):
+        typer.echo("estimate (batch) error %: " + format_value(est["error_pct"])
+                   + "   (flight, [ReSWARM2023]: mass 0.39, inertias 0.91 / 1.35 / 6.92)")
+    rows = summary.get("comparison", {})
+    if rows:
+        typer.echo("segment 3 ([Doerr2021] Fig. 3(d)):")
+        label_w = max(len(r["label"]) for r in rows.values())
+        typer.echo(f"  {'':<{label_w}}  " + "  ".join(f"{h:>11}" for _, h in COMPARISON_COLUMNS))
+        for row in rows.values():
+            cells = []
+            for key, _ in COMPARISON_COLUMNS:
+                value = row.get(key)
+                cells.append(f"{'-' if value is None else format_value(value)[:11]:>11}")
+            typer.echo(f"  {row['label']:<{label_w}}  " + "  ".join(cells))
+
+
+def mission(
+    target: Annotated[
+        Path, typer.Argument(help="A mission config (YAML with a mission section, see configs/mission_*.yaml), or a "
+                             "mission folder with --resume or --from.")
+    ],
+    out: OutOption = None,
+    runs_root: RunsDirOption = Path("runs"),
+    seed: SeedOption = None,
+    quiet: QuietOption = False,
+    resume: Annotated[
+        bool, typer.Option("--resume", help="TARGET is an interrupted mission folder: keep its complete stages, "
+                           "rerun the rest in place.")
+    ] = False,
+    from_stage: Annotated[
+        str | None, typer.Option("--from", help="TARGET is a mission folder: rerun from this stage (e.g. "
+                                 "segment-3/track) into a new folder, copying the earlier stages' folders.")
+    ] = None,
+) -> None:
+    """Fly the assembly mission A → B → C → A: plan, smooth, track (segment 1); excite, tube MPC, estimate
+    (segment 2); plan, smooth, tube MPC with the learned model and the two baselines (segment 3)."""
+    from oacli.status import exit_code, warning_line
+
+    def action():
+        from oacli.config import load_config
+        from oacli.errors import ConfigError, InputError
+        from oacli.io.runfolder import is_complete
+        from oacli.mission.layout import stage_by_key
+        from oacli.mission.run import copy_stages_before, run_mission, start_mission, validate_mission
+
+        if resume and from_stage is not None:
+            raise ConfigError("--resume and --from: give one of them")
+        if resume or from_stage is not None:
+            if not (target.is_dir() and (target / "config.yaml").is_file()):
+                raise InputError(f"{target}: not a mission folder (no config.yaml)")
+            if seed is not None:
+                raise ConfigError("--seed: a resumed or rerun mission keeps its folder's seed")
+            cfg = load_config(target / "config.yaml")
+        else:
+            if target.is_dir():
+                raise InputError(f"{target}: a folder; give a config file, or add --resume / --from STAGE")
+            cfg = load_config_with_seed(target, seed)
+        validate_mission(cfg)
+        if resume:
+            if out is not None:
+                raise ConfigError("--out: a resumed mission continues in its own folder")
+            if is_complete(target):
+                raise InputError(f"{target}: the mission is complete; use --from STAGE to rerun part of it")
+            mission_dir = target
+        else:
+            if from_stage is not None:
+                try:
+                    stage_by_key(from_stage)
+                except KeyError as exc:
+                    raise ConfigError(f"--from: {exc.args[0]}") from None
+            mission_dir = start_mission(cfg, out=out, runs_root=runs_root)
+            if from_stage is not None:
+                copy_stages_before(target, mission_dir, cfg, from_stage)
+        say = (lambda line: typer.echo(line, err=True)) if not quiet else None
+        return run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
+
+    result = run_guarded(action)
+    warning = warning_line(result.summary)
+    if warning is not None:
+        typer.echo(warning, err=True)
+    if not quiet:
+        print_mission_tables(result.summary)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+    code = exit_code(result.summary.get("status", "ok"))
+    if code:
+        raise typer.Exit(code)

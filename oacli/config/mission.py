@@ -1,0 +1,82 @@
+"""The ``mission`` section: the three-segment assembly mission ([Doerr2021] Fig. 1, Results; [ReSWARM2023] §4.7).
+
+``route`` names the waypoints A (construction/assembly site), B (storage or 3D printer, where the payload is
+grasped) and C (the safe area where the payload's inertia is learned). ``grasped`` is the plant after the grasp
+(the truth of segments 2 and 3); ``prior`` is what the controller assumes about it before estimation, with its
+standard deviations (the tube's W of segment 2 comes from them, [Doerr2021] Eq. 28). ``segments`` holds per-segment
+overrides of any other section (deep-merged into the file's sections for that segment's stages and validated like
+the file).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import Field
+
+from oacli.config.fields import (
+    Name,
+    NonNegativeReal,
+    PositiveReal,
+    PositiveVector3,
+    PrincipalInertia,
+    Section,
+    StrictBool,
+    none_to,
+)
+
+SEGMENT_NAMES = ("segment-1", "segment-2", "segment-3")
+
+
+class GraspedPlantConfig(Section):
+    """The simulated plant once the payload is grasped at B (the truth of segments 2 and 3)."""
+
+    mass_kg: PositiveReal = Field(description="Mass of robot + payload [kg] ([Doerr2021] Table 1: 15 kg).")
+    inertia_kgm2: PrincipalInertia = Field(description="Principal inertias of robot + payload [kg·m²].")
+
+
+class PayloadPriorConfig(Section):
+    """The controller's model of robot + payload before estimation, with its 1σ uncertainty."""
+
+    mass_kg: PositiveReal = Field(description="Prior mass [kg].")
+    inertia_kgm2: PrincipalInertia = Field(description="Prior principal inertias [kg·m²].")
+    mass_std_kg: PositiveReal = Field(description="1σ of the prior mass [kg] (W of segment 2, [Doerr2021] Eq. 28).")
+    inertia_std_kgm2: PositiveVector3 = Field(
+        description="1σ of the prior principal inertias [kg·m²]."
+    )
+
+
+SegmentName = Literal["segment-1", "segment-2", "segment-3"]
+"""segment-1: A → B (plan, smooth, track); segment-2: B → C (excite, track, estimate); segment-3: C → A (plan,
+smooth, track and the baselines)."""
+
+
+class MissionConfig(Section):
+    """``oacli mission``: route, payload, and per-segment settings ([Doerr2021] Fig. 1; [ReSWARM2023] Table 1)."""
+
+    route: tuple[Name, Name, Name] = Field(
+        default=("A", "B", "C"),
+        description="Waypoint names A (assembly site), B (grasp: storage / 3D printer), C (safe area).",
+    )
+    excitation_method: Literal["offline", "rattle"] | None = Field(
+        default=None, description="Segment 2: offline A-optimal design or RATTLE (default: excitation.method)."
+    )
+    grasped: GraspedPlantConfig = Field(description="The plant after the grasp at B.")
+    prior: PayloadPriorConfig = Field(description="The controller's model after the grasp, before estimation.")
+    w_sigmas: PositiveReal = Field(
+        default=2.0, description="The tubes' W from this many σ of the model's mass: the prior's in segment 2, the "
+        "estimate's in segment 3 ([Doerr2021] Eq. 28 uses 2).",
+    )
+    settle_s: NonNegativeReal = Field(
+        default=2.0, description="Tracking time after each reference's end (simulation.settle_time_s) [s]."
+    )
+    baselines: StrictBool = Field(
+        default=True, description="Also fly segment 3 with standard and tube MPC on the prior ([Doerr2021] Fig. 3(d))."
+    )
+    segments: Annotated[dict[SegmentName, Annotated[dict[str, Any], none_to({})]], none_to({})] = Field(
+        default_factory=dict,
+        description="Per-segment overrides of the other sections (segment-1, segment-2, segment-3), deep-merged.",
+    )
+
+
+__all__ = ["SEGMENT_NAMES", "GraspedPlantConfig", "MissionConfig", "PayloadPriorConfig", "SegmentName"]

@@ -1,0 +1,410 @@
+"""Run a mission: every stage of :data:`oacli.mission.layout.MISSION_STAGES` in order, each in its own folder.
+
+Each stage runs through the same function its command uses (``run_plan``, ``run_smooth``, ``run_excite``,
+``run_track``, ``run_estimate``) with the config :func:`oacli.mission.configs.stage_config` derives, and hands its
+files to the next (:func:`handoff_for`). A stage whose folder is complete (:func:`oacli.io.runfolder.is_complete`) is
+kept when resuming; an incomplete one is removed and rerun. Everything a stage needs comes from the earlier stages'
+files, so a resumed mission equals an uninterrupted one with the same seed. The mission folder's ``summary.json`` is
+written last; an interruption or failure leaves one saying so (never a complete-looking mission).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oacli.config import OacliConfig, dump_config
+from oacli.errors import InputError, OacliError
+from oacli.io.atomic import write_text_atomic
+from oacli.io.mcap_read import read_stage, read_telemetry
+from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
+from oacli.mission.compare import comparison_row
+from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
+from oacli.mission.layout import MISSION_STAGES, SEGMENTS, MissionStage, stage_by_key
+from oacli.model.robot_model import RobotModel
+from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED, OK, StatusReport
+
+ProgressFactory = Callable[[str], Callable[[float], None] | None]
+"""Given a stage's key, the progress callback for that stage (or None)."""
+
+BASELINE_STAGES = ("baseline-mpc-prior", "baseline-tube-prior")
+
+
+@dataclass
+class MissionResult:
+    """What a mission produced.
+
+    Attributes
+    ----------
+    run_dir : Path
+        The mission folder.
+    summary : dict
+        The content of its ``summary.json``.
+    stages : dict of str to dict
+        Each stage's summary, by key (``segment-1/plan`` ...).
+    """
+
+    run_dir: Path
+    summary: dict[str, Any]
+    stages: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+def mission_stages(cfg: OacliConfig) -> tuple[MissionStage, ...]:
+    """The stages this mission runs (the baselines only with ``mission.baselines``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        A mission config.
+
+    Returns
+    -------
+    tuple of MissionStage
+    """
+    keep_baselines = mission_section(cfg).baselines
+    return tuple(s for s in MISSION_STAGES if keep_baselines or s.name not in BASELINE_STAGES)
+
+
+def _stage(key: str) -> MissionStage:
+    return stage_by_key(key)
+
+
+def _final_position(track_mcap: Path) -> np.ndarray:
+    tel = read_telemetry(track_mcap)
+    return np.asarray(tel.x_true[-1, 0:3], dtype=float)
+
+
+def _waypoint(cfg: OacliConfig, name: str) -> np.ndarray:
+    return np.asarray(cfg.waypoints[name].position, dtype=float)
+
+
+def estimate_model(cfg: OacliConfig, estimate_mcap: Path) -> RobotModel:
+    """The learned model: the prior model with the batch estimate's θ and covariance (its final record).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        The mission config.
+    estimate_mcap : Path
+        ``segment-2/estimate/estimate.mcap``.
+
+    Returns
+    -------
+    RobotModel
+    """
+    record = read_stage(estimate_mcap)
+    params = [r for r in record.json_records.get("/estimate/params", ()) if r.get("final")]
+    if not params:
+        raise InputError(f"{estimate_mcap}: no final /estimate/params record")
+    final = params[-1]
+    theta = np.array([final["mass_kg"], *final["inertia_kgm2"]], dtype=float)
+    return prior_model(cfg).with_estimate(theta, np.asarray(final["covariance"], dtype=float))
+
+
+def handoff_for(cfg: OacliConfig, stage: MissionStage, mission_dir: Path) -> Handoff:
+    """What the earlier stages' files hand to ``stage`` (module docstring).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        The mission config.
+    stage : MissionStage
+        The stage about to run.
+    mission_dir : Path
+        The mission folder (the earlier stages are complete in it).
+
+    Returns
+    -------
+    Handoff
+    """
+    _, b, c = mission_section(cfg).route
+    d = Path(mission_dir).resolve()
+    learned = estimate_model(cfg, _stage("segment-2/estimate").mcap(d)) if stage.segment == "segment-3" else None
+    if stage.command == "smooth":
+        return Handoff(plan=_stage(f"{stage.segment}/plan").mcap(d), estimate=learned)
+    if stage.command == "estimate":
+        return Handoff(telemetry=_stage("segment-2/track").mcap(d))
+    if stage.command != "track":
+        return Handoff(estimate=learned)
+    if stage.segment == "segment-1":
+        return Handoff(reference=_stage("segment-1/smooth").mcap(d))
+    if stage.segment == "segment-2":
+        offset = _final_position(_stage("segment-1/track").mcap(d)) - _waypoint(cfg, b)
+        return Handoff(reference=_stage("segment-2/excite").mcap(d), initial_offset_m=tuple(offset.tolist()))
+    offset = _final_position(_stage("segment-2/track").mcap(d)) - _waypoint(cfg, c)
+    return Handoff(reference=_stage("segment-3/smooth").mcap(d), initial_offset_m=tuple(offset.tolist()),
+                   estimate=learned)
+
+
+def validate_mission(cfg: OacliConfig) -> None:
+    """Derive every stage's config with placeholder hand-offs, so a bad override stops the mission before it runs.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        The mission config.
+
+    Raises
+    ------
+    ConfigError
+        Naming the stage, the segment's overrides and the field.
+    """
+    placeholder = Path("placeholder.mcap")
+    for stage in mission_stages(cfg):
+        ref = placeholder if stage.command == "track" else None
+        stage_config(cfg, stage, Handoff(reference=ref))
+
+
+def run_stage(stage: MissionStage, stage_cfg: OacliConfig, handoff: Handoff, folder: Path,
+              progress: Callable[[float], None] | None) -> StageResult:
+    """Run one stage into ``folder`` through the function its command uses.
+
+    Parameters
+    ----------
+    stage : MissionStage
+        The stage.
+    stage_cfg : OacliConfig
+        Its config (:func:`oacli.mission.configs.stage_config`).
+    handoff : Handoff
+        Its inputs.
+    folder : Path
+        Its run folder (must not exist).
+    progress : callable or None
+        Progress callback.
+
+    Returns
+    -------
+    StageResult
+    """
+    if stage.command == "plan":
+        from oacli.stages.plan import run_plan
+        return run_plan(stage_cfg, out=folder, progress=progress)
+    if stage.command == "smooth":
+        from oacli.stages.smooth import run_smooth
+        assert handoff.plan is not None
+        return run_smooth(stage_cfg, input_path=handoff.plan, out=folder, progress=progress)
+    if stage.command == "excite":
+        from oacli.stages.excite import run_excite
+        return run_excite(stage_cfg, out=folder, progress=progress)
+    if stage.command == "track":
+        from oacli.stages.track import run_track
+        return run_track(stage_cfg, out=folder, progress=progress)
+    from oacli.stages.estimate import run_estimate
+    assert handoff.telemetry is not None
+    method = "sequential" if stage.name == "estimate-sequential" else "batch"
+    return run_estimate(stage_cfg, telemetry=handoff.telemetry, method=method, out=folder, progress=progress)
+
+
+def _read_summary(folder: Path) -> dict[str, Any]:
+    return json.loads((folder / "summary.json").read_text())
+
+
+def _clear_incomplete(folder: Path, mission_dir: Path) -> None:
+    """Remove an incomplete stage folder (only ever inside the mission folder)."""
+    folder = folder.resolve()
+    if folder.exists():
+        if Path(mission_dir).resolve() not in folder.parents:
+            raise InputError(f"{folder}: not inside the mission folder {mission_dir}")
+        shutil.rmtree(folder)
+
+
+def start_mission(cfg: OacliConfig, *, out: Path | None, runs_root: Path) -> Path:
+    """Create a new mission folder and write its ``config.yaml`` (first, atomically).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        The mission config (validated by :func:`validate_mission` first).
+    out, runs_root : Path
+        As for every stage (:func:`oacli.io.runfolder.create_run_dir`).
+
+    Returns
+    -------
+    Path
+        The folder ``runs_root/mission-<name>-<UTC stamp>`` or ``out``.
+    """
+    mission_dir = create_run_dir(f"mission-{cfg.name}", out=out, runs_root=runs_root)
+    write_text_atomic(mission_dir / "config.yaml", dump_config(cfg))
+    return mission_dir
+
+
+def copy_stages_before(source_dir: Path, mission_dir: Path, cfg: OacliConfig, from_key: str) -> None:
+    """Copy the complete stage folders that run before ``from_key`` from ``source_dir`` (``--from``).
+
+    Parameters
+    ----------
+    source_dir : Path
+        An earlier mission folder (not modified).
+    mission_dir : Path
+        The new mission folder.
+    cfg : OacliConfig
+        The mission config.
+    from_key : str
+        The first stage to rerun (``segment-3/track`` ...).
+
+    Raises
+    ------
+    InputError
+        A stage before ``from_key`` is not complete in ``source_dir``.
+    """
+    first = _stage(from_key)
+    for stage in mission_stages(cfg):
+        if stage.key == first.key:
+            return
+        src = stage.folder(source_dir)
+        if not is_complete(src):
+            raise InputError(f"--from {from_key}: {src} is not complete; resume that mission first (--resume)")
+        dst = stage.folder(mission_dir)
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copytree(src, dst)
+
+
+def run_mission(
+    cfg: OacliConfig,
+    mission_dir: Path,
+    *,
+    progress: ProgressFactory | None = None,
+    announce: Callable[[str], None] | None = None,
+) -> MissionResult:
+    """Run (or resume) every stage of a mission in ``mission_dir``, then write its outputs and ``summary.json``.
+
+    Complete stage folders are kept; incomplete ones are removed and rerun.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        The mission config.
+    mission_dir : Path
+        The mission folder (from :func:`start_mission`, or an interrupted one).
+    progress : callable, optional
+        Progress callback per stage key.
+    announce : callable, optional
+        Called with one line per stage (kept / running / its status).
+
+    Returns
+    -------
+    MissionResult
+
+    Raises
+    ------
+    OacliError
+        A stage of the mission proper failed (its folder and the mission's ``summary.json`` say why). A failing
+        baseline is recorded in the comparison instead.
+    """
+    wall = time.perf_counter()
+    say = announce or (lambda _line: None)
+    stages = mission_stages(cfg)
+    results: dict[str, dict[str, Any]] = {}
+    try:
+        for i, stage in enumerate(stages, start=1):
+            folder = stage.folder(mission_dir)
+            if is_complete(folder):
+                results[stage.key] = _read_summary(folder)
+                say(f"[{i}/{len(stages)}] {stage.key}: kept ({results[stage.key]['status']})")
+                continue
+            _clear_incomplete(folder, mission_dir)
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            say(f"[{i}/{len(stages)}] {stage.key}: running {stage.command}")
+            try:
+                handoff = handoff_for(cfg, stage, mission_dir)
+                stage_cfg = stage_config(cfg, stage, handoff)
+                result = run_stage(stage, stage_cfg, handoff, folder, progress(stage.key) if progress else None)
+            except OacliError as exc:
+                if stage.name not in BASELINE_STAGES:
+                    raise
+                results[stage.key] = {"stage": stage.command, "status": FAILED, "error": "; ".join(exc.problems)}
+                say(f"[{i}/{len(stages)}] {stage.key}: failed: {'; '.join(exc.problems)}")
+                continue
+            results[stage.key] = result.summary
+            say(f"[{i}/{len(stages)}] {stage.key}: {result.summary['status']} "
+                f"({result.summary.get('wall_time_s', 0.0):.1f} s)")
+            if result.summary.get("status") not in COMPLETE_STATUSES or result.summary.get("status") == "no_solution":
+                raise InputError(f"{stage.key}: ended {result.summary.get('status')}; the mission cannot go on "
+                                 f"(see {folder / 'summary.json'})")
+        summary = mission_summary(cfg, mission_dir, stages, results)
+        summary["wall_time_s"] = time.perf_counter() - wall
+        write_summary(mission_dir, summary)
+        return MissionResult(mission_dir, summary, results)
+    except BaseException as exc:
+        status = INTERRUPTED if isinstance(exc, KeyboardInterrupt) else FAILED
+        reason = "; ".join(exc.problems) if isinstance(exc, OacliError) else f"{type(exc).__name__}: {exc}"
+        write_summary(mission_dir, {"stage": "mission", "status": status, "error": reason,
+                                    "stages": {k: {"status": v.get("status")} for k, v in results.items()},
+                                    "resume": f"oacli mission --resume {mission_dir}"})
+        raise
+
+
+def _segment_times(stages_done: dict[str, dict[str, Any]]) -> dict[str, tuple[float, float]]:
+    t0 = 0.0
+    out = {}
+    for seg in SEGMENTS:
+        duration = float(stages_done[f"{seg}/track"]["sim_time_s"])
+        out[seg] = (t0, duration)
+        t0 += duration
+    return out
+
+
+def mission_summary(cfg: OacliConfig, mission_dir: Path, stages: tuple[MissionStage, ...],
+                    results: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The mission's ``summary.json`` content (contract in ``docs/mission.md``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        The mission config.
+    mission_dir : Path
+        The mission folder.
+    stages : tuple of MissionStage
+        The stages run.
+    results : dict
+        Each stage's summary by key.
+
+    Returns
+    -------
+    dict
+    """
+    mission = mission_section(cfg)
+    a, b, c = mission.route
+    times = _segment_times(results)
+    ends = {"segment-1": (a, b), "segment-2": (b, c), "segment-3": (c, a)}
+    findings = StatusReport()
+    for s in stages:
+        stage_summary = results[s.key]
+        if s.name in BASELINE_STAGES or stage_summary.get("status") == OK:
+            continue  # a baseline is a counterfactual flight: its status is reported, not the mission's
+        reasons = stage_summary.get("status_reasons") or [{"level": stage_summary.get("status"), "message": "?"}]
+        for r in reasons:
+            add = findings.unsafe if r["level"] == "unsafe" else findings.degraded
+            add(r.get("kind", "stage"), f"{s.key}: {r['message']}")
+    estimate = results["segment-2/estimate"]
+    comparison = {}
+    for key in ("segment-3/track", *(f"segment-3/{n}" for n in BASELINE_STAGES)):
+        if key in results:
+            comparison[key] = comparison_row(key, results[key], mission_dir)
+    summary: dict[str, Any] = {
+        "stage": "mission",
+        "name": cfg.name,
+        "seed": cfg.seed,
+        "route": list(mission.route),
+        "segments": {seg: {"from": ends[seg][0], "to": ends[seg][1], "start_time_s": times[seg][0],
+                           "duration_s": times[seg][1]} for seg in SEGMENTS},
+        "grasp_time_s": times["segment-2"][0],
+        "mission_time_s": sum(d for _, d in times.values()),
+        "stages": {s.key: {"status": results[s.key].get("status"), "wall_time_s": results[s.key].get("wall_time_s"),
+                           "folder": f"{s.segment}/{s.name}", "command": s.command} for s in stages},
+        "estimate": {k: estimate.get(k) for k in ("method", "mass_kg", "inertia_kgm2", "std", "crb_std",
+                                                  "truth_theta", "error_pct", "error_over_std", "cov_reduction_pct",
+                                                  "status")},
+        "estimate_sequential": {k: results["segment-2/estimate-sequential"].get(k)
+                                for k in ("mass_kg", "inertia_kgm2", "std", "error_pct", "status")},
+        "comparison": comparison,
+        "files": {"config": "config.yaml", "summary": "summary.json"},
+    }
+    return findings.apply(summary)
