@@ -1,0 +1,86 @@
+"""Benchmark: the default mission (``configs/mission_iss.yaml``) end to end, logging included, against real time.
+
+Runs ``oacli mission`` in-process ``--repeats`` times into temporary folders with BLAS pinned to one thread (one
+core), and prints the wall time, the robot time flown (the three segments on the mission timeline, and all
+simulated tracking including the baselines), the speed-up over real time (target of issue 9: >= 10x), and where
+the time goes: per stage (median over repeats) and, with ``--profile``, the top functions by cumulative time.
+
+Run: ``python benchmarks/bench_mission.py [--repeats 1] [--profile] [--config configs/mission_iss.yaml]``
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import cProfile  # noqa: E402
+import io  # noqa: E402
+import pstats  # noqa: E402
+import statistics  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from oacli.config import load_config  # noqa: E402
+from oacli.mission.run import run_mission, start_mission, validate_mission  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def one_mission(config: Path, profile: bool) -> tuple[float, dict, str]:
+    cfg = load_config(config)
+    validate_mission(cfg)
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        profiler = cProfile.Profile() if profile else None
+        if profiler:
+            profiler.enable()
+        mission_dir = start_mission(cfg, out=Path(tmp) / "run", runs_root=Path(tmp))
+        result = run_mission(cfg, mission_dir)
+        if profiler:
+            profiler.disable()
+        wall = time.perf_counter() - start
+        text = ""
+        if profiler:
+            buf = io.StringIO()
+            pstats.Stats(profiler, stream=buf).sort_stats("cumulative").print_stats(25)
+            text = buf.getvalue()
+        return wall, result.summary, text
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", type=Path, default=ROOT / "configs" / "mission_iss.yaml")
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--profile", action="store_true", help="cProfile the last repeat")
+    args = parser.parse_args()
+    walls, per_stage = [], {}
+    summary, profile_text = {}, ""
+    for k in range(args.repeats):
+        wall, summary, text = one_mission(args.config, args.profile and k == args.repeats - 1)
+        walls.append(wall)
+        profile_text = text or profile_text
+        for key, entry in summary["stages"].items():
+            per_stage.setdefault(key, []).append(entry["wall_time_s"])
+    mission_s = summary["mission_time_s"]
+    flown = mission_s + sum(row["duration_s"] for key, row in summary["comparison"].items() if "baseline" in key)
+    wall = statistics.median(walls)
+    print(f"config {args.config.name}: status {summary['status']}, {args.repeats} repeat(s), BLAS threads 1")
+    print(f"wall time (median)            {wall:8.1f} s")
+    print(f"mission time (3 segments)     {mission_s:8.1f} s   -> {mission_s / wall:5.2f}x real time (target >= 10x)")
+    print(f"all simulated tracking        {flown:8.1f} s   -> {flown / wall:5.2f}x real time (with the baselines)")
+    print("where the time goes (median wall per stage):")
+    total = sum(statistics.median(v) for v in per_stage.values())
+    for key, values in sorted(per_stage.items(), key=lambda kv: -statistics.median(kv[1])):
+        med = statistics.median(values)
+        print(f"  {key:<32} {med:7.2f} s  {100 * med / wall:5.1f} %")
+    print(f"  {'mission outputs and overhead':<32} {wall - total:7.2f} s  {100 * (wall - total) / wall:5.1f} %")
+    if profile_text:
+        print(profile_text)
+
+
+if __name__ == "__main__":
+    main()
