@@ -41,10 +41,10 @@ def _shrunk(base: dict[str, Any]) -> dict[str, Any]:
     cfg["name"] = "mission-fixture"
     cfg["simulation"]["settle_time_s"] = 1.0
     cfg["reference"]["hold_s"] = 0.5
-    cfg["planner"].update({"time_budget_s": 3.0, "max_iterations": 400})
+    cfg["planner"].update({"time_budget_s": 2.0, "max_iterations": 300})
     cfg["planner"]["shortcut"]["tries"] = 30
     cfg["planner"]["polish"]["enabled"] = False
-    cfg["excitation"].update({"duration_s": 30.0, "steps": 20})
+    cfg["excitation"].update({"duration_s": 20.0, "steps": 12})
     # C of the preset lies within the robot radius of the truss (keep-out 3): C -> A could not start there.
     cfg["waypoints"]["C"]["position"] = [0.2, -0.8, 0.0]
     return cfg
