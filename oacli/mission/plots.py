@@ -178,7 +178,7 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
     return _save(fig, path)
 
 
-def _ellipse_xy(center: np.ndarray, shape: np.ndarray, grow_m: float = 0.0) -> tuple[float, float, float, float]:
+def _ellipse_xy(center: np.ndarray, shape: np.ndarray, grow_m: float = 0.0) -> tuple[float, float, float, float, float]:
     """Projection on x-y of ``(p − c)ᵀ P (p − c) <= 1``: centre, width, height [m] and angle [deg]; semi-axes grown
     by ``grow_m`` (the robot radius, an outline of the zone the robot's centre keeps out of)."""
     cov = np.linalg.inv(np.asarray(shape, dtype=float))[:2, :2]  # the shadow of an ellipsoid is the ellipse of P⁻¹

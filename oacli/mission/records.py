@@ -204,8 +204,8 @@ def _tube(record: StageRecord, t_ctrl_stage: np.ndarray) -> tuple[np.ndarray, np
     for design in sorted(designs, key=lambda d: int(d.get("design", 0))):
         ext = []
         for ax in design["axes"]:
-            z = Polytope(np.asarray(ax["z_normals"], dtype=float), np.asarray(ax["z_offsets"], dtype=float))
-            ext.append([z.support(np.array([-1.0, 0.0])), z.support(np.array([1.0, 0.0]))])
+            zset = Polytope(np.asarray(ax["z_normals"], dtype=float), np.asarray(ax["z_offsets"], dtype=float))
+            ext.append([zset.support(np.array([-1.0, 0.0])), zset.support(np.array([1.0, 0.0]))])
         extents.append(ext)
     ext_arr = np.asarray(extents, dtype=float)
     index = np.zeros(len(t_ctrl_stage), dtype=int)
