@@ -1,0 +1,274 @@
+"""The mission's PNG plots (matplotlib, Agg backend: no display needed).
+
+``mission_dir/plots/``:
+
+* ``tracking_error.png`` -- position error ‖r − r_ref‖ [m] over mission time, one panel per segment; segment 3
+  with the three flights of :data:`oacli.mission.layout.BASELINES` ([Doerr2021] Fig. 3(d));
+* ``estimate_convergence.png`` -- mass and the three principal inertias over mission time with ± 2σ bands and the
+  truth (dashed), and the estimate's error and 2σ relative to the truth on a log scale against the ReSWARM flight
+  figures (mass 0.39 %, inertias 0.91 / 1.35 / 6.92 %);
+* ``top_view.png`` -- x-y view: keep-in boxes, keep-out ellipsoids (projected; dashed: grown by the robot radius),
+  plan, smoothed path or excitation reference and the flown path of each segment, A, B and C.
+
+Each file is rendered to memory and written atomically (:func:`oacli.io.atomic.atomic_path`).
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg", force=True)
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.patches import Ellipse, Rectangle
+
+from oacli.io.atomic import atomic_path
+from oacli.mission.layout import BASELINES, SEGMENTS
+from oacli.mission.records import PARAMETERS, MissionRecords, load_mission_records
+
+#: Relative estimation errors of the ReSWARM flight experiments [%] (issue 9; [ReSWARM2023] §6.3.1): mass, Ixx,
+#: Iyy, Izz.
+FLIGHT_ERROR_PCT: tuple[float, float, float, float] = (0.39, 0.91, 1.35, 6.92)
+
+#: Matplotlib colours of the flights (segment 3 as [Doerr2021] Fig. 3(d): green, cyan, magenta).
+FLIGHT_COLORS: dict[str, str] = {
+    "segment-1/track": "tab:orange",
+    "segment-2/track": "tab:brown",
+    "segment-3/track": "tab:green",
+    "segment-3/baseline-mpc-prior": "tab:cyan",
+    "segment-3/baseline-tube-prior": "m",
+}
+_SEGMENT_COLORS = {"segment-1": "tab:orange", "segment-2": "tab:brown", "segment-3": "tab:green"}
+_METHOD_COLORS = {"sequential": "tab:blue", "batch": "tab:orange"}
+_DPI = 110
+
+
+def _spans_decades(values: np.ndarray, decades: float = 2.0) -> bool:
+    """True when the positive finite values span more than ``decades`` powers of ten."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    return v.size > 1 and float(np.log10(v.max() / v.min())) > decades
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=_DPI, bbox_inches="tight")
+    plt.close(fig)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.getvalue())
+    return path
+
+
+def _legend_outside(ax: Any) -> None:
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
+
+
+def plot_tracking_error(records: MissionRecords, path: Path) -> Path:
+    """Position error per segment, segment 3 with its baselines (see the module docstring).
+
+    Parameters
+    ----------
+    records : MissionRecords
+        The mission's records.
+    path : Path
+        Output PNG.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    fig, axes = plt.subplots(len(SEGMENTS), 1, figsize=(10, 8.5), constrained_layout=True)
+    for ax, seg in zip(axes, SEGMENTS, strict=True):
+        flights = [f for f in records.flights.values() if f.key.startswith(seg + "/") and f.t_ctrl.size]
+        for f in flights:
+            rms = float(np.sqrt(np.mean(f.position_error_m**2)))
+            label = BASELINES.get(f.key, f.label) + f" (RMS {1e3 * rms:.1f} mm)"
+            ax.plot(f.t_ctrl, f.position_error_m, color=FLIGHT_COLORS.get(f.key), lw=1.3, label=label)
+        info = records.segments.get(seg, {})
+        ax.set_title(f"{seg}: {info.get('from', '?')} → {info.get('to', '?')}", loc="left", fontsize="medium")
+        ax.set_ylabel("position error [m]")
+        ax.grid(True, alpha=0.3)
+        if flights and _spans_decades(np.concatenate([f.position_error_m for f in flights])):
+            ax.set_yscale("log")
+        if not flights:
+            ax.text(0.5, 0.5, "no flight recorded", transform=ax.transAxes, ha="center", va="center")
+        _legend_outside(ax)
+    axes[-1].set_xlabel("mission time [s]")
+    fig.suptitle("Tracking error ‖r − r_ref‖ per segment (segment 3: [Doerr2021] Fig. 3(d) baselines)")
+    return _save(fig, path)
+
+
+def _relative_pct(values: np.ndarray, truth: float) -> np.ndarray:
+    return 100.0 * np.abs(values) / abs(truth) if truth != 0 else np.full_like(values, np.nan)
+
+
+def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
+    """The four parameters converging (left) and their error and 2σ relative to the truth (right, log scale).
+
+    Parameters
+    ----------
+    records : MissionRecords
+        The mission's records.
+    path : Path
+        Output PNG.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    truth = records.truth_theta
+    fig, axes = plt.subplots(4, 2, figsize=(12, 11), constrained_layout=True, sharex=True)
+    for i, (param, unit) in enumerate(PARAMETERS):
+        ax, ax_rel = axes[i, 0], axes[i, 1]
+        shown: list[np.ndarray] = []
+        for key, est in records.estimates.items():
+            method = "sequential" if key.endswith("-sequential") else "batch"
+            color = _METHOD_COLORS[method]
+            value, two_sigma = est.theta[:, i], 2.0 * est.std[:, i]
+            ax.plot(est.t, value, color=color, lw=1.5, marker="o" if len(est.t) < 20 else None, ms=3,
+                    label=f"{method} estimate")
+            ax.fill_between(est.t, value - two_sigma, value + two_sigma, color=color, alpha=0.2, lw=0,
+                            label=f"{method} ± 2σ")
+            # y range: the converged half of each series (the first records' prior-sized bands would hide it)
+            half = len(value) // 2
+            shown += [value[half:] - two_sigma[half:], value[half:] + two_sigma[half:]]
+            if truth is not None:
+                ax_rel.plot(est.t, _relative_pct(value - truth[i], truth[i]), color=color, lw=1.5,
+                            label=f"{method} |error|")
+                ax_rel.plot(est.t, _relative_pct(two_sigma, truth[i]), color=color, lw=1.0, ls=":",
+                            label=f"{method} 2σ")
+            else:
+                ax_rel.plot(est.t, 100.0 * two_sigma / np.abs(value), color=color, lw=1.0, ls=":",
+                            label=f"{method} 2σ / estimate")
+        if truth is not None:
+            ax.axhline(truth[i], color="k", ls="--", lw=1.0, label="truth")
+            shown.append(np.array([truth[i]]))
+        ax_rel.axhline(FLIGHT_ERROR_PCT[i], color="tab:red", ls="--", lw=1.0,
+                       label=f"flight error {FLIGHT_ERROR_PCT[i]:g} % (ReSWARM)")
+        if shown:
+            lo, hi = float(np.nanmin(np.concatenate(shown))), float(np.nanmax(np.concatenate(shown)))
+            pad = 0.1 * (hi - lo) if hi > lo else 0.05 * max(abs(hi), 1e-9)
+            ax.set_ylim(lo - pad, hi + pad)
+        name = param.split("_")[0]
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax_rel.set_ylabel(f"{name}: % of truth")
+        ax_rel.set_yscale("log")
+        for a in (ax, ax_rel):
+            a.grid(True, alpha=0.3, which="both")
+            a.axvline(records.grasp_time_s, color="0.5", lw=0.8)
+        _legend_outside(ax_rel)
+        if i == 0:
+            _legend_outside(ax)
+            ax.set_title("estimate ± 2σ (y range: converged half; grey line: grasp)", loc="left",
+                         fontsize="medium")
+            ax_rel.set_title("error and 2σ relative to the truth (log)", loc="left", fontsize="medium")
+    for a in axes[-1]:
+        a.set_xlabel("mission time [s]")
+    fig.suptitle("Inertial parameter estimates after the grasp (segment 2); flight figures: mass 0.39 %, "
+                 "inertias 0.91 / 1.35 / 6.92 %")
+    return _save(fig, path)
+
+
+def _ellipse_xy(center: np.ndarray, shape: np.ndarray, grow_m: float = 0.0) -> tuple[float, float, float, float, float]:
+    """Projection on x-y of ``(p − c)ᵀ P (p − c) <= 1``: centre, width, height [m] and angle [deg]; semi-axes grown
+    by ``grow_m`` (the robot radius, an outline of the zone the robot's centre keeps out of)."""
+    cov = np.linalg.inv(np.asarray(shape, dtype=float))[:2, :2]  # the shadow of an ellipsoid is the ellipse of P⁻¹
+    eig, vec = np.linalg.eigh(cov)
+    semi = np.sqrt(np.maximum(eig, 0.0)) + grow_m
+    angle = float(np.degrees(np.arctan2(vec[1, 1], vec[0, 1])))
+    return float(center[0]), float(center[1]), 2.0 * float(semi[1]), 2.0 * float(semi[0]), angle
+
+
+def plot_top_view(records: MissionRecords, path: Path) -> Path:
+    """x-y top view of the scene and the paths of every segment (see the module docstring).
+
+    Parameters
+    ----------
+    records : MissionRecords
+        The mission's records.
+    path : Path
+        Output PNG.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    fig, ax = plt.subplots(figsize=(11, 7.5), constrained_layout=True)
+    for j, box in enumerate(records.scene.keep_in):
+        c, s = np.asarray(box.center, dtype=float), np.asarray(box.size, dtype=float)
+        ax.add_patch(Rectangle((c[0] - s[0] / 2, c[1] - s[1] / 2), s[0], s[1], fc=(0.3, 0.8, 0.45, 0.08),
+                               ec="tab:green", lw=1.2, label="keep-in" if j == 0 else None))
+    for j, zone in enumerate(records.scene.keep_out):
+        x, y, w, h, a = _ellipse_xy(zone.center, zone.shape)
+        ax.add_patch(Ellipse((x, y), w, h, angle=a, fc=(0.9, 0.25, 0.25, 0.35), ec="tab:red", lw=1.0,
+                             label="keep-out (safety factor incl.)" if j == 0 else None))
+        if records.robot_radius_m > 0:
+            x, y, w, h, a = _ellipse_xy(zone.center, zone.shape, records.robot_radius_m)
+            ax.add_patch(Ellipse((x, y), w, h, angle=a, fill=False, ec="tab:red", ls="--", lw=0.8,
+                                 label=f"keep-out + robot radius {records.robot_radius_m:g} m" if j == 0
+                                 else None))
+    styles = {"plan": (":", 1.0, "plan"), "smooth": ("--", 1.2, "smoothed"), "excite": ("--", 1.2, "excitation ref.")}
+    for key, p in records.paths.items():
+        seg = key.split("/")[0]
+        ls, lw, what = styles.get(p.kind, (":", 1.0, p.kind))
+        ax.plot(p.positions_m[:, 0], p.positions_m[:, 1], ls=ls, lw=lw, color=_SEGMENT_COLORS.get(seg, "0.4"),
+                alpha=0.8, label=f"{seg} {what}")
+    for key, f in records.flights.items():
+        label = f"{key.split('/')[0]} flown" if key not in BASELINES else f"segment 3 flown: {BASELINES[key]}"
+        width = {"segment-3/track": 3.0, "segment-3/baseline-mpc-prior": 2.0}.get(key, 1.2)  # overlaid: widest under
+        ax.plot(f.x_true[:, 0], f.x_true[:, 1], lw=width, color=FLIGHT_COLORS.get(key), label=label)
+    for name, pos in records.waypoints_m.items():
+        ax.plot(pos[0], pos[1], "k^", ms=9, zorder=5)
+        ax.annotate(name, (pos[0], pos[1]), xytext=(6, 6), textcoords="offset points", fontsize=13,
+                    fontweight="bold", zorder=6)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.grid(True, alpha=0.3)
+    ax.set_title("Top view (x-y): keep-in, keep-out zones, plans and flown paths; A, B, C marked")
+    _legend_outside(ax)
+    return _save(fig, path)
+
+
+def write_mission_plots(mission_dir: Path, summary: dict[str, Any]) -> dict[str, Path]:
+    """Write the mission's PNG plots into ``mission_dir/plots/`` (module docstring).
+
+    Parameters
+    ----------
+    mission_dir : Path
+        The mission folder (:mod:`oacli.mission.layout`); the stage MCAPs are read from it.
+    summary : dict
+        The mission summary (segments' ``start_time_s``, ``grasp_time_s``, ``estimate.truth_theta``).
+
+    Returns
+    -------
+    dict[str, Path]
+        ``tracking_error``, ``estimate_convergence``, ``top_view`` -> the PNG written.
+
+    Raises
+    ------
+    oacli.errors.InputError
+        A stage MCAP is unreadable.
+    FileNotFoundError
+        No stage folder holds a config.
+    """
+    mission_dir = Path(mission_dir)
+    records = load_mission_records(mission_dir, summary)
+    out = mission_dir / "plots"
+    out.mkdir(parents=True, exist_ok=True)
+    return {
+        "tracking_error": plot_tracking_error(records, out / "tracking_error.png"),
+        "estimate_convergence": plot_estimate_convergence(records, out / "estimate_convergence.png"),
+        "top_view": plot_top_view(records, out / "top_view.png"),
+    }

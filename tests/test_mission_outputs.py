@@ -1,0 +1,135 @@
+"""The mission's recording (``mission.rrd``) and PNG plots, on a real mission folder built by the stage commands
+(:mod:`tests.mission_fixture`), read back and checked against the stage MCAPs."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from oacli.io.mcap_io import read_stage, read_telemetry
+from oacli.io.rerun.mission import APPLICATION_ID, write_mission_recording
+from oacli.io.rerun.read import (
+    read_blueprint_views,
+    read_recording_component,
+    read_recording_entities,
+    read_recording_scalars,
+)
+from oacli.mission.layout import BASELINES, stage_by_key
+from oacli.mission.plots import write_mission_plots
+from tests.mission_fixture import build_mission_folder
+
+PARAMS = ("mass_kg", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2")
+
+
+@pytest.fixture(scope="module")
+def mission(tmp_path_factory) -> tuple[Path, dict]:
+    root = tmp_path_factory.mktemp("mission")
+    mission_dir = root / "mission"
+    summary = build_mission_folder(mission_dir, root / "configs")
+    write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary, recording_name="mission-fixture")
+    return mission_dir, summary
+
+
+def test_recording_is_one_mission_timeline(mission):
+    mission_dir, summary = mission
+    rrd = mission_dir / "mission.rrd"
+    from rerun.chunk import RrdReader
+
+    (store,) = RrdReader(rrd).recordings()
+    assert store.application_id == APPLICATION_ID
+    scalars = read_recording_scalars(rrd)  # on the mission_time timeline
+    seg3 = summary["segments"]["segment-3"]
+    seg3_end = seg3["start_time_s"] + seg3["duration_s"]
+    t_max = max(t[-1] for t, _ in scalars.values())
+    assert t_max >= seg3_end - 0.5
+    # each flight's error series starts at its segment's offset and equals ‖r_true − r_ref‖ of its MCAP
+    for key in ("segment-1/track", "segment-2/track", *BASELINES):
+        t, err = scalars[f"metrics/position_error/{key}"]
+        tel = read_telemetry(stage_by_key(key).mcap(mission_dir))
+        offset = summary["segments"][key.split("/")[0]]["start_time_s"]
+        np.testing.assert_allclose(t, tel.t_ctrl + offset, atol=1e-9)
+        idx = np.searchsorted(tel.t_true, tel.t_ctrl - 1e-9)
+        ref = read_stage(stage_by_key(key).mcap(mission_dir), topics=["/reference"]).trajectories["/reference"]
+        np.testing.assert_allclose(err, np.linalg.norm(tel.x_true[idx, 0:3] - ref.x[:, 0:3], axis=1), atol=1e-12)
+    # the grasp happens at grasp_time_s
+    t_grasp, _ = read_recording_component(rrd, "world/grasp", "Points3D:positions")
+    assert t_grasp is not None and t_grasp[0] == pytest.approx(summary["grasp_time_s"], abs=1e-9)
+    t_log, texts = read_recording_component(rrd, "log", "TextLog:text")
+    assert any("grasp" in str(m[0]) and abs(t - summary["grasp_time_s"]) < 1e-9 for t, m in zip(t_log, texts,
+                                                                                                   strict=True))
+
+
+def test_every_blueprint_view_shows_data(mission):
+    mission_dir, _ = mission
+    rrd = mission_dir / "mission.rrd"
+    views = read_blueprint_views(rrd)
+    entities = read_recording_entities(rrd)
+    assert {v["class"] for v in views} >= {"3D", "TimeSeries", "TextLog"}
+    assert len([v for v in views if v["class"] == "3D"]) == 2  # the mission, and segment 3's flights side by side
+    for view in views:
+        origin = view["origin"].strip("/")
+        assert any(e == origin or e.startswith(origin + "/") for e in entities), view
+    scalars = read_recording_scalars(rrd)
+    for view in views:
+        if view["class"] == "TimeSeries":
+            origin = view["origin"].strip("/")
+            assert any(k == origin or k.startswith(origin + "/") for k in scalars), view
+    for key in (*BASELINES, "segment-1/track", "segment-2/track"):
+        assert f"world/{key}/actual" in entities and f"world/{key}/robot" in entities
+    for key in ("segment-2/track", "segment-3/track", "segment-3/baseline-tube-prior"):
+        assert f"world/{key}/tube" in entities  # tube MPC flights
+    assert "world/segment-3/baseline-mpc-prior/tube" not in entities  # standard MPC: no tube
+    for seg in ("segment-1", "segment-3"):
+        _, rows = read_recording_component(rrd, f"world/{seg}/plan/tree", "LineStrips3D:strips")
+        nodes = read_stage(stage_by_key(f"{seg}/plan").mcap(mission_dir),
+                           topics=["/plan/tree"]).json_records["/plan/tree"]
+        assert len(rows[0]) == len(nodes) - 1  # one edge per node but the root
+    # inputs against the limits of each flight's config
+    _, force = scalars["metrics/force_N"]
+    _, upper = scalars["metrics/force_N/limit_upper"]
+    assert force.shape[1] == 3 and np.all(upper > 0) and np.all(np.abs(force) <= upper.max(axis=0) * (1 + 1e-6))
+
+
+def test_estimate_bands_are_the_mcap_two_sigma(mission):
+    mission_dir, summary = mission
+    scalars = read_recording_scalars(mission_dir / "mission.rrd")
+    offset = summary["segments"]["segment-2"]["start_time_s"]
+    for key, method in (("segment-2/estimate-sequential", "sequential"), ("segment-2/estimate", "batch")):
+        params = read_stage(stage_by_key(key).mcap(mission_dir),
+                            topics=["/estimate/params"]).json_records["/estimate/params"]
+        theta = np.array([[p["mass_kg"], *p["inertia_kgm2"]] for p in params])
+        std = np.array([p["std"] for p in params], dtype=float)
+        for i, name in enumerate(PARAMS):
+            t, value = scalars[f"estimate/{name}/{method}"]
+            _, upper = scalars[f"estimate/{name}/{method}/upper_2sigma"]
+            _, lower = scalars[f"estimate/{name}/{method}/lower_2sigma"]
+            np.testing.assert_allclose(t, np.array([p["t"] for p in params]) + offset, atol=1e-9)
+            np.testing.assert_array_equal(value, theta[:, i])
+            np.testing.assert_allclose(upper - value, 2 * std[:, i], rtol=1e-9, atol=1e-15)
+            np.testing.assert_allclose(value - lower, 2 * std[:, i], rtol=1e-9, atol=1e-15)
+            _, truth = scalars[f"estimate/{name}/truth"]
+            np.testing.assert_array_equal(truth, summary["estimate"]["truth_theta"][i])
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR", path
+    assert data[-8:-4] == b"IEND", path  # complete file
+    return struct.unpack(">II", data[16:24])
+
+
+def test_plots_are_valid_pngs(mission):
+    mission_dir, summary = mission
+    files = write_mission_plots(mission_dir, summary)
+    assert set(files) == {"tracking_error", "estimate_convergence", "top_view"}
+    for name, path in files.items():
+        assert path == mission_dir / "plots" / f"{name}.png"
+        width, height = _png_size(path)
+        assert 600 <= width <= 3000 and 400 <= height <= 3000, (name, width, height)
+        assert path.stat().st_size > 20_000, name  # drawn, not blank
+    assert sorted(p.name for p in (mission_dir / "plots").iterdir()) == sorted(f"{n}.png" for n in files)
+    json.dumps({k: str(v) for k, v in files.items()})  # JSON-ready for the summary's files.plots
