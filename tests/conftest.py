@@ -34,3 +34,37 @@ def random_state(rng: np.random.Generator, spin_radps: float = 0.3) -> np.ndarra
     x[6:10] = q / np.linalg.norm(q)
     x[10:13] = rng.uniform(-spin_radps, spin_radps, 3)
     return x
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def small_mission_config(folder: Path, name: str = "small-mission") -> Path:
+    """configs/mission_iss.yaml with a shorter excitation, fewer shortcut tries and polish iterations."""
+    import yaml
+
+    data = yaml.safe_load((ROOT / "configs" / "mission_iss.yaml").read_text())
+    data["name"] = name
+    data["planner"]["shortcut"]["tries"] = 200
+    data["planner"].setdefault("polish", {})["iterations"] = 5
+    data["excitation"]["duration_s"] = 24.0
+    data["excitation"]["steps"] = 48
+    data["mission"]["settle_s"] = 2.0
+    path = folder / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+
+@pytest.fixture(scope="session")
+def mission_run(tmp_path_factory):
+    """One shrunk default mission through the CLI, shared by the mission tests: (run folder, config, output)."""
+    from typer.testing import CliRunner
+
+    from oacli.cli import app
+
+    folder = tmp_path_factory.mktemp("mission")
+    cfg = small_mission_config(folder)
+    result = CliRunner().invoke(app, ["mission", str(cfg), "--out", str(folder / "run")])
+    assert result.exit_code == 0, result.output
+    return folder / "run", cfg, result.output

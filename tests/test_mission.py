@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import yaml
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
@@ -37,20 +36,6 @@ VOLATILE = ("wall_time", "solve_time", "step_time", "time_ms", "planning_time", 
             "files", "redesign_s")
 
 
-def small_mission_config(folder: Path, name: str = "small-mission") -> Path:
-    """configs/mission_iss.yaml with a shorter excitation, fewer shortcut tries and polish iterations."""
-    data = yaml.safe_load((ROOT / "configs" / "mission_iss.yaml").read_text())
-    data["name"] = name
-    data["planner"]["shortcut"]["tries"] = 200
-    data["planner"].setdefault("polish", {})["iterations"] = 5
-    data["excitation"]["duration_s"] = 24.0
-    data["excitation"]["steps"] = 48
-    data["mission"]["settle_s"] = 2.0
-    path = folder / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path
-
-
 def stable(value: Any, run_dir: str) -> Any:
     """A summary without its timings and with the run folder's path replaced (to compare two runs)."""
     if isinstance(value, dict):
@@ -63,12 +48,8 @@ def stable(value: Any, run_dir: str) -> Any:
 
 
 @pytest.fixture(scope="module")
-def mission(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("mission")
-    cfg = small_mission_config(folder)
-    result = RUNNER.invoke(app, ["mission", str(cfg), "--out", str(folder / "run")])
-    assert result.exit_code == 0, result.output
-    return folder / "run", cfg, result.output
+def mission(mission_run):
+    return mission_run
 
 
 def test_mission_writes_every_stage_folder_and_a_summary(mission):

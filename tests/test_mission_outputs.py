@@ -1,5 +1,5 @@
-"""The mission's recording (``mission.rrd``) and PNG plots, on a real mission folder built by the stage commands
-(:mod:`tests.mission_fixture`), read back and checked against the stage MCAPs."""
+"""The mission's recording (``mission.rrd``) and PNG plots, written by ``oacli mission`` on the shrunk default
+mission (the session fixture ``mission_run`` of conftest.py), read back and checked against the stage MCAPs."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun.mission import APPLICATION_ID, write_mission_recording
+from oacli.io.rerun.mission import APPLICATION_ID
 from oacli.io.rerun.read import (
     read_blueprint_views,
     read_recording_component,
@@ -19,19 +19,14 @@ from oacli.io.rerun.read import (
     read_recording_scalars,
 )
 from oacli.mission.layout import BASELINES, stage_by_key
-from oacli.mission.plots import write_mission_plots
-from tests.mission_fixture import build_mission_folder
 
 PARAMS = ("mass_kg", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2")
 
 
 @pytest.fixture(scope="module")
-def mission(tmp_path_factory) -> tuple[Path, dict]:
-    root = tmp_path_factory.mktemp("mission")
-    mission_dir = root / "mission"
-    summary = build_mission_folder(mission_dir, root / "configs")
-    write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary, recording_name="mission-fixture")
-    return mission_dir, summary
+def mission(mission_run) -> tuple[Path, dict]:
+    mission_dir = mission_run[0]
+    return mission_dir, json.loads((mission_dir / "summary.json").read_text())
 
 
 def test_recording_is_one_mission_timeline(mission):
@@ -124,7 +119,7 @@ def _png_size(path: Path) -> tuple[int, int]:
 
 def test_plots_are_valid_pngs(mission):
     mission_dir, summary = mission
-    files = write_mission_plots(mission_dir, summary)
+    files = {name: mission_dir / rel for name, rel in summary["files"]["plots"].items()}   # written by the runner
     assert set(files) == {"tracking_error", "estimate_convergence", "top_view"}
     for name, path in files.items():
         assert path == mission_dir / "plots" / f"{name}.png"
@@ -132,4 +127,3 @@ def test_plots_are_valid_pngs(mission):
         assert 600 <= width <= 3000 and 400 <= height <= 3000, (name, width, height)
         assert path.stat().st_size > 20_000, name  # drawn, not blank
     assert sorted(p.name for p in (mission_dir / "plots").iterdir()) == sorted(f"{n}.png" for n in files)
-    json.dumps({k: str(v) for k, v in files.items()})  # JSON-ready for the summary's files.plots

@@ -24,10 +24,12 @@ from oacli.config import OacliConfig, dump_config
 from oacli.errors import InputError, OacliError
 from oacli.io.atomic import write_text_atomic
 from oacli.io.mcap_read import read_stage, read_telemetry
+from oacli.io.rerun.mission import write_mission_recording
 from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
 from oacli.mission.compare import comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
 from oacli.mission.layout import MISSION_STAGES, SEGMENTS, MissionStage, stage_by_key
+from oacli.mission.plots import write_mission_plots
 from oacli.model.robot_model import RobotModel
 from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED, OK, StatusReport
 
@@ -329,6 +331,12 @@ def run_mission(
                 raise InputError(f"{stage.key}: ended {result.summary.get('status')}; the mission cannot go on "
                                  f"(see {folder / 'summary.json'})")
         summary = mission_summary(cfg, mission_dir, stages, results)
+        say("writing mission.rrd and plots/")
+        write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary,
+                                recording_name=f"{cfg.name}/mission")
+        plots = write_mission_plots(mission_dir, summary)
+        summary["files"]["rrd"] = "mission.rrd"
+        summary["files"]["plots"] = {k: str(p.relative_to(mission_dir)) for k, p in plots.items()}
         summary["wall_time_s"] = time.perf_counter() - wall
         write_summary(mission_dir, summary)
         return MissionResult(mission_dir, summary, results)
