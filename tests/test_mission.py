@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
@@ -209,3 +210,85 @@ def test_killed_mission_resumes_to_the_same_result(mission, tmp_path):
     a = json.loads((out / "summary.json").read_text())
     b = json.loads((run / "summary.json").read_text())
     assert stable(a, str(out)) == stable(b, str(run))
+
+
+def _mission_yaml(tmp_path: Path, edit) -> Path:
+    data = yaml.safe_load((ROOT / "configs" / "mission_iss.yaml").read_text())
+    edit(data)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+@pytest.mark.parametrize(("edit", "expected"), [
+    (lambda d: d["mission"].update(route=["A", "B", "Q"]), "mission.route.2: 'Q': unknown waypoint name"),
+    (lambda d: d["mission"].update(colour="red"), "mission.colour"),
+    (lambda d: d["mission"]["grasped"].update(mass_kg=-1.0), "mission.grasped.mass_kg"),
+    (lambda d: d["mission"].update(segments={"segment-2": {"controller": {"horizon": 0}}}),
+     "controller.horizon: 0"),
+    (lambda d: d["mission"].update(segments={"segment-4": {}}), "mission.segments"),
+    (lambda d: d.pop("mission"), "mission: missing"),
+])
+def test_bad_mission_config_is_refused_before_anything_runs(tmp_path, edit, expected):
+    cfg = _mission_yaml(tmp_path, edit)
+    result = RUNNER.invoke(app, ["mission", str(cfg), "--runs-dir", str(tmp_path / "runs")])
+    assert result.exit_code == 2, result.output
+    assert expected in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "runs").exists()                                    # nothing half-written
+
+
+def test_segment_override_error_names_the_stage_and_segment(tmp_path):
+    cfg = _mission_yaml(tmp_path, lambda d: d["mission"].update(
+        segments={"segment-3": {"controller": {"weights": {"position": -1.0}}}}))
+    result = RUNNER.invoke(app, ["mission", str(cfg), "--runs-dir", str(tmp_path / "runs")])
+    assert result.exit_code == 2
+    assert "segment-3/plan" in result.output and "mission.segments.segment-3" in result.output
+
+
+@pytest.mark.parametrize(("args", "expected"), [
+    (["--resume"], "not a mission folder"),
+    (["--from", "segment-3/track"], "not a mission folder"),
+])
+def test_resume_and_from_need_a_mission_folder(tmp_path, args, expected):
+    result = RUNNER.invoke(app, ["mission", str(tmp_path), *args])
+    assert result.exit_code == 2 and expected in result.output
+
+
+def test_complete_mission_is_not_resumed_and_from_validates_its_stage(mission, tmp_path):
+    run, _, _ = mission
+    result = RUNNER.invoke(app, ["mission", str(run), "--resume"])
+    assert result.exit_code == 2 and "complete" in result.output
+    result = RUNNER.invoke(app, ["mission", str(run), "--from", "segment-9/fly", "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "not a mission stage" in result.output and not (tmp_path / "x").exists()
+
+
+def test_from_a_stage_reruns_into_a_new_folder(mission, tmp_path):
+    run, _, _ = mission
+    out = tmp_path / "rerun"
+    result = RUNNER.invoke(app, ["mission", str(run), "--from", "segment-3/baseline-mpc-prior", "--out", str(out),
+                                 "--quiet"])
+    assert result.exit_code == 0, result.output
+    for stage in MISSION_STAGES:
+        a = json.loads((stage.folder(out) / "summary.json").read_text())
+        b = json.loads((stage.folder(run) / "summary.json").read_text())
+        # the copied stages keep the paths they were produced with (the source mission's): both map to <RUN>
+        assert stable(stable(a, str(out)), str(run)) == stable(b, str(run)), stage.key
+    assert json.loads((run / "summary.json").read_text())["status"] in ("ok", "degraded")     # original untouched
+
+
+@pytest.mark.slow
+def test_mission_with_rattle_excitation(tmp_path):
+    """Segment 2 by RATTLE online planning (mission.excitation_method: rattle) instead of the offline design."""
+    from tests.conftest import small_mission_config
+
+    cfg = small_mission_config(tmp_path)
+    data = yaml.safe_load(cfg.read_text())
+    data["mission"]["excitation_method"] = "rattle"
+    data["excitation"]["rattle"]["duration_s"] = 24.0
+    cfg.write_text(yaml.safe_dump(data))
+    result = RUNNER.invoke(app, ["mission", str(cfg), "--out", str(tmp_path / "run"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    excite = json.loads((tmp_path / "run/segment-2/excite/summary.json").read_text())
+    assert excite["method"] == "rattle"
+    est = json.loads((tmp_path / "run/segment-2/estimate/summary.json").read_text())
+    assert est["error_pct"]["mass_kg"] < 5.0 and est["error_over_std"]["mass_kg"] < 5.0
