@@ -305,9 +305,10 @@ def estimate_findings(summary: dict[str, Any]) -> StatusReport:
                                     "gate or arrived too late")
     cut = summary.get("truncated")
     if cut:
-        report.degraded("truncated", f"the telemetry file is cut at byte {cut['bytes_read']} of "
-                                     f"{cut['bytes_total']} ({cut['lost_pct']:.1f} % lost); estimated from the "
-                                     f"intact records up to t = {cut['last_measurement_t_s']:.2f} s")
+        report.degraded("truncated", f"the telemetry file was cut mid-write: its intact records end at byte "
+                                     f"{cut['bytes_read']} of {cut['bytes_total']} and at t = "
+                                     f"{cut['last_measurement_t_s']:.2f} s; everything logged later is lost, the "
+                                     "estimate uses the intact part")
     return report
 
 
