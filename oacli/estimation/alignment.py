@@ -85,7 +85,12 @@ class AlignmentReport:
     control_period_s: float
 
     def as_dict(self) -> dict[str, float | int]:
-        """The counts as a plain dict (for ``summary.json``)."""
+        """The counts as a plain dict (for ``summary.json``).
+
+        Returns
+        -------
+        dict
+        """
         return asdict(self)
 
 
