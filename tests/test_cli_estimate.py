@@ -212,7 +212,7 @@ def test_bad_inputs_exit_2_with_one_clear_line(track_run, batch_run, tmp_path):
     assert method.exit_code == 2 and "--method kalman" in method.stderr
     # An MCAP that is not a tracking run (the estimate's own) names the missing topic.
     wrong = run_cli("estimate", cfg, "--telemetry", batch_run / "estimate.mcap", "--runs-dir", tmp_path / "runs")
-    assert wrong.exit_code == 2 and "/state/true" in wrong.stderr
+    assert wrong.exit_code == 2 and "/state/measured" in wrong.stderr
     for result in (missing, method, wrong):
         assert "Traceback" not in result.output
         assert all(line.startswith("error: ") for line in result.stderr.splitlines() if line.strip())

@@ -18,7 +18,7 @@ from oacli.commands.common import (
 
 ESTIMATE_TABLE = [
     "status", "method", "mass_kg", "inertia_kgm2", "std", "crb_std", "error_pct", "cov_reduction_pct",
-    "samples_used", "samples_rejected", "solve_time_s",
+    "samples_used", "samples_rejected", "segments", "chi2_ratio", "nis_ratio", "solve_time_s",
 ]
 
 
@@ -32,13 +32,21 @@ def estimate(
         typer.Option("--method", "-m", help="batch (maximum likelihood over the run) or sequential (EKF); "
                      "default: the config's estimation.method."),
     ] = None,
+    allow_truncated: Annotated[
+        bool,
+        typer.Option("--allow-truncated/--refuse-truncated",
+                     help="Estimate from the intact part of a cut telemetry file (status degraded, the loss "
+                     "reported; default) or refuse it (exit 2)."),
+    ] = True,
     out: OutOption = None,
     runs_root: RunsDirOption = Path("runs"),
     quiet: QuietOption = False,
 ) -> None:
     """Estimate mass and principal inertias from TRACK.mcap; write estimate.mcap, estimate.rrd, summary.json.
 
-    Exit code 3 when the telemetry cannot identify every parameter (the message names them), 2 for bad input.
+    Telemetry is aligned by time stamp: reordered, late, duplicated and missing messages and gaps in the input
+    record are handled and counted in summary.json (telemetry_records). Exit code 3 when the telemetry cannot
+    identify every parameter (the message names them), 2 for bad input.
     """
 
     def action():
@@ -49,6 +57,6 @@ def estimate(
             raise InputError(f"--method {method}: must be batch or sequential")
         cfg = load_config_with_seed(config, None)
         return run_estimate(cfg, telemetry=telemetry, method=method, out=out, runs_root=runs_root,
-                            progress=Progress("estimate", not quiet))
+                            progress=Progress("estimate", not quiet), allow_truncated=allow_truncated)
 
     run_stage_command(action, ESTIMATE_TABLE, quiet)

@@ -34,6 +34,14 @@ Choices the paper leaves open, and what is done here:
 * **Gauge.** State components that are not measured at all (e.g. position when only velocities are used) have
   unobservable offsets that do not affect θ; the first state's unmeasured components get a unit-weight tie to the
   first record so that ``AᵀA`` stays invertible.
+* **Imperfect telemetry** (:mod:`oacli.estimation.alignment`). An input-only record (``state_measured=False``: the
+  localisation message was lost) keeps its state variable and process residuals but has no measurement residual
+  and is never an inlier. A record that ``starts_segment`` (the input before it is unknown) has no process residual
+  to its predecessor: each segment's first state is estimated afresh (with its own gauge tie), never bridged by
+  holding an input over the gap.
+* **Goodness of fit.** At the solution the cost ``‖b‖²`` of a correct model is χ²-distributed with
+  ``m − n`` degrees of freedom (residuals minus unknowns); :attr:`BatchResult.chi2` and ``chi2_dof`` report both,
+  so a fit far outside its expected range (a wrong input record, an unmodelled effect) is visible.
 """
 
 from __future__ import annotations
@@ -114,6 +122,14 @@ class BatchResult:
     last_covariance : ndarray, shape (16, 16)
         Covariance of ``[δx_K (12, tangent of the last state), δφ (4)]`` -- what a filter continuing from here
         needs (:class:`oacli.estimation.sequential.SequentialEstimator` bootstraps from it).
+    chi2 : float
+        Final cost ``‖b‖²`` (whitened residuals squared, configured process noise).
+    chi2_dof : int
+        Its expected value for a correct model: residuals minus unknowns (``m − n``).
+    gate_emptied : bool
+        No record passed the χ² gate in some round (the previous inlier set was kept).
+    segments : int
+        Records linked by the process model form this many segments (1 without gaps).
     """
 
     estimate: ParameterEstimate
@@ -131,6 +147,10 @@ class BatchResult:
     solve_time_s: float
     phi: np.ndarray
     last_covariance: np.ndarray
+    chi2: float = float("nan")
+    chi2_dof: int = 0
+    gate_emptied: bool = False
+    segments: int = 1
 
 
 def _block_coo(blocks: np.ndarray, row0: np.ndarray, col0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -154,16 +174,24 @@ class _Problem:
         self.acc = np.array([r.accelerations() for r in records])
         self.k = len(records)
         self.n_var = TANGENT_DIM * self.k + par.N_PARAMS
+        self.has_state = np.array([r.state_measured for r in records], dtype=bool)
+        starts = np.array([r.starts_segment for r in records], dtype=bool)
+        starts[0] = True
+        self.segment_starts = np.flatnonzero(starts)
+        self.links = ~starts[1:]  # process residual k -> k+1 present
         model = settings.measurement
         self.state_rows, accel_rows = measured_rows(model)
-        # Acceleration rows are used only where every record of the batch carries them.
-        self.accel_rows = np.array([i for i in accel_rows if np.all(np.isfinite(self.acc[:, i]))], dtype=int)
+        # Acceleration rows are used only where every record with a measurement carries them.
+        measured_acc = self.acc[self.has_state]
+        self.accel_rows = np.array([i for i in accel_rows if np.all(np.isfinite(measured_acc[:, i]))], dtype=int)
         self.w_state = np.sqrt(model.state_weights[self.state_rows])
         self.w_accel = np.sqrt(model.acceleration_weights[self.accel_rows])
         self.dof = len(self.state_rows) + len(self.accel_rows)
         self.gauge_rows = np.setdiff1d(np.arange(TANGENT_DIM), self.state_rows)
         self.durations = substep_schedule(self.t[:-1], self.t[1:], settings.substep_s)
         self._w_proc_nominal = settings.process.sqrt_information(np.diff(self.t), weights_theta)
+        if self.k > 1:  # no process residual across a gap in the input record
+            self._w_proc_nominal = self._w_proc_nominal * self.links[:, None, None]
         self.w_proc = self._w_proc_nominal
         self.prior = prior
         if prior is not None:
@@ -241,14 +269,15 @@ class _Problem:
                 triplets.append(_block_coo(j_phi, r0, np.full(k - 1, phi_col)))
             row += res.size
 
-        # Gauge: tie the unmeasured components of the first state to the first record (unit weight).
-        if self.gauge_rows.size:
-            e = boxminus(x[0], self.y[0])
+        # Gauge: tie the unmeasured components of each segment's first state to its record (unit weight).
+        for first in self.segment_starts if self.gauge_rows.size else ():
+            e = boxminus(x[first], self.y[first])
             parts.append(e[self.gauge_rows])
             if jacobian:
                 blk = np.eye(TANGENT_DIM)
                 blk[6:9, 6:9] = so3_right_jacobian_inverse(e[6:9])
-                triplets.append(_block_coo(blk[self.gauge_rows][None], np.array([row]), np.array([0])))
+                triplets.append(_block_coo(blk[self.gauge_rows][None], np.array([row]),
+                                           np.array([TANGENT_DIM * first])))
             row += self.gauge_rows.size
 
         # Gaussian prior on θ (in θ, not in φ).
@@ -274,7 +303,14 @@ class _Problem:
             f = dynamics_batch(x, self.u, par.theta_from_phi(phi))[:, _ACCEL_ROWS]
             ea = (f - self.acc)[:, self.accel_rows] * self.w_accel
             out += np.sum(ea * ea, axis=1)
+        out[~self.has_state] = np.nan
         return out
+
+    def residual_count(self, inliers: np.ndarray) -> int:
+        """Rows of ``b`` that carry information (measurement, acceleration, linked process, gauge, prior)."""
+        n = int(inliers.sum()) * self.dof + TANGENT_DIM * int(self.links.sum())
+        n += self.gauge_rows.size * self.segment_starts.size
+        return n + (par.N_PARAMS if self.prior is not None else 0)
 
 
 def _solve(h: sp.csc_matrix, g: np.ndarray) -> np.ndarray | None:
@@ -399,7 +435,10 @@ def estimate_batch(
     problem = _Problem(recs, settings, prior, theta_w)
     x = problem.y.copy() if initial_states is None else np.array(initial_states, dtype=float)
     threshold = chi2_threshold(problem.dof, settings.gate_probability) if settings.gate_probability else np.inf
-    inliers = np.ones(problem.k, dtype=bool)
+    inliers = problem.has_state.copy()
+    if not np.any(inliers):
+        raise ValueError("the batch estimator needs at least one record with a measured state")
+    gate_emptied = False
     history: list[float] = []
     iterations = 0
     loose = EstimatorSettings(**{**settings.__dict__, "tolerance": max(settings.tolerance, _CONTINUATION_TOLERANCE)})
@@ -416,8 +455,9 @@ def estimate_batch(
         x, phi, its, converged = _levenberg_marquardt(problem, x, phi, inliers, settings, history)
         iterations += its
         d2 = problem.d2(x, phi)
-        new_inliers = d2 <= threshold
+        new_inliers = problem.has_state & (np.nan_to_num(d2, nan=np.inf) <= threshold)
         if not np.any(new_inliers):
+            gate_emptied = True  # reported: the caller must not call this fit ok
             break  # nothing passes the gate: keep the last inlier set rather than an empty problem
         if np.array_equal(new_inliers, inliers):
             break
@@ -430,7 +470,7 @@ def estimate_batch(
         covariance=cov if np.all(np.isfinite(cov)) else np.diag(np.full(4, 1e300)),
         method="batch",
         samples_used=int(inliers.sum()),
-        samples_rejected=int((~inliers).sum()) + len(ordered.duplicates),
+        samples_rejected=int((~inliers & problem.has_state).sum()) + len(ordered.duplicates),
     )
     return BatchResult(
         estimate=estimate,
@@ -448,6 +488,10 @@ def estimate_batch(
         solve_time_s=time.perf_counter() - wall,
         phi=phi,
         last_covariance=cov_last,
+        chi2=float(history[-1]) if history else float("nan"),
+        chi2_dof=problem.residual_count(inliers) - problem.n_var,
+        gate_emptied=gate_emptied,
+        segments=int(problem.segment_starts.size),
     )
 
 
@@ -479,6 +523,8 @@ def extend_states(
     out[:n] = states
     t = np.array([r.t for r in records])
     for i in range(n, len(records)):
+        if records[i].starts_segment:
+            continue  # the input before it is unknown: start from its measurement
         sched = substep_schedule(t[i - 1:i], t[i:i + 1], substep_s)
         out[i] = propagate_intervals(out[i - 1][None], records[i - 1].u_applied[None], theta, sched)[0][0]
     return out

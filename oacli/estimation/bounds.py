@@ -66,6 +66,7 @@ def cramer_rao_bound(
     *,
     used: np.ndarray | None = None,
     accelerations_measured: bool = False,
+    segment_starts: np.ndarray | None = None,
 ) -> CramerRaoBound:
     """Cramér-Rao bounds of θ from measuring ``states`` at times ``t`` (see the module docstring).
 
@@ -87,6 +88,10 @@ def cramer_rao_bound(
         Records that count (e.g. the inliers of the χ² gate); default all.
     accelerations_measured : bool
         Count the model's acceleration measurements (only when the records carry them).
+    segment_starts : ndarray of bool, shape (K,), optional
+        Records after a gap in the inputs (:mod:`oacli.estimation.alignment`): the process model does not link
+        them to the previous record, so each segment has its own unknown initial state. The information about θ
+        of the segments adds up (each segment's initial state eliminated separately).
 
     Returns
     -------
@@ -97,6 +102,18 @@ def cramer_rao_bound(
     theta = np.asarray(theta, dtype=float)
     k = t.shape[0]
     used = np.ones(k, dtype=bool) if used is None else np.asarray(used, dtype=bool)
+    starts = np.flatnonzero(np.asarray(segment_starts, dtype=bool)) if segment_starts is not None else np.zeros(0)
+    starts = np.union1d(starts, [0]).astype(int)
+    if starts.size > 1:
+        bounds = [
+            cramer_rao_bound(t[a:b], states[a:b], np.asarray(u)[a:b], theta, model, substep_s, used=used[a:b],
+                             accelerations_measured=accelerations_measured)
+            for a, b in zip(starts, [*starts[1:], k], strict=True) if np.any(used[a:b])
+        ]
+        f_eff = sum(bd.information for bd in bounds)
+        f_tt = sum(bd.information_known_initial_state for bd in bounds)
+        return CramerRaoBound(std=cramer_rao_std(f_eff, theta), std_known_initial_state=cramer_rao_std(f_tt, theta),
+                              information=f_eff, information_known_initial_state=f_tt)
     state_rows, accel_rows = measured_rows(model)
     w_state = np.sqrt(model.state_weights[state_rows])
     if not accelerations_measured:

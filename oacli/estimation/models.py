@@ -60,6 +60,14 @@ class Measurement:
         ``u_applied``); an accelerometer's body-frame reading rotated by the measured attitude.
     angular_acceleration_radps2 : ndarray, shape (3,), optional
         Measured angular acceleration ``ω̇`` in the body frame [rad/s²] at ``t``.
+    state_measured : bool
+        False for an *input-only* record: the localisation message of this control step was lost but the input
+        applied from ``t`` on is known, so the estimators propagate through it without a measurement update
+        (``x_measured`` then only seeds the solver; :mod:`oacli.estimation.alignment`).
+    starts_segment : bool
+        True when the input between the previous record and this one is unknown (a gap in the input record): the
+        estimators do not link this record's state to the previous one through the process model; the state of
+        each segment's first record is estimated afresh.
     """
 
     t: float
@@ -67,6 +75,8 @@ class Measurement:
     u_applied: np.ndarray
     linear_acceleration_mps2: np.ndarray | None = None
     angular_acceleration_radps2: np.ndarray | None = None
+    state_measured: bool = True
+    starts_segment: bool = False
 
     def __post_init__(self) -> None:
         t = float(self.t)

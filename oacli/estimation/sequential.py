@@ -35,7 +35,10 @@ is mapped to φ by linearisation. Records go through a :class:`~oacli.estimation
 ([ReSWARM2023] §5.4.3): out-of-order time stamps within the window are processed in order, later ones are reported as
 late. If the state itself is lost (``reinitialise_after`` consecutive rejections, e.g. after starting on a
 localisation jump), the robot state -- never θ -- is re-initialised from the current record and the event is
-recorded.
+recorded. Imperfect telemetry (:mod:`oacli.estimation.alignment`): an input-only record (its localisation message
+was lost) is a prediction without update (status ``"predicted"``); a record that starts a segment (the input before
+it is unknown) re-initialises the robot state from its measurement (status ``"segment"``, counted in ``segments``,
+not a failure), so an input is never held across a gap.
 
 Usage (what an online planner does)::
 
@@ -91,7 +94,8 @@ class SequentialStep:
         Record time [s].
     status : str
         ``"initialised"``, ``"accepted"``, ``"rejected"`` (χ² gate), ``"late"`` (time stamp before the last
-        processed one) or ``"reinitialised"`` (state re-initialised after repeated rejections).
+        processed one), ``"reinitialised"`` (state re-initialised after repeated rejections), ``"predicted"``
+        (input-only record: no measurement) or ``"segment"`` (state re-initialised after a gap in the inputs).
     d2 : float
         Normalised innovation squared ``νᵀ S⁻¹ ν`` (NaN when not computed).
     dof : int
@@ -167,6 +171,7 @@ class SequentialEstimator:
         self.samples_used = 0
         self.samples_rejected = 0
         self.reinitialisations = 0
+        self.segments = 0
         self.history: list[SequentialStep] = []
 
     # -- public API ------------------------------------------------------------------------------------------------
@@ -408,7 +413,7 @@ class SequentialEstimator:
         usable = bool(np.all(np.isfinite(result.last_covariance))) and bool(
             np.all(np.linalg.eigvalsh(result.last_covariance) > 0))
         for i, rec in enumerate(self._boot):
-            status = "accepted" if result.inliers[i] else "rejected"
+            status = "accepted" if result.inliers[i] else "rejected" if rec.state_measured else "predicted"
             self.history.append(SequentialStep(rec.t, status, float(result.d2[i]), result.dof, self._boot_estimate,
                                                result.states[i].copy()))
         self.samples_used += est.samples_used
@@ -441,7 +446,18 @@ class SequentialEstimator:
         status = "accepted"
         d2 = float("nan")
         dof = 0
-        if self._x is None:
+        if not rec.state_measured:
+            if self._x is not None and not rec.starts_segment:
+                self._predict(rec.t)
+            else:
+                self._x = None  # no state to propagate across the gap: wait for the next measurement
+            status = "predicted"
+        elif self._x is not None and rec.starts_segment:
+            self._initialise(rec)
+            self.segments += 1
+            status = "segment"
+            self.samples_used += 1
+        elif self._x is None:
             self._initialise(rec)
             status = "initialised"
             self.samples_used += 1
@@ -469,5 +485,5 @@ class SequentialEstimator:
                 self.samples_used += 1
         self._t_last = rec.t
         self._u_last = np.array(rec.u_applied, dtype=float)
-        assert self._x is not None
-        self.history.append(SequentialStep(rec.t, status, d2, dof, self.estimate, self._x.copy()))
+        state = self._x.copy() if self._x is not None else np.full(13, np.nan)
+        self.history.append(SequentialStep(rec.t, status, d2, dof, self.estimate, state))

@@ -59,6 +59,10 @@ class StageRecord:
     truncated : bool
         True when the file was not closed by its writer (no footer): everything up to the last complete
         record was read, later data is lost.
+    bytes_read : int
+        End of the last complete record read (for a truncated file: the intact part).
+    bytes_total : int
+        Size of the file.
     """
 
     path: Path
@@ -71,6 +75,8 @@ class StageRecord:
     message_counts: dict[str, int]
     log: tuple[tuple[float, str, str], ...]
     truncated: bool
+    bytes_read: int = 0
+    bytes_total: int = 0
 
     @property
     def solver_stats(self) -> tuple[dict, ...]:
@@ -139,6 +145,8 @@ class _Scan:
         self.metadata: dict[str, dict[str, str]] = {}
         self.attachments: dict[str, bytes] = {}
         self.truncated = False
+        self.bytes_read = 0
+        self.bytes_total = 0
 
     def fail(self, reason: str) -> InputError:
         return InputError(f"{self.path}: {reason}")
@@ -181,6 +189,7 @@ class _Scan:
         if complete and not finished:
             raise self.fail(f"corrupt MCAP: the record at byte {pos} runs past the end of the data section")
         self.truncated = not complete
+        self.bytes_read, self.bytes_total = pos, len(data)
 
     def _record(self, opcode: int, body: memoryview, offset: int) -> None:
         try:
@@ -356,6 +365,8 @@ def read_stage(path: Path, *, validate_crcs: bool = True, topics: Iterable[str] 
         message_counts=dict(sorted(scan.counts.items())),
         log=tuple(log),
         truncated=scan.truncated,
+        bytes_read=scan.bytes_read,
+        bytes_total=scan.bytes_total,
     )
 
 
@@ -505,4 +516,99 @@ def read_telemetry(path: Path, *, allow_truncated: bool = False) -> Telemetry:
         u_applied=series[ms.TOPIC_CONTROL_APPLIED][1][:k],
         solve_info=solve_info,
         disturbance=disturbance,
+    )
+
+
+@dataclass(frozen=True)
+class TelemetryStreams:
+    """A tracking run's controller-rate topics as logged: every message in file (arrival) order, unaligned.
+
+    What :func:`oacli.estimation.alignment.align_records` needs; unlike :func:`read_telemetry` nothing is required
+    to be in time order or of equal length (flight telemetry is not).
+
+    Attributes
+    ----------
+    path : Path
+    t_measured, x_measured : ndarray, shape (M,), (M, 13)
+        ``/state/measured`` stamps (the messages' own ``t``) and states.
+    t_applied, u_applied : ndarray, shape (N,), (N, 6)
+        ``/control/applied``.
+    t_command, u_command : ndarray, shape (P,), (P, 6), optional
+        ``/control/command`` (None when the topic is absent).
+    config_yaml : str or None
+        The attached resolved configuration.
+    truncated : bool
+        The file was cut (no footer); the streams hold what the intact records before the cut carry.
+    bytes_read, bytes_total : int
+        End of the intact part and size of the file [bytes].
+    """
+
+    path: Path
+    t_measured: np.ndarray
+    x_measured: np.ndarray
+    t_applied: np.ndarray
+    u_applied: np.ndarray
+    t_command: np.ndarray | None
+    u_command: np.ndarray | None
+    config_yaml: str | None
+    truncated: bool
+    bytes_read: int
+    bytes_total: int
+
+
+def _raw_series(scan: _Scan, topic: str, keys: tuple[str, ...], width: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(t, values)`` of a JSON topic in file order, values the concatenation of ``keys`` (None when absent)."""
+    if topic not in scan.messages:
+        return None
+    records = _json_messages(scan, topic)
+    try:
+        arr = np.array([[r["t"], *(v for key in keys for v in r[key])] for r in records], dtype=float)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise scan.fail(f"{topic}: malformed record ({exc!r})") from None
+    arr = arr.reshape(-1, 1 + width)
+    if not np.all(np.isfinite(arr)):
+        raise scan.fail(f"{topic}: a record contains NaN or infinite values")
+    return arr[:, 0], arr[:, 1:]
+
+
+def read_telemetry_streams(path: Path) -> TelemetryStreams:
+    """Read ``/state/measured``, ``/control/applied`` and ``/control/command`` of a ``track``-like MCAP as logged.
+
+    A cut file is read up to its last intact record (``truncated``); CRCs are checked.
+
+    Parameters
+    ----------
+    path : Path
+
+    Returns
+    -------
+    TelemetryStreams
+
+    Raises
+    ------
+    InputError
+        Unreadable or corrupt file, or ``/state/measured`` or ``/control/applied`` absent (the message lists the
+        topics the file has and says when the file was cut).
+    """
+    wanted = (ms.TOPIC_STATE_MEASURED, ms.TOPIC_CONTROL_APPLIED, ms.TOPIC_CONTROL_COMMAND)
+    scan = _Scan(Path(path), True, frozenset(wanted))
+    scan.run()
+    state_keys = ("position", "velocity", "quaternion", "angular_velocity")
+    measured = _raw_series(scan, ms.TOPIC_STATE_MEASURED, state_keys, STATE_DIM)
+    applied = _raw_series(scan, ms.TOPIC_CONTROL_APPLIED, ("force", "torque"), INPUT_DIM)
+    command = _raw_series(scan, ms.TOPIC_CONTROL_COMMAND, ("force", "torque"), INPUT_DIM)
+    for topic, series in ((ms.TOPIC_STATE_MEASURED, measured), (ms.TOPIC_CONTROL_APPLIED, applied)):
+        if series is None or series[0].size == 0:
+            listed = ", ".join(f"{t} ({n})" for t, n in sorted(scan.counts.items())) or "none"
+            cut = (f" (the file is cut at byte {scan.bytes_read} of {scan.bytes_total}: the topic may have been "
+                   "written after the cut)") if scan.truncated else ""
+            raise scan.fail(f"no {topic} messages{cut}; topics in the file: {listed}")
+    data = scan.attachments.get(ms.CONFIG_ATTACHMENT)
+    return TelemetryStreams(
+        path=Path(path),
+        t_measured=measured[0], x_measured=measured[1],  # type: ignore[index]
+        t_applied=applied[0], u_applied=applied[1],  # type: ignore[index]
+        t_command=None if command is None else command[0], u_command=None if command is None else command[1],
+        config_yaml=None if data is None else data.decode("utf-8"),
+        truncated=scan.truncated, bytes_read=scan.bytes_read, bytes_total=scan.bytes_total,
     )

@@ -6,6 +6,13 @@ inputs at the control rate; its attached config gives the truth when the run was
 estimated and checked for identifiability **before** the run folder is created. Outputs: ``config.yaml`` (written
 first), ``estimate.mcap``, ``estimate.rrd`` and ``summary.json`` (written last).
 
+Telemetry is taken as flown, by time stamp (:mod:`oacli.estimation.alignment`): reordered, late, duplicated and
+missing localisation messages and gaps in the input record are handled and counted (``telemetry_records`` in the
+summary); a file cut mid-write is estimated from its intact records with the loss reported (``truncated``) and
+status ``degraded``. The fit is checked, never trusted (:func:`estimate_findings`): the batch's χ² against its
+expected value, convergence and the χ² gate; the sequential filter's normalised innovations, re-initialisations and
+rejections. Each finding makes the run ``degraded`` with one sentence saying why.
+
 Telemetry that cannot identify θ (too short, or no torque so the inertias are invisible) ends with
 :class:`oacli.errors.InfeasibleError` (exit code 3) naming the unobservable parameters and their Cramér-Rao bound
 relative to their value; no estimate is written.
@@ -24,15 +31,16 @@ import yaml
 
 from oacli.config import OacliConfig
 from oacli.errors import InfeasibleError, InputError
+from oacli.estimation.alignment import AlignmentReport, align_records
 from oacli.estimation.batch import BatchResult, estimate_batch_windows
 from oacli.estimation.bounds import CramerRaoBound, cramer_rao_bound, describe_unobservable, unobservable_parameters
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.models import EstimatorSettings, Measurement
-from oacli.estimation.preprocessing import measurements_from_telemetry
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.information import PARAM_NAMES
 from oacli.io import mcap_schema as ms
-from oacli.io.mcap_io import StageMcapWriter, read_stage, read_telemetry
+from oacli.io.mcap_io import StageMcapWriter
+from oacli.io.mcap_read import TelemetryStreams, read_telemetry_streams
 from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
@@ -69,6 +77,11 @@ class EstimationRun:
     reinitialisations : int
         Sequential: robot-state re-initialisations.
     solve_time_s : float
+    segments : int
+        Segments linked by the process model (gaps in the input record split them).
+    nis_ratio : float
+        Sequential: mean normalised innovation squared of the filter's own updates over its expected value (its
+        dimension); about 1 for a consistent filter, NaN when the filter made no update of its own.
     """
 
     method: str
@@ -86,6 +99,8 @@ class EstimationRun:
     batch: BatchResult | None
     reinitialisations: int
     solve_time_s: float
+    segments: int = 1
+    nis_ratio: float = float("nan")
 
 
 def truth_from_config_yaml(text: str | None) -> np.ndarray | None:
@@ -126,20 +141,23 @@ def run_estimation(
     """
     start = time.perf_counter()
     t = np.array([r.t for r in records])
-    u = np.array([r.u_applied for r in records])
-    y = np.array([r.x_measured for r in records])
-    has_acc = bool(records) and all(np.any(np.isfinite(r.accelerations())) for r in records)
+    by_t = {r.t: r for r in records}
+    has_acc = bool(records) and all(np.any(np.isfinite(r.accelerations())) for r in records if r.state_measured)
     batch = None
     reinitialisations = 0
+    segments = 1 + sum(r.starts_segment for r in records)
+    nis_ratio = float("nan")
     if method == "batch":
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
         results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=progress)
         batch = results[-1]
         history = [r.estimate for r in results]
         final, states, d2, dof = batch.estimate, batch.states, batch.d2, batch.dof
-        status = ["accepted" if ok else "rejected" for ok in batch.inliers]
+        status = ["accepted" if ok else "rejected" if by_t[ti].state_measured else "predicted"
+                  for ok, ti in zip(batch.inliers, batch.t, strict=True)]
         threshold = batch.gate_threshold
         used = batch.inliers
+        t = batch.t
     elif method == "sequential":
         est = SequentialEstimator(settings, prior)
         for i, rec in enumerate(records):
@@ -155,17 +173,27 @@ def run_estimation(
         dof = max((s.dof for s in steps), default=0)
         gate = settings.gate_probability
         threshold = chi2_threshold(dof, gate) if gate is not None and dof > 0 else float("inf")
-        used = np.array([s.status in ("accepted", "initialised") for s in steps])
+        used = np.array([s.status in ("accepted", "initialised", "segment") for s in steps])
         t = np.array([s.t for s in steps])
         reinitialisations = est.reinitialisations
+        own = [s for s in steps[est.bootstrap_records:] if s.status in ("accepted", "rejected") and s.dof > 0]
+        if own:
+            nis_ratio = float(np.mean([s.d2 / s.dof for s in own]))
+        lost = ~np.all(np.isfinite(states), axis=1)  # input-only records after a gap: no state to report
+        states[lost] = np.array([by_t[ti].x_measured for ti in t[lost]]).reshape(-1, 13)
     else:
         raise ValueError(f"unknown method {method!r} (batch or sequential)")
-    bound = cramer_rao_bound(t, states, u[: len(t)], final.theta, settings.measurement, settings.substep_s,
-                             used=used, accelerations_measured=has_acc)
+    recs = [by_t[ti] for ti in t]
+    u = np.array([r.u_applied for r in recs]).reshape(-1, 6)
+    y = np.array([r.x_measured for r in recs]).reshape(-1, 13)
+    starts = np.array([r.starts_segment for r in recs], dtype=bool)
+    bound = cramer_rao_bound(t, states, u, final.theta, settings.measurement, settings.substep_s,
+                             used=used, accelerations_measured=has_acc, segment_starts=starts)
     return EstimationRun(
-        method=method, final=final, history=history, t_records=t, states=states, inputs=u[: len(t)],
-        measured=y[: len(t)], status=status, d2=d2, dof=dof, gate_threshold=threshold, bound=bound, batch=batch,
-        reinitialisations=reinitialisations, solve_time_s=time.perf_counter() - start,
+        method=method, final=final, history=history, t_records=t, states=states, inputs=u,
+        measured=y, status=status, d2=d2, dof=dof, gate_threshold=threshold, bound=bound, batch=batch,
+        reinitialisations=reinitialisations, solve_time_s=time.perf_counter() - start, segments=segments,
+        nis_ratio=nis_ratio,
     )
 
 
@@ -174,7 +202,8 @@ def _by_name(values: np.ndarray) -> dict[str, float]:
 
 
 def _estimate_summary(
-    run: EstimationRun, prior: ParameterEstimate, truth: np.ndarray | None, telemetry: Path
+    run: EstimationRun, prior: ParameterEstimate, truth: np.ndarray | None, telemetry: Path,
+    alignment: AlignmentReport | None = None, streams: TelemetryStreams | None = None,
 ) -> dict[str, Any]:
     final = run.final
     std = final.std
@@ -194,12 +223,23 @@ def _estimate_summary(
         "cov_reduction_pct": _by_name(100.0 * (1.0 - np.diag(final.covariance) / np.diag(prior.covariance))),
         "samples_used": int(final.samples_used),
         "samples_rejected": int(final.samples_rejected),
-        "samples_total": len(run.status),
+        "samples_total": sum(s != "predicted" for s in run.status),
         "gate_threshold": run.gate_threshold if np.isfinite(run.gate_threshold) else None,
         "gate_dof": int(run.dof),
         "duration_s": float(run.t_records[-1] - run.t_records[0]),
         "solve_time_s": float(run.solve_time_s),
+        "segments": int(run.segments),
     }
+    if alignment is not None:
+        summary["telemetry_records"] = alignment.as_dict()
+    if streams is not None and streams.truncated:
+        lost = streams.bytes_total - streams.bytes_read
+        summary["truncated"] = {
+            "bytes_read": int(streams.bytes_read), "bytes_total": int(streams.bytes_total), "bytes_lost": int(lost),
+            "lost_pct": 100.0 * lost / max(streams.bytes_total, 1),
+            "last_measurement_t_s": float(np.max(streams.t_measured)),
+            "last_input_t_s": float(np.max(streams.t_applied)),
+        }
     if truth is not None:
         summary["truth_theta"] = [float(v) for v in truth]
         summary["error_pct"] = _by_name(100.0 * np.abs(final.theta - truth) / truth)
@@ -211,22 +251,64 @@ def _estimate_summary(
         summary["cost_initial"] = float(run.batch.cost_history[0])
         summary["cost_final"] = float(run.batch.cost_history[-1])
         summary["windows"] = len(run.history)
+        summary["chi2"] = float(run.batch.chi2)
+        summary["chi2_expected"] = int(run.batch.chi2_dof)
+        summary["chi2_ratio"] = float(run.batch.chi2 / run.batch.chi2_dof) if run.batch.chi2_dof > 0 else None
+        summary["gate_emptied"] = bool(run.batch.gate_emptied)
     else:
         summary["state_reinitialisations"] = int(run.reinitialisations)
+        summary["nis_ratio"] = run.nis_ratio if np.isfinite(run.nis_ratio) else None
     estimate_findings(summary).apply(summary)
     return summary
 
 
+CHI2_RATIO_LIMIT = 3.0
+"""A batch fit whose cost exceeds this multiple of its expected value (and its expected spread by 5 standard
+deviations) is ``degraded``: the data do not fit the model (a wrong input record, an unmodelled effect, noise
+levels set too low)."""
+NIS_RATIO_LIMIT = 3.0
+"""A sequential filter whose mean normalised innovation squared exceeds this multiple of its expected value
+diverged (its covariance no longer describes its errors)."""
+REJECTED_FRACTION_LIMIT = 0.2
+"""More than this fraction of the records outside the χ² gate is ``degraded``: the gate no longer removes a few
+outliers, it discards the data."""
+
+
 def estimate_findings(summary: dict[str, Any]) -> StatusReport:
-    """An estimate that did not converge (batch: the last Levenberg-Marquardt round missed its tolerance;
-    sequential: the filter lost the state and re-initialised) is ``degraded`` (:mod:`oacli.status`)."""
+    """Findings that make an estimate ``degraded`` (:mod:`oacli.status`), each with one sentence saying why.
+
+    Batch: the last Levenberg-Marquardt round missed its tolerance, no record passed the χ² gate, or the fit's
+    χ² is far above its expected value (:data:`CHI2_RATIO_LIMIT`). Sequential: the filter lost the state and
+    re-initialised, or its normalised innovations are far above their expected value (:data:`NIS_RATIO_LIMIT`,
+    diverged). Both: too many records rejected (:data:`REJECTED_FRACTION_LIMIT`), a truncated telemetry file.
+    """
     report = StatusReport()
     if summary.get("converged") is False:
         report.degraded("not_converged", f"the batch estimate did not converge within {summary['iterations']} "
-                                         "iterations (estimation.batch settings)")
+                                         "iterations (estimation.max_iterations)")
+    if summary.get("gate_emptied"):
+        report.degraded("gate_empty", "no record passed the χ² gate: the estimate uses records the gate rejected")
+    ratio, dof = summary.get("chi2_ratio"), summary.get("chi2_expected") or 0
+    if ratio is not None and dof > 0 and ratio > CHI2_RATIO_LIMIT and (ratio - 1.0) * dof > 5.0 * np.sqrt(2.0 * dof):
+        report.degraded("fit_chi2", f"the batch fit's χ² is {ratio:.3g} times its expected value {dof}: the "
+                                    "telemetry does not fit the model (inputs, noise levels or unmodelled effects)")
     if summary.get("state_reinitialisations"):
         report.degraded("reinitialised", f"the sequential filter lost the state and re-initialised "
                                          f"{summary['state_reinitialisations']} times")
+    nis = summary.get("nis_ratio")
+    if nis is not None and nis > NIS_RATIO_LIMIT:
+        report.degraded("diverged", f"the sequential filter diverged: its innovations are {nis:.3g} times their "
+                                    "expected size")
+    total = summary.get("samples_total") or 0
+    if total and summary.get("samples_rejected", 0) > REJECTED_FRACTION_LIMIT * total:
+        report.degraded("rejected", f"{summary['samples_rejected']} of {total} records were rejected by the χ² "
+                                    "gate or arrived too late")
+    cut = summary.get("truncated")
+    if cut:
+        report.degraded("truncated", f"the telemetry file was cut mid-write: its intact records end at byte "
+                                     f"{cut['bytes_read']} of {cut['bytes_total']} and at t = "
+                                     f"{cut['last_measurement_t_s']:.2f} s; everything logged later is lost, the "
+                                     "estimate uses the intact part")
     return report
 
 
@@ -238,6 +320,7 @@ def run_estimate(
     out: Path | None = None,
     runs_root: Path = Path("runs"),
     progress: Callable[[float], None] | None = None,
+    allow_truncated: bool = True,
 ) -> StageResult:
     """Run the ``estimate`` stage and write its run folder.
 
@@ -255,6 +338,9 @@ def run_estimate(
         Parent folder of automatically named runs.
     progress : callable, optional
         Called with the completed fraction of the estimation.
+    allow_truncated : bool
+        Estimate from the intact part of a cut telemetry file (status ``degraded``, the loss in ``truncated``);
+        False refuses it (exit code 2).
 
     Returns
     -------
@@ -272,12 +358,19 @@ def run_estimate(
     method = method or cfg.estimation.method
     if method not in ("batch", "sequential"):
         raise InputError(f"--method {method}: must be batch or sequential")
-    tel = read_telemetry(telemetry)
-    record = read_stage(telemetry, topics=[])
-    truth = truth_from_config_yaml(record.config_yaml)
-    records = measurements_from_telemetry(tel)
-    if len(records) < 2:
-        raise InputError(f"{telemetry}: {len(records)} control step(s); estimation needs at least 2")
+    streams = read_telemetry_streams(telemetry)
+    if streams.truncated and not allow_truncated:
+        raise InputError(f"{telemetry}: the file is truncated (cut at byte {streams.bytes_read} of "
+                         f"{streams.bytes_total}); --allow-truncated estimates from its intact part")
+    truth = truth_from_config_yaml(streams.config_yaml)
+    records, alignment = align_records(
+        streams.t_measured, streams.x_measured, streams.t_applied, streams.u_applied,
+        reorder_window=cfg.estimation.reorder_window, t_command=streams.t_command, u_command=streams.u_command,
+        input_limits=np.r_[cfg.robot.force_limit_N, cfg.robot.torque_limit_Nm],
+    )
+    measured = sum(r.state_measured for r in records)
+    if measured < 2:
+        raise InputError(f"{telemetry}: {measured} usable measurement(s); estimation needs at least 2")
     settings = estimator_settings(cfg)
     prior = estimation_prior(cfg)
     run = run_estimation(records, settings, prior, method, use_prior=cfg.estimation.use_prior,
@@ -292,18 +385,20 @@ def run_estimate(
             "every axis for the inertias) for longer."
         )
 
+    counts = ", ".join(f"{k} {v}" for k, v in alignment.as_dict().items() if k != "control_period_s")
     log: list[LogEntry] = [
         (0.0, "info", f"telemetry {telemetry}: {len(records)} records over {run.t_records[-1]:.1f} s"),
+        (0.0, "info", f"telemetry by time stamp: {counts}"),
         (0.0, "info", f"method {method}, prior θ0 = {np.round(prior.theta, 6).tolist()}"),
     ]
-    rejected_t = [t for t, s in zip(run.t_records, run.status, strict=True) if s not in ("accepted", "initialised")]
+    rejected_t = [t for t, s in zip(run.t_records, run.status, strict=True) if s in ("rejected", "reinitialised")]
     for t in rejected_t:
         log.append((float(t), "warning", "record rejected by the χ² gate"))
     final = run.final
     log.append((float(run.t_records[-1]), "info",
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
-    summary = _estimate_summary(run, prior, truth, telemetry)
+    summary = _estimate_summary(run, prior, truth, telemetry, alignment, streams)
     log.extend(status_log(summary, float(run.t_records[-1])))  # estimate findings are never unsafe
 
     with open_run("estimate", cfg, out=out, runs_root=runs_root, started=wall_start) as run_folder:
@@ -311,7 +406,7 @@ def run_estimate(
             write_estimate_topics(writer, run, log)
         per_record = EstimationRecords(
             run.t_records, run.d2, run.gate_threshold,
-            np.array([s not in ("accepted", "initialised") for s in run.status]), run.measured[:, 0:3],
+            np.array([s in ("rejected", "reinitialised") for s in run.status]), run.measured[:, 0:3],
             run.states[:, 0:3],
         )
         write_estimate_recording(
