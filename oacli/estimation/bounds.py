@@ -110,8 +110,8 @@ def cramer_rao_bound(
                              accelerations_measured=accelerations_measured)
             for a, b in zip(starts, [*starts[1:], k], strict=True) if np.any(used[a:b])
         ]
-        f_eff = sum(bd.information for bd in bounds)
-        f_tt = sum(bd.information_known_initial_state for bd in bounds)
+        f_eff: np.ndarray = np.sum([bd.information for bd in bounds], axis=0)
+        f_tt: np.ndarray = np.sum([bd.information_known_initial_state for bd in bounds], axis=0)
         return CramerRaoBound(std=cramer_rao_std(f_eff, theta), std_known_initial_state=cramer_rao_std(f_tt, theta),
                               information=f_eff, information_known_initial_state=f_tt)
     state_rows, accel_rows = measured_rows(model)
