@@ -89,8 +89,64 @@ def monitored_tube_controller(
         lambda d: tube_controller_from_config(cfg, reference, d, weights, limits), design,
         response=cfg.controller.tube.beyond_w, actuator_force_limit_N=np.asarray(cfg.robot.force_limit_N),
         redesign=lambda extra: tube_design_from_config(cfg, extra_box=extra, max_terms=REDESIGN_MAX_TERMS),
-        margin=REDESIGN_MARGIN, max_redesigns=MAX_REDESIGNS,
+        margin=REDESIGN_MARGIN, max_redesigns=MAX_REDESIGNS, noise_allowance=noise_boxes(cfg)[0],
     )
+
+
+def noise_boxes(cfg: OacliConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The sensor noise the tube checks tolerate (``controller.tube.monitor_noise_sigmas`` = k; ``sensors``' σ).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    w_box : ndarray, shape (3, 2)
+        On the measured one-step disturbance ``w = x̃⁺ − A x̃ − B u`` ([Doerr2021] Eq. 15), which carries
+        ``n⁺ − A n``: position ``k (2σ_p + dt σ_v)``, velocity ``2 k σ_v`` per axis.
+    state_box : ndarray, shape (3, 2)
+        On the measured state: ``[k σ_p, k σ_v]`` per axis.
+    """
+    k = cfg.controller.tube.monitor_noise_sigmas
+    sp, sv, dt = cfg.sensors.position_std_m, cfg.sensors.velocity_std_mps, cfg.controller.period_s
+    w_box = np.tile([k * (2 * sp + dt * sv), 2 * k * sv], (3, 1))
+    return w_box, np.tile([k * sp, k * sv], (3, 1))
+
+
+def _true_at(tel: Telemetry, t: np.ndarray) -> np.ndarray:
+    """True translational state ``[r, v]`` (K, 6) at times ``t``, linear between plant samples (16 ms)."""
+    return np.column_stack([np.interp(t, tel.t_true, tel.x_true[:, j]) for j in range(6)])
+
+
+def tube_exits(design: TubeDesign, states: np.ndarray, predicted: np.ndarray, tolerance: float,
+               state_box: np.ndarray | None = None) -> int:
+    """Steps whose state left the promised tube ``ẑ_k ⊕ Z`` (grown by ``state_box`` for measurement noise).
+
+    Parameters
+    ----------
+    design : TubeDesign
+        Its lasso ``Z = {e: H e <= h}``.
+    states : ndarray, shape (K, 6)
+        ``[r, v]`` per control step.
+    predicted : ndarray, shape (K, 6)
+        ``ẑ_k`` (NaN where none).
+    tolerance : float
+        Slack below zero still counted inside.
+    state_box : ndarray, shape (3, 2), optional
+        ``[position, velocity]`` half-widths per axis added to Z (support ``|H| d``).
+
+    Returns
+    -------
+    int
+    """
+    h_matrix, h_vector = design.lasso.h_matrix, design.lasso.h_vector
+    grow = 0.0 if state_box is None else np.abs(h_matrix) @ np.concatenate([state_box[:, 0], state_box[:, 1]])
+    ok_rows = np.all(np.isfinite(predicted), axis=1)
+    errors = states[ok_rows] - predicted[ok_rows]
+    slack = (h_vector + grow)[None, :] - errors @ h_matrix.T
+    return int(np.sum(slack.min(axis=1) < -tolerance))
 
 
 def describe_tube_design(design: TubeDesign) -> list[LogEntry]:
@@ -157,7 +213,10 @@ def tube_summary(monitor: TubeMonitor, history: TubeHistory, tel: Telemetry, cfg
     ``x̃_k − ẑ_k ∉ Z`` with ``ẑ_k = A z_{k−1} + B v_{k−1}`` (beyond ``TUBE_TOLERANCE_REL`` of Z's size): the
     invariance guarantee, which can only fail when a disturbance left W. ``w_violations`` counts steps whose
     measured one-step disturbance left W (``beyond_w`` has the details and the responses).
-    ``tube.lasso_violations`` counts steps with ``x̃_k − z_k ∉ Z`` for the nominal state actually used (a
+    With ``controller.tube.monitor_noise_sigmas`` = k > 0 the measured state counts as outside only beyond
+    ``Z ⊕ [kσ_p, kσ_v]`` (:func:`noise_boxes`). ``tube_violations_true`` counts the steps whose *true* state (known
+    in simulation) left ``ẑ_k ⊕ Z`` exactly: the guarantee itself. ``tube.lasso_violations`` counts steps with
+    ``x̃_k − z_k ∉ Z`` for the nominal state actually used (a
     constraint of the QP). ``solver_failures`` counts failed solves. The design figures are the initial design's;
     ``beyond_w.final_w`` is W after any redesign, ``tube.final_design`` its figures.
     """
@@ -183,8 +242,15 @@ def tube_summary(monitor: TubeMonitor, history: TubeHistory, tel: Telemetry, cfg
         details["final_design"] = {k: final[k] for k in ("rpi", "w_position_m", "w_velocity_mps",
                                                          "tightened_force_N", "tightened_velocity_mps")}
     beyond = beyond_w_summary(monitor)
+    _, state_box = noise_boxes(cfg)
+    measured = np.column_stack([tel.x_measured[:, 0:3], tel.x_measured[:, 3:6]])
+    k_noise = cfg.controller.tube.monitor_noise_sigmas
+    exits_measured = (int(np.sum(tube_margin[checked] < -tol)) if k_noise == 0
+                      else tube_exits(design, measured, history.predicted_nominal, tol, state_box))
+    details["monitor_noise_sigmas"] = k_noise
     return {
-        "tube_violations": int(np.sum(tube_margin[checked] < -tol)),
+        "tube_violations": exits_measured,
+        "tube_violations_true": tube_exits(design, _true_at(tel, tel.t_ctrl), history.predicted_nominal, tol),
         "w_violations": beyond["violations"],
         "rpi": {k: details["rpi"][k] for k in ("s", "alpha", "facets")},
         "tightened_force_N": details["tightened_force_N"],
@@ -211,6 +277,9 @@ def add_tube_reasons(report: StatusReport, summary: dict[str, Any]) -> None:
                                     f"s, up to {beyond['max_over_w']:.3g} × W); response: {what}{new_w}")
     if summary["tube_violations"]:
         report.degraded("tube", f"the measured state left the promised tube on {summary['tube_violations']} steps")
+    if summary.get("tube_violations_true"):
+        report.degraded("tube_true", f"the true state left the promised tube on {summary['tube_violations_true']} "
+                                     "steps")
     lasso = summary["tube"]["lasso_violations"]
     if lasso:
         report.degraded("lasso", f"the nominal state's lasso x - z in Z was violated on {lasso} steps")
