@@ -226,7 +226,7 @@ def _mission_yaml(tmp_path: Path, edit) -> Path:
     (lambda d: d["mission"]["grasped"].update(mass_kg=-1.0), "mission.grasped.mass_kg"),
     (lambda d: d["mission"].update(segments={"segment-2": {"controller": {"horizon": 0}}}),
      "controller.horizon: 0"),
-    (lambda d: d["mission"].update(segments={"segment-4": {}}), "mission.segments"),
+    (lambda d: d["mission"].update(segments={"segment-4": {}}), "mission.segments.segment-4: {}: unknown segment"),
     (lambda d: d.pop("mission"), "mission: missing"),
 ])
 def test_bad_mission_config_is_refused_before_anything_runs(tmp_path, edit, expected):
@@ -242,7 +242,7 @@ def test_segment_override_error_names_the_stage_and_segment(tmp_path):
         segments={"segment-3": {"controller": {"weights": {"position": -1.0}}}}))
     result = RUNNER.invoke(app, ["mission", str(cfg), "--runs-dir", str(tmp_path / "runs")])
     assert result.exit_code == 2
-    assert "segment-3/plan" in result.output and "mission.segments.segment-3" in result.output
+    assert "mission.segments.segment-3.controller.weights.position: -1.0" in result.output
 
 
 @pytest.mark.parametrize(("args", "expected"), [

@@ -11,8 +11,6 @@ reruns that stage alone (``oacli <stage> <folder>/config.yaml``).
 
 from __future__ import annotations
 
-import copy
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,7 +19,7 @@ import numpy as np
 import yaml
 
 from oacli.config import OacliConfig, config_from_dict, dump_config
-from oacli.config.mission import MissionConfig
+from oacli.config.mission import MissionConfig, deep_merge
 from oacli.errors import ConfigError
 from oacli.mission.layout import MISSION_STAGES, MissionStage
 from oacli.model.robot_model import RobotModel
@@ -50,28 +48,6 @@ class Handoff:
     telemetry: Path | None = None
     initial_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     estimate: RobotModel | None = None
-
-
-def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
-    """``base`` with ``override`` merged in: mappings recursively, anything else replaced.
-
-    Parameters
-    ----------
-    base, override : Mapping
-        Plain config data.
-
-    Returns
-    -------
-    dict
-        A new mapping (the inputs are not modified).
-    """
-    out = copy.deepcopy(dict(base))
-    for key, value in override.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = deep_merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
 
 
 def stage_seed(seed: int, index: int) -> int:
@@ -189,7 +165,7 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
     a, b, c = mission.route
     data = yaml.safe_load(dump_config(cfg))
     data.pop("mission", None)
-    data = deep_merge(data, mission.segments.get(stage.segment, {}))  # type: ignore[call-overload]
+    data = deep_merge(data, mission.segments.get(stage.segment) or {})
     index = next(i for i, s in enumerate(MISSION_STAGES) if s.key == stage.key)
     prior = prior_model(cfg)
     grasped = {"mass_kg": mission.grasped.mass_kg, "inertia_kgm2": list(mission.grasped.inertia_kgm2)}

@@ -115,9 +115,12 @@ def noise_boxes(cfg: OacliConfig) -> tuple[np.ndarray, np.ndarray]:
     return w_box, np.tile([k * sp, k * sv], (3, 1))
 
 
-def _true_at(tel: Telemetry, t: np.ndarray) -> np.ndarray:
-    """True translational state ``[r, v]`` (K, 6) at times ``t``, linear between plant samples (16 ms)."""
-    return np.column_stack([np.interp(t, tel.t_true, tel.x_true[:, j]) for j in range(6)])
+def _true_at_control(tel: Telemetry) -> np.ndarray:
+    """True translational state ``[r, v]`` (K, 6) at the control instants (recorded by the simulator; else linear
+    between plant samples, 16 ms apart)."""
+    if tel.x_true_ctrl is not None:
+        return np.asarray(tel.x_true_ctrl[:, 0:6])
+    return np.column_stack([np.interp(tel.t_ctrl, tel.t_true, tel.x_true[:, j]) for j in range(6)])
 
 
 def tube_exits(design: TubeDesign, states: np.ndarray, predicted: np.ndarray, tolerance: float,
@@ -250,7 +253,7 @@ def tube_summary(monitor: TubeMonitor, history: TubeHistory, tel: Telemetry, cfg
     details["monitor_noise_sigmas"] = k_noise
     return {
         "tube_violations": exits_measured,
-        "tube_violations_true": tube_exits(design, _true_at(tel, tel.t_ctrl), history.predicted_nominal, tol),
+        "tube_violations_true": tube_exits(design, _true_at_control(tel), history.predicted_nominal, tol),
         "w_violations": beyond["violations"],
         "rpi": {k: details["rpi"][k] for k in ("s", "alpha", "facets")},
         "tightened_force_N": details["tightened_force_N"],
