@@ -26,7 +26,7 @@ app = typer.Typer(
     name="oacli",
     help="Plan, control and learn the model of a free-flying space robot (Astrobee) during on-orbit assembly.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
 )
 

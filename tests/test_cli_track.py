@@ -15,7 +15,14 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.config import load_config
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun.read import read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import (
+    empty_blueprint_views,
+    read_application_id,
+    read_blueprint_timeline,
+    read_blueprint_views,
+    read_recording_entities,
+    read_recording_scalars,
+)
 from oacli.metrics import true_states_at
 from oacli.model import quaternion as quat
 from tests.conftest import MIT_ISS, REPO, require_shared
@@ -139,3 +146,15 @@ def test_python_dash_m_entry_point():
     result = subprocess.run([sys.executable, "-m", "oacli", "--version"], capture_output=True, text=True, check=False)
     assert result.returncode == 0
     assert result.stdout.startswith("oacli ")
+
+
+def assert_recording_opens_right(rrd, stage):
+    """Own application id (own layout when several recordings are open), no panel empty on the opening timeline."""
+    assert read_application_id(rrd) == f"oacli-{stage}"
+    assert read_blueprint_timeline(rrd) == "mission_time"
+    assert read_blueprint_views(rrd), "no blueprint"
+    assert empty_blueprint_views(rrd) == []
+
+
+def test_track_recording_opens_with_every_panel_filled(iss_run):
+    assert_recording_opens_right(iss_run / "track.rrd", "track")

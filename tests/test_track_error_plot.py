@@ -10,7 +10,6 @@ import json
 
 import numpy as np
 import pytest
-
 from typer.testing import CliRunner
 
 from oacli.cli import app
@@ -23,9 +22,8 @@ from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.stages.track import reference_from_config
 from oacli.trajectory import sample_states
-from tests.test_simulator import LIMITS, TRUTH, PiecewiseForce, at_rest, closed_form_position
-
 from tests.conftest import REPO
+from tests.test_simulator import LIMITS, TRUTH, PiecewiseForce, at_rest, closed_form_position
 
 DOERR = REPO / "configs" / "doerr2021.yaml"
 
