@@ -8,10 +8,14 @@ from typing import Annotated
 import typer
 
 from oacli.commands.common import (
+    JsonOption,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
+    SeedOption,
+    SetOption,
+    ViewOption,
     load_config_with_seed,
     run_stage_command,
 )
@@ -40,7 +44,11 @@ def estimate(
     ] = True,
     out: OutOption = None,
     runs_root: RunsDirOption = Path("runs"),
+    seed: SeedOption = None,
     quiet: QuietOption = False,
+    sets: SetOption = None,
+    json_out: JsonOption = False,
+    view: ViewOption = False,
 ) -> None:
     """Estimate mass and principal inertias from TRACK.mcap; write estimate.mcap, estimate.rrd, summary.json.
 
@@ -55,8 +63,8 @@ def estimate(
 
         if method is not None and method not in ("batch", "sequential"):
             raise InputError(f"--method {method}: must be batch or sequential")
-        cfg = load_config_with_seed(config, None)
+        cfg = load_config_with_seed(config, seed, sets)
         return run_estimate(cfg, telemetry=telemetry, method=method, out=out, runs_root=runs_root,
                             progress=Progress("estimate", not quiet), allow_truncated=allow_truncated)
 
-    run_stage_command(action, ESTIMATE_TABLE, quiet)
+    run_stage_command(action, ESTIMATE_TABLE, quiet, json_out, view)

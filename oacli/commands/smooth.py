@@ -9,11 +9,14 @@ import typer
 
 from oacli.commands.common import (
     ConfigArgument,
+    JsonOption,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
+    SetOption,
+    ViewOption,
     load_config_with_seed,
     run_stage_command,
 )
@@ -34,6 +37,9 @@ def smooth(
     runs_root: RunsDirOption = Path("runs"),
     seed: SeedOption = None,
     quiet: QuietOption = False,
+    sets: SetOption = None,
+    json_out: JsonOption = False,
+    view: ViewOption = False,
 ) -> None:
     """Smooth a plan by LQR shortcutting, then shorten its path (planner.polish); write smooth.mcap, smooth.rrd
     and summary.json."""
@@ -41,8 +47,8 @@ def smooth(
     def action():
         from oacli.stages.smooth import run_smooth
 
-        cfg = load_config_with_seed(config, seed)
+        cfg = load_config_with_seed(config, seed, sets)
         return run_smooth(cfg, input_path=input_path, out=out, runs_root=runs_root,
                           progress=Progress("smooth", not quiet))
 
-    run_stage_command(action, SMOOTH_TABLE, quiet)
+    run_stage_command(action, SMOOTH_TABLE, quiet, json_out, view)
