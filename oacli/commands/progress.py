@@ -11,7 +11,14 @@ import sys
 import time
 
 from rich.console import Console
-from rich.progress import BarColumn, TaskProgressColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    TaskID,
+    TaskProgressColumn,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.progress import Progress as RichProgress
 
 
@@ -34,7 +41,7 @@ class Progress:
         self._phase = ""
         self._last_step = -1
         self._bar: RichProgress | None = None
-        self._task = None
+        self._task: TaskID | None = None
 
     def phase(self, name: str) -> None:
         """Name the current phase (e.g. ``"simulate"``, ``"write"``).
@@ -63,7 +70,8 @@ class Progress:
                 )
                 self._bar.start()
                 self._task = self._bar.add_task(self._description(), total=1.0)
-            self._bar.update(self._task, completed=fraction)
+            if self._task is not None:
+                self._bar.update(self._task, completed=fraction)
             if fraction >= 1.0:
                 self.close()
         else:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -24,7 +24,7 @@ def describe_runs(runs_dir: Path) -> list[dict]:
     list of dict
         ``name``, ``stage``, ``status``, ``path``.
     """
-    out = []
+    out: list[dict[str, Any]] = []
     if not runs_dir.is_dir():
         return out
     for d in sorted((p for p in runs_dir.iterdir() if p.is_dir()), key=lambda p: p.name, reverse=True):

@@ -143,7 +143,7 @@ def excite_blueprint(limits: AxisLimits | None = None, *, scp: bool = True, ratt
     def rng(name: str):
         return None if limits is None else limit_range(getattr(limits, name))
 
-    extra = []
+    extra: list[rrb.View] = []
     if scp:
         extra.append(rrb.BarChartView(origin=CRITERION, name="Criterion per SCP iteration (x: iteration)"))
     if rattle:
