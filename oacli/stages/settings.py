@@ -56,6 +56,7 @@ from oacli.geometry.collision import RobotBody
 from oacli.io.runfolder import StageRun, open_stage_run
 from oacli.model import quaternion as quat
 from oacli.model.limits import MotionLimits
+from oacli.model.rigid_body import theta_of
 from oacli.model.robot_model import RobotModel
 from oacli.planning.kino_rrt import KinoRrtSettings
 from oacli.planning.lqr_rrt_star import LqrRrtStarSettings
@@ -168,8 +169,7 @@ def truth_model(cfg: OacliConfig) -> RobotModel:
     -------
     RobotModel
     """
-    truth = cfg.truth_params()
-    return robot_model(cfg).with_estimate(np.concatenate([[truth.mass_kg], truth.inertia_kgm2]), np.zeros((4, 4)))
+    return robot_model(cfg).with_estimate(theta_of(cfg.truth_params()), np.zeros((4, 4)))
 
 
 def tracking_limits(cfg: OacliConfig) -> MotionLimits:
