@@ -127,9 +127,9 @@ def test_invalid_models_are_refused_naming_the_field(kw, field):
 
 
 def test_with_estimate_refuses_a_non_physical_estimate():
-    with pytest.raises(ValueError, match="^inertia_kgm2: the triangle inequality"):
+    with pytest.raises(ValueError, match=r"^inertia_kgm2: the triangle inequality"):
         model().with_estimate([9.5, 0.1, 0.1, 0.25], np.zeros((4, 4)))
-    with pytest.raises(ValueError, match="^theta"):
+    with pytest.raises(ValueError, match=r"^theta"):
         model().with_estimate([9.5, 0.1, 0.1], np.zeros((4, 4)))
 
 

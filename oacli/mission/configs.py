@@ -25,6 +25,7 @@ from oacli.config.mission import MissionConfig
 from oacli.errors import ConfigError
 from oacli.mission.layout import MISSION_STAGES, MissionStage
 from oacli.model.robot_model import RobotModel
+from oacli.stages.settings import robot_model
 
 
 @dataclass(frozen=True)
@@ -130,14 +131,7 @@ def prior_model(cfg: OacliConfig) -> RobotModel:
     """
     prior = mission_section(cfg).prior
     variance = np.array([prior.mass_std_kg, *prior.inertia_std_kgm2]) ** 2
-    robot = cfg.robot
-    base = RobotModel(
-        mass_kg=robot.mass_kg, inertia_kgm2=np.asarray(robot.inertia_kgm2),
-        force_limit_N=np.asarray(robot.force_limit_N),
-        torque_limit_Nm=np.asarray(robot.torque_limit_Nm), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
-        angular_velocity_limit_radps=np.asarray(robot.angular_velocity_limit_radps), radius_m=robot.radius_m,
-    )
-    return base.with_estimate(
+    return robot_model(cfg).with_estimate(
         np.array([prior.mass_kg, *prior.inertia_kgm2]), np.diag(variance))
 
 
