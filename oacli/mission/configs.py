@@ -147,13 +147,9 @@ def _model_sections(model: RobotModel, w_sigmas: float) -> dict[str, Any]:
 
 def _prior_sections(prior: RobotModel) -> dict[str, Any]:
     theta, var = prior.theta, np.diag(prior.covariance)
-    return {
-        "excitation": {"prior": {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
-                                 "variance": [float(v) for v in var]}},
-        "estimation": {"prior": {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
-                                 "mass_variance_kg2": float(var[0]),
-                                 "inertia_variance_kg2m4": [float(v) for v in var[1:4]]}},
-    }
+    section = {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
+               "mass_variance_kg2": float(var[0]), "inertia_variance_kg2m4": [float(v) for v in var[1:4]]}
+    return {"excitation": {"prior": dict(section)}, "estimation": {"prior": dict(section)}}
 
 
 def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, source: str = "mission") -> OacliConfig:
