@@ -169,6 +169,10 @@ Fraction = Annotated[Real, Field(gt=0, le=1)]
 Vector3 = Annotated[tuple[Real, Real, Real], BeforeValidator(sequence_of(3))]
 """Three finite real numbers."""
 PositiveVector3 = Annotated[tuple[PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(3))]
+PositiveVector4 = Annotated[
+    tuple[PositiveReal, PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(4))
+]
+"""Four positive numbers, one per parameter θ = [m, Ixx, Iyy, Izz]."""
 NonNegativeVector3 = Annotated[
     tuple[NonNegativeReal, NonNegativeReal, NonNegativeReal], BeforeValidator(sequence_of(3))
 ]
@@ -223,6 +227,7 @@ __all__ = [
     "NonNegativeVector3",
     "PositiveReal",
     "PositiveVector3",
+    "PositiveVector4",
     "PrincipalInertia",
     "Quaternion",
     "Real",

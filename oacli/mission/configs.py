@@ -23,6 +23,7 @@ from oacli.config.mission import MissionConfig, deep_merge
 from oacli.errors import ConfigError
 from oacli.mission.layout import MISSION_STAGES, MissionStage
 from oacli.model.robot_model import RobotModel
+from oacli.stages.settings import robot_model
 
 
 @dataclass(frozen=True)
@@ -106,14 +107,7 @@ def prior_model(cfg: OacliConfig) -> RobotModel:
     """
     prior = mission_section(cfg).prior
     variance = np.array([prior.mass_std_kg, *prior.inertia_std_kgm2]) ** 2
-    robot = cfg.robot
-    base = RobotModel(
-        mass_kg=robot.mass_kg, inertia_kgm2=np.asarray(robot.inertia_kgm2),
-        force_limit_N=np.asarray(robot.force_limit_N),
-        torque_limit_Nm=np.asarray(robot.torque_limit_Nm), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
-        angular_velocity_limit_radps=np.asarray(robot.angular_velocity_limit_radps), radius_m=robot.radius_m,
-    )
-    return base.with_estimate(
+    return robot_model(cfg).with_estimate(
         np.array([prior.mass_kg, *prior.inertia_kgm2]), np.diag(variance))
 
 
@@ -129,13 +123,9 @@ def _model_sections(model: RobotModel, w_sigmas: float) -> dict[str, Any]:
 
 def _prior_sections(prior: RobotModel) -> dict[str, Any]:
     theta, var = prior.theta, np.diag(prior.covariance)
-    return {
-        "excitation": {"prior": {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
-                                 "variance": [float(v) for v in var]}},
-        "estimation": {"prior": {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
-                                 "mass_variance_kg2": float(var[0]),
-                                 "inertia_variance_kg2m4": [float(v) for v in var[1:4]]}},
-    }
+    section = {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
+               "mass_variance_kg2": float(var[0]), "inertia_variance_kg2m4": [float(v) for v in var[1:4]]}
+    return {"excitation": {"prior": dict(section)}, "estimation": {"prior": dict(section)}}
 
 
 def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, source: str = "mission") -> OacliConfig:

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from oacli.config import OacliConfig
-from oacli.control.tracking import TrackingLimits, TrackingWeights
+from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_monitor import TubeMonitor, half_widths
 from oacli.control.tube_mpc import TerminalWeights, TubeHistory, TubeMPC
@@ -22,7 +22,9 @@ from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun.tube import log_disturbance_layers, log_tube_layers
 from oacli.io.rerun.writer import StageRecording
-from oacli.stages.settings import tube_design_from_config
+from oacli.model.limits import MotionLimits
+from oacli.model.robot_model import RobotModel
+from oacli.stages.settings import robot_model, tube_design_from_config
 from oacli.status import StatusReport
 from oacli.types import Telemetry, Trajectory
 
@@ -38,16 +40,19 @@ TUBE_TOLERANCE_REL = 1e-6
 
 
 def tube_controller_from_config(
-    cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: TrackingLimits
+    cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: MotionLimits,
+    *, model: RobotModel | None = None,
 ) -> TubeMPC:
-    """The :class:`TubeMPC` of ``cfg`` around ``design``."""
+    """The :class:`TubeMPC` of ``cfg`` around ``design`` (mass: the design's; inertia: ``model``'s, default
+    :func:`~oacli.stages.settings.robot_model`)."""
+    model = robot_model(cfg) if model is None else model
     tube = cfg.controller.tube
     terminal = None
     if tube.terminal is not None:
         terminal = TerminalWeights(np.asarray(tube.terminal.position), np.asarray(tube.terminal.velocity))
     step = tube.prediction_step_s if tube.prediction_step_s is not None else cfg.controller.period_s
     return TubeMPC(
-        reference, cfg.robot_params(), design, horizon=cfg.controller.horizon, prediction_step_s=step,
+        reference, design, inertia_kgm2=model.inertia_kgm2, horizon=cfg.controller.horizon, prediction_step_s=step,
         weights=weights, limits=limits, terminal=terminal,
         max_consecutive_failures=cfg.controller.max_consecutive_failures, fast=tube.solver == "direct",
         **workspace_arguments(cfg),
@@ -82,13 +87,20 @@ MAX_REDESIGNS = 3
 
 
 def monitored_tube_controller(
-    cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: TrackingLimits
+    cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: MotionLimits,
+    *, model: RobotModel | None = None, mass_std_kg: float | None = None,
 ) -> TubeMonitor:
-    """The tube controller of ``cfg`` with the beyond-W check and response of ``controller.tube.beyond_w``."""
+    """The tube controller of ``cfg`` with the beyond-W check and response of ``controller.tube.beyond_w``.
+
+    ``model`` (default :func:`~oacli.stages.settings.robot_model`) and ``mass_std_kg`` are those ``design`` was
+    made with (:func:`~oacli.stages.settings.tube_design_from_config`); a redesign beyond W uses them too.
+    """
+    model = robot_model(cfg) if model is None else model
     return TubeMonitor(
-        lambda d: tube_controller_from_config(cfg, reference, d, weights, limits), design,
-        response=cfg.controller.tube.beyond_w, actuator_force_limit_N=np.asarray(cfg.robot.force_limit_N),
-        redesign=lambda extra: tube_design_from_config(cfg, extra_box=extra, max_terms=REDESIGN_MAX_TERMS),
+        lambda d: tube_controller_from_config(cfg, reference, d, weights, limits, model=model), design,
+        response=cfg.controller.tube.beyond_w, actuator_force_limit_N=np.asarray(model.force_limit_N),
+        redesign=lambda extra: tube_design_from_config(cfg, extra_box=extra, max_terms=REDESIGN_MAX_TERMS,
+                                                       model=model, mass_std_kg=mass_std_kg),
         margin=REDESIGN_MARGIN, max_redesigns=MAX_REDESIGNS, noise_allowance=noise_boxes(cfg)[0],
     )
 

@@ -77,7 +77,7 @@ LogEntry = tuple[float, str, str]
 
 class AxisLimits(Protocol):
     """Per-axis bounds a recording plots as ± limits (:class:`oacli.reference_limits.LimitSet`,
-    :class:`oacli.excitation.problem.MotionLimits`, :class:`oacli.control.tracking.TrackingLimits`)."""
+    :class:`oacli.model.limits.MotionLimits`)."""
 
     @property
     def force_N(self) -> np.ndarray:
