@@ -150,7 +150,7 @@ def test_estimate_within_its_targets(mission):
     for key, pct in est["error_pct"].items():
         assert pct <= 3 * flight[key], (key, pct)
     assert est["error_pct"]["mass_kg"] < 1.0
-    # The learned model is much better than the prior it started from (12 kg for 15.5 kg).
+    # The learned model is much better than the prior it started from (14.5 kg for 15.5 kg).
     truth = np.array(est["truth_theta"])
     prior = np.array(est["prior_theta"])
     assert abs(est["mass_kg"] - truth[0]) < 0.2 * abs(prior[0] - truth[0])
