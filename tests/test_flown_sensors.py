@@ -11,7 +11,6 @@ from scipy import stats
 
 from oacli.estimation.alignment import align_records
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
-from oacli.model import quaternion as quat
 from oacli.sim.delivered import DeliveredInput
 from oacli.sim.imu import ImuModel, simulate_imu
 from oacli.sim.localisation import LocalisationModel, localisation_stamps, simulate_localisation
@@ -64,7 +63,7 @@ def test_constant_spin_gives_the_rate_plus_a_constant_bias():
                        np.random.default_rng(2))
     bias = imu.gyro_bias_radps[0]
     assert np.all(np.abs(bias) > 1e-5)
-    np.testing.assert_allclose(imu.angular_rate_radps, np.tile([0.0, 0.0, 0.1] + bias, (len(tel.t_true), 1)),
+    np.testing.assert_allclose(imu.angular_rate_radps, np.tile(np.array([0.0, 0.0, 0.1]) + bias, (len(tel.t_true), 1)),
                                atol=1e-12)
     np.testing.assert_allclose(imu.specific_force_mps2, np.tile(imu.accelerometer_bias_mps2[0],
                                                                 (len(tel.t_true), 1)), atol=1e-15)

@@ -1,6 +1,6 @@
 """Simulated IMU: specific force and angular rate in the body frame, with bias and white noise.
 
-Astrobee's IMU runs at the flight software's 62.5 Hz ([ReSWARM2023] §5.4.3; REFERENCE.md rates); the RATTLE
+Astrobee's IMU runs at the flight software's 62.5 Hz ([ReSWARM2023] §5.4.3; astrobee hw/pmc_actuator.config); the RATTLE
 estimator used its linear acceleration with the variance 5e-6 (m/s²)² (rattle ``param_est`` R). In orbit the
 station and the robot fall together, so the accelerometer reads the specific force of the wrench acting on the
 robot, ``a = Rᵀ f / m`` (body frame; ``f`` the delivered force in the world frame, [Doerr2021] Eq. 34), and the
