@@ -33,8 +33,8 @@ from oacli.types import InertialParams
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 PRESETS = sorted(CONFIGS.glob("*.yaml"))
-PRESET_NAMES = ["doerr2021.yaml", "iss_reswarm.yaml", "iss_reswarm_tube.yaml", "mission_doerr2021.yaml",
-                "mission_iss.yaml"]
+PRESET_NAMES = ["doerr2021.yaml", "iss_reswarm.yaml", "iss_reswarm_flight_sensors.yaml", "iss_reswarm_tube.yaml",
+                "mission_doerr2021.yaml", "mission_iss.yaml"]
 
 BASE: dict[str, Any] = {
     "robot": {
@@ -610,7 +610,14 @@ FIELD_KINDS = {
     "robot.mass_kg": "pos",
     "robot.radius_m": "nonneg",
     "environment.safety_factor": "ge1",
-    "sensors.*": "nonneg",
+    **{f"sensors.{f}": "nonneg" for f in ("position_std_m", "velocity_std_mps", "attitude_std_rad",
+                                          "angular_velocity_std_radps")},
+    **{f"sensors.imu.{f}": "nonneg" for f in ("accelerometer_noise_std_mps2", "gyro_noise_std_radps",
+                                              "accelerometer_bias_std_mps2", "gyro_bias_std_radps",
+                                              "accelerometer_bias_random_walk", "gyro_bias_random_walk")},
+    **{f"sensors.localisation.{f}": "nonneg" for f in ("jump_probability", "drop_probability",
+                                                       "delay_probability", "delay_mean_s")},
+    "sensors.localisation.rate_hz": "pos",
     "simulation.plant_rate_hz": "pos",
     "simulation.settle_time_s": "nonneg",
     "simulation.initial_offset_m": "vec",

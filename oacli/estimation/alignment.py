@@ -12,6 +12,9 @@ topics, so records are built by **time stamp**, never by position in the file:
 * each control instant with a known input but no measurement becomes an *input-only* record
   (``Measurement.state_measured = False``): the estimators propagate through it, so a lost localisation message is
   simply absent instead of merging two control periods under one held input (``input_only``);
+* a measurement stamped between two control instants (a localisation faster than, or not synchronised with, the
+  controller) gets the input held since the last control instant, when that instant's input is known and the next
+  instant has not come yet (``held``);
 * an input missing from the applied record is taken from the logged command history when it has that stamp, clipped
   to the actuator limits when they are given (``bridged``);
 * when the input over an interval is unknown -- a control instant with neither an applied nor a commanded input, or
@@ -68,6 +71,9 @@ class AlignmentReport:
         Control instants dropped for lack of both a measurement and a usable input link.
     segments : int
         Segments of records linked by the process model.
+    held : int
+        Measurements between control instants given the input held since the last one (reported only when not 0,
+        so telemetry on the control grid keeps its summary).
     control_period_s : float
         Median spacing of the input stamps [s] (NaN with fewer than two).
     """
@@ -83,6 +89,7 @@ class AlignmentReport:
     unusable: int
     segments: int
     control_period_s: float
+    held: int = 0
 
     def as_dict(self) -> dict[str, float | int]:
         """The counts as a plain dict (for ``summary.json``).
@@ -91,7 +98,10 @@ class AlignmentReport:
         -------
         dict
         """
-        return asdict(self)
+        out = asdict(self)
+        if not self.held:
+            del out["held"]
+        return out
 
 
 def _first_by_stamp(t: np.ndarray, values: np.ndarray) -> tuple[dict[int, np.ndarray], int]:
@@ -184,7 +194,8 @@ def align_records(
     limits = None if input_limits is None else np.asarray(input_limits, dtype=float)
 
     records: list[Measurement] = []
-    bridged = input_only = gaps = unusable = segments = 0
+    bridged = input_only = gaps = unusable = segments = held = 0
+    last_input: tuple[float, np.ndarray] | None = None  # the last control instant with a known input
     prev_t: float | None = None
     prev_input_known = False
     prev_x: np.ndarray | None = None
@@ -196,8 +207,16 @@ def align_records(
             u = command[key] if limits is None else np.clip(command[key], -limits, limits)
             known = True
             bridged += 1
+        elif (last_input is not None and np.isfinite(period) and key in states
+              and t - last_input[0] < period - _STAMP_RESOLUTION_S):
+            u, known = last_input[1], True  # between control instants: the input is still held
+            held += 1
         else:
             u, known = zero_u, False
+        if known and (key in applied or key in command):
+            last_input = (t, u)
+        elif key in input_keys:
+            last_input = None
         linked = prev_t is not None and prev_input_known and (
             not np.isfinite(period) or t - prev_t <= _GAP_FACTOR * period)
         if prev_t is not None and not linked:
@@ -221,6 +240,6 @@ def align_records(
     report = AlignmentReport(
         measurements_received=int(t_measured.size), reordered=max(reordered, 0), late=late, duplicates=duplicates,
         input_duplicates=input_duplicates, input_only=input_only, bridged=bridged, gaps=gaps, unusable=unusable,
-        segments=segments, control_period_s=period,
+        segments=segments, control_period_s=period, held=held,
     )
     return records, report

@@ -382,6 +382,42 @@ ESTIMATION_COST_SCHEMA: dict[str, Any] = {
     "required": ["t", "iteration", "cost"],
 }
 
+# -- track: measurements as flown (``sensors.imu``, ``sensors.localisation``) -------------------------------------
+
+TOPIC_IMU = "/imu"
+TOPIC_LOCALISATION = "/localisation"
+IMU_SAMPLE = "oacli.ImuSample"
+LOCALISATION_SAMPLE = "oacli.LocalisationSample"
+
+IMU_SAMPLE_SCHEMA: dict[str, Any] = {
+    "title": IMU_SAMPLE,
+    "description": "One IMU reading at the plant rate (62.5 Hz): specific force and angular rate in the body frame, "
+    "bias and noise included (oacli.sim.imu).",
+    "type": "object",
+    "properties": {
+        "t": _RECORD_TIME,
+        "linear_acceleration": _vector(3, "accelerometer: specific force R^T f / m + bias + noise, body frame [m/s²]"),
+        "angular_velocity": _vector(3, "gyro: body rate omega + bias + noise, body frame [rad/s]"),
+    },
+    "required": ["t", "linear_acceleration", "angular_velocity"],
+}
+
+LOCALISATION_SAMPLE_SCHEMA: dict[str, Any] = {
+    "title": LOCALISATION_SAMPLE,
+    "description": "One localisation message as it reached the log (oacli.sim.localisation): written at its "
+    "arrival time t, which may follow later stamps; stamp is the time the state refers to.",
+    "type": "object",
+    "properties": {
+        "t": {**_RECORD_TIME, "description": "arrival (log) time [s]"},
+        "stamp": {**_RECORD_TIME, "description": "time the measured state refers to [s]"},
+        "position": _vector(3, "position r, world frame [m]"),
+        "velocity": _vector(3, "velocity v, world frame [m/s]"),
+        "quaternion": _vector(4, "attitude q = [x, y, z, w], body to world"),
+        "angular_velocity": _vector(3, "body rate omega, body frame [rad/s]"),
+    },
+    "required": ["t", "stamp", "position", "velocity", "quaternion", "angular_velocity"],
+}
+
 #: Every JSON schema of the contract by its name (``title``): the records above and the sample records.
 SCHEMAS: dict[str, dict[str, Any]] = {
     TRAJECTORY_SAMPLE: TRAJECTORY_SAMPLE_SCHEMA,
@@ -400,4 +436,6 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     PARAMETER_ESTIMATE: PARAMETER_ESTIMATE_SCHEMA,
     ESTIMATION_SAMPLE: ESTIMATION_SAMPLE_SCHEMA,
     ESTIMATION_COST: ESTIMATION_COST_SCHEMA,
+    IMU_SAMPLE: IMU_SAMPLE_SCHEMA,
+    LOCALISATION_SAMPLE: LOCALISATION_SAMPLE_SCHEMA,
 }

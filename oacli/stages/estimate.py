@@ -13,6 +13,12 @@ status ``degraded``. The fit is checked, never trusted (:func:`estimate_findings
 expected value, convergence and the χ² gate; the sequential filter's normalised innovations, re-initialisations and
 rejections. Each finding makes the run ``degraded`` with one sentence saying why.
 
+Measurements as flown (``sensors.imu``/``sensors.localisation`` of the track run): when the file has
+``/localisation``, its messages (by their stamps, in arrival order) are the measured states instead of
+``/state/measured``; when ``estimation.measurement_noise.linear_acceleration_std_mps2`` is set, ``/imu`` must be
+present and each measured record gets the accelerometer reading under its input, the bias estimated and removed
+first (:mod:`oacli.estimation.imu`; summary ``imu``).
+
 Telemetry that cannot identify θ (too short, or no torque so the inertias are invisible) ends with
 :class:`oacli.errors.InfeasibleError` (exit code 3) naming the unobservable parameters and their Cramér-Rao bound
 relative to their value; no estimate is written.
@@ -35,6 +41,7 @@ from oacli.estimation.alignment import AlignmentReport, align_records
 from oacli.estimation.batch import BatchResult, estimate_batch_windows
 from oacli.estimation.bounds import CramerRaoBound, cramer_rao_bound, describe_unobservable, unobservable_parameters
 from oacli.estimation.gating import chi2_threshold
+from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
 from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.information import PARAM_NAMES
@@ -363,11 +370,15 @@ def run_estimate(
         raise InputError(f"{telemetry}: the file is truncated (cut at byte {streams.bytes_read} of "
                          f"{streams.bytes_total}); --allow-truncated estimates from its intact part")
     truth = truth_from_config_yaml(streams.config_yaml)
+    use_localisation = streams.t_localisation is not None and streams.t_localisation.size > 0
+    t_meas, x_meas = ((streams.t_localisation, streams.x_localisation) if use_localisation
+                      else (streams.t_measured, streams.x_measured))
     records, alignment = align_records(
-        streams.t_measured, streams.x_measured, streams.t_applied, streams.u_applied,
+        t_meas, x_meas, streams.t_applied, streams.u_applied,
         reorder_window=cfg.estimation.reorder_window, t_command=streams.t_command, u_command=streams.u_command,
         input_limits=np.r_[cfg.robot.force_limit_N, cfg.robot.torque_limit_Nm],
     )
+    records, imu_summary = _with_imu(cfg, records, streams, alignment.control_period_s, telemetry)
     measured = sum(r.state_measured for r in records)
     if measured < 2:
         raise InputError(f"{telemetry}: {measured} usable measurement(s); estimation needs at least 2")
@@ -399,6 +410,14 @@ def run_estimate(
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
     summary = _estimate_summary(run, prior, truth, telemetry, alignment, streams)
+    if use_localisation:
+        summary["measurements_topic"] = ms.TOPIC_LOCALISATION
+        log.insert(1, (0.0, "info", f"measured states from {ms.TOPIC_LOCALISATION} (by stamp)"))
+    if imu_summary is not None:
+        summary["imu"] = imu_summary
+        log.insert(1, (0.0, "info", "accelerometer: bias " + str(np.round(imu_summary["bias_mps2"], 6).tolist())
+                       + f" m/s² from {imu_summary['samples_fitted']} readings, "
+                       f"{imu_summary['records_with_acceleration']} records with an acceleration"))
     log.extend(status_log(summary, float(run.t_records[-1])))  # estimate findings are never unsafe
 
     with open_run("estimate", cfg, out=out, runs_root=runs_root, started=wall_start) as run_folder:
@@ -414,6 +433,38 @@ def run_estimate(
             records=per_record, log=log, recording_name=f"{cfg.name}/estimate",
         )
         return run_folder.finish(summary)
+
+
+def _with_imu(cfg: OacliConfig, records: list[Measurement], streams: TelemetryStreams, period_s: float,
+              telemetry: Path) -> tuple[list[Measurement], dict[str, Any] | None]:
+    """Records with the accelerometer's linear acceleration when the config measures it (module docstring)."""
+    if cfg.estimation.measurement_noise.linear_acceleration_std_mps2 is None:
+        return records, None
+    field = "estimation.measurement_noise.linear_acceleration_std_mps2"
+    if streams.t_imu is None or streams.imu is None or streams.t_imu.size == 0:
+        raise InputError(f"{field}: set, but {telemetry} has no {ms.TOPIC_IMU} messages (track with "
+                         "sensors.imu.enabled: true, or set it to null)")
+    imu = ImuStream(streams.t_imu, streams.imu[:, 0:3], streams.imu[:, 3:6])
+    t_inputs = np.unique(np.concatenate([streams.t_applied] + ([] if streams.t_command is None
+                                                                else [streams.t_command])))
+    fit = fit_accelerometer_bias(records, imu, t_inputs, period_s)
+    if fit is None:
+        raise InputError(f"{field}: {telemetry} has fewer than 4 {ms.TOPIC_IMU} readings under a known input")
+    out, missing = attach_accelerations(records, imu, fit.bias_mps2, t_inputs, period_s)
+    trailing = 0  # measurements after the last logged input (its control period over): no input, no reading
+    while len(out) > 2 and out[-1].linear_acceleration_mps2 is None:
+        missing -= out.pop().state_measured
+        trailing += 1
+    if missing:
+        raise InputError(f"{field}: {missing} measured records of {telemetry} have no {ms.TOPIC_IMU} reading under "
+                         "their input; the estimators need one for every record (set it to null to leave them out)")
+    return out, {
+        "bias_mps2": fit.bias_mps2.tolist(), "bias_std_mps2": fit.bias_std_mps2.tolist(),
+        "inverse_mass_per_kg": fit.inverse_mass_per_kg, "samples_fitted": fit.samples,
+        "residual_rms_mps2": fit.residual_rms_mps2,
+        "records_with_acceleration": sum(r.linear_acceleration_mps2 is not None for r in out),
+        "trailing_records_dropped": trailing,
+    }
 
 
 def _params_record(estimate: ParameterEstimate, final: bool) -> dict[str, Any]:

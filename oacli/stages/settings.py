@@ -216,7 +216,8 @@ def sensor_noise(cfg: OacliConfig) -> SensorNoise:
     -------
     SensorNoise
     """
-    return SensorNoise(**cfg.sensors.model_dump())
+    s = cfg.sensors
+    return SensorNoise(s.position_std_m, s.velocity_std_mps, s.attitude_std_rad, s.angular_velocity_std_radps)
 
 
 def plant_disturbance(cfg: OacliConfig) -> Disturbance:

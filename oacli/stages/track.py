@@ -30,6 +30,7 @@ from oacli.model.limits import MotionLimits
 from oacli.reference import waypoint_reference
 from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
 from oacli.sim.simulator import simulate
+from oacli.stages.flown_sensors import FlownSensors, flown_sensors, write_flown_sensor_topics
 from oacli.stages.settings import (
     open_run,
     plant_disturbance,
@@ -248,6 +249,9 @@ def run_track(
             actuator_scale=np.asarray(cfg.truth.actuator_scale), com_offset_m=np.asarray(cfg.truth.com_offset_m),
         )
         summary, ctrl_errors = _track_summary(cfg, reference, tel, limits)
+        flown = flown_sensors(cfg, tel)
+        if flown is not None:
+            summary["sensors"] = flown.summary()
         summary["reference_check"] = reference_check.summary()
         monitor = controller if isinstance(controller, TubeMonitor) else None
         history = monitor.history() if monitor is not None else None
@@ -270,7 +274,7 @@ def run_track(
                     f"{summary['constraint_violations']} constraint violations; status {summary['status']}"))
         log.extend(status_log(summary, float(tel.t_true[-1])))
         with run.open_mcap() as writer:
-            write_track_topics(writer, reference, tel, scene, log, monitor, history)
+            write_track_topics(writer, reference, tel, scene, log, monitor, history, flown)
         write_track_recording(
             run.file("rrd", "track.rrd"), scene=scene, reference=reference, telemetry=tel, errors=ctrl_errors,
             limits=limits, log=log, recording_name=f"{cfg.name}/track",
@@ -282,7 +286,7 @@ def run_track(
 
 def write_track_topics(
     writer: StageMcapWriter, reference: Trajectory, tel: Telemetry, scene: Scene, log: list[LogEntry],
-    monitor: TubeMonitor | None = None, history: TubeHistory | None = None,
+    monitor: TubeMonitor | None = None, history: TubeHistory | None = None, flown: FlownSensors | None = None,
 ) -> None:
     """Write a tracking run's topics to its MCAP (``docs/mcap.md``; the tube's with a tube controller).
 
@@ -302,6 +306,8 @@ def write_track_topics(
         The tube controller (with ``history``).
     history : TubeHistory, optional
         What the tube controller did at each step.
+    flown : FlownSensors, optional
+        The flight-like IMU and localisation streams (``/imu``, ``/localisation``).
     """
     u_true = tel.u_applied[np.clip(np.searchsorted(tel.t_ctrl, tel.t_true, side="right") - 1, 0, None)]
     writer.write_scene(scene, {"reference": reference.x[:, 0:3], "actual": tel.x_true[:, 0:3]})
@@ -315,6 +321,8 @@ def write_track_topics(
     writer.write_solver_stats(tel.t_ctrl, tel.solve_info)
     if monitor is not None and history is not None:
         write_tube_topics(writer, tel, monitor, history)
+    if flown is not None:
+        write_flown_sensor_topics(writer, flown)
     writer.write_poses(tel.t_true, tel.x_true)
     for t, level, message in log:
         writer.write_log(t, level, message)
