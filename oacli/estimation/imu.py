@@ -171,11 +171,12 @@ def attach_accelerations(
     out: list[Measurement] = []
     missing = 0
     for j, rec in enumerate(records):
-        i = first.get(j)
-        if i is None:
+        found = first.get(j)
+        if found is None:
             missing += rec.state_measured
             out.append(rec)
             continue
+        i = found
         q = _attitude_at(records, np.array([j]), t[i:i + 1])[0]
         a_world = quat.to_rotation_matrix(q) @ (np.asarray(imu.specific_force_mps2[i], float) - bias_mps2)
         out.append(replace(rec, linear_acceleration_mps2=a_world))

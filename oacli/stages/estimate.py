@@ -373,6 +373,8 @@ def run_estimate(
     use_localisation = streams.t_localisation is not None and streams.t_localisation.size > 0
     t_meas, x_meas = ((streams.t_localisation, streams.x_localisation) if use_localisation
                       else (streams.t_measured, streams.x_measured))
+    if t_meas is None or x_meas is None:  # read_telemetry_streams refuses a file without measurements
+        raise InputError(f"{telemetry}: no measured states (/state/measured or /localisation)")
     records, alignment = align_records(
         t_meas, x_meas, streams.t_applied, streams.u_applied,
         reorder_window=cfg.estimation.reorder_window, t_command=streams.t_command, u_command=streams.u_command,

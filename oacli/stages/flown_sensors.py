@@ -85,7 +85,8 @@ def flown_sensors(cfg: OacliConfig, tel: Telemetry) -> FlownSensors | None:
         model_l = LocalisationModel(
             rate_hz=lc.rate_hz, noise=sensor_noise(cfg), jump_probability=lc.jump_probability,
             drop_probability=lc.drop_probability, delay_probability=lc.delay_probability,
-            jump_position_m=tuple(lc.jump_position_m), jump_attitude_rad=tuple(lc.jump_attitude_rad),
+            jump_position_m=(lc.jump_position_m[0], lc.jump_position_m[1]),
+            jump_attitude_rad=(lc.jump_attitude_rad[0], lc.jump_attitude_rad[1]),
             delay_mean_s=lc.delay_mean_s,
         )
         loc = simulate_localisation(stamps, x, model_l, sensor_rng(cfg.seed, "localisation"))
