@@ -38,6 +38,7 @@ from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.information import PARAM_NAMES
+from oacli.geometry.shapes import Scene
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.mcap_read import TelemetryStreams, read_telemetry_streams
@@ -403,7 +404,7 @@ def run_estimate(
 
     with open_run("estimate", cfg, out=out, runs_root=runs_root, started=wall_start) as run_folder:
         with run_folder.open_mcap(method=run.method, telemetry=str(telemetry)) as writer:
-            write_estimate_topics(writer, run, log)
+            write_estimate_topics(writer, run, log, cfg.scene())
         per_record = EstimationRecords(
             run.t_records, run.d2, run.gate_threshold,
             np.array([s in ("rejected", "reinitialised") for s in run.status]), run.measured[:, 0:3],
@@ -429,7 +430,8 @@ def _params_record(estimate: ParameterEstimate, final: bool) -> dict[str, Any]:
     }
 
 
-def write_estimate_topics(writer: StageMcapWriter, run: EstimationRun, log: list[LogEntry]) -> None:
+def write_estimate_topics(writer: StageMcapWriter, run: EstimationRun, log: list[LogEntry],
+                          scene: Scene | None = None) -> None:
     """Write an estimation's topics (``docs/mcap.md``, stage ``estimate``) to its MCAP.
 
     Parameters
@@ -440,7 +442,12 @@ def write_estimate_topics(writer: StageMcapWriter, run: EstimationRun, log: list
         The estimation.
     log : list of (float, str, str)
         The stage's log.
+    scene : Scene, optional
+        The workspace, written on ``/scene`` with the paths ``measured`` and ``estimated`` and the robot body.
     """
+    if scene is not None:
+        writer.write_scene(scene, {"measured": run.measured[:, 0:3], "estimated": run.states[:, 0:3]},
+                           t=float(run.t_records[0]))
     gate = run.gate_threshold if np.isfinite(run.gate_threshold) else None
     for i, est in enumerate(run.history):
         writer.write_json(ms.TOPIC_ESTIMATE_PARAMS, ms.PARAMETER_ESTIMATE, ms.PARAMETER_ESTIMATE_SCHEMA, est.t,
@@ -455,5 +462,6 @@ def write_estimate_topics(writer: StageMcapWriter, run: EstimationRun, log: list
                               {"iteration": i, "cost": float(cost)})
     writer.write_states(ms.TOPIC_STATE_ESTIMATED, run.t_records, run.states, run.inputs, name="estimated")
     writer.write_poses(run.t_records, run.states)
+    writer.write_robot_body(run.t_records, run.states)
     for t, level, message in log:
         writer.write_log(t, level, message)

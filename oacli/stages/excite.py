@@ -306,6 +306,7 @@ def write_offline_topics(writer: StageMcapWriter, problem: ExcitationProblem, de
     writer.write_scene(problem.scene, {"excitation": x[:, 0:3], "initial_guess": design.initial.x[:, 0:3]})
     writer.write_trajectory("/trajectory", Trajectory(traj.t, x, u, name="excitation", frame=frame))
     writer.write_poses(traj.t, x)
+    writer.write_robot_body(traj.t, x)
     for it in design.iterations:
         writer.write_json(ms.TOPIC_EXCITATION_ITERATIONS, ms.SCP_ITERATION, ms.SCP_ITERATION_SCHEMA, 0.0, {
             "iteration": it.iteration, "criterion": it.criterion, "merit": it.merit,
@@ -529,6 +530,7 @@ def _write_rattle_outputs(stage_run: StageRun, cfg: OacliConfig, problem: Excita
         writer.write_trajectory("/trajectory", traj)
         writer.write_states("/state/true", tel.t_true, tel.x_true)
         writer.write_poses(tel.t_true, tel.x_true)
+        writer.write_robot_body(tel.t_true, tel.x_true)
         for r in run.replans:
             writer.write_json(ms.TOPIC_EXCITATION_REPLANS, ms.REPLAN, ms.REPLAN_SCHEMA, r.t, {
                 "theta": r.theta, "std": r.std, "gamma": r.gamma, "cost": r.plan.cost,

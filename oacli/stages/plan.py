@@ -245,6 +245,7 @@ def write_plan_topics(writer: StageMcapWriter, scene: Scene, result: PlanResult,
     if output is not None:
         writer.write_trajectory("/trajectory", output)
         writer.write_poses(output.t, output.x)
+        writer.write_robot_body(output.t, output.x)
     for i in range(len(tree)):
         writer.write_json(ms.TOPIC_PLAN_TREE, ms.PLAN_TREE_NODE, ms.PLAN_TREE_NODE_SCHEMA, 0.0, {
             "node": i, "parent": int(tree.parent[i]), "iteration": int(tree.iteration[i]),

@@ -146,6 +146,7 @@ def write_smooth_topics(writer: StageMcapWriter, scene: Scene, source: Path, tra
     if polish is not None:
         writer.write_trajectory("/trajectory/shortcut", traj_shortcut)
     writer.write_poses(traj_out.t, traj_out.x)
+    writer.write_robot_body(traj_out.t, traj_out.x)
     for a in result.attempts:
         writer.write_json(ms.TOPIC_SMOOTH_SHORTCUTS, ms.SHORTCUT_ATTEMPT, ms.SHORTCUT_ATTEMPT_SCHEMA, 0.0, {
             "try": a.index, "a": a.a, "b": a.b, "t_a": a.t_a, "t_b": a.t_b, "steps": a.steps,

@@ -316,5 +316,6 @@ def write_track_topics(
     if monitor is not None and history is not None:
         write_tube_topics(writer, tel, monitor, history)
     writer.write_poses(tel.t_true, tel.x_true)
+    writer.write_robot_body(tel.t_true, tel.x_true)
     for t, level, message in log:
         writer.write_log(t, level, message)
