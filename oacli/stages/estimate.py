@@ -44,6 +44,7 @@ from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.mcap_read import TelemetryStreams, read_telemetry_streams
 from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
+from oacli.phases import set_phase
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
 from oacli.status import StatusReport, status_log
 from oacli.types import ParameterEstimate
@@ -150,7 +151,16 @@ def run_estimation(
     nis_ratio = float("nan")
     if method == "batch":
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
-        results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=progress)
+        set_phase(progress, f"batch window 1/{len(ends)}")
+
+        def window_done(fraction: float) -> None:
+            done = round(fraction * len(ends))
+            if done < len(ends):
+                set_phase(progress, f"batch window {done + 1}/{len(ends)}")
+            if progress is not None:
+                progress(fraction)
+
+        results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=window_done)
         batch = results[-1]
         history = [r.estimate for r in results]
         final, states, d2, dof = batch.estimate, batch.states, batch.d2, batch.dof
@@ -161,6 +171,7 @@ def run_estimation(
         t = batch.t
     elif method == "sequential":
         est = SequentialEstimator(settings, prior)
+        set_phase(progress, f"sequential EKF ({len(records)} records)")
         for i, rec in enumerate(records):
             est.update(rec)
             if progress is not None and (i % 25 == 0 or i == len(records) - 1):

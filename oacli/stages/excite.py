@@ -47,6 +47,7 @@ from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun.excite import InformationSeries, RattleSteps, ScpSteps, write_excite_recording
 from oacli.io.runfolder import StageResult, StageRun
 from oacli.metrics import percentiles_ms, safety_block, safety_report
+from oacli.phases import set_phase
 from oacli.reference_limits import DesignLimits
 from oacli.stages.settings import (
     design_limit_log,
@@ -352,6 +353,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     cw = cfg.controller.weights
 
     with open_run("excite", cfg, out=out, runs_root=runs_root, started=wall) as stage_run:
+        set_phase(progress, "RATTLE closed loop")
         run = run_rattle(
             planner, estimator, weighting, problem.start, truth,
             duration_s=rcfg.duration_s, replan_period_s=rcfg.replan_period_s,
