@@ -73,8 +73,8 @@ _KEEP_OUT_COLOR = (0.9, 0.15, 0.15, 0.35)
 _BODY_COLOR = (0.55, 0.6, 0.68, 0.9)
 _COLLISION_COLOR = (0.55, 0.6, 0.68, 0.12)
 
-#: Edge of the drawn robot body [m]: Astrobee is a cube about 30 cm wide (Smith et al. 2016, via seed 001 §5;
-#: /work/shared/REFERENCE.md), the same cube as the Rerun recordings draw.
+#: Edge of the drawn robot body [m]: Astrobee is a cube about 30 cm wide ([ReSWARM2023] §5.1.3), the same cube as
+#: the Rerun recordings draw.
 ROBOT_BODY_EDGE_M = 0.30
 #: Highest rate of the robot body's ``/scene`` updates [Hz] (a 3D panel needs no more; keeps files small).
 ROBOT_BODY_RATE_HZ = 10.0
