@@ -15,6 +15,7 @@ from typing import Annotated
 import typer
 
 from oacli import __version__
+from oacli.commands.common import hide_flag_types
 from oacli.commands.config_show import config_app
 from oacli.commands.estimate import estimate
 from oacli.commands.excite import excite
@@ -24,6 +25,8 @@ from oacli.commands.plan import plan
 from oacli.commands.runs import runs_app
 from oacli.commands.smooth import smooth
 from oacli.commands.track import track
+
+hide_flag_types()  # no '<bool>' after flags in --help
 
 app = typer.Typer(
     name="oacli",

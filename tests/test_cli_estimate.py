@@ -11,6 +11,7 @@ import yaml
 from typer.testing import CliRunner
 
 from oacli.cli import app
+from oacli.config import load_config
 from oacli.io.mcap_io import read_stage, read_telemetry
 from oacli.io.rerun.estimate import D2, PARAM_ENTITIES
 from oacli.io.rerun.read import (
@@ -236,3 +237,27 @@ def assert_recording_opens_right(rrd, stage):
 
 def test_estimate_recording_opens_with_every_panel_filled(batch_run):
     assert_recording_opens_right(batch_run / "estimate.rrd", "estimate")
+
+
+def test_scene_with_the_robot_body_in_the_estimate_and_track_mcaps(batch_run, track_run):
+    from tests.mcap_checks import robot_body_samples, scene_updates
+
+    cfg = load_config(track_run[0])
+    for path, paths in ((batch_run / "estimate.mcap", {"path/measured", "path/estimated"}),
+                        (track_run[1], {"path/reference", "path/actual"})):
+        (t0, workspace), *_ = scene_updates(path)
+        ids = {e.id for e in workspace.entities}
+        assert ids == {f"keep_in/{i}" for i in range(len(cfg.scene().keep_in))} | {
+            f"keep_out/{i}" for i in range(len(cfg.scene().keep_out))} | paths
+        # the body is posed at the robot's pose (/robot/pose) at the same times, at most 10 Hz
+        times, positions, quats, edges = robot_body_samples(path)
+        record = read_stage(path)
+        states = record.trajectories["/state/estimated" if path.name == "estimate.mcap" else "/state/true"]
+        ns = np.rint(states.t * 1e9).astype(np.int64)
+        idx = np.searchsorted(ns, times)
+        assert np.array_equal(ns[idx], times) and t0 <= times[0]
+        np.testing.assert_array_equal(positions, states.x[idx, 0:3])
+        np.testing.assert_array_equal(quats, states.x[idx, 6:10])
+        assert edges == [0.30] * len(times) and len(times) >= 10
+        assert np.all(np.diff(times[:-1]) >= 0.1e9 - 20e6)  # ≤ 10 Hz up to one plant sample
+        assert times[-1] == ns[-1]

@@ -535,3 +535,34 @@ def test_each_file_gets_only_its_own_channels(tmp_path, rng):
         wb.write_log(0.0, "info", "only in b")
     assert read_stage(a).message_counts == {"/state/true": 5}
     assert read_stage(b).message_counts == {"/log": 1, "/state/true": 3}
+
+
+def test_robot_body_follows_the_pose_thinned_to_the_rate(tmp_path, rng):
+    from tests.mcap_checks import robot_body_samples, scene_updates
+
+    traj = random_trajectory(rng, n=60)
+    t = np.arange(60) * 0.0625 + 0.5  # 16 Hz (dyadic steps: exact in floating point) over 3.6875 s
+    path = tmp_path / "track.mcap"
+    scene = Scene(keep_in=(Box([-5, -5, -5], [5, 5, 5]),), frame="iss")
+    with writer(path, frame="iss") as w:
+        w.write_scene(scene, t=0.0)
+        w.write_robot_body(t, traj.x, edge_m=0.3, radius_m=0.25, rate_hz=10.0)
+    times, positions, quats, edges = robot_body_samples(path)
+    # The first sample of each 0.1 s interval after t[0] (interval of sample i: floor(0.625 i) = (5 i) // 8), then
+    # the last sample.
+    expected = [i for i in range(60) if i == 0 or (5 * i) // 8 != (5 * (i - 1)) // 8]
+    expected += [] if expected[-1] == 59 else [59]
+    assert times == [round((0.5 + i * 0.0625) * 1e9) for i in expected]
+    idx = expected
+    assert np.all(np.diff(np.asarray(times)[:-1]) >= 0.0625e9)  # never faster than 10 Hz up to the sample grid
+    np.testing.assert_array_equal(positions, traj.x[idx, 0:3])
+    np.testing.assert_array_equal(quats, traj.x[idx, 6:10])
+    assert edges == [0.3] * len(times)
+    # the workspace update stays first and alone; the collision sphere rides with the body
+    (t0, first), (_, body) = scene_updates(path)[:2]
+    assert t0 == 0 and [e.id for e in first.entities] == ["keep_in/0"]
+    (sphere,) = body.entities[0].spheres
+    assert [sphere.size.x, sphere.size.y, sphere.size.z] == [0.5, 0.5, 0.5] and sphere.color.a < 0.5
+    assert body.entities[0].frame_id == "iss"
+    with writer(tmp_path / "bad.mcap") as w, pytest.raises(ValueError, match="increasing"):
+        w.write_robot_body(t[::-1], traj.x)

@@ -8,7 +8,7 @@ Typer app.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -19,11 +19,17 @@ from oacli.errors import ConfigError, OacliError
 
 __all__ = ["Progress"]  # re-exported: the commands import it from here
 
-# Options every stage command shares (``Annotated`` aliases: ``out: OutOption = None``).
-ConfigArgument = Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")]
-OutOption = Annotated[Path | None, typer.Option("--out", "-o", help="Run folder (must not exist or be empty).")]
-RunsDirOption = Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")]
-SeedOption = Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")]
+# Options every stage command shares (``Annotated`` aliases: ``out: OutOption = None``). Metavars name what a
+# value is (CONFIG, DIR, FILE, INT); flags show none (:func:`hide_flag_types`).
+ConfigArgument = Annotated[Path, typer.Argument(metavar="CONFIG", help="YAML configuration file (see configs/).")]
+OutOption = Annotated[
+    Path | None, typer.Option("--out", "-o", metavar="DIR", help="Run folder (must not exist or be empty).")
+]
+RunsDirOption = Annotated[
+    Path, typer.Option("--runs-dir", metavar="DIR", help="Parent of automatically named run folders "
+                       "<config name>-<stage>-<UTC stamp>.")
+]
+SeedOption = Annotated[int | None, typer.Option("--seed", metavar="INT", help="Override the config's seed.")]
 QuietOption = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")]
 SetOption = Annotated[
     list[str] | None,
@@ -31,7 +37,59 @@ SetOption = Annotated[
                  "--set robot.mass_kg=15 (YAML value; repeatable; validated like the file's values)."),
 ]
 ViewOption = Annotated[bool, typer.Option("--view", help="Open the recording in the Rerun viewer (127.0.0.1).")]
-JsonOption = Annotated[bool, typer.Option("--json", help="Print the results (summary.json) as JSON on stdout.")]
+JsonOption = Annotated[bool, typer.Option("--json", help="Print the results (summary.json) as strict JSON on stdout "
+                                          "(NaN and infinities as null).")]
+
+
+def choice_metavar(choices: Sequence[str]) -> str:
+    """The metavar of an option taking one of ``choices``: ``[a|b|c]`` (shown by ``--help``)."""
+    return "[" + "|".join(choices) + "]"
+
+
+def complete_choices(choices: Sequence[str]) -> Callable[[str], list[str]]:
+    """A shell-completion callback offering the ``choices`` that start with what was typed."""
+
+    def complete(incomplete: str) -> list[str]:
+        return [c for c in choices if c.startswith(incomplete)]
+
+    return complete
+
+
+def check_choice(option: str, value: str | None, choices: Sequence[str]) -> None:
+    """Refuse a value outside ``choices`` with one line naming the option (exit 2); ``None`` passes."""
+    if value is not None and value not in choices:
+        raise ConfigError(f"{option} {value}: must be one of " + ", ".join(choices))
+
+
+def hide_flag_types() -> None:
+    """Show no type for flags in ``--help`` (typer prints ``--quiet <bool>``, as if the flag took a value).
+
+    Applies to every flag of the app, typer's own ``--help`` and ``--install-completion`` included, by wrapping
+    ``TyperOption.display_type_rich``; a no-op when a typer release no longer has that method.
+    """
+    from typer.core import TyperOption
+
+    original = getattr(TyperOption, "display_type_rich", None)
+    if original is None or getattr(original, "_oacli_flags_hidden", False):
+        return
+
+    def display_type_rich(self, ctx):
+        if self.is_flag and self.metavar is None:
+            return None
+        return original(self, ctx)
+
+    display_type_rich._oacli_flags_hidden = True  # type: ignore[attr-defined]
+    TyperOption.display_type_rich = display_type_rich  # type: ignore[method-assign]
+
+
+def json_text(data: Any) -> str:
+    """``data`` as strict JSON (RFC 8259): numpy values as plain numbers, NaN and ±inf as ``null`` (as in
+    summary.json, :func:`oacli.io.jsonsafe.to_json_safe`), paths and other objects as strings."""
+    import json
+
+    from oacli.io.jsonsafe import to_json_safe
+
+    return json.dumps(to_json_safe(data), allow_nan=False, default=str)
 
 
 def fail(exc: BaseException) -> typer.Exit:
@@ -154,8 +212,6 @@ def run_stage_command(action: Callable[[], Any], table: list[str], quiet: bool, 
     (:data:`oacli.status.EXIT_CODES`: ``degraded`` 0, ``unsafe`` 4). With ``json_out`` stdout holds only the
     summary as JSON (plus ``run_dir``). With ``view`` the stage's ``.rrd`` opens in the Rerun viewer.
     """
-    import json
-
     from oacli.status import exit_code, warning_line
 
     result = run_guarded(action)
@@ -163,7 +219,7 @@ def run_stage_command(action: Callable[[], Any], table: list[str], quiet: bool, 
     if warning is not None:
         typer.echo(warning, err=True)
     if json_out:
-        typer.echo(json.dumps({**result.summary, "run_dir": str(result.run_dir)}, default=str))
+        typer.echo(json_text({**result.summary, "run_dir": str(result.run_dir)}))
     elif not quiet:
         print_table(result.summary, table)
     typer.echo(f"run folder: {result.run_dir}", err=quiet or json_out)

@@ -16,9 +16,15 @@ from oacli.commands.common import (
     SeedOption,
     SetOption,
     ViewOption,
+    check_choice,
+    choice_metavar,
+    complete_choices,
     load_config_with_seed,
     run_stage_command,
 )
+
+#: ``estimation.method``'s values (:data:`oacli.config.estimation.EstimationMethod`).
+METHODS = ("batch", "sequential")
 
 ESTIMATE_TABLE = [
     "status", "method", "mass_kg", "inertia_kgm2", "std", "crb_std", "error_pct", "cov_reduction_pct",
@@ -27,13 +33,17 @@ ESTIMATE_TABLE = [
 
 
 def estimate(
-    config: Annotated[Path, typer.Argument(help="YAML configuration file (its estimation section; see configs/).")],
+    config: Annotated[
+        Path, typer.Argument(metavar="CONFIG", help="YAML configuration file (its estimation section; see configs/).")
+    ],
     telemetry: Annotated[
-        Path, typer.Option("--telemetry", "-t", help="A tracking run's track.mcap (measured states, applied inputs).")
+        Path, typer.Option("--telemetry", "-t", metavar="FILE",
+                           help="A tracking run's track.mcap (measured states, applied inputs).")
     ],
     method: Annotated[
         str | None,
-        typer.Option("--method", "-m", help="batch (maximum likelihood over the run) or sequential (EKF); "
+        typer.Option("--method", "-m", metavar=choice_metavar(METHODS), autocompletion=complete_choices(METHODS),
+                     help="batch (maximum likelihood over the run) or sequential (EKF); "
                      "default: the config's estimation.method."),
     ] = None,
     allow_truncated: Annotated[
@@ -58,11 +68,9 @@ def estimate(
     """
 
     def action():
-        from oacli.errors import InputError
         from oacli.stages.estimate import run_estimate
 
-        if method is not None and method not in ("batch", "sequential"):
-            raise InputError(f"--method {method}: must be batch or sequential")
+        check_choice("--method", method, METHODS)
         cfg = load_config_with_seed(config, seed, sets)
         return run_estimate(cfg, telemetry=telemetry, method=method, out=out, runs_root=runs_root,
                             progress=Progress("estimate", not quiet), allow_truncated=allow_truncated)

@@ -16,9 +16,15 @@ from oacli.commands.common import (
     SeedOption,
     SetOption,
     ViewOption,
+    check_choice,
+    choice_metavar,
+    complete_choices,
     load_config_with_seed,
     run_stage_command,
 )
+
+#: ``excitation.method``'s values (:class:`oacli.config.excitation.ExcitationConfig`).
+METHODS = ("offline", "rattle")
 
 EXCITE_TABLE = [
     "status", "method", "criterion", "criterion_initial", "criterion_final", "iterations", "solve_time_s",
@@ -27,10 +33,13 @@ EXCITE_TABLE = [
 
 
 def excite(
-    config: Annotated[Path, typer.Argument(help="YAML configuration file with an excitation section (see configs/).")],
+    config: Annotated[
+        Path, typer.Argument(metavar="CONFIG", help="YAML config file with an excitation section (see configs/).")
+    ],
     method: Annotated[
         str | None,
-        typer.Option("--method", "-m", help="'offline' (SCP design, Doerr Eq. 30) or 'rattle' (online "
+        typer.Option("--method", "-m", metavar=choice_metavar(METHODS), autocompletion=complete_choices(METHODS),
+                     help="offline (SCP design, Doerr Eq. 30) or rattle (online "
                      "information-aware planner in closed loop). Overrides excitation.method."),
     ] = None,
     out: OutOption = None,
@@ -45,11 +54,9 @@ def excite(
     excite.rrd and summary.json."""
 
     def action():
-        from oacli.errors import ConfigError
         from oacli.stages.excite import run_excite
 
-        if method is not None and method not in ("offline", "rattle"):
-            raise ConfigError(f"--method: {method!r}: must be 'offline' or 'rattle'")
+        check_choice("--method", method, METHODS)
         cfg = load_config_with_seed(config, seed, sets)
         return run_excite(cfg, method=method, out=out, runs_root=runs_root, progress=Progress("excite", not quiet))
 

@@ -8,6 +8,7 @@ from typing import Annotated, Any
 
 import typer
 
+from oacli.commands.common import json_text
 from oacli.errors import InputError
 
 
@@ -82,15 +83,15 @@ def path_info(path: Path) -> dict[str, Any]:
 
 
 def info(
-    path: Annotated[Path, typer.Argument(help="A run folder or an MCAP file.")],
-    json_out: Annotated[bool, typer.Option("--json", help="JSON on stdout.")] = False,
+    path: Annotated[Path, typer.Argument(metavar="PATH", help="A run folder or an MCAP file.")],
+    json_out: Annotated[bool, typer.Option("--json", help="Strict JSON on stdout (NaN, inf as null).")] = False,
 ) -> None:
     """Describe a run folder or an MCAP file: status, channels, message counts, duration."""
     from oacli.commands.common import run_guarded
 
     data = run_guarded(lambda: path_info(path))
     if json_out:
-        typer.echo(json.dumps(data))
+        typer.echo(json_text(data))
         return
     if "run" in data:
         typer.echo(f"run:       {data['run']}\nstage:     {data['stage']}\nstatus:    {data['status']}")

@@ -60,8 +60,8 @@ def print_mission_tables(summary: dict[str, Any]) -> None:
 
 def mission(
     target: Annotated[
-        Path, typer.Argument(help="A mission config (YAML with a mission section, see configs/mission_*.yaml), or a "
-                             "mission folder with --resume or --from.")
+        Path, typer.Argument(metavar="TARGET", help="A mission config (YAML with a mission section, see "
+                             "configs/mission_*.yaml), or a mission folder with --resume or --from.")
     ],
     out: OutOption = None,
     runs_root: RunsDirOption = Path("runs"),
@@ -73,8 +73,8 @@ def mission(
                            "rerun the rest in place.")
     ] = False,
     from_stage: Annotated[
-        str | None, typer.Option("--from", help="TARGET is a mission folder: rerun from this stage (e.g. "
-                                 "segment-3/track) into a new folder, copying the earlier stages' folders.")
+        str | None, typer.Option("--from", metavar="STAGE", help="TARGET is a mission folder: rerun from this "
+                                 "stage (e.g. segment-3/track) into a new folder, copying the earlier stages' folders.")
     ] = None,
 ) -> None:
     """Fly the assembly mission A → B → C → A: plan, smooth, track (segment 1); excite, tube MPC, estimate

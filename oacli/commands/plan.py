@@ -17,9 +17,15 @@ from oacli.commands.common import (
     SeedOption,
     SetOption,
     ViewOption,
+    check_choice,
+    choice_metavar,
+    complete_choices,
     load_config_with_seed,
     run_stage_command,
 )
+
+#: ``planner.type``'s values (:data:`oacli.config.planner.PlannerType`; not imported: ``--help`` stays fast).
+PLANNERS = ("lqr-rrt-star", "kino-rrt")
 
 PLAN_TABLE = [
     "status", "planner", "segment", "iterations", "nodes", "time_to_first_solution_s", "cost", "path_length_m",
@@ -30,11 +36,13 @@ PLAN_TABLE = [
 def plan(
     config: ConfigArgument,
     segment: Annotated[
-        str | None, typer.Option("--segment", "-s", help="Waypoints 'A-B' to plan between (default: "
+        str | None, typer.Option("--segment", "-s", metavar="A-B", help="Waypoints 'A-B' to plan between (default: "
                                  "planner.segment, else the first two of reference.waypoints).")
     ] = None,
     planner: Annotated[
-        str | None, typer.Option("--planner", "-p", help="'lqr-rrt-star' or 'kino-rrt' (default: planner.type).")
+        str | None,
+        typer.Option("--planner", "-p", metavar=choice_metavar(PLANNERS), autocompletion=complete_choices(PLANNERS),
+                     help="LQR-RRT* or kinodynamic RRT (default: planner.type)."),
     ] = None,
     out: OutOption = None,
     runs_root: RunsDirOption = Path("runs"),
@@ -52,6 +60,7 @@ def plan(
     def action():
         from oacli.stages.plan import run_plan
 
+        check_choice("--planner", planner, PLANNERS)
         cfg = load_config_with_seed(config, seed, sets)
         return run_plan(cfg, segment=segment, planner=planner, out=out, runs_root=runs_root,
                         progress=Progress("plan", not quiet))

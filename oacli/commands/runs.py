@@ -8,6 +8,8 @@ from typing import Annotated, Any
 
 import typer
 
+from oacli.commands.common import json_text
+
 runs_app = typer.Typer(help="List run folders.", no_args_is_help=True)
 
 
@@ -42,13 +44,15 @@ def describe_runs(runs_dir: Path) -> list[dict]:
 
 @runs_app.command("list")
 def runs_list(
-    runs_dir: Annotated[Path, typer.Option("--runs-dir", help="Parent of the run folders.")] = Path("runs"),
-    json_out: Annotated[bool, typer.Option("--json", help="JSON on stdout.")] = False,
+    runs_dir: Annotated[
+        Path, typer.Option("--runs-dir", metavar="DIR", help="Parent of the run folders.")
+    ] = Path("runs"),
+    json_out: Annotated[bool, typer.Option("--json", help="Strict JSON on stdout (NaN, inf as null).")] = False,
 ) -> None:
     """List the run folders under --runs-dir (newest first): name, stage, status."""
     runs = describe_runs(runs_dir)
     if json_out:
-        typer.echo(json.dumps(runs))
+        typer.echo(json_text(runs))
         return
     from rich.console import Console
     from rich.table import Table

@@ -31,7 +31,8 @@ SMOOTH_TABLE = [
 def smooth(
     config: ConfigArgument,
     input_path: Annotated[
-        Path, typer.Option("--input", "-i", help="MCAP with a /trajectory to smooth (plan.mcap or smooth.mcap).")
+        Path, typer.Option("--input", "-i", metavar="FILE",
+                           help="MCAP with a /trajectory to smooth (plan.mcap or smooth.mcap).")
     ],
     out: OutOption = None,
     runs_root: RunsDirOption = Path("runs"),

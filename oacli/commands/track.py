@@ -33,8 +33,8 @@ def track(
     config: ConfigArgument,
     reference: Annotated[
         Path | None,
-        typer.Option("--reference", "-r", help="Reference to follow: a previous stage's MCAP (its /trajectory), "
-                     "a RATTLE results_*_0.dat folder, or a CSV. Overrides the config's reference."),
+        typer.Option("--reference", "-r", metavar="FILE", help="Reference to follow: a previous stage's MCAP (its "
+                     "/trajectory), a RATTLE results_*_0.dat folder, or a CSV. Overrides the config's reference."),
     ] = None,
     out: OutOption = None,
     runs_root: RunsDirOption = Path("runs"),

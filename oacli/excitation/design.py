@@ -67,6 +67,7 @@ from oacli.excitation.starts import initial_guess, perturbed_guess
 from oacli.excitation.subproblem import ConvexSubproblem
 from oacli.model import quaternion as quat
 from oacli.model import rigid_body as rb
+from oacli.phases import set_phase
 from oacli.types import Trajectory
 
 _BASIS = symmetric_basis()
@@ -196,7 +197,8 @@ def design_excitation(
     if len(runs) > 1:
         # Multi-start: information is a convex function of the inputs and it is *maximised*, so the SCP ends in a
         # local optimum that depends on the start. Every start gets a few iterations; the best continues.
-        for run in runs:
+        for k, run in enumerate(runs):
+            set_phase(progress, f"screening start {k + 1}/{len(runs)}")
             for _ in range(settings.screening_iterations):
                 if run.stop is not None:
                     break
@@ -206,6 +208,7 @@ def design_excitation(
                     progress(min(used / (budget + settings.starts * settings.screening_iterations), 1.0))
     best = min(runs, key=lambda r: r.current.merit)
     while best.stop is None and len(best.history) < budget:
+        set_phase(progress, f"SCP iteration {len(best.history) + 1}/{budget}")
         best.step()
         used += 1
         if progress is not None:

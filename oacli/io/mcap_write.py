@@ -70,6 +70,14 @@ _LOG_LEVELS = {
 
 _KEEP_IN_COLOR = (0.2, 0.8, 0.3, 0.08)
 _KEEP_OUT_COLOR = (0.9, 0.15, 0.15, 0.35)
+_BODY_COLOR = (0.55, 0.6, 0.68, 0.9)
+_COLLISION_COLOR = (0.55, 0.6, 0.68, 0.12)
+
+#: Edge of the drawn robot body [m]: Astrobee is a cube about 30 cm wide ([ReSWARM2023] §5.1.3), the same cube as
+#: the Rerun recordings draw.
+ROBOT_BODY_EDGE_M = 0.30
+#: Highest rate of the robot body's ``/scene`` updates [Hz] (a 3D panel needs no more; keeps files small).
+ROBOT_BODY_RATE_HZ = 10.0
 #: Path colours in order (reference blue, actual orange, then green, purple, brown, pink, grey, olive).
 _PATH_PALETTE = (
     (0.12, 0.47, 0.71, 1.0),
@@ -547,6 +555,65 @@ class StageMcapWriter:
             )
         channel = self._typed_channel(topic, SceneUpdateChannel, "foxglove.SceneUpdate")
         channel.log(SceneUpdate(entities=entities), log_time=ns[0])
+
+    def write_robot_body(
+        self,
+        t: np.ndarray,
+        x: np.ndarray,
+        *,
+        edge_m: float = ROBOT_BODY_EDGE_M,
+        radius_m: float | None = None,
+        rate_hz: float = ROBOT_BODY_RATE_HZ,
+        topic: str = ms.TOPIC_SCENE,
+    ) -> None:
+        """Write the robot's body on ``/scene``: entity ``robot`` posed at the robot's pose over time.
+
+        One ``foxglove.SceneUpdate`` per kept sample, holding only the entity ``robot`` (so it replaces the previous
+        one and leaves the workspace entities alone): a ``CubePrimitive`` of edge ``edge_m`` [m] at the pose
+        (position ``x[:, 0:3]``, quaternion ``x[:, 6:10]``) and, with ``radius_m``, a translucent
+        ``SpherePrimitive`` of diameter ``2 radius_m`` (the collision sphere the planners use). Samples are
+        thinned to at most ``rate_hz`` (the first sample of each ``1 / rate_hz`` interval after ``t[0]``; the
+        last sample is always kept). Write the workspace (:meth:`write_scene`) first.
+
+        Parameters
+        ----------
+        t : ndarray, shape (N,)
+            Times [s], strictly increasing.
+        x : ndarray, shape (N, 13)
+            States.
+        edge_m : float
+            Edge of the body cube [m], > 0 (Astrobee: :data:`ROBOT_BODY_EDGE_M`).
+        radius_m : float, optional
+            Collision radius [m] (``robot.radius_m``); drawn when > 0.
+        rate_hz : float
+            Highest update rate [Hz], > 0.
+        topic : str
+            Topic name.
+        """
+        times, ns = _times_ns(topic, t)
+        if np.any(np.diff(times) <= 0.0):
+            raise ValueError(f"{topic}: robot body times must be strictly increasing")
+        xs = _finite_array(f"{topic}: x", x, (times.shape[0], STATE_DIM))
+        if not (math.isfinite(edge_m) and edge_m > 0.0) or not (math.isfinite(rate_hz) and rate_hz > 0.0):
+            raise ValueError(f"{topic}: edge_m and rate_hz must be finite and > 0")
+        if times.size == 0:
+            return
+        _, keep = np.unique(np.floor((times - times[0]) * rate_hz), return_index=True)
+        keep = np.union1d(keep, [times.size - 1])
+        channel = self._typed_channel(topic, SceneUpdateChannel, "foxglove.SceneUpdate")
+        size = _vec3((edge_m, edge_m, edge_m))
+        meta = [KeyValuePair(key="kind", value="robot body"), KeyValuePair(key="edge_m", value=repr(float(edge_m)))]
+        draw_sphere = radius_m is not None and radius_m > 0.0
+        if draw_sphere:
+            meta.append(KeyValuePair(key="collision_radius_m", value=repr(float(radius_m))))
+            diameter = _vec3((2.0 * radius_m, 2.0 * radius_m, 2.0 * radius_m))
+        for i in keep.tolist():
+            pose = _pose(xs[i, 0:3], xs[i, 6:10])
+            cube = CubePrimitive(pose=pose, size=size, color=_color(_BODY_COLOR))
+            spheres = [SpherePrimitive(pose=pose, size=diameter, color=_color(_COLLISION_COLOR))] if draw_sphere else []
+            entity = SceneEntity(timestamp=_timestamp(ns[i]), frame_id=self.frame, id="robot", metadata=meta,
+                                 cubes=[cube], spheres=spheres)
+            channel.log(SceneUpdate(entities=[entity]), log_time=ns[i])
 
     def write_log(self, t: float, level: str, message: str, *, topic: str = ms.TOPIC_LOG) -> None:
         """Write a text message as ``foxglove.Log`` (``name`` = the stage).

@@ -1,4 +1,4 @@
-"""Run folders: ``runs/<name>-<UTC timestamp>/`` holding the resolved config, one MCAP + one Rerun recording
+"""Run folders: ``runs/<name>-<stage>-<UTC timestamp>/`` holding the resolved config, one MCAP + one Rerun recording
 per stage, and ``summary.json``; the skeleton every stage runs in (:func:`open_stage_run`, :class:`StageRun`,
 :class:`StageResult`).
 
@@ -253,7 +253,8 @@ def open_stage_run(
     stage : str
         Stage name.
     name : str
-        The config's ``name``: the folder's prefix and the MCAP's ``config_name``.
+        The config's ``name``: the MCAP's ``config_name``; an automatically named folder is
+        ``<name>-<stage>-<UTC stamp>`` (e.g. ``iss-reswarm-track-20261201T101500Z``).
     config_yaml : str
         The resolved config.
     seed : object
@@ -269,8 +270,8 @@ def open_stage_run(
     ------
     StageRun
     """
-    run = StageRun(stage, create_run_dir(name, out=out, runs_root=runs_root), started, config_yaml=config_yaml,
-                   seed=seed, config_name=name, frame=frame)
+    run_dir = create_run_dir(f"{name}-{stage}", out=out, runs_root=runs_root)
+    run = StageRun(stage, run_dir, started, config_yaml=config_yaml, seed=seed, config_name=name, frame=frame)
     write_text_atomic(run.file("config", "config.yaml"), config_yaml)
     try:
         yield run

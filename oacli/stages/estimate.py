@@ -45,11 +45,13 @@ from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerome
 from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.information import PARAM_NAMES
+from oacli.geometry.shapes import Scene
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.mcap_read import TelemetryStreams, read_telemetry_streams
 from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
+from oacli.phases import set_phase
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
 from oacli.status import StatusReport, status_log
 from oacli.types import ParameterEstimate
@@ -156,7 +158,16 @@ def run_estimation(
     nis_ratio = float("nan")
     if method == "batch":
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
-        results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=progress)
+        set_phase(progress, f"batch window 1/{len(ends)}")
+
+        def window_done(fraction: float) -> None:
+            done = round(fraction * len(ends))
+            if done < len(ends):
+                set_phase(progress, f"batch window {done + 1}/{len(ends)}")
+            if progress is not None:
+                progress(fraction)
+
+        results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=window_done)
         batch = results[-1]
         history = [r.estimate for r in results]
         final, states, d2, dof = batch.estimate, batch.states, batch.d2, batch.dof
@@ -167,6 +178,7 @@ def run_estimation(
         t = batch.t
     elif method == "sequential":
         est = SequentialEstimator(settings, prior)
+        set_phase(progress, f"sequential EKF ({len(records)} records)")
         for i, rec in enumerate(records):
             est.update(rec)
             if progress is not None and (i % 25 == 0 or i == len(records) - 1):
@@ -424,7 +436,7 @@ def run_estimate(
 
     with open_run("estimate", cfg, out=out, runs_root=runs_root, started=wall_start) as run_folder:
         with run_folder.open_mcap(method=run.method, telemetry=str(telemetry)) as writer:
-            write_estimate_topics(writer, run, log)
+            write_estimate_topics(writer, run, log, cfg.scene())
         per_record = EstimationRecords(
             run.t_records, run.d2, run.gate_threshold,
             np.array([s in ("rejected", "reinitialised") for s in run.status]), run.measured[:, 0:3],
@@ -482,7 +494,8 @@ def _params_record(estimate: ParameterEstimate, final: bool) -> dict[str, Any]:
     }
 
 
-def write_estimate_topics(writer: StageMcapWriter, run: EstimationRun, log: list[LogEntry]) -> None:
+def write_estimate_topics(writer: StageMcapWriter, run: EstimationRun, log: list[LogEntry],
+                          scene: Scene | None = None) -> None:
     """Write an estimation's topics (``docs/mcap.md``, stage ``estimate``) to its MCAP.
 
     Parameters
@@ -493,7 +506,12 @@ def write_estimate_topics(writer: StageMcapWriter, run: EstimationRun, log: list
         The estimation.
     log : list of (float, str, str)
         The stage's log.
+    scene : Scene, optional
+        The workspace, written on ``/scene`` with the paths ``measured`` and ``estimated`` and the robot body.
     """
+    if scene is not None:
+        writer.write_scene(scene, {"measured": run.measured[:, 0:3], "estimated": run.states[:, 0:3]},
+                           t=float(run.t_records[0]))
     gate = run.gate_threshold if np.isfinite(run.gate_threshold) else None
     for i, est in enumerate(run.history):
         writer.write_json(ms.TOPIC_ESTIMATE_PARAMS, ms.PARAMETER_ESTIMATE, ms.PARAMETER_ESTIMATE_SCHEMA, est.t,
@@ -508,5 +526,6 @@ def write_estimate_topics(writer: StageMcapWriter, run: EstimationRun, log: list
                               {"iteration": i, "cost": float(cost)})
     writer.write_states(ms.TOPIC_STATE_ESTIMATED, run.t_records, run.states, run.inputs, name="estimated")
     writer.write_poses(run.t_records, run.states)
+    writer.write_robot_body(run.t_records, run.states)
     for t, level, message in log:
         writer.write_log(t, level, message)

@@ -47,6 +47,7 @@ from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun.excite import InformationSeries, RattleSteps, ScpSteps, write_excite_recording
 from oacli.io.runfolder import StageResult, StageRun
 from oacli.metrics import percentiles_ms, safety_block, safety_report
+from oacli.phases import set_phase
 from oacli.reference_limits import DesignLimits
 from oacli.stages.settings import (
     design_limit_log,
@@ -306,6 +307,7 @@ def write_offline_topics(writer: StageMcapWriter, problem: ExcitationProblem, de
     writer.write_scene(problem.scene, {"excitation": x[:, 0:3], "initial_guess": design.initial.x[:, 0:3]})
     writer.write_trajectory("/trajectory", Trajectory(traj.t, x, u, name="excitation", frame=frame))
     writer.write_poses(traj.t, x)
+    writer.write_robot_body(traj.t, x)
     for it in design.iterations:
         writer.write_json(ms.TOPIC_EXCITATION_ITERATIONS, ms.SCP_ITERATION, ms.SCP_ITERATION_SCHEMA, 0.0, {
             "iteration": it.iteration, "criterion": it.criterion, "merit": it.merit,
@@ -351,6 +353,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     cw = cfg.controller.weights
 
     with open_run("excite", cfg, out=out, runs_root=runs_root, started=wall) as stage_run:
+        set_phase(progress, "RATTLE closed loop")
         run = run_rattle(
             planner, estimator, weighting, problem.start, truth,
             duration_s=rcfg.duration_s, replan_period_s=rcfg.replan_period_s,
@@ -529,6 +532,7 @@ def _write_rattle_outputs(stage_run: StageRun, cfg: OacliConfig, problem: Excita
         writer.write_trajectory("/trajectory", traj)
         writer.write_states("/state/true", tel.t_true, tel.x_true)
         writer.write_poses(tel.t_true, tel.x_true)
+        writer.write_robot_body(tel.t_true, tel.x_true)
         for r in run.replans:
             writer.write_json(ms.TOPIC_EXCITATION_REPLANS, ms.REPLAN, ms.REPLAN_SCHEMA, r.t, {
                 "theta": r.theta, "std": r.std, "gamma": r.gamma, "cost": r.plan.cost,

@@ -33,6 +33,7 @@ from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun.plan import write_plan_recording
 from oacli.io.runfolder import StageResult
+from oacli.phases import set_phase
 from oacli.planning.full_state import full_state_trajectory, minimum_time_lower_bound_s, translational_part
 from oacli.planning.kino_rrt import plan_kino_rrt
 from oacli.planning.lqr_rrt_star import plan_lqr_rrt_star
@@ -245,6 +246,7 @@ def write_plan_topics(writer: StageMcapWriter, scene: Scene, result: PlanResult,
     if output is not None:
         writer.write_trajectory("/trajectory", output)
         writer.write_poses(output.t, output.x)
+        writer.write_robot_body(output.t, output.x)
     for i in range(len(tree)):
         writer.write_json(ms.TOPIC_PLAN_TREE, ms.PLAN_TREE_NODE, ms.PLAN_TREE_NODE_SCHEMA, 0.0, {
             "node": i, "parent": int(tree.parent[i]), "iteration": int(tree.iteration[i]),
@@ -319,6 +321,7 @@ def run_plan(
         rng = np.random.default_rng([cfg.seed, PLAN_STREAM])
         log.append((0.0, "info", f"{kind}: segment {seg.name} from {_fmt_point(seg.start[0:3])} to "
                                  f"{_fmt_point(seg.goal[0:3])}; {describe_body(body)}"))
+        set_phase(progress, "LQR-RRT* search" if kind == "lqr-rrt-star" else "kinodynamic RRT search")
         if kind == "lqr-rrt-star":
             result = plan_lqr_rrt_star(problem, lqr_rrt_star_settings(cfg), rng, progress=progress)
         else:

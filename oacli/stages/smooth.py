@@ -36,6 +36,7 @@ from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_trajectory
 from oacli.io.rerun.smooth import PolishSteps, ShortcutSteps, write_smooth_recording
 from oacli.io.runfolder import StageResult
+from oacli.phases import set_phase
 from oacli.planning.full_state import minimum_time_lower_bound_s, translational_part
 from oacli.planning.polish import SOLVER, STEP_OUTCOMES, PolishResult, polish_trajectory
 from oacli.planning.shortcut import ACCEPTED, ShortcutResult, lqr_shortcut
@@ -146,6 +147,7 @@ def write_smooth_topics(writer: StageMcapWriter, scene: Scene, source: Path, tra
     if polish is not None:
         writer.write_trajectory("/trajectory/shortcut", traj_shortcut)
     writer.write_poses(traj_out.t, traj_out.x)
+    writer.write_robot_body(traj_out.t, traj_out.x)
     for a in result.attempts:
         writer.write_json(ms.TOPIC_SMOOTH_SHORTCUTS, ms.SHORTCUT_ATTEMPT, ms.SHORTCUT_ATTEMPT_SCHEMA, 0.0, {
             "try": a.index, "a": a.a, "b": a.b, "t_a": a.t_a, "t_b": a.t_b, "steps": a.steps,
@@ -246,6 +248,7 @@ def run_smooth(
                            *design_limit_log(limits)]
     with open_run("smooth", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
         rng = np.random.default_rng([cfg.seed, SMOOTH_STREAM])
+        set_phase(progress, f"LQR shortcuts ({p.shortcut.tries} tries)")
         result = lqr_shortcut(
             trans, connector, checker, goal, lim.force_N, lim.velocity_mps,
             rng, tries=p.shortcut.tries, sample_dt_s=p.output_dt_s,
@@ -256,6 +259,7 @@ def run_smooth(
         final = result.trajectory
         if p.polish.enabled:
             t_polish = time.perf_counter()
+            set_phase(progress, "path-length polish")
             polish = run_polish(cfg, result.trajectory, checker, goal,
                                 result.cost_before if p.polish.keep_cost else None)
             polish_wall = time.perf_counter() - t_polish

@@ -27,6 +27,7 @@ from oacli.io.rerun.tube import tube_track_blueprint
 from oacli.io.runfolder import StageResult
 from oacli.metrics import TrackingErrors, percentiles_ms, rms, tracking_errors
 from oacli.model.limits import MotionLimits
+from oacli.phases import set_phase
 from oacli.reference import waypoint_reference
 from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
 from oacli.sim.simulator import simulate
@@ -239,6 +240,7 @@ def run_track(
 
     with open_run("track", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
         rng = np.random.default_rng(cfg.seed)
+        set_phase(progress, "closed-loop simulation")
         tel = simulate(
             controller, x0, plant.params,
             duration_s=reference.duration_s + cfg.simulation.settle_time_s,
@@ -324,5 +326,6 @@ def write_track_topics(
     if flown is not None:
         write_flown_sensor_topics(writer, flown)
     writer.write_poses(tel.t_true, tel.x_true)
+    writer.write_robot_body(tel.t_true, tel.x_true)
     for t, level, message in log:
         writer.write_log(t, level, message)
