@@ -603,10 +603,11 @@ class StageMcapWriter:
         channel = self._typed_channel(topic, SceneUpdateChannel, "foxglove.SceneUpdate")
         size = _vec3((edge_m, edge_m, edge_m))
         meta = [KeyValuePair(key="kind", value="robot body"), KeyValuePair(key="edge_m", value=repr(float(edge_m)))]
-        draw_sphere = radius_m is not None and radius_m > 0.0
+        radius = 0.0 if radius_m is None else float(radius_m)
+        draw_sphere = radius > 0.0
         if draw_sphere:
-            meta.append(KeyValuePair(key="collision_radius_m", value=repr(float(radius_m))))
-            diameter = _vec3((2.0 * radius_m, 2.0 * radius_m, 2.0 * radius_m))
+            meta.append(KeyValuePair(key="collision_radius_m", value=repr(radius)))
+            diameter = _vec3((2.0 * radius, 2.0 * radius, 2.0 * radius))
         for i in keep.tolist():
             pose = _pose(xs[i, 0:3], xs[i, 6:10])
             cube = CubePrimitive(pose=pose, size=size, color=_color(_BODY_COLOR))
