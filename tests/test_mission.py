@@ -292,3 +292,15 @@ def test_mission_with_rattle_excitation(tmp_path):
     assert excite["method"] == "rattle"
     est = json.loads((tmp_path / "run/segment-2/estimate/summary.json").read_text())
     assert est["error_pct"]["mass_kg"] < 5.0 and est["error_over_std"]["mass_kg"] < 5.0
+
+
+@pytest.mark.slow
+def test_ideal_doerr2021_mission_is_ok_and_learns_table_1(tmp_path):
+    """configs/mission_doerr2021.yaml: noise-free, perfect actuators: every stage ok, Table 1's object learned."""
+    result = RUNNER.invoke(app, ["mission", str(ROOT / "configs" / "mission_doerr2021.yaml"), "--out",
+                                 str(tmp_path / "run"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["status"] == "ok", summary.get("status_reasons")
+    assert summary["estimate"]["truth_theta"] == pytest.approx([15.0, 0.1464, 0.1376, 0.1604])
+    assert max(summary["estimate"]["error_pct"].values()) < 0.01
