@@ -8,15 +8,24 @@ channels of one file never leak into another. It writes zstd-compressed chunks o
 :data:`DEFAULT_CHUNK_SIZE` bytes (uncompressed), chunk CRCs, the data-section CRC, the summary CRC and attachment
 CRCs. The file is written under a temporary name and renamed into place only when the ``with`` block ends
 without an exception (:func:`oacli.io.atomic.atomic_path`).
+
+Messages go to the file in time order (``log_time`` non-decreasing over the whole file, ties in call order) when
+the writer is opened with ``time_ordered=True`` or inside a :meth:`StageMcapWriter.time_ordered` block: each
+``write_*`` call is validated at once and queued as a lazy per-topic stream, and the streams are merged by time
+(:func:`heapq.merge`) when the block ends or on :meth:`StageMcapWriter.flush`. Chunks are written as they fill,
+so a file cut by a crash holds every complete chunk (all topics up to about the same time), which the ``mcap``
+package's stream reader reads up to the cut.
 """
 
 from __future__ import annotations
 
+import contextlib
+import heapq
 import json
 import math
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from types import TracebackType
@@ -57,6 +66,9 @@ from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
 DEFAULT_CHUNK_SIZE = 256 * 1024
 
 _NS_PER_S = 1_000_000_000
+
+#: One queued message: ``(log_time [ns], emit, payload)``; ``emit(payload, log_time)`` writes it.
+_Pending = tuple[int, Callable[[Any, int], None], Any]
 
 _LOG_LEVELS = {
     "debug": LogLevel.Debug,
@@ -165,6 +177,9 @@ class StageMcapWriter:
         Target uncompressed chunk size [bytes].
     overwrite : bool
         Replace an existing ``path`` (default: refuse with ``FileExistsError``).
+    time_ordered : bool
+        Queue every message and write them merged by time (see the module docstring) when the ``with`` block
+        ends or on :meth:`flush`; otherwise each ``write_*`` call writes its messages at once.
 
     Examples
     --------
@@ -187,6 +202,7 @@ class StageMcapWriter:
         frame: str = "world",
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         overwrite: bool = False,
+        time_ordered: bool = False,
     ) -> None:
         self.path = Path(path)
         self.stage = str(stage)
@@ -202,6 +218,8 @@ class StageMcapWriter:
         # topic -> (channel, schema name, channel metadata)
         self._channels: dict[str, tuple[Any, str, dict[str, str]]] = {}
         self._last_t: dict[str, float] = {}
+        self._ordered = bool(time_ordered)
+        self._queue: list[Iterator[_Pending]] | None = [] if self._ordered else None
 
     # -- context management ------------------------------------------------------------------------------
 
@@ -252,7 +270,13 @@ class StageMcapWriter:
     ) -> None:
         if self._state == "closed":
             return
+        try:
+            if exc is None and self._writer is not None:
+                self._drain()
+        except BaseException as err:
+            exc_type, exc, tb = type(err), err, err.__traceback__
         self._state = "closed"
+        self._queue = None
         try:
             if self._writer is not None:
                 self._writer.close()
@@ -268,6 +292,45 @@ class StageMcapWriter:
             self._channels.clear()
             self._context = None
         self._atomic.__exit__(exc_type, exc, tb)
+
+    # -- time order --------------------------------------------------------------------------------------------
+
+    @contextlib.contextmanager
+    def time_ordered(self) -> Iterator[StageMcapWriter]:
+        """Within the block, queue every message; at its end write them all merged by time.
+
+        Messages with equal times keep the order of the calls. Nothing queued is written if the block raises.
+        """
+        self._require_open()
+        if self._queue is not None:
+            yield self  # already queueing (nested block or a time-ordered writer)
+            return
+        self._queue = []
+        try:
+            yield self
+        except BaseException:
+            self._queue = None
+            raise
+        try:
+            self._drain()
+        finally:
+            self._queue = None
+
+    def _emit(self, messages: Iterable[_Pending]) -> None:
+        """Write ``messages`` now, or queue them (lazily) while time-ordered."""
+        if self._queue is not None:
+            self._queue.append(iter(messages))
+            return
+        for log_time, emit, payload in messages:
+            emit(payload, log_time)
+
+    def _drain(self) -> None:
+        """Write every queued message, merged by time (stable for equal times)."""
+        if not self._queue:
+            return
+        queued, self._queue = self._queue, []
+        for log_time, emit, payload in heapq.merge(*queued, key=lambda m: m[0]):
+            emit(payload, log_time)
 
     def _require_open(self) -> None:
         if self._state != "open":
@@ -313,10 +376,22 @@ class StageMcapWriter:
         return arr, ns
 
     @staticmethod
-    def _log_rows(channel: Any, template: str, rows: np.ndarray, ns: list[int]) -> None:
+    def _raw_emitter(channel: Any) -> Callable[[Any, int], None]:
         base_log = channel.base.log  # the JSON text is already encoded: skip foxglove.Channel.log's checks
-        for row, log_time in zip(rows.tolist(), ns, strict=True):
-            base_log((template % tuple(row)).encode(), log_time, None)
+        return lambda data, log_time: base_log(data, log_time, None)
+
+    @staticmethod
+    def _typed_emitter(channel: Any) -> Callable[[Any, int], None]:
+        return lambda message, log_time: channel.log(message, log_time=log_time)
+
+    def _log_rows(self, channel: Any, template: str, rows: np.ndarray, ns: list[int]) -> None:
+        emit = self._raw_emitter(channel)
+
+        def messages() -> Iterator[_Pending]:
+            for row, log_time in zip(rows.tolist(), ns, strict=True):
+                yield log_time, emit, (template % tuple(row)).encode()
+
+        self._emit(messages())
 
     # -- oacli records ---------------------------------------------------------------------------------------
 
@@ -404,19 +479,24 @@ class StageMcapWriter:
         if len(infos) != times.shape[0]:
             raise ValueError(f"{topic}: {times.shape[0]} times but {len(infos)} SolveInfo records")
         channel = self._json_channel(topic, ms.SOLVER_STATS, ms.SOLVER_STATS_SCHEMA, {})
-        base_log = channel.base.log
-        for ti, info, log_time in zip(times.tolist(), infos, ns, strict=True):
-            objective = float(info.objective)
-            record = {
-                "t": ti,
-                "status": str(info.status),
-                "success": bool(info.success),
-                "objective": objective if math.isfinite(objective) else None,
-                "iterations": int(info.iterations),
-                "solve_time_ms": _ms_or_none(info.solve_time_s),
-                "step_time_ms": _ms_or_none(info.step_time_s),
-            }
-            base_log(json.dumps(record, allow_nan=False).encode(), log_time, None)
+        emit = self._raw_emitter(channel)
+        infos = list(infos)
+
+        def messages() -> Iterator[_Pending]:
+            for ti, info, log_time in zip(times.tolist(), infos, ns, strict=True):
+                objective = float(info.objective)
+                record = {
+                    "t": ti,
+                    "status": str(info.status),
+                    "success": bool(info.success),
+                    "objective": objective if math.isfinite(objective) else None,
+                    "iterations": int(info.iterations),
+                    "solve_time_ms": _ms_or_none(info.solve_time_s),
+                    "step_time_ms": _ms_or_none(info.step_time_s),
+                }
+                yield log_time, emit, json.dumps(record, allow_nan=False).encode()
+
+        self._emit(messages())
         if times.size:
             self._last_t[topic] = float(times[-1])
 
@@ -446,7 +526,7 @@ class StageMcapWriter:
             raise ValueError(f"{topic}: record t={record['t']!r} differs from t={t_s!r}")
         channel = self._json_channel(topic, schema_name, schema, {})
         body = to_json_safe({"t": t_s, **{k: v for k, v in record.items() if k != "t"}})
-        channel.base.log(json.dumps(body, allow_nan=False).encode(), ns[0], None)
+        self._emit([(ns[0], self._raw_emitter(channel), json.dumps(body, allow_nan=False).encode())])
 
     # -- Foxglove messages -----------------------------------------------------------------------------------
 
@@ -465,10 +545,14 @@ class StageMcapWriter:
         times, ns = self._sample_times(topic, t)
         xs = _finite_array(f"{topic}: x", x, (times.shape[0], STATE_DIM))
         channel = self._typed_channel(topic, PoseInFrameChannel, "foxglove.PoseInFrame")
-        frame = self.frame
-        for (px, py, pz, qx, qy, qz, qw), log_time in zip(xs[:, [0, 1, 2, 6, 7, 8, 9]].tolist(), ns, strict=True):
-            pose = Pose(position=Vector3(x=px, y=py, z=pz), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
-            channel.log(PoseInFrame(timestamp=_timestamp(log_time), frame_id=frame, pose=pose), log_time=log_time)
+        frame, emit, rows = self.frame, self._typed_emitter(channel), xs[:, [0, 1, 2, 6, 7, 8, 9]].tolist()
+
+        def messages() -> Iterator[_Pending]:
+            for (px, py, pz, qx, qy, qz, qw), log_time in zip(rows, ns, strict=True):
+                pose = Pose(position=Vector3(x=px, y=py, z=pz), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
+                yield log_time, emit, PoseInFrame(timestamp=_timestamp(log_time), frame_id=frame, pose=pose)
+
+        self._emit(messages())
         if times.size:
             self._last_t[topic] = float(times[-1])
 
@@ -546,7 +630,7 @@ class StageMcapWriter:
                 SceneEntity(timestamp=stamp, frame_id=scene.frame, id=f"path/{name}", metadata=meta, lines=[line])
             )
         channel = self._typed_channel(topic, SceneUpdateChannel, "foxglove.SceneUpdate")
-        channel.log(SceneUpdate(entities=entities), log_time=ns[0])
+        self._emit([(ns[0], self._typed_emitter(channel), SceneUpdate(entities=entities))])
 
     def write_log(self, t: float, level: str, message: str, *, topic: str = ms.TOPIC_LOG) -> None:
         """Write a text message as ``foxglove.Log`` (``name`` = the stage).
@@ -569,7 +653,7 @@ class StageMcapWriter:
         _, ns = _times_ns(topic, t)
         channel = self._typed_channel(topic, LogChannel, "foxglove.Log")
         msg = Log(timestamp=_timestamp(ns[0]), level=log_level, message=str(message), name=self.stage)
-        channel.log(msg, log_time=ns[0])
+        self._emit([(ns[0], self._typed_emitter(channel), msg)])
 
     # -- attachments and metadata ----------------------------------------------------------------------------
 
@@ -609,6 +693,11 @@ class StageMcapWriter:
         self._writer.write_metadata(str(name), {str(k): str(v) for k, v in data.items()})
 
     def flush(self) -> None:
-        """Finish the current chunk and flush it to disk (bounds what a hard crash can lose)."""
+        """Write the queued messages (merged by time), finish the current chunk and flush it to disk.
+
+        A time-ordered writer keeps queueing afterwards; later calls should continue after the times written.
+        """
         self._require_open()
+        if self._queue:
+            self._drain()
         self._writer.flush()

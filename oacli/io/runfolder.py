@@ -205,11 +205,14 @@ class StageRun:
         Returns
         -------
         StageMcapWriter
-            With the resolved config attached, the run metadata and the world frame.
+            With the resolved config attached, the run metadata and the world frame; time-ordered (messages of
+            all topics merged by time when the ``with`` block ends, so a cut file holds every topic up to about
+            the same time).
         """
         path = self.file("mcap", f"{self.stage}.mcap")
         info = run_metadata(self.stage, seed=self.seed, config_name=self.config_name, **metadata)
-        return StageMcapWriter(path, stage=self.stage, config_yaml=self.config_yaml, metadata=info, frame=self.frame)
+        return StageMcapWriter(path, stage=self.stage, config_yaml=self.config_yaml, metadata=info, frame=self.frame,
+                               time_ordered=True)
 
     def finish(self, summary: dict[str, Any]) -> StageResult:
         """Add ``wall_time_s``, ``run_dir`` and ``files`` to ``summary`` and write it (last, atomically).

@@ -1,0 +1,130 @@
+"""Issue 11: records that survive faults — time-ordered, chunked MCAP readable up to a cut by the ``mcap``
+package and by oacli's reader."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message
+from mcap.stream_reader import StreamReader, breakup_chunk
+from typer.testing import CliRunner
+
+from oacli.cli import app
+from oacli.io.mcap_io import read_stage
+from oacli.io.mcap_read import read_telemetry_streams
+from oacli.io.mcap_write import StageMcapWriter
+from tests.conftest import REPO
+
+ISS = REPO / "configs" / "iss_reswarm.yaml"
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def track_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("records") / "run"
+    result = runner.invoke(app, ["track", str(ISS), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def mcap_package_messages(data: bytes) -> tuple[list[tuple[str, int]], bool]:
+    """``(topic, log_time)`` of every message the ``mcap`` package's stream reader (CRCs checked) yields from
+    ``data``, and whether it stopped at a cut (an exception after the last complete record)."""
+    channels: dict[int, str] = {}
+    out: list[tuple[str, int]] = []
+
+    def take(record) -> None:
+        if isinstance(record, Channel):
+            channels[record.id] = record.topic
+        elif isinstance(record, Message):
+            out.append((channels[record.channel_id], record.log_time))
+
+    try:
+        for record in StreamReader(io.BytesIO(data), validate_crcs=True, emit_chunks=True).records:
+            if isinstance(record, Chunk):
+                for inner in breakup_chunk(record, validate_crc=True):
+                    take(inner)
+            else:
+                take(record)
+    except (McapError, EOFError, ValueError, Exception) as exc:  # the reader raises at the cut
+        if len(data) >= 8 and data[-8:] == b"\x89MCAP0\r\n":
+            raise AssertionError(f"complete file failed to read: {exc!r}") from exc
+        return out, True
+    return out, False
+
+
+def test_track_mcap_is_written_in_time_order_in_bounded_chunks(track_run):
+    with open(track_run / "track.mcap", "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        times = [m.log_time for _, _, m in reader.iter_messages(log_time_order=False)]
+        summary = reader.get_summary()
+    assert len(times) > 1000
+    assert np.all(np.diff(times) >= 0), "messages are not in time order in the file"
+    chunks = summary.chunk_indexes
+    assert len(chunks) >= 3  # several chunks, so a crash loses only the last one
+    # Chunks are bounded: the writer's target (256 KiB uncompressed) plus at most one message.
+    assert max(c.uncompressed_size for c in chunks) < 256 * 1024 + 64 * 1024
+    # Interleaved: every chunk but the last spans a short time, and the topics of the run share chunks.
+    assert all(c.message_start_time <= c.message_end_time for c in chunks)
+
+
+@pytest.mark.parametrize("fraction", [0.15, 0.3, 0.45, 0.6, 0.75, 0.9, 0.99])
+def test_cut_track_mcap_reads_with_the_mcap_package_and_oacli(track_run, fraction, tmp_path):
+    full = (track_run / "track.mcap").read_bytes()
+    with open(track_run / "track.mcap", "rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    span_ns = max(c.message_end_time - c.message_start_time for c in chunks)
+    cut = full[: int(len(full) * fraction)]
+    messages, stopped = mcap_package_messages(cut)
+    assert stopped
+    complete_chunks = [c for c in chunks if c.chunk_start_offset + c.chunk_length <= len(cut)]
+    assert complete_chunks, "cut before the first chunk ended; choose larger fractions"
+    # The mcap package reads every complete chunk: a prefix of the whole file's messages.
+    whole, whole_stopped = mcap_package_messages(full)
+    assert not whole_stopped and 0 < len(messages) <= len(whole)
+    assert messages == whole[: len(messages)]
+    last_complete_ns = max(c.message_end_time for c in complete_chunks)
+    by_topic: dict[str, int] = {}
+    for topic, t in messages:
+        by_topic[topic] = max(t, by_topic.get(topic, 0))
+    # ... and /state/true (with the measured state and the commands) reaches up to the last complete chunk.
+    for topic in ("/state/true", "/state/measured", "/control/applied"):
+        assert topic in by_topic, topic
+        assert by_topic[topic] >= last_complete_ns - span_ns, (topic, by_topic[topic], last_complete_ns)
+    assert max(by_topic.values()) == last_complete_ns
+    # oacli's reader sees the same messages of the cut file (and says it is cut).
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(cut)
+    record = read_stage(path)
+    assert record.truncated
+    counts = {topic: sum(1 for tp, _ in messages if tp == topic) for topic in by_topic}
+    for topic, n in counts.items():
+        assert record.message_counts.get(topic) == n, topic
+    streams = read_telemetry_streams(path)
+    assert streams.truncated and streams.t_measured[-1] * 1e9 == pytest.approx(by_topic["/state/measured"], abs=1)
+
+
+def test_time_ordered_block_merges_topics_and_drops_on_error(tmp_path):
+    x = np.zeros((5, 13))
+    x[:, 9] = 1.0
+    path = tmp_path / "a.mcap"
+    with StageMcapWriter(path, stage="t", config_yaml="a: 1\n") as w, w.time_ordered():
+        w.write_states("/a", np.arange(5) * 1.0, x)
+        w.write_states("/b", np.arange(5) * 1.0 + 0.5, x)
+        w.write_log(2.2, "info", "between")
+    with open(path, "rb") as f:
+        order = [(c.topic, m.log_time) for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert [t for _, t in order] == sorted(t for _, t in order)
+    assert [tp for tp, _ in order][:4] == ["/a", "/b", "/a", "/b"]
+    assert ("/log", 2_200_000_000) in order
+    with pytest.raises(RuntimeError), StageMcapWriter(tmp_path / "b.mcap", stage="t", config_yaml="") as w:
+        with w.time_ordered():
+            w.write_states("/a", np.arange(5) * 1.0, x)
+            raise RuntimeError("boom")
+    assert not (tmp_path / "b.mcap").exists()
+    assert list(tmp_path.iterdir()) == [path]
