@@ -4,6 +4,12 @@ package and by oacli's reader."""
 from __future__ import annotations
 
 import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -128,3 +134,88 @@ def test_time_ordered_block_merges_topics_and_drops_on_error(tmp_path):
             raise RuntimeError("boom")
     assert not (tmp_path / "b.mcap").exists()
     assert list(tmp_path.iterdir()) == [path]
+
+
+# -- faults: signals during a real run ------------------------------------------------------------------------
+
+def _start_track(out: Path) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.Popen([sys.executable, "-m", "oacli", "track", str(ISS), "--out", str(out), "--quiet"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(proc: subprocess.Popen, predicate, timeout_s: float = 240.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert proc.poll() is None, f"the run ended before the moment to signal it: {proc.communicate()}"
+        assert time.monotonic() < deadline, "timed out waiting for the run"
+        time.sleep(0.002)
+
+
+def _partial_mcap(out: Path, min_bytes: int) -> Path | None:
+    for path in out.glob(".track.mcap.*.partial") if out.exists() else ():
+        try:
+            if path.stat().st_size >= min_bytes:
+                return path
+        except FileNotFoundError:
+            pass
+    return None
+
+
+def test_sigkill_while_the_mcap_is_written_leaves_a_file_the_mcap_package_reads(tmp_path):
+    out = tmp_path / "run"
+    proc = _start_track(out)
+    found: list[Path] = []
+    _wait_for(proc, lambda: bool(found.append(p) or True) if (p := _partial_mcap(out, 200_000)) else False)
+    proc.kill()
+    proc.communicate()
+    assert proc.returncode == -signal.SIGKILL
+    data = found[0].read_bytes()
+    messages, stopped = mcap_package_messages(data)
+    assert stopped and len(messages) > 100
+    true_times = [t for topic, t in messages if topic == "/state/true"]
+    assert true_times and max(true_times) >= max(t for _, t in messages) - 2_000_000_000  # within 2 s of the cut
+    record = read_stage(found[0])
+    assert record.truncated and record.trajectories["/state/true"].t[-1] * 1e9 == pytest.approx(max(true_times))
+    assert not (out / "track.mcap").exists() and not (out / "summary.json").exists()
+
+
+def test_sigterm_while_the_mcap_is_written_is_an_interruption(tmp_path):
+    out = tmp_path / "run"
+    proc = _start_track(out)
+    _wait_for(proc, lambda: _partial_mcap(out, 1) is not None)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert "terminated by SIGTERM" in err and "Traceback" not in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and "SIGTERM" in summary["error"]
+    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.json"]  # no .partial left
+
+
+@pytest.mark.slow
+def test_sigint_during_the_simulation_is_an_interruption(tmp_path):
+    out = tmp_path / "run"
+    proc = _start_track(out)
+    _wait_for(proc, lambda: (out / "config.yaml").exists())
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted"
+    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.json"]
+
+
+def test_ctrl_c_while_the_recording_is_written_is_not_ok(tmp_path, monkeypatch):
+    from oacli.io.rerun.writer import StageRecording
+
+    def interrupted(self, path, blueprint=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(StageRecording, "save", interrupted)
+    out = tmp_path / "run"
+    result = runner.invoke(app, ["track", str(ISS), "--out", str(out), "--quiet"])
+    assert result.exit_code == 130
+    assert json.loads((out / "summary.json").read_text())["status"] == "interrupted"
+    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.json", "track.mcap"]

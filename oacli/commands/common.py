@@ -17,6 +17,7 @@ from typing import Annotated, Any
 import typer
 
 from oacli.errors import ConfigError, OacliError
+from oacli.signals import exit_code_for, interruption_message, terminate_like_interrupt
 
 # Options every stage command shares (``Annotated`` aliases: ``out: OutOption = None``).
 ConfigArgument = Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")]
@@ -64,9 +65,9 @@ def fail(exc: BaseException) -> typer.Exit:
         for line in exc.problems:
             typer.echo(f"error: {line}", err=True)
         return typer.Exit(exc.exit_code)
-    if isinstance(exc, KeyboardInterrupt):
-        typer.echo("error: interrupted", err=True)
-        return typer.Exit(130)
+    if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, or SIGTERM/SIGHUP (oacli.signals): exit 130 / 143
+        typer.echo(f"error: {interruption_message(exc)}", err=True)
+        return typer.Exit(exit_code_for(exc))
     if os.environ.get("OACLI_DEBUG"):
         raise exc
     typer.echo(f"internal error: {type(exc).__name__}: {exc} (set OACLI_DEBUG=1 for a traceback)", err=True)
@@ -104,7 +105,8 @@ def load_config_with_seed(config: Path, seed: int | None):
 def run_guarded(action: Callable[[], Any]) -> Any:
     """Run a command's action, mapping every error to a clear message and an exit code (no traceback)."""
     try:
-        return action()
+        with terminate_like_interrupt():
+            return action()
     except (OacliError, KeyboardInterrupt, Exception) as exc:  # every error is mapped to an exit code
         raise fail(exc) from None
 

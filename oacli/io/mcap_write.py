@@ -7,7 +7,8 @@ Writing uses the Foxglove SDK's MCAP writer (``foxglove.open_mcap``) with one ``
 channels of one file never leak into another. It writes zstd-compressed chunks of at most
 :data:`DEFAULT_CHUNK_SIZE` bytes (uncompressed), chunk CRCs, the data-section CRC, the summary CRC and attachment
 CRCs. The file is written under a temporary name and renamed into place only when the ``with`` block ends
-without an exception (:func:`oacli.io.atomic.atomic_path`).
+without an exception (:func:`oacli.io.atomic.atomic_file`: an exclusive temporary file, never a
+predictable name); a failed write names its cause (:class:`oacli.io.atomic.WriteError`).
 
 Messages go to the file in time order (``log_time`` non-decreasing over the whole file, ties in call order) when
 the writer is opened with ``time_ordered=True`` or inside a :meth:`StageMcapWriter.time_ordered` block: each
@@ -57,7 +58,7 @@ from foxglove.messages import (
 import oacli
 from oacli.geometry.shapes import Scene
 from oacli.io import mcap_schema as ms
-from oacli.io.atomic import atomic_path
+from oacli.io.atomic import WriteError, atomic_file, describe_os_error
 from oacli.io.jsonsafe import to_json_safe
 from oacli.model.quaternion import from_rotation_matrix
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
@@ -145,10 +146,40 @@ def _ms_or_none(seconds: float) -> float | None:
     return seconds * 1e3 if math.isfinite(seconds) else None
 
 
+class _WriteErrorTracker:
+    """A binary file for ``foxglove.open_mcap`` that remembers the first ``OSError`` of a write (the writer
+    itself then only says that a write failed)."""
+
+    def __init__(self, handle: Any) -> None:
+        self._handle = handle
+        self.error: OSError | None = None
+
+    def _guard(self, method: str, *args: Any) -> Any:
+        try:
+            return getattr(self._handle, method)(*args)
+        except OSError as exc:
+            if self.error is None:
+                self.error = exc
+            raise
+
+    def write(self, data: bytes) -> int:
+        return self._guard("write", data)
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return self._guard("seek", offset, whence)
+
+    def tell(self) -> int:
+        return self._guard("tell")
+
+    def flush(self) -> None:
+        self._guard("flush")
+
+
 class StageMcapWriter:
     """Context manager writing one stage's MCAP file atomically.
 
-    On entering, the file is opened under a temporary name (``.<name>.partial`` beside ``path``), and the
+    On entering, the file is opened under an exclusive temporary name (``.<name>.<random>.partial`` beside
+    ``path``), and the
     metadata record ``oacli`` and the attachment ``config.yaml`` are written first (so that even a file cut by a
     crash carries them). On leaving without an exception the file is finished (summary, CRCs), fsynced and
     renamed to ``path``; if an exception escapes the ``with`` block the temporary file is deleted and no file
@@ -212,6 +243,7 @@ class StageMcapWriter:
         self._chunk_size = int(chunk_size)
         self._overwrite = bool(overwrite)
         self._atomic: Any = None
+        self._file: _WriteErrorTracker | None = None
         self._writer: Any = None
         self._context: Any = None
         self._state = "new"
@@ -230,8 +262,8 @@ class StageMcapWriter:
             raise FileExistsError(f"{self.path} exists; refusing to overwrite it")
         if not self.path.parent.is_dir():
             raise FileNotFoundError(f"folder {self.path.parent} does not exist")
-        self._atomic = atomic_path(self.path)
-        tmp = self._atomic.__enter__()
+        self._atomic = atomic_file(self.path)
+        self._file = _WriteErrorTracker(self._atomic.__enter__())
         try:
             self._context = foxglove.Context()
             options = MCAPWriteOptions(
@@ -242,7 +274,7 @@ class StageMcapWriter:
                 calculate_summary_section_crc=True,
                 calculate_attachment_crcs=True,
             )
-            self._writer = foxglove.open_mcap(tmp, context=self._context, writer_options=options)
+            self._writer = foxglove.open_mcap(self._file, context=self._context, writer_options=options)
             self._state = "open"
             created = datetime.now(UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
             info = {
@@ -270,28 +302,40 @@ class StageMcapWriter:
     ) -> None:
         if self._state == "closed":
             return
+        error = exc
         try:
-            if exc is None and self._writer is not None:
+            if error is None and self._writer is not None:
                 self._drain()
         except BaseException as err:
-            exc_type, exc, tb = type(err), err, err.__traceback__
+            error = err
         self._state = "closed"
         self._queue = None
         try:
             if self._writer is not None:
                 self._writer.close()
         except BaseException as err:
-            if exc is None:
-                self._atomic.__exit__(type(err), err, err.__traceback__)
-                raise
-            err.add_note("(while closing the MCAP writer after an earlier error)")
+            if error is None:
+                error = err
+            else:
+                error.add_note(f"(closing the MCAP writer also failed: {err})")
         finally:
             self._writer = None
             for channel, _, _ in self._channels.values():
                 channel.close()
             self._channels.clear()
             self._context = None
-        self._atomic.__exit__(exc_type, exc, tb)
+        if error is not None and not isinstance(error, KeyboardInterrupt) and self._file is not None \
+                and self._file.error is not None:
+            # The foxglove writer reports a failed write vaguely; name the cause (e.g. ENOSPC) and the path.
+            cause = error
+            error = WriteError(describe_os_error(self._file.error, self.path))
+            error.__cause__ = cause
+        if error is None:
+            self._atomic.__exit__(None, None, None)
+            return
+        self._atomic.__exit__(type(error), error, error.__traceback__)  # removes the temporary file
+        if error is not exc:
+            raise error
 
     # -- time order --------------------------------------------------------------------------------------------
 
