@@ -219,3 +219,92 @@ def test_ctrl_c_while_the_recording_is_written_is_not_ok(tmp_path, monkeypatch):
     assert result.exit_code == 130
     assert json.loads((out / "summary.json").read_text())["status"] == "interrupted"
     assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.json", "track.mcap"]
+
+
+# -- full disk ------------------------------------------------------------------------------------------------
+
+@pytest.fixture
+def small_tmpfs(tmp_path):
+    """A folder on a fresh tmpfs whose size the test sets (skips where mounting is not allowed)."""
+    mount_point = tmp_path / "tmpfs"
+    mount_point.mkdir()
+    mounted: list[Path] = []
+
+    def mount(size_bytes: int) -> Path:
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_bytes}", "tmpfs", str(mount_point)],
+                              capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here (needs root/CAP_SYS_ADMIN): {done.stderr.strip()}")
+        mounted.append(mount_point)
+        return mount_point
+
+    yield mount
+    for point in mounted:
+        subprocess.run(["umount", str(point)], check=False)
+
+
+@pytest.mark.parametrize("fails", ["track.mcap", "track.rrd"])
+def test_full_disk_fails_fast_with_one_line_naming_the_cause(track_run, small_tmpfs, fails):
+    sizes = {p.name: p.stat().st_size for p in track_run.iterdir()}
+    room = 200_000 if fails == "track.mcap" else sizes["track.mcap"] + 100_000
+    assert room < sizes["track.mcap"] or room < sizes["track.mcap"] + sizes["track.rrd"]
+    out = small_tmpfs(room) / "run"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, "-m", "oacli", "track", str(ISS), "--out", str(out), "--quiet"],
+                          env=env, capture_output=True, text=True, timeout=240)  # no hang
+    assert done.returncode == 1, done.stderr
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert errors == [f"error: cannot write {out / fails}: no space left on device (ENOSPC)"], done.stderr
+    assert "Traceback" not in done.stderr
+    names = sorted(p.name for p in out.iterdir())
+    assert not any(name.endswith(".partial") for name in names), names
+    assert not (out / fails).exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and "ENOSPC" in summary["error"]
+
+
+# -- planted symlinks -----------------------------------------------------------------------------------------
+
+def test_temporary_names_are_unpredictable_and_never_follow_a_planted_symlink(tmp_path):
+    from oacli.io.atomic import write_text_atomic
+
+    folder = tmp_path / "run"
+    folder.mkdir()
+    outside = tmp_path / "outside.txt"
+    outside.write_text("keep")
+    # Every name the old code used, planted as symlinks to a file outside.
+    for name in (".summary.json.partial", ".track.rrd.partial", ".track.mcap.partial"):
+        (folder / name).symlink_to(outside)
+    write_text_atomic(folder / "summary.json", "{}\n")
+    assert (folder / "summary.json").read_text() == "{}\n" and not (folder / "summary.json").is_symlink()
+    assert outside.read_text() == "keep"
+    assert sorted(p.name for p in folder.iterdir() if not p.is_symlink()) == ["summary.json"]
+
+
+def test_a_run_folder_that_becomes_a_symlink_is_refused(tmp_path):
+    from oacli.io.atomic import WriteError, write_text_atomic
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    run = tmp_path / "run"
+    run.symlink_to(elsewhere)
+    with pytest.raises(WriteError, match="is a symlink"):
+        write_text_atomic(run / "summary.json", "{}\n")
+    assert list(elsewhere.iterdir()) == []
+
+
+@pytest.mark.parametrize("kind", ["dangling", "file-runs-dir", "file-parent"])
+def test_out_and_runs_dir_problems_exit_2_with_a_clear_line(tmp_path, kind):
+    if kind == "dangling":
+        (tmp_path / "out").symlink_to(tmp_path / "nowhere")
+        args, expected = ["--out", str(tmp_path / "out")], "is a symlink (dangling)"
+    elif kind == "file-runs-dir":
+        (tmp_path / "runs").write_text("x")
+        args, expected = ["--runs-dir", str(tmp_path / "runs")], "exists and is not a folder"
+    else:
+        (tmp_path / "f").write_text("x")
+        args, expected = ["--out", str(tmp_path / "f" / "run")], "cannot create the folder"
+    result = runner.invoke(app, ["track", str(ISS), *args, "--quiet"])
+    assert result.exit_code == 2, result.output
+    assert expected in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "nowhere").exists()

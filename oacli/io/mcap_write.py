@@ -24,6 +24,7 @@ import contextlib
 import heapq
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -146,33 +147,69 @@ def _ms_or_none(seconds: float) -> float | None:
     return seconds * 1e3 if math.isfinite(seconds) else None
 
 
-class _WriteErrorTracker:
-    """A binary file for ``foxglove.open_mcap`` that remembers the first ``OSError`` of a write (the writer
-    itself then only says that a write failed)."""
+class _SpoolFile:
+    """The file object ``foxglove.open_mcap`` writes to: new bytes collect in memory and :meth:`spill` writes
+    them to the real file from oacli's code.
+
+    So a failed write (disk full) raises a plain ``OSError`` here, named in one line, instead of inside the
+    foxglove writer (which prints the Python traceback and then refuses every later message). The MCAP writer
+    seeks back to patch a chunk's header once the chunk is complete: a patch of bytes already spilled is
+    written in place (it needs no new disk space).
+    """
 
     def __init__(self, handle: Any) -> None:
-        self._handle = handle
+        self._fd = handle.fileno()
+        self._base = 0  # file offset of the buffer's first byte
+        self._buffer = bytearray()
+        self._position = 0
         self.error: OSError | None = None
 
-    def _guard(self, method: str, *args: Any) -> Any:
+    def write(self, data: bytes) -> int:
+        data = bytes(data)
+        pos, n = self._position, len(data)
+        if pos < self._base:  # patch of spilled bytes
+            head = data[: self._base - pos]
+            os.pwrite(self._fd, head, pos)
+            data, pos = data[len(head):], pos + len(head)
+        if data:
+            offset = pos - self._base
+            if offset > len(self._buffer):
+                self._buffer += bytes(offset - len(self._buffer))
+            self._buffer[offset : offset + len(data)] = data
+        self._position += n
+        return n
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        end = self._base + len(self._buffer)
+        self._position = {0: offset, 1: self._position + offset, 2: end + offset}[whence]
+        return self._position
+
+    def tell(self) -> int:
+        return self._position
+
+    def flush(self) -> None:
+        """Called by the MCAP writer; the bytes reach the file at the next :meth:`spill`."""
+
+    @property
+    def pending(self) -> int:
+        """Bytes not yet written to the file."""
+        return len(self._buffer)
+
+    def spill(self) -> None:
+        """Write the collected bytes to the file (an ``OSError`` is kept in ``error`` and raised)."""
+        if not self._buffer:
+            return
         try:
-            return getattr(self._handle, method)(*args)
+            with memoryview(self._buffer) as view:
+                done = 0
+                while done < len(view):
+                    done += os.pwrite(self._fd, view[done:], self._base + done)
         except OSError as exc:
             if self.error is None:
                 self.error = exc
             raise
-
-    def write(self, data: bytes) -> int:
-        return self._guard("write", data)
-
-    def seek(self, offset: int, whence: int = 0) -> int:
-        return self._guard("seek", offset, whence)
-
-    def tell(self) -> int:
-        return self._guard("tell")
-
-    def flush(self) -> None:
-        self._guard("flush")
+        self._base += len(self._buffer)
+        self._buffer.clear()
 
 
 class StageMcapWriter:
@@ -243,7 +280,7 @@ class StageMcapWriter:
         self._chunk_size = int(chunk_size)
         self._overwrite = bool(overwrite)
         self._atomic: Any = None
-        self._file: _WriteErrorTracker | None = None
+        self._file: _SpoolFile | None = None
         self._writer: Any = None
         self._context: Any = None
         self._state = "new"
@@ -263,7 +300,7 @@ class StageMcapWriter:
         if not self.path.parent.is_dir():
             raise FileNotFoundError(f"folder {self.path.parent} does not exist")
         self._atomic = atomic_file(self.path)
-        self._file = _WriteErrorTracker(self._atomic.__enter__())
+        self._file = _SpoolFile(self._atomic.__enter__())
         try:
             self._context = foxglove.Context()
             options = MCAPWriteOptions(
@@ -289,6 +326,8 @@ class StageMcapWriter:
             }
             self.write_metadata(ms.METADATA_NAME, info)
             self.attach(ms.CONFIG_ATTACHMENT, self._config_yaml.encode("utf-8"), ms.CONFIG_MEDIA_TYPE)
+            self._writer.flush()
+            self._spill()  # the metadata and the config are on disk before any message
         except BaseException:
             self.__exit__(*sys.exc_info())
             raise
@@ -313,6 +352,8 @@ class StageMcapWriter:
         try:
             if self._writer is not None:
                 self._writer.close()
+                if error is None:
+                    self._spill()
         except BaseException as err:
             if error is None:
                 error = err
@@ -324,12 +365,12 @@ class StageMcapWriter:
                 channel.close()
             self._channels.clear()
             self._context = None
-        if error is not None and not isinstance(error, KeyboardInterrupt) and self._file is not None \
-                and self._file.error is not None:
+        if not isinstance(error, KeyboardInterrupt) and self._file is not None and self._file.error is not None:
             # The foxglove writer reports a failed write vaguely; name the cause (e.g. ENOSPC) and the path.
-            cause = error
-            error = WriteError(describe_os_error(self._file.error, self.path))
-            error.__cause__ = cause
+            if not isinstance(error, WriteError):
+                cause = error
+                error = WriteError(describe_os_error(self._file.error, self.path))
+                error.__cause__ = cause
         if error is None:
             self._atomic.__exit__(None, None, None)
             return
@@ -365,16 +406,27 @@ class StageMcapWriter:
         if self._queue is not None:
             self._queue.append(iter(messages))
             return
+        self._write(messages)
+
+    def _write(self, messages: Iterable[_Pending]) -> None:
+        spool = self._file
         for log_time, emit, payload in messages:
             emit(payload, log_time)
+            if spool is not None and spool.pending:  # a chunk was completed: to the file now
+                self._spill()
+
+    def _spill(self) -> None:
+        try:
+            self._file.spill()  # type: ignore[union-attr]
+        except OSError as exc:
+            raise WriteError(describe_os_error(exc, self.path)) from None
 
     def _drain(self) -> None:
         """Write every queued message, merged by time (stable for equal times)."""
         if not self._queue:
             return
         queued, self._queue = self._queue, []
-        for log_time, emit, payload in heapq.merge(*queued, key=lambda m: m[0]):
-            emit(payload, log_time)
+        self._write(heapq.merge(*queued, key=lambda m: m[0]))
 
     def _require_open(self) -> None:
         if self._state != "open":
@@ -745,3 +797,4 @@ class StageMcapWriter:
         if self._queue:
             self._drain()
         self._writer.flush()
+        self._spill()
