@@ -45,6 +45,7 @@ from oacli.config.planner import PlannerConfig
 from oacli.config.reference import ReferenceConfig
 from oacli.config.robot import DisturbanceConfig, RobotConfig, TruthConfig
 from oacli.config.simulation import SensorsConfig, SimulationConfig
+from oacli.config.sizes import size_problems
 from oacli.config.tube import tube_problems
 from oacli.geometry import Scene
 from oacli.types import InertialParams
@@ -177,6 +178,8 @@ class OacliConfig(Section):
                     f"must be <= simulation.plant_rate_hz ({self.simulation.plant_rate_hz:g} Hz)",
                 )
             )
+        if not problems:
+            problems += size_problems(self)  # steps = duration × rate, against a cap (oacli.config.sizes)
         raise_at("OacliConfig", problems)
         return self
 

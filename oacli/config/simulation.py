@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from oacli.config.fields import NonNegativeReal, PositiveReal, Section, Vector3
+from oacli.config.fields import NonNegativeReal, Position3, PositiveReal, Section
 
 
 class SensorsConfig(Section):
@@ -29,7 +29,7 @@ class SimulationConfig(Section):
     settle_time_s: NonNegativeReal = Field(
         default=5.0, description="Extra simulated time after the reference ends [s], >= 0."
     )
-    initial_offset_m: Vector3 = Field(
+    initial_offset_m: Position3 = Field(
         default=(0.0, 0.0, 0.0), description="Offset of the initial true position from the reference start [m]."
     )
 
