@@ -308,3 +308,77 @@ def test_out_and_runs_dir_problems_exit_2_with_a_clear_line(tmp_path, kind):
     assert result.exit_code == 2, result.output
     assert expected in result.output and "Traceback" not in result.output
     assert not (tmp_path / "nowhere").exists()
+
+
+# -- configs that would exhaust the machine -------------------------------------------------------------------
+
+def _config_with(tmp_path: Path, text_edit=None, **sets) -> Path:
+    import yaml
+
+    data = yaml.safe_load(ISS.read_text())
+    for dotted, value in sets.items():
+        *parents, last = dotted.split("__")
+        node = data
+        for key in parents:
+            node = node[int(key)] if isinstance(node, list) else node.setdefault(key, {})
+        node[last] = value
+    text = yaml.safe_dump(data, sort_keys=False)
+    if text_edit is not None:
+        text = text_edit(text)
+    path = tmp_path / "cfg.yaml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(("sets", "field"), [
+    ({"waypoints__A__position": [1e30, 0.0, 0.0]}, "waypoints.A.position"),
+    ({"environment__keep_in__0__corners": [[-1e30, 0, 0], [1, 1, 1]]}, "environment.keep_in.0.corners"),
+    ({"reference__cruise_speed_mps": 1e-9}, "reference.cruise_speed_mps"),
+    ({"reference__hold_s": 1e9}, "reference.hold_s"),
+    ({"simulation__settle_time_s": 1e7}, "simulation.settle_time_s"),
+    ({"simulation__plant_rate_hz": 1e7}, "simulation.plant_rate_hz"),
+])
+def test_configs_that_would_exhaust_the_machine_exit_2_naming_the_field(tmp_path, sets, field):
+    path = _config_with(tmp_path, **sets)
+    start = time.monotonic()
+    result = runner.invoke(app, ["track", str(path), "--out", str(tmp_path / "run"), "--quiet"])
+    assert time.monotonic() - start < 20
+    assert result.exit_code == 2, result.output
+    assert f"{path}: {field}" in result.output, result.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_config_size_and_kind_are_bounded(tmp_path):
+    from oacli.config import MAX_CONFIG_BYTES, load_config
+    from oacli.errors import ConfigError
+
+    big = tmp_path / "big.yaml"
+    big.write_text("name: x\nlist: [" + "1, " * (MAX_CONFIG_BYTES // 3) + "1]\n")
+    start = time.monotonic()
+    with pytest.raises(ConfigError, match="too large"):
+        load_config(big)
+    with pytest.raises(ConfigError, match="a device"):
+        load_config("/dev/zero")
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+    with pytest.raises(ConfigError, match="a FIFO"):
+        load_config(fifo)  # no writer: must not block
+    assert time.monotonic() - start < 5
+
+
+def test_yaml_1_1_surprises_are_refused_and_exponents_are_numbers(tmp_path):
+    from oacli.config import load_config
+    from oacli.errors import ConfigError
+
+    sexagesimal = _config_with(tmp_path, text_edit=lambda t: t.replace("seed: 1\n", "seed: 1:30\n"))
+    assert "seed: 1:30" in sexagesimal.read_text()
+    with pytest.raises(ConfigError, match=r"seed: '1:30': must be an integer"):
+        load_config(sexagesimal)
+    for spelled in ("1.0e3", "1e3", "1.0e+3"):
+        path = _config_with(tmp_path, text_edit=lambda t, s=spelled: t.replace("plant_rate_hz: 62.5",
+                                                                              f"plant_rate_hz: {s}"))
+        assert f"plant_rate_hz: {spelled}" in path.read_text()
+        assert load_config(path).simulation.plant_rate_hz == 1000.0
+    quoted = _config_with(tmp_path, text_edit=lambda t: t.replace("plant_rate_hz: 62.5", "plant_rate_hz: '1e3'"))
+    with pytest.raises(ConfigError, match="must be a number, not text"):
+        load_config(quoted)
