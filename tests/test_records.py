@@ -382,3 +382,88 @@ def test_yaml_1_1_surprises_are_refused_and_exponents_are_numbers(tmp_path):
     quoted = _config_with(tmp_path, text_edit=lambda t: t.replace("plant_rate_hz: 62.5", "plant_rate_hz: '1e3'"))
     with pytest.raises(ConfigError, match="must be a number, not text"):
         load_config(quoted)
+
+
+# -- hostile input files --------------------------------------------------------------------------------------
+
+def _reference_mcap(path: Path, t: np.ndarray, frame: str = "world") -> Path:
+    from oacli.types import Trajectory
+
+    x = np.zeros((len(t), 13))
+    x[:, 0:3] = [10.8, -9.6, 4.8]
+    x[:, 9] = 1.0
+    with StageMcapWriter(path, stage="smooth", config_yaml="a: 1\n", frame=frame) as w:
+        w.write_trajectory("/trajectory", Trajectory(t=t, x=x, u=np.zeros((len(t), 6)), name="ref", frame=frame))
+    return path
+
+
+def test_track_refuses_a_reference_spanning_a_million_seconds_and_one_in_another_frame(tmp_path):
+    import yaml
+
+    frame = yaml.safe_load(ISS.read_text())["environment"]["frame"]
+    long_ref = _reference_mcap(tmp_path / "long.mcap", np.array([0.0, 1.0, 1e6]), frame)
+    result = runner.invoke(app, ["track", str(ISS), "--reference", str(long_ref), "--out", str(tmp_path / "a"), "-q"])
+    assert result.exit_code == 2, result.output
+    assert "spans 1e+06 s" in result.output and "simulation steps" in result.output
+    other = _reference_mcap(tmp_path / "other.mcap", np.array([0.0, 1.0, 2.0]), "elsewhere")
+    result = runner.invoke(app, ["track", str(ISS), "--reference", str(other), "--out", str(tmp_path / "b"), "-q"])
+    assert result.exit_code == 2, result.output
+    assert "in frame 'elsewhere'" in result.output and f"environment.frame is {frame!r}" in result.output
+
+
+def _raw_mcap(path: Path, chunks: list, extra_records: bytes = b"") -> Path:
+    from mcap.data_stream import RecordBuilder
+
+    builder = RecordBuilder()
+    for chunk in chunks:
+        chunk.write(builder)
+    path.write_bytes(b"\x89MCAP0\r\n" + builder.end() + extra_records)
+    return path
+
+
+def test_decompression_bombs_are_refused_within_seconds(tmp_path):
+    import zstandard
+    from mcap.records import Chunk as ChunkRecord
+
+    from oacli.errors import InputError
+    from oacli.io.mcap_read import MAX_CHUNK_BYTES, MIN_DECOMPRESSED_BUDGET
+
+    size = 40 * 1024 * 1024
+    # One record of an unknown opcode padded with zeros: 40 MiB that compress to a few KiB.
+    body = bytes([0x7F]) + (size - 9).to_bytes(8, "little") + bytes(size - 9)
+    zeros = zstandard.ZstdCompressor().compress(body)
+    assert len(zeros) < 100_000
+    cases = {
+        "declares": [ChunkRecord("zstd", b"", 0, 0, 0, MAX_CHUNK_BYTES + 1)],
+        "lies": [ChunkRecord("zstd", zeros, 0, 0, 0, 1000)],
+        "total": [ChunkRecord("zstd", zeros, 0, 0, 0, size)] * (MIN_DECOMPRESSED_BUDGET // size + 1),
+    }
+    expected = {"declares": "decompression bomb", "lies": "not the 1000 it declares", "total": "decompression bomb"}
+    for name, chunks in cases.items():
+        path = _raw_mcap(tmp_path / f"{name}.mcap", chunks)
+        start = time.monotonic()
+        with pytest.raises(InputError, match=expected[name]):
+            read_stage(path)
+        assert time.monotonic() - start < 5, name
+    # Through the CLI: exit 2 with one line.
+    result = runner.invoke(app, ["smooth", str(ISS), "--input", str(tmp_path / "total.mcap"), "--out",
+                                 str(tmp_path / "run"), "-q"])
+    assert result.exit_code == 2 and "decompression bomb" in result.output, result.output
+
+
+def test_deeply_nested_json_in_an_mcap_exits_2(tmp_path):
+    from mcap.writer import Writer
+
+    path = tmp_path / "deep.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("oacli.TrajectorySample", "jsonschema", b"{}")
+        channel = writer.register_channel("/trajectory", "json", schema, {"frame": "world", "name": "x"})
+        writer.add_message(channel, 0, b"[" * 100_000 + b"]" * 100_000, 0)
+        writer.finish()
+    start = time.monotonic()
+    result = runner.invoke(app, ["smooth", str(ISS), "--input", str(path), "--out", str(tmp_path / "run"), "-q"])
+    assert time.monotonic() - start < 10
+    assert result.exit_code == 2, result.output
+    assert "nested too deeply" in result.output and "RecursionError" not in result.output
