@@ -467,3 +467,57 @@ def test_deeply_nested_json_in_an_mcap_exits_2(tmp_path):
     assert time.monotonic() - start < 10
     assert result.exit_code == 2, result.output
     assert "nested too deeply" in result.output and "RecursionError" not in result.output
+
+
+# -- every stage reruns from its config.yaml ------------------------------------------------------------------
+
+def test_smooth_reruns_from_its_config_yaml(tmp_path):
+    from tests.test_cli_plan_smooth import small_config
+
+    cfg = small_config(tmp_path)
+    assert runner.invoke(app, ["plan", str(cfg), "--out", str(tmp_path / "plan"), "-q", "--seed", "4"]).exit_code == 0
+    first = runner.invoke(app, ["smooth", str(cfg), "--input", str(tmp_path / "plan" / "plan.mcap"),
+                                "--out", str(tmp_path / "s1"), "-q", "--seed", "4"])
+    assert first.exit_code == 0, first.output
+    saved = (tmp_path / "s1" / "config.yaml").read_text()
+    assert f"smooth_input: {tmp_path / 'plan' / 'plan.mcap'}" in saved
+    again = runner.invoke(app, ["smooth", str(tmp_path / "s1" / "config.yaml"), "--out", str(tmp_path / "s2"), "-q"])
+    assert again.exit_code == 0, again.output
+    a, b = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("s1", "s2"))
+    for key in ("cost_before", "cost_after", "path_length_after_m", "shortcuts_accepted", "duration_after_s"):
+        assert a[key] == b[key], key
+    missing = runner.invoke(app, ["smooth", str(cfg), "--out", str(tmp_path / "s3"), "-q"])
+    assert missing.exit_code == 2 and "--input: missing" in missing.output
+
+
+def test_recorded_inputs_survive_the_config_round_trip(tmp_path):
+    from oacli.config import dump_config, load_config
+    from oacli.config.inputs import with_input
+    from oacli.errors import ConfigError
+
+    cfg = load_config(ISS)
+    with pytest.raises(ConfigError, match="--telemetry: missing"):
+        with_input(cfg, "estimate_telemetry", None, "--telemetry")
+    cfg, path = with_input(cfg, "estimate_telemetry", Path("runs/x/track.mcap"), "--telemetry")
+    assert path == Path.cwd() / "runs/x/track.mcap"
+    saved = tmp_path / "config.yaml"
+    saved.write_text(dump_config(cfg))
+    again = load_config(saved)
+    assert again == cfg and with_input(again, "estimate_telemetry", None, "--telemetry")[1] == path
+
+
+@pytest.mark.slow
+def test_estimate_reruns_from_its_config_yaml(tmp_path):
+    from tests.test_cli_estimate import payload_config
+
+    cfg = payload_config(tmp_path / "payload.yaml")
+    assert runner.invoke(app, ["track", str(cfg), "--out", str(tmp_path / "track"), "-q"]).exit_code == 0
+    telemetry = tmp_path / "track" / "track.mcap"
+    first = runner.invoke(app, ["estimate", str(cfg), "--telemetry", str(telemetry), "--method", "sequential",
+                                "--out", str(tmp_path / "e1"), "-q"])
+    assert first.exit_code == 0, first.output
+    again = runner.invoke(app, ["estimate", str(tmp_path / "e1" / "config.yaml"), "--out", str(tmp_path / "e2"), "-q"])
+    assert again.exit_code == 0, again.output
+    a, b = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("e1", "e2"))
+    assert a["method"] == b["method"] == "sequential"
+    assert a["mass_kg"] == b["mass_kg"] and a["inertia_kgm2"] == b["inertia_kgm2"]

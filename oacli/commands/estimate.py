@@ -25,8 +25,9 @@ ESTIMATE_TABLE = [
 def estimate(
     config: Annotated[Path, typer.Argument(help="YAML configuration file (its estimation section; see configs/).")],
     telemetry: Annotated[
-        Path, typer.Option("--telemetry", "-t", help="A tracking run's track.mcap (measured states, applied inputs).")
-    ],
+        Path | None, typer.Option("--telemetry", "-t", help="A tracking run's track.mcap (measured states, applied "
+                                  "inputs); default: the config's inputs.estimate_telemetry (recorded by a run).")
+    ] = None,
     method: Annotated[
         str | None,
         typer.Option("--method", "-m", help="batch (maximum likelihood over the run) or sequential (EKF); "
@@ -55,8 +56,12 @@ def estimate(
 
         if method is not None and method not in ("batch", "sequential"):
             raise InputError(f"--method {method}: must be batch or sequential")
-        cfg = load_config_with_seed(config, None)
-        return run_estimate(cfg, telemetry=telemetry, method=method, out=out, runs_root=runs_root,
+        from oacli.config.inputs import with_input
+
+        cfg, path = with_input(load_config_with_seed(config, None), "estimate_telemetry", telemetry, "--telemetry")
+        if method is not None:  # recorded in the run's config.yaml, which then reruns the same method
+            cfg = cfg.model_copy(update={"estimation": cfg.estimation.model_copy(update={"method": method})})
+        return run_estimate(cfg, telemetry=path, method=method, out=out, runs_root=runs_root,
                             progress=Progress("estimate", not quiet), allow_truncated=allow_truncated)
 
     run_stage_command(action, ESTIMATE_TABLE, quiet)

@@ -40,6 +40,7 @@ from oacli.config.fields import (
     none_to,
     raise_at,
 )
+from oacli.config.inputs import InputsConfig
 from oacli.config.mission import MissionConfig
 from oacli.config.planner import PlannerConfig
 from oacli.config.reference import ReferenceConfig
@@ -88,6 +89,9 @@ class OacliConfig(Section):
     )
     estimation: Annotated[EstimationConfig, none_to({})] = Field(
         default_factory=EstimationConfig, description="Inertial parameter estimation (oacli estimate)."
+    )
+    inputs: Annotated[InputsConfig, none_to({})] = Field(
+        default_factory=InputsConfig, description="Files smooth and estimate read (recorded by the commands)."
     )
     mission: MissionConfig | None = Field(
         default=None, description="The three-segment assembly mission (oacli mission); other commands ignore it."
