@@ -422,6 +422,7 @@ def _raw_mcap(path: Path, chunks: list, extra_records: bytes = b"") -> Path:
 
 
 def test_decompression_bombs_are_refused_within_seconds(tmp_path):
+    import lz4.frame
     import zstandard
     from mcap.records import Chunk as ChunkRecord
 
@@ -436,9 +437,11 @@ def test_decompression_bombs_are_refused_within_seconds(tmp_path):
     cases = {
         "declares": [ChunkRecord("zstd", b"", 0, 0, 0, MAX_CHUNK_BYTES + 1)],
         "lies": [ChunkRecord("zstd", zeros, 0, 0, 0, 1000)],
+        "lz4 lies": [ChunkRecord("lz4", lz4.frame.compress(body), 0, 0, 0, 1000)],
         "total": [ChunkRecord("zstd", zeros, 0, 0, 0, size)] * (MIN_DECOMPRESSED_BUDGET // size + 1),
     }
-    expected = {"declares": "decompression bomb", "lies": "not the 1000 it declares", "total": "decompression bomb"}
+    expected = {"declares": "decompression bomb", "lies": "not the 1000 it declares",
+                "lz4 lies": "not the 1000 it declares", "total": "decompression bomb"}
     for name, chunks in cases.items():
         path = _raw_mcap(tmp_path / f"{name}.mcap", chunks)
         start = time.monotonic()
