@@ -29,8 +29,9 @@ import numpy as np
 
 from oacli.config import load_config
 from oacli.control.mpc import POSITION_PENALTY, LinearMPC
-from oacli.control.tracking import TrackingLimits, TrackingMPC, TrackingWeights
+from oacli.control.tracking import TrackingMPC, TrackingWeights
 from oacli.model.double_integrator import hover_error_model
+from oacli.model.limits import MotionLimits
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.stages.track import reference_from_config
@@ -65,7 +66,7 @@ def naive_step(a, b, p_terminal, horizon, x0, x_ref, u_ref):
 def tracking_controller(cfg, reference, rows: bool) -> TrackingMPC:
     """The preset's standard MPC, with or without the workspace rows."""
     robot, w = cfg.robot, cfg.controller.weights
-    limits = TrackingLimits(np.asarray(robot.force_limit_N), np.asarray(robot.torque_limit_Nm),
+    limits = MotionLimits(np.asarray(robot.force_limit_N), np.asarray(robot.torque_limit_Nm),
                             np.asarray(robot.velocity_limit_mps), np.asarray(robot.angular_velocity_limit_radps))
     weights = TrackingWeights(*(np.asarray(getattr(w, f)) for f in
                                 ("position", "velocity", "attitude", "angular_velocity", "force", "torque")))

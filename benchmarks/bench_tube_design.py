@@ -30,10 +30,11 @@ PRESET = Path(__file__).resolve().parents[1] / "configs" / "iss_reswarm_tube.yam
 
 
 def limits_and_weights(cfg):
-    from oacli.control.tracking import TrackingLimits, TrackingWeights
+    from oacli.control.tracking import TrackingWeights
+    from oacli.model.limits import MotionLimits
 
     robot, w = cfg.robot, cfg.controller.weights
-    limits = TrackingLimits(np.asarray(robot.force_limit_N), np.asarray(robot.torque_limit_Nm),
+    limits = MotionLimits(np.asarray(robot.force_limit_N), np.asarray(robot.torque_limit_Nm),
                             np.asarray(robot.velocity_limit_mps), np.asarray(robot.angular_velocity_limit_radps))
     weights = TrackingWeights(*(np.asarray(getattr(w, f)) for f in
                                 ("position", "velocity", "attitude", "angular_velocity", "force", "torque")))

@@ -33,9 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from oacli.config import load_config
-from oacli.control.tracking import TrackingLimits, TrackingWeights
+from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_mpc import TerminalWeights
 from oacli.geometry import Ellipsoid, Scene
+from oacli.model.limits import MotionLimits
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.stages.settings import tube_design_from_config
@@ -47,7 +48,7 @@ PRESET = Path(__file__).resolve().parents[1] / "configs" / "iss_reswarm_tube.yam
 
 def limits_and_weights(cfg):
     robot, w = cfg.robot, cfg.controller.weights
-    limits = TrackingLimits(np.asarray(robot.force_limit_N), np.asarray(robot.torque_limit_Nm),
+    limits = MotionLimits(np.asarray(robot.force_limit_N), np.asarray(robot.torque_limit_Nm),
                             np.asarray(robot.velocity_limit_mps), np.asarray(robot.angular_velocity_limit_radps))
     weights = TrackingWeights(*(np.asarray(getattr(w, f)) for f in
                                 ("position", "velocity", "attitude", "angular_velocity", "force", "torque")))
@@ -100,7 +101,8 @@ def workspace_overhead(cfg, reference, design, limits, weights, seeds: int, step
             if zone is not None:  # same controller, scene with the extra zone
                 scene = c.scene()
                 scene = Scene(scene.keep_in, (*scene.keep_out, zone), scene.frame)
-                ctrl = type(ctrl)(reference, c.robot_params(), design, horizon=ctrl.horizon,
+                ctrl = type(ctrl)(reference, design, inertia_kgm2=np.asarray(c.robot.inertia_kgm2),
+                                  horizon=ctrl.horizon,
                                   prediction_step_s=ctrl.step_s, weights=weights, limits=limits,
                                   terminal=_terminal(c), max_consecutive_failures=ctrl.max_failures,
                                   scene=scene, robot=ctrl.workspace.robot)

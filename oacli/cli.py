@@ -15,10 +15,13 @@ from typing import Annotated
 import typer
 
 from oacli import __version__
+from oacli.commands.config_show import config_app
 from oacli.commands.estimate import estimate
 from oacli.commands.excite import excite
+from oacli.commands.info import info
 from oacli.commands.mission import mission
 from oacli.commands.plan import plan
+from oacli.commands.runs import runs_app
 from oacli.commands.smooth import smooth
 from oacli.commands.track import track
 
@@ -26,7 +29,7 @@ app = typer.Typer(
     name="oacli",
     help="Plan, control and learn the model of a free-flying space robot (Astrobee) during on-orbit assembly.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
 )
 
@@ -38,6 +41,9 @@ app.command("mission")(mission)
 app.command("plan")(plan)
 app.command("smooth")(smooth)
 app.command("track")(track)
+app.command("info")(info)
+app.add_typer(runs_app, name="runs")
+app.add_typer(config_app, name="config")
 
 
 def _version_callback(value: bool) -> None:

@@ -204,6 +204,8 @@ class Telemetry:
         Per-step solver record.
     disturbance : ndarray, shape (K, 6)
         Additive force/torque disturbance acting during each control period [N, N·m].
+    x_true_ctrl : ndarray, shape (K, 13), optional
+        True state at each control instant (what the sensors measured), when the simulator recorded it.
     """
 
     t_true: np.ndarray
@@ -215,6 +217,7 @@ class Telemetry:
     u_applied: np.ndarray
     solve_info: tuple[SolveInfo, ...] = field(default_factory=tuple)
     disturbance: np.ndarray | None = None
+    x_true_ctrl: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         t_true = _as_array("t_true", self.t_true, (None,))
@@ -230,6 +233,8 @@ class Telemetry:
         object.__setattr__(self, "u_applied", _as_array("u_applied", self.u_applied, (k, INPUT_DIM)))
         dist = np.zeros((k, INPUT_DIM)) if self.disturbance is None else self.disturbance
         object.__setattr__(self, "disturbance", _as_array("disturbance", dist, (k, INPUT_DIM)))
+        if self.x_true_ctrl is not None:
+            object.__setattr__(self, "x_true_ctrl", _as_array("x_true_ctrl", self.x_true_ctrl, (k, STATE_DIM)))
         if len(self.solve_info) not in (0, k):
             raise ValueError(f"solve_info: expected {k} entries, got {len(self.solve_info)}")
         object.__setattr__(self, "solve_info", tuple(self.solve_info))

@@ -13,7 +13,14 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.io.mcap_io import read_stage, read_telemetry
 from oacli.io.rerun.estimate import D2, PARAM_ENTITIES
-from oacli.io.rerun.read import read_blueprint_views, read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import (
+    empty_blueprint_views,
+    read_application_id,
+    read_blueprint_timeline,
+    read_blueprint_views,
+    read_recording_entities,
+    read_recording_scalars,
+)
 from tests.conftest import INFO_TRAJECTORIES, REPO, require_shared
 from tests.mcap_checks import check_json_records
 
@@ -217,3 +224,15 @@ def test_bad_inputs_exit_2_with_one_clear_line(track_run, batch_run, tmp_path):
         assert "Traceback" not in result.output
         assert all(line.startswith("error: ") for line in result.stderr.splitlines() if line.strip())
     assert not (tmp_path / "runs").exists()
+
+
+def assert_recording_opens_right(rrd, stage):
+    """Own application id (own layout when several recordings are open), no panel empty on the opening timeline."""
+    assert read_application_id(rrd) == f"oacli-{stage}"
+    assert read_blueprint_timeline(rrd) == "mission_time"
+    assert read_blueprint_views(rrd), "no blueprint"
+    assert empty_blueprint_views(rrd) == []
+
+
+def test_estimate_recording_opens_with_every_panel_filled(batch_run):
+    assert_recording_opens_right(batch_run / "estimate.rrd", "estimate")

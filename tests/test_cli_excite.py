@@ -16,7 +16,14 @@ from oacli.excitation.information import MeasurementModel, cramer_rao_std, fishe
 from oacli.excitation.rattle import InformationWeighting
 from oacli.geometry.verify import dense_positions
 from oacli.io.mcap_io import read_stage, read_telemetry, read_trajectory
-from oacli.io.rerun.read import read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import (
+    empty_blueprint_views,
+    read_application_id,
+    read_blueprint_timeline,
+    read_blueprint_views,
+    read_recording_entities,
+    read_recording_scalars,
+)
 from oacli.trajectory import sample_states
 from tests.conftest import REPO
 from tests.mcap_checks import check_json_records
@@ -129,7 +136,7 @@ def test_recording_reads_back_with_the_logged_values(excite_run):
     rrd = excite_run / "excite.rrd"
     entities = read_recording_entities(rrd)
     for entity in ("world/keep_in", "world/keep_out", "world/excitation", "world/initial_guess", "world/robot",
-                   "metrics/criterion", "metrics/information", "metrics/crb_std_pct", "metrics/force_N",
+                   "metrics/criterion", "metrics/information", "metrics/crb_std_log10_pct", "metrics/force_N",
                    "metrics/torque_Nm", "log"):
         assert entity in entities, entity
     traj = read_trajectory(excite_run / "excite.mcap")
@@ -210,6 +217,8 @@ def test_rattle_method_replans_and_records_the_weights(tmp_path):
     rule = InformationWeighting()
     for r in replans:
         np.testing.assert_allclose(r["gamma"], rule.weights(np.array(r["std"])), rtol=1e-12)
+    assert_recording_opens_right(out / "excite.rrd", "excite")
+    assert "metrics/gamma" in {v["origin"].strip("/") for v in read_blueprint_views(out / "excite.rrd")}
     traj = read_trajectory(out / "excite.mcap")
     np.testing.assert_allclose(np.diff(traj.t[:-1]), 0.2, atol=1e-9)  # the controller period (5 Hz)
     # The plans keep to the planner's caps (0.15 N) under the margin; the feedback around them may use the rest of
@@ -259,3 +268,22 @@ def test_unknown_goal_and_missing_start_name_the_field(tmp_path):
 def test_unknown_method_is_refused(tmp_path):
     result = run_cli("excite", ISS, "--method", "magic", "--runs-dir", tmp_path / "runs")
     assert_clean_failure(result, tmp_path / "runs", code=2, must_name="--method")
+
+
+def assert_recording_opens_right(rrd, stage):
+    """Own application id (own layout when several recordings are open), no panel empty on the opening timeline."""
+    assert read_application_id(rrd) == f"oacli-{stage}"
+    assert read_blueprint_timeline(rrd) == "mission_time"
+    assert read_blueprint_views(rrd), "no blueprint"
+    assert empty_blueprint_views(rrd) == []
+
+
+def test_excite_recording_opens_with_every_panel_filled(excite_run):
+    rrd = excite_run / "excite.rrd"
+    assert_recording_opens_right(rrd, "excite")
+    views = {v["origin"].strip("/") for v in read_blueprint_views(rrd)}
+    assert {"metrics/criterion", "metrics/velocity_mps", "metrics/crb_std_log10_pct"} <= views
+    # log10 of the Cramer-Rao std in % of theta, from the summary's final values
+    _, log_pct = read_recording_scalars(rrd)["metrics/crb_std_log10_pct"]
+    summary = json.loads((excite_run / "summary.json").read_text())
+    np.testing.assert_allclose(10 ** log_pct[-1], list(summary["crb_std_pct"].values()), rtol=1e-6)

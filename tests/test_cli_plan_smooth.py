@@ -15,7 +15,15 @@ from oacli.cli import app
 from oacli.config import load_config
 from oacli.geometry.verify import dense_check
 from oacli.io.mcap_io import read_stage, read_trajectory
-from oacli.io.rerun.read import read_recording_component, read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import (
+    empty_blueprint_views,
+    read_application_id,
+    read_blueprint_timeline,
+    read_blueprint_views,
+    read_recording_component,
+    read_recording_entities,
+    read_recording_scalars,
+)
 from oacli.planning.full_state import translational_part
 from oacli.planning.translational import CostWeights
 from tests.mcap_checks import check_json_records
@@ -271,3 +279,20 @@ def test_smooth_refuses_a_missing_input_and_another_mass(runs, tmp_path):
     cfg = _with(tmp_path, lambda d: d["robot"].update(mass_kg=15.0))
     result = run_cli("smooth", cfg, "--input", runs["plan"] / "plan.mcap", "--runs-dir", tmp_path / "runs")
     assert_clean_failure(result, tmp_path / "runs", must_name="robot.mass_kg")
+
+
+def assert_recording_opens_right(rrd, stage):
+    """Own application id (own layout when several recordings are open), no panel empty on the opening timeline."""
+    assert read_application_id(rrd) == f"oacli-{stage}"
+    assert read_blueprint_timeline(rrd) == "mission_time"
+    assert read_blueprint_views(rrd), "no blueprint"
+    assert empty_blueprint_views(rrd) == []
+
+
+def test_plan_and_smooth_recordings_open_with_every_panel_filled(runs):
+    assert_recording_opens_right(runs["plan"] / "plan.rrd", "plan")
+    assert_recording_opens_right(runs["smooth"] / "smooth.rrd", "smooth")
+    # the per-iteration figures are bar charts (static, shown on mission_time) beside the iteration-timeline series
+    views = {v["origin"].strip("/"): v["class"] for v in read_blueprint_views(runs["plan"] / "plan.rrd")}
+    assert views["metrics/solution_cost"] == "BarChart"
+    assert "metrics/solution_cost" in read_recording_scalars(runs["plan"] / "plan.rrd", timeline="iteration")

@@ -89,7 +89,10 @@ def test_twice_w_ends_degraded_with_one_warning_and_the_response_recorded(twice_
         assert np.all(final >= 1.5 * np.array(response["measured_max"][key]) * (1 - 1e-9))
         assert np.all(final >= np.array(beyond["measured_max"][key]))
     assert s["tube_violations"] == 0 and s["safety"]["keep_in"]["count"] == 0
-    assert {r["kind"] for r in s["status_reasons"]} == {"beyond_w"}
+    # W exceeded 2x before the redesign: the true state may leave the promised tube then (reported apart)
+    kinds = {r["kind"] for r in s["status_reasons"]}
+    assert "beyond_w" in kinds and kinds <= {"beyond_w", "tube_true"}
+    assert ("tube_true" in kinds) == (s["tube_violations_true"] > 0)
 
 
 def test_twice_w_records_the_measured_disturbance_in_the_mcap_and_the_recording(twice_w_run):

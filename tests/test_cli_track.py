@@ -15,7 +15,15 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.config import load_config
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun.read import read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import (
+    empty_blueprint_views,
+    read_application_id,
+    read_blueprint_timeline,
+    read_blueprint_views,
+    read_recording_entities,
+    read_recording_scalars,
+)
+from oacli.metrics import true_states_at
 from oacli.model import quaternion as quat
 from tests.conftest import MIT_ISS, REPO, require_shared
 
@@ -91,12 +99,12 @@ def test_recording_reads_back_with_the_logged_values(iss_run):
     tel = read_telemetry(iss_run / "track.mcap")
     t_err, pos_err = scalars["metrics/position_error_m"]
     np.testing.assert_allclose(t_err, tel.t_ctrl, atol=1e-9)
-    idx = np.searchsorted(tel.t_true, tel.t_ctrl - 1e-9)
-    expected = np.linalg.norm(tel.x_true[idx, 0:3] - tel.x_reference[:, 0:3], axis=1)
+    # The true state at the control instants themselves (half of them lie between two plant samples).
+    x_at = true_states_at(tel, tel.t_ctrl)
+    expected = np.linalg.norm(x_at[:, 0:3] - tel.x_reference[:, 0:3], axis=1)
     np.testing.assert_allclose(pos_err, expected, atol=1e-9)
     _t_att, att_err = scalars["metrics/attitude_error_rad"]
-    np.testing.assert_allclose(att_err, quat.angle_between(tel.x_reference[:, 6:10], tel.x_true[idx, 6:10]),
-                               atol=1e-9)
+    np.testing.assert_allclose(att_err, quat.angle_between(tel.x_reference[:, 6:10], x_at[:, 6:10]), atol=1e-9)
     _, force = scalars["metrics/force_N"]
     np.testing.assert_allclose(force, tel.u_applied[:, 0:3], atol=1e-12)
 
@@ -138,3 +146,15 @@ def test_python_dash_m_entry_point():
     result = subprocess.run([sys.executable, "-m", "oacli", "--version"], capture_output=True, text=True, check=False)
     assert result.returncode == 0
     assert result.stdout.startswith("oacli ")
+
+
+def assert_recording_opens_right(rrd, stage):
+    """Own application id (own layout when several recordings are open), no panel empty on the opening timeline."""
+    assert read_application_id(rrd) == f"oacli-{stage}"
+    assert read_blueprint_timeline(rrd) == "mission_time"
+    assert read_blueprint_views(rrd), "no blueprint"
+    assert empty_blueprint_views(rrd) == []
+
+
+def test_track_recording_opens_with_every_panel_filled(iss_run):
+    assert_recording_opens_right(iss_run / "track.rrd", "track")

@@ -13,7 +13,15 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.config import load_config
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun.read import read_recording_component, read_recording_entities, read_recording_scalars
+from oacli.io.rerun.read import (
+    empty_blueprint_views,
+    read_application_id,
+    read_blueprint_timeline,
+    read_blueprint_views,
+    read_recording_component,
+    read_recording_entities,
+    read_recording_scalars,
+)
 from oacli.model.double_integrator import double_integrator
 from oacli.sets import Polytope
 from tests.conftest import MIT_ISS, REPO, require_shared
@@ -188,3 +196,15 @@ def test_bad_tube_settings_name_the_field(tmp_path, edit, field):
     assert result.exit_code == 2, result.output
     assert field in result.stderr, result.stderr
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+def assert_recording_opens_right(rrd, stage):
+    """Own application id (own layout when several recordings are open), no panel empty on the opening timeline."""
+    assert read_application_id(rrd) == f"oacli-{stage}"
+    assert read_blueprint_timeline(rrd) == "mission_time"
+    assert read_blueprint_views(rrd), "no blueprint"
+    assert empty_blueprint_views(rrd) == []
+
+
+def test_tube_track_recording_opens_with_every_panel_filled(tube_run):
+    assert_recording_opens_right(tube_run / "track.rrd", "track")

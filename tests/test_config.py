@@ -33,7 +33,8 @@ from oacli.types import InertialParams
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 PRESETS = sorted(CONFIGS.glob("*.yaml"))
-PRESET_NAMES = ["doerr2021.yaml", "iss_reswarm.yaml", "iss_reswarm_tube.yaml"]
+PRESET_NAMES = ["doerr2021.yaml", "iss_reswarm.yaml", "iss_reswarm_tube.yaml", "mission_doerr2021.yaml",
+                "mission_iss.yaml"]
 
 BASE: dict[str, Any] = {
     "robot": {

@@ -22,7 +22,7 @@ from oacli.config import load_config
 from oacli.control.compiled_qp import CompiledQP
 from oacli.control.disturbance import DisturbanceSpec
 from oacli.control.mpc import LinearMPC
-from oacli.control.tracking import TrackingLimits, TrackingMPC, TrackingWeights, to_error_state
+from oacli.control.tracking import TrackingMPC, TrackingWeights, to_error_state
 from oacli.control.tube_design import AncillaryWeights, design_translation_tube
 from oacli.control.tube_mpc import TerminalWeights, TubeMPC
 from oacli.control.workspace import PositionRows, WorkspaceRows, braking_lines, shifted_plan
@@ -31,6 +31,7 @@ from oacli.geometry.collision import CollisionChecker, RobotBody
 from oacli.geometry.halfspaces import best_piece, keep_in_pieces, keep_out_zone, point_halfspaces
 from oacli.io.mcap_io import read_telemetry, read_trajectory
 from oacli.model.double_integrator import hover_error_model
+from oacli.model.limits import MotionLimits
 from oacli.model.quaternion import to_rotation_matrix
 from oacli.planning.polish import keep_out_halfspaces
 from oacli.reference import waypoint_reference
@@ -46,7 +47,7 @@ BARE = InertialParams(9.583788668, [0.153427995, 0.14271405, 0.162302759])
 PAYLOAD = InertialParams(15.0, [0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1, Astrobee with the printed object
 RADIUS = 0.25  # [AstrobeeFSW] astrobee/config/worlds/iss.config, collision radius
 U_MAX = np.array([0.452, 0.216, 0.257, 0.0452, 0.0216, 0.0257])  # [ReSWARM2023] Table 2 (2000 RPM), torque ≈ 1/10
-LIMITS = TrackingLimits(U_MAX[:3], U_MAX[3:], np.full(3, 0.2), np.full(3, 0.1745))
+LIMITS = MotionLimits(U_MAX[:3], U_MAX[3:], np.full(3, 0.2), np.full(3, 0.1745))
 WEIGHTS = TrackingWeights(*[np.full(3, v) for v in (10.0, 1.0, 10.0, 1.0, 1.0, 100.0)])
 ISS = load_config(REPO / "configs" / "iss_reswarm.yaml").scene()
 runner = CliRunner()
@@ -229,7 +230,7 @@ def _a_to_b(params, speed=0.05):
 
 
 def _tube(reference, design, scene, fast=True):
-    return TubeMPC(reference, InertialParams(design.mass_kg, BARE.inertia_kgm2), design, horizon=5,
+    return TubeMPC(reference, design, inertia_kgm2=BARE.inertia_kgm2, horizon=5,
                    prediction_step_s=1.0, weights=TUBE_WEIGHTS, limits=LIMITS,
                    terminal=TerminalWeights(np.full(3, 100.0), np.full(3, 10.0)), fast=fast, scene=scene,
                    robot=RobotBody.sphere(RADIUS), keep_in_margin_m=RADIUS)

@@ -27,7 +27,6 @@ from oacli.excitation.information import (
 )
 from oacli.excitation.merit import ScpMerit
 from oacli.excitation.problem import (
-    MotionLimits,
     chord_margin_m,
     minimum_time_s,
     rest_to_rest_inputs,
@@ -38,6 +37,7 @@ from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
 from oacli.geometry.verify import dense_positions
 from oacli.io.reference_files import load_csv
 from oacli.model import quaternion as quat
+from oacli.model.limits import MotionLimits
 from oacli.stages.excite import excitation_problem
 from oacli.stages.settings import scp_settings
 from tests.conftest import INFO_TRAJECTORIES, REPO, require_shared

@@ -9,8 +9,9 @@ import pytest
 
 from oacli.control.lqr import dlqr
 from oacli.control.mpc import LinearMPC
-from oacli.control.tracking import TrackingLimits, TrackingMPC, TrackingWeights
+from oacli.control.tracking import TrackingMPC, TrackingWeights
 from oacli.model.double_integrator import hover_error_model
+from oacli.model.limits import MotionLimits
 from oacli.reference import waypoint_reference
 from oacli.types import InertialParams, SolveInfo
 
@@ -91,7 +92,7 @@ def test_state_limits_are_soft_when_the_measured_state_already_violates_them():
 
 
 def _tracking(reference):
-    limits = TrackingLimits(U_MAX[:3], U_MAX[3:], np.full(3, 0.2), np.full(3, 0.1745))
+    limits = MotionLimits(U_MAX[:3], U_MAX[3:], np.full(3, 0.2), np.full(3, 0.1745))
     weights = TrackingWeights(*[np.full(3, v) for v in (10.0, 1.0, 10.0, 1.0, 1.0, 100.0)])
     return TrackingMPC(reference, PARAMS, dt_s=0.2, horizon=10, weights=weights, limits=limits)
 

@@ -9,12 +9,12 @@ from hypothesis import strategies as st
 
 from oacli.excitation.information import MeasurementModel, fisher_information
 from oacli.excitation.oracle import CramerRaoOracle, OnlineEstimator
-from oacli.excitation.problem import MotionLimits
 from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, information_weights
 from oacli.excitation.rattle_loop import run_rattle
 from oacli.geometry import Box, Scene
 from oacli.model import quaternion as quat
 from oacli.model import rigid_body as rb
+from oacli.model.limits import MotionLimits
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.types import InertialParams
 

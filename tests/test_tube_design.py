@@ -189,15 +189,16 @@ def test_tight_tube_holds_under_disturbances_at_the_vertices_of_w(eps, truth_mas
     """TubeMPC with the relative-ε tube on the rigid-body plant, disturbance at W's vertices: the measured state
     stays in ẑ ⊕ Z at every step (the tube is tight but still invariant; the QP's lasso back-off absorbs the
     solver tolerance), and the force stays within U."""
-    from oacli.control.tracking import TrackingLimits, TrackingWeights
+    from oacli.control.tracking import TrackingWeights
     from oacli.control.tube_mpc import TerminalWeights, TubeMPC
+    from oacli.model.limits import MotionLimits
     from oacli.reference import waypoint_reference
     from oacli.sim.sensors import Disturbance, SensorNoise
     from oacli.sim.simulator import simulate
     from oacli.types import InertialParams
 
     inertia = [0.153427995, 0.14271405, 0.162302759]  # astrobee iss.config
-    limits = TrackingLimits(np.array([0.452, 0.216, 0.257]), np.array([0.0452, 0.0216, 0.0257]), np.full(3, 0.2),
+    limits = MotionLimits(np.array([0.452, 0.216, 0.257]), np.array([0.0452, 0.0216, 0.0257]), np.full(3, 0.2),
                             np.full(3, 0.1745))
     weights = TrackingWeights(*(np.full(3, v) for v in (50.0, 5.0, 10.0, 1.0, 0.1, 100.0)))  # rattle tube MPC
     tube = design(eps)
@@ -205,7 +206,7 @@ def test_tight_tube_holds_under_disturbances_at_the_vertices_of_w(eps, truth_mas
                              np.array([[0.0, 0.0, -0.7071068, 0.7071068], [0.0, 0.0, 0.0, 1.0]]),
                              InertialParams(MASS, inertia), speed_mps=0.05, accel_mps2=0.01, rate_radps=0.05,
                              ang_accel_radps2=0.02, hold_s=1.0)
-    ctrl = TubeMPC(ref, InertialParams(MASS, inertia), tube, horizon=5, prediction_step_s=1.0, weights=weights,
+    ctrl = TubeMPC(ref, tube, inertia_kgm2=inertia, horizon=5, prediction_step_s=1.0, weights=weights,
                    limits=limits, terminal=TerminalWeights(np.full(3, 100.0), np.full(3, 10.0)))
     x0 = ref.x[0].copy()
     x0[0:3] += [0.01, -0.005, 0.003]

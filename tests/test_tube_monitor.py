@@ -46,7 +46,7 @@ def reference():
 
 def monitor(design, reference, response="redesign", **kw):
     def factory(d):
-        return TubeMPC(reference, InertialParams(MASS, INERTIA), d, horizon=5, prediction_step_s=1.0,
+        return TubeMPC(reference, d, inertia_kgm2=INERTIA, horizon=5, prediction_step_s=1.0,
                        weights=WEIGHTS, limits=LIMITS, terminal=TERMINAL)
     return TubeMonitor(factory, design, response=response, actuator_force_limit_N=ACTUATOR,
                        redesign=redesign_fn() if response == "redesign" else None, **kw)

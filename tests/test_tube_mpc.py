@@ -13,12 +13,13 @@ from oacli.control.compiled_qp import CompiledQP
 from oacli.control.disturbance import DisturbanceSpec, mass_uncertainty_bound
 from oacli.control.lqr import dlqr, solve_dare
 from oacli.control.mpc import LinearMPC
-from oacli.control.tracking import TrackingLimits, TrackingWeights
+from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import AncillaryWeights, design_translation_tube
 from oacli.control.tube_mpc import TerminalWeights, TubeMPC
 from oacli.control.tube_qp import LinearConstraint, NominalQP, QPBlock
 from oacli.errors import InfeasibleError
 from oacli.model.double_integrator import double_integrator
+from oacli.model.limits import MotionLimits
 from oacli.reference import waypoint_reference
 from oacli.sets import Polytope, minimal_rpi_outer, rpi_margins
 from oacli.sim.sensors import Disturbance, SensorNoise
@@ -32,7 +33,7 @@ DT = 0.2
 U_TUBE = np.full(3, 0.15)
 V_MAX = np.full(3, 0.2)
 WEIGHTS = TrackingWeights(*(np.full(3, w) for w in (50.0, 5.0, 10.0, 1.0, 0.1, 100.0)))
-LIMITS = TrackingLimits(np.array([0.452, 0.216, 0.257]), np.array([0.0452, 0.0216, 0.0257]), V_MAX,
+LIMITS = MotionLimits(np.array([0.452, 0.216, 0.257]), np.array([0.0452, 0.0216, 0.0257]), V_MAX,
                         np.full(3, 0.1745))
 TERMINAL = TerminalWeights(np.full(3, 100.0), np.full(3, 10.0))
 
@@ -298,7 +299,7 @@ def test_tube_mpc_closed_loop_stays_in_the_tube_and_within_limits(design, truth_
                              np.array([[0.0, 0.0, -0.7071068, 0.7071068], [0.0, 0.0, 0.0, 1.0]]),
                              InertialParams(MASS, INERTIA), speed_mps=0.05, accel_mps2=0.01, rate_radps=0.05,
                              ang_accel_radps2=0.02, hold_s=1.0)
-    ctrl = TubeMPC(ref, InertialParams(MASS, INERTIA), design, horizon=5, prediction_step_s=1.0, weights=WEIGHTS,
+    ctrl = TubeMPC(ref, design, inertia_kgm2=INERTIA, horizon=5, prediction_step_s=1.0, weights=WEIGHTS,
                    limits=LIMITS, terminal=TERMINAL)
     x0 = ref.x[0].copy()
     x0[0:3] += [0.01, -0.005, 0.003]  # start off the reference
@@ -326,7 +327,7 @@ def failing_controller(design, fail_steps, max_failures=3):
     ref = waypoint_reference(np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0]]), np.array([[0.0, 0.0, 0.0, 1.0]] * 2),
                              InertialParams(MASS, INERTIA), speed_mps=0.05, accel_mps2=0.01, rate_radps=0.05,
                              ang_accel_radps2=0.02, hold_s=1.0)
-    ctrl = TubeMPC(ref, InertialParams(MASS, INERTIA), design, horizon=5, prediction_step_s=1.0, weights=WEIGHTS,
+    ctrl = TubeMPC(ref, design, inertia_kgm2=INERTIA, horizon=5, prediction_step_s=1.0, weights=WEIGHTS,
                    limits=LIMITS, terminal=TERMINAL, max_consecutive_failures=max_failures)
     real_solve, calls = ctrl.qp.solve, {"n": 0}
 

@@ -8,16 +8,17 @@ Typer app.
 from __future__ import annotations
 
 import os
-import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
+from oacli.commands.progress import Progress
 from oacli.errors import ConfigError, OacliError
 from oacli.signals import exit_code_for, interruption_message, terminate_like_interrupt
+
+__all__ = ["Progress"]  # re-exported: the commands import it from here
 
 # Options every stage command shares (``Annotated`` aliases: ``out: OutOption = None``).
 ConfigArgument = Annotated[Path, typer.Argument(help="YAML configuration file (see configs/).")]
@@ -25,38 +26,13 @@ OutOption = Annotated[Path | None, typer.Option("--out", "-o", help="Run folder 
 RunsDirOption = Annotated[Path, typer.Option("--runs-dir", help="Parent of automatically named run folders.")]
 SeedOption = Annotated[int | None, typer.Option("--seed", help="Override the config's seed.")]
 QuietOption = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no results table.")]
-
-
-class Progress:
-    """A minimal progress bar on stderr: redrawn in place on a terminal, a line every 25 % otherwise."""
-
-    def __init__(self, label: str, enabled: bool) -> None:
-        self.label = label
-        self.enabled = enabled
-        self.tty = sys.stderr.isatty()
-        self.start = time.perf_counter()
-        self._last_step = -1
-
-    def __call__(self, fraction: float) -> None:
-        if not self.enabled:
-            return
-        if self.tty:
-            step = int(fraction * 100)
-            if step == self._last_step:
-                return
-            self._last_step = step
-            bar = "#" * (step // 4) + "-" * (25 - step // 4)
-            elapsed = time.perf_counter() - self.start
-            sys.stderr.write(f"\r{self.label} [{bar}] {step:3d}% {elapsed:6.1f} s")
-            if fraction >= 1.0:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
-        else:
-            step = int(fraction * 4)
-            if step != self._last_step:
-                self._last_step = step
-                sys.stderr.write(f"{self.label}: {25 * step}% ({time.perf_counter() - self.start:.1f} s)\n")
-                sys.stderr.flush()
+SetOption = Annotated[
+    list[str] | None,
+    typer.Option("--set", metavar="KEY=VALUE", help="Override a config value by its dotted path, e.g. "
+                 "--set robot.mass_kg=15 (YAML value; repeatable; validated like the file's values)."),
+]
+ViewOption = Annotated[bool, typer.Option("--view", help="Open the recording in the Rerun viewer (127.0.0.1).")]
+JsonOption = Annotated[bool, typer.Option("--json", help="Print the results (summary.json) as JSON on stdout.")]
 
 
 def fail(exc: BaseException) -> typer.Exit:
@@ -75,26 +51,86 @@ def fail(exc: BaseException) -> typer.Exit:
 
 
 def format_value(value: Any) -> str:
+    """A summary value for the results table: floats to 4 significant digits, vectors in brackets."""
+    if isinstance(value, bool) or value is None:
+        return str(value)
     if isinstance(value, float):
-        return f"{value:.6g}"
+        return f"{value:.4g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(format_value(v) for v in value) + "]"
     if isinstance(value, dict):
         return ", ".join(f"{k} {format_value(v)}" for k, v in value.items())
     return str(value)
 
 
 def print_table(summary: dict[str, Any], keys: list[str]) -> None:
-    """Print selected summary entries as an aligned two-column table on stdout."""
-    width = max(len(k) for k in keys)
+    """Print selected summary entries as a two-column rich table on stdout (plain text when not a terminal)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(show_header=False, box=None, pad_edge=False)
+    table.add_column("key", style="bold")
+    table.add_column("value", overflow="fold")
     for key in keys:
         if key in summary:
-            typer.echo(f"{key:<{width}}  {format_value(summary[key])}")
+            table.add_row(key, format_value(summary[key]))
+    Console(soft_wrap=False, width=max(120, 40)).print(table)
 
 
-def load_config_with_seed(config: Path, seed: int | None):
-    """Load a config file and apply a ``--seed`` override (validated like the config's own seed)."""
-    from oacli.config import load_config
+def apply_overrides(data: dict[str, Any], sets: list[str] | None) -> dict[str, Any]:
+    """Apply ``--set KEY=VALUE`` overrides (dotted paths, YAML values) to plain config data.
+
+    Parameters
+    ----------
+    data : dict
+        The configuration as plain data (changed in place and returned).
+    sets : list of str, optional
+        ``section.field=value`` items; the value is read as YAML (``15``, ``[1, 2, 3]``, ``tube``).
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    ConfigError
+        An item without ``=`` or an empty path, or a path through a value that is not a section.
+    """
+    import yaml
+
+    for item in sets or ():
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key or any(not part for part in key.split(".")):
+            raise ConfigError(f"--set {item}: expected KEY=VALUE with a dotted key, e.g. robot.mass_kg=15")
+        try:
+            value = yaml.safe_load(text) if text.strip() else None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"--set {key}: value {text!r} is not valid YAML: {exc}") from None
+        node = data
+        parts = key.split(".")
+        for depth, part in enumerate(parts[:-1]):
+            child = node.get(part)
+            if child is None:
+                child = node[part] = {}
+            if not isinstance(child, dict):
+                raise ConfigError(f"--set {key}: {'.'.join(parts[:depth + 1])} is a value, not a section")
+            node = child
+        node[parts[-1]] = value
+    return data
+
+
+def load_config_with_seed(config: Path, seed: int | None, sets: list[str] | None = None):
+    """Load a config file and apply ``--set`` overrides and a ``--seed`` override (validated like the file's values;
+    an error names the field)."""
+    import os
+
+    from oacli.config import config_from_dict, load_config
 
     cfg = load_config(config)
+    if sets:
+        data = apply_overrides(cfg.model_dump(mode="json"), sets)
+        cfg = config_from_dict(data, source=f"{config} (--set)", base_dir=os.path.dirname(os.path.abspath(config)))
     if seed is not None:
         if seed < 0:
             raise ConfigError(f"--seed: {seed}: must be >= 0")
@@ -111,22 +147,32 @@ def run_guarded(action: Callable[[], Any]) -> Any:
         raise fail(exc) from None
 
 
-def run_stage_command(action: Callable[[], Any], table: list[str], quiet: bool) -> None:
+def run_stage_command(action: Callable[[], Any], table: list[str], quiet: bool, json_out: bool = False,
+                      view: bool = False) -> None:
     """Run a stage command's action (errors mapped by :func:`run_guarded`), then print its results table on
     stdout (unless ``quiet``) and the run folder (on stderr when quiet, so stdout stays empty).
 
     A status other than ``ok`` prints one ``warning:`` line on stderr (even when quiet) and exits with its code
-    (:data:`oacli.status.EXIT_CODES`: ``degraded`` 0, ``unsafe`` 4).
+    (:data:`oacli.status.EXIT_CODES`: ``degraded`` 0, ``unsafe`` 4). With ``json_out`` stdout holds only the
+    summary as JSON (plus ``run_dir``). With ``view`` the stage's ``.rrd`` opens in the Rerun viewer.
     """
+    import json
+
     from oacli.status import exit_code, warning_line
 
     result = run_guarded(action)
     warning = warning_line(result.summary)
     if warning is not None:
         typer.echo(warning, err=True)
-    if not quiet:
+    if json_out:
+        typer.echo(json.dumps({**result.summary, "run_dir": str(result.run_dir)}, default=str))
+    elif not quiet:
         print_table(result.summary, table)
-    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet or json_out)
+    if view:
+        from oacli.commands.view import open_in_viewer
+
+        open_in_viewer(result.run_dir)
     code = exit_code(result.summary.get("status", "ok"))
     if code:
         raise typer.Exit(code)

@@ -8,10 +8,14 @@ from typing import Annotated
 import typer
 
 from oacli.commands.common import (
+    JsonOption,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
+    SeedOption,
+    SetOption,
+    ViewOption,
     load_config_with_seed,
     run_stage_command,
 )
@@ -41,7 +45,11 @@ def estimate(
     ] = True,
     out: OutOption = None,
     runs_root: RunsDirOption = Path("runs"),
+    seed: SeedOption = None,
     quiet: QuietOption = False,
+    sets: SetOption = None,
+    json_out: JsonOption = False,
+    view: ViewOption = False,
 ) -> None:
     """Estimate mass and principal inertias from TRACK.mcap; write estimate.mcap, estimate.rrd, summary.json.
 
@@ -58,10 +66,11 @@ def estimate(
             raise InputError(f"--method {method}: must be batch or sequential")
         from oacli.config.inputs import with_input
 
-        cfg, path = with_input(load_config_with_seed(config, None), "estimate_telemetry", telemetry, "--telemetry")
+        cfg, path = with_input(load_config_with_seed(config, seed, sets), "estimate_telemetry", telemetry,
+                               "--telemetry")
         if method is not None:  # recorded in the run's config.yaml, which then reruns the same method
             cfg = cfg.model_copy(update={"estimation": cfg.estimation.model_copy(update={"method": method})})
         return run_estimate(cfg, telemetry=path, method=method, out=out, runs_root=runs_root,
                             progress=Progress("estimate", not quiet), allow_truncated=allow_truncated)
 
-    run_stage_command(action, ESTIMATE_TABLE, quiet)
+    run_stage_command(action, ESTIMATE_TABLE, quiet, json_out, view)

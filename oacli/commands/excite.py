@@ -8,11 +8,14 @@ from typing import Annotated
 import typer
 
 from oacli.commands.common import (
+    JsonOption,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
+    SetOption,
+    ViewOption,
     load_config_with_seed,
     run_stage_command,
 )
@@ -34,6 +37,9 @@ def excite(
     runs_root: RunsDirOption = Path("runs"),
     seed: SeedOption = None,
     quiet: QuietOption = False,
+    sets: SetOption = None,
+    json_out: JsonOption = False,
+    view: ViewOption = False,
 ) -> None:
     """Design an information-rich trajectory from excitation.start to excitation.goal; write excite.mcap,
     excite.rrd and summary.json."""
@@ -44,7 +50,7 @@ def excite(
 
         if method is not None and method not in ("offline", "rattle"):
             raise ConfigError(f"--method: {method!r}: must be 'offline' or 'rattle'")
-        cfg = load_config_with_seed(config, seed)
+        cfg = load_config_with_seed(config, seed, sets)
         return run_excite(cfg, method=method, out=out, runs_root=runs_root, progress=Progress("excite", not quiet))
 
-    run_stage_command(action, EXCITE_TABLE, quiet)
+    run_stage_command(action, EXCITE_TABLE, quiet, json_out, view)

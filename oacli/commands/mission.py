@@ -13,6 +13,7 @@ from oacli.commands.common import (
     QuietOption,
     RunsDirOption,
     SeedOption,
+    SetOption,
     format_value,
     load_config_with_seed,
     run_guarded,
@@ -66,6 +67,7 @@ def mission(
     runs_root: RunsDirOption = Path("runs"),
     seed: SeedOption = None,
     quiet: QuietOption = False,
+    sets: SetOption = None,
     resume: Annotated[
         bool, typer.Option("--resume", help="TARGET is an interrupted mission folder: keep its complete stages, "
                            "rerun the rest in place.")
@@ -97,7 +99,7 @@ def mission(
         else:
             if target.is_dir():
                 raise InputError(f"{target}: a folder; give a config file, or add --resume / --from STAGE")
-            cfg = load_config_with_seed(target, seed)
+            cfg = load_config_with_seed(target, seed, sets)
         validate_mission(cfg)
         if resume:
             if out is not None:

@@ -9,11 +9,14 @@ import typer
 
 from oacli.commands.common import (
     ConfigArgument,
+    JsonOption,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
+    SetOption,
+    ViewOption,
     load_config_with_seed,
     run_stage_command,
 )
@@ -37,6 +40,9 @@ def plan(
     runs_root: RunsDirOption = Path("runs"),
     seed: SeedOption = None,
     quiet: QuietOption = False,
+    sets: SetOption = None,
+    json_out: JsonOption = False,
+    view: ViewOption = False,
 ) -> None:
     """Plan a segment; write plan.mcap (trajectory, tree, scene), plan.rrd and summary.json.
 
@@ -46,8 +52,8 @@ def plan(
     def action():
         from oacli.stages.plan import run_plan
 
-        cfg = load_config_with_seed(config, seed)
+        cfg = load_config_with_seed(config, seed, sets)
         return run_plan(cfg, segment=segment, planner=planner, out=out, runs_root=runs_root,
                         progress=Progress("plan", not quiet))
 
-    run_stage_command(action, PLAN_TABLE, quiet)
+    run_stage_command(action, PLAN_TABLE, quiet, json_out, view)

@@ -9,11 +9,14 @@ import typer
 
 from oacli.commands.common import (
     ConfigArgument,
+    JsonOption,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
+    SetOption,
+    ViewOption,
     load_config_with_seed,
     run_stage_command,
 )
@@ -35,6 +38,9 @@ def smooth(
     runs_root: RunsDirOption = Path("runs"),
     seed: SeedOption = None,
     quiet: QuietOption = False,
+    sets: SetOption = None,
+    json_out: JsonOption = False,
+    view: ViewOption = False,
 ) -> None:
     """Smooth a plan by LQR shortcutting, then shorten its path (planner.polish); write smooth.mcap, smooth.rrd
     and summary.json."""
@@ -43,8 +49,8 @@ def smooth(
         from oacli.config.inputs import with_input
         from oacli.stages.smooth import run_smooth
 
-        cfg, path = with_input(load_config_with_seed(config, seed), "smooth_input", input_path, "--input")
+        cfg, path = with_input(load_config_with_seed(config, seed, sets), "smooth_input", input_path, "--input")
         return run_smooth(cfg, input_path=path, out=out, runs_root=runs_root,
                           progress=Progress("smooth", not quiet))
 
-    run_stage_command(action, SMOOTH_TABLE, quiet)
+    run_stage_command(action, SMOOTH_TABLE, quiet, json_out, view)

@@ -9,11 +9,14 @@ import typer
 
 from oacli.commands.common import (
     ConfigArgument,
+    JsonOption,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
+    SetOption,
+    ViewOption,
     load_config_with_seed,
     run_stage_command,
 )
@@ -37,6 +40,9 @@ def track(
     runs_root: RunsDirOption = Path("runs"),
     seed: SeedOption = None,
     quiet: QuietOption = False,
+    sets: SetOption = None,
+    json_out: JsonOption = False,
+    view: ViewOption = False,
     strict: Annotated[
         bool,
         typer.Option("--strict", help="Refuse (exit 2) a reference the simulated plant (truth) cannot follow within "
@@ -50,7 +56,7 @@ def track(
         from oacli.io.reference_files import load_reference
         from oacli.stages.track import run_track
 
-        cfg = load_config_with_seed(config, seed)
+        cfg = load_config_with_seed(config, seed, sets)
         ref = None
         if reference is not None:
             ref_path = reference.resolve()
@@ -65,4 +71,4 @@ def track(
             typer.echo(f"warning: {check['message']} (tracked anyway; --strict refuses it)", err=True)
         return result
 
-    run_stage_command(action, TRACK_TABLE, quiet)
+    run_stage_command(action, TRACK_TABLE, quiet, json_out, view)

@@ -18,41 +18,14 @@ from pydantic_core import PydanticCustomError
 
 from oacli.config.fields import (
     PositiveReal,
-    PositiveVector3,
-    PrincipalInertia,
     Real,
     Section,
     StrictInt,
     none_to,
 )
+from oacli.config.prior import RATTLE_PRIOR_THETA, RATTLE_PRIOR_VARIANCE, PriorConfig
 
 EstimationMethod = Literal["batch", "sequential"]
-
-RATTLE_PRIOR_THETA = (15.0, 0.1, 0.1, 0.1)
-"""rattle ``params_init_6DOF_simplified``: [m kg, Ixx, Iyy, Izz kg·m²]."""
-RATTLE_PRIOR_VARIANCE = (15.0, 0.005, 0.005, 0.005)
-"""rattle ``vec_cov_6DOF_simplified`` (diagonal of the initial covariance P): [kg², (kg·m²)² ×3]."""
-
-
-class PriorConfig(Section):
-    """Gaussian prior ``N(θ₀, P₀)`` on θ = [m, Ixx, Iyy, Izz]; a missing mean is taken from ``robot``."""
-
-    mass_kg: PositiveReal | None = Field(
-        default=None, description="Prior mean of the mass [kg], > 0 (default: robot.mass_kg, the model as prior)."
-    )
-    inertia_kgm2: PrincipalInertia | None = Field(
-        default=None,
-        description="Prior mean of the principal inertias [kg·m²] (default: robot.inertia_kgm2); triangle "
-        "inequalities must hold.",
-    )
-    mass_variance_kg2: PositiveReal = Field(
-        default=RATTLE_PRIOR_VARIANCE[0],
-        description="Prior variance of the mass [kg²], > 0 (rattle P0: 15, i.e. a standard deviation of 3.9 kg).",
-    )
-    inertia_variance_kg2m4: PositiveVector3 = Field(
-        default=RATTLE_PRIOR_VARIANCE[1:],
-        description="Prior variances of Ixx, Iyy, Izz [(kg·m²)²], > 0 (rattle P0: 0.005 each, std 0.071 kg·m²).",
-    )
 
 
 class MeasurementNoiseConfig(Section):
@@ -150,16 +123,11 @@ class EstimationConfig(Section):
 
     def prior_theta(self, robot_theta: np.ndarray) -> np.ndarray:
         """θ₀ [kg, kg·m² ×3]: the configured mean, missing entries from the robot model ``robot_theta``."""
-        out = np.array(robot_theta, dtype=float)
-        if self.prior.mass_kg is not None:
-            out[0] = self.prior.mass_kg
-        if self.prior.inertia_kgm2 is not None:
-            out[1:4] = self.prior.inertia_kgm2
-        return out
+        return self.prior.theta(robot_theta)
 
     def prior_covariance(self) -> np.ndarray:
         """P₀ = diag(mass variance, inertia variances) [kg², (kg·m²)²]."""
-        return np.diag([self.prior.mass_variance_kg2, *self.prior.inertia_variance_kg2m4])
+        return self.prior.covariance()
 
 
 __all__ = [

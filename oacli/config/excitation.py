@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
-import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
 from pydantic_core import PydanticCustomError
 
@@ -17,7 +16,7 @@ from oacli.config.environment import WaypointRef
 from oacli.config.fields import (
     Fraction,
     PositiveReal,
-    PrincipalInertia,
+    PositiveVector4,
     Real,
     Section,
     StrictBool,
@@ -26,6 +25,7 @@ from oacli.config.fields import (
     sequence_of,
 )
 from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
+from oacli.config.prior import PriorConfig
 
 MAX_EXCITATION_STEPS = 2000
 """Largest accepted number of design steps."""
@@ -38,10 +38,6 @@ RATTLE_ANGULAR_VELOCITY_STD = math.sqrt(2.5e-4)
 RATTLE_ACCELERATION_STD = math.sqrt(5e-6)
 """rattle ``param_est``: R_6DOF linear acceleration entries 0.5e-5 (variances) -> 2.236e-3 m/s²."""
 
-PositiveVector4 = Annotated[
-    tuple[PositiveReal, PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(4))
-]
-"""Four positive numbers, one per parameter [m, Ixx, Iyy, Izz]."""
 NonNegativeVector4 = Annotated[
     tuple[
         Annotated[Real, Field(ge=0)], Annotated[Real, Field(ge=0)], Annotated[Real, Field(ge=0)],
@@ -124,23 +120,6 @@ class ScpConfig(Section):
                 {"a": self.trust_region_min, "b": self.trust_region_initial, "c": self.trust_region_max},
             )
         return self
-
-
-class PriorConfig(Section):
-    """Prior knowledge of θ = [m, Ixx, Iyy, Izz]: the design's model and the estimator's start."""
-
-    mass_kg: PositiveReal | None = Field(default=None, description="Prior mass [kg] (default: robot.mass_kg).")
-    inertia_kgm2: PrincipalInertia | None = Field(
-        default=None, description="Prior principal inertias [kg·m²] (default: robot.inertia_kgm2)."
-    )
-    variance: PositiveVector4 = Field(
-        default=(15.0, 0.005, 0.005, 0.005),
-        description="Prior variances [kg², (kg·m²)²] (rattle param_est P0 = diag(15, 0.005, 0.005, 0.005)).",
-    )
-
-    def covariance(self) -> np.ndarray:
-        """Prior covariance diag(variance), shape (4, 4)."""
-        return np.diag(np.array(self.variance, dtype=float))
 
 
 class RattleWeightsConfig(Section):

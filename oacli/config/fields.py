@@ -190,6 +190,10 @@ BoundedPositiveVector3 = Annotated[
 ]
 """Three positive lengths [m] (semi-axes, sizes), each at most :data:`MAX_COORDINATE_M`."""
 PositiveVector3 = Annotated[tuple[PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(3))]
+PositiveVector4 = Annotated[
+    tuple[PositiveReal, PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(4))
+]
+"""Four positive numbers, one per parameter θ = [m, Ixx, Iyy, Izz]."""
 NonNegativeVector3 = Annotated[
     tuple[NonNegativeReal, NonNegativeReal, NonNegativeReal], BeforeValidator(sequence_of(3))
 ]
@@ -247,6 +251,7 @@ __all__ = [
     "Position3",
     "PositiveReal",
     "PositiveVector3",
+    "PositiveVector4",
     "PrincipalInertia",
     "Quaternion",
     "Real",

@@ -10,6 +10,8 @@ the file).
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 from pydantic import Field
@@ -26,6 +28,28 @@ from oacli.config.fields import (
 )
 
 SEGMENT_NAMES = ("segment-1", "segment-2", "segment-3")
+
+
+def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``override`` merged in: mappings recursively, anything else replaced.
+
+    Parameters
+    ----------
+    base, override : Mapping
+        Plain config data.
+
+    Returns
+    -------
+    dict
+        A new mapping (the inputs are not modified).
+    """
+    out = copy.deepcopy(dict(base))
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
 
 
 class GraspedPlantConfig(Section):
@@ -73,10 +97,10 @@ class MissionConfig(Section):
     baselines: StrictBool = Field(
         default=True, description="Also fly segment 3 with standard and tube MPC on the prior ([Doerr2021] Fig. 3(d))."
     )
-    segments: Annotated[dict[SegmentName, Annotated[dict[str, Any], none_to({})]], none_to({})] = Field(
+    segments: Annotated[dict[str, Any], none_to({})] = Field(
         default_factory=dict,
         description="Per-segment overrides of the other sections (segment-1, segment-2, segment-3), deep-merged.",
     )
 
 
-__all__ = ["SEGMENT_NAMES", "GraspedPlantConfig", "MissionConfig", "PayloadPriorConfig", "SegmentName"]
+__all__ = ["SEGMENT_NAMES", "GraspedPlantConfig", "MissionConfig", "PayloadPriorConfig", "SegmentName", "deep_merge"]

@@ -23,7 +23,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationError, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
+from pydantic_core.core_schema import ErrorType
 
 from oacli.config.controller import MAX_HORIZON, ControllerConfig, ControllerType, ControllerWeights
 from oacli.config.environment import EnvironmentConfig, KeepInBox, KeepOutEllipsoid, Pose
@@ -41,7 +43,7 @@ from oacli.config.fields import (
     raise_at,
 )
 from oacli.config.inputs import InputsConfig
-from oacli.config.mission import MissionConfig
+from oacli.config.mission import SEGMENT_NAMES, MissionConfig, deep_merge
 from oacli.config.planner import PlannerConfig
 from oacli.config.reference import ReferenceConfig
 from oacli.config.robot import DisturbanceConfig, RobotConfig, TruthConfig
@@ -50,6 +52,8 @@ from oacli.config.sizes import size_problems
 from oacli.config.tube import tube_problems
 from oacli.geometry import Scene
 from oacli.types import InertialParams
+
+_CORE_ERROR_TYPES = frozenset(ErrorType.__args__)  # type: ignore[attr-defined]
 
 
 class OacliConfig(Section):
@@ -185,7 +189,41 @@ class OacliConfig(Section):
         if not problems:
             problems += size_problems(self)  # steps = duration × rate, against a cap (oacli.config.sizes)
         raise_at("OacliConfig", problems)
+        self._check_segment_overrides()
         return self
+
+    def _check_segment_overrides(self) -> None:
+        """Validate each ``mission.segments`` override merged into the file's sections, at the override's path."""
+        if self.mission is None or not self.mission.segments:
+            return
+        base = self.model_dump(mode="json", exclude={"mission"})
+        details: list[InitErrorDetails] = []
+        for segment, overrides in self.mission.segments.items():
+            loc0 = ("mission", "segments", segment)
+            if segment not in SEGMENT_NAMES:
+                details.append(InitErrorDetails(type=PydanticCustomError(
+                    "oacli_segment", "unknown segment (allowed: " + ", ".join(SEGMENT_NAMES) + ")"), loc=loc0,
+                    input=overrides))
+                continue
+            if overrides is None:
+                continue
+            if not isinstance(overrides, dict):
+                details.append(InitErrorDetails(type=PydanticCustomError(
+                    "oacli_segment", "must be a mapping of config sections"), loc=loc0, input=overrides))
+                continue
+            try:
+                OacliConfig.model_validate(deep_merge(base, overrides))
+            except ValidationError as exc:
+                for err in exc.errors():
+                    loc = ("mission", "segments", segment, *err["loc"])
+                    if err["type"] in _CORE_ERROR_TYPES:
+                        details.append(InitErrorDetails(type=err["type"], loc=loc, input=err["input"],
+                                                        ctx=err.get("ctx", {})))
+                    else:
+                        details.append(InitErrorDetails(type=PydanticCustomError(err["type"], err["msg"]), loc=loc,
+                                                        input=err["input"]))
+        if details:
+            raise ValidationError.from_exception_data("OacliConfig", details)
 
     def truth_params(self) -> InertialParams:
         """Inertial parameters of the simulated plant (the robot's unless ``truth`` overrides them)."""

@@ -125,6 +125,13 @@ class TubeConfig(Section):
         "safe hold when no tube exists for it; 'hold' the safe hold at once; 'ignore' log and count only. The "
         "run's status is 'degraded' either way.",
     )
+    monitor_noise_sigmas: NonNegativeReal = Field(
+        default=0.0,
+        description="Sensor noise the beyond-W monitor and the tube check tolerate, in σ of the sensors section: "
+        "a measured w (or measured state) counts as outside W (or the tube) only beyond this many σ of the noise "
+        "it carries (0: none). The tube guarantee itself does not cover Gaussian noise; the true state's tube "
+        "violations are reported apart (tube_violations_true).",
+    )
     solver: Literal["direct", "cvxpy"] = Field(
         default="direct",
         description="'direct': cvxpy canonicalises once, Clarabel is called with updated data; 'cvxpy': "

@@ -44,29 +44,9 @@ from oacli.geometry.collision import RobotBody
 from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
+from oacli.model.limits import MotionLimits
 from oacli.trajectory import feedforward_inputs, sample_states
 from oacli.types import ControlStep, InertialParams, SolveInfo, Trajectory
-
-
-@dataclass(frozen=True)
-class TrackingLimits:
-    """Per-axis limits [N, N·m, m/s, rad/s], each shape (3,)."""
-
-    force_N: np.ndarray
-    torque_Nm: np.ndarray
-    velocity_mps: np.ndarray
-    angular_velocity_radps: np.ndarray
-
-    @property
-    def input(self) -> np.ndarray:
-        """Input limits [f, τ] (6,)."""
-        return np.concatenate([self.force_N, self.torque_Nm])
-
-    @property
-    def error_state(self) -> np.ndarray:
-        """Limits on the 12-dimensional error state (inf where none)."""
-        inf = np.full(3, np.inf)
-        return np.concatenate([inf, self.velocity_mps, inf, self.angular_velocity_radps])
 
 
 @dataclass(frozen=True)
@@ -126,7 +106,7 @@ class TrackingMPC:
     horizon : int
         Number of prediction steps N.
     weights : TrackingWeights
-    limits : TrackingLimits
+    limits : MotionLimits
     scene : Scene, optional
         Keep the predicted positions in its free space (soft rows, module docstring); None: positions are free
         (the controller is then exactly the one without workspace rows).
@@ -148,7 +128,7 @@ class TrackingMPC:
         dt_s: float,
         horizon: int,
         weights: TrackingWeights,
-        limits: TrackingLimits,
+        limits: MotionLimits,
         scene: Scene | None = None,
         robot: RobotBody | None = None,
         keep_in_margin_m: float = 0.0,

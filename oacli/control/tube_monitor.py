@@ -176,6 +176,10 @@ class TubeMonitor:
         Redesigns allowed in a run; a further violation latches the safe hold.
     clock : callable
         Wall clock for the redesign time [s].
+    noise_allowance : ndarray, shape (3, 2), optional
+        ``[position m, velocity m/s]`` half-widths per axis of the box the measurement noise adds to the measured
+        ``w`` (``n⁺ − A n``); a step is a violation only when ``w`` leaves ``W ⊕ box``, so declared sensor noise
+        does not read as a disturbance beyond W (default: none).
     """
 
     def __init__(
@@ -189,6 +193,7 @@ class TubeMonitor:
         margin: float = 0.5,
         max_redesigns: int = 3,
         clock: Callable[[], float] = time.perf_counter,
+        noise_allowance: np.ndarray | None = None,
     ) -> None:
         if response not in RESPONSES:
             raise ValueError(f"response must be one of {RESPONSES}, got {response!r}")
@@ -199,6 +204,8 @@ class TubeMonitor:
         self.factory, self.response, self.redesign_fn = factory, response, redesign
         self.margin, self.max_redesigns, self.clock = float(margin), int(max_redesigns), clock
         self.force_limit = np.asarray(actuator_force_limit_N, dtype=float).reshape(3)
+        self.noise_allowance = (np.zeros((3, 2)) if noise_allowance is None
+                                else np.asarray(noise_allowance, dtype=float).reshape(3, 2))
         self.designs: list[tuple[float, TubeDesign]] = [(0.0, design)]
         self.controllers: list[TubeMPC] = [factory(design)]
         self.events: list[BeyondWEvent] = []
@@ -241,7 +248,7 @@ class TubeMonitor:
             e_prev = np.array([x_prev[i], x_prev[i + 3]])
             w[i] = e_now - ax.a @ e_prev - ax.b[:, 0] * u_prev[i]
             wset = ax.disturbance.w
-            slack = wset.b - wset.a @ w[i]
+            slack = wset.b - wset.a @ w[i] + np.abs(wset.a) @ self.noise_allowance[i]
             margin = min(margin, float(np.min(slack)))
             violated |= bool(np.any(slack < -W_TOLERANCE_REL * float(np.max(np.abs(wset.b)))))
         return w, margin, violated

@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from oacli.control.lqr import dlqr, solve_dare
-from oacli.control.tracking import TrackingLimits, TrackingWeights
+from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_qp import LinearConstraint, NominalQP, PositionRowsSpec, QPBlock
 from oacli.control.workspace import WorkspaceRows, shifted_plan
@@ -59,6 +59,7 @@ from oacli.geometry.collision import RobotBody
 from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
+from oacli.model.limits import MotionLimits
 from oacli.trajectory import feedforward_inputs, sample_states
 from oacli.types import ControlStep, InertialParams, SolveInfo, Trajectory
 
@@ -131,17 +132,18 @@ class TubeMPC:
     Parameters
     ----------
     reference : Trajectory
-    params : InertialParams
-        The controller's model (its mass must be the design's).
     design : TubeDesign
-        Ancillary gain, Z and tightened constraints at the control period.
+        Ancillary gain, Z and tightened constraints at the control period; its ``mass_kg`` is the controller's
+        model mass (the one the tube was designed for, taken once).
+    inertia_kgm2 : ndarray, shape (3,)
+        The controller's principal inertias [kg·m²] (e.g. ``RobotModel.inertia_kgm2``).
     horizon : int
         N, prediction steps.
     prediction_step_s : float
         Nominal model step [s], an integer multiple of ``design.dt_s``.
     weights : TrackingWeights
         Stage weights (translation and attitude).
-    limits : TrackingLimits
+    limits : MotionLimits
         Torque and angular-velocity limits for attitude (translation uses the design's tightened sets).
     terminal : TerminalWeights, optional
         Translation terminal weight; the discrete Riccati solution when omitted.
@@ -163,13 +165,13 @@ class TubeMPC:
     def __init__(
         self,
         reference: Trajectory,
-        params: InertialParams,
         design: TubeDesign,
         *,
+        inertia_kgm2: np.ndarray,
         horizon: int,
         prediction_step_s: float,
         weights: TrackingWeights,
-        limits: TrackingLimits,
+        limits: MotionLimits,
         terminal: TerminalWeights | None = None,
         max_consecutive_failures: int = 5,
         fast: bool = True,
@@ -178,8 +180,7 @@ class TubeMPC:
         keep_in_margin_m: float = 0.0,
         braking: bool = True,
     ) -> None:
-        if abs(params.mass_kg - design.mass_kg) > 1e-12 * design.mass_kg:
-            raise ValueError(f"model mass {params.mass_kg} differs from the tube design's {design.mass_kg}")
+        params = InertialParams(design.mass_kg, inertia_kgm2)
         ratio = prediction_step_s / design.dt_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError("prediction_step_s must be an integer multiple of the control period")

@@ -14,8 +14,9 @@ import numpy as np
 
 from oacli.excitation.fim_gradient import Criterion, Scaling
 from oacli.excitation.information import N_PARAMS, MeasurementModel
-from oacli.excitation.problem import MotionLimits, TerminalTolerance
+from oacli.excitation.problem import TerminalTolerance
 from oacli.geometry import Scene
+from oacli.model.limits import MotionLimits
 from oacli.types import Trajectory
 
 

@@ -28,32 +28,10 @@ from oacli.geometry import Scene
 from oacli.geometry.halfspaces import best_box, keep_out_zone, point_halfspaces
 from oacli.geometry.verify import dense_positions
 from oacli.model import quaternion as quat
+from oacli.model.limits import MotionLimits
 
 LENGTH_UNIT_M = 0.01
 """Slack unit of the geometric constraints [m] (1 cm of intrusion = one unit of violation)."""
-
-
-@dataclass(frozen=True)
-class MotionLimits:
-    """Per-axis limits: force [N] (world frame), torque [N·m] (body frame), velocity [m/s], angular rate [rad/s]."""
-
-    force_N: np.ndarray
-    torque_Nm: np.ndarray
-    velocity_mps: np.ndarray
-    angular_velocity_radps: np.ndarray
-
-    def __post_init__(self) -> None:
-        for name in ("force_N", "torque_Nm", "velocity_mps", "angular_velocity_radps"):
-            value = np.array(getattr(self, name), dtype=float).reshape(3)
-            if np.any(~(value > 0)) or not np.all(np.isfinite(value)):
-                raise ValueError(f"{name} must be three finite numbers > 0, got {value}")
-            value.setflags(write=False)
-            object.__setattr__(self, name, value)
-
-    @property
-    def input(self) -> np.ndarray:
-        """Input bounds [f (3) N, τ (3) N·m], shape (6,)."""
-        return np.concatenate([self.force_N, self.torque_Nm])
 
 
 @dataclass(frozen=True)

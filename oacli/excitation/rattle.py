@@ -44,7 +44,6 @@ from oacli.excitation.information import (
 )
 from oacli.excitation.problem import (
     LENGTH_UNIT_M,
-    MotionLimits,
     attitude_errors,
     chord_margin_m,
     keep_in_violation,
@@ -53,6 +52,7 @@ from oacli.excitation.problem import (
 )
 from oacli.geometry import Scene
 from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
+from oacli.model.limits import MotionLimits
 from oacli.solver import solve_clarabel
 from oacli.types import Trajectory
 

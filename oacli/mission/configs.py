@@ -11,8 +11,6 @@ reruns that stage alone (``oacli <stage> <folder>/config.yaml``).
 
 from __future__ import annotations
 
-import copy
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,10 +19,11 @@ import numpy as np
 import yaml
 
 from oacli.config import OacliConfig, config_from_dict, dump_config
-from oacli.config.mission import MissionConfig
+from oacli.config.mission import MissionConfig, deep_merge
 from oacli.errors import ConfigError
 from oacli.mission.layout import MISSION_STAGES, MissionStage
 from oacli.model.robot_model import RobotModel
+from oacli.stages.settings import robot_model
 
 
 @dataclass(frozen=True)
@@ -50,28 +49,6 @@ class Handoff:
     telemetry: Path | None = None
     initial_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     estimate: RobotModel | None = None
-
-
-def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
-    """``base`` with ``override`` merged in: mappings recursively, anything else replaced.
-
-    Parameters
-    ----------
-    base, override : Mapping
-        Plain config data.
-
-    Returns
-    -------
-    dict
-        A new mapping (the inputs are not modified).
-    """
-    out = copy.deepcopy(dict(base))
-    for key, value in override.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = deep_merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
 
 
 def stage_seed(seed: int, index: int) -> int:
@@ -130,14 +107,7 @@ def prior_model(cfg: OacliConfig) -> RobotModel:
     """
     prior = mission_section(cfg).prior
     variance = np.array([prior.mass_std_kg, *prior.inertia_std_kgm2]) ** 2
-    robot = cfg.robot
-    base = RobotModel(
-        mass_kg=robot.mass_kg, inertia_kgm2=np.asarray(robot.inertia_kgm2),
-        force_limit_N=np.asarray(robot.force_limit_N),
-        torque_limit_Nm=np.asarray(robot.torque_limit_Nm), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
-        angular_velocity_limit_radps=np.asarray(robot.angular_velocity_limit_radps), radius_m=robot.radius_m,
-    )
-    return base.with_estimate(
+    return robot_model(cfg).with_estimate(
         np.array([prior.mass_kg, *prior.inertia_kgm2]), np.diag(variance))
 
 
@@ -153,13 +123,9 @@ def _model_sections(model: RobotModel, w_sigmas: float) -> dict[str, Any]:
 
 def _prior_sections(prior: RobotModel) -> dict[str, Any]:
     theta, var = prior.theta, np.diag(prior.covariance)
-    return {
-        "excitation": {"prior": {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
-                                 "variance": [float(v) for v in var]}},
-        "estimation": {"prior": {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
-                                 "mass_variance_kg2": float(var[0]),
-                                 "inertia_variance_kg2m4": [float(v) for v in var[1:4]]}},
-    }
+    section = {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
+               "mass_variance_kg2": float(var[0]), "inertia_variance_kg2m4": [float(v) for v in var[1:4]]}
+    return {"excitation": {"prior": dict(section)}, "estimation": {"prior": dict(section)}}
 
 
 def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, source: str = "mission") -> OacliConfig:
@@ -189,7 +155,7 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
     a, b, c = mission.route
     data = yaml.safe_load(dump_config(cfg))
     data.pop("mission", None)
-    data = deep_merge(data, mission.segments.get(stage.segment, {}))  # type: ignore[call-overload]
+    data = deep_merge(data, mission.segments.get(stage.segment) or {})
     index = next(i for i, s in enumerate(MISSION_STAGES) if s.key == stage.key)
     prior = prior_model(cfg)
     grasped = {"mass_kg": mission.grasped.mass_kg, "inertia_kgm2": list(mission.grasped.inertia_kgm2)}

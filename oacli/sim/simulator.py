@@ -88,11 +88,13 @@ def simulate(
     rec_cmd = np.empty((n_ctrl, 6))
     rec_app = np.empty((n_ctrl, 6))
     rec_dist = np.empty((n_ctrl, 6))
+    rec_true = np.empty((n_ctrl, 13))
     infos: list[SolveInfo] = []
     next_tick = 1
     for j in range(n_ctrl):
         t0 = t_ctrl[j]
         t1 = min(t0 + control_period_s, t_end)
+        rec_true[j] = x
         y = sensors.measure(x, rng)
         step = controller.step(float(t0), y)
         u_cmd = np.asarray(step.u, dtype=float)
@@ -127,6 +129,7 @@ def simulate(
         u_applied=rec_app,
         solve_info=tuple(infos),
         disturbance=rec_dist,
+        x_true_ctrl=rec_true,
     )
 
 

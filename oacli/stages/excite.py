@@ -52,17 +52,18 @@ from oacli.stages.settings import (
     design_limit_log,
     estimator_settings,
     excitation_design_limits,
+    excitation_prior_model,
     information_weighting,
     measurement_model,
     open_run,
     plant_disturbance,
-    prior_theta,
     rattle_planner_weights,
     robot_limit_set,
     scp_settings,
     sensor_noise,
     terminal_tolerance,
     to_motion_limits,
+    truth_model,
 )
 from oacli.status import StatusReport, add_safety_reasons, status_log
 from oacli.trajectory import sample_states
@@ -114,8 +115,9 @@ def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> 
     scene = cfg.scene()
     check_pose_in_workspace("start", start[0:3], scene)
     check_pose_in_workspace("goal", goal[0:3], scene)
-    theta = prior_theta(cfg)
-    prior_info = np.linalg.inv(exc.prior.covariance()) if exc.use_prior_information else None
+    prior_model = excitation_prior_model(cfg)
+    theta = np.array(prior_model.theta)
+    prior_info = np.linalg.inv(prior_model.covariance) if exc.use_prior_information else None
     return ExcitationProblem(
         start=start,
         goal=goal,
@@ -335,15 +337,16 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         stop_speed_fraction=rcfg.stop_speed_fraction,
     )
     weighting = information_weighting(cfg)
-    prior_cov = exc.prior.covariance()
-    truth = cfg.truth_params()
-    theta_true = np.array([truth.mass_kg, *truth.inertia_kgm2])
+    prior_model, plant = excitation_prior_model(cfg), truth_model(cfg)
+    prior_cov = np.array(prior_model.covariance)
+    truth = plant.params
+    theta_true = np.array(plant.theta)
     if rcfg.estimator == "oracle":
         estimator: CramerRaoOracle | OnlineSequentialEstimator = CramerRaoOracle(
             theta_true, prior_cov, problem.measurement, problem.start
         )
     else:
-        prior = ParameterEstimate(0.0, prior_theta(cfg), prior_cov, "prior")
+        prior = ParameterEstimate(0.0, prior_model.theta, prior_cov, "prior")
         estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior))
     cw = cfg.controller.weights
 

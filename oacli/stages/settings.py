@@ -4,6 +4,14 @@ A stage runner reads the config's sections only through these functions (plus ``
 ``cfg.robot_params()`` and ``cfg.truth_params()``), so a new stage (mission, campaign) builds its core objects
 here, runs them and writes its records (:mod:`oacli.io`): a short file.
 
+The robot
+---------
+:func:`robot_model` is the controller's prior (``robot:``; the covariance of θ from ``estimation.prior``'s
+variances), :func:`truth_model` the simulated plant (``truth:``, θ known exactly); both are
+:class:`oacli.model.robot_model.RobotModel`. The excitation design's and the estimators' priors are the robot model
+with ``excitation.prior`` or ``estimation.prior`` applied (:func:`excitation_prior_model`,
+:func:`estimation_prior_model`).
+
 Sections: the run folder; the robot and the simulated plant; the design limits of ``plan``, ``smooth`` and
 ``excite``; the planners and the smoother; the excitation design; the estimators; the robust tube.
 
@@ -26,7 +34,6 @@ prior. Section caps above the robot's limits are refused (:class:`~oacli.errors.
 from __future__ import annotations
 
 import contextlib
-import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -36,19 +43,21 @@ from oacli.config import OacliConfig, dump_config
 from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
 from oacli.config.models import RobotConfig
 from oacli.control.disturbance import DisturbanceSpec
-from oacli.control.tracking import TrackingLimits, TrackingWeights
+from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import AncillaryWeights, TubeDesign, design_translation_tube
 from oacli.errors import ConfigError
 from oacli.estimation.models import EstimatorSettings, ProcessNoise
 from oacli.estimation.models import MeasurementModel as EstimationMeasurementModel
 from oacli.excitation.design import ScpSettings
 from oacli.excitation.information import MeasurementModel
-from oacli.excitation.problem import MotionLimits, TerminalTolerance
+from oacli.excitation.problem import TerminalTolerance
 from oacli.excitation.rattle import InformationWeighting, PlannerWeights
 from oacli.geometry.collision import RobotBody
 from oacli.io.runfolder import StageRun, open_stage_run
 from oacli.model import quaternion as quat
+from oacli.model.limits import MotionLimits
 from oacli.model.rigid_body import theta_of
+from oacli.model.robot_model import RobotModel
 from oacli.planning.kino_rrt import KinoRrtSettings
 from oacli.planning.lqr_rrt_star import LqrRrtStarSettings
 from oacli.planning.polish import PolishSettings
@@ -120,7 +129,50 @@ def robot_limit_set(robot: RobotConfig) -> LimitSet:
     return LimitSet(**{q: np.asarray(getattr(robot, ROBOT_FIELDS[q]), dtype=float) for q in QUANTITIES})
 
 
-def tracking_limits(cfg: OacliConfig) -> TrackingLimits:
+def robot_model(cfg: OacliConfig) -> RobotModel:
+    """The controller's prior model of the robot: ``robot:`` with the covariance of ``estimation.prior``.
+
+    θ = ``[robot.mass_kg, *robot.inertia_kgm2]``; covariance ``diag(estimation.prior.mass_variance_kg2,
+    *estimation.prior.inertia_variance_kg2m4)`` (the variances the estimator starts from; its *mean* may differ
+    from ``robot:``, see :func:`estimation_prior_model`), so ``sqrt(covariance[0, 0])`` is the σ_m of the planner's
+    design limits ([Doerr2021] Eq. 28). Limits and radius from ``robot:``.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    RobotModel
+    """
+    robot = cfg.robot
+    return RobotModel(
+        mass_kg=robot.mass_kg, inertia_kgm2=np.asarray(robot.inertia_kgm2),
+        covariance=cfg.estimation.prior.covariance(), force_limit_N=np.asarray(robot.force_limit_N),
+        torque_limit_Nm=np.asarray(robot.torque_limit_Nm), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
+        angular_velocity_limit_radps=np.asarray(robot.angular_velocity_limit_radps), radius_m=robot.radius_m,
+    )
+
+
+def truth_model(cfg: OacliConfig) -> RobotModel:
+    """The simulated plant: ``truth:`` (missing values from ``robot:``), θ known exactly (zero covariance).
+
+    Limits and radius are the robot's (the plant has the same actuators).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    RobotModel
+    """
+    return robot_model(cfg).with_estimate(theta_of(cfg.truth_params()), np.zeros((4, 4)))
+
+
+def tracking_limits(cfg: OacliConfig) -> MotionLimits:
     """The tracking controllers' limits: the robot's actuators and flight mode (``robot``).
 
     Parameters
@@ -130,15 +182,9 @@ def tracking_limits(cfg: OacliConfig) -> TrackingLimits:
 
     Returns
     -------
-    TrackingLimits
+    MotionLimits
     """
-    robot = cfg.robot
-    return TrackingLimits(
-        force_N=np.asarray(robot.force_limit_N),
-        torque_Nm=np.asarray(robot.torque_limit_Nm),
-        velocity_mps=np.asarray(robot.velocity_limit_mps),
-        angular_velocity_radps=np.asarray(robot.angular_velocity_limit_radps),
-    )
+    return robot_model(cfg).limits
 
 
 def tracking_weights(cfg: OacliConfig) -> TrackingWeights:
@@ -281,10 +327,9 @@ def excitation_design_limits(cfg: OacliConfig, *, rattle: bool = False) -> Desig
     caps = [("excitation.limits", exc.limits)]
     if rattle:
         caps.append(("excitation.rattle.limits", exc.rattle.limits))
-    mass = exc.prior.mass_kg if exc.prior.mass_kg is not None else cfg.robot.mass_kg
-    return resolve_design_limits(cfg.robot, exc.margin, caps, mass_prior_kg=mass,
-                                 default_mass_std_kg=math.sqrt(exc.prior.variance[0]),
-                                 margin_path="excitation.margin")
+    prior = excitation_prior_model(cfg)
+    return resolve_design_limits(cfg.robot, exc.margin, caps, mass_prior_kg=prior.mass_kg,
+                                 default_mass_std_kg=prior.mass_std_kg, margin_path="excitation.margin")
 
 
 def planner_design_limits(cfg: OacliConfig) -> DesignLimits:
@@ -300,9 +345,9 @@ def planner_design_limits(cfg: OacliConfig) -> DesignLimits:
     DesignLimits
     """
     p = cfg.planner
-    return resolve_design_limits(cfg.robot, p.margin, [("planner.limits", p.limits)], mass_prior_kg=cfg.robot.mass_kg,
-                                 default_mass_std_kg=math.sqrt(cfg.estimation.prior.mass_variance_kg2),
-                                 margin_path="planner.margin")
+    model = robot_model(cfg)
+    return resolve_design_limits(cfg.robot, p.margin, [("planner.limits", p.limits)], mass_prior_kg=model.mass_kg,
+                                 default_mass_std_kg=model.mass_std_kg, margin_path="planner.margin")
 
 
 def design_limit_log(limits: DesignLimits) -> list[tuple[float, str, str]]:
@@ -493,8 +538,9 @@ def measurement_model(cfg: OacliConfig) -> MeasurementModel:
     return MeasurementModel(**cfg.excitation.measurement.model_dump())
 
 
-def prior_theta(cfg: OacliConfig) -> np.ndarray:
-    """The excitation design's prior θ = [m, Ixx, Iyy, Izz]: ``excitation.prior`` where given, else ``robot``.
+def excitation_prior_model(cfg: OacliConfig) -> RobotModel:
+    """The excitation design's model: :func:`robot_model` with ``excitation.prior``'s mean (where given) and
+    covariance.
 
     Parameters
     ----------
@@ -503,13 +549,11 @@ def prior_theta(cfg: OacliConfig) -> np.ndarray:
 
     Returns
     -------
-    ndarray, shape (4,)
-        [kg, kg·m² ×3].
+    RobotModel
     """
+    model = robot_model(cfg)
     prior = cfg.excitation.prior
-    mass = prior.mass_kg if prior.mass_kg is not None else cfg.robot.mass_kg
-    inertia = prior.inertia_kgm2 if prior.inertia_kgm2 is not None else cfg.robot.inertia_kgm2
-    return np.array([mass, *inertia], dtype=float)
+    return model.with_estimate(prior.theta(model.theta), prior.covariance())
 
 
 def terminal_tolerance(cfg: OacliConfig) -> TerminalTolerance:
@@ -636,17 +680,13 @@ def estimation_prior(cfg: OacliConfig) -> ParameterEstimate:
     ParameterEstimate
         At t = 0, method ``"prior"``.
     """
-    est = cfg.estimation
-    return ParameterEstimate(0.0, est.prior_theta(theta_of(cfg.robot_params())), est.prior_covariance(), "prior")
+    model = estimation_prior_model(cfg)
+    return ParameterEstimate(0.0, np.array(model.theta), np.array(model.covariance), "prior")
 
 
-# ----------------------------------------------------------------------------------------------------------------
-# Robust tube (controller.tube)
-# ----------------------------------------------------------------------------------------------------------------
-
-
-def tube_disturbance_spec(cfg: OacliConfig) -> DisturbanceSpec:
-    """The disturbance set W's ingredients (``controller.tube.disturbance``, ``robot.mass_kg``).
+def estimation_prior_model(cfg: OacliConfig) -> RobotModel:
+    """The estimators' prior as a robot model: :func:`robot_model` with ``estimation.prior``'s mean (where
+    given); its covariance is the robot model's already.
 
     Parameters
     ----------
@@ -655,12 +695,41 @@ def tube_disturbance_spec(cfg: OacliConfig) -> DisturbanceSpec:
 
     Returns
     -------
+    RobotModel
+    """
+    model = robot_model(cfg)
+    prior = cfg.estimation.prior
+    return model.with_estimate(prior.theta(model.theta), prior.covariance())
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Robust tube (controller.tube)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def tube_disturbance_spec(cfg: OacliConfig, model: RobotModel | None = None, *,
+                          mass_std_kg: float | None = None) -> DisturbanceSpec:
+    """The disturbance set W's ingredients (``controller.tube.disturbance`` and the controller's model mass).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+    model : RobotModel, optional
+        The controller's model (default :func:`robot_model`): its mass is m₀ of [Doerr2021] Eq. 28.
+    mass_std_kg : float, optional
+        σ of Eq. 28 [kg]; default ``controller.tube.disturbance.mass_std_kg`` (pass ``model.mass_std_kg`` to size W
+        for the model's own covariance, e.g. an estimate's).
+
+    Returns
+    -------
     DisturbanceSpec
     """
-    robot = cfg.robot
+    model = robot_model(cfg) if model is None else model
     dist = cfg.controller.tube.disturbance
+    std = dist.mass_std_kg if mass_std_kg is None else mass_std_kg
     return DisturbanceSpec(
-        mass_kg=robot.mass_kg, mass_std_kg=dist.mass_std_kg, n_sigma=dist.mass_sigmas,
+        mass_kg=model.mass_kg, mass_std_kg=std, n_sigma=dist.mass_sigmas,
         force_N=np.asarray(dist.force_N), box_position_m=np.asarray(dist.position_m),
         box_velocity_mps=np.asarray(dist.velocity_mps), noise_position_m=np.asarray(dist.position_noise_m),
         noise_velocity_mps=np.asarray(dist.velocity_noise_mps),
@@ -668,7 +737,8 @@ def tube_disturbance_spec(cfg: OacliConfig) -> DisturbanceSpec:
 
 
 def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = None,
-                            max_terms: int | None = None) -> TubeDesign:
+                            max_terms: int | None = None, model: RobotModel | None = None,
+                            mass_std_kg: float | None = None) -> TubeDesign:
     """The translational tube of ``controller.tube`` ([Mayne2005]; [Rakovic2005]; [Doerr2021] Eqs. 15-28).
 
     Parameters
@@ -680,6 +750,11 @@ def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = 
         :mod:`oacli.control.tube_monitor`; then an empty tightening always refuses).
     max_terms : int, optional
         Caps the invariant-set terms below ``rpi_max_terms``.
+    model : RobotModel, optional
+        The controller's model (default :func:`robot_model`): mass, force limit (unless
+        ``controller.tube.force_limit_N``) and velocity limit.
+    mass_std_kg : float, optional
+        σ of [Doerr2021] Eq. 28 (see :func:`tube_disturbance_spec`).
 
     Returns
     -------
@@ -691,10 +766,10 @@ def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = 
         No tube for this W (the message gives W and the margin).
     """
     tube = cfg.controller.tube
-    robot = cfg.robot
+    model = robot_model(cfg) if model is None else model
     dist = tube.disturbance
-    force_limit = np.asarray(tube.force_limit_N if tube.force_limit_N is not None else robot.force_limit_N)
-    spec = tube_disturbance_spec(cfg)
+    force_limit = np.asarray(tube.force_limit_N) if tube.force_limit_N is not None else model.force_limit_N
+    spec = tube_disturbance_spec(cfg, model, mass_std_kg=mass_std_kg)
     on_empty = dist.on_empty_tightening
     if extra_box is not None:
         extra = np.asarray(extra_box, dtype=float).reshape(3, 2)
@@ -703,8 +778,8 @@ def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = 
         on_empty = "error"
     anc = tube.ancillary
     return design_translation_tube(
-        mass_kg=robot.mass_kg, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
-        velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
+        mass_kg=model.mass_kg, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
+        velocity_limit_mps=model.velocity_limit_mps,
         weights=AncillaryWeights(anc.position, anc.velocity, anc.force), spec=spec, epsilon=tube.rpi_epsilon,
         epsilon_mode=tube.rpi_epsilon_mode,
         max_terms=tube.rpi_max_terms if max_terms is None else min(max_terms, tube.rpi_max_terms),

@@ -16,7 +16,7 @@ import numpy as np
 
 from oacli.config import OacliConfig
 from oacli.config.sizes import check_simulation_length
-from oacli.control.tracking import TrackingLimits, TrackingMPC
+from oacli.control.tracking import TrackingMPC
 from oacli.control.tube_monitor import TubeMonitor
 from oacli.control.tube_mpc import TubeHistory
 from oacli.errors import InputError
@@ -27,6 +27,7 @@ from oacli.io.rerun.track import write_track_recording
 from oacli.io.rerun.tube import tube_track_blueprint
 from oacli.io.runfolder import StageResult
 from oacli.metrics import TrackingErrors, percentiles_ms, rms, tracking_errors
+from oacli.model.limits import MotionLimits
 from oacli.reference import waypoint_reference
 from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
 from oacli.sim.simulator import simulate
@@ -34,9 +35,10 @@ from oacli.stages.settings import (
     open_run,
     plant_disturbance,
     robot_limit_set,
+    robot_model,
     sensor_noise,
-    tracking_limits,
     tracking_weights,
+    truth_model,
     tube_design_from_config,
 )
 from oacli.stages.track_status import assess_track, controller_counts, track_safety
@@ -158,7 +160,7 @@ def check_reference_for_plant(cfg: OacliConfig, reference: Trajectory, log: list
 
 
 def _track_summary(
-    cfg: OacliConfig, reference: Trajectory, tel: Telemetry, limits: TrackingLimits
+    cfg: OacliConfig, reference: Trajectory, tel: Telemetry, limits: MotionLimits
 ) -> tuple[dict[str, Any], TrackingErrors]:
     errors = tracking_errors(tel, reference)
     ctrl_errors = tracking_errors(tel, reference, tel.t_ctrl)
@@ -230,18 +232,19 @@ def run_track(
     reference_check = check_reference_for_plant(cfg, reference, log, strict=strict_reference)
     log.append((0.0, "info", f"reference {reference.name}: {len(reference)} samples, {reference.duration_s:.1f} s"))
 
-    limits = tracking_limits(cfg)
+    model, plant = robot_model(cfg), truth_model(cfg)
+    limits = model.limits
     weights = tracking_weights(cfg)
-    design = tube_design_from_config(cfg) if cfg.controller.type == "tube" else None
+    design = tube_design_from_config(cfg, model=model) if cfg.controller.type == "tube" else None
     controller: TrackingMPC | TubeMonitor
     if design is None:
         controller = TrackingMPC(
-            reference, cfg.robot_params(), dt_s=cfg.controller.period_s, horizon=cfg.controller.horizon,
+            reference, model.params, dt_s=cfg.controller.period_s, horizon=cfg.controller.horizon,
             weights=weights, limits=limits, max_consecutive_failures=cfg.controller.max_consecutive_failures,
             **workspace_arguments(cfg),
         )
     else:
-        controller = monitored_tube_controller(cfg, reference, design, weights, limits)
+        controller = monitored_tube_controller(cfg, reference, design, weights, limits, model=model)
         log.extend(describe_tube_design(design))
     x0 = reference.x[0].copy()
     x0[0:3] += np.asarray(cfg.simulation.initial_offset_m)
@@ -250,7 +253,7 @@ def run_track(
     with open_run("track", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
         rng = np.random.default_rng(cfg.seed)
         tel = simulate(
-            controller, x0, cfg.truth_params(),
+            controller, x0, plant.params,
             duration_s=reference.duration_s + cfg.simulation.settle_time_s,
             control_period_s=cfg.controller.period_s,
             plant_period_s=cfg.simulation.plant_period_s,

@@ -13,13 +13,13 @@ from __future__ import annotations
 from typing import Any
 
 from oacli.config import OacliConfig
-from oacli.control.tracking import TrackingLimits
 from oacli.metrics import safety_block, safety_report
+from oacli.model.limits import MotionLimits
 from oacli.status import SAFE_HOLD_MODE, StatusReport, add_safety_reasons, controller_mode_counts, mode_word
 from oacli.types import Telemetry
 
 
-def track_safety(cfg: OacliConfig, tel: Telemetry, limits: TrackingLimits) -> dict[str, Any]:
+def track_safety(cfg: OacliConfig, tel: Telemetry, limits: MotionLimits) -> dict[str, Any]:
     """The ``safety`` block of a tracking run: every kind of violation of the true state (see the module)."""
     report = safety_report(
         tel.t_true, tel.x_true, scene=cfg.scene(), velocity_limit_mps=limits.velocity_mps,

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from oacli.config import OacliConfig
-from oacli.control.tracking import TrackingLimits, TrackingWeights
+from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_monitor import TubeMonitor, half_widths
 from oacli.control.tube_mpc import TerminalWeights, TubeHistory, TubeMPC
@@ -22,7 +22,9 @@ from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.rerun.tube import log_disturbance_layers, log_tube_layers
 from oacli.io.rerun.writer import StageRecording
-from oacli.stages.settings import tube_design_from_config
+from oacli.model.limits import MotionLimits
+from oacli.model.robot_model import RobotModel
+from oacli.stages.settings import robot_model, tube_design_from_config
 from oacli.status import StatusReport
 from oacli.types import Telemetry, Trajectory
 
@@ -38,16 +40,19 @@ TUBE_TOLERANCE_REL = 1e-6
 
 
 def tube_controller_from_config(
-    cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: TrackingLimits
+    cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: MotionLimits,
+    *, model: RobotModel | None = None,
 ) -> TubeMPC:
-    """The :class:`TubeMPC` of ``cfg`` around ``design``."""
+    """The :class:`TubeMPC` of ``cfg`` around ``design`` (mass: the design's; inertia: ``model``'s, default
+    :func:`~oacli.stages.settings.robot_model`)."""
+    model = robot_model(cfg) if model is None else model
     tube = cfg.controller.tube
     terminal = None
     if tube.terminal is not None:
         terminal = TerminalWeights(np.asarray(tube.terminal.position), np.asarray(tube.terminal.velocity))
     step = tube.prediction_step_s if tube.prediction_step_s is not None else cfg.controller.period_s
     return TubeMPC(
-        reference, cfg.robot_params(), design, horizon=cfg.controller.horizon, prediction_step_s=step,
+        reference, design, inertia_kgm2=model.inertia_kgm2, horizon=cfg.controller.horizon, prediction_step_s=step,
         weights=weights, limits=limits, terminal=terminal,
         max_consecutive_failures=cfg.controller.max_consecutive_failures, fast=tube.solver == "direct",
         **workspace_arguments(cfg),
@@ -82,15 +87,81 @@ MAX_REDESIGNS = 3
 
 
 def monitored_tube_controller(
-    cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: TrackingLimits
+    cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: MotionLimits,
+    *, model: RobotModel | None = None, mass_std_kg: float | None = None,
 ) -> TubeMonitor:
-    """The tube controller of ``cfg`` with the beyond-W check and response of ``controller.tube.beyond_w``."""
+    """The tube controller of ``cfg`` with the beyond-W check and response of ``controller.tube.beyond_w``.
+
+    ``model`` (default :func:`~oacli.stages.settings.robot_model`) and ``mass_std_kg`` are those ``design`` was
+    made with (:func:`~oacli.stages.settings.tube_design_from_config`); a redesign beyond W uses them too.
+    """
+    model = robot_model(cfg) if model is None else model
     return TubeMonitor(
-        lambda d: tube_controller_from_config(cfg, reference, d, weights, limits), design,
-        response=cfg.controller.tube.beyond_w, actuator_force_limit_N=np.asarray(cfg.robot.force_limit_N),
-        redesign=lambda extra: tube_design_from_config(cfg, extra_box=extra, max_terms=REDESIGN_MAX_TERMS),
-        margin=REDESIGN_MARGIN, max_redesigns=MAX_REDESIGNS,
+        lambda d: tube_controller_from_config(cfg, reference, d, weights, limits, model=model), design,
+        response=cfg.controller.tube.beyond_w, actuator_force_limit_N=np.asarray(model.force_limit_N),
+        redesign=lambda extra: tube_design_from_config(cfg, extra_box=extra, max_terms=REDESIGN_MAX_TERMS,
+                                                       model=model, mass_std_kg=mass_std_kg),
+        margin=REDESIGN_MARGIN, max_redesigns=MAX_REDESIGNS, noise_allowance=noise_boxes(cfg)[0],
     )
+
+
+def noise_boxes(cfg: OacliConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The sensor noise the tube checks tolerate (``controller.tube.monitor_noise_sigmas`` = k; ``sensors``' σ).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    w_box : ndarray, shape (3, 2)
+        On the measured one-step disturbance ``w = x̃⁺ − A x̃ − B u`` ([Doerr2021] Eq. 15), which carries
+        ``n⁺ − A n``: position ``k (2σ_p + dt σ_v)``, velocity ``2 k σ_v`` per axis.
+    state_box : ndarray, shape (3, 2)
+        On the measured state: ``[k σ_p, k σ_v]`` per axis.
+    """
+    k = cfg.controller.tube.monitor_noise_sigmas
+    sp, sv, dt = cfg.sensors.position_std_m, cfg.sensors.velocity_std_mps, cfg.controller.period_s
+    w_box = np.tile([k * (2 * sp + dt * sv), 2 * k * sv], (3, 1))
+    return w_box, np.tile([k * sp, k * sv], (3, 1))
+
+
+def _true_at_control(tel: Telemetry) -> np.ndarray:
+    """True translational state ``[r, v]`` (K, 6) at the control instants (recorded by the simulator; else linear
+    between plant samples, 16 ms apart)."""
+    if tel.x_true_ctrl is not None:
+        return np.asarray(tel.x_true_ctrl[:, 0:6])
+    return np.column_stack([np.interp(tel.t_ctrl, tel.t_true, tel.x_true[:, j]) for j in range(6)])
+
+
+def tube_exits(design: TubeDesign, states: np.ndarray, predicted: np.ndarray, tolerance: float,
+               state_box: np.ndarray | None = None) -> int:
+    """Steps whose state left the promised tube ``ẑ_k ⊕ Z`` (grown by ``state_box`` for measurement noise).
+
+    Parameters
+    ----------
+    design : TubeDesign
+        Its lasso ``Z = {e: H e <= h}``.
+    states : ndarray, shape (K, 6)
+        ``[r, v]`` per control step.
+    predicted : ndarray, shape (K, 6)
+        ``ẑ_k`` (NaN where none).
+    tolerance : float
+        Slack below zero still counted inside.
+    state_box : ndarray, shape (3, 2), optional
+        ``[position, velocity]`` half-widths per axis added to Z (support ``|H| d``).
+
+    Returns
+    -------
+    int
+    """
+    h_matrix, h_vector = design.lasso.h_matrix, design.lasso.h_vector
+    grow = 0.0 if state_box is None else np.abs(h_matrix) @ np.concatenate([state_box[:, 0], state_box[:, 1]])
+    ok_rows = np.all(np.isfinite(predicted), axis=1)
+    errors = states[ok_rows] - predicted[ok_rows]
+    slack = (h_vector + grow)[None, :] - errors @ h_matrix.T
+    return int(np.sum(slack.min(axis=1) < -tolerance))
 
 
 def describe_tube_design(design: TubeDesign) -> list[LogEntry]:
@@ -157,7 +228,10 @@ def tube_summary(monitor: TubeMonitor, history: TubeHistory, tel: Telemetry, cfg
     ``x̃_k − ẑ_k ∉ Z`` with ``ẑ_k = A z_{k−1} + B v_{k−1}`` (beyond ``TUBE_TOLERANCE_REL`` of Z's size): the
     invariance guarantee, which can only fail when a disturbance left W. ``w_violations`` counts steps whose
     measured one-step disturbance left W (``beyond_w`` has the details and the responses).
-    ``tube.lasso_violations`` counts steps with ``x̃_k − z_k ∉ Z`` for the nominal state actually used (a
+    With ``controller.tube.monitor_noise_sigmas`` = k > 0 the measured state counts as outside only beyond
+    ``Z ⊕ [kσ_p, kσ_v]`` (:func:`noise_boxes`). ``tube_violations_true`` counts the steps whose *true* state (known
+    in simulation) left ``ẑ_k ⊕ Z`` exactly: the guarantee itself. ``tube.lasso_violations`` counts steps with
+    ``x̃_k − z_k ∉ Z`` for the nominal state actually used (a
     constraint of the QP). ``solver_failures`` counts failed solves. The design figures are the initial design's;
     ``beyond_w.final_w`` is W after any redesign, ``tube.final_design`` its figures.
     """
@@ -183,8 +257,15 @@ def tube_summary(monitor: TubeMonitor, history: TubeHistory, tel: Telemetry, cfg
         details["final_design"] = {k: final[k] for k in ("rpi", "w_position_m", "w_velocity_mps",
                                                          "tightened_force_N", "tightened_velocity_mps")}
     beyond = beyond_w_summary(monitor)
+    _, state_box = noise_boxes(cfg)
+    measured = np.column_stack([tel.x_measured[:, 0:3], tel.x_measured[:, 3:6]])
+    k_noise = cfg.controller.tube.monitor_noise_sigmas
+    exits_measured = (int(np.sum(tube_margin[checked] < -tol)) if k_noise == 0
+                      else tube_exits(design, measured, history.predicted_nominal, tol, state_box))
+    details["monitor_noise_sigmas"] = k_noise
     return {
-        "tube_violations": int(np.sum(tube_margin[checked] < -tol)),
+        "tube_violations": exits_measured,
+        "tube_violations_true": tube_exits(design, _true_at_control(tel), history.predicted_nominal, tol),
         "w_violations": beyond["violations"],
         "rpi": {k: details["rpi"][k] for k in ("s", "alpha", "facets")},
         "tightened_force_N": details["tightened_force_N"],
@@ -211,6 +292,9 @@ def add_tube_reasons(report: StatusReport, summary: dict[str, Any]) -> None:
                                     f"s, up to {beyond['max_over_w']:.3g} × W); response: {what}{new_w}")
     if summary["tube_violations"]:
         report.degraded("tube", f"the measured state left the promised tube on {summary['tube_violations']} steps")
+    if summary.get("tube_violations_true"):
+        report.degraded("tube_true", f"the true state left the promised tube on {summary['tube_violations_true']} "
+                                     "steps")
     lasso = summary["tube"]["lasso_violations"]
     if lasso:
         report.degraded("lasso", f"the nominal state's lasso x - z in Z was violated on {lasso} steps")

@@ -22,7 +22,16 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from oacli.io.rerun.writer import LOG, TIMELINE, WORLD, LogEntry, StageRecording, time_column, time_series_view
+from oacli.io.rerun.writer import (
+    LOG,
+    TIMELINE,
+    WORLD,
+    LogEntry,
+    StageRecording,
+    application_id,
+    time_column,
+    time_series_view,
+)
 from oacli.types import ParameterEstimate
 
 PARAM_ENTITIES = ("estimate/mass_kg", "estimate/Ixx_kgm2", "estimate/Iyy_kgm2", "estimate/Izz_kgm2")
@@ -73,7 +82,7 @@ def estimate_blueprint() -> rrb.Blueprint:
     rerun.blueprint.Blueprint
     """
     params = rrb.Grid(
-        *(time_series_view(entity, f"{title}: estimate ± 2σ, truth green, ± 2 CRB grey")
+        *(time_series_view(entity, f"{title}: ± 2σ, truth, ± 2 CRB", legend=False)
           for entity, title in zip(PARAM_ENTITIES, PARAM_TITLES, strict=True)),
         name="Parameters",
     )
@@ -125,7 +134,7 @@ def write_estimate_recording(
     t_records = np.asarray(records.t, dtype=float)
     d2 = records.d2
     rejected = np.asarray(records.rejected, dtype=bool)
-    rec = StageRecording(recording_name=recording_name)
+    rec = StageRecording(application_id("estimate"), recording_name)
     span = np.array([min(t_est.min(), t_records.min()), max(t_est.max(), t_records.max())])
     for i, entity in enumerate(PARAM_ENTITIES):
         name = entity.rsplit("/", 1)[-1]

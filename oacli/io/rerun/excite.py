@@ -7,13 +7,17 @@ Entities (a fixed contract: tests read them back):
   ``world/plans``: each RATTLE plan, logged at its replan time;
 * ``world/robot``: the robot body moving along ``mission_time``;
 * ``metrics/criterion``: the design criterion of the current design after each SCP iteration, and
-  ``metrics/criterion/candidate`` that of each trial point, on the ``scp_iteration`` sequence timeline;
+  ``metrics/criterion/candidate`` that of each trial point, on the ``scp_iteration`` sequence timeline (the
+  design's also as a static bar chart on ``metrics/criterion``, shown on ``mission_time``);
 * ``metrics/information``: cumulative Fisher information per parameter, relative (``F_ii θ_i²``, series
-  ``m, Ixx, Iyy, Izz``), and ``metrics/crb_std_pct``: the Cramér-Rao standard deviation in % of θ_i, over time;
+  ``m, Ixx, Iyy, Izz``), and ``metrics/crb_std_log10_pct``: log10 of the Cramér-Rao standard deviation in % of
+  θ_i, over time (it falls by decades; Rerun's plots have no log axis);
 * ``metrics/gamma``: RATTLE's information weights over time;
 * ``metrics/force_N``, ``metrics/torque_Nm`` (with ± limits), ``metrics/velocity_mps``,
   ``metrics/angular_velocity_radps`` (with ± limits);
 * ``log``: the text log.
+
+Application id ``oacli-excite``.
 """
 
 from __future__ import annotations
@@ -38,6 +42,8 @@ from oacli.io.rerun.writer import (
     AxisLimits,
     LogEntry,
     StageRecording,
+    application_id,
+    limit_range,
     time_series_view,
 )
 from oacli.types import Trajectory
@@ -48,7 +54,7 @@ PLANS = "world/plans"
 CRITERION = "metrics/criterion"
 CRITERION_CANDIDATE = "metrics/criterion/candidate"
 INFORMATION = "metrics/information"
-CRB_STD_PCT = "metrics/crb_std_pct"
+CRB_STD_LOG10_PCT = "metrics/crb_std_log10_pct"
 GAMMA = "metrics/gamma"
 FORCE = "metrics/force_N"
 TORQUE = "metrics/torque_Nm"
@@ -115,9 +121,18 @@ class RattleSteps:
     gamma: np.ndarray
 
 
-def excite_blueprint() -> rrb.Blueprint:
-    """Default layout: 3D world and log on the left; information, bounds and inputs over mission time on the right,
-    and the criterion per SCP iteration (switch the time panel to the ``scp_iteration`` timeline to see it).
+def excite_blueprint(limits: AxisLimits | None = None, *, scp: bool = True, rattle: bool = False) -> rrb.Blueprint:
+    """Default layout: 3D world and log on the left; information, bounds, inputs and rates over mission time on
+    the right, with the criterion per SCP iteration (offline design) or RATTLE's information weights.
+
+    Parameters
+    ----------
+    limits : AxisLimits, optional
+        Force, torque, velocity and angular-rate bounds (fix the value axes).
+    scp : bool
+        Show the criterion per SCP iteration (the offline design).
+    rattle : bool
+        Show RATTLE's information weights.
 
     Returns
     -------
@@ -125,17 +140,28 @@ def excite_blueprint() -> rrb.Blueprint:
     """
     world = rrb.Spatial3DView(origin=WORLD, name="World")
     log = rrb.TextLogView(origin=LOG, name="Log")
-    plots = rrb.Vertical(
-        time_series_view(INFORMATION, "Information per parameter, F_ii θ_i² [-]"),
-        time_series_view(CRB_STD_PCT, "Cramér-Rao std [% of θ]"),
-        time_series_view(FORCE, "Force [N], world frame (thin: ± limit)", legend=False),
-        time_series_view(TORQUE, "Torque [N·m], body frame (thin: ± limit)", legend=False),
-        time_series_view(ANGULAR_VELOCITY, "Angular velocity [rad/s] (thin: ± limit)", legend=False),
-        time_series_view(CRITERION, "Criterion per SCP iteration (timeline scp_iteration)"),
+    def rng(name: str):
+        return None if limits is None else limit_range(getattr(limits, name))
+
+    extra: list[rrb.View] = []
+    if scp:
+        extra.append(rrb.BarChartView(origin=CRITERION, name="Criterion per SCP iteration (x: iteration)"))
+    if rattle:
+        extra.append(time_series_view(GAMMA, "RATTLE information weights γ"))
+    plots = rrb.Grid(
+        time_series_view(INFORMATION, "Information F_ii θ_i² [-]"),
+        time_series_view(CRB_STD_LOG10_PCT, "Cramér-Rao std, log10(% of θ)"),
+        time_series_view(FORCE, "Force [N] x/y/z, ± limits", legend=False, y_range=rng("force_N")),
+        time_series_view(TORQUE, "Torque [N·m] x/y/z, ± limits", legend=False, y_range=rng("torque_Nm")),
+        time_series_view(VELOCITY, "Velocity [m/s] x/y/z", legend=False),
+        time_series_view(ANGULAR_VELOCITY, "Rate [rad/s] x/y/z, ± limits", legend=False,
+                         y_range=rng("angular_velocity_radps")),
+        *extra,
+        grid_columns=2,
         name="Metrics",
     )
     return rrb.Blueprint(
-        rrb.Horizontal(rrb.Vertical(world, log, row_shares=[3.0, 1.0], name="Scene"), plots, column_shares=[1.2, 1.0]),
+        rrb.Horizontal(rrb.Vertical(world, log, row_shares=[3.0, 1.0], name="Scene"), plots, column_shares=[1.0, 1.3]),
         rrb.TimePanel(timeline=TIMELINE),
     )
 
@@ -177,7 +203,7 @@ def write_excite_recording(
     """
     t, x, u = trajectory.t, trajectory.x, trajectory.u
     theta = information.theta
-    rec = StageRecording(recording_name=recording_name)
+    rec = StageRecording(application_id("excite"), recording_name)
     rec.log_scene(scene)
     rec.log_trajectory_over_time(ROBOT, t, x, path_entity=EXCITATION, path_color=ACTUAL_COLOR)
     if scp is not None:
@@ -188,8 +214,10 @@ def write_excite_recording(
     diag = np.einsum("kii->ki", np.asarray(information.information, dtype=float)) * np.asarray(theta, dtype=float) ** 2
     rec.log_series(INFORMATION, t, diag, PARAMETER_SERIES, colors=_PARAM_COLORS)
     pct = 100.0 * np.asarray(information.crb_std, dtype=float) / np.abs(theta)
-    pct = np.where(np.isfinite(pct), pct, np.nan)
-    rec.log_series(CRB_STD_PCT, t, pct, PARAMETER_SERIES, colors=_PARAM_COLORS)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_pct = np.log10(pct)
+    log_pct = np.where(np.isfinite(log_pct), log_pct, np.nan)
+    rec.log_series(CRB_STD_LOG10_PCT, t, log_pct, PARAMETER_SERIES, colors=_PARAM_COLORS)
     rec.log_series(FORCE, t, u[:, 0:3], AXIS_NAMES, limits=limits.force_N)
     rec.log_series(TORQUE, t, u[:, 3:6], AXIS_NAMES, limits=limits.torque_Nm)
     rec.log_series(VELOCITY, t, x[:, 3:6], AXIS_NAMES)
@@ -207,5 +235,7 @@ def write_excite_recording(
                 indexes=[rr.TimeColumn(ITERATION_TIMELINE, sequence=iterations)],
                 columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)),
             )
+        rec.log_bar_chart(CRITERION, iterations, np.asarray(scp.criterion, dtype=float))
     rec.log_entries(log)
-    rec.save(Path(path), excite_blueprint())
+    has_scp = scp is not None and len(scp.criterion) > 0
+    rec.save(Path(path), excite_blueprint(limits, scp=has_scp, rattle=rattle is not None))

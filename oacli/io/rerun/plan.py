@@ -6,7 +6,9 @@ exact curve, static); ``world/plan/growth`` (the tree as straight parent-child s
 ``iteration`` sequence timeline, with the best path at that moment under ``world/plan/growth/path``);
 ``world/plan/path`` (the final trajectory's path, static); ``world/robot`` (the robot's pose on ``mission_time``);
 ``metrics/force_N`` and ``metrics/velocity_mps`` per axis against their ± limits (``mission_time``);
-``metrics/solution_cost`` (the best solution's cost on the ``iteration`` timeline); ``log``.
+``metrics/solution_cost`` (the best solution's cost on the ``iteration`` timeline, and the same figures as a static
+bar chart, one bar per improvement at its iteration, so the panel has data on ``mission_time``, the timeline the
+layout opens on); ``log``. Application id ``oacli-plan``.
 """
 
 from __future__ import annotations
@@ -24,10 +26,13 @@ from oacli.io.rerun.writer import (
     AXIS_NAMES,
     LOG,
     ROBOT,
+    TIMELINE,
     WORLD,
     AxisLimits,
     LogEntry,
     StageRecording,
+    application_id,
+    limit_range,
     time_series_view,
 )
 from oacli.types import Trajectory
@@ -93,7 +98,8 @@ def log_motion(rec: StageRecording, trajectory: Trajectory, limits: AxisLimits, 
     rec.log_series(VELOCITY, t, x[:, 3:6], AXIS_NAMES, limits=np.asarray(limits.velocity_mps, dtype=float))
 
 
-def motion_blueprint(world_name: str, extra_plots: Sequence[Any], timeline: str) -> rrb.Blueprint:
+def motion_blueprint(world_name: str, extra_plots: Sequence[Any], timeline: str, *,
+                     limits: AxisLimits | None = None, motion: bool = True) -> rrb.Blueprint:
     """3D scene and log on the left; force, velocity and ``extra_plots`` on the right (plan and smooth layouts).
 
     Parameters
@@ -104,18 +110,23 @@ def motion_blueprint(world_name: str, extra_plots: Sequence[Any], timeline: str)
         Views below the force and velocity plots.
     timeline : str
         Timeline the time panel shows first.
+    limits : AxisLimits, optional
+        Force and velocity bounds: the value axes span 1.15 × them (ticks beyond ``0`` however flat the data).
+    motion : bool
+        Include the force and velocity plots (False when there is no trajectory to plot).
 
     Returns
     -------
     rerun.blueprint.Blueprint
     """
     world = rrb.Spatial3DView(origin=WORLD, name=world_name)
-    plots = rrb.Vertical(
-        time_series_view(FORCE, "Force [N], world frame (mission_time)", legend=False),
-        time_series_view(VELOCITY, "Velocity [m/s], world frame (mission_time)", legend=False),
-        *extra_plots,
-        name="Metrics",
-    )
+    force_range = None if limits is None else limit_range(limits.force_N)
+    velocity_range = None if limits is None else limit_range(limits.velocity_mps)
+    motion_plots = (
+        time_series_view(FORCE, "Force [N] x/y/z, ± limits", legend=False, y_range=force_range),
+        time_series_view(VELOCITY, "Velocity [m/s] x/y/z, ± limits", legend=False, y_range=velocity_range),
+    ) if motion else ()
+    plots = rrb.Vertical(*motion_plots, *extra_plots, name="Metrics")
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(world, rrb.TextLogView(origin=LOG, name="Log"), row_shares=[3.0, 1.0]),
@@ -126,16 +137,25 @@ def motion_blueprint(world_name: str, extra_plots: Sequence[Any], timeline: str)
     )
 
 
-def plan_blueprint() -> rrb.Blueprint:
+def plan_blueprint(limits: AxisLimits | None = None, *, solved: bool = True) -> rrb.Blueprint:
     """Layout of ``plan.rrd``: 3D scene and log on the left, force, velocity and solution cost on the right.
+
+    It opens on ``mission_time`` (the plan flown); the tree's growth is on the ``iteration`` timeline.
+
+    Parameters
+    ----------
+    limits : AxisLimits, optional
+        Force and velocity bounds (fixes the value axes).
+    solved : bool
+        A solution was found (else the force, velocity and cost panels, which would be empty, are left out).
 
     Returns
     -------
     rerun.blueprint.Blueprint
     """
-    return motion_blueprint(
-        "World: tree, plan, obstacles", [time_series_view(SOLUTION_COST, "Best solution cost (iteration)")], ITERATION
-    )
+    cost = [rrb.BarChartView(origin=SOLUTION_COST, name="Best cost at each improvement (x: iteration)")]
+    return motion_blueprint("World: tree, plan, obstacles", cost if solved else [], TIMELINE, limits=limits,
+                            motion=solved)
 
 
 def write_plan_recording(
@@ -172,7 +192,7 @@ def write_plan_recording(
     recording_name : str
         Recording name shown in the viewer.
     """
-    rec = StageRecording(recording_name=recording_name)
+    rec = StageRecording(application_id("plan"), recording_name)
     rec.log_scene(scene)
     rec.log_points(PLAN_START, np.asarray(start, dtype=float).reshape(1, 3), color=START_COLOR, radius_m=0.03,
                    labels=["start"])
@@ -199,8 +219,9 @@ def write_plan_recording(
         rec.stream.log(SOLUTION_COST, rr.SeriesLines(names=["best cost"]), static=True)
         rec.stream.send_columns(SOLUTION_COST, indexes=[rr.TimeColumn(ITERATION, sequence=its)],
                                 columns=rr.Scalars.columns(scalars=costs))
+        rec.log_bar_chart(SOLUTION_COST, its, costs, color=PATH_COLOR)
     if trajectory is not None:
         rec.log_path(PLAN_PATH, trajectory.x[:, 0:3], color=PATH_COLOR, radius_m=0.008)
         log_motion(rec, trajectory, limits, start_on_iteration=True)
     rec.log_entries(log)
-    rec.save(Path(path), plan_blueprint())
+    rec.save(Path(path), plan_blueprint(limits, solved=trajectory is not None and bool(result.solutions)))

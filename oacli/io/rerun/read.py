@@ -225,3 +225,101 @@ def read_blueprint_views(path: Path) -> list[dict[str, str | None]]:
                 if values and values[-1]:
                     view[key] = values[-1][0]
     return list(views.values())
+
+
+def read_blueprint_timeline(path: Path) -> str | None:
+    """The timeline the (first) blueprint of an ``.rrd`` makes active on open (its ``TimePanel``).
+
+    Parameters
+    ----------
+    path : Path
+        The ``.rrd``.
+
+    Returns
+    -------
+    str or None
+        The timeline name; None when the file holds no blueprint or the blueprint sets none.
+    """
+    reader = _reader(path)
+    blueprints = reader.blueprints()
+    if not blueprints:
+        return None
+    timeline = None
+    for ch in reader.stream(store=blueprints[0]):
+        if _entity(ch.entity_path) != "time_panel":
+            continue
+        batch = ch.to_record_batch()
+        if "TimePanelBlueprint:timeline" in batch.schema.names:
+            values = batch.column("TimePanelBlueprint:timeline").to_pylist()
+            if values and values[-1]:
+                timeline = values[-1][0]
+    return timeline
+
+
+def read_entities_shown_on(path: Path, timeline: str) -> set[str]:
+    """Entities of an ``.rrd`` that hold data the viewer shows on ``timeline``: static rows or rows on it.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.rrd``.
+    timeline : str
+        The active timeline.
+
+    Returns
+    -------
+    set of str
+        Entity paths without the leading ``/`` (Rerun's reserved ``__`` entities left out).
+    """
+    out: set[str] = set()
+    for ch in _reader(path).stream():
+        entity = _entity(ch.entity_path)
+        if entity.startswith("__") or entity in out:
+            continue
+        if ch.is_static or timeline in ch.to_record_batch().schema.names:
+            out.add(entity)
+    return out
+
+
+def read_application_id(path: Path) -> str:
+    """The application id of the (first) recording of an ``.rrd``.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.rrd``.
+
+    Returns
+    -------
+    str
+    """
+    return _reader(path).recordings()[0].application_id
+
+
+def empty_blueprint_views(path: Path) -> list[dict[str, str | None]]:
+    """The blueprint views that would open empty: no entity at or below their origin has data on the
+    blueprint's active timeline (nor static data). Time series views need ``Scalars`` on it.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.rrd``.
+
+    Returns
+    -------
+    list of dict
+        The empty views (see :func:`read_blueprint_views`); every view when the blueprint sets no timeline.
+    """
+    views = read_blueprint_views(path)
+    timeline = read_blueprint_timeline(path)
+    if timeline is None:
+        return views
+    shown = read_entities_shown_on(path, timeline)
+    scalars = set(read_recording_scalars(path, timeline=timeline))
+    empty = []
+    for view in views:
+        origin = str(view["origin"] or "/").strip("/")
+        pool = scalars if view["class"] == "TimeSeries" else shown
+        if not any(origin == "" or e == origin or e.startswith(origin + "/") for e in pool):
+            empty.append(view)
+    return empty

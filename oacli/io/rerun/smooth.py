@@ -7,7 +7,8 @@ Entities of ``smooth.rrd`` (a fixed contract; tests read them back): the scene; 
 ``world/smooth/polish`` (each accepted polish candidate's path, on the ``polish`` sequence timeline);
 ``world/robot`` (output trajectory); ``metrics/force_N``, ``metrics/velocity_mps`` (output, ``mission_time``);
 ``metrics/cost`` (trajectory cost after each try, ``shortcut`` timeline); ``metrics/polish_length_m`` (exact path
-length of each polish candidate, ``polish`` timeline); ``log``.
+length of each polish candidate, ``polish`` timeline); both also as static bar charts (shown on ``mission_time``,
+the timeline the layout opens on); ``log``. Application id ``oacli-smooth``.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from oacli.io.rerun.writer import (
     AxisLimits,
     LogEntry,
     StageRecording,
-    time_series_view,
+    application_id,
 )
 from oacli.types import Trajectory
 
@@ -83,8 +84,15 @@ class PolishSteps:
     lengths_m: np.ndarray
 
 
-def smooth_blueprint() -> rrb.Blueprint:
+def smooth_blueprint(limits: AxisLimits | None = None, *, polished: bool = True) -> rrb.Blueprint:
     """Layout of ``smooth.rrd``: 3D scene and log, force, velocity, cost per shortcut try, length per polish step.
+
+    Parameters
+    ----------
+    limits : AxisLimits, optional
+        Force and velocity bounds (fixes the value axes).
+    polished : bool
+        The polish ran and solved at least once (else its panel, which would be empty, is left out).
 
     Returns
     -------
@@ -93,10 +101,12 @@ def smooth_blueprint() -> rrb.Blueprint:
     return motion_blueprint(
         "World: before (blue), shortcut (grey), after (orange)",
         [
-            time_series_view(COST, "Trajectory cost after each shortcut try (shortcut)"),
-            time_series_view(POLISH_LENGTH, "Path length of each polish candidate [m] (polish)"),
+            rrb.BarChartView(origin=COST, name="Cost after each shortcut try (x: try)"),
+            *([rrb.BarChartView(origin=POLISH_LENGTH, name="Polish candidate path length [m] (x: candidate)")]
+              if polished else []),
         ],
         TIMELINE,
+        limits=limits,
     )
 
 
@@ -135,7 +145,7 @@ def write_smooth_recording(
     recording_name : str
         Recording name shown in the viewer.
     """
-    rec = StageRecording(recording_name=recording_name)
+    rec = StageRecording(application_id("smooth"), recording_name)
     rec.log_scene(scene)
     rec.log_path(SMOOTH_BEFORE, before.x[:, 0:3], color=REFERENCE_COLOR, radius_m=0.006)
     if polish is not None:
@@ -151,6 +161,7 @@ def write_smooth_recording(
             rec.stream.log(POLISH_LENGTH, rr.SeriesLines(names=["path length"]), static=True)
             rec.stream.send_columns(POLISH_LENGTH, indexes=[rr.TimeColumn(POLISH, sequence=solved)],
                                     columns=rr.Scalars.columns(scalars=lengths[solved]))
+            rec.log_bar_chart(POLISH_LENGTH, solved, lengths[solved], color=POLISH_COLOR)
     rec.log_path(SMOOTH_AFTER, after.x[:, 0:3], color=ACTUAL_COLOR, radius_m=0.008)
     for index, pts in shortcuts.sections:
         set_sequence(rec, SHORTCUT, index)
@@ -161,6 +172,8 @@ def write_smooth_recording(
     rec.stream.log(COST, rr.SeriesLines(names=["cost"]), static=True)
     rec.stream.send_columns(COST, indexes=[rr.TimeColumn(SHORTCUT, sequence=np.arange(costs.size))],
                             columns=rr.Scalars.columns(scalars=costs))
+    rec.log_bar_chart(COST, np.arange(costs.size), costs, color=SHORTCUT_COLOR)
     log_motion(rec, after, limits, start_on_iteration=False)
     rec.log_entries(log)
-    rec.save(Path(path), smooth_blueprint())
+    polished = polish is not None and bool(np.any(np.isfinite(np.asarray(polish.lengths_m, dtype=float))))
+    rec.save(Path(path), smooth_blueprint(limits, polished=polished))

@@ -30,6 +30,8 @@ from oacli.io.rerun.writer import (
     AxisLimits,
     LogEntry,
     StageRecording,
+    application_id,
+    limit_range,
     time_series_view,
 )
 from oacli.types import Telemetry, Trajectory
@@ -45,16 +47,21 @@ FORCE = "metrics/force_N"
 TORQUE = "metrics/torque_Nm"
 SOLVE_TIME = "metrics/solve_time_ms"
 
-_AXES_NOTE = ": x red, y green, z blue; thin = ± limit, faded = commanded"
+_AXES_NOTE = " x/y/z, ± limits, faded = commanded"
 
 
-def track_blueprint() -> rrb.Blueprint:
+def track_blueprint(limits: AxisLimits | None = None) -> rrb.Blueprint:
     """Default layout of the ``track`` recording.
 
     Left: a 3D view of ``world/`` (keep-in box, keep-out ellipsoids, reference and actual path, the robot body
     moving along ``mission_time``) above the text log. Right: stacked time series of position error [m],
     attitude error [rad], force [N] and torque [N·m] per axis against their ± limits (and the commanded value),
     and the solver time [ms].
+
+    Parameters
+    ----------
+    limits : AxisLimits, optional
+        Force and torque bounds: the value axes span 1.15 × them (ticks beyond ``0`` however flat the data).
 
     Returns
     -------
@@ -66,8 +73,10 @@ def track_blueprint() -> rrb.Blueprint:
     plots = rrb.Vertical(
         time_series_view(POSITION_ERROR, "Position error [m]"),
         time_series_view(ATTITUDE_ERROR, "Attitude error [rad]"),
-        time_series_view(FORCE, f"Force [N], world frame{_AXES_NOTE}", legend=False),
-        time_series_view(TORQUE, f"Torque [N·m], body frame{_AXES_NOTE}", legend=False),
+        time_series_view(FORCE, f"Force [N]{_AXES_NOTE}", legend=False,
+                         y_range=None if limits is None else limit_range(limits.force_N)),
+        time_series_view(TORQUE, f"Torque [N·m]{_AXES_NOTE}", legend=False,
+                         y_range=None if limits is None else limit_range(limits.torque_Nm)),
         time_series_view(SOLVE_TIME, "Solve time [ms]"),
         name="Metrics",
     )
@@ -141,7 +150,7 @@ def write_track_recording(
             raise ValueError(f"{name}: expected shape {shape}, got {np.shape(arr)}")
     u_command, u_applied = tel.u_command, tel.u_applied
 
-    rec = StageRecording(recording_name=recording_name)
+    rec = StageRecording(application_id("track"), recording_name)
     rec.log_scene(scene)
     rec.log_path(REFERENCE, reference.x[:, 0:3], color=REFERENCE_COLOR)
     rec.log_positions_over_time(f"{REFERENCE}/target", reference.t, reference.x[:, 0:3], color=REFERENCE_COLOR,
@@ -160,4 +169,4 @@ def write_track_recording(
     rec.log_entries(log)
     if extra is not None:
         extra(rec)
-    rec.save(Path(path), track_blueprint() if blueprint is None else blueprint)
+    rec.save(Path(path), track_blueprint(limits) if blueprint is None else blueprint)

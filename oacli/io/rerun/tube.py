@@ -123,23 +123,24 @@ def tube_track_blueprint() -> rrb.Blueprint:
     world = rrb.Spatial3DView(origin=WORLD, name="World (ISS frame): reference, flown path, nominal tube")
     log = rrb.TextLogView(origin=LOG, name="Log")
     # View names use glyphs of the viewer's font only (it panics on e.g. U+2295 ⊕ or combining macrons).
-    note = ": x red, y green, z blue; thin = ± bound"
+    note = " x/y/z"
     metrics = rrb.Vertical(
         time_series_view(POSITION_ERROR, "Position error [m]"),
         time_series_view(ATTITUDE_ERROR, "Attitude error [rad]"),
-        time_series_view(FORCE, "Force applied [N]" + note, legend=False),
-        time_series_view(TORQUE, "Torque applied [N·m]" + note, legend=False),
+        time_series_view(FORCE, "Force applied [N]" + note + ", ± limits", legend=False),
+        time_series_view(TORQUE, "Torque applied [N·m]" + note + ", ± limits", legend=False),
         time_series_view(SOLVE_TIME, "Solve time [ms]"),
         name="Metrics",
     )
     tube = rrb.Vertical(
-        time_series_view(FORCE_NOMINAL, "Nominal force v [N]" + note + " (tightened U)", legend=False),
-        time_series_view(FORCE_ANCILLARY, "Ancillary force K(x - z) [N]" + note + " (max over Z)", legend=False),
-        time_series_view(NOMINAL_VELOCITY, "Nominal velocity [m/s]" + note + " (tightened X)", legend=False),
-        time_series_view(TUBE_MARGIN, "Tube margin (>= 0: inside the tube z + Z)"),
-        time_series_view(DISTURBANCE_POSITION, "Realised disturbance w, position [m]" + note + " (W)", legend=False),
-        time_series_view(DISTURBANCE_VELOCITY, "Realised disturbance w, velocity [m/s]" + note + " (W)",
+        time_series_view(FORCE_NOMINAL, "Nominal force v [N]" + note + ", tightened U", legend=False),
+        time_series_view(FORCE_ANCILLARY, "Ancillary K(x - z) [N]" + note + ", max over Z", legend=False),
+        time_series_view(NOMINAL_VELOCITY, "Nominal velocity [m/s]" + note + ", tightened X", legend=False),
+        time_series_view(TUBE_MARGIN, "Tube margin (>= 0: inside z + Z)"),
+        time_series_view(DISTURBANCE_POSITION, "Disturbance w, position [m]" + note + ", W", legend=False),
+        time_series_view(DISTURBANCE_VELOCITY, "Disturbance w, velocity [m/s]" + note + ", W",
                          legend=False),
+        time_series_view(W_VIOLATION, "w outside W (1 = yes)"),
         name="Tube",
     )
     return rrb.Blueprint(

@@ -55,13 +55,31 @@ LOG = "log"
 LIMIT_UPPER = "limit_upper"
 LIMIT_LOWER = "limit_lower"
 
+def application_id(stage: str) -> str:
+    """The Rerun application id of a stage's recording, ``oacli-<stage>`` (``oacli-plan``, ``oacli-track`` ...).
+
+    The viewer keeps one blueprint per application id: distinct ids let several stages' recordings be open at
+    once, each in its own layout.
+
+    Parameters
+    ----------
+    stage : str
+        Stage name.
+
+    Returns
+    -------
+    str
+    """
+    return f"oacli-{stage}"
+
+
 LogEntry = tuple[float, str, str]
 """A text log line: ``(t [s], level, message)``."""
 
 
 class AxisLimits(Protocol):
     """Per-axis bounds a recording plots as ± limits (:class:`oacli.reference_limits.LimitSet`,
-    :class:`oacli.excitation.problem.MotionLimits`, :class:`oacli.control.tracking.TrackingLimits`)."""
+    :class:`oacli.model.limits.MotionLimits`)."""
 
     @property
     def force_N(self) -> np.ndarray:
@@ -573,6 +591,29 @@ class StageRecording:
             )
             self._send(path, t_span, rr.Scalars.columns(scalars=np.tile(sign * lim, (2, 1))))
 
+    def log_bar_chart(
+        self, entity: str, x: np.ndarray, values: np.ndarray, *, color: Sequence[int] = (90, 150, 255, 255)
+    ) -> None:
+        """Log a static bar chart (one bar per ``x``), shown on every timeline: per-iteration figures that live on
+        a sequence timeline of their own, so their panel is never empty on the ``mission_time`` timeline.
+
+        Parameters
+        ----------
+        entity : str
+            Entity path (may also hold the same figures as ``Scalars`` on a sequence timeline).
+        x : ndarray, shape (N,)
+            Abscissa (iteration, try ...).
+        values : ndarray, shape (N,)
+            Bar heights; NaN is drawn as 0.
+        color : sequence of int
+            RGB(A) 0-255.
+        """
+        xx = np.asarray(x, dtype=float).reshape(-1)
+        vv = np.nan_to_num(np.asarray(values, dtype=float).reshape(-1))
+        if xx.shape != vv.shape:
+            raise ValueError(f"{entity}: {xx.shape[0]} abscissae but {vv.shape[0]} values")
+        self._log(entity, rr.BarChart(vv, abscissa=xx, color=_rgba(color)), static=True, t=None)
+
     # -- text ----------------------------------------------------------------------------------------------------
 
     def log_text(self, t: float, level: str, message: str) -> None:
@@ -670,7 +711,8 @@ def _check_complete(path: Path, recording_id: str) -> None:
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def time_series_view(origin: str, name: str, *, legend: bool = True) -> rrb.TimeSeriesView:
+def time_series_view(origin: str, name: str, *, legend: bool = True,
+                     y_range: tuple[float, float] | None = None) -> rrb.TimeSeriesView:
     """A time series view of ``origin`` and its children whose time axis spans the whole run.
 
     Parameters
@@ -678,9 +720,11 @@ def time_series_view(origin: str, name: str, *, legend: bool = True) -> rrb.Time
     origin : str
         Entity path; every ``Scalars`` series at or below it is plotted.
     name : str
-        Panel title (give the unit, e.g. ``"Position error [m]"``).
+        Panel title, short (give the unit, e.g. ``"Position error [m]"``); the series names go in the legend.
     legend : bool
-        Show the legend (hide it when the many series would not fit and the title explains the colours).
+        Show the legend (in the top-right corner, where it covers the least of a plot that starts at rest).
+    y_range : (float, float), optional
+        Fixed value axis (e.g. 1.15 × the ± limits, so the axis carries ticks beyond ``0`` however flat the data).
 
     Returns
     -------
@@ -692,5 +736,24 @@ def time_series_view(origin: str, name: str, *, legend: bool = True) -> rrb.Time
         origin=origin,
         name=name,
         axis_x=rrb.TimeAxis(view_range=whole_run),
-        plot_legend=None if legend else rrb.PlotLegend(visible=False),
+        axis_y=None if y_range is None else rrb.ScalarAxis(range=(float(y_range[0]), float(y_range[1]))),
+        plot_legend=rrb.PlotLegend(visible=False) if not legend else rrb.PlotLegend("RightTop", visible=True),
     )
+
+
+def limit_range(limits: Sequence[float] | np.ndarray, margin: float = 1.15) -> tuple[float, float]:
+    """A symmetric value range ``± margin · max(limits)`` for a plot of series against their ± limits.
+
+    Parameters
+    ----------
+    limits : array_like
+        The ± limits [unit of the plot].
+    margin : float
+        Headroom beyond the largest limit.
+
+    Returns
+    -------
+    (float, float)
+    """
+    top = margin * float(np.max(np.abs(np.asarray(limits, dtype=float))))
+    return (-top, top)
