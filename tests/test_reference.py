@@ -105,9 +105,9 @@ def test_loaders_refuse_bad_files(tmp_path):
 def test_track_follows_a_previous_stage_mcap(tmp_path):
     """--reference accepts a stage's MCAP: its /trajectory is read back and followed."""
     ref = make_reference()
-    ref = Trajectory(ref.t, ref.x, ref.u, name="plan")
+    ref = Trajectory(ref.t, ref.x, ref.u, name="plan", frame="iss")  # the frame of iss_reswarm.yaml
     plan = tmp_path / "plan.mcap"
-    with StageMcapWriter(plan, stage="plan", config_yaml="name: test\n") as writer:
+    with StageMcapWriter(plan, stage="plan", config_yaml="name: test\n", frame="iss") as writer:
         writer.write_trajectory("/trajectory", ref)
     out = tmp_path / "run"
     result = CliRunner().invoke(app, ["track", str(REPO / "configs" / "iss_reswarm.yaml"), "--reference", str(plan),

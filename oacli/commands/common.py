@@ -16,6 +16,7 @@ import typer
 
 from oacli.commands.progress import Progress
 from oacli.errors import ConfigError, OacliError
+from oacli.signals import exit_code_for, interruption_message, terminate_like_interrupt
 
 __all__ = ["Progress"]  # re-exported: the commands import it from here
 
@@ -98,9 +99,9 @@ def fail(exc: BaseException) -> typer.Exit:
         for line in exc.problems:
             typer.echo(f"error: {line}", err=True)
         return typer.Exit(exc.exit_code)
-    if isinstance(exc, KeyboardInterrupt):
-        typer.echo("error: interrupted", err=True)
-        return typer.Exit(130)
+    if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, or SIGTERM/SIGHUP (oacli.signals): exit 130 / 143
+        typer.echo(f"error: {interruption_message(exc)}", err=True)
+        return typer.Exit(exit_code_for(exc))
     if os.environ.get("OACLI_DEBUG"):
         raise exc
     typer.echo(f"internal error: {type(exc).__name__}: {exc} (set OACLI_DEBUG=1 for a traceback)", err=True)
@@ -198,7 +199,8 @@ def load_config_with_seed(config: Path, seed: int | None, sets: list[str] | None
 def run_guarded(action: Callable[[], Any]) -> Any:
     """Run a command's action, mapping every error to a clear message and an exit code (no traceback)."""
     try:
-        return action()
+        with terminate_like_interrupt():
+            return action()
     except (OacliError, KeyboardInterrupt, Exception) as exc:  # every error is mapped to an exit code
         raise fail(exc) from None
 

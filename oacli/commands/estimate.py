@@ -37,9 +37,10 @@ def estimate(
         Path, typer.Argument(metavar="CONFIG", help="YAML configuration file (its estimation section; see configs/).")
     ],
     telemetry: Annotated[
-        Path, typer.Option("--telemetry", "-t", metavar="FILE",
-                           help="A tracking run's track.mcap (measured states, applied inputs).")
-    ],
+        Path | None, typer.Option("--telemetry", "-t", metavar="FILE",
+                                  help="A tracking run's track.mcap (measured states, applied inputs); default: the "
+                                  "config's inputs.estimate_telemetry (recorded by a run).")
+    ] = None,
     method: Annotated[
         str | None,
         typer.Option("--method", "-m", metavar=choice_metavar(METHODS), autocompletion=complete_choices(METHODS),
@@ -71,8 +72,13 @@ def estimate(
         from oacli.stages.estimate import run_estimate
 
         check_choice("--method", method, METHODS)
-        cfg = load_config_with_seed(config, seed, sets)
-        return run_estimate(cfg, telemetry=telemetry, method=method, out=out, runs_root=runs_root,
+        from oacli.config.inputs import with_input
+
+        cfg, path = with_input(load_config_with_seed(config, seed, sets), "estimate_telemetry", telemetry,
+                               "--telemetry")
+        if method is not None:  # recorded in the run's config.yaml, which then reruns the same method
+            cfg = cfg.model_copy(update={"estimation": cfg.estimation.model_copy(update={"method": method})})
+        return run_estimate(cfg, telemetry=path, method=method, out=out, runs_root=runs_root,
                             progress=Progress("estimate", not quiet), allow_truncated=allow_truncated)
 
     run_stage_command(action, ESTIMATE_TABLE, quiet, json_out, view)

@@ -31,9 +31,10 @@ SMOOTH_TABLE = [
 def smooth(
     config: ConfigArgument,
     input_path: Annotated[
-        Path, typer.Option("--input", "-i", metavar="FILE",
-                           help="MCAP with a /trajectory to smooth (plan.mcap or smooth.mcap).")
-    ],
+        Path | None, typer.Option("--input", "-i", metavar="FILE",
+                                  help="MCAP with a /trajectory to smooth (plan.mcap or smooth.mcap); default: the "
+                                  "config's inputs.smooth_input (recorded by a run).")
+    ] = None,
     out: OutOption = None,
     runs_root: RunsDirOption = Path("runs"),
     seed: SeedOption = None,
@@ -46,10 +47,11 @@ def smooth(
     and summary.json."""
 
     def action():
+        from oacli.config.inputs import with_input
         from oacli.stages.smooth import run_smooth
 
-        cfg = load_config_with_seed(config, seed, sets)
-        return run_smooth(cfg, input_path=input_path, out=out, runs_root=runs_root,
+        cfg, path = with_input(load_config_with_seed(config, seed, sets), "smooth_input", input_path, "--input")
+        return run_smooth(cfg, input_path=path, out=out, runs_root=runs_root,
                           progress=Progress("smooth", not quiet))
 
     run_stage_command(action, SMOOTH_TABLE, quiet, json_out, view)

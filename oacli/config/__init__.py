@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import difflib
 import os
+import re
 import reprlib
+import stat
 import typing
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 import yaml
@@ -49,8 +50,8 @@ from oacli.config.models import (
 )
 from oacli.errors import ConfigError
 
-MAX_CONFIG_BYTES = 10 * 1024 * 1024
-"""Largest config file accepted [bytes]."""
+MAX_CONFIG_BYTES = 1024 * 1024
+"""Largest config file accepted [bytes] (the presets are under 10 KB; PyYAML parses about 1 MB a few seconds)."""
 
 VALUE_REPR_CHARS = 60
 """Values in messages are shortened to this many characters."""
@@ -91,18 +92,7 @@ def load_config(path: str | os.PathLike[str]) -> OacliConfig:
         ``path``).
     """
     source = os.fspath(path)
-    p = Path(source)
-    if not p.exists():
-        raise ConfigError(f"{source}: file not found")
-    if p.is_dir():
-        raise ConfigError(f"{source}: is a directory, expected a YAML file")
-    try:
-        size = p.stat().st_size
-        if size > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{source}: file is too large ({size} bytes, at most {MAX_CONFIG_BYTES})")
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    raw = _read_bounded(source)
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -113,6 +103,37 @@ def load_config(path: str | os.PathLike[str]) -> OacliConfig:
     if data is None:
         raise ConfigError(f"{source}: file is empty (expected a mapping with at least a 'robot' section)")
     return config_from_dict(data, source=source, base_dir=os.path.dirname(os.path.abspath(source)))
+
+
+def _read_bounded(source: str) -> bytes:
+    """Read a config file through a size-bounded read: a regular file only (no FIFO, device or folder), at most
+    :data:`MAX_CONFIG_BYTES` bytes read whatever its size claims."""
+    try:
+        # O_NONBLOCK: opening a FIFO must not wait for a writer (it is refused right after).
+        fd = os.open(source, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise ConfigError(f"{source}: file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{source}: is a directory, expected a YAML file") from None
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise ConfigError(f"{source}: is a directory, expected a YAML file")
+        if not stat.S_ISREG(mode):
+            kind = "a FIFO" if stat.S_ISFIFO(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) \
+                else "a socket" if stat.S_ISSOCK(mode) else "not a regular file"
+            raise ConfigError(f"{source}: is {kind}, expected a regular YAML file")
+        with os.fdopen(fd, "rb", closefd=False) as handle:
+            raw = handle.read(MAX_CONFIG_BYTES + 1)
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{source}: file is too large (more than {MAX_CONFIG_BYTES} bytes)")
+    return raw
 
 
 def config_from_dict(
@@ -221,6 +242,39 @@ class _StrictSafeLoader(yaml.SafeLoader):
                         key_node.start_mark,
                     )
         return super().construct_mapping(node, deep=deep)
+
+
+# YAML 1.2 core schema scalars instead of PyYAML's YAML 1.1 ones: ``1:30`` (sexagesimal 90), ``0777`` (octal),
+# ``1_000``, ``yes``/``no``/``on``/``off`` and dates stay text (refused where a number or a flag is expected);
+# ``1e3`` / ``1.0e3`` are numbers (PyYAML 1.1 needs ``1.0e+3``).
+_YAML11_SCALAR_TAGS = {"tag:yaml.org,2002:int", "tag:yaml.org,2002:float", "tag:yaml.org,2002:bool",
+                       "tag:yaml.org,2002:timestamp"}
+_YAML12_RESOLVERS = (
+    ("tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF")),
+    ("tag:yaml.org,2002:int", re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$"), list("-+0123456789")),
+    ("tag:yaml.org,2002:float",
+     re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+                r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"),
+     list("-+.0123456789")),
+)
+# The dumper uses the same rules, so that text such as "1e3" or "1:30" is quoted and reads back as text.
+for _cls in (_StrictSafeLoader, _FlowVectorDumper):
+    _cls.yaml_implicit_resolvers = {
+        first: [(tag, regexp) for tag, regexp in resolvers if tag not in _YAML11_SCALAR_TAGS]
+        for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    }
+    for _tag, _regexp, _first in _YAML12_RESOLVERS:
+        _cls.add_implicit_resolver(_tag, _regexp, _first)
+
+
+def _construct_yaml12_int(loader: yaml.SafeLoader, node: yaml.Node) -> int:
+    text = str(loader.construct_scalar(node))
+    if text.startswith(("0o", "0x")):
+        return int(text, 0)
+    return int(text, 10)  # YAML 1.2: 0777 is 777, not octal
+
+
+_StrictSafeLoader.add_constructor("tag:yaml.org,2002:int", _construct_yaml12_int)
 
 
 def _parse_yaml(text: str, source: str) -> Any:

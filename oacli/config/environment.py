@@ -10,15 +10,15 @@ from pydantic_core import PydanticCustomError
 
 from oacli.config.fields import (
     IDENTITY_QUATERNION,
+    BoundedPositiveVector3,
     BoxCorners,
     Name,
     NonNegativeReal,
-    PositiveVector3,
+    Position3,
     Quaternion,
     Real,
     Section,
     SPDMatrix3,
-    Vector3,
     none_to,
     raise_at,
 )
@@ -29,7 +29,7 @@ from oacli.model import quaternion as quat
 class Pose(Section):
     """A position [m] and attitude quaternion ``[x, y, z, w]`` in the world frame."""
 
-    position: Vector3 = Field(description="Position in the world frame [m].")
+    position: Position3 = Field(description="Position in the world frame [m].")
     quaternion: Quaternion = Field(
         default=IDENTITY_QUATERNION, description="Attitude [x, y, z, w], scalar last, body to world; unit norm."
     )
@@ -67,8 +67,8 @@ class KeepInBox(Section):
 class KeepOutEllipsoid(Section):
     """Ellipsoidal keep-out zone (Doerr Eq. 12): either ``semi_axes_m`` (+ ``quaternion``) or ``shape_matrix``."""
 
-    center: Vector3 = Field(description="Centroid [m].")
-    semi_axes_m: PositiveVector3 | None = Field(
+    center: Position3 = Field(description="Centroid [m].")
+    semi_axes_m: BoundedPositiveVector3 | None = Field(
         default=None, description="Semi-axes along the body axes of ``quaternion`` [m], each > 0."
     )
     quaternion: Quaternion | None = Field(

@@ -34,6 +34,10 @@ QUATERNION_NORM_TOLERANCE = 1e-3
 INERTIA_TRIANGLE_RTOL = 1e-12
 """Relative tolerance of the triangle inequalities ``Ixx + Iyy >= Izz`` (and permutations)."""
 
+MAX_COORDINATE_M = 1.0e4
+"""Largest magnitude of a coordinate in the world frame [m] (the ISS is about 100 m long): a position of 1e30
+would overflow the geometry and ask grids and plots for absurd sizes."""
+
 NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$"
 """Run, frame and waypoint names: letters, digits, ``_``, ``.`` and ``-``, not starting with ``.`` or ``-``."""
 
@@ -47,8 +51,7 @@ def _real(value: Any) -> float:
             raise PydanticCustomError("oacli_number", "must be a number") from None
         raise PydanticCustomError(
             "oacli_number",
-            "must be a number, not text (YAML reads exponents without a decimal point, such as 1e3, as text: "
-            "write 1.0e3)",
+            "must be a number, not text (remove the quotes)",
         )
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise PydanticCustomError("oacli_number", "must be a number")
@@ -139,6 +142,18 @@ def _spd_matrix(rows: tuple[tuple[float, float, float], ...]) -> tuple[tuple[flo
     return rows
 
 
+def _bounded_position(p: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Refuse coordinates beyond ±:data:`MAX_COORDINATE_M`."""
+    worst = max(abs(c) for c in p)
+    if worst > MAX_COORDINATE_M:
+        raise PydanticCustomError(
+            "oacli_workspace",
+            "coordinate {value} m is beyond the workspace bound of ±{bound:g} m",
+            {"value": f"{worst:.3g}", "bound": MAX_COORDINATE_M},
+        )
+    return p
+
+
 def _sorted_corners(corners: tuple[tuple[float, float, float], ...]) -> tuple[tuple[float, float, float], ...]:
     """Sort two box corners per axis into (lower, upper); reject a zero width on any axis."""
     a, b = corners
@@ -168,6 +183,12 @@ Fraction = Annotated[Real, Field(gt=0, le=1)]
 
 Vector3 = Annotated[tuple[Real, Real, Real], BeforeValidator(sequence_of(3))]
 """Three finite real numbers."""
+Position3 = Annotated[Vector3, AfterValidator(_bounded_position)]
+"""A position or displacement in the world frame [m], each coordinate within ±:data:`MAX_COORDINATE_M`."""
+BoundedPositiveVector3 = Annotated[
+    tuple[PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(3)), AfterValidator(_bounded_position)
+]
+"""Three positive lengths [m] (semi-axes, sizes), each at most :data:`MAX_COORDINATE_M`."""
 PositiveVector3 = Annotated[tuple[PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(3))]
 PositiveVector4 = Annotated[
     tuple[PositiveReal, PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(4))
@@ -184,7 +205,7 @@ Quaternion = Annotated[
 """Unit quaternion ``[x, y, z, w]`` (scalar last)."""
 PrincipalInertia = Annotated[PositiveVector3, AfterValidator(_principal_inertias)]
 SPDMatrix3 = Annotated[tuple[Vector3, Vector3, Vector3], BeforeValidator(sequence_of(3)), AfterValidator(_spd_matrix)]
-BoxCorners = Annotated[tuple[Vector3, Vector3], BeforeValidator(sequence_of(2)), AfterValidator(_sorted_corners)]
+BoxCorners = Annotated[tuple[Position3, Position3], BeforeValidator(sequence_of(2)), AfterValidator(_sorted_corners)]
 Name = Annotated[str, Strict(), StringConstraints(pattern=NAME_PATTERN, max_length=64)]
 
 IDENTITY_QUATERNION = (0.0, 0.0, 0.0, 1.0)
@@ -218,13 +239,16 @@ class Section(BaseModel):
 __all__ = [
     "IDENTITY_QUATERNION",
     "INERTIA_TRIANGLE_RTOL",
+    "MAX_COORDINATE_M",
     "NAME_PATTERN",
     "QUATERNION_NORM_TOLERANCE",
+    "BoundedPositiveVector3",
     "BoxCorners",
     "Fraction",
     "Name",
     "NonNegativeReal",
     "NonNegativeVector3",
+    "Position3",
     "PositiveReal",
     "PositiveVector3",
     "PositiveVector4",

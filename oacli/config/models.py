@@ -42,11 +42,13 @@ from oacli.config.fields import (
     none_to,
     raise_at,
 )
+from oacli.config.inputs import InputsConfig
 from oacli.config.mission import SEGMENT_NAMES, MissionConfig, deep_merge
 from oacli.config.planner import PlannerConfig
 from oacli.config.reference import ReferenceConfig
 from oacli.config.robot import DisturbanceConfig, RobotConfig, TruthConfig
 from oacli.config.simulation import SensorsConfig, SimulationConfig
+from oacli.config.sizes import size_problems
 from oacli.config.tube import tube_problems
 from oacli.geometry import Scene
 from oacli.types import InertialParams
@@ -91,6 +93,9 @@ class OacliConfig(Section):
     )
     estimation: Annotated[EstimationConfig, none_to({})] = Field(
         default_factory=EstimationConfig, description="Inertial parameter estimation (oacli estimate)."
+    )
+    inputs: Annotated[InputsConfig, none_to({})] = Field(
+        default_factory=InputsConfig, description="Files smooth and estimate read (recorded by the commands)."
     )
     mission: MissionConfig | None = Field(
         default=None, description="The three-segment assembly mission (oacli mission); other commands ignore it."
@@ -181,6 +186,8 @@ class OacliConfig(Section):
                     f"must be <= simulation.plant_rate_hz ({self.simulation.plant_rate_hz:g} Hz)",
                 )
             )
+        if not problems:
+            problems += size_problems(self)  # steps = duration × rate, against a cap (oacli.config.sizes)
         raise_at("OacliConfig", problems)
         self._check_segment_overrides()
         return self

@@ -13,7 +13,7 @@ from typing import Annotated
 from pydantic import Field, model_validator
 from pydantic_core import PydanticCustomError
 
-from oacli.config.fields import NonNegativeReal, PositiveReal, Real, Section, Vector3, none_to
+from oacli.config.fields import NonNegativeReal, Position3, PositiveReal, Real, Section, none_to
 
 Probability = Annotated[Real, Field(ge=0, le=1)]
 
@@ -99,7 +99,7 @@ class SimulationConfig(Section):
     settle_time_s: NonNegativeReal = Field(
         default=5.0, description="Extra simulated time after the reference ends [s], >= 0."
     )
-    initial_offset_m: Vector3 = Field(
+    initial_offset_m: Position3 = Field(
         default=(0.0, 0.0, 0.0), description="Offset of the initial true position from the reference start [m]."
     )
 

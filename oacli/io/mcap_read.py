@@ -20,13 +20,71 @@ import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, DataEnd, Message, Metadata, Schema
-from mcap.stream_reader import CRCValidationError, breakup_chunk
 
 from oacli.errors import InputError
 from oacli.io import mcap_schema as ms
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Telemetry, Trajectory
 
 _MAGIC = b"\x89MCAP0\r\n"
+
+MAX_CHUNK_BYTES = 64 * 1024 * 1024
+"""Largest decompressed chunk accepted [bytes] (oacli writes chunks of 256 KiB)."""
+
+MAX_EXPANSION = 100
+"""Decompressed bytes allowed per byte of file (oacli's zstd chunks expand about 10 times)."""
+
+MIN_DECOMPRESSED_BUDGET = 64 * 1024 * 1024
+"""Decompressed bytes a small file may always expand to [bytes]."""
+
+MAX_DECOMPRESSED_BYTES = 2 * 1024 * 1024 * 1024
+"""Absolute cap on the decompressed bytes of one file [bytes]."""
+
+
+def decompressed_budget(file_bytes: int) -> int:
+    """Decompressed bytes a file of ``file_bytes`` may expand to: ``MAX_EXPANSION`` × its size, at least
+    :data:`MIN_DECOMPRESSED_BUDGET`, at most :data:`MAX_DECOMPRESSED_BYTES` (a decompression bomb is refused)."""
+    return min(MAX_DECOMPRESSED_BYTES, max(MIN_DECOMPRESSED_BUDGET, MAX_EXPANSION * int(file_bytes)))
+
+
+def _decompress_bounded(chunk: Chunk, limit: int) -> bytes:
+    """Decompress a chunk's records, reading at most ``limit + 1`` bytes whatever the data claim."""
+    if chunk.compression == "":
+        return bytes(chunk.data)
+    if chunk.compression == "zstd":
+        import zstandard
+
+        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data), read_across_frames=True)
+        parts, total = [], 0
+        while total <= limit:
+            block = reader.read(min(1 << 20, limit + 1 - total))
+            if not block:
+                break
+            parts.append(block)
+            total += len(block)
+        return b"".join(parts)
+    if chunk.compression == "lz4":
+        import lz4.frame
+
+        return lz4.frame.LZ4FrameDecompressor().decompress(bytes(chunk.data), max_length=limit + 1)
+    raise ValueError(f"unsupported compression {chunk.compression!r}")
+
+
+def _chunk_records(data: bytes) -> list[Any]:
+    """The schema, channel and message records of a decompressed chunk (as ``mcap``'s ``breakup_chunk``)."""
+    stream = _stream(data)
+    records: list[Any] = []
+    while stream.count < len(data):
+        opcode = stream.read1()
+        length = stream.read8()
+        if opcode == Opcode.CHANNEL:
+            records.append(Channel.read(stream))
+        elif opcode == Opcode.MESSAGE:
+            records.append(Message.read(stream, length))
+        elif opcode == Opcode.SCHEMA:
+            records.append(Schema.read(stream))
+        else:
+            stream.read(length)
+    return records
 
 _LOG_LEVEL_NAMES = {0: "unknown", 1: "debug", 2: "info", 3: "warning", 4: "error", 5: "fatal"}
 
@@ -147,6 +205,16 @@ class _Scan:
         self.truncated = False
         self.bytes_read = 0
         self.bytes_total = 0
+        self.budget = MIN_DECOMPRESSED_BUDGET
+        self.decompressed = 0
+
+    def _too_big(self, offset: int, declared: int, limit: int) -> str:
+        if declared > MAX_CHUNK_BYTES:
+            return (f"chunk at byte {offset} declares {declared} decompressed bytes, more than the "
+                    f"{MAX_CHUNK_BYTES} allowed (a decompression bomb or a corrupt file)")
+        return (f"the chunks decompress to more than {self.budget} bytes ({MAX_EXPANSION} × the file size, at "
+                f"least {MIN_DECOMPRESSED_BUDGET}, at most {MAX_DECOMPRESSED_BYTES}): refused as a "
+                "decompression bomb")
 
     def fail(self, reason: str) -> InputError:
         return InputError(f"{self.path}: {reason}")
@@ -158,6 +226,7 @@ class _Scan:
             raise self.fail("file not found") from None
         except OSError as exc:
             raise self.fail(f"cannot read the file ({exc.strerror or exc})") from None
+        self.budget = decompressed_budget(len(data))
         if len(data) < len(_MAGIC) or data[: len(_MAGIC)] != _MAGIC:
             raise self.fail("not an MCAP file (it does not start with the MCAP magic bytes)")
         complete = len(data) >= 2 * len(_MAGIC) and data[-len(_MAGIC) :] == _MAGIC
@@ -195,20 +264,30 @@ class _Scan:
         try:
             if opcode == Opcode.CHUNK:
                 chunk = Chunk.read(_stream(body))
+                declared = int(chunk.uncompressed_size)
+                limit = min(MAX_CHUNK_BYTES, self.budget - self.decompressed)
+                if declared > limit:
+                    raise self.fail(self._too_big(offset, declared, limit))
                 try:
-                    records = breakup_chunk(chunk, validate_crc=self.validate)
-                except CRCValidationError as exc:
-                    raise self.fail(
-                        f"chunk at byte {offset} failed its CRC check (stored {exc.expected:#010x}, computed "
-                        f"{exc.actual:#010x}): the file is corrupt"
-                    ) from None
-                except InputError:
-                    raise
+                    data = _decompress_bounded(chunk, declared)
                 except Exception as exc:
                     raise self.fail(
                         f"chunk at byte {offset} is corrupt: its {chunk.compression} data do not decompress "
                         f"({exc}), so its CRC cannot match"
                     ) from None
+                if len(data) != declared:
+                    raise self.fail(f"chunk at byte {offset} is corrupt: it decompresses to "
+                                    f"{'more than ' if len(data) > declared else ''}{min(len(data), declared + 1)} "
+                                    f"bytes, not the {declared} it declares")
+                self.decompressed += declared
+                if self.validate and chunk.uncompressed_crc != 0:
+                    actual = zlib.crc32(data)
+                    if actual != chunk.uncompressed_crc:
+                        raise self.fail(
+                            f"chunk at byte {offset} failed its CRC check (stored {chunk.uncompressed_crc:#010x}, "
+                            f"computed {actual:#010x}): the file is corrupt"
+                        )
+                records = _chunk_records(data)
                 for record in records:
                     self._inner(record)
             elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
@@ -262,6 +341,8 @@ def _json_messages(scan: _Scan, topic: str) -> list[dict]:
             out.append(json.loads(data))
         except ValueError as exc:
             raise scan.fail(f"message {i} on {topic} is not valid JSON ({exc})") from None
+        except RecursionError:
+            raise scan.fail(f"message {i} on {topic} is JSON nested too deeply") from None
     return out
 
 

@@ -7,20 +7,31 @@ Writing uses the Foxglove SDK's MCAP writer (``foxglove.open_mcap``) with one ``
 channels of one file never leak into another. It writes zstd-compressed chunks of at most
 :data:`DEFAULT_CHUNK_SIZE` bytes (uncompressed), chunk CRCs, the data-section CRC, the summary CRC and attachment
 CRCs. The file is written under a temporary name and renamed into place only when the ``with`` block ends
-without an exception (:func:`oacli.io.atomic.atomic_path`).
+without an exception (:func:`oacli.io.atomic.atomic_file`: an exclusive temporary file, never a
+predictable name); a failed write names its cause (:class:`oacli.io.atomic.WriteError`).
+
+Messages go to the file in time order (``log_time`` non-decreasing over the whole file, ties in call order) when
+the writer is opened with ``time_ordered=True`` or inside a :meth:`StageMcapWriter.time_ordered` block: each
+``write_*`` call is validated at once and queued as a lazy per-topic stream, and the streams are merged by time
+(:func:`heapq.merge`) when the block ends or on :meth:`StageMcapWriter.flush`. Chunks are written as they fill,
+so a file cut by a crash holds every complete chunk (all topics up to about the same time), which the ``mcap``
+package's stream reader reads up to the cut.
 """
 
 from __future__ import annotations
 
+import contextlib
+import heapq
 import json
 import math
+import os
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, BinaryIO, cast
 
 import foxglove
 import numpy as np
@@ -48,7 +59,7 @@ from foxglove.messages import (
 import oacli
 from oacli.geometry.shapes import Scene
 from oacli.io import mcap_schema as ms
-from oacli.io.atomic import atomic_path
+from oacli.io.atomic import WriteError, atomic_file, describe_os_error
 from oacli.io.jsonsafe import to_json_safe
 from oacli.model.quaternion import from_rotation_matrix
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
@@ -57,6 +68,9 @@ from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
 DEFAULT_CHUNK_SIZE = 256 * 1024
 
 _NS_PER_S = 1_000_000_000
+
+#: One queued message: ``(log_time [ns], emit, payload)``; ``emit(payload, log_time)`` writes it.
+_Pending = tuple[int, Callable[[Any, int], None], Any]
 
 _LOG_LEVELS = {
     "debug": LogLevel.Debug,
@@ -141,10 +155,76 @@ def _ms_or_none(seconds: float) -> float | None:
     return seconds * 1e3 if math.isfinite(seconds) else None
 
 
+class _SpoolFile:
+    """The file object ``foxglove.open_mcap`` writes to: new bytes collect in memory and :meth:`spill` writes
+    them to the real file from oacli's code.
+
+    So a failed write (disk full) raises a plain ``OSError`` here, named in one line, instead of inside the
+    foxglove writer (which prints the Python traceback and then refuses every later message). The MCAP writer
+    seeks back to patch a chunk's header once the chunk is complete: a patch of bytes already spilled is
+    written in place (it needs no new disk space).
+    """
+
+    def __init__(self, handle: Any) -> None:
+        self._fd = handle.fileno()
+        self._base = 0  # file offset of the buffer's first byte
+        self._buffer = bytearray()
+        self._position = 0
+        self.error: OSError | None = None
+
+    def write(self, data: bytes) -> int:
+        data = bytes(data)
+        pos, n = self._position, len(data)
+        if pos < self._base:  # patch of spilled bytes
+            head = data[: self._base - pos]
+            os.pwrite(self._fd, head, pos)
+            data, pos = data[len(head):], pos + len(head)
+        if data:
+            offset = pos - self._base
+            if offset > len(self._buffer):
+                self._buffer += bytes(offset - len(self._buffer))
+            self._buffer[offset : offset + len(data)] = data
+        self._position += n
+        return n
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        end = self._base + len(self._buffer)
+        self._position = {0: offset, 1: self._position + offset, 2: end + offset}[whence]
+        return self._position
+
+    def tell(self) -> int:
+        return self._position
+
+    def flush(self) -> None:
+        """Called by the MCAP writer; the bytes reach the file at the next :meth:`spill`."""
+
+    @property
+    def pending(self) -> int:
+        """Bytes not yet written to the file."""
+        return len(self._buffer)
+
+    def spill(self) -> None:
+        """Write the collected bytes to the file (an ``OSError`` is kept in ``error`` and raised)."""
+        if not self._buffer:
+            return
+        try:
+            with memoryview(self._buffer) as view:
+                done = 0
+                while done < len(view):
+                    done += os.pwrite(self._fd, view[done:], self._base + done)
+        except OSError as exc:
+            if self.error is None:
+                self.error = exc
+            raise
+        self._base += len(self._buffer)
+        self._buffer.clear()
+
+
 class StageMcapWriter:
     """Context manager writing one stage's MCAP file atomically.
 
-    On entering, the file is opened under a temporary name (``.<name>.partial`` beside ``path``), and the
+    On entering, the file is opened under an exclusive temporary name (``.<name>.<random>.partial`` beside
+    ``path``), and the
     metadata record ``oacli`` and the attachment ``config.yaml`` are written first (so that even a file cut by a
     crash carries them). On leaving without an exception the file is finished (summary, CRCs), fsynced and
     renamed to ``path``; if an exception escapes the ``with`` block the temporary file is deleted and no file
@@ -173,6 +253,9 @@ class StageMcapWriter:
         Target uncompressed chunk size [bytes].
     overwrite : bool
         Replace an existing ``path`` (default: refuse with ``FileExistsError``).
+    time_ordered : bool
+        Queue every message and write them merged by time (see the module docstring) when the ``with`` block
+        ends or on :meth:`flush`; otherwise each ``write_*`` call writes its messages at once.
 
     Examples
     --------
@@ -195,6 +278,7 @@ class StageMcapWriter:
         frame: str = "world",
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         overwrite: bool = False,
+        time_ordered: bool = False,
     ) -> None:
         self.path = Path(path)
         self.stage = str(stage)
@@ -204,12 +288,15 @@ class StageMcapWriter:
         self._chunk_size = int(chunk_size)
         self._overwrite = bool(overwrite)
         self._atomic: Any = None
+        self._file: _SpoolFile | None = None
         self._writer: Any = None
         self._context: Any = None
         self._state = "new"
         # topic -> (channel, schema name, channel metadata)
         self._channels: dict[str, tuple[Any, str, dict[str, str]]] = {}
         self._last_t: dict[str, float] = {}
+        self._ordered = bool(time_ordered)
+        self._queue: list[Iterator[_Pending]] | None = [] if self._ordered else None
 
     # -- context management ------------------------------------------------------------------------------
 
@@ -220,8 +307,8 @@ class StageMcapWriter:
             raise FileExistsError(f"{self.path} exists; refusing to overwrite it")
         if not self.path.parent.is_dir():
             raise FileNotFoundError(f"folder {self.path.parent} does not exist")
-        self._atomic = atomic_path(self.path)
-        tmp = self._atomic.__enter__()
+        self._atomic = atomic_file(self.path)
+        self._file = _SpoolFile(self._atomic.__enter__())
         try:
             self._context = foxglove.Context()
             options = MCAPWriteOptions(
@@ -232,7 +319,8 @@ class StageMcapWriter:
                 calculate_summary_section_crc=True,
                 calculate_attachment_crcs=True,
             )
-            self._writer = foxglove.open_mcap(tmp, context=self._context, writer_options=options)
+            sink = cast(BinaryIO, self._file)  # our spool: write/flush/seek/tell as open_mcap needs
+            self._writer = foxglove.open_mcap(sink, context=self._context, writer_options=options)
             self._state = "open"
             created = datetime.now(UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
             info = {
@@ -247,6 +335,8 @@ class StageMcapWriter:
             }
             self.write_metadata(ms.METADATA_NAME, info)
             self.attach(ms.CONFIG_ATTACHMENT, self._config_yaml.encode("utf-8"), ms.CONFIG_MEDIA_TYPE)
+            self._writer.flush()
+            self._spill()  # the metadata and the config are on disk before any message
         except BaseException:
             self.__exit__(*sys.exc_info())
             raise
@@ -260,22 +350,92 @@ class StageMcapWriter:
     ) -> None:
         if self._state == "closed":
             return
+        error = exc
+        try:
+            if error is None and self._writer is not None:
+                self._drain()
+        except BaseException as err:
+            error = err
         self._state = "closed"
+        self._queue = None
         try:
             if self._writer is not None:
                 self._writer.close()
+                if error is None:
+                    self._spill()
         except BaseException as err:
-            if exc is None:
-                self._atomic.__exit__(type(err), err, err.__traceback__)
-                raise
-            err.add_note("(while closing the MCAP writer after an earlier error)")
+            if error is None:
+                error = err
+            else:
+                error.add_note(f"(closing the MCAP writer also failed: {err})")
         finally:
             self._writer = None
             for channel, _, _ in self._channels.values():
                 channel.close()
             self._channels.clear()
             self._context = None
-        self._atomic.__exit__(exc_type, exc, tb)
+        if not isinstance(error, KeyboardInterrupt) and self._file is not None and self._file.error is not None:
+            # The foxglove writer reports a failed write vaguely; name the cause (e.g. ENOSPC) and the path.
+            if not isinstance(error, WriteError):
+                cause = error
+                error = WriteError(describe_os_error(self._file.error, self.path))
+                error.__cause__ = cause
+        if error is None:
+            self._atomic.__exit__(None, None, None)
+            return
+        self._atomic.__exit__(type(error), error, error.__traceback__)  # removes the temporary file
+        if error is not exc:
+            raise error
+
+    # -- time order --------------------------------------------------------------------------------------------
+
+    @contextlib.contextmanager
+    def time_ordered(self) -> Iterator[StageMcapWriter]:
+        """Within the block, queue every message; at its end write them all merged by time.
+
+        Messages with equal times keep the order of the calls. Nothing queued is written if the block raises.
+        """
+        self._require_open()
+        if self._queue is not None:
+            yield self  # already queueing (nested block or a time-ordered writer)
+            return
+        self._queue = []
+        try:
+            yield self
+        except BaseException:
+            self._queue = None
+            raise
+        try:
+            self._drain()
+        finally:
+            self._queue = None
+
+    def _emit(self, messages: Iterable[_Pending]) -> None:
+        """Write ``messages`` now, or queue them (lazily) while time-ordered."""
+        if self._queue is not None:
+            self._queue.append(iter(messages))
+            return
+        self._write(messages)
+
+    def _write(self, messages: Iterable[_Pending]) -> None:
+        spool = self._file
+        for log_time, emit, payload in messages:
+            emit(payload, log_time)
+            if spool is not None and spool.pending:  # a chunk was completed: to the file now
+                self._spill()
+
+    def _spill(self) -> None:
+        try:
+            self._file.spill()  # type: ignore[union-attr]
+        except OSError as exc:
+            raise WriteError(describe_os_error(exc, self.path)) from None
+
+    def _drain(self) -> None:
+        """Write every queued message, merged by time (stable for equal times)."""
+        if not self._queue:
+            return
+        queued, self._queue = self._queue, []
+        self._write(heapq.merge(*queued, key=lambda m: m[0]))
 
     def _require_open(self) -> None:
         if self._state != "open":
@@ -321,10 +481,22 @@ class StageMcapWriter:
         return arr, ns
 
     @staticmethod
-    def _log_rows(channel: Any, template: str, rows: np.ndarray, ns: list[int]) -> None:
+    def _raw_emitter(channel: Any) -> Callable[[Any, int], None]:
         base_log = channel.base.log  # the JSON text is already encoded: skip foxglove.Channel.log's checks
-        for row, log_time in zip(rows.tolist(), ns, strict=True):
-            base_log((template % tuple(row)).encode(), log_time, None)
+        return lambda data, log_time: base_log(data, log_time, None)
+
+    @staticmethod
+    def _typed_emitter(channel: Any) -> Callable[[Any, int], None]:
+        return lambda message, log_time: channel.log(message, log_time=log_time)
+
+    def _log_rows(self, channel: Any, template: str, rows: np.ndarray, ns: list[int]) -> None:
+        emit = self._raw_emitter(channel)
+
+        def messages() -> Iterator[_Pending]:
+            for row, log_time in zip(rows.tolist(), ns, strict=True):
+                yield log_time, emit, (template % tuple(row)).encode()
+
+        self._emit(messages())
 
     # -- oacli records ---------------------------------------------------------------------------------------
 
@@ -412,19 +584,24 @@ class StageMcapWriter:
         if len(infos) != times.shape[0]:
             raise ValueError(f"{topic}: {times.shape[0]} times but {len(infos)} SolveInfo records")
         channel = self._json_channel(topic, ms.SOLVER_STATS, ms.SOLVER_STATS_SCHEMA, {})
-        base_log = channel.base.log
-        for ti, info, log_time in zip(times.tolist(), infos, ns, strict=True):
-            objective = float(info.objective)
-            record = {
-                "t": ti,
-                "status": str(info.status),
-                "success": bool(info.success),
-                "objective": objective if math.isfinite(objective) else None,
-                "iterations": int(info.iterations),
-                "solve_time_ms": _ms_or_none(info.solve_time_s),
-                "step_time_ms": _ms_or_none(info.step_time_s),
-            }
-            base_log(json.dumps(record, allow_nan=False).encode(), log_time, None)
+        emit = self._raw_emitter(channel)
+        infos = list(infos)
+
+        def messages() -> Iterator[_Pending]:
+            for ti, info, log_time in zip(times.tolist(), infos, ns, strict=True):
+                objective = float(info.objective)
+                record = {
+                    "t": ti,
+                    "status": str(info.status),
+                    "success": bool(info.success),
+                    "objective": objective if math.isfinite(objective) else None,
+                    "iterations": int(info.iterations),
+                    "solve_time_ms": _ms_or_none(info.solve_time_s),
+                    "step_time_ms": _ms_or_none(info.step_time_s),
+                }
+                yield log_time, emit, json.dumps(record, allow_nan=False).encode()
+
+        self._emit(messages())
         if times.size:
             self._last_t[topic] = float(times[-1])
 
@@ -454,7 +631,7 @@ class StageMcapWriter:
             raise ValueError(f"{topic}: record t={record['t']!r} differs from t={t_s!r}")
         channel = self._json_channel(topic, schema_name, schema, {})
         body = to_json_safe({"t": t_s, **{k: v for k, v in record.items() if k != "t"}})
-        channel.base.log(json.dumps(body, allow_nan=False).encode(), ns[0], None)
+        self._emit([(ns[0], self._raw_emitter(channel), json.dumps(body, allow_nan=False).encode())])
 
     # -- Foxglove messages -----------------------------------------------------------------------------------
 
@@ -473,10 +650,14 @@ class StageMcapWriter:
         times, ns = self._sample_times(topic, t)
         xs = _finite_array(f"{topic}: x", x, (times.shape[0], STATE_DIM))
         channel = self._typed_channel(topic, PoseInFrameChannel, "foxglove.PoseInFrame")
-        frame = self.frame
-        for (px, py, pz, qx, qy, qz, qw), log_time in zip(xs[:, [0, 1, 2, 6, 7, 8, 9]].tolist(), ns, strict=True):
-            pose = Pose(position=Vector3(x=px, y=py, z=pz), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
-            channel.log(PoseInFrame(timestamp=_timestamp(log_time), frame_id=frame, pose=pose), log_time=log_time)
+        frame, emit, rows = self.frame, self._typed_emitter(channel), xs[:, [0, 1, 2, 6, 7, 8, 9]].tolist()
+
+        def messages() -> Iterator[_Pending]:
+            for (px, py, pz, qx, qy, qz, qw), log_time in zip(rows, ns, strict=True):
+                pose = Pose(position=Vector3(x=px, y=py, z=pz), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
+                yield log_time, emit, PoseInFrame(timestamp=_timestamp(log_time), frame_id=frame, pose=pose)
+
+        self._emit(messages())
         if times.size:
             self._last_t[topic] = float(times[-1])
 
@@ -554,7 +735,7 @@ class StageMcapWriter:
                 SceneEntity(timestamp=stamp, frame_id=scene.frame, id=f"path/{name}", metadata=meta, lines=[line])
             )
         channel = self._typed_channel(topic, SceneUpdateChannel, "foxglove.SceneUpdate")
-        channel.log(SceneUpdate(entities=entities), log_time=ns[0])
+        self._emit([(ns[0], self._typed_emitter(channel), SceneUpdate(entities=entities))])
 
     def write_robot_body(
         self,
@@ -637,7 +818,7 @@ class StageMcapWriter:
         _, ns = _times_ns(topic, t)
         channel = self._typed_channel(topic, LogChannel, "foxglove.Log")
         msg = Log(timestamp=_timestamp(ns[0]), level=log_level, message=str(message), name=self.stage)
-        channel.log(msg, log_time=ns[0])
+        self._emit([(ns[0], self._typed_emitter(channel), msg)])
 
     # -- attachments and metadata ----------------------------------------------------------------------------
 
@@ -677,6 +858,12 @@ class StageMcapWriter:
         self._writer.write_metadata(str(name), {str(k): str(v) for k, v in data.items()})
 
     def flush(self) -> None:
-        """Finish the current chunk and flush it to disk (bounds what a hard crash can lose)."""
+        """Write the queued messages (merged by time), finish the current chunk and flush it to disk.
+
+        A time-ordered writer keeps queueing afterwards; later calls should continue after the times written.
+        """
         self._require_open()
+        if self._queue:
+            self._drain()
         self._writer.flush()
+        self._spill()

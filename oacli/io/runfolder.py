@@ -24,10 +24,11 @@ from pathlib import Path
 from typing import Any
 
 import oacli
-from oacli.errors import InputError
+from oacli.errors import InputError, OacliError
 from oacli.io.atomic import write_text_atomic
 from oacli.io.jsonsafe import to_json_safe
 from oacli.io.mcap_write import StageMcapWriter
+from oacli.signals import describe_interruption
 from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED
 
 
@@ -57,14 +58,21 @@ def create_run_dir(name: str, *, out: Path | None = None, runs_root: Path = Path
     """
     if out is not None:
         out = Path(out)
+        if out.is_symlink():
+            raise InputError(f"--out {out}: is a symlink{'' if out.exists() else ' (dangling)'}; "
+                             "give the path of a new folder (run folders are never written through symlinks)")
         if out.exists():
-            if not out.is_dir() or any(out.iterdir()):
+            if not out.is_dir():
+                raise InputError(f"--out {out}: exists and is not a folder; runs are never overwritten")
+            if any(out.iterdir()):
                 raise InputError(f"--out {out}: already exists and is not empty; runs are never overwritten")
             return out
-        out.mkdir(parents=True)
+        _mkdir(out, "--out", parents=True)
         return out
     runs_root = Path(runs_root)
-    runs_root.mkdir(parents=True, exist_ok=True)
+    if runs_root.exists() and not runs_root.is_dir():
+        raise InputError(f"--runs-dir {runs_root}: exists and is not a folder")
+    _mkdir(runs_root, "--runs-dir", parents=True, exist_ok=True)
     base = f"{name}-{utc_stamp()}"
     for i in range(1, 1000):
         candidate = runs_root / (base if i == 1 else f"{base}-{i}")
@@ -74,6 +82,16 @@ def create_run_dir(name: str, *, out: Path | None = None, runs_root: Path = Path
             continue
         return candidate
     raise InputError(f"{runs_root}: could not create a new run folder for {base}")
+
+
+def _mkdir(path: Path, option: str, **kwargs: bool) -> None:
+    """``path.mkdir(**kwargs)``, an ``OSError`` becoming one line naming the option, the path and the reason."""
+    try:
+        path.mkdir(**kwargs)
+    except OSError as exc:
+        reason = "a component of the path is a file" if isinstance(exc, (FileExistsError, NotADirectoryError)) \
+            else (exc.strerror or str(exc)).lower()
+        raise InputError(f"{option} {path}: cannot create the folder: {reason}") from None
 
 
 def git_commit() -> str:
@@ -205,11 +223,14 @@ class StageRun:
         Returns
         -------
         StageMcapWriter
-            With the resolved config attached, the run metadata and the world frame.
+            With the resolved config attached, the run metadata and the world frame; time-ordered (messages of
+            all topics merged by time when the ``with`` block ends, so a cut file holds every topic up to about
+            the same time).
         """
         path = self.file("mcap", f"{self.stage}.mcap")
         info = run_metadata(self.stage, seed=self.seed, config_name=self.config_name, **metadata)
-        return StageMcapWriter(path, stage=self.stage, config_yaml=self.config_yaml, metadata=info, frame=self.frame)
+        return StageMcapWriter(path, stage=self.stage, config_yaml=self.config_yaml, metadata=info, frame=self.frame,
+                               time_ordered=True)
 
     def finish(self, summary: dict[str, Any]) -> StageResult:
         """Add ``wall_time_s``, ``run_dir`` and ``files`` to ``summary`` and write it (last, atomically).
@@ -277,12 +298,15 @@ def open_stage_run(
         yield run
     except BaseException as exc:
         if isinstance(exc, KeyboardInterrupt):
-            status, reason = INTERRUPTED, "interrupted by the user (KeyboardInterrupt)"
+            status, reason = INTERRUPTED, describe_interruption(exc)
         else:
             status, reason = FAILED, f"{type(exc).__name__}: {exc}"
-        write_summary(run.run_dir, {"stage": stage, "status": status, "error": reason,
-                                    "wall_time_s": time.perf_counter() - run._start,
-                                    "files": {k: p.name for k, p in run.files.items() if p.exists()}})
+        try:
+            write_summary(run.run_dir, {"stage": stage, "status": status, "error": reason,
+                                        "wall_time_s": time.perf_counter() - run._start,
+                                        "files": {k: p.name for k, p in run.files.items() if p.exists()}})
+        except (OSError, OacliError) as err:  # e.g. the disk is full: report the first error, not this one
+            exc.add_note(f"(the {status} summary.json could not be written either: {err})")
         raise
 
 

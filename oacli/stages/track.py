@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from oacli.config import OacliConfig
+from oacli.config.sizes import check_simulation_length
 from oacli.control.tracking import TrackingMPC
 from oacli.control.tube_monitor import TubeMonitor
 from oacli.control.tube_mpc import TubeHistory
@@ -84,6 +85,18 @@ def reference_from_config(cfg: OacliConfig) -> Trajectory:
 
 def _describe_point(p: np.ndarray) -> str:
     return "(" + ", ".join(f"{v:.4g}" for v in p) + ")"
+
+
+def check_reference_fits(cfg: OacliConfig, reference: Trajectory) -> None:
+    """Refuse a reference in another frame than ``environment.frame`` (as ``smooth`` does), or one so long that
+    simulating it would take more than :data:`oacli.config.sizes.MAX_SIMULATION_STEPS` plant steps."""
+    if reference.frame != cfg.environment.frame:
+        raise InputError(f"reference {reference.name}: in frame {reference.frame!r}, the config's "
+                         f"environment.frame is {cfg.environment.frame!r}")
+    problem = check_simulation_length(reference.duration_s + cfg.simulation.settle_time_s,
+                                      cfg.simulation.plant_rate_hz, f"reference {reference.name}")
+    if problem is not None:
+        raise InputError(f"{problem} (with simulation.settle_time_s)")
 
 
 def check_reference_in_workspace(reference: Trajectory, scene: Scene, log: list[LogEntry]) -> None:
@@ -216,6 +229,7 @@ def run_track(
     if reference is None:
         reference = reference_from_config(cfg)
     scene = cfg.scene()
+    check_reference_fits(cfg, reference)
     check_reference_in_workspace(reference, scene, log)
     reference_check = check_reference_for_plant(cfg, reference, log, strict=strict_reference)
     log.append((0.0, "info", f"reference {reference.name}: {len(reference)} samples, {reference.duration_s:.1f} s"))

@@ -17,14 +17,16 @@ Conventions
 Writing model
 -------------
 A :class:`StageRecording` buffers everything in memory (the recording stream's initial buffered sink) until
-:meth:`StageRecording.save`, which attaches a file sink on a temporary name (Rerun forwards the buffered data to
-it), disconnects (the file sink's writer thread finishes and writes the footer), checks that the file opens with
-its footer and only then renames it into place (:func:`oacli.io.atomic.atomic_path`). ``save`` is final:
+:meth:`StageRecording.save`, which attaches a binary (in-memory) sink (Rerun forwards the buffered data to it),
+disconnects (the stream finishes with its footer), writes the bytes itself to an exclusive temporary file
+(Rerun's file sink is not used: it can hang on a full disk), checks that the file opens with its footer and only
+then renames it into place (:func:`oacli.io.atomic.atomic_path`; a write error names its cause). ``save`` is final:
 logging afterwards raises ``RuntimeError``.
 """
 
 from __future__ import annotations
 
+import os
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
@@ -673,19 +675,23 @@ class StageRecording:
         """
         self._check_open()
         path = Path(path)
+        try:
+            # Memory, not Rerun's file sink: the file sink can block forever on a full disk (DESIGN.md §7).
+            stream = rr.binary_stream(recording=self._rec)
+            if blueprint is not None:
+                rr.send_blueprint(blueprint, make_active=False, make_default=True, recording=self._rec)
+            self._rec.flush()
+            data = stream.read(flush=True) or b""
+        finally:
+            # Disconnecting finishes the stream (the footer); the recording is closed either way.
+            self._rec.disconnect()
+            self._saved = True
+        data += stream.read(flush=True) or b""
         with atomic_path(path) as tmp:
-            try:
-                self._rec.save(tmp, default_blueprint=blueprint)
-                self._rec.flush()
-            finally:
-                # Dropping the file sink joins its writer thread, which writes the footer.
-                self._rec.disconnect()
-                self._saved = True
+            fd = os.open(tmp, os.O_WRONLY | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0))
+            with os.fdopen(fd, "wb") as handle:
+                handle.write(data)
             _check_complete(tmp, self.recording_id)
-
-    def __repr__(self) -> str:
-        state = "saved" if self._saved else "open"
-        return f"StageRecording({self.recording_name!r}, id={self.recording_id}, {state})"
 
 
 def _check_complete(path: Path, recording_id: str) -> None:

@@ -1,0 +1,103 @@
+"""Sizes a configuration implies, checked at validation so that no value can exhaust the machine.
+
+A config names durations and rates; their products are the number of simulation steps, reference samples and
+so on that a stage will allocate and loop over. A tiny cruise speed, a huge hold or settle time or a
+plant rate of 10 MHz would ask for billions of steps (hours of CPU, tens of GiB); these are refused with the
+field that asks for them, before anything runs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from typing import Any
+
+MAX_SIMULATION_STEPS = 1_000_000
+"""Most plant integration steps one simulation may take ((reference duration + settle time) × plant rate):
+4.4 h of robot time at Astrobee's 62.5 Hz."""
+
+MAX_PLANT_RATE_HZ = 10_000.0
+"""Highest plant integration rate [Hz] (160 × Astrobee's 62.5 Hz control rate)."""
+
+Problem = tuple[tuple[str | int, ...], Any, str]
+
+
+def _angle_rad(q0: Sequence[float], q1: Sequence[float]) -> float:
+    dot = abs(sum(a * b for a, b in zip(q0, q1, strict=True)))
+    return 2.0 * math.acos(min(1.0, dot))
+
+
+def waypoint_duration_parts(cfg: Any) -> dict[tuple[str, ...], float]:
+    """Estimated duration [s] of a waypoint reference by the field that sets each part.
+
+    Each leg takes the longer of its translation (distance / cruise speed + cruise speed / acceleration, a
+    trapezoidal profile's upper bound) and its rotation (angle / rate + rate / angular acceleration); every
+    waypoint is held ``hold_s``.
+    """
+    ref = cfg.reference
+    poses = cfg.reference_poses()
+    translate = rotate = 0.0
+    for a, b in itertools.pairwise(poses):
+        d = math.dist(a.position, b.position)
+        t_lin = d / ref.cruise_speed_mps + ref.cruise_speed_mps / ref.acceleration_mps2 if d > 0 else 0.0
+        theta = _angle_rad(a.quaternion, b.quaternion)
+        t_rot = theta / ref.angular_rate_radps + ref.angular_rate_radps / ref.angular_acceleration_radps2 \
+            if theta > 0 else 0.0
+        if t_lin >= t_rot:
+            translate += t_lin
+        else:
+            rotate += t_rot
+    return {
+        ("reference", "cruise_speed_mps"): translate,
+        ("reference", "angular_rate_radps"): rotate,
+        ("reference", "hold_s"): len(poses) * ref.hold_s,
+    }
+
+
+def steps_message(duration_s: float, rate_hz: float) -> str:
+    steps = duration_s * rate_hz
+    return (f"implies {steps:.3g} simulation steps ({duration_s:.4g} s × simulation.plant_rate_hz {rate_hz:g} Hz), "
+            f"more than the {MAX_SIMULATION_STEPS:.0e} allowed")
+
+
+def size_problems(cfg: Any) -> list[Problem]:
+    """The fields of ``cfg`` (an :class:`~oacli.config.models.OacliConfig`) that ask for too large a run."""
+    problems: list[Problem] = []
+    sim = cfg.simulation
+    rate = sim.plant_rate_hz
+    if rate > MAX_PLANT_RATE_HZ:
+        return [(("simulation", "plant_rate_hz"), rate, f"must be <= {MAX_PLANT_RATE_HZ:g} Hz")]
+    if sim.settle_time_s * rate > MAX_SIMULATION_STEPS:
+        problems.append((("simulation", "settle_time_s"), sim.settle_time_s, steps_message(sim.settle_time_s, rate)))
+        return problems
+    if cfg.reference.source != "waypoints" or len(cfg.reference.waypoints) < 1:
+        return problems
+    try:
+        parts = waypoint_duration_parts(cfg)
+    except KeyError:  # an unknown waypoint name: reported by the cross-check
+        return problems
+    total = sum(parts.values()) + sim.settle_time_s
+    if total * rate > MAX_SIMULATION_STEPS:
+        loc = max(parts, key=lambda k: parts[k])
+        field = cfg.reference
+        value = getattr(field, loc[1])
+        problems.append((loc, value, steps_message(total, rate)))
+    return problems
+
+
+def check_simulation_length(duration_s: float, rate_hz: float, what: str) -> str | None:
+    """A one-line problem when simulating ``duration_s`` at ``rate_hz`` would take too many steps, else None.
+
+    Parameters
+    ----------
+    duration_s : float
+        Reference duration plus settle time [s].
+    rate_hz : float
+        Plant rate [Hz].
+    what : str
+        What sets the duration (e.g. ``"--reference runs/x/smooth.mcap"``), starting the message.
+    """
+    if not math.isfinite(duration_s) or duration_s * rate_hz > MAX_SIMULATION_STEPS:
+        return f"{what}: spans {duration_s:.4g} s: {steps_message(duration_s, rate_hz)}"
+    return None
