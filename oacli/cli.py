@@ -20,6 +20,7 @@ from oacli.commands.config_show import config_app
 from oacli.commands.estimate import estimate
 from oacli.commands.excite import excite
 from oacli.commands.info import info
+from oacli.commands.logs import logs_app
 from oacli.commands.mission import mission
 from oacli.commands.plan import plan
 from oacli.commands.runs import runs_app
@@ -47,6 +48,7 @@ app.command("track")(track)
 app.command("info")(info)
 app.add_typer(runs_app, name="runs")
 app.add_typer(config_app, name="config")
+app.add_typer(logs_app, name="logs")
 
 
 def _version_callback(value: bool) -> None:
