@@ -98,6 +98,7 @@ class _Walker:
         self.decompressed = 0
         self.schemas: set[int] = set()
         self.channels: set[int] = set()
+        self.footer_seen = False
 
     def problem(self, kind: str, offset: int, message: str) -> None:
         self.result.problems.append(Problem(kind, offset, f"{self.path}: {message}"))
@@ -105,6 +106,8 @@ class _Walker:
     def _header_at(self, offset: int) -> str:
         """Classify the failure of the record starting at ``offset``: truncated when it runs past the end."""
         size = len(self.data)
+        if self.footer_seen:
+            return f"truncated at byte {size}: the closing magic after the footer is cut"
         if offset + 9 > size:
             if offset >= size:
                 return (f"truncated at byte {size}: the file ends after its last complete record, before the "
@@ -168,6 +171,7 @@ class _Walker:
         elif isinstance(record, DataEnd):
             self.result.data_end = True
         elif isinstance(record, Footer):
+            self.footer_seen = True
             self._footer(record, start)
         elif isinstance(record, (Header, Metadata, Schema, Channel, Message)):
             self._inner(record, start)
