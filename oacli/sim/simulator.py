@@ -40,6 +40,7 @@ def simulate(
     progress: Callable[[float], None] | None = None,
     actuator_scale: np.ndarray | None = None,
     com_offset_m: np.ndarray | None = None,
+    on_step: Callable[..., None] | None = None,
 ) -> Telemetry:
     """Run the closed loop from ``x0`` for ``duration_s`` [s].
 
@@ -64,6 +65,12 @@ def simulate(
         Delivered ÷ applied input per axis (default: ones, perfect actuators).
     com_offset_m : ndarray, shape (3,), optional
         Centre of mass relative to the geometric centre, body frame [m] (default: zero).
+    on_step : callable, optional
+        Called after each control step ``j`` as ``on_step(j, t_true=..., x_true=..., t_ctrl=..., x_measured=...,
+        x_reference=..., u_command=..., u_applied=..., disturbance=..., info=...)``: the plant samples produced
+        during the step (``t_true`` shape (M,), ``x_true`` (M, 13); step 0 includes the initial state at t = 0 and
+        the last step the final state at the end time) and the step's controller record (the same values as the
+        returned :class:`Telemetry`), so a caller can write the run while it is produced. Arrays are copies.
 
     Returns
     -------
@@ -91,6 +98,7 @@ def simulate(
     rec_true = np.empty((n_ctrl, 13))
     infos: list[SolveInfo] = []
     next_tick = 1
+    reported = 0  # plant samples already handed to on_step
     for j in range(n_ctrl):
         t0 = t_ctrl[j]
         t1 = min(t0 + control_period_s, t_end)
@@ -114,11 +122,17 @@ def simulate(
                 next_tick += 1
                 t_true.append(tick)
                 x_true.append(x.copy())
+        if j == n_ctrl - 1 and t_end - t_true[-1] > _TIME_TOL:
+            t_true.append(t_end)
+            x_true.append(x.copy())
+        if on_step is not None:
+            on_step(j, t_true=np.array(t_true[reported:]), x_true=np.array(x_true[reported:]).reshape(-1, 13),
+                    t_ctrl=float(t0), x_measured=rec_meas[j].copy(), x_reference=rec_ref[j].copy(),
+                    u_command=rec_cmd[j].copy(), u_applied=rec_app[j].copy(), disturbance=rec_dist[j].copy(),
+                    info=step.info)
+            reported = len(t_true)
         if progress is not None:
             progress((j + 1) / n_ctrl)
-    if t_end - t_true[-1] > _TIME_TOL:
-        t_true.append(t_end)
-        x_true.append(x.copy())
     return Telemetry(
         t_true=np.array(t_true),
         x_true=np.array(x_true),

@@ -43,6 +43,7 @@ from oacli.stages.settings import (
     truth_model,
     tube_design_from_config,
 )
+from oacli.stages.track_journal import TrackJournal
 from oacli.stages.track_status import assess_track, controller_counts, track_safety
 from oacli.stages.track_tube import (
     add_tube_reasons,
@@ -253,51 +254,57 @@ def run_track(
     sensors, disturbance = sensor_noise(cfg), plant_disturbance(cfg)
 
     with open_run("track", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
-        rng = np.random.default_rng(cfg.seed)
-        set_phase(progress, "closed-loop simulation")
-        tel = simulate(
-            controller, x0, plant.params,
-            duration_s=reference.duration_s + cfg.simulation.settle_time_s,
-            control_period_s=cfg.controller.period_s,
-            plant_period_s=cfg.simulation.plant_period_s,
-            input_limits=limits.input,
-            sensors=sensors, disturbance=disturbance, rng=rng, progress=progress,
-            actuator_scale=np.asarray(cfg.truth.actuator_scale), com_offset_m=np.asarray(cfg.truth.com_offset_m),
-        )
-        summary, ctrl_errors = _track_summary(cfg, reference, tel, limits)
-        flown = flown_sensors(cfg, tel)
-        if flown is not None:
-            summary["sensors"] = flown.summary()
-        summary["reference_check"] = reference_check.summary()
-        monitor = controller if isinstance(controller, TubeMonitor) else None
-        history = monitor.history() if monitor is not None else None
-        findings = StatusReport()
-        if monitor is not None and history is not None:
-            summary.update(tube_summary(monitor, history, tel, cfg))
-            add_tube_reasons(findings, summary)
-            log.extend(describe_beyond_w(monitor))
-            log.append((float(tel.t_true[-1]), "info" if summary["tube_violations"] == 0 else "warning",
-                        f"tube: {summary['tube_violations']} steps outside the promised tube, "
-                        f"{summary['w_violations']} beyond W, {summary['fallback_steps']} fallback steps, "
-                        f"{summary['safe_hold_steps']} in safe hold"))
-        assess_track(summary, findings).apply(summary)
-        for t, info in zip(tel.t_ctrl, tel.solve_info, strict=True):
-            if not info.success:
-                log.append((float(t), "warning", f"controller step failed: {info.status}"))
-        log.append((float(tel.t_true[-1]), "info",
-                    f"done: rms position error {summary['rms_position_error_m']:.4f} m, "
-                    f"{summary['solver_failures']} solver failures, "
-                    f"{summary['constraint_violations']} constraint violations; status {summary['status']}"))
-        log.extend(status_log(summary, float(tel.t_true[-1])))
-        with run.open_mcap() as writer:
-            write_track_topics(writer, reference, tel, scene, log, monitor, history, flown)
-        write_track_recording(
-            run.file("rrd", "track.rrd"), scene=scene, reference=reference, telemetry=tel, errors=ctrl_errors,
-            limits=limits, log=log, recording_name=f"{cfg.name}/track",
-            extra=None if monitor is None or history is None else tube_layers(monitor, history),
-            blueprint=None if design is None else tube_track_blueprint(),
-        )
-        return run.finish(summary)
+        # The per-step topics go to the MCAP while the simulation runs (a killed run leaves a readable file);
+        # the complete file is written at the end and replaces the journal (oacli.stages.track_journal).
+        with TrackJournal(run.open_mcap(), reference) as journal:
+            rng = np.random.default_rng(cfg.seed)
+            set_phase(progress, "closed-loop simulation")
+            tel = simulate(
+                controller, x0, plant.params,
+                duration_s=reference.duration_s + cfg.simulation.settle_time_s,
+                control_period_s=cfg.controller.period_s,
+                plant_period_s=cfg.simulation.plant_period_s,
+                input_limits=limits.input,
+                sensors=sensors, disturbance=disturbance, rng=rng, progress=progress,
+                actuator_scale=np.asarray(cfg.truth.actuator_scale), com_offset_m=np.asarray(cfg.truth.com_offset_m),
+                on_step=journal.on_step,
+            )
+            journal.flush(final=True)
+            summary, ctrl_errors = _track_summary(cfg, reference, tel, limits)
+            flown = flown_sensors(cfg, tel)
+            if flown is not None:
+                summary["sensors"] = flown.summary()
+            summary["reference_check"] = reference_check.summary()
+            monitor = controller if isinstance(controller, TubeMonitor) else None
+            history = monitor.history() if monitor is not None else None
+            findings = StatusReport()
+            if monitor is not None and history is not None:
+                summary.update(tube_summary(monitor, history, tel, cfg))
+                add_tube_reasons(findings, summary)
+                log.extend(describe_beyond_w(monitor))
+                log.append((float(tel.t_true[-1]), "info" if summary["tube_violations"] == 0 else "warning",
+                            f"tube: {summary['tube_violations']} steps outside the promised tube, "
+                            f"{summary['w_violations']} beyond W, {summary['fallback_steps']} fallback steps, "
+                            f"{summary['safe_hold_steps']} in safe hold"))
+            assess_track(summary, findings).apply(summary)
+            for t, info in zip(tel.t_ctrl, tel.solve_info, strict=True):
+                if not info.success:
+                    log.append((float(t), "warning", f"controller step failed: {info.status}"))
+            log.append((float(tel.t_true[-1]), "info",
+                        f"done: rms position error {summary['rms_position_error_m']:.4f} m, "
+                        f"{summary['solver_failures']} solver failures, "
+                        f"{summary['constraint_violations']} constraint violations; status {summary['status']}"))
+            log.extend(status_log(summary, float(tel.t_true[-1])))
+            with run.open_mcap() as writer:
+                write_track_topics(writer, reference, tel, scene, log, monitor, history, flown)
+            journal.discard()  # the complete file is in place
+            write_track_recording(
+                run.file("rrd", "track.rrd"), scene=scene, reference=reference, telemetry=tel, errors=ctrl_errors,
+                limits=limits, log=log, recording_name=f"{cfg.name}/track",
+                extra=None if monitor is None or history is None else tube_layers(monitor, history),
+                blueprint=None if design is None else tube_track_blueprint(),
+            )
+            return run.finish(summary)
 
 
 def write_track_topics(
