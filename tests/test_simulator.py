@@ -95,3 +95,28 @@ def test_same_seed_same_numbers_and_noise_has_the_configured_spread():
     assert np.all(np.abs(a.disturbance[:, :3]) <= 0.01)
     assert np.std(a.disturbance[:, :3]) == pytest.approx(0.01 / np.sqrt(3), rel=0.15)
     assert np.linalg.norm(a.x_true[-1, 3:6]) > 0.0
+
+
+def test_on_step_hands_over_every_sample_once_and_changes_nothing():
+    """``on_step`` (used by ``track`` to write its MCAP while it runs) sees every plant sample exactly once, in
+    order, and every control step's record; the run is the same with or without it (seeded noise included)."""
+    steps: list[dict] = []
+    with_hook = simulate(PiecewiseForce([0.01, 0.0, 0.0]), at_rest(), TRUTH, duration_s=3.0, control_period_s=0.2,
+                         plant_period_s=0.016, input_limits=LIMITS, sensors=SensorNoise(0.01, 0.002, 0.005, 0.001),
+                         disturbance=Disturbance(np.zeros(6), np.full(6, 0.001)), rng=np.random.default_rng(3),
+                         on_step=lambda j, **rec: steps.append({"j": j, **rec}))
+    without = simulate(PiecewiseForce([0.01, 0.0, 0.0]), at_rest(), TRUTH, duration_s=3.0, control_period_s=0.2,
+                       plant_period_s=0.016, input_limits=LIMITS, sensors=SensorNoise(0.01, 0.002, 0.005, 0.001),
+                       disturbance=Disturbance(np.zeros(6), np.full(6, 0.001)), rng=np.random.default_rng(3))
+    np.testing.assert_array_equal(with_hook.x_true, without.x_true)
+    np.testing.assert_array_equal(with_hook.x_measured, without.x_measured)
+    assert [s["j"] for s in steps] == list(range(len(without.t_ctrl)))
+    np.testing.assert_array_equal(np.concatenate([s["t_true"] for s in steps]), without.t_true)
+    np.testing.assert_array_equal(np.vstack([s["x_true"] for s in steps]), without.x_true)
+    for key, field in (("x_measured", "x_measured"), ("u_applied", "u_applied"), ("u_command", "u_command"),
+                       ("disturbance", "disturbance"), ("x_reference", "x_reference")):
+        np.testing.assert_array_equal(np.array([s[key] for s in steps]), getattr(without, field))
+    assert [s["t_ctrl"] for s in steps] == without.t_ctrl.tolist()
+    # Each step's samples lie in (t_j, t_j + period] (step 0 also holds t = 0).
+    for s in steps[1:]:
+        assert np.all(s["t_true"] > s["t_ctrl"]) and np.all(s["t_true"] <= s["t_ctrl"] + 0.2 + 1e-12)
