@@ -789,13 +789,19 @@ class StageMcapWriter:
         if draw_sphere:
             meta.append(KeyValuePair(key="collision_radius_m", value=repr(radius)))
             diameter = _vec3((2.0 * radius, 2.0 * radius, 2.0 * radius))
-        for i in keep.tolist():
-            pose = _pose(xs[i, 0:3], xs[i, 6:10])
-            cube = CubePrimitive(pose=pose, size=size, color=_color(_BODY_COLOR))
-            spheres = [SpherePrimitive(pose=pose, size=diameter, color=_color(_COLLISION_COLOR))] if draw_sphere else []
-            entity = SceneEntity(timestamp=_timestamp(ns[i]), frame_id=self.frame, id="robot", metadata=meta,
-                                 cubes=[cube], spheres=spheres)
-            channel.log(SceneUpdate(entities=[entity]), log_time=ns[i])
+        emit, frame = self._typed_emitter(channel), self.frame
+
+        def messages() -> Iterator[_Pending]:  # queued like every other topic (time order over the file)
+            for i in keep.tolist():
+                pose = _pose(xs[i, 0:3], xs[i, 6:10])
+                cube = CubePrimitive(pose=pose, size=size, color=_color(_BODY_COLOR))
+                spheres = ([SpherePrimitive(pose=pose, size=diameter, color=_color(_COLLISION_COLOR))]
+                           if draw_sphere else [])
+                entity = SceneEntity(timestamp=_timestamp(ns[i]), frame_id=frame, id="robot", metadata=meta,
+                                     cubes=[cube], spheres=spheres)
+                yield ns[i], emit, SceneUpdate(entities=[entity])
+
+        self._emit(messages())
 
     def write_log(self, t: float, level: str, message: str, *, topic: str = ms.TOPIC_LOG) -> None:
         """Write a text message as ``foxglove.Log`` (``name`` = the stage).

@@ -295,9 +295,12 @@ def run_track(
                         f"{summary['solver_failures']} solver failures, "
                         f"{summary['constraint_violations']} constraint violations; status {summary['status']}"))
             log.extend(status_log(summary, float(tel.t_true[-1])))
+            # The journal goes before the complete file is written, so the disk never holds both (a full disk
+            # fails where it did without the journal); a crash while writing leaves the complete file's
+            # temporary, every topic in time order up to its last chunk.
+            journal.discard()
             with run.open_mcap() as writer:
                 write_track_topics(writer, reference, tel, scene, log, monitor, history, flown)
-            journal.discard()  # the complete file is in place
             write_track_recording(
                 run.file("rrd", "track.rrd"), scene=scene, reference=reference, telemetry=tel, errors=ctrl_errors,
                 limits=limits, log=log, recording_name=f"{cfg.name}/track",

@@ -9,9 +9,9 @@ the simulation (SIGKILL, power loss) thus leaves a ``.partial`` MCAP that the ``
 complete chunk (``oacli logs recover`` turns it into a valid file).
 
 The complete ``track.mcap`` is still written at the end from the whole run (topics that need it: the scene's flown
-path, the summary-derived log, tube topics, flown sensors), merged by time over the whole file, and only then is the
-journal deleted (:meth:`TrackJournal.discard`); so at every moment of a run either the journal or the final file's
-temporary holds the run up to about that moment.
+path, the summary-derived log, tube topics, flown sensors), merged by time over the whole file; the journal is
+deleted just before (:meth:`TrackJournal.discard`), so the disk never holds both. A crash during that last write
+leaves the complete file's temporary (every topic in time order up to its last complete chunk).
 """
 
 from __future__ import annotations
