@@ -141,24 +141,31 @@ def plot_inputs(path: Path, t_s: np.ndarray, u: np.ndarray, force_limit_N: np.nd
         ax = axes[k // 3, k % 3]
         lim = float((force_limit_N if k < 3 else torque_limit_Nm)[k % 3])
         ax.step(t, u[:, k], where="post", lw=1.2, color="tab:blue", label="input")
-        ax.axhline(lim, color="tab:red", ls="--", lw=1.0, label=f"± {limit_label} {lim:.4g}")
+        ax.axhline(lim, color="tab:red", ls="--", lw=1.0, label=f"± {limit_label}")
         ax.axhline(-lim, color="tab:red", ls="--", lw=1.0)
         top = 1.15 * lim
         if actuator is not None:
             act = float(actuator[0 if k < 3 else 1][k % 3])
             if abs(act - lim) > 1e-12 * lim:
-                ax.axhline(act, color="tab:red", ls=":", lw=1.0, label=f"± actuator {act:.4g}")
+                ax.axhline(act, color="tab:red", ls=":", lw=1.0, label="± actuator limit")
                 ax.axhline(-act, color="tab:red", ls=":", lw=1.0)
                 top = max(top, 1.15 * act)
         peak = float(np.nanmax(np.abs(u[:, k]))) if len(t) else 0.0
         top = max(top, 1.05 * peak) if np.isfinite(peak) else top
         ax.set_ylim(-top, top)
         unit = "N" if k < 3 else "N·m"
-        ax.set_title(f"{'force' if k < 3 else 'torque'} {AXES[k % 3]} [{unit}]", loc="left", fontsize="medium")
+        ax.set_title(f"{'force' if k < 3 else 'torque'} {AXES[k % 3]} [{unit}] (limit ± {lim:.4g})", loc="left",
+                     fontsize="medium")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="lower right", fontsize="x-small")
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    for ax in axes.flat:  # the actuator line may appear on another axis only
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize="small")
     fig.suptitle(title)
     save_png(fig, path)
     return t, u
