@@ -15,18 +15,11 @@ from typer.testing import CliRunner
 import oacli.io.plots.track as track_plots
 from oacli.cli import app
 from oacli.io.plots.common import guarded_plots, plt
+from tests.plot_checks import PNGS
 from tests.test_cli_estimate import payload_config
 from tests.test_cli_excite import small_iss
 from tests.test_cli_plan_smooth import small_config
 
-#: The PNGs each stage writes (README "Pictures").
-PNGS = {
-    "track": ("tracking_error.png", "inputs.png", "top_view.png"),
-    "plan": ("top_view.png", "side_view.png"),
-    "smooth": ("top_view.png", "side_view.png"),
-    "excite": ("information.png", "inputs.png"),
-    "estimate": ("convergence.png",),
-}
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 runner = CliRunner()
 
