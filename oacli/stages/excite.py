@@ -371,10 +371,10 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         summary, traj, log = _rattle_summary(cfg, problem, design_lim, run, prior_cov, theta_true)
         _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true)
         t_info, info = gathered_information(run.estimates, prior_cov)
-        actuator = robot_limit_set(cfg.robot)
+        robot_lim = robot_limit_set(cfg.robot)
         write_excite_plots(stage_run, summary, t_info_s=t_info, information=info, t_input_s=run.telemetry.t_ctrl,
                            u=run.telemetry.u_applied, force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,
-                           actuator=(actuator.force_N, actuator.torque_Nm))
+                           actuator=(robot_lim.force_N, robot_lim.torque_Nm))
         return stage_run.finish(summary)
 
 
