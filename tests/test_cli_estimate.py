@@ -24,6 +24,7 @@ from oacli.io.rerun.read import (
 )
 from tests.conftest import INFO_TRAJECTORIES, REPO, require_shared
 from tests.mcap_checks import check_json_records
+from tests.plot_checks import PNGS
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
 TRUTH = [15.0, 0.1464, 0.1376, 0.1604]  # [Doerr2021] Table 1: Astrobee with the 3D-printed object
@@ -78,8 +79,8 @@ def batch_run(track_run, tmp_path_factory) -> Path:
 
 
 def test_batch_run_folder_summary_and_accuracy_against_the_cramer_rao_bound(batch_run):
-    assert sorted(p.name for p in batch_run.iterdir()) == ["config.yaml", "estimate.mcap", "estimate.rrd",
-                                                         "summary.json"]
+    assert sorted(p.name for p in batch_run.iterdir()) == sorted(["config.yaml", "estimate.mcap", "estimate.rrd",
+                                                                "summary.json", *PNGS["estimate"]])
     s = json.loads((batch_run / "summary.json").read_text())
     assert s["stage"] == "estimate" and s["status"] == "ok" and s["method"] == "batch"
     theta = np.array([s["mass_kg"], *s["inertia_kgm2"]])

@@ -27,6 +27,7 @@ from oacli.io.rerun.read import (
 from oacli.trajectory import sample_states
 from tests.conftest import REPO
 from tests.mcap_checks import check_json_records
+from tests.plot_checks import PNGS
 from tests.test_cli_errors import assert_clean_failure
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
@@ -67,8 +68,8 @@ def excite_run(config, tmp_path_factory) -> Path:
 
 
 def test_run_folder_and_summary(excite_run, config):
-    assert sorted(p.name for p in excite_run.iterdir()) == ["config.yaml", "excite.mcap", "excite.rrd",
-                                                            "summary.json"]
+    assert sorted(p.name for p in excite_run.iterdir()) == sorted(["config.yaml", "excite.mcap", "excite.rrd",
+                                                                   "summary.json", *PNGS["excite"]])
     summary = json.loads((excite_run / "summary.json").read_text())
     for key in ("criterion_initial", "criterion_final", "iterations", "solve_time_s", "max_force_N", "max_torque_Nm",
                 "collision_free", "crb_std", "goal_residual"):
@@ -199,6 +200,7 @@ def test_rattle_method_replans_and_records_the_weights(tmp_path):
     assert result.exit_code == 0, result.output
     summary = json.loads((out / "summary.json").read_text())
     assert summary["method"] == "rattle" and summary["estimator"] == "sequential"
+    assert {n for k, n in summary["files"].items() if k.startswith("png_")} == set(PNGS["excite"])
     assert summary["replans"] == 2 and summary["collision_free"] is True
     # The real sequential estimator (error-state EKF) ran in the loop: its estimate is consistent with its own
     # covariance and far better known than the prior (RATTLE's P0).

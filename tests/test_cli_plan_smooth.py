@@ -28,6 +28,7 @@ from oacli.planning.full_state import translational_part
 from oacli.planning.translational import CostWeights
 from tests.mcap_checks import check_json_records
 from tests.plan_checks import S1, S1_SHORTEST_M
+from tests.plot_checks import PNGS
 
 runner = CliRunner()
 
@@ -69,7 +70,8 @@ def runs(tmp_path_factory) -> dict[str, Path]:
 
 def test_plan_run_folder_summary_and_mcap_agree(runs):
     plan_dir = runs["plan"]
-    assert sorted(p.name for p in plan_dir.iterdir()) == ["config.yaml", "plan.mcap", "plan.rrd", "summary.json"]
+    assert sorted(p.name for p in plan_dir.iterdir()) == sorted(["config.yaml", "plan.mcap", "plan.rrd", "summary.json",
+                                                                 *PNGS["plan"]])
     summary = json.loads((plan_dir / "summary.json").read_text())
     assert summary["status"] == "ok" and summary["planner"] == "lqr-rrt-star" and summary["segment"] == "S-G"
     for key in ("iterations", "nodes", "time_to_first_solution_s", "cost", "path_length_m", "duration_s",

@@ -26,6 +26,7 @@ from oacli.io.rerun.read import (
 from oacli.metrics import true_states_at
 from oacli.model import quaternion as quat
 from tests.conftest import MIT_ISS, REPO, require_shared
+from tests.plot_checks import PNGS
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
 DOERR = REPO / "configs" / "doerr2021.yaml"
@@ -45,7 +46,8 @@ def iss_run(tmp_path_factory) -> Path:
 
 
 def test_run_folder_holds_config_mcap_recording_and_summary(iss_run):
-    assert sorted(p.name for p in iss_run.iterdir()) == ["config.yaml", "summary.json", "track.mcap", "track.rrd"]
+    expected = ["config.yaml", "summary.json", "track.mcap", "track.rrd", *PNGS["track"]]
+    assert sorted(p.name for p in iss_run.iterdir()) == sorted(expected)
     summary = json.loads((iss_run / "summary.json").read_text())
     for key in ("stage", "status", "rms_position_error_m", "max_position_error_m", "final_position_error_m",
                 "rms_attitude_error_rad", "constraint_violations", "solver_failures", "solve_time_ms",

@@ -26,6 +26,7 @@ from oacli.model.double_integrator import double_integrator
 from oacli.sets import Polytope
 from tests.conftest import MIT_ISS, REPO, require_shared
 from tests.mcap_checks import check_json_records
+from tests.plot_checks import PNGS
 
 TUBE = REPO / "configs" / "iss_reswarm_tube.yaml"
 runner = CliRunner()
@@ -49,7 +50,8 @@ def design_record(run: Path) -> dict:
 
 
 def test_summary_reports_the_tube(tube_run):
-    assert sorted(p.name for p in tube_run.iterdir()) == ["config.yaml", "summary.json", "track.mcap", "track.rrd"]
+    expected = ["config.yaml", "summary.json", "track.mcap", "track.rrd", *PNGS["track"]]
+    assert sorted(p.name for p in tube_run.iterdir()) == sorted(expected)
     s = json.loads((tube_run / "summary.json").read_text())
     assert s["status"] == "ok" and s["controller"] == "tube"
     assert s["tube_violations"] == 0 and s["constraint_violations"] == 0

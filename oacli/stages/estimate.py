@@ -49,6 +49,7 @@ from oacli.geometry.shapes import Scene
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.mcap_read import TelemetryStreams, read_telemetry_streams
+from oacli.io.plots.estimate import write_estimate_plots
 from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
 from oacli.phases import set_phase
@@ -446,6 +447,7 @@ def run_estimate(
             run_folder.file("rrd", "estimate.rrd"), estimates=run.history, truth=truth, crb_std=run.bound.std,
             records=per_record, log=log, recording_name=f"{cfg.name}/estimate",
         )
+        write_estimate_plots(run_folder, summary, estimates=run.history, truth=truth, crb_std=run.bound.std)
         return run_folder.finish(summary)
 
 

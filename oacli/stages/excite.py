@@ -44,6 +44,7 @@ from oacli.excitation.rattle_loop import RattleRun, run_rattle
 from oacli.geometry import Scene
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
+from oacli.io.plots.excite import gathered_information, write_excite_plots
 from oacli.io.rerun.excite import InformationSeries, RattleSteps, ScpSteps, write_excite_recording
 from oacli.io.runfolder import StageResult, StageRun
 from oacli.metrics import percentiles_ms, safety_block, safety_report
@@ -277,6 +278,9 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             information=InformationSeries(problem.theta, design.information_over_time, crb), limits=problem.limits,
             scp=scp, log=log, recording_name=f"{cfg.name}/excite",
         )
+        write_excite_plots(run, summary, t_info_s=traj.t, information=design.information_over_time,
+                           t_input_s=traj.t, u=traj.u, force_limit_N=problem.limits.force_N,
+                           torque_limit_Nm=problem.limits.torque_Nm)
         return run.finish(summary)
 
 
@@ -366,6 +370,11 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         )
         summary, traj, log = _rattle_summary(cfg, problem, design_lim, run, prior_cov, theta_true)
         _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true)
+        t_info, info = gathered_information(run.estimates, prior_cov)
+        robot_lim = robot_limit_set(cfg.robot)
+        write_excite_plots(stage_run, summary, t_info_s=t_info, information=info, t_input_s=run.telemetry.t_ctrl,
+                           u=run.telemetry.u_applied, force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,
+                           actuator=(robot_lim.force_N, robot_lim.torque_Nm))
         return stage_run.finish(summary)
 
 

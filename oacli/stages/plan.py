@@ -31,6 +31,7 @@ from oacli.geometry.collision import CollisionChecker, RobotBody
 from oacli.geometry.verify import dense_check
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
+from oacli.io.plots.plan import write_path_plots
 from oacli.io.rerun.plan import write_plan_recording
 from oacli.io.runfolder import StageResult
 from oacli.phases import set_phase
@@ -368,6 +369,9 @@ def run_plan(
             run.file("rrd", "plan.rrd"), scene=scene, start=seg.start[0:3], goal=seg.goal[0:3], result=result,
             trajectory=output, limits=limits.limits, log=log, recording_name=f"{cfg.name}/plan",
         )
+        write_path_plots(run, summary, scene=scene, robot_radius_m=float(cfg.robot.radius_m),
+                         paths={} if output is None else {"plan": output.x[:, 0:3]}, start_m=seg.start[0:3],
+                         goal_m=seg.goal[0:3])
         stage = run.finish(summary)
     if not result.solved:
         raise InfeasibleError(

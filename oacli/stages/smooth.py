@@ -34,6 +34,7 @@ from oacli.geometry import Scene
 from oacli.geometry.collision import CollisionChecker
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_trajectory
+from oacli.io.plots.plan import write_path_plots
 from oacli.io.rerun.smooth import PolishSteps, ShortcutSteps, write_smooth_recording
 from oacli.io.runfolder import StageResult
 from oacli.phases import set_phase
@@ -316,5 +317,8 @@ def run_smooth(
             run.file("rrd", "smooth.rrd"), scene=checker.scene, before=traj_in, after=traj_out,
             shortcuts=shortcut_steps, polish=polish_steps, limits=lim, log=log, recording_name=f"{cfg.name}/smooth",
         )
+        write_path_plots(run, summary, scene=checker.scene, robot_radius_m=float(cfg.robot.radius_m),
+                         paths={"plan (input)": traj_in.x[:, 0:3], "smoothed": traj_out.x[:, 0:3]},
+                         start_m=traj_in.x[0, 0:3], goal_m=goal[0:3])
         return run.finish(summary)
 

@@ -22,6 +22,7 @@ from oacli.control.tube_mpc import TubeHistory
 from oacli.errors import InputError
 from oacli.geometry import Scene
 from oacli.io.mcap_io import StageMcapWriter
+from oacli.io.plots.track import write_track_plots
 from oacli.io.reference_files import load_reference
 from oacli.io.rerun.track import write_track_recording
 from oacli.io.rerun.tube import tube_track_blueprint
@@ -307,6 +308,8 @@ def run_track(
                 extra=None if monitor is None or history is None else tube_layers(monitor, history),
                 blueprint=None if design is None else tube_track_blueprint(),
             )
+            write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,
+                              robot_radius_m=float(cfg.robot.radius_m))
             return run.finish(summary)
 
 

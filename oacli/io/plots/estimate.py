@@ -1,0 +1,85 @@
+"""The ``estimate`` stage's PNG plot.
+
+* ``convergence.png`` -- mass and the three principal inertias over time with ± 2σ bands, the Cramér-Rao bound's
+  2σ around the final estimate (dotted) and the truth (dashed) when the telemetry's config knows it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oacli.io.plots.common import RunFiles, guarded_plots, legend_outside, plt, save_png
+from oacli.types import ParameterEstimate
+
+PARAMETERS = (("mass", "kg"), ("Ixx", "kg·m²"), ("Iyy", "kg·m²"), ("Izz", "kg·m²"))
+
+
+def plot_convergence(path: Path, estimates: Sequence[ParameterEstimate], truth: np.ndarray | None,
+                     crb_std: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Draw ``convergence.png`` (module docstring).
+
+    Parameters
+    ----------
+    path : Path
+        Output PNG.
+    estimates : sequence of ParameterEstimate
+        The estimates over time.
+    truth : ndarray, shape (4,), optional
+    crb_std : ndarray, shape (4,), optional
+        Cramér-Rao standard deviation at the end.
+
+    Returns
+    -------
+    tuple of ndarray
+        Times (k,), θ (k, 4) and σ (k, 4) drawn.
+    """
+    t = np.array([e.t for e in estimates], dtype=float)
+    theta = np.array([e.theta for e in estimates], dtype=float).reshape(-1, 4)
+    std = np.array([e.std for e in estimates], dtype=float).reshape(-1, 4)
+    fig, axes = plt.subplots(4, 1, figsize=(11, 10), constrained_layout=True, sharex=True)
+    for i, (name, unit) in enumerate(PARAMETERS):
+        ax = axes[i]
+        two = 2.0 * std[:, i]
+        ax.plot(t, theta[:, i], color="tab:blue", lw=1.5, marker="o" if len(t) < 20 else None, ms=3,
+                label="estimate")
+        ax.fill_between(t, theta[:, i] - two, theta[:, i] + two, color="tab:blue", alpha=0.2, lw=0, label="± 2σ")
+        shown = [theta[len(t) // 2:, i] - two[len(t) // 2:], theta[len(t) // 2:, i] + two[len(t) // 2:]]
+        if crb_std is not None and np.isfinite(crb_std[i]):
+            for sign in (-1.0, 1.0):
+                ax.axhline(theta[-1, i] + sign * 2.0 * crb_std[i], color="tab:green", ls=":", lw=1.0,
+                           label="final ± 2σ Cramér-Rao" if sign > 0 else None)
+        if truth is not None:
+            ax.axhline(truth[i], color="k", ls="--", lw=1.0, label="truth")
+            shown.append(np.array([truth[i]]))
+        values = np.concatenate(shown)
+        values = values[np.isfinite(values)]
+        if values.size:  # y range: the converged half (the prior-sized first bands would hide it)
+            lo, hi = float(values.min()), float(values.max())
+            pad = 0.1 * (hi - lo) if hi > lo else 0.05 * max(abs(hi), 1e-9)
+            ax.set_ylim(lo - pad, hi + pad)
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax.grid(True, alpha=0.3)
+        legend_outside(ax)
+    axes[0].set_title("Inertial parameter estimates ± 2σ (y range: converged half)", loc="left", fontsize="medium")
+    axes[-1].set_xlabel("time [s]")
+    save_png(fig, path)
+    return t, theta, std
+
+
+def write_estimate_plots(run: RunFiles, summary: dict[str, Any], *, estimates: Sequence[ParameterEstimate],
+                         truth: np.ndarray | None, crb_std: np.ndarray | None = None) -> None:
+    """Write ``convergence.png`` into the run folder and register it (failure: a summary warning).
+
+    Parameters
+    ----------
+    run : RunFolder
+    summary : dict
+    estimates : sequence of ParameterEstimate
+    truth : ndarray, shape (4,), optional
+    crb_std : ndarray, shape (4,), optional
+    """
+    guarded_plots(run, summary, {"convergence": lambda p: plot_convergence(p, estimates, truth, crb_std)})

@@ -1,0 +1,127 @@
+"""The ``track`` stage's PNG plots.
+
+* ``tracking_error.png`` -- position error ‖r − r_ref‖ [m] and attitude error [deg] over time, computed exactly as
+  ``summary.json``'s ``rms_/max_position_error_m`` (:func:`oacli.metrics.tracking_errors` at the plant samples), with
+  the control instants (true state at exactly those times, :func:`oacli.metrics.true_states_at`) as dots;
+* ``inputs.png`` -- the applied force and torque per axis against the robot's limits;
+* ``top_view.png`` -- x-y: keep-in, keep-out (grown by the robot radius), reference and flown path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oacli.geometry import Scene
+from oacli.io.plots.common import (
+    RunFiles,
+    draw_scene,
+    finish_view,
+    guarded_plots,
+    legend_outside,
+    plot_inputs,
+    plt,
+    save_png,
+    spans_decades,
+)
+from oacli.metrics import tracking_errors
+from oacli.model.limits import MotionLimits
+from oacli.types import Telemetry, Trajectory
+
+
+@dataclass(frozen=True)
+class ErrorSeries:
+    """The series drawn in ``tracking_error.png``.
+
+    Attributes
+    ----------
+    t_s, position_m, attitude_rad : ndarray, shape (M,)
+        At the plant samples (the summary's series).
+    t_ctrl_s, position_ctrl_m : ndarray, shape (K,)
+        At the control instants.
+    """
+
+    t_s: np.ndarray
+    position_m: np.ndarray
+    attitude_rad: np.ndarray
+    t_ctrl_s: np.ndarray
+    position_ctrl_m: np.ndarray
+
+
+def plot_tracking_error(path: Path, telemetry: Telemetry, reference: Trajectory) -> ErrorSeries:
+    """Draw ``tracking_error.png`` (module docstring) and return the series drawn.
+
+    Parameters
+    ----------
+    path : Path
+        Output PNG.
+    telemetry : Telemetry
+        The simulated run.
+    reference : Trajectory
+        The reference followed.
+
+    Returns
+    -------
+    ErrorSeries
+    """
+    dense = tracking_errors(telemetry, reference)
+    ctrl = tracking_errors(telemetry, reference, telemetry.t_ctrl)
+    series = ErrorSeries(dense.t, dense.position_m, dense.attitude_rad, ctrl.t, ctrl.position_m)
+    rms = float(np.sqrt(np.mean(dense.position_m**2)))
+    fig, (ax, ax_att) = plt.subplots(2, 1, figsize=(11, 6.5), constrained_layout=True, sharex=True)
+    ax.plot(dense.t, dense.position_m, color="tab:blue", lw=1.2,
+            label=f"plant samples (RMS {1e3 * rms:.3g} mm, max {1e3 * dense.position_m.max():.3g} mm)")
+    ax.plot(ctrl.t, ctrl.position_m, ".", color="tab:orange", ms=3, label="control instants")
+    ax.set_ylabel("position error [m]")
+    if spans_decades(dense.position_m, 3.0):
+        ax.set_yscale("log")
+    ax.set_title("‖r − r_ref‖, true state against the reference at equal times", loc="left", fontsize="medium")
+    ax_att.plot(dense.t, np.degrees(dense.attitude_rad), color="tab:purple", lw=1.2, label="attitude error")
+    ax_att.set_ylabel("attitude error [deg]")
+    ax_att.set_xlabel("time [s]")
+    for a in (ax, ax_att):
+        a.grid(True, alpha=0.3, which="both")
+        legend_outside(a)
+    save_png(fig, path)
+    return series
+
+
+def plot_top_view(path: Path, scene: Scene | None, robot_radius_m: float, reference: Trajectory,
+                  telemetry: Telemetry) -> None:
+    """Draw ``top_view.png`` (module docstring)."""
+    fig, ax = plt.subplots(figsize=(10, 7), constrained_layout=True)
+    draw_scene(ax, scene, robot_radius_m)
+    ax.plot(reference.x[:, 0], reference.x[:, 1], "--", color="0.3", lw=1.2, label="reference")
+    ax.plot(telemetry.x_true[:, 0], telemetry.x_true[:, 1], color="tab:blue", lw=1.6, label="flown (true)")
+    ax.plot(*telemetry.x_true[0, 0:2], "ko", ms=6, label="start")
+    ax.plot(*reference.x[-1, 0:2], "k^", ms=8, label="reference end")
+    finish_view(ax, (0, 1), "Top view (x-y)")
+    save_png(fig, path)
+
+
+def write_track_plots(run: RunFiles, summary: dict[str, Any], *, telemetry: Telemetry, reference: Trajectory,
+                      limits: MotionLimits, scene: Scene | None, robot_radius_m: float) -> None:
+    """Write the ``track`` stage's PNGs into its run folder and register them (failures: a summary warning).
+
+    Parameters
+    ----------
+    run : RunFolder
+        The open run folder.
+    summary : dict
+        The stage's summary.
+    telemetry : Telemetry
+    reference : Trajectory
+    limits : MotionLimits
+        The robot's limits (inputs panel).
+    scene : Scene, optional
+    robot_radius_m : float
+    """
+    guarded_plots(run, summary, {
+        "tracking_error": lambda p: plot_tracking_error(p, telemetry, reference),
+        "inputs": lambda p: plot_inputs(p, telemetry.t_ctrl, telemetry.u_applied, limits.force_N, limits.torque_Nm,
+                                        "Applied inputs against the robot's limits"),
+        "top_view": lambda p: plot_top_view(p, scene, robot_radius_m, reference, telemetry),
+    })
