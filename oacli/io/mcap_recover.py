@@ -19,7 +19,7 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any, cast
 
 from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
@@ -122,7 +122,8 @@ class _Walker:
 
     def run(self) -> ScanResult:
         reader = _PositionedStream(self.data)
-        stream = StreamReader(reader, emit_chunks=True, validate_crcs=True, record_size_limit=len(self.data))
+        stream = StreamReader(cast(IO[bytes], reader), emit_chunks=True, validate_crcs=True,
+                              record_size_limit=len(self.data))
         records = stream.records
         start = len(_MAGIC)  # offset of the next record
         while True:
