@@ -211,8 +211,11 @@ def test_sigkill_during_the_simulation_leaves_the_run_so_far(tmp_path):
     true_times = [t for topic, t in messages if topic == "/state/true"]
     ctrl_times = [t for topic, t in messages if topic == "/state/measured"]
     assert stopped and true_times and ctrl_times
-    # Written while running: the file killed 1.5 s later reaches further than the snapshot.
-    assert max(true_times) > max(t for topic, t in early if topic == "/state/true")
+    # Written while running: the file killed 1.5 s later reaches further than the snapshot (which, on a loaded
+    # machine, may not hold a complete chunk yet).
+    early_true = [t for topic, t in early if topic == "/state/true"]
+    assert not early_true or max(true_times) > max(early_true)
+    assert len(messages) > len(early)
     # The journal is far from the end of the run (300 s of settling) ...
     assert max(true_times) < 250e9
     # ... in time order, with /state/true abreast of the controller topics (a control period apart at most).
