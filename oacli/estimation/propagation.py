@@ -263,3 +263,130 @@ def propagate_intervals(
         x = np.where(active[:, None], x_new, x)
         total = np.where(active[:, None, None], chained, total)
     return x, total[:, :, 0:STATE_DIM], total[:, :, STATE_DIM:]
+
+
+_ROT = slice(6, 13)  # [q (4), ω (3)] within the 13-entry state
+_E7 = np.hstack([np.eye(7), np.zeros((7, 3))])  # ∂z/∂[z, I] of the rotational state z = [q, ω]
+
+
+def _rotational_rate(z: np.ndarray, tau: np.ndarray, inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """ż (K, 7) of ``z = [q, ω]`` (Doerr Eqs. 34-35, attitude rows) and ``[∂ż/∂z | ∂ż/∂I]`` (K, 7, 10)."""
+    ix, iy, iz = inertia
+    qx, qy, qz, qw = z[:, 0], z[:, 1], z[:, 2], z[:, 3]
+    wx, wy, wz = z[:, 4], z[:, 5], z[:, 6]
+    k = z.shape[0]
+    f = np.empty((k, 7))
+    f[:, 0] = 0.5 * (qw * wx - qz * wy + qy * wz)
+    f[:, 1] = 0.5 * (qz * wx + qw * wy - qx * wz)
+    f[:, 2] = 0.5 * (-qy * wx + qx * wy + qw * wz)
+    f[:, 3] = 0.5 * (-qx * wx - qy * wy - qz * wz)
+    f[:, 4] = (tau[:, 0] - (iz - iy) * wy * wz) / ix
+    f[:, 5] = (tau[:, 1] - (ix - iz) * wz * wx) / iy
+    f[:, 6] = (tau[:, 2] - (iy - ix) * wx * wy) / iz
+    hx, hy, hz = 0.5 * wx, 0.5 * wy, 0.5 * wz
+    hqx, hqy, hqz, hqw = 0.5 * qx, 0.5 * qy, 0.5 * qz, 0.5 * qw
+    jac = np.zeros((k, 7, 10))
+    jac[:, 0, 1], jac[:, 0, 2], jac[:, 0, 3] = hz, -hy, hx
+    jac[:, 1, 0], jac[:, 1, 2], jac[:, 1, 3] = -hz, hx, hy
+    jac[:, 2, 0], jac[:, 2, 1], jac[:, 2, 3] = hy, -hx, hz
+    jac[:, 3, 0], jac[:, 3, 1], jac[:, 3, 2] = -hx, -hy, -hz
+    jac[:, 0, 4], jac[:, 0, 5], jac[:, 0, 6] = hqw, -hqz, hqy
+    jac[:, 1, 4], jac[:, 1, 5], jac[:, 1, 6] = hqz, hqw, -hqx
+    jac[:, 2, 4], jac[:, 2, 5], jac[:, 2, 6] = -hqy, hqx, hqw
+    jac[:, 3, 4], jac[:, 3, 5], jac[:, 3, 6] = -hqx, -hqy, -hqz
+    jac[:, 4, 5], jac[:, 4, 6] = -(iz - iy) * wz / ix, -(iz - iy) * wy / ix
+    jac[:, 5, 4], jac[:, 5, 6] = -(ix - iz) * wz / iy, -(ix - iz) * wx / iy
+    jac[:, 6, 4], jac[:, 6, 5] = -(iy - ix) * wy / iz, -(iy - ix) * wx / iz
+    jac[:, 4, 7], jac[:, 4, 8], jac[:, 4, 9] = -f[:, 4] / ix, wy * wz / ix, -wy * wz / ix
+    jac[:, 5, 7], jac[:, 5, 8], jac[:, 5, 9] = -wz * wx / iy, -f[:, 5] / iy, wz * wx / iy
+    jac[:, 6, 7], jac[:, 6, 8], jac[:, 6, 9] = wx * wy / iz, -wx * wy / iz, -f[:, 6] / iz
+    return f, jac
+
+
+def propagate_intervals_structured(
+    x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`propagate_intervals` (with normalisation) exploiting the structure of the dynamics; same outputs.
+
+    The translational and rotational dynamics (Doerr Eqs. 34-35) are decoupled: ``[r, v]`` sees only the world-frame
+    force and the mass, ``[q, ω]`` only the body torque and the inertias. With the force held over an interval, the
+    translational RK4 sub-steps are exact (constant acceleration: RK4 integrates the quadratic exactly), so
+    ``r⁺ = r + T v + ½T² f/m``, ``v⁺ = v + T f/m`` over the whole interval ``T`` in closed form. Only the 7-entry
+    rotational state is integrated sub-step by sub-step, with its 7×10 Jacobian ``∂[q, ω]⁺/∂[q, ω, I]`` carried
+    through every RK4 stage and quaternion normalisation (the chain rule of :func:`propagate_intervals` restricted
+    to its non-zero blocks), so each sub-step costs a few (K, 7, 10) products instead of (K, 13, 17).
+
+    Parameters
+    ----------
+    x : ndarray, shape (K, 13)
+        Start states.
+    u : ndarray, shape (K, 6)
+        Inputs held over each interval [N world frame, N·m body frame].
+    theta : ndarray, shape (4,)
+        [m kg, Ixx, Iyy, Izz kg·m²].
+    durations : ndarray, shape (K, M)
+        Sub-step durations from :func:`substep_schedule` (zeros are skipped exactly).
+
+    Returns
+    -------
+    x_next : ndarray, shape (K, 13)
+    a : ndarray, shape (K, 13, 13)
+        ``∂x_next/∂x``.
+    c : ndarray, shape (K, 13, 4)
+        ``∂x_next/∂θ``.
+    """
+    x = np.array(x, dtype=float, ndmin=2)
+    u = np.array(u, dtype=float, ndmin=2)
+    durations = np.array(durations, dtype=float, ndmin=2)
+    theta = np.asarray(theta, dtype=float)
+    k = x.shape[0]
+    m = float(theta[0])
+    inertia = tuple(float(v) for v in theta[1:4])
+    tau = u[:, 3:6]
+    # Translation: closed form over the interval (RK4 is exact for a constant acceleration).
+    total_s = durations.sum(axis=1)
+    acc = u[:, 0:3] / m
+    x_next = np.empty_like(x)
+    x_next[:, 0:3] = x[:, 0:3] + total_s[:, None] * x[:, 3:6] + (0.5 * total_s**2)[:, None] * acc
+    x_next[:, 3:6] = x[:, 3:6] + total_s[:, None] * acc
+    # Rotation: RK4 sub-steps with the Jacobian w.r.t. [z_0, I].
+    z = x[:, _ROT].copy()
+    total = np.broadcast_to(_E7, (k, 7, 10)).copy()
+    for col in range(durations.shape[1]):
+        dt = durations[:, col]
+        active = dt > 0.0
+        if not np.any(active):
+            continue
+        h = dt[:, None]
+        hj = dt[:, None, None]
+        f1, g1 = _rotational_rate(z, tau, inertia)
+        f2, j2 = _rotational_rate(z + 0.5 * h * f1, tau, inertia)
+        g2 = j2 + 0.5 * hj * (j2[:, :, 0:7] @ g1)
+        f3, j3 = _rotational_rate(z + 0.5 * h * f2, tau, inertia)
+        g3 = j3 + 0.5 * hj * (j3[:, :, 0:7] @ g2)
+        f4, j4 = _rotational_rate(z + h * f3, tau, inertia)
+        g4 = j4 + hj * (j4[:, :, 0:7] @ g3)
+        z_new = z + (h / 6.0) * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
+        step = _E7 + (hj / 6.0) * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
+        # Quaternion renormalisation (sign w >= 0, as the simulator does) and its Jacobian.
+        q = z_new[:, 0:4]
+        norm = np.sqrt(np.einsum("ki,ki->k", q, q))
+        sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
+        q_hat = q / norm[:, None]
+        jn = sign[:, None, None] * (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
+        z_new[:, 0:4] = sign[:, None] * q_hat
+        step[:, 0:4, :] = jn @ step[:, 0:4, :]
+        chained = step[:, :, 0:7] @ total
+        chained[:, :, 7:] += step[:, :, 7:]
+        z = np.where(active[:, None], z_new, z)
+        total = np.where(active[:, None, None], chained, total)
+    x_next[:, _ROT] = z
+    a = np.zeros((k, STATE_DIM, STATE_DIM))
+    a[:, 0:6, 0:6] = np.eye(6)
+    a[:, 0, 3] = a[:, 1, 4] = a[:, 2, 5] = total_s
+    a[:, _ROT, _ROT] = total[:, :, 0:7]
+    c = np.zeros((k, STATE_DIM, N_PARAMS))
+    c[:, 0:3, 0] = -(0.5 * total_s**2)[:, None] * acc / m
+    c[:, 3:6, 0] = -total_s[:, None] * acc / m
+    c[:, _ROT, 1:4] = total[:, :, 7:]
+    return x_next, a, c
