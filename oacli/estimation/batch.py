@@ -52,6 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.linalg as sla
 import scipy.sparse.linalg as spla
 
 from oacli.estimation import parametrization as par
@@ -72,6 +73,7 @@ from oacli.estimation.propagation import (
     dynamics_batch,
     dynamics_jacobians_batch,
     propagate_intervals,
+    propagate_intervals_structured,
     substep_schedule,
 )
 from oacli.types import ParameterEstimate
@@ -159,6 +161,91 @@ def _block_coo(blocks: np.ndarray, row0: np.ndarray, col0: np.ndarray) -> tuple[
     rows = np.broadcast_to(row0[:, None, None] + np.arange(r)[None, :, None], (n, r, c))
     cols = np.broadcast_to(col0[:, None, None] + np.arange(c)[None, None, :], (n, r, c))
     return rows.ravel(), cols.ravel(), blocks.ravel()
+
+
+@dataclass
+class _Normal:
+    """``AᵀA`` and ``Aᵀb`` of the batch problem in blocks: block tridiagonal in the K states, dense border in φ.
+
+    ``hd[k]`` = the k-th 12×12 diagonal block, ``ho[k]`` = the block coupling states k and k+1, ``hxp[k]`` = state
+    k against φ (12×4), ``hpp`` = φ against φ; ``gx``, ``gp`` the matching parts of ``Aᵀb``. Damped systems
+    ``(AᵀA + λ diag(d)) δ = −Aᵀb`` are solved by eliminating the states first (a Schur complement on φ): one
+    banded Cholesky factorisation of the state block (bandwidth 23) and a 4×4 solve, so the cost is linear in K.
+    """
+
+    hd: np.ndarray
+    ho: np.ndarray
+    hxp: np.ndarray
+    hpp: np.ndarray
+    gx: np.ndarray
+    gp: np.ndarray
+
+    def diagonal(self) -> np.ndarray:
+        """Diagonal of ``AᵀA`` in the variable order ``[δx_1 .. δx_K, δφ]``."""
+        return np.concatenate([np.einsum("kii->ki", self.hd).ravel(), np.diag(self.hpp)])
+
+    def _factor(self, damping: np.ndarray | None) -> np.ndarray | None:
+        """Banded Cholesky factor (lower form) of the state block, plus ``damping`` on its diagonal."""
+        k, nt = self.hd.shape[0], TANGENT_DIM
+        n = k * nt
+        ab = np.zeros((2 * nt, n))
+        rr, cc = _TRIL
+        cols0 = nt * np.arange(k)[:, None]
+        ab[(rr - cc)[None, :], cols0 + cc[None, :]] = self.hd[:, rr, cc]
+        if k > 1:
+            r2, c2 = _FULL
+            ab[(nt + r2 - c2)[None, :], cols0[:-1] + c2[None, :]] = self.ho[:, c2, r2]
+        if damping is not None:
+            ab[0] += damping
+        try:
+            return sla.cholesky_banded(ab, lower=True, check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+
+    def solve(self, damping: np.ndarray) -> np.ndarray | None:
+        """``δ = −(AᵀA + diag(damping))⁻¹ Aᵀb``, or None when the damped system is not positive definite."""
+        n = self.gx.size
+        chol = self._factor(damping[:n])
+        if chol is None:
+            return None
+        border = self.hxp.reshape(n, par.N_PARAMS)
+        sol = sla.cho_solve_banded((chol, True), np.column_stack([self.gx.ravel(), border]), check_finite=False)
+        schur = self.hpp + np.diag(damping[n:]) - border.T @ sol[:, 1:]
+        try:
+            dphi = np.linalg.solve(schur, -self.gp + border.T @ sol[:, 0])
+        except np.linalg.LinAlgError:
+            return None
+        out = np.concatenate([-sol[:, 0] - sol[:, 1:] @ dphi, dphi])
+        return out if np.all(np.isfinite(out)) else None
+
+    def last_covariance(self) -> np.ndarray | None:
+        """``[(AᵀA)⁻¹]`` restricted to ``[δx_K, δφ]`` (16×16), or None when ``AᵀA`` is singular."""
+        n = self.gx.size
+        nt, npar = TANGENT_DIM, par.N_PARAMS
+        chol = self._factor(None)
+        if chol is None:
+            return None
+        border = self.hxp.reshape(n, npar)
+        rhs = np.zeros((n, nt + npar))
+        rhs[n - nt:, :nt] = np.eye(nt)
+        rhs[:, nt:] = border
+        sol = sla.cho_solve_banded((chol, True), rhs, check_finite=False)
+        z_last = sol[n - nt:, :nt]  # [M⁻¹]_KK
+        w_last = sol[n - nt:, nt:]  # [M⁻¹ B]_K
+        try:
+            s_inv = np.linalg.inv(self.hpp - border.T @ sol[:, nt:])
+        except np.linalg.LinAlgError:
+            return None
+        out = np.empty((nt + npar, nt + npar))
+        out[:nt, :nt] = z_last + w_last @ s_inv @ w_last.T
+        out[:nt, nt:] = -w_last @ s_inv
+        out[nt:, :nt] = out[:nt, nt:].T
+        out[nt:, nt:] = s_inv
+        return out if np.all(np.isfinite(out)) else None
+
+
+_TRIL = np.tril_indices(TANGENT_DIM)
+_FULL = tuple(np.indices((TANGENT_DIM, TANGENT_DIM)).reshape(2, -1))
 
 
 class _Problem:
@@ -295,6 +382,111 @@ class _Problem:
         a_mat = sp.csc_matrix((vals, (rows, cols)), shape=(row, self.n_var))
         return b, a_mat
 
+    def normal_equations(
+        self, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, *, jacobian: bool = True
+    ) -> tuple[np.ndarray, _Normal | None]:
+        """``b(ϑ)`` and the blocks of ``AᵀA`` and ``Aᵀb`` (same residuals and Jacobians as :meth:`evaluate`).
+
+        ``A`` is never formed: every residual touches one or two consecutive states and φ, so ``AᵀA`` is block
+        tridiagonal in the states (12×12 blocks) with a dense 4-column border in φ; the blocks are accumulated
+        directly from the per-record Jacobian blocks. The process model is
+        :func:`oacli.estimation.propagation.propagate_intervals_structured`.
+        """
+        k = self.k
+        theta = par.theta_from_phi(phi)
+        dtheta = par.theta_jacobian(phi)
+        nt, npar = TANGENT_DIM, par.N_PARAMS
+        parts: list[np.ndarray] = []
+        if jacobian:
+            hd = np.zeros((k, nt, nt))
+            ho = np.zeros((max(k - 1, 0), nt, nt))
+            hxp = np.zeros((k, nt, npar))
+            hpp = np.zeros((npar, npar))
+            gx = np.zeros((k, nt))
+            gp = np.zeros(npar)
+
+        idx = np.flatnonzero(inliers)
+        if idx.size and self.state_rows.size:
+            e = boxminus(x[idx], self.y[idx])
+            res = e[:, self.state_rows] * self.w_state
+            parts.append(res.ravel())
+            if jacobian:
+                blocks = np.zeros((idx.size, nt, nt))
+                blocks[:, 0:6, 0:6] = np.eye(6)
+                blocks[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                blocks[:, 9:12, 9:12] = np.eye(3)
+                blocks = blocks[:, self.state_rows, :] * self.w_state[None, :, None]
+                bt = blocks.transpose(0, 2, 1)
+                hd[idx] += bt @ blocks
+                gx[idx] += np.einsum("kij,kj->ki", bt, res)
+
+        if idx.size and self.accel_rows.size:
+            f = dynamics_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS]
+            res = (f - self.acc[idx])[:, self.accel_rows] * self.w_accel
+            parts.append(res.ravel())
+            if jacobian:
+                jac = dynamics_jacobians_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS][:, self.accel_rows]
+                jx = jac[:, :, 0:13] @ lift_matrix(x[idx]) * self.w_accel[None, :, None]
+                jp = jac[:, :, 13:] @ dtheta * self.w_accel[None, :, None]
+                jxt = jx.transpose(0, 2, 1)
+                hd[idx] += jxt @ jx
+                hxp[idx] += jxt @ jp
+                hpp += np.einsum("kri,krj->ij", jp, jp)
+                gx[idx] += np.einsum("kij,kj->ki", jxt, res)
+                gp += np.einsum("kri,kr->i", jp, res)
+
+        if k > 1:
+            fx, a, c = propagate_intervals_structured(x[:-1], self.u[:-1], theta, self.durations)
+            e = boxminus(x[1:], fx)
+            res = np.einsum("kij,kj->ki", self.w_proc, e)
+            parts.append(res.ravel())
+            if jacobian:
+                next_blk = np.zeros((k - 1, nt, nt))
+                next_blk[:, 0:6, 0:6] = np.eye(6)
+                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                next_blk[:, 9:12, 9:12] = np.eye(3)
+                pred_blk = next_blk.copy()
+                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e[:, 6:9])
+                proj = pred_blk @ project_matrix(fx)
+                j_prev = -(self.w_proc @ (proj @ (a @ lift_matrix(x[:-1]))))
+                j_next = self.w_proc @ next_blk
+                j_phi = -(self.w_proc @ (proj @ (c @ dtheta)))
+                pt = j_prev.transpose(0, 2, 1)
+                nxt = j_next.transpose(0, 2, 1)
+                hd[:-1] += pt @ j_prev
+                hd[1:] += nxt @ j_next
+                ho += pt @ j_next
+                hxp[:-1] += pt @ j_phi
+                hxp[1:] += nxt @ j_phi
+                hpp += np.einsum("kri,krj->ij", j_phi, j_phi)
+                gx[:-1] += np.einsum("kij,kj->ki", pt, res)
+                gx[1:] += np.einsum("kij,kj->ki", nxt, res)
+                gp += np.einsum("kri,kr->i", j_phi, res)
+
+        for first in self.segment_starts if self.gauge_rows.size else ():
+            e = boxminus(x[first], self.y[first])
+            res = e[self.gauge_rows]
+            parts.append(res)
+            if jacobian:
+                blk = np.eye(nt)
+                blk[6:9, 6:9] = so3_right_jacobian_inverse(e[6:9])
+                blk = blk[self.gauge_rows]
+                hd[first] += blk.T @ blk
+                gx[first] += blk.T @ res
+
+        if self.prior is not None:
+            res = self.prior_sqrt_info @ (theta - self.prior.theta)
+            parts.append(res)
+            if jacobian:
+                blk = self.prior_sqrt_info @ dtheta
+                hpp += blk.T @ blk
+                gp += blk.T @ res
+
+        b = np.concatenate(parts) if parts else np.zeros(0)
+        if not jacobian:
+            return b, None
+        return b, _Normal(hd, ho, hxp, hpp, gx, gp)
+
     def d2(self, x: np.ndarray, phi: np.ndarray) -> np.ndarray:
         """Normalised residual squared ``d²_k`` of every record against the states ``x``."""
         e = boxminus(x, self.y)[:, self.state_rows] * self.w_state
@@ -321,22 +513,46 @@ def _solve(h: sp.csc_matrix, g: np.ndarray) -> np.ndarray | None:
     return out if np.all(np.isfinite(out)) else None
 
 
+class _ReferenceSystem:
+    """The sparse normal equations of the original implementation (``A`` assembled, ``AᵀA`` factorised by LU)."""
+
+    def __init__(self, b: np.ndarray, a_mat: sp.csc_matrix) -> None:
+        self.h = (a_mat.T @ a_mat).tocsc()
+        self.g = a_mat.T @ b
+
+    def diagonal(self) -> np.ndarray:
+        return self.h.diagonal()
+
+    def solve(self, damping: np.ndarray) -> np.ndarray | None:
+        return _solve((self.h + sp.diags(damping)).tocsc(), -self.g)
+
+
+def _linearise(
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool
+) -> tuple[np.ndarray, _Normal | _ReferenceSystem]:
+    """Residuals and the normal equations at (x, φ): block form (default) or the sparse reference path."""
+    if reference:
+        b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+        return b, _ReferenceSystem(b, a_mat)  # type: ignore[arg-type]
+    b, normal = problem.normal_equations(x, phi, inliers)
+    return b, normal  # type: ignore[return-value]
+
+
 def _levenberg_marquardt(
     problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, settings: EstimatorSettings,
-    history: list[float],
+    history: list[float], reference: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, int, bool]:
     """Minimise ‖b‖² from (x, φ); returns the solution, the iterations done and whether it converged."""
-    b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+    b, system = _linearise(problem, x, phi, inliers, reference)
     cost = float(b @ b)
     history.append(cost)
     lam = _LAMBDA_INIT
     k = problem.k
     for it in range(1, settings.max_iterations + 1):
-        h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
-        g = a_mat.T @ b  # type: ignore[union-attr]
-        diag = np.maximum(h.diagonal(), 1e-12 * max(h.diagonal().max(), 1.0))
+        h_diag = system.diagonal()
+        diag = np.maximum(h_diag, 1e-12 * max(h_diag.max(), 1.0))
         while True:
-            step = _solve((h + sp.diags(lam * diag)).tocsc(), -g)
+            step = system.solve(lam * diag)
             if step is None:
                 lam *= 10.0
                 if lam > _LAMBDA_MAX:
@@ -345,7 +561,7 @@ def _levenberg_marquardt(
             x_new = boxplus(x, step[: TANGENT_DIM * k].reshape(k, TANGENT_DIM))
             phi_new = phi + step[TANGENT_DIM * k:]
             with np.errstate(all="ignore"):  # a wild trial step may overflow; it is then rejected below
-                b_new, a_new = problem.evaluate(x_new, phi_new, inliers, jacobian=True)
+                b_new, system_new = _linearise(problem, x_new, phi_new, inliers, reference)
                 cost_new = float(b_new @ b_new)
             if np.isfinite(cost_new) and cost_new <= cost:
                 break
@@ -354,7 +570,7 @@ def _levenberg_marquardt(
                 return x, phi, it, True  # no descent left: at a minimum within rounding
         decrease = (cost - cost_new) / max(cost, 1e-300)
         step_size = float(np.max(np.abs(step)))
-        x, phi, b, a_mat, cost = x_new, phi_new, b_new, a_new, cost_new
+        x, phi, b, system, cost = x_new, phi_new, b_new, system_new, cost_new
         history.append(cost)
         lam = max(lam / 10.0, 1e-15)
         if decrease < settings.tolerance or step_size < settings.tolerance:
@@ -363,22 +579,25 @@ def _levenberg_marquardt(
 
 
 def _marginal_covariances(
-    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """``[(AᵀA)⁻¹]_θθ`` mapped from φ to θ, and the covariance of ``[δx_K, δφ]`` (last state and φ, 16×16).
 
     Singular ``AᵀA`` gives ``inf`` diagonals.
     """
-    _, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
-    h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
-    n = problem.n_var
     m = TANGENT_DIM + par.N_PARAMS
-    rhs = np.zeros((n, m))
-    rhs[n - m:, :] = np.eye(m)
-    sol = _solve(h, rhs)
-    if sol is None:
+    if reference:
+        _, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+        h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
+        n = problem.n_var
+        rhs = np.zeros((n, m))
+        rhs[n - m:, :] = np.eye(m)
+        sol = _solve(h, rhs)
+        cov_last = None if sol is None else sol[n - m:, :]
+    else:
+        cov_last = problem.normal_equations(x, phi, inliers)[1].last_covariance()  # type: ignore[union-attr]
+    if cov_last is None:
         return np.diag(np.full(par.N_PARAMS, np.inf)), np.diag(np.full(m, np.inf))
-    cov_last = sol[n - m:, :]
     cov_last = 0.5 * (cov_last + cov_last.T)
     jac = par.theta_jacobian(phi)
     cov = jac @ cov_last[TANGENT_DIM:, TANGENT_DIM:] @ jac.T
@@ -394,6 +613,7 @@ def estimate_batch(
     initial_states: np.ndarray | None = None,
     initial_phi: np.ndarray | None = None,
     continuation: bool = True,
+    reference: bool = False,
 ) -> BatchResult:
     """Batch maximum-likelihood estimate of the states and θ from a set of records (Doerr Eqs. 31-32).
 
@@ -416,6 +636,10 @@ def estimate_batch(
     continuation : bool
         Solve with inflated process noise first (see the module docstring); a warm start close to the solution
         may skip it.
+    reference : bool
+        Use the original implementation (sparse ``A`` assembled, ``AᵀA`` factorised by LU, the general
+        :func:`~oacli.estimation.propagation.propagate_intervals`) instead of the block normal equations with a
+        Schur complement on φ; the same iterations, kept to check the fast path against (tests, benchmark).
 
     Returns
     -------
@@ -449,10 +673,10 @@ def estimate_batch(
         # would crawl towards it otherwise.
         for factor in _CONTINUATION if continuation else ():
             problem.set_process_noise_scale(factor)
-            x, phi, its, _ = _levenberg_marquardt(problem, x, phi, inliers, loose, [])
+            x, phi, its, _ = _levenberg_marquardt(problem, x, phi, inliers, loose, [], reference)
             iterations += its
         problem.set_process_noise_scale(1.0)
-        x, phi, its, converged = _levenberg_marquardt(problem, x, phi, inliers, settings, history)
+        x, phi, its, converged = _levenberg_marquardt(problem, x, phi, inliers, settings, history, reference)
         iterations += its
         d2 = problem.d2(x, phi)
         new_inliers = problem.has_state & (np.nan_to_num(d2, nan=np.inf) <= threshold)
@@ -463,7 +687,7 @@ def estimate_batch(
             break
         inliers = new_inliers
     d2 = problem.d2(x, phi)
-    cov, cov_last = _marginal_covariances(problem, x, phi, inliers)
+    cov, cov_last = _marginal_covariances(problem, x, phi, inliers, reference)
     estimate = ParameterEstimate(
         t=float(problem.t[-1]),
         theta=par.theta_from_phi(phi),
