@@ -269,38 +269,66 @@ _ROT = slice(6, 13)  # [q (4), ω (3)] within the 13-entry state
 _E7 = np.hstack([np.eye(7), np.zeros((7, 3))])  # ∂z/∂[z, I] of the rotational state z = [q, ω]
 
 
-def _rotational_rate(z: np.ndarray, tau: np.ndarray, inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """ż (K, 7) of ``z = [q, ω]`` (Doerr Eqs. 34-35, attitude rows) and ``[∂ż/∂z | ∂ż/∂I]`` (K, 7, 10)."""
+# Non-zero entries of [∂ż/∂z | ∂ż/∂I] (7×10) and of q̇ as linear maps of the features
+# [ω (3), q (4), (ωy ωz, ωz ωx, ωx ωy) (3), ω̇ (3), q ⊗ ω products (12: q_i ω_j at 13 + 3 i + j)]:
+# (row, column, feature, coefficient); ``inertia`` entries are filled in by :func:`_rate_map`.
+_WX, _WY, _WZ, _QX, _QY, _QZ, _QW, _P1, _P2, _P3, _F4, _F5, _F6 = range(13)
+_N_FEATURES = 25
+_Q_ROWS = (
+    (0, 1, _WZ, 0.5), (0, 2, _WY, -0.5), (0, 3, _WX, 0.5),
+    (1, 0, _WZ, -0.5), (1, 2, _WX, 0.5), (1, 3, _WY, 0.5),
+    (2, 0, _WY, 0.5), (2, 1, _WX, -0.5), (2, 3, _WZ, 0.5),
+    (3, 0, _WX, -0.5), (3, 1, _WY, -0.5), (3, 2, _WZ, -0.5),
+    (0, 4, _QW, 0.5), (0, 5, _QZ, -0.5), (0, 6, _QY, 0.5),
+    (1, 4, _QZ, 0.5), (1, 5, _QW, 0.5), (1, 6, _QX, -0.5),
+    (2, 4, _QY, -0.5), (2, 5, _QX, 0.5), (2, 6, _QW, 0.5),
+    (3, 4, _QX, -0.5), (3, 5, _QY, -0.5), (3, 6, _QZ, -0.5),
+)
+
+
+def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
+    """Matrix (25, 74) mapping the features of :func:`_rotational_rate` to ``[jacobian (70), q̇ (4)]``."""
     ix, iy, iz = inertia
-    qx, qy, qz, qw = z[:, 0], z[:, 1], z[:, 2], z[:, 3]
-    wx, wy, wz = z[:, 4], z[:, 5], z[:, 6]
+    out = np.zeros((_N_FEATURES, 74))
+    entries = [
+        *_Q_ROWS,
+        (4, 5, _WZ, -(iz - iy) / ix), (4, 6, _WY, -(iz - iy) / ix),
+        (5, 4, _WZ, -(ix - iz) / iy), (5, 6, _WX, -(ix - iz) / iy),
+        (6, 4, _WY, -(iy - ix) / iz), (6, 5, _WX, -(iy - ix) / iz),
+        (4, 7, _F4, -1.0 / ix), (4, 8, _P1, 1.0 / ix), (4, 9, _P1, -1.0 / ix),
+        (5, 7, _P2, -1.0 / iy), (5, 8, _F5, -1.0 / iy), (5, 9, _P2, 1.0 / iy),
+        (6, 7, _P3, 1.0 / iz), (6, 8, _P3, -1.0 / iz), (6, 9, _F6, -1.0 / iz),
+    ]
+    for row, col, feature, coef in entries:
+        out[feature, 10 * row + col] = coef
+    # q̇ = ½ Ξ(q) ω: the coefficients of ∂q̇/∂ω (rows 0-3, columns 4-6) on the products q_i ω_j.
+    for row, col, feature, coef in _Q_ROWS[12:]:
+        out[13 + 3 * (feature - _QX) + (col - 4), 70 + row] = coef
+    return out
+
+
+def _rotational_rate(
+    z: np.ndarray, tau: np.ndarray, inertia: np.ndarray, rate_map: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """ż (K, 7) of ``z = [q, ω]`` (Doerr Eqs. 34-35, attitude rows) and ``[∂ż/∂z | ∂ż/∂I]`` (K, 7, 10).
+
+    Every entry is linear in a few features of z (ω, q, products of two rates, ω̇, products q_i ω_j), so all of them
+    come from one product with ``rate_map`` (:func:`_rate_map`).
+    """
     k = z.shape[0]
+    w = z[:, 4:7]
+    feats = np.empty((k, _N_FEATURES))
+    feats[:, 0:3] = w
+    feats[:, 3:7] = z[:, 0:4]
+    prod = w[:, [1, 2, 0]] * w[:, [2, 0, 1]]
+    feats[:, 7:10] = prod
+    feats[:, 10:13] = (tau - (inertia[[2, 0, 1]] - inertia[[1, 2, 0]]) * prod) / inertia
+    feats[:, 13:25] = (z[:, 0:4, None] * w[:, None, :]).reshape(k, 12)
+    out = feats @ rate_map
     f = np.empty((k, 7))
-    f[:, 0] = 0.5 * (qw * wx - qz * wy + qy * wz)
-    f[:, 1] = 0.5 * (qz * wx + qw * wy - qx * wz)
-    f[:, 2] = 0.5 * (-qy * wx + qx * wy + qw * wz)
-    f[:, 3] = 0.5 * (-qx * wx - qy * wy - qz * wz)
-    f[:, 4] = (tau[:, 0] - (iz - iy) * wy * wz) / ix
-    f[:, 5] = (tau[:, 1] - (ix - iz) * wz * wx) / iy
-    f[:, 6] = (tau[:, 2] - (iy - ix) * wx * wy) / iz
-    hx, hy, hz = 0.5 * wx, 0.5 * wy, 0.5 * wz
-    hqx, hqy, hqz, hqw = 0.5 * qx, 0.5 * qy, 0.5 * qz, 0.5 * qw
-    jac = np.zeros((k, 7, 10))
-    jac[:, 0, 1], jac[:, 0, 2], jac[:, 0, 3] = hz, -hy, hx
-    jac[:, 1, 0], jac[:, 1, 2], jac[:, 1, 3] = -hz, hx, hy
-    jac[:, 2, 0], jac[:, 2, 1], jac[:, 2, 3] = hy, -hx, hz
-    jac[:, 3, 0], jac[:, 3, 1], jac[:, 3, 2] = -hx, -hy, -hz
-    jac[:, 0, 4], jac[:, 0, 5], jac[:, 0, 6] = hqw, -hqz, hqy
-    jac[:, 1, 4], jac[:, 1, 5], jac[:, 1, 6] = hqz, hqw, -hqx
-    jac[:, 2, 4], jac[:, 2, 5], jac[:, 2, 6] = -hqy, hqx, hqw
-    jac[:, 3, 4], jac[:, 3, 5], jac[:, 3, 6] = -hqx, -hqy, -hqz
-    jac[:, 4, 5], jac[:, 4, 6] = -(iz - iy) * wz / ix, -(iz - iy) * wy / ix
-    jac[:, 5, 4], jac[:, 5, 6] = -(ix - iz) * wz / iy, -(ix - iz) * wx / iy
-    jac[:, 6, 4], jac[:, 6, 5] = -(iy - ix) * wy / iz, -(iy - ix) * wx / iz
-    jac[:, 4, 7], jac[:, 4, 8], jac[:, 4, 9] = -f[:, 4] / ix, wy * wz / ix, -wy * wz / ix
-    jac[:, 5, 7], jac[:, 5, 8], jac[:, 5, 9] = -wz * wx / iy, -f[:, 5] / iy, wz * wx / iy
-    jac[:, 6, 7], jac[:, 6, 8], jac[:, 6, 9] = wx * wy / iz, -wx * wy / iz, -f[:, 6] / iz
-    return f, jac
+    f[:, 0:4] = out[:, 70:74]
+    f[:, 4:7] = feats[:, 10:13]
+    return f, out[:, 0:70].reshape(k, 7, 10)
 
 
 def propagate_intervals_structured(
@@ -341,7 +369,8 @@ def propagate_intervals_structured(
     theta = np.asarray(theta, dtype=float)
     k = x.shape[0]
     m = float(theta[0])
-    inertia = tuple(float(v) for v in theta[1:4])
+    inertia = np.array(theta[1:4], dtype=float)
+    rate_map = _rate_map(tuple(float(v) for v in inertia))
     tau = u[:, 3:6]
     # Translation: closed form over the interval (RK4 is exact for a constant acceleration).
     total_s = durations.sum(axis=1)
@@ -359,12 +388,12 @@ def propagate_intervals_structured(
             continue
         h = dt[:, None]
         hj = dt[:, None, None]
-        f1, g1 = _rotational_rate(z, tau, inertia)
-        f2, j2 = _rotational_rate(z + 0.5 * h * f1, tau, inertia)
+        f1, g1 = _rotational_rate(z, tau, inertia, rate_map)
+        f2, j2 = _rotational_rate(z + 0.5 * h * f1, tau, inertia, rate_map)
         g2 = j2 + 0.5 * hj * (j2[:, :, 0:7] @ g1)
-        f3, j3 = _rotational_rate(z + 0.5 * h * f2, tau, inertia)
+        f3, j3 = _rotational_rate(z + 0.5 * h * f2, tau, inertia, rate_map)
         g3 = j3 + 0.5 * hj * (j3[:, :, 0:7] @ g2)
-        f4, j4 = _rotational_rate(z + h * f3, tau, inertia)
+        f4, j4 = _rotational_rate(z + h * f3, tau, inertia, rate_map)
         g4 = j4 + hj * (j4[:, :, 0:7] @ g3)
         z_new = z + (h / 6.0) * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
         step = _E7 + (hj / 6.0) * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
@@ -378,8 +407,11 @@ def propagate_intervals_structured(
         step[:, 0:4, :] = jn @ step[:, 0:4, :]
         chained = step[:, :, 0:7] @ total
         chained[:, :, 7:] += step[:, :, 7:]
-        z = np.where(active[:, None], z_new, z)
-        total = np.where(active[:, None, None], chained, total)
+        if np.all(active):
+            z, total = z_new, chained
+        else:
+            z = np.where(active[:, None], z_new, z)
+            total = np.where(active[:, None, None], chained, total)
     x_next[:, _ROT] = z
     a = np.zeros((k, STATE_DIM, STATE_DIM))
     a[:, 0:6, 0:6] = np.eye(6)
