@@ -280,6 +280,7 @@ class _Problem:
         if self.k > 1:  # no process residual across a gap in the input record
             self._w_proc_nominal = self._w_proc_nominal * self.links[:, None, None]
         self.w_proc = self._w_proc_nominal
+        self._propagation_cache: tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]] | None = None
         self.prior = prior
         if prior is not None:
             self.prior_sqrt_info = np.linalg.inv(np.linalg.cholesky(prior.covariance))
@@ -382,6 +383,16 @@ class _Problem:
         a_mat = sp.csc_matrix((vals, (rows, cols)), shape=(row, self.n_var))
         return b, a_mat
 
+    def _propagate(self, x: np.ndarray, phi: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Process model over every interval; the last result is reused while (x, φ) are unchanged (the next
+        continuation stage and the covariance start where the previous solve stopped)."""
+        cached = self._propagation_cache
+        if cached is not None and np.array_equal(cached[0], x) and np.array_equal(cached[1], phi):
+            return cached[2]
+        out = propagate_intervals_structured(x[:-1], self.u[:-1], theta, self.durations)
+        self._propagation_cache = (x.copy(), phi.copy(), out)
+        return out
+
     def normal_equations(
         self, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, *, jacobian: bool = True
     ) -> tuple[np.ndarray, _Normal | None]:
@@ -436,7 +447,7 @@ class _Problem:
                 gp += np.einsum("kri,kr->i", jp, res)
 
         if k > 1:
-            fx, a, c = propagate_intervals_structured(x[:-1], self.u[:-1], theta, self.durations)
+            fx, a, c = self._propagate(x, phi, theta)
             e = boxminus(x[1:], fx)
             res = np.einsum("kij,kj->ki", self.w_proc, e)
             parts.append(res.ravel())
