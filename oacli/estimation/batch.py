@@ -845,6 +845,7 @@ def estimate_batch_windows(
     window_ends_s: Sequence[float],
     *,
     progress: Callable[[float], None] | None = None,
+    reference: bool = False,
 ) -> list[BatchResult]:
     """Batch estimates on growing windows ``[t_first, t_end]`` (to show convergence over mission time).
 
@@ -860,6 +861,8 @@ def estimate_batch_windows(
     window_ends_s : sequence of float
         End time [s] of each window, increasing.
     progress : callable, optional
+    reference : bool
+        Solve every window with the original implementation (see :func:`estimate_batch`).
 
     Returns
     -------
@@ -877,7 +880,7 @@ def estimate_batch_windows(
         if n >= 2:
             init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)  # type: ignore[arg-type]
             result = estimate_batch(ordered[:n], settings, prior, initial_theta=theta, initial_states=init,
-                                    initial_phi=phi)
+                                    initial_phi=phi, reference=reference)
             results.append(result)
             theta, phi, states = result.estimate.theta, result.phi, result.states
         if progress is not None:
