@@ -834,7 +834,8 @@ def extend_states(
         if records[i].starts_segment:
             continue  # the input before it is unknown: start from its measurement
         sched = substep_schedule(t[i - 1:i], t[i:i + 1], substep_s)
-        out[i] = propagate_intervals(out[i - 1][None], records[i - 1].u_applied[None], theta, sched)[0][0]
+        out[i] = propagate_intervals_structured(out[i - 1][None], records[i - 1].u_applied[None], theta, sched,
+                                                jacobians=False)[0][0]
     return out
 
 

@@ -332,8 +332,8 @@ def _rotational_rate(
 
 
 def propagate_intervals_structured(
-    x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray, *, jacobians: bool = True
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """:func:`propagate_intervals` (with normalisation) exploiting the structure of the dynamics; same outputs.
 
     The translational and rotational dynamics (Doerr Eqs. 34-35) are decoupled: ``[r, v]`` sees only the world-frame
@@ -354,6 +354,8 @@ def propagate_intervals_structured(
         [m kg, Ixx, Iyy, Izz kg·m²].
     durations : ndarray, shape (K, M)
         Sub-step durations from :func:`substep_schedule` (zeros are skipped exactly).
+    jacobians : bool
+        False: the end states only (``a`` and ``c`` are None).
 
     Returns
     -------
@@ -363,6 +365,8 @@ def propagate_intervals_structured(
     c : ndarray, shape (K, 13, 4)
         ``∂x_next/∂θ``.
     """
+    if not jacobians:
+        return _propagate_states(x, u, theta, durations), None, None
     x = np.array(x, dtype=float, ndmin=2)
     u = np.array(u, dtype=float, ndmin=2)
     durations = np.array(durations, dtype=float, ndmin=2)
@@ -422,3 +426,35 @@ def propagate_intervals_structured(
     c[:, 3:6, 0] = -total_s[:, None] * acc / m
     c[:, _ROT, 1:4] = total[:, :, 7:]
     return x_next, a, c
+
+
+def _propagate_states(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray) -> np.ndarray:
+    """End states of :func:`propagate_intervals_structured` without Jacobians (warm starts)."""
+    x = np.array(x, dtype=float, ndmin=2)
+    u = np.array(u, dtype=float, ndmin=2)
+    durations = np.array(durations, dtype=float, ndmin=2)
+    m = float(theta[0])
+    total_s = durations.sum(axis=1)
+    acc = u[:, 0:3] / m
+    x_next = np.empty_like(x)
+    x_next[:, 0:3] = x[:, 0:3] + total_s[:, None] * x[:, 3:6] + (0.5 * total_s**2)[:, None] * acc
+    x_next[:, 3:6] = x[:, 3:6] + total_s[:, None] * acc
+    xs = x.copy()
+    for col in range(durations.shape[1]):
+        dt = durations[:, col]
+        active = dt > 0.0
+        if not np.any(active):
+            continue
+        h = dt[:, None]
+        k1 = dynamics_batch(xs, u, theta)
+        k2 = dynamics_batch(xs + 0.5 * h * k1, u, theta)
+        k3 = dynamics_batch(xs + 0.5 * h * k2, u, theta)
+        k4 = dynamics_batch(xs + h * k3, u, theta)
+        x_new = xs + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        q = x_new[:, 6:10]
+        norm = np.linalg.norm(q, axis=1)
+        sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
+        x_new[:, 6:10] = sign[:, None] * q / norm[:, None]
+        xs = np.where(active[:, None], x_new, xs)
+    x_next[:, _ROT] = xs[:, _ROT]
+    return x_next
