@@ -230,31 +230,6 @@ class _Normal:
         out = np.concatenate([-sol[:, 0] - sol[:, 1:] @ dphi, dphi])
         return out if np.all(np.isfinite(out)) else None
 
-    def last_covariance(self) -> np.ndarray | None:
-        """``[(AᵀA)⁻¹]`` restricted to ``[δx_K, δφ]`` (16×16), or None when ``AᵀA`` is singular."""
-        n = self.gx.size
-        nt, npar = TANGENT_DIM, par.N_PARAMS
-        chol = self._factor(None)
-        if chol is None:
-            return None
-        border = self.hxp.reshape(n, npar)
-        rhs = np.zeros((n, nt + npar))
-        rhs[n - nt:, :nt] = np.eye(nt)
-        rhs[:, nt:] = border
-        sol = sla.cho_solve_banded((chol, True), rhs, check_finite=False)
-        z_last = sol[n - nt:, :nt]  # [M⁻¹]_KK
-        w_last = sol[n - nt:, nt:]  # [M⁻¹ B]_K
-        try:
-            s_inv = np.linalg.inv(self.hpp - border.T @ sol[:, nt:])
-        except np.linalg.LinAlgError:
-            return None
-        out = np.empty((nt + npar, nt + npar))
-        out[:nt, :nt] = z_last + w_last @ s_inv @ w_last.T
-        out[:nt, nt:] = -w_last @ s_inv
-        out[nt:, :nt] = out[:nt, nt:].T
-        out[nt:, nt:] = s_inv
-        return out if np.all(np.isfinite(out)) else None
-
 
 _TRIL = np.tril_indices(TANGENT_DIM)
 _FULL = tuple(np.indices((TANGENT_DIM, TANGENT_DIM)).reshape(2, -1))
