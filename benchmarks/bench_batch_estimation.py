@@ -138,11 +138,12 @@ def main() -> None:
         for name, ref in (("new", False), ("reference", True)):
             wres[name], wt[name] = timed(lambda ref=ref: estimate_batch_windows(records, settings, prior, ends,
                                                                              reference=ref))
+        last_new, last_old = wres["new"][-1].estimate, wres["reference"][-1].estimate
         print()
         print(f"estimate_batch_windows ({len(ends)} growing windows, the estimate stage's): reference "
               f"{wt['reference']:.3f} s, new {wt['new']:.3f} s, speed-up {wt['reference'] / wt['new']:.2f}×; "
-              f"last window θ {np.max(np.abs(wres['new'][-1].estimate.theta / wres['reference'][-1].estimate.theta - 1)):.2e}, "
-              f"cov(θ) {rel(wres['new'][-1].estimate.covariance, wres['reference'][-1].estimate.covariance):.2e}")
+              f"last window θ {np.max(np.abs(last_new.theta / last_old.theta - 1)):.2e}, "
+              f"cov(θ) {rel(last_new.covariance, last_old.covariance):.2e}")
 
 
 if __name__ == "__main__":

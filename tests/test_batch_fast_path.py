@@ -11,7 +11,7 @@ import pytest
 from oacli.estimation import parametrization as par
 from oacli.estimation.batch import _Problem, estimate_batch
 from oacli.estimation.manifold import TANGENT_DIM, boxplus
-from oacli.estimation.models import Measurement, MeasurementModel, ProcessNoise
+from oacli.estimation.models import Measurement, ProcessNoise
 from oacli.estimation.preprocessing import order_by_time
 from oacli.estimation.propagation import propagate_intervals, propagate_intervals_structured, substep_schedule
 from oacli.excitation.information import MeasurementModel as InfoModel
