@@ -18,10 +18,17 @@ Choices the paper leaves open, and what is done here:
   period (:mod:`oacli.estimation.propagation`), with its exact Jacobians ``A_k = ∂f/∂x``, ``C_k = ∂f/∂θ``.
 * **Physical parameters.** θ is estimated through φ (:mod:`oacli.estimation.parametrization`), so every iterate has
   mass > 0 and inertias satisfying the triangle inequalities; the maximum-likelihood point is the same.
-* **Sparsity.** ``A`` is assembled as a ``scipy.sparse`` matrix (block bidiagonal in the states plus four dense
-  parameter columns) and ``AᵀA δϑ = −Aᵀb`` is solved by sparse LU; the cost grows linearly with the telemetry.
+* **Sparsity.** Every residual touches one state, or two consecutive states, and φ, so ``AᵀA`` is block
+  tridiagonal in the states (12×12 blocks) with a dense 4-column border in φ. It is accumulated directly in blocks
+  (``A`` is never formed) and ``(AᵀA + λD) δϑ = −Aᵀb`` is solved by eliminating the states: a banded Cholesky
+  factorisation of the state block and a 4×4 Schur complement on φ; the cost grows linearly with the telemetry.
+  ``estimate_batch(..., reference=True)`` keeps the original path (``A`` assembled as a ``scipy.sparse`` matrix,
+  ``AᵀA`` factorised by sparse LU, the general 13×17 RK4 Jacobians): the same iterations, to check against.
 * **Covariance.** ``cov(θ̂) = [(AᵀA)⁻¹]_θθ`` at the solution (Doerr: "extracted from (AᵀA)⁻¹"), mapped from φ
-  to θ through ``dθ/dφ``.
+  to θ through ``dθ/dφ``. It is computed from a block QR factorisation of ``A`` (a square-root information
+  smoother, :meth:`_Problem.last_covariance_qr`), not from ``AᵀA``: with a nearly rigid process model
+  ``cond(AᵀA)`` reaches 10¹³, so any solve of the normal equations (the original path's LU included) is good to
+  ~10⁻⁵ relative only, while the QR is good to ``cond(A)·ε``.
 * **Outliers.** After convergence every record's normalised residual ``d²_k = ‖R^-½ (h(x̂_k) ⊟ ỹ_k)‖²`` is tested
   against the χ² gate ([ReSWARM2023] §6.2.1); records outside it are dropped and the problem is re-solved, until the
   inlier set no longer changes. The dynamics still tie the state of a dropped record to its neighbours.
@@ -51,6 +58,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -72,6 +80,7 @@ from oacli.estimation.propagation import (
     dynamics_batch,
     dynamics_jacobians_batch,
     propagate_intervals,
+    propagate_intervals_structured,
     substep_schedule,
 )
 from oacli.types import ParameterEstimate
@@ -161,6 +170,78 @@ def _block_coo(blocks: np.ndarray, row0: np.ndarray, col0: np.ndarray) -> tuple[
     return rows.ravel(), cols.ravel(), blocks.ravel()
 
 
+@dataclass
+class _Group:
+    """Residual rows of one kind, one block per record: ``res (n, r)``; ``state (n, r, 12)`` on the states
+    ``index (n,)``; ``next_state`` on ``index + 1`` (process rows); ``phi (n, r, 4)`` on φ (None: no such column)."""
+
+    res: np.ndarray
+    index: np.ndarray
+    state: np.ndarray | None
+    next_state: np.ndarray | None = None
+    phi: np.ndarray | None = None
+
+
+@dataclass
+class _Normal:
+    """``AᵀA`` and ``Aᵀb`` of the batch problem in blocks: block tridiagonal in the K states, dense border in φ.
+
+    ``hd[k]`` = the k-th 12×12 diagonal block, ``ho[k]`` = the block coupling states k and k+1, ``hxp[k]`` = state
+    k against φ (12×4), ``hpp`` = φ against φ; ``gx``, ``gp`` the matching parts of ``Aᵀb``. Damped systems
+    ``(AᵀA + λ diag(d)) δ = −Aᵀb`` are solved by eliminating the states first (a Schur complement on φ): one
+    banded Cholesky factorisation of the state block (bandwidth 23) and a 4×4 solve, so the cost is linear in K.
+    """
+
+    hd: np.ndarray
+    ho: np.ndarray
+    hxp: np.ndarray
+    hpp: np.ndarray
+    gx: np.ndarray
+    gp: np.ndarray
+
+    def diagonal(self) -> np.ndarray:
+        """Diagonal of ``AᵀA`` in the variable order ``[δx_1 .. δx_K, δφ]``."""
+        return np.concatenate([np.einsum("kii->ki", self.hd).ravel(), np.diag(self.hpp)])
+
+    def _factor(self, damping: np.ndarray | None) -> np.ndarray | None:
+        """Banded Cholesky factor (lower form) of the state block, plus ``damping`` on its diagonal."""
+        k, nt = self.hd.shape[0], TANGENT_DIM
+        n = k * nt
+        ab = np.zeros((2 * nt, n))
+        rr, cc = _TRIL
+        cols0 = nt * np.arange(k)[:, None]
+        ab[(rr - cc)[None, :], cols0 + cc[None, :]] = self.hd[:, rr, cc]
+        if k > 1:
+            r2, c2 = _FULL
+            ab[(nt + r2 - c2)[None, :], cols0[:-1] + c2[None, :]] = self.ho[:, c2, r2]
+        if damping is not None:
+            ab[0] += damping
+        try:
+            return sla.cholesky_banded(ab, lower=True, check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+
+    def solve(self, damping: np.ndarray) -> np.ndarray | None:
+        """``δ = −(AᵀA + diag(damping))⁻¹ Aᵀb``, or None when the damped system is not positive definite."""
+        n = self.gx.size
+        chol = self._factor(damping[:n])
+        if chol is None:
+            return None
+        border = self.hxp.reshape(n, par.N_PARAMS)
+        sol = sla.cho_solve_banded((chol, True), np.column_stack([self.gx.ravel(), border]), check_finite=False)
+        schur = self.hpp + np.diag(damping[n:]) - border.T @ sol[:, 1:]
+        try:
+            dphi = np.linalg.solve(schur, -self.gp + border.T @ sol[:, 0])
+        except np.linalg.LinAlgError:
+            return None
+        out = np.concatenate([-sol[:, 0] - sol[:, 1:] @ dphi, dphi])
+        return out if np.all(np.isfinite(out)) else None
+
+
+_TRIL = np.tril_indices(TANGENT_DIM)
+_FULL = tuple(np.indices((TANGENT_DIM, TANGENT_DIM)).reshape(2, -1))
+
+
 class _Problem:
     """Residuals ``b(ϑ)`` and the sparse Jacobian ``A`` of the batch problem for fixed data."""
 
@@ -193,6 +274,7 @@ class _Problem:
         if self.k > 1:  # no process residual across a gap in the input record
             self._w_proc_nominal = self._w_proc_nominal * self.links[:, None, None]
         self.w_proc = self._w_proc_nominal
+        self._propagation_cache: tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]] | None = None
         self.prior = prior
         if prior is not None:
             self.prior_sqrt_info = np.linalg.inv(np.linalg.cholesky(prior.covariance))
@@ -295,6 +377,182 @@ class _Problem:
         a_mat = sp.csc_matrix((vals, (rows, cols)), shape=(row, self.n_var))
         return b, a_mat
 
+    def _propagate(self, x: np.ndarray, phi: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Process model over every interval; the last result is reused while (x, φ) are unchanged (the next
+        continuation stage and the covariance start where the previous solve stopped)."""
+        cached = self._propagation_cache
+        if cached is not None and np.array_equal(cached[0], x) and np.array_equal(cached[1], phi):
+            return cached[2]
+        out = propagate_intervals_structured(x[:-1], self.u[:-1], theta, self.durations)
+        self._propagation_cache = (x.copy(), phi.copy(), out)
+        return out
+
+    def jacobian_groups(
+        self, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, *, jacobian: bool = True
+    ) -> tuple[np.ndarray, list[_Group]]:
+        """``b(ϑ)`` and its Jacobian as groups of per-record blocks (same residuals and Jacobians as
+        :meth:`evaluate`, in the same row order); the process model is
+        :func:`oacli.estimation.propagation.propagate_intervals_structured`."""
+        k = self.k
+        theta = par.theta_from_phi(phi)
+        dtheta = par.theta_jacobian(phi)
+        nt = TANGENT_DIM
+        parts: list[np.ndarray] = []
+        groups: list[_Group] = []
+
+        idx = np.flatnonzero(inliers)
+        if idx.size and self.state_rows.size:
+            e = boxminus(x[idx], self.y[idx])
+            res = e[:, self.state_rows] * self.w_state
+            parts.append(res.ravel())
+            if jacobian:
+                blocks = np.zeros((idx.size, nt, nt))
+                blocks[:, 0:6, 0:6] = np.eye(6)
+                blocks[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                blocks[:, 9:12, 9:12] = np.eye(3)
+                blocks = blocks[:, self.state_rows, :] * self.w_state[None, :, None]
+                groups.append(_Group(res, idx, blocks))
+
+        if idx.size and self.accel_rows.size:
+            f = dynamics_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS]
+            res = (f - self.acc[idx])[:, self.accel_rows] * self.w_accel
+            parts.append(res.ravel())
+            if jacobian:
+                jac = dynamics_jacobians_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS][:, self.accel_rows]
+                jx = jac[:, :, 0:13] @ lift_matrix(x[idx]) * self.w_accel[None, :, None]
+                jp = jac[:, :, 13:] @ dtheta * self.w_accel[None, :, None]
+                groups.append(_Group(res, idx, jx, phi=jp))
+
+        if k > 1:
+            fx, a, c = self._propagate(x, phi, theta)
+            e = boxminus(x[1:], fx)
+            res = np.einsum("kij,kj->ki", self.w_proc, e)
+            parts.append(res.ravel())
+            if jacobian:
+                next_blk = np.zeros((k - 1, nt, nt))
+                next_blk[:, 0:6, 0:6] = np.eye(6)
+                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                next_blk[:, 9:12, 9:12] = np.eye(3)
+                pred_blk = next_blk.copy()
+                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e[:, 6:9])
+                proj = pred_blk @ project_matrix(fx)
+                j_prev = -(self.w_proc @ (proj @ (a @ lift_matrix(x[:-1]))))
+                j_next = self.w_proc @ next_blk
+                j_phi = -(self.w_proc @ (proj @ (c @ dtheta)))
+                groups.append(_Group(res, np.arange(k - 1), j_prev, j_next, j_phi))
+
+        if self.gauge_rows.size:
+            first = self.segment_starts
+            e = boxminus(x[first], self.y[first])
+            res = e[:, self.gauge_rows]
+            parts.append(res.ravel())
+            if jacobian:
+                blk = np.broadcast_to(np.eye(nt), (first.size, nt, nt)).copy()
+                blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                groups.append(_Group(res, first, blk[:, self.gauge_rows]))
+
+        if self.prior is not None:
+            res = self.prior_sqrt_info @ (theta - self.prior.theta)
+            parts.append(res)
+            if jacobian:
+                groups.append(_Group(res[None], np.zeros(0, dtype=int), None,
+                                     phi=(self.prior_sqrt_info @ dtheta)[None]))
+
+        b = np.concatenate(parts) if parts else np.zeros(0)
+        return b, groups
+
+    def normal_equations(self, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray) -> tuple[np.ndarray, _Normal]:
+        """``b(ϑ)`` and the blocks of ``AᵀA`` and ``Aᵀb`` (:class:`_Normal`).
+
+        ``A`` is never formed: every residual touches one or two consecutive states and φ, so ``AᵀA`` is block
+        tridiagonal in the states (12×12 blocks) with a dense 4-column border in φ, accumulated directly from the
+        per-record Jacobian blocks of :meth:`jacobian_groups`.
+        """
+        b, groups = self.jacobian_groups(x, phi, inliers)
+        k, nt, npar = self.k, TANGENT_DIM, par.N_PARAMS
+        hd = np.zeros((k, nt, nt))
+        ho = np.zeros((max(k - 1, 0), nt, nt))
+        hxp = np.zeros((k, nt, npar))
+        hpp = np.zeros((npar, npar))
+        gx = np.zeros((k, nt))
+        gp = np.zeros(npar)
+        for grp in groups:
+            for offset, blk in ((0, grp.state), (1, grp.next_state)):
+                if blk is None:
+                    continue
+                at = grp.index + offset
+                bt = blk.transpose(0, 2, 1)
+                hd[at] += bt @ blk
+                gx[at] += np.einsum("kij,kj->ki", bt, grp.res)
+                if grp.phi is not None:
+                    hxp[at] += bt @ grp.phi
+            if grp.next_state is not None:
+                ho[grp.index] += grp.state.transpose(0, 2, 1) @ grp.next_state  # type: ignore[union-attr]
+            if grp.phi is not None:
+                hpp += np.einsum("kri,krj->ij", grp.phi, grp.phi)
+                gp += np.einsum("kri,kr->i", grp.phi, grp.res)
+        return b, _Normal(hd, ho, hxp, hpp, gx, gp)
+
+    def last_covariance_qr(self, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray) -> np.ndarray | None:
+        """Covariance of ``[δx_K, δφ]`` (16×16) from a block QR factorisation of ``A`` (no ``AᵀA`` formed).
+
+        With the variables ordered ``[x_1 .. x_K, φ]`` and ``A = QR``, the last 16×16 block of ``(AᵀA)⁻¹ =
+        R⁻¹R⁻ᵀ`` is ``R_ll⁻¹ R_ll⁻ᵀ``. ``R`` is built state by state (a square-root information smoother): the
+        rows left over on ``[x_k, φ]``, the rows of record k and the process rows k → k+1 are triangularised on
+        ``[x_k, x_{k+1}, φ]``; what remains on ``[x_{k+1}, φ]`` is carried on. The normal equations square the
+        condition number of ``A`` (10¹²-10¹³ for a nearly rigid process model, so their covariance is good to
+        ~10⁻⁴ only); this is accurate to ``cond(A)·ε``. Returns None when ``A`` has not full column rank.
+        """
+        _, groups = self.jacobian_groups(x, phi, inliers)
+        k, nt, npar = self.k, TANGENT_DIM, par.N_PARAMS
+        single: list[list[np.ndarray]] = [[] for _ in range(k)]
+        phi_only: list[np.ndarray] = []
+        process = None
+        for grp in groups:
+            if grp.next_state is not None:
+                process = grp
+                continue
+            if grp.state is None:
+                for blk in grp.phi:  # type: ignore[union-attr]
+                    rows = np.zeros((blk.shape[0], nt + npar))
+                    rows[:, nt:] = blk
+                    phi_only.append(rows)
+                continue
+            n, r = grp.res.shape
+            rows = np.zeros((n, r, nt + npar))
+            rows[:, :, :nt] = grp.state
+            if grp.phi is not None:
+                rows[:, :, nt:] = grp.phi
+            for i, at in enumerate(grp.index):
+                single[at].append(rows[i])
+        carry = np.zeros((0, nt + npar))  # rows on [x_k, φ]
+        for i in range(k):
+            last = i == k - 1
+            width = nt + npar if last else 2 * nt + npar
+            own = [carry, *single[i], *(phi_only if last else ())]
+            stacked = np.concatenate([r for r in own if r.size] or [np.zeros((0, nt + npar))])
+            block = np.zeros((stacked.shape[0], width))
+            block[:, :nt] = stacked[:, :nt]
+            block[:, width - npar:] = stacked[:, nt:]
+            if not last:
+                link = np.zeros((nt, width))
+                link[:, :nt] = process.state[i]  # type: ignore[union-attr]
+                link[:, nt:2 * nt] = process.next_state[i]  # type: ignore[union-attr]
+                link[:, 2 * nt:] = process.phi[i]  # type: ignore[union-attr]
+                block = np.vstack([block, link])
+            if block.shape[0] < (width if last else nt):
+                return None
+            r_mat = np.linalg.qr(block, mode="r")
+            if last:
+                r_ll = r_mat[:width, :width]
+                if np.min(np.abs(np.diag(r_ll))) <= 1e-14 * np.max(np.abs(np.diag(r_ll))):
+                    return None
+                r_inv = sla.solve_triangular(r_ll, np.eye(width), check_finite=False)
+                cov = r_inv @ r_inv.T
+                return cov if np.all(np.isfinite(cov)) else None
+            carry = r_mat[nt:, nt:]
+        return None
+
     def d2(self, x: np.ndarray, phi: np.ndarray) -> np.ndarray:
         """Normalised residual squared ``d²_k`` of every record against the states ``x``."""
         e = boxminus(x, self.y)[:, self.state_rows] * self.w_state
@@ -321,22 +579,46 @@ def _solve(h: sp.csc_matrix, g: np.ndarray) -> np.ndarray | None:
     return out if np.all(np.isfinite(out)) else None
 
 
+class _ReferenceSystem:
+    """The sparse normal equations of the original implementation (``A`` assembled, ``AᵀA`` factorised by LU)."""
+
+    def __init__(self, b: np.ndarray, a_mat: sp.csc_matrix) -> None:
+        self.h = (a_mat.T @ a_mat).tocsc()
+        self.g = a_mat.T @ b
+
+    def diagonal(self) -> np.ndarray:
+        return self.h.diagonal()
+
+    def solve(self, damping: np.ndarray) -> np.ndarray | None:
+        return _solve((self.h + sp.diags(damping)).tocsc(), -self.g)
+
+
+def _linearise(
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool
+) -> tuple[np.ndarray, _Normal | _ReferenceSystem]:
+    """Residuals and the normal equations at (x, φ): block form (default) or the sparse reference path."""
+    if reference:
+        b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+        return b, _ReferenceSystem(b, a_mat)  # type: ignore[arg-type]
+    b, normal = problem.normal_equations(x, phi, inliers)
+    return b, normal  # type: ignore[return-value]
+
+
 def _levenberg_marquardt(
     problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, settings: EstimatorSettings,
-    history: list[float],
+    history: list[float], reference: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, int, bool]:
     """Minimise ‖b‖² from (x, φ); returns the solution, the iterations done and whether it converged."""
-    b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+    b, system = _linearise(problem, x, phi, inliers, reference)
     cost = float(b @ b)
     history.append(cost)
     lam = _LAMBDA_INIT
     k = problem.k
     for it in range(1, settings.max_iterations + 1):
-        h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
-        g = a_mat.T @ b  # type: ignore[union-attr]
-        diag = np.maximum(h.diagonal(), 1e-12 * max(h.diagonal().max(), 1.0))
+        h_diag = system.diagonal()
+        diag = np.maximum(h_diag, 1e-12 * max(h_diag.max(), 1.0))
         while True:
-            step = _solve((h + sp.diags(lam * diag)).tocsc(), -g)
+            step = system.solve(lam * diag)
             if step is None:
                 lam *= 10.0
                 if lam > _LAMBDA_MAX:
@@ -345,7 +627,7 @@ def _levenberg_marquardt(
             x_new = boxplus(x, step[: TANGENT_DIM * k].reshape(k, TANGENT_DIM))
             phi_new = phi + step[TANGENT_DIM * k:]
             with np.errstate(all="ignore"):  # a wild trial step may overflow; it is then rejected below
-                b_new, a_new = problem.evaluate(x_new, phi_new, inliers, jacobian=True)
+                b_new, system_new = _linearise(problem, x_new, phi_new, inliers, reference)
                 cost_new = float(b_new @ b_new)
             if np.isfinite(cost_new) and cost_new <= cost:
                 break
@@ -354,7 +636,7 @@ def _levenberg_marquardt(
                 return x, phi, it, True  # no descent left: at a minimum within rounding
         decrease = (cost - cost_new) / max(cost, 1e-300)
         step_size = float(np.max(np.abs(step)))
-        x, phi, b, a_mat, cost = x_new, phi_new, b_new, a_new, cost_new
+        x, phi, b, system, cost = x_new, phi_new, b_new, system_new, cost_new
         history.append(cost)
         lam = max(lam / 10.0, 1e-15)
         if decrease < settings.tolerance or step_size < settings.tolerance:
@@ -363,22 +645,25 @@ def _levenberg_marquardt(
 
 
 def _marginal_covariances(
-    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """``[(AᵀA)⁻¹]_θθ`` mapped from φ to θ, and the covariance of ``[δx_K, δφ]`` (last state and φ, 16×16).
 
     Singular ``AᵀA`` gives ``inf`` diagonals.
     """
-    _, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
-    h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
-    n = problem.n_var
     m = TANGENT_DIM + par.N_PARAMS
-    rhs = np.zeros((n, m))
-    rhs[n - m:, :] = np.eye(m)
-    sol = _solve(h, rhs)
-    if sol is None:
+    if reference:
+        _, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+        h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
+        n = problem.n_var
+        rhs = np.zeros((n, m))
+        rhs[n - m:, :] = np.eye(m)
+        sol = _solve(h, rhs)
+        cov_last = None if sol is None else sol[n - m:, :]
+    else:
+        cov_last = problem.last_covariance_qr(x, phi, inliers)
+    if cov_last is None:
         return np.diag(np.full(par.N_PARAMS, np.inf)), np.diag(np.full(m, np.inf))
-    cov_last = sol[n - m:, :]
     cov_last = 0.5 * (cov_last + cov_last.T)
     jac = par.theta_jacobian(phi)
     cov = jac @ cov_last[TANGENT_DIM:, TANGENT_DIM:] @ jac.T
@@ -394,6 +679,7 @@ def estimate_batch(
     initial_states: np.ndarray | None = None,
     initial_phi: np.ndarray | None = None,
     continuation: bool = True,
+    reference: bool = False,
 ) -> BatchResult:
     """Batch maximum-likelihood estimate of the states and θ from a set of records (Doerr Eqs. 31-32).
 
@@ -416,6 +702,10 @@ def estimate_batch(
     continuation : bool
         Solve with inflated process noise first (see the module docstring); a warm start close to the solution
         may skip it.
+    reference : bool
+        Use the original implementation (sparse ``A`` assembled, ``AᵀA`` factorised by LU, the general
+        :func:`~oacli.estimation.propagation.propagate_intervals`) instead of the block normal equations with a
+        Schur complement on φ; the same iterations, kept to check the fast path against (tests, benchmark).
 
     Returns
     -------
@@ -449,10 +739,10 @@ def estimate_batch(
         # would crawl towards it otherwise.
         for factor in _CONTINUATION if continuation else ():
             problem.set_process_noise_scale(factor)
-            x, phi, its, _ = _levenberg_marquardt(problem, x, phi, inliers, loose, [])
+            x, phi, its, _ = _levenberg_marquardt(problem, x, phi, inliers, loose, [], reference)
             iterations += its
         problem.set_process_noise_scale(1.0)
-        x, phi, its, converged = _levenberg_marquardt(problem, x, phi, inliers, settings, history)
+        x, phi, its, converged = _levenberg_marquardt(problem, x, phi, inliers, settings, history, reference)
         iterations += its
         d2 = problem.d2(x, phi)
         new_inliers = problem.has_state & (np.nan_to_num(d2, nan=np.inf) <= threshold)
@@ -463,7 +753,7 @@ def estimate_batch(
             break
         inliers = new_inliers
     d2 = problem.d2(x, phi)
-    cov, cov_last = _marginal_covariances(problem, x, phi, inliers)
+    cov, cov_last = _marginal_covariances(problem, x, phi, inliers, reference)
     estimate = ParameterEstimate(
         t=float(problem.t[-1]),
         theta=par.theta_from_phi(phi),
@@ -526,7 +816,8 @@ def extend_states(
         if records[i].starts_segment:
             continue  # the input before it is unknown: start from its measurement
         sched = substep_schedule(t[i - 1:i], t[i:i + 1], substep_s)
-        out[i] = propagate_intervals(out[i - 1][None], records[i - 1].u_applied[None], theta, sched)[0][0]
+        out[i] = propagate_intervals_structured(out[i - 1][None], records[i - 1].u_applied[None], theta, sched,
+                                                jacobians=False)[0][0]
     return out
 
 
@@ -537,6 +828,7 @@ def estimate_batch_windows(
     window_ends_s: Sequence[float],
     *,
     progress: Callable[[float], None] | None = None,
+    reference: bool = False,
 ) -> list[BatchResult]:
     """Batch estimates on growing windows ``[t_first, t_end]`` (to show convergence over mission time).
 
@@ -552,6 +844,8 @@ def estimate_batch_windows(
     window_ends_s : sequence of float
         End time [s] of each window, increasing.
     progress : callable, optional
+    reference : bool
+        Solve every window with the original implementation (see :func:`estimate_batch`).
 
     Returns
     -------
@@ -569,7 +863,7 @@ def estimate_batch_windows(
         if n >= 2:
             init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)  # type: ignore[arg-type]
             result = estimate_batch(ordered[:n], settings, prior, initial_theta=theta, initial_states=init,
-                                    initial_phi=phi)
+                                    initial_phi=phi, reference=reference)
             results.append(result)
             theta, phi, states = result.estimate.theta, result.phi, result.states
         if progress is not None:

@@ -263,3 +263,198 @@ def propagate_intervals(
         x = np.where(active[:, None], x_new, x)
         total = np.where(active[:, None, None], chained, total)
     return x, total[:, :, 0:STATE_DIM], total[:, :, STATE_DIM:]
+
+
+_ROT = slice(6, 13)  # [q (4), ω (3)] within the 13-entry state
+_E7 = np.hstack([np.eye(7), np.zeros((7, 3))])  # ∂z/∂[z, I] of the rotational state z = [q, ω]
+
+
+# Non-zero entries of [∂ż/∂z | ∂ż/∂I] (7×10) and of q̇ as linear maps of the features
+# [ω (3), q (4), (ωy ωz, ωz ωx, ωx ωy) (3), ω̇ (3), q ⊗ ω products (12: q_i ω_j at 13 + 3 i + j)]:
+# (row, column, feature, coefficient); ``inertia`` entries are filled in by :func:`_rate_map`.
+_WX, _WY, _WZ, _QX, _QY, _QZ, _QW, _P1, _P2, _P3, _F4, _F5, _F6 = range(13)
+_N_FEATURES = 25
+_Q_ROWS = (
+    (0, 1, _WZ, 0.5), (0, 2, _WY, -0.5), (0, 3, _WX, 0.5),
+    (1, 0, _WZ, -0.5), (1, 2, _WX, 0.5), (1, 3, _WY, 0.5),
+    (2, 0, _WY, 0.5), (2, 1, _WX, -0.5), (2, 3, _WZ, 0.5),
+    (3, 0, _WX, -0.5), (3, 1, _WY, -0.5), (3, 2, _WZ, -0.5),
+    (0, 4, _QW, 0.5), (0, 5, _QZ, -0.5), (0, 6, _QY, 0.5),
+    (1, 4, _QZ, 0.5), (1, 5, _QW, 0.5), (1, 6, _QX, -0.5),
+    (2, 4, _QY, -0.5), (2, 5, _QX, 0.5), (2, 6, _QW, 0.5),
+    (3, 4, _QX, -0.5), (3, 5, _QY, -0.5), (3, 6, _QZ, -0.5),
+)
+
+
+def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
+    """Matrix (25, 74) mapping the features of :func:`_rotational_rate` to ``[jacobian (70), q̇ (4)]``."""
+    ix, iy, iz = inertia
+    out = np.zeros((_N_FEATURES, 74))
+    entries = [
+        *_Q_ROWS,
+        (4, 5, _WZ, -(iz - iy) / ix), (4, 6, _WY, -(iz - iy) / ix),
+        (5, 4, _WZ, -(ix - iz) / iy), (5, 6, _WX, -(ix - iz) / iy),
+        (6, 4, _WY, -(iy - ix) / iz), (6, 5, _WX, -(iy - ix) / iz),
+        (4, 7, _F4, -1.0 / ix), (4, 8, _P1, 1.0 / ix), (4, 9, _P1, -1.0 / ix),
+        (5, 7, _P2, -1.0 / iy), (5, 8, _F5, -1.0 / iy), (5, 9, _P2, 1.0 / iy),
+        (6, 7, _P3, 1.0 / iz), (6, 8, _P3, -1.0 / iz), (6, 9, _F6, -1.0 / iz),
+    ]
+    for row, col, feature, coef in entries:
+        out[feature, 10 * row + col] = coef
+    # q̇ = ½ Ξ(q) ω: the coefficients of ∂q̇/∂ω (rows 0-3, columns 4-6) on the products q_i ω_j.
+    for row, col, feature, coef in _Q_ROWS[12:]:
+        out[13 + 3 * (feature - _QX) + (col - 4), 70 + row] = coef
+    return out
+
+
+def _rotational_rate(
+    z: np.ndarray, tau: np.ndarray, inertia: np.ndarray, rate_map: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """ż (K, 7) of ``z = [q, ω]`` (Doerr Eqs. 34-35, attitude rows) and ``[∂ż/∂z | ∂ż/∂I]`` (K, 7, 10).
+
+    Every entry is linear in a few features of z (ω, q, products of two rates, ω̇, products q_i ω_j), so all of them
+    come from one product with ``rate_map`` (:func:`_rate_map`).
+    """
+    k = z.shape[0]
+    w = z[:, 4:7]
+    feats = np.empty((k, _N_FEATURES))
+    feats[:, 0:3] = w
+    feats[:, 3:7] = z[:, 0:4]
+    prod = w[:, [1, 2, 0]] * w[:, [2, 0, 1]]
+    feats[:, 7:10] = prod
+    feats[:, 10:13] = (tau - (inertia[[2, 0, 1]] - inertia[[1, 2, 0]]) * prod) / inertia
+    feats[:, 13:25] = (z[:, 0:4, None] * w[:, None, :]).reshape(k, 12)
+    out = feats @ rate_map
+    f = np.empty((k, 7))
+    f[:, 0:4] = out[:, 70:74]
+    f[:, 4:7] = feats[:, 10:13]
+    return f, out[:, 0:70].reshape(k, 7, 10)
+
+
+def propagate_intervals_structured(
+    x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray, *, jacobians: bool = True
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """:func:`propagate_intervals` (with normalisation) exploiting the structure of the dynamics; same outputs.
+
+    The translational and rotational dynamics (Doerr Eqs. 34-35) are decoupled: ``[r, v]`` sees only the world-frame
+    force and the mass, ``[q, ω]`` only the body torque and the inertias. With the force held over an interval, the
+    translational RK4 sub-steps are exact (constant acceleration: RK4 integrates the quadratic exactly), so
+    ``r⁺ = r + T v + ½T² f/m``, ``v⁺ = v + T f/m`` over the whole interval ``T`` in closed form. Only the 7-entry
+    rotational state is integrated sub-step by sub-step, with its 7×10 Jacobian ``∂[q, ω]⁺/∂[q, ω, I]`` carried
+    through every RK4 stage and quaternion normalisation (the chain rule of :func:`propagate_intervals` restricted
+    to its non-zero blocks), so each sub-step costs a few (K, 7, 10) products instead of (K, 13, 17).
+
+    Parameters
+    ----------
+    x : ndarray, shape (K, 13)
+        Start states.
+    u : ndarray, shape (K, 6)
+        Inputs held over each interval [N world frame, N·m body frame].
+    theta : ndarray, shape (4,)
+        [m kg, Ixx, Iyy, Izz kg·m²].
+    durations : ndarray, shape (K, M)
+        Sub-step durations from :func:`substep_schedule` (zeros are skipped exactly).
+    jacobians : bool
+        False: the end states only (``a`` and ``c`` are None).
+
+    Returns
+    -------
+    x_next : ndarray, shape (K, 13)
+    a : ndarray, shape (K, 13, 13)
+        ``∂x_next/∂x``.
+    c : ndarray, shape (K, 13, 4)
+        ``∂x_next/∂θ``.
+    """
+    if not jacobians:
+        return _propagate_states(x, u, theta, durations), None, None
+    x = np.array(x, dtype=float, ndmin=2)
+    u = np.array(u, dtype=float, ndmin=2)
+    durations = np.array(durations, dtype=float, ndmin=2)
+    theta = np.asarray(theta, dtype=float)
+    k = x.shape[0]
+    m = float(theta[0])
+    inertia = np.array(theta[1:4], dtype=float)
+    rate_map = _rate_map(tuple(float(v) for v in inertia))
+    tau = u[:, 3:6]
+    # Translation: closed form over the interval (RK4 is exact for a constant acceleration).
+    total_s = durations.sum(axis=1)
+    acc = u[:, 0:3] / m
+    x_next = np.empty_like(x)
+    x_next[:, 0:3] = x[:, 0:3] + total_s[:, None] * x[:, 3:6] + (0.5 * total_s**2)[:, None] * acc
+    x_next[:, 3:6] = x[:, 3:6] + total_s[:, None] * acc
+    # Rotation: RK4 sub-steps with the Jacobian w.r.t. [z_0, I].
+    z = x[:, _ROT].copy()
+    total = np.broadcast_to(_E7, (k, 7, 10)).copy()
+    for col in range(durations.shape[1]):
+        dt = durations[:, col]
+        active = dt > 0.0
+        if not np.any(active):
+            continue
+        h = dt[:, None]
+        hj = dt[:, None, None]
+        f1, g1 = _rotational_rate(z, tau, inertia, rate_map)
+        f2, j2 = _rotational_rate(z + 0.5 * h * f1, tau, inertia, rate_map)
+        g2 = j2 + 0.5 * hj * (j2[:, :, 0:7] @ g1)
+        f3, j3 = _rotational_rate(z + 0.5 * h * f2, tau, inertia, rate_map)
+        g3 = j3 + 0.5 * hj * (j3[:, :, 0:7] @ g2)
+        f4, j4 = _rotational_rate(z + h * f3, tau, inertia, rate_map)
+        g4 = j4 + hj * (j4[:, :, 0:7] @ g3)
+        z_new = z + (h / 6.0) * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
+        step = _E7 + (hj / 6.0) * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
+        # Quaternion renormalisation (sign w >= 0, as the simulator does) and its Jacobian.
+        q = z_new[:, 0:4]
+        norm = np.sqrt(np.einsum("ki,ki->k", q, q))
+        sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
+        q_hat = q / norm[:, None]
+        jn = sign[:, None, None] * (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
+        z_new[:, 0:4] = sign[:, None] * q_hat
+        step[:, 0:4, :] = jn @ step[:, 0:4, :]
+        chained = step[:, :, 0:7] @ total
+        chained[:, :, 7:] += step[:, :, 7:]
+        if np.all(active):
+            z, total = z_new, chained
+        else:
+            z = np.where(active[:, None], z_new, z)
+            total = np.where(active[:, None, None], chained, total)
+    x_next[:, _ROT] = z
+    a = np.zeros((k, STATE_DIM, STATE_DIM))
+    a[:, 0:6, 0:6] = np.eye(6)
+    a[:, 0, 3] = a[:, 1, 4] = a[:, 2, 5] = total_s
+    a[:, _ROT, _ROT] = total[:, :, 0:7]
+    c = np.zeros((k, STATE_DIM, N_PARAMS))
+    c[:, 0:3, 0] = -(0.5 * total_s**2)[:, None] * acc / m
+    c[:, 3:6, 0] = -total_s[:, None] * acc / m
+    c[:, _ROT, 1:4] = total[:, :, 7:]
+    return x_next, a, c
+
+
+def _propagate_states(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray) -> np.ndarray:
+    """End states of :func:`propagate_intervals_structured` without Jacobians (warm starts)."""
+    x = np.array(x, dtype=float, ndmin=2)
+    u = np.array(u, dtype=float, ndmin=2)
+    durations = np.array(durations, dtype=float, ndmin=2)
+    m = float(theta[0])
+    total_s = durations.sum(axis=1)
+    acc = u[:, 0:3] / m
+    x_next = np.empty_like(x)
+    x_next[:, 0:3] = x[:, 0:3] + total_s[:, None] * x[:, 3:6] + (0.5 * total_s**2)[:, None] * acc
+    x_next[:, 3:6] = x[:, 3:6] + total_s[:, None] * acc
+    xs = x.copy()
+    for col in range(durations.shape[1]):
+        dt = durations[:, col]
+        active = dt > 0.0
+        if not np.any(active):
+            continue
+        h = dt[:, None]
+        k1 = dynamics_batch(xs, u, theta)
+        k2 = dynamics_batch(xs + 0.5 * h * k1, u, theta)
+        k3 = dynamics_batch(xs + 0.5 * h * k2, u, theta)
+        k4 = dynamics_batch(xs + h * k3, u, theta)
+        x_new = xs + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        q = x_new[:, 6:10]
+        norm = np.linalg.norm(q, axis=1)
+        sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
+        x_new[:, 6:10] = sign[:, None] * q / norm[:, None]
+        xs = np.where(active[:, None], x_new, xs)
+    x_next[:, _ROT] = xs[:, _ROT]
+    return x_next
