@@ -95,6 +95,12 @@ _CONTINUATION = (1000.0, 100.0, 10.0)
 _CONTINUATION_TOLERANCE = 1e-6
 
 
+
+
+Propagated = tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray | None, np.ndarray | None]]
+"""A cached process-model propagation: (states, φ, (x_next, a, c))."""
+
+
 @dataclass(frozen=True)
 class BatchResult:
     """Outcome of :func:`estimate_batch`.
@@ -274,7 +280,7 @@ class _Problem:
         if self.k > 1:  # no process residual across a gap in the input record
             self._w_proc_nominal = self._w_proc_nominal * self.links[:, None, None]
         self.w_proc = self._w_proc_nominal
-        self._propagation_cache: tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]] | None = None
+        self._propagation_cache: Propagated | None = None
         self.prior = prior
         if prior is not None:
             self.prior_sqrt_info = np.linalg.inv(np.linalg.cholesky(prior.covariance))
@@ -377,7 +383,8 @@ class _Problem:
         a_mat = sp.csc_matrix((vals, (rows, cols)), shape=(row, self.n_var))
         return b, a_mat
 
-    def _propagate(self, x: np.ndarray, phi: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, ...]:
+    def _propagate(self, x: np.ndarray, phi: np.ndarray, theta: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """Process model over every interval; the last result is reused while (x, φ) are unchanged (the next
         continuation stage and the covariance start where the previous solve stopped)."""
         cached = self._propagation_cache
@@ -487,7 +494,7 @@ class _Problem:
                 if grp.phi is not None:
                     hxp[at] += bt @ grp.phi
             if grp.next_state is not None:
-                ho[grp.index] += grp.state.transpose(0, 2, 1) @ grp.next_state  # type: ignore[union-attr]
+                ho[grp.index] += grp.state.transpose(0, 2, 1) @ grp.next_state  # type: ignore[union-attr,index]
             if grp.phi is not None:
                 hpp += np.einsum("kri,krj->ij", grp.phi, grp.phi)
                 gp += np.einsum("kri,kr->i", grp.phi, grp.res)
@@ -513,7 +520,7 @@ class _Problem:
                 process = grp
                 continue
             if grp.state is None:
-                for blk in grp.phi:  # type: ignore[union-attr]
+                for blk in grp.phi:  # type: ignore[union-attr,index]
                     rows = np.zeros((blk.shape[0], nt + npar))
                     rows[:, nt:] = blk
                     phi_only.append(rows)
@@ -536,13 +543,13 @@ class _Problem:
             block[:, width - npar:] = stacked[:, nt:]
             if not last:
                 link = np.zeros((nt, width))
-                link[:, :nt] = process.state[i]  # type: ignore[union-attr]
-                link[:, nt:2 * nt] = process.next_state[i]  # type: ignore[union-attr]
-                link[:, 2 * nt:] = process.phi[i]  # type: ignore[union-attr]
+                link[:, :nt] = process.state[i]  # type: ignore[union-attr,index]
+                link[:, nt:2 * nt] = process.next_state[i]  # type: ignore[union-attr,index]
+                link[:, 2 * nt:] = process.phi[i]  # type: ignore[union-attr,index]
                 block = np.vstack([block, link])
             if block.shape[0] < (width if last else nt):
                 return None
-            r_mat = np.linalg.qr(block, mode="r")
+            r_mat: np.ndarray = np.asarray(np.linalg.qr(block, mode="r"))
             if last:
                 r_ll = r_mat[:width, :width]
                 if np.min(np.abs(np.diag(r_ll))) <= 1e-14 * np.max(np.abs(np.diag(r_ll))):
@@ -654,7 +661,7 @@ def _marginal_covariances(
     m = TANGENT_DIM + par.N_PARAMS
     if reference:
         _, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
-        h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr]
+        h = (a_mat.T @ a_mat).tocsc()  # type: ignore[union-attr,index]
         n = problem.n_var
         rhs = np.zeros((n, m))
         rhs[n - m:, :] = np.eye(m)

@@ -374,7 +374,7 @@ def propagate_intervals_structured(
     k = x.shape[0]
     m = float(theta[0])
     inertia = np.array(theta[1:4], dtype=float)
-    rate_map = _rate_map(tuple(float(v) for v in inertia))
+    rate_map = _rate_map((float(inertia[0]), float(inertia[1]), float(inertia[2])))
     tau = u[:, 3:6]
     # Translation: closed form over the interval (RK4 is exact for a constant acceleration).
     total_s = durations.sum(axis=1)
