@@ -263,6 +263,7 @@ def test_complete_mission_is_not_resumed_and_from_validates_its_stage(mission, t
     assert result.exit_code == 2 and "not a mission stage" in result.output and not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_from_a_stage_reruns_into_a_new_folder(mission, tmp_path):
     run, _, _ = mission
     out = tmp_path / "rerun"
