@@ -15,7 +15,6 @@ Each file is rendered to memory and written atomically (:func:`oacli.io.atomic.a
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +24,9 @@ matplotlib.use("Agg", force=True)
 
 import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse, Rectangle
 
-from oacli.io.atomic import atomic_path
+from oacli.io.plots.common import ellipse_projection, legend_outside, save_png, spans_decades
 from oacli.mission.layout import BASELINES, SEGMENTS
 from oacli.mission.records import PARAMETERS, MissionRecords, load_mission_records
 
@@ -46,28 +44,6 @@ FLIGHT_COLORS: dict[str, str] = {
 }
 _SEGMENT_COLORS = {"segment-1": "tab:orange", "segment-2": "tab:brown", "segment-3": "tab:green"}
 _METHOD_COLORS = {"sequential": "tab:blue", "batch": "tab:orange"}
-_DPI = 110
-
-
-def _spans_decades(values: np.ndarray, decades: float = 2.0) -> bool:
-    """True when the positive finite values span more than ``decades`` powers of ten."""
-    v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v) & (v > 0)]
-    return v.size > 1 and float(np.log10(v.max() / v.min())) > decades
-
-
-def _save(fig: Figure, path: Path) -> Path:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=_DPI, bbox_inches="tight")
-    plt.close(fig)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(buf.getvalue())
-    return path
-
-
-def _legend_outside(ax: Any) -> None:
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
 
 
 def plot_tracking_error(records: MissionRecords, path: Path) -> Path:
@@ -96,14 +72,14 @@ def plot_tracking_error(records: MissionRecords, path: Path) -> Path:
         ax.set_title(f"{seg}: {info.get('from', '?')} → {info.get('to', '?')}", loc="left", fontsize="medium")
         ax.set_ylabel("position error [m]")
         ax.grid(True, alpha=0.3)
-        if flights and _spans_decades(np.concatenate([f.position_error_m for f in flights])):
+        if flights and spans_decades(np.concatenate([f.position_error_m for f in flights])):
             ax.set_yscale("log")
         if not flights:
             ax.text(0.5, 0.5, "no flight recorded", transform=ax.transAxes, ha="center", va="center")
-        _legend_outside(ax)
+        legend_outside(ax)
     axes[-1].set_xlabel("mission time [s]")
     fig.suptitle("Tracking error ‖r − r_ref‖ per segment (segment 3: [Doerr2021] Fig. 3(d) baselines)")
-    return _save(fig, path)
+    return save_png(fig, path)
 
 
 def _relative_pct(values: np.ndarray, truth: float) -> np.ndarray:
@@ -165,9 +141,9 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
         for a in (ax, ax_rel):
             a.grid(True, alpha=0.3, which="both")
             a.axvline(records.grasp_time_s, color="0.5", lw=0.8)
-        _legend_outside(ax_rel)
+        legend_outside(ax_rel)
         if i == 0:
-            _legend_outside(ax)
+            legend_outside(ax)
             ax.set_title("estimate ± 2σ (y range: converged half; grey line: grasp)", loc="left",
                          fontsize="medium")
             ax_rel.set_title("error and 2σ relative to the truth (log)", loc="left", fontsize="medium")
@@ -175,17 +151,7 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
         a.set_xlabel("mission time [s]")
     fig.suptitle("Inertial parameter estimates after the grasp (segment 2); flight figures: mass 0.39 %, "
                  "inertias 0.91 / 1.35 / 6.92 %")
-    return _save(fig, path)
-
-
-def _ellipse_xy(center: np.ndarray, shape: np.ndarray, grow_m: float = 0.0) -> tuple[float, float, float, float, float]:
-    """Projection on x-y of ``(p − c)ᵀ P (p − c) <= 1``: centre, width, height [m] and angle [deg]; semi-axes grown
-    by ``grow_m`` (the robot radius, an outline of the zone the robot's centre keeps out of)."""
-    cov = np.linalg.inv(np.asarray(shape, dtype=float))[:2, :2]  # the shadow of an ellipsoid is the ellipse of P⁻¹
-    eig, vec = np.linalg.eigh(cov)
-    semi = np.sqrt(np.maximum(eig, 0.0)) + grow_m
-    angle = float(np.degrees(np.arctan2(vec[1, 1], vec[0, 1])))
-    return float(center[0]), float(center[1]), 2.0 * float(semi[1]), 2.0 * float(semi[0]), angle
+    return save_png(fig, path)
 
 
 def plot_top_view(records: MissionRecords, path: Path) -> Path:
@@ -209,11 +175,11 @@ def plot_top_view(records: MissionRecords, path: Path) -> Path:
         ax.add_patch(Rectangle((c[0] - s[0] / 2, c[1] - s[1] / 2), s[0], s[1], fc=(0.3, 0.8, 0.45, 0.08),
                                ec="tab:green", lw=1.2, label="keep-in" if j == 0 else None))
     for j, zone in enumerate(records.scene.keep_out):
-        x, y, w, h, a = _ellipse_xy(zone.center, zone.shape)
+        x, y, w, h, a = ellipse_projection(zone.center, zone.shape)
         ax.add_patch(Ellipse((x, y), w, h, angle=a, fc=(0.9, 0.25, 0.25, 0.35), ec="tab:red", lw=1.0,
                              label="keep-out (safety factor incl.)" if j == 0 else None))
         if records.robot_radius_m > 0:
-            x, y, w, h, a = _ellipse_xy(zone.center, zone.shape, records.robot_radius_m)
+            x, y, w, h, a = ellipse_projection(zone.center, zone.shape, grow_m=records.robot_radius_m)
             ax.add_patch(Ellipse((x, y), w, h, angle=a, fill=False, ec="tab:red", ls="--", lw=0.8,
                                  label=f"keep-out + robot radius {records.robot_radius_m:g} m" if j == 0
                                  else None))
@@ -237,8 +203,8 @@ def plot_top_view(records: MissionRecords, path: Path) -> Path:
     ax.set_ylabel("y [m]")
     ax.grid(True, alpha=0.3)
     ax.set_title("Top view (x-y): keep-in, keep-out zones, plans and flown paths; A, B, C marked")
-    _legend_outside(ax)
-    return _save(fig, path)
+    legend_outside(ax)
+    return save_png(fig, path)
 
 
 def write_mission_plots(mission_dir: Path, summary: dict[str, Any]) -> dict[str, Path]:

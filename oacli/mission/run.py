@@ -74,10 +74,6 @@ def mission_stages(cfg: OacliConfig) -> tuple[MissionStage, ...]:
     return tuple(s for s in MISSION_STAGES if keep_baselines or s.name not in BASELINE_STAGES)
 
 
-def _stage(key: str) -> MissionStage:
-    return stage_by_key(key)
-
-
 def _final_position(track_mcap: Path) -> np.ndarray:
     tel = read_telemetry(track_mcap)
     return np.asarray(tel.x_true[-1, 0:3], dtype=float)
@@ -128,20 +124,21 @@ def handoff_for(cfg: OacliConfig, stage: MissionStage, mission_dir: Path) -> Han
     """
     _, b, c = mission_section(cfg).route
     d = Path(mission_dir).resolve()
-    learned = estimate_model(cfg, _stage("segment-2/estimate").mcap(d)) if stage.segment == "segment-3" else None
+    learned = (estimate_model(cfg, stage_by_key("segment-2/estimate").mcap(d)) if stage.segment == "segment-3"
+               else None)
     if stage.command == "smooth":
-        return Handoff(plan=_stage(f"{stage.segment}/plan").mcap(d), estimate=learned)
+        return Handoff(plan=stage_by_key(f"{stage.segment}/plan").mcap(d), estimate=learned)
     if stage.command == "estimate":
-        return Handoff(telemetry=_stage("segment-2/track").mcap(d))
+        return Handoff(telemetry=stage_by_key("segment-2/track").mcap(d))
     if stage.command != "track":
         return Handoff(estimate=learned)
     if stage.segment == "segment-1":
-        return Handoff(reference=_stage("segment-1/smooth").mcap(d))
+        return Handoff(reference=stage_by_key("segment-1/smooth").mcap(d))
     if stage.segment == "segment-2":
-        offset = _final_position(_stage("segment-1/track").mcap(d)) - _waypoint(cfg, b)
-        return Handoff(reference=_stage("segment-2/excite").mcap(d), initial_offset_m=tuple(offset.tolist()))
-    offset = _final_position(_stage("segment-2/track").mcap(d)) - _waypoint(cfg, c)
-    return Handoff(reference=_stage("segment-3/smooth").mcap(d), initial_offset_m=tuple(offset.tolist()),
+        offset = _final_position(stage_by_key("segment-1/track").mcap(d)) - _waypoint(cfg, b)
+        return Handoff(reference=stage_by_key("segment-2/excite").mcap(d), initial_offset_m=tuple(offset.tolist()))
+    offset = _final_position(stage_by_key("segment-2/track").mcap(d)) - _waypoint(cfg, c)
+    return Handoff(reference=stage_by_key("segment-3/smooth").mcap(d), initial_offset_m=tuple(offset.tolist()),
                    estimate=learned)
 
 
@@ -256,7 +253,7 @@ def copy_stages_before(source_dir: Path, mission_dir: Path, cfg: OacliConfig, fr
     InputError
         A stage before ``from_key`` is not complete in ``source_dir``.
     """
-    first = _stage(from_key)
+    first = stage_by_key(from_key)
     for stage in mission_stages(cfg):
         if stage.key == first.key:
             return

@@ -42,6 +42,7 @@ import numpy as np
 from oacli.config import OacliConfig, dump_config
 from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
 from oacli.config.models import RobotConfig
+from oacli.config.prior import PriorConfig
 from oacli.control.disturbance import DisturbanceSpec
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import AncillaryWeights, TubeDesign, design_translation_tube
@@ -539,6 +540,12 @@ def measurement_model(cfg: OacliConfig) -> MeasurementModel:
     return MeasurementModel(**cfg.excitation.measurement.model_dump())
 
 
+def _model_with_prior(cfg: OacliConfig, prior: PriorConfig) -> RobotModel:
+    """:func:`robot_model` with ``prior``'s mean (where given) and covariance."""
+    model = robot_model(cfg)
+    return model.with_estimate(prior.theta(model.theta), prior.covariance())
+
+
 def excitation_prior_model(cfg: OacliConfig) -> RobotModel:
     """The excitation design's model: :func:`robot_model` with ``excitation.prior``'s mean (where given) and
     covariance.
@@ -552,9 +559,7 @@ def excitation_prior_model(cfg: OacliConfig) -> RobotModel:
     -------
     RobotModel
     """
-    model = robot_model(cfg)
-    prior = cfg.excitation.prior
-    return model.with_estimate(prior.theta(model.theta), prior.covariance())
+    return _model_with_prior(cfg, cfg.excitation.prior)
 
 
 def terminal_tolerance(cfg: OacliConfig) -> TerminalTolerance:
@@ -698,9 +703,7 @@ def estimation_prior_model(cfg: OacliConfig) -> RobotModel:
     -------
     RobotModel
     """
-    model = robot_model(cfg)
-    prior = cfg.estimation.prior
-    return model.with_estimate(prior.theta(model.theta), prior.covariance())
+    return _model_with_prior(cfg, cfg.estimation.prior)
 
 
 # ----------------------------------------------------------------------------------------------------------------
