@@ -268,8 +268,11 @@ def test_from_a_stage_reruns_into_a_new_folder(mission, tmp_path):
     run, _, _ = mission
     out = tmp_path / "rerun"
     result = RUNNER.invoke(app, ["mission", str(run), "--from", "segment-3/baseline-mpc-prior", "--out", str(out),
-                                 "--quiet"])
+                                 "--json"])
     assert result.exit_code == 0, result.output
+    printed = json.loads(result.stdout)                       # --json: stdout holds only the summary
+    assert printed["run_dir"] == str(out)
+    assert {k: v for k, v in printed.items() if k != "run_dir"} == json.loads((out / "summary.json").read_text())
     for stage in MISSION_STAGES:
         a = json.loads((stage.folder(out) / "summary.json").read_text())
         b = json.loads((stage.folder(run) / "summary.json").read_text())

@@ -8,13 +8,16 @@ from typing import Annotated, Any
 import typer
 
 from oacli.commands.common import (
+    JsonOption,
     OutOption,
     Progress,
     QuietOption,
     RunsDirOption,
     SeedOption,
     SetOption,
+    ViewOption,
     format_value,
+    json_text,
     load_config_with_seed,
     run_guarded,
 )
@@ -68,6 +71,8 @@ def mission(
     seed: SeedOption = None,
     quiet: QuietOption = False,
     sets: SetOption = None,
+    json_out: JsonOption = False,
+    view: ViewOption = False,
     resume: Annotated[
         bool, typer.Option("--resume", help="TARGET is an interrupted mission folder: keep its complete stages, "
                            "rerun the rest in place.")
@@ -116,16 +121,22 @@ def mission(
             mission_dir = start_mission(cfg, out=out, runs_root=runs_root)
             if from_stage is not None:
                 copy_stages_before(target, mission_dir, cfg, from_stage)
-        say = (lambda line: typer.echo(line, err=True)) if not quiet else None
+        say = (lambda line: typer.echo(line, err=True)) if not (quiet or json_out) else None
         return run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
 
     result = run_guarded(action)
     warning = warning_line(result.summary)
     if warning is not None:
         typer.echo(warning, err=True)
-    if not quiet:
+    if json_out:
+        typer.echo(json_text({**result.summary, "run_dir": str(result.run_dir)}))
+    elif not quiet:
         print_mission_tables(result.summary)
-    typer.echo(f"run folder: {result.run_dir}", err=quiet)
+    typer.echo(f"run folder: {result.run_dir}", err=quiet or json_out)
+    if view:
+        from oacli.commands.view import open_in_viewer
+
+        open_in_viewer(result.run_dir)
     code = exit_code(result.summary.get("status", "ok"))
     if code:
         raise typer.Exit(code)
