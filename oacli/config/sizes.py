@@ -20,6 +20,24 @@ MAX_SIMULATION_STEPS = 1_000_000
 MAX_PLANT_RATE_HZ = 10_000.0
 """Highest plant integration rate [Hz] (160 × Astrobee's 62.5 Hz control rate)."""
 
+MAX_MESSAGES_PER_TOPIC = 2 * MAX_SIMULATION_STEPS
+"""Most messages oacli reads from one MCAP topic (a stage writes at most one per plant step per topic)."""
+
+MAX_MCAP_MESSAGES = 4 * MAX_MESSAGES_PER_TOPIC
+"""Most messages oacli reads from one MCAP file."""
+
+MAX_MCAP_CHANNELS = 10_000
+"""Most channels (and schemas) oacli reads from one MCAP file (a stage writes about 30)."""
+
+MAX_CONFIG_LIST_ITEMS = 10_000
+"""Most items in one list of a config file (the longest lists, waypoints and keep-out zones, hold tens)."""
+
+MAX_CONFIG_MAPPING_KEYS = 10_000
+"""Most keys in one mapping of a config file."""
+
+MAX_CONFIG_NODES = 200_000
+"""Most YAML nodes (scalars, lists, mappings) in one config file."""
+
 Problem = tuple[tuple[str | int, ...], Any, str]
 
 
