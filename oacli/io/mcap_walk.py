@@ -13,7 +13,9 @@ at the cut, after every complete record. Kept here is only what it lacks:
   millions of records);
 * **counts**: at most :data:`oacli.config.sizes.MAX_MESSAGES_PER_TOPIC` messages on one topic,
   :data:`~oacli.config.sizes.MAX_MCAP_MESSAGES` in a file and :data:`~oacli.config.sizes.MAX_MCAP_CHANNELS`
-  channels (a complete file whose summary statistics already say more is refused before any chunk is read);
+  channels. A complete file whose summary statistics already say more is refused before any chunk is read; a file
+  whose chunks could hold more is counted first by a scan of the chunks' record headers (one chunk in memory
+  at a time), so millions of tiny messages are refused without parsing them;
 * **attachment and summary CRCs** (the stream reader checks neither), a message on an unknown channel, a channel
   of an unknown schema;
 * **where a problem is**: every problem is a :class:`Problem` (``truncated``, ``corrupt`` or ``too_large``) with
@@ -23,12 +25,16 @@ at the cut, after every complete record. Kept here is only what it lacks:
 from __future__ import annotations
 
 import io
+import struct
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, cast
 
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import EndOfFile
+from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader
 
@@ -133,8 +139,12 @@ class _PositionedStream:
         self._view = memoryview(data)
         self._pos = 0
 
+        self.cut = False  # a read ended inside the data (not exactly at its end)
+
     def read(self, n: int = -1) -> bytes:
         end = len(self._view) if n is None or n < 0 else min(len(self._view), self._pos + n)
+        if n is not None and n > 0 and self._pos + n > end and self._pos < end:
+            self.cut = True
         out = bytes(self._view[self._pos : end])
         self._pos = end
         return out
@@ -166,6 +176,32 @@ def read_file(path: Path) -> bytes:
     if data[: len(MAGIC)] != MAGIC:
         raise InputError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
     return data
+
+
+_MIN_MESSAGE_RECORD = 9 + 22
+"""Bytes of the smallest message record (opcode, length, channel id, sequence, log and publish times)."""
+
+_RECORD_HEADER = struct.Struct("<BQ")
+_CHANNEL_ID = struct.Struct("<H")
+
+
+def _count_messages(data: bytes, counts: dict[int, int], topics: dict[int, str]) -> None:
+    """Add the messages per channel id of a decompressed chunk to ``counts`` (record headers only; the topic of
+    each channel record to ``topics``)."""
+    header, channel_id = _RECORD_HEADER.unpack_from, _CHANNEL_ID.unpack_from
+    pos, end = 0, len(data)
+    while pos + 9 <= end:
+        opcode, length = header(data, pos)
+        if opcode == Opcode.MESSAGE and pos + 11 <= end:
+            cid = channel_id(data, pos + 9)[0]
+            counts[cid] = counts.get(cid, 0) + 1
+        elif opcode == Opcode.CHANNEL:
+            try:
+                channel = Channel.read(ReadDataStream(io.BytesIO(data[pos + 9 : pos + 9 + length])))
+                topics.setdefault(channel.id, channel.topic)
+            except Exception:
+                pass  # the walk reports it
+        pos += 9 + length
 
 
 class McapWalk:
@@ -223,7 +259,7 @@ class McapWalk:
 
     def run(self) -> ScanResult:
         """Walk the file; returns the result (its ``problems`` name what is wrong and where)."""
-        if self._statistics_too_large():
+        if self._statistics_too_large() or self._counted_too_large():
             return self.result
         reader = _PositionedStream(self.data)
         stream = StreamReader(cast(IO[bytes], reader), emit_chunks=True, validate_crcs=self.validate,
@@ -268,17 +304,78 @@ class McapWalk:
         topics = {cid: ch.topic for cid, ch in summary.channels.items()}
         for cid, count in stats.channel_message_counts.items():
             if count > MAX_MESSAGES_PER_TOPIC:
-                self._too_many_on(topics.get(cid, f"channel id {cid}"), count, 0)
+                self._too_many_on(topics.get(cid, f"of channel id {cid}"), count, 0)
                 return True
         if stats.message_count > MAX_MCAP_MESSAGES:
             self.problem("too_large", 0, f"its summary counts {stats.message_count} messages, more than the "
-                                         f"{MAX_MCAP_MESSAGES} oacli reads from one file")
+                                         f"{MAX_MCAP_MESSAGES} oacli reads from one file "
+                                         "(oacli.config.sizes.MAX_MCAP_MESSAGES)")
             return True
         if stats.channel_count > MAX_MCAP_CHANNELS:
             self.problem("too_large", 0, f"its summary counts {stats.channel_count} channels, more than the "
-                                         f"{MAX_MCAP_CHANNELS} oacli reads from one file")
+                                         f"{MAX_MCAP_CHANNELS} oacli reads from one file "
+                                         "(oacli.config.sizes.MAX_MCAP_CHANNELS)")
             return True
         return False
+
+    def _counted_too_large(self) -> bool:
+        """Count the messages per channel before parsing any (a quick scan of each chunk's record headers), when
+        the chunks could hold more than :data:`MAX_MESSAGES_PER_TOPIC`: a file of millions of tiny messages is then
+        refused in about a second, not after parsing millions of them. Problems of structure are left to the walk."""
+        declared, top = self._declared_sizes()
+        if declared // _MIN_MESSAGE_RECORD + top <= min(MAX_MESSAGES_PER_TOPIC, MAX_MCAP_MESSAGES):
+            return False  # cannot hold too many messages on a topic or in total
+        counts: dict[int, int] = {}
+        topics: dict[int, str] = {}
+        used = 0
+        for record in self._top_level():
+            if isinstance(record, Chunk):
+                size = int(record.uncompressed_size)
+                if size > min(MAX_CHUNK_BYTES, self.budget - used):
+                    return False  # a bomb: the walk refuses it
+                try:
+                    data = decompress_bounded(record, size)
+                except Exception:
+                    return False
+                used += size
+                _count_messages(data, counts, topics)
+            elif isinstance(record, Message):
+                counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
+            elif isinstance(record, Channel):
+                topics.setdefault(record.id, record.topic)
+            elif isinstance(record, DataEnd):
+                break
+            for cid, count in counts.items():
+                if count > MAX_MESSAGES_PER_TOPIC:
+                    self._too_many_on(topics.get(cid, f"of channel id {cid}"), None, 0)
+                    return True
+            if sum(counts.values()) > MAX_MCAP_MESSAGES:
+                self.problem("too_large", 0, f"the file holds more than {MAX_MCAP_MESSAGES} messages, the most "
+                                             "oacli reads from one file (oacli.config.sizes.MAX_MCAP_MESSAGES)")
+                return True
+        return False
+
+    def _top_level(self) -> Any:
+        """The top-level records up to the first problem (chunks not opened, no CRC checked)."""
+        stream = StreamReader(cast(IO[bytes], _PositionedStream(self.data)), emit_chunks=True,
+                              record_size_limit=len(self.data)).records
+        while True:
+            try:
+                yield next(stream)
+            except Exception:  # StopIteration, a cut or a corrupt record: the walk reports it
+                return
+
+    def _declared_sizes(self) -> tuple[int, int]:
+        """Decompressed bytes the chunks declare, and the messages outside chunks."""
+        declared = top = 0
+        for record in self._top_level():
+            if isinstance(record, Chunk):
+                declared += int(record.uncompressed_size)
+            elif isinstance(record, Message):
+                top += 1
+            elif isinstance(record, DataEnd):
+                break
+        return min(declared, self.budget), top
 
     def _too_many_on(self, topic: str, count: int | None, offset: int) -> None:
         held = f"its summary counts {count} messages" if count is not None else \
@@ -371,7 +468,12 @@ class McapWalk:
                 record = next(records)
             except StopIteration:
                 break
-            except Exception as exc:  # EndOfFile included: a record runs past the chunk's end
+            except EndOfFile:
+                if inner.cut:  # a record runs past the chunk's end
+                    self._bad_chunk(start, f"chunk at byte {start} ends inside a record: the file is corrupt")
+                    return
+                break  # the end, after records of unknown types the reader skipped
+            except Exception as exc:
                 self._bad_chunk(start, f"chunk at byte {start} holds a corrupt record at its byte {inner.tell()}: "
                                        f"{exc or type(exc).__name__}")
                 return
@@ -398,14 +500,14 @@ class McapWalk:
                 raise _Stop
             if self.result.messages > MAX_MCAP_MESSAGES:
                 self.problem("too_large", start, f"the file holds more than {MAX_MCAP_MESSAGES} messages, the most "
-                                                 "oacli reads from one file")
+                                                 "oacli reads from one file (oacli.config.sizes.MAX_MCAP_MESSAGES)")
                 raise _Stop
         elif isinstance(record, Schema):
             if record.id in self.schemas:
                 return  # repeated
             if len(self.schemas) >= MAX_MCAP_CHANNELS:
                 self.problem("too_large", start, f"the file holds more than {MAX_MCAP_CHANNELS} schemas, the most "
-                                                 "oacli reads from one file")
+                                                 "oacli reads from one file (oacli.config.sizes.MAX_MCAP_CHANNELS)")
                 raise _Stop
             self.schemas.add(record.id)
             self.result.schemas += 1
@@ -417,8 +519,8 @@ class McapWalk:
                                                f"id {record.schema_id}")
                 raise _Stop
             if len(self.channels) >= MAX_MCAP_CHANNELS:
-                self.problem("too_large", start, f"the file holds more than {MAX_MCAP_CHANNELS} channels, the "
-                                                 "most oacli reads from one file")
+                self.problem("too_large", start, f"the file holds more than {MAX_MCAP_CHANNELS} channels, the most "
+                                                 "oacli reads from one file (oacli.config.sizes.MAX_MCAP_CHANNELS)")
                 raise _Stop
             self.channels[record.id] = record.topic
             self.per_channel[record.id] = 0
