@@ -140,15 +140,19 @@ def test_sigkill_during_the_planner_search_leaves_its_growth_so_far(tmp_path):
 
 
 def test_sigkill_during_the_excitation_design_leaves_its_scp_iterations(tmp_path):
+    data = yaml.safe_load(ISS.read_text())
+    data["excitation"]["steps"] = 40  # a smaller design: its first iterations come sooner
+    cfg = tmp_path / "excite.yaml"
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
     out = tmp_path / "run"
-    path, raw = _run_and_kill(["excite", str(ISS)], out, "excite", chunks=3)
+    path, raw = _run_and_kill(["excite", str(cfg)], out, "excite", chunks=3)
     messages, _, _ = stream_messages(raw)
     scp = [json.loads(d) for topic, _, d in messages if topic == TOPIC_SCP]
     assert len(scp) >= 2
     assert [t for _, t, _ in messages] == sorted(t for _, t, _ in messages)
     first = scp[0]
     assert first["iteration"] == 1 and first["position"] is not None
-    steps = yaml.safe_load(ISS.read_text())["excitation"]["steps"]
+    steps = 40
     assert np.asarray(first["input"]).shape == (steps, 6) and np.asarray(first["position"]).shape == (steps + 1, 3)
     for rec in scp:
         assert rec["trust_region_force"] > 0 and rec["trust_region_torque"] > 0

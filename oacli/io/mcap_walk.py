@@ -30,7 +30,7 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, cast
+from typing import Any
 
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile
@@ -132,25 +132,38 @@ class _Stop(Exception):
     """End of the walk (the problem is recorded)."""
 
 
-class _PositionedStream:
-    """A read-only byte stream over bytes whose position is the offset of the next record."""
+_SKIPPED = frozenset({Opcode.MESSAGE_INDEX, Opcode.CHUNK_INDEX, Opcode.ATTACHMENT_INDEX, Opcode.METADATA_INDEX,
+                      Opcode.STATISTICS, Opcode.SUMMARY_OFFSET})
 
-    def __init__(self, data: bytes | memoryview) -> None:
-        self._view = memoryview(data)
-        self._pos = 0
 
-        self.cut = False  # a read ended inside the data (not exactly at its end)
+class _Skipped:
+    """An index or statistics record read past unparsed (yielded so that record offsets stay exact)."""
 
-    def read(self, n: int = -1) -> bytes:
-        end = len(self._view) if n is None or n < 0 else min(len(self._view), self._pos + n)
-        if n is not None and n > 0 and self._pos + n > end and self._pos < end:
-            self.cut = True
-        out = bytes(self._view[self._pos : end])
-        self._pos = end
-        return out
+    __slots__ = ("opcode",)
 
-    def tell(self) -> int:
-        return self._pos
+    def __init__(self, opcode: int) -> None:
+        self.opcode = opcode
+
+
+class _StreamReader(StreamReader):
+    """The ``mcap`` package's stream reader, skipping the index and statistics records instead of parsing them
+    (oacli rebuilds none of them; a message index holds an entry per message). They still count in the
+    data-section CRC."""
+
+    def _read_record(self, opcode: int, length: int) -> Any:
+        if opcode in _SKIPPED:
+            self._stream.read(length)
+            return _Skipped(opcode)
+        return super()._read_record(opcode, length)
+
+
+def _frames_end_exactly(data: bytes) -> bool:
+    """The records of a decompressed chunk tile it exactly (no record runs past its end)."""
+    header = _RECORD_HEADER.unpack_from
+    pos, end = 0, len(data)
+    while pos + 9 <= end:
+        pos += 9 + header(data, pos)[1]
+    return pos == end
 
 
 def opcode_name(opcode: int) -> str:
@@ -261,9 +274,8 @@ class McapWalk:
         """Walk the file; returns the result (its ``problems`` name what is wrong and where)."""
         if self._statistics_too_large() or self._counted_too_large():
             return self.result
-        reader = _PositionedStream(self.data)
-        stream = StreamReader(cast(IO[bytes], reader), emit_chunks=True, validate_crcs=self.validate,
-                              record_size_limit=len(self.data))
+        reader = io.BytesIO(self.data)
+        stream = _StreamReader(reader, emit_chunks=True, validate_crcs=self.validate, record_size_limit=len(self.data))
         records = stream.records
         start = len(MAGIC)  # offset of the next record
         self.result.bytes_read = start
@@ -357,8 +369,7 @@ class McapWalk:
 
     def _top_level(self) -> Any:
         """The top-level records up to the first problem (chunks not opened, no CRC checked)."""
-        stream = StreamReader(cast(IO[bytes], _PositionedStream(self.data)), emit_chunks=True,
-                              record_size_limit=len(self.data)).records
+        stream = _StreamReader(io.BytesIO(self.data), emit_chunks=True, record_size_limit=len(self.data)).records
         while True:
             try:
                 yield next(stream)
@@ -461,18 +472,18 @@ class McapWalk:
                                        "corrupt")
                 return
         self.result.chunks += 1
-        inner = _PositionedStream(data)
-        records = StreamReader(cast(IO[bytes], inner), skip_magic=True, record_size_limit=len(data)).records
+        inner = io.BytesIO(data)
+        records = _StreamReader(inner, skip_magic=True, record_size_limit=len(data)).records
         while inner.tell() < len(data):
             try:
                 record = next(records)
             except StopIteration:
                 break
-            except EndOfFile:
-                if inner.cut:  # a record runs past the chunk's end
+            except EndOfFile:  # rare: only after records of unknown types the reader skipped, or a cut record
+                if not _frames_end_exactly(data):  # a record runs past the chunk's end
                     self._bad_chunk(start, f"chunk at byte {start} ends inside a record: the file is corrupt")
                     return
-                break  # the end, after records of unknown types the reader skipped
+                break
             except Exception as exc:
                 self._bad_chunk(start, f"chunk at byte {start} holds a corrupt record at its byte {inner.tell()}: "
                                        f"{exc or type(exc).__name__}")

@@ -27,8 +27,8 @@ from oacli.stages.stage_journal import StageJournal
 FLUSH_WALL_S = 0.5
 #: Most iterations between two records.
 FLUSH_ITERATIONS = 500
-#: Most new nodes in one record (a record of 2000 nodes is about 400 kB of JSON).
-MAX_NODES_PER_RECORD = 2000
+#: Most new nodes in one record (about 160 kB of JSON: within a 256 KiB chunk).
+MAX_NODES_PER_RECORD = 1000
 
 TOPIC_PLAN_GROWTH = "/plan/growth"
 PLAN_GROWTH = "oacli.PlanGrowth"
