@@ -232,3 +232,25 @@ def test_planners_call_on_iteration_with_their_growing_tree(kind):
     assert finite == sorted(finite, reverse=True)
     if kind == "lqr-rrt-star" and result.solved:
         assert finite and finite[-1] == pytest.approx(result.solutions[-1].cost)
+
+
+def test_a_design_failing_its_final_check_keeps_its_journal_as_the_record(tmp_path):
+    """A goal tolerance no design meets: exit 3 after the SCP; the folder holds the journal as a complete
+    ``excite.mcap`` (every iteration, readable by the seeking reader) next to a ``failed`` summary."""
+    data = yaml.safe_load(ISS.read_text())
+    data["excitation"].update({"steps": 40, "scp": {"max_iterations": 2},
+                               "terminal_tolerance": {"position_m": 1e-15, "velocity_mps": 1e-15,
+                                                      "attitude_rad": 1e-15, "angular_velocity_radps": 1e-15}})
+    cfg = tmp_path / "tight.yaml"
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "run"
+    result = runner.invoke(app, ["excite", str(cfg), "--out", str(out), "--quiet"])
+    assert result.exit_code == 3, result.output
+    assert "excitation.terminal_tolerance" in result.output and "Traceback" not in result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and not is_complete(out) and summary["files"]["mcap"] == "excite.mcap"
+    with open(out / "excite.mcap", "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        records = [json.loads(m.data) for _, c, m in reader.iter_messages() if c.topic == TOPIC_SCP]
+    assert 1 <= len(records) and records[-1]["iteration"] >= 1
+    assert not list(out.glob(".*.partial"))

@@ -310,9 +310,9 @@ class McapWalk:
             summary = SeekingReader(io.BytesIO(data), validate_crcs=False).get_summary()
         except Exception:
             return False
-        stats = summary.statistics if summary is not None else None
-        if stats is None:
+        if summary is None or summary.statistics is None:
             return False
+        stats = summary.statistics
         topics = {cid: ch.topic for cid, ch in summary.channels.items()}
         for cid, count in stats.channel_message_counts.items():
             if count > MAX_MESSAGES_PER_TOPIC:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import Self
 
 from oacli.io.mcap_write import StageMcapWriter
 
@@ -45,7 +46,7 @@ class StageJournal:
         self._t0 = time.monotonic()
         self._last_flush = self._t0
 
-    def __enter__(self) -> StageJournal:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
