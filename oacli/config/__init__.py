@@ -48,6 +48,7 @@ from oacli.config.models import (
     SimulationConfig,
     TruthConfig,
 )
+from oacli.config.sizes import BoundedComposer, ConfigSizeError
 from oacli.errors import ConfigError
 
 MAX_CONFIG_BYTES = 1024 * 1024
@@ -219,8 +220,9 @@ def _represent_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
 _FlowVectorDumper.add_representer(list, _represent_list)
 
 
-class _StrictSafeLoader(yaml.SafeLoader):
-    """PyYAML's safe loader that also rejects duplicate keys in a mapping (PyYAML keeps the last silently)."""
+class _StrictSafeLoader(BoundedComposer, yaml.SafeLoader):
+    """PyYAML's safe loader that also rejects duplicate keys in a mapping (PyYAML keeps the last silently) and
+    lists, mappings or documents too large (:class:`oacli.config.sizes.BoundedComposer`)."""
 
     def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict:
         if isinstance(node, yaml.MappingNode):
@@ -281,6 +283,8 @@ def _parse_yaml(text: str, source: str) -> Any:
     """``yaml.safe_load`` (plus duplicate-key detection) with every error turned into a one-line ConfigError."""
     try:
         return yaml.load(text, Loader=_StrictSafeLoader)  # a SafeLoader subclass: as safe as yaml.safe_load
+    except ConfigSizeError as exc:
+        raise ConfigSizeError(f"{source}: {exc}") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""

@@ -13,12 +13,34 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+import yaml
+
+from oacli.errors import ConfigError
+
 MAX_SIMULATION_STEPS = 1_000_000
 """Most plant integration steps one simulation may take ((reference duration + settle time) × plant rate):
 4.4 h of robot time at Astrobee's 62.5 Hz."""
 
 MAX_PLANT_RATE_HZ = 10_000.0
 """Highest plant integration rate [Hz] (160 × Astrobee's 62.5 Hz control rate)."""
+
+MAX_MESSAGES_PER_TOPIC = 2 * MAX_SIMULATION_STEPS
+"""Most messages oacli reads from one MCAP topic (a stage writes at most one per plant step per topic)."""
+
+MAX_MCAP_MESSAGES = 4 * MAX_MESSAGES_PER_TOPIC
+"""Most messages oacli reads from one MCAP file."""
+
+MAX_MCAP_CHANNELS = 10_000
+"""Most channels (and schemas) oacli reads from one MCAP file (a stage writes about 30)."""
+
+MAX_CONFIG_LIST_ITEMS = 1_000
+"""Most items in one list of a config file (the longest lists, waypoints and keep-out zones, hold tens)."""
+
+MAX_CONFIG_MAPPING_KEYS = 1_000
+"""Most keys in one mapping of a config file."""
+
+MAX_CONFIG_NODES = 100_000
+"""Most YAML nodes (scalars, lists, mappings) in one config file."""
 
 Problem = tuple[tuple[str | int, ...], Any, str]
 
@@ -101,3 +123,65 @@ def check_simulation_length(duration_s: float, rate_hz: float, what: str) -> str
     if not math.isfinite(duration_s) or duration_s * rate_hz > MAX_SIMULATION_STEPS:
         return f"{what}: spans {duration_s:.4g} s: {steps_message(duration_s, rate_hz)}"
     return None
+
+
+class ConfigSizeError(ConfigError):
+    """A config file holds a list, a mapping or a document too large (raised while it is parsed; the loader's
+    caller prefixes the file name)."""
+
+
+class BoundedComposer:
+    """Mixin for a PyYAML loader that refuses, while the text is still being parsed, a list longer than
+    :data:`MAX_CONFIG_LIST_ITEMS`, a mapping with more than :data:`MAX_CONFIG_MAPPING_KEYS` keys and a document of
+    more than :data:`MAX_CONFIG_NODES` nodes (aliases count the nodes they repeat), with a
+    :class:`ConfigSizeError` naming the field and the limit.
+
+    PyYAML scans lazily, so a 1 MiB config holding a list of half a million numbers (a minute of parsing in pure
+    Python) is refused after the first :data:`MAX_CONFIG_LIST_ITEMS` items, in milliseconds.
+    """
+
+    def compose_document(self) -> Any:
+        self._bounded_path: list[str] = []
+        self._bounded_nodes = 0
+        self._bounded_sizes: dict[int, int] = {}
+        return super().compose_document()  # type: ignore[misc]
+
+    def _bounded_field(self) -> str:
+        return ".".join(self._bounded_path) or "the document"
+
+    def _bounded_refuse(self, what: str, limit: int, name: str, mark: Any) -> ConfigSizeError:
+        line = f" (line {mark.line + 1})" if mark is not None else ""
+        return ConfigSizeError(f"{self._bounded_field()}: {what}{line}: a config holds at most {limit} "
+                           f"(oacli.config.sizes.{name})")
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        event = self.peek_event()  # type: ignore[attr-defined]
+        mark = getattr(event, "start_mark", None)
+        if isinstance(parent, yaml.SequenceNode):
+            if index >= MAX_CONFIG_LIST_ITEMS:
+                raise self._bounded_refuse(f"a list of more than {MAX_CONFIG_LIST_ITEMS} items",
+                                           MAX_CONFIG_LIST_ITEMS, "MAX_CONFIG_LIST_ITEMS", mark)
+            self._bounded_path.append(str(index))
+        elif isinstance(parent, yaml.MappingNode):
+            if index is None and len(parent.value) >= MAX_CONFIG_MAPPING_KEYS:
+                raise self._bounded_refuse(f"a mapping of more than {MAX_CONFIG_MAPPING_KEYS} keys",
+                                           MAX_CONFIG_MAPPING_KEYS, "MAX_CONFIG_MAPPING_KEYS", mark)
+            key = index.value if isinstance(index, yaml.ScalarNode) else "<key>"
+            self._bounded_path.append(str(key)[:60])
+        before = self._bounded_nodes
+        self._bounded_nodes += 1
+        if self._bounded_nodes > MAX_CONFIG_NODES:
+            raise self._bounded_refuse(f"more than {MAX_CONFIG_NODES} values in the file", MAX_CONFIG_NODES,
+                                       "MAX_CONFIG_NODES", mark)
+        alias = isinstance(event, yaml.AliasEvent)
+        node = super().compose_node(parent, index)  # type: ignore[misc]
+        if alias:  # the alias repeats the anchored node's values
+            self._bounded_nodes += self._bounded_sizes.get(id(node), 1) - 1
+            if self._bounded_nodes > MAX_CONFIG_NODES:
+                raise self._bounded_refuse(f"more than {MAX_CONFIG_NODES} values in the file (aliases "
+                                           "included)", MAX_CONFIG_NODES, "MAX_CONFIG_NODES", mark)
+        elif getattr(event, "anchor", None) is not None:
+            self._bounded_sizes[id(node)] = self._bounded_nodes - before
+        if parent is not None:
+            self._bounded_path.pop()
+        return node

@@ -153,6 +153,7 @@ def design_excitation(
     u_init: np.ndarray | None = None,
     progress: Callable[[float], None] | None = None,
     rng: np.random.Generator | None = None,
+    on_iteration: Callable[..., None] | None = None,
 ) -> ExcitationDesign:
     """Design an information-optimal excitation trajectory (Doerr Eq. 30) by SCP; see the module docstring.
 
@@ -166,6 +167,9 @@ def design_excitation(
         Called with the fraction of the iteration budget used after each iteration (and 1.0 at the end).
     rng : numpy.random.Generator, optional
         Source of the extra starts (:func:`perturbed_guess`); a fixed seed by default.
+    on_iteration : callable, optional
+        Called after each SCP iteration as ``on_iteration(start=k, iterate=ScpIterate, x=(N+1, 13), u=(N, 6))``
+        with the start's index and its current (accepted) design, e.g. to record the run as it goes.
 
     Returns
     -------
@@ -204,6 +208,8 @@ def design_excitation(
                     break
                 run.step()
                 used += 1
+                if on_iteration is not None:
+                    on_iteration(start=k, iterate=run.history[-1], x=run.current.x, u=run.current.u)
                 if progress is not None:
                     progress(min(used / (budget + settings.starts * settings.screening_iterations), 1.0))
     best = min(runs, key=lambda r: r.current.merit)
@@ -211,6 +217,8 @@ def design_excitation(
         set_phase(progress, f"SCP iteration {len(best.history) + 1}/{budget}")
         best.step()
         used += 1
+        if on_iteration is not None:
+            on_iteration(start=runs.index(best), iterate=best.history[-1], x=best.current.x, u=best.current.u)
         if progress is not None:
             progress(min(used / (budget + settings.starts * settings.screening_iterations), 1.0))
     if best.stop is None:

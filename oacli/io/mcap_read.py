@@ -1,90 +1,49 @@
 """Read a stage's MCAP file back into oacli's data types (see :mod:`oacli.io.mcap_write` for the writer).
 
-Reading walks the file record by record with the ``mcap`` package's record parsers: it checks every chunk CRC,
-every attachment CRC and the data-section CRC (``mcap``'s seeking reader checks only the chunks it reads, never
-the data-section CRC). A file cut mid-write (a crash, a ``.partial`` leftover) has no footer; the same walk then
-stops at the last complete record and reports ``truncated=True``.
+Reading is one linear walk with the ``mcap`` package's stream reader (:class:`oacli.io.mcap_walk.McapWalk`): it
+checks every chunk CRC, every attachment CRC and the data-section CRC (``mcap``'s seeking reader checks only the
+chunks it reads, never the data-section CRC), bounds what chunks decompress to and how many messages and channels a
+file holds. A file cut mid-write (a crash, a ``.partial`` leftover) has no footer; the walk then stops at the last
+complete record and the result says ``truncated=True``.
 """
 
 from __future__ import annotations
 
-import io
 import json
-import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.data_stream import ReadDataStream
-from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Chunk, DataEnd, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
 from oacli.errors import InputError
 from oacli.io import mcap_schema as ms
+from oacli.io.mcap_walk import (
+    MAGIC,
+    MAX_CHUNK_BYTES,
+    MAX_DECOMPRESSED_BYTES,
+    MAX_EXPANSION,
+    MIN_DECOMPRESSED_BUDGET,
+    McapWalk,
+    decompressed_budget,
+)
+
+__all__ = [
+    "MAX_CHUNK_BYTES",
+    "MAX_DECOMPRESSED_BYTES",
+    "MAX_EXPANSION",
+    "MIN_DECOMPRESSED_BUDGET",
+    "StageRecord",
+    "TelemetryStreams",
+    "decompressed_budget",
+    "read_stage",
+    "read_telemetry",
+    "read_telemetry_streams",
+    "read_trajectory",
+]
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Telemetry, Trajectory
-
-_MAGIC = b"\x89MCAP0\r\n"
-
-MAX_CHUNK_BYTES = 64 * 1024 * 1024
-"""Largest decompressed chunk accepted [bytes] (oacli writes chunks of 256 KiB)."""
-
-MAX_EXPANSION = 100
-"""Decompressed bytes allowed per byte of file (oacli's zstd chunks expand about 10 times)."""
-
-MIN_DECOMPRESSED_BUDGET = 64 * 1024 * 1024
-"""Decompressed bytes a small file may always expand to [bytes]."""
-
-MAX_DECOMPRESSED_BYTES = 2 * 1024 * 1024 * 1024
-"""Absolute cap on the decompressed bytes of one file [bytes]."""
-
-
-def decompressed_budget(file_bytes: int) -> int:
-    """Decompressed bytes a file of ``file_bytes`` may expand to: ``MAX_EXPANSION`` × its size, at least
-    :data:`MIN_DECOMPRESSED_BUDGET`, at most :data:`MAX_DECOMPRESSED_BYTES` (a decompression bomb is refused)."""
-    return min(MAX_DECOMPRESSED_BYTES, max(MIN_DECOMPRESSED_BUDGET, MAX_EXPANSION * int(file_bytes)))
-
-
-def _decompress_bounded(chunk: Chunk, limit: int) -> bytes:
-    """Decompress a chunk's records, reading at most ``limit + 1`` bytes whatever the data claim."""
-    if chunk.compression == "":
-        return bytes(chunk.data)
-    if chunk.compression == "zstd":
-        import zstandard
-
-        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data), read_across_frames=True)
-        parts, total = [], 0
-        while total <= limit:
-            block = reader.read(min(1 << 20, limit + 1 - total))
-            if not block:
-                break
-            parts.append(block)
-            total += len(block)
-        return b"".join(parts)
-    if chunk.compression == "lz4":
-        import lz4.frame
-
-        return lz4.frame.LZ4FrameDecompressor().decompress(bytes(chunk.data), max_length=limit + 1)
-    raise ValueError(f"unsupported compression {chunk.compression!r}")
-
-
-def _chunk_records(data: bytes) -> list[Any]:
-    """The schema, channel and message records of a decompressed chunk (as ``mcap``'s ``breakup_chunk``)."""
-    stream = _stream(data)
-    records: list[Any] = []
-    while stream.count < len(data):
-        opcode = stream.read1()
-        length = stream.read8()
-        if opcode == Opcode.CHANNEL:
-            records.append(Channel.read(stream))
-        elif opcode == Opcode.MESSAGE:
-            records.append(Message.read(stream, length))
-        elif opcode == Opcode.SCHEMA:
-            records.append(Schema.read(stream))
-        else:
-            stream.read(length)
-    return records
 
 _LOG_LEVEL_NAMES = {0: "unknown", 1: "debug", 2: "info", 3: "warning", 4: "error", 5: "fatal"}
 
@@ -183,12 +142,8 @@ def _decode_log(buf: bytes) -> tuple[str, str]:
     return _LOG_LEVEL_NAMES.get(level, str(level)), message
 
 
-def _stream(body: bytes | memoryview) -> ReadDataStream:
-    return ReadDataStream(io.BytesIO(body))
-
-
 class _Scan:
-    """Record-by-record walk of an MCAP file collecting what :class:`StageRecord` needs."""
+    """Collects what :class:`StageRecord` needs from one :class:`~oacli.io.mcap_walk.McapWalk` of a file."""
 
     def __init__(self, path: Path, validate_crcs: bool, topics: frozenset[str] | None) -> None:
         self.path = path
@@ -205,117 +160,26 @@ class _Scan:
         self.truncated = False
         self.bytes_read = 0
         self.bytes_total = 0
-        self.budget = MIN_DECOMPRESSED_BUDGET
-        self.decompressed = 0
-
-    def _too_big(self, offset: int, declared: int, limit: int) -> str:
-        if declared > MAX_CHUNK_BYTES:
-            return (f"chunk at byte {offset} declares {declared} decompressed bytes, more than the "
-                    f"{MAX_CHUNK_BYTES} allowed (a decompression bomb or a corrupt file)")
-        return (f"the chunks decompress to more than {self.budget} bytes ({MAX_EXPANSION} × the file size, at "
-                f"least {MIN_DECOMPRESSED_BUDGET}, at most {MAX_DECOMPRESSED_BYTES}): refused as a "
-                "decompression bomb")
 
     def fail(self, reason: str) -> InputError:
         return InputError(f"{self.path}: {reason}")
 
     def run(self) -> None:
-        try:
-            data = self.path.read_bytes()
-        except FileNotFoundError:
-            raise self.fail("file not found") from None
-        except OSError as exc:
-            raise self.fail(f"cannot read the file ({exc.strerror or exc})") from None
-        self.budget = decompressed_budget(len(data))
-        if len(data) < len(_MAGIC) or data[: len(_MAGIC)] != _MAGIC:
-            raise self.fail("not an MCAP file (it does not start with the MCAP magic bytes)")
-        complete = len(data) >= 2 * len(_MAGIC) and data[-len(_MAGIC) :] == _MAGIC
-        view = memoryview(data)
-        pos, end = len(_MAGIC), len(data)
-        finished = False  # reached the DataEnd (or Footer) record
-        while pos + 9 <= end:
-            opcode = data[pos]
-            length = int.from_bytes(data[pos + 1 : pos + 9], "little")
-            if pos + 9 + length > end:
-                break  # a record cut by the end of the file
-            body = view[pos + 9 : pos + 9 + length]
-            if opcode == Opcode.DATA_END:
-                if self.validate:
-                    expected = DataEnd.read(_stream(body)).data_section_crc
-                    actual = zlib.crc32(view[:pos])
-                    if expected != 0 and expected != actual:
-                        raise self.fail(
-                            f"data section CRC mismatch (stored {expected:#010x}, computed {actual:#010x}): "
-                            "the file is corrupt"
-                        )
-                finished = True
-                break  # the summary section after it repeats what was read
-            if opcode == Opcode.FOOTER:
-                finished = True
-                break
-            self._record(opcode, body, pos)
-            pos += 9 + length
-        if complete and not finished:
-            raise self.fail(f"corrupt MCAP: the record at byte {pos} runs past the end of the data section")
-        self.truncated = not complete
-        self.bytes_read, self.bytes_total = pos, len(data)
+        walk = McapWalk(self.path, self._record, validate_crcs=self.validate)
+        result = walk.run()
+        data = walk.data
+        ends_with_magic = len(data) >= 2 * len(MAGIC) and data[-len(MAGIC) :] == MAGIC
+        for problem in result.problems:
+            if problem.kind != "truncated":
+                raise InputError(problem.message)
+            if ends_with_magic:  # a closed file whose records run past its end: not a cut, a corrupt file
+                raise InputError(f"{self.path}: corrupt MCAP: {problem.message.removeprefix(f'{self.path}: ')}")
+        self.truncated = not result.complete
+        self.bytes_read, self.bytes_total = result.bytes_read, result.size_bytes
 
-    def _record(self, opcode: int, body: memoryview, offset: int) -> None:
-        try:
-            if opcode == Opcode.CHUNK:
-                chunk = Chunk.read(_stream(body))
-                declared = int(chunk.uncompressed_size)
-                limit = min(MAX_CHUNK_BYTES, self.budget - self.decompressed)
-                if declared > limit:
-                    raise self.fail(self._too_big(offset, declared, limit))
-                try:
-                    data = _decompress_bounded(chunk, declared)
-                except Exception as exc:
-                    raise self.fail(
-                        f"chunk at byte {offset} is corrupt: its {chunk.compression} data do not decompress "
-                        f"({exc}), so its CRC cannot match"
-                    ) from None
-                if len(data) != declared:
-                    raise self.fail(f"chunk at byte {offset} is corrupt: it decompresses to "
-                                    f"{'more than ' if len(data) > declared else ''}{min(len(data), declared + 1)} "
-                                    f"bytes, not the {declared} it declares")
-                self.decompressed += declared
-                if self.validate and chunk.uncompressed_crc != 0:
-                    actual = zlib.crc32(data)
-                    if actual != chunk.uncompressed_crc:
-                        raise self.fail(
-                            f"chunk at byte {offset} failed its CRC check (stored {chunk.uncompressed_crc:#010x}, "
-                            f"computed {actual:#010x}): the file is corrupt"
-                        )
-                records = _chunk_records(data)
-                for record in records:
-                    self._inner(record)
-            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
-                self._inner(Schema.read(_stream(body)) if opcode == Opcode.SCHEMA else Channel.read(_stream(body)))
-            elif opcode == Opcode.MESSAGE:
-                self._inner(Message.read(_stream(body), len(body)))
-            elif opcode == Opcode.ATTACHMENT:
-                if self.validate:
-                    stored = int.from_bytes(body[-4:], "little")
-                    actual = zlib.crc32(body[:-4])
-                    if stored != 0 and stored != actual:
-                        raise self.fail(f"attachment at byte {offset} failed its CRC check: the file is corrupt")
-                attachment = Attachment.read(_stream(body))
-                self.attachments[attachment.name] = bytes(attachment.data)
-            elif opcode == Opcode.METADATA:
-                record = Metadata.read(_stream(body))
-                self.metadata[record.name] = dict(record.metadata)
-        except InputError:
-            raise
-        except Exception as exc:
-            raise self.fail(f"corrupt MCAP record (opcode {opcode:#04x}) at byte {offset}: {exc}") from None
-
-    def _inner(self, record: Any) -> None:
+    def _record(self, record: Any) -> None:
         if isinstance(record, Message):
-            channel = self.channels.get(record.channel_id)
-            if channel is None:
-                raise self.fail(f"message on unknown channel id {record.channel_id}")
-            topic = channel.topic
+            topic = self.channels[record.channel_id].topic  # the walk refuses unknown channels
             self.counts[topic] = self.counts.get(topic, 0) + 1
             if self.wanted is None or topic in self.wanted:
                 self.messages.setdefault(topic, []).append((record.log_time, record.data))
@@ -323,8 +187,6 @@ class _Scan:
             self.schemas[record.id] = record
         elif isinstance(record, Channel):
             schema = self.schemas.get(record.schema_id) if record.schema_id else None
-            if record.schema_id and schema is None:
-                raise self.fail(f"channel {record.topic} refers to unknown schema id {record.schema_id}")
             name = schema.name if schema is not None else ""
             if self.topics.get(record.topic, name) != name:
                 raise self.fail(f"topic {record.topic} has two schemas ({self.topics[record.topic]}, {name})")
@@ -332,6 +194,10 @@ class _Scan:
             self.topics[record.topic] = name
             self.channel_meta[record.topic] = dict(record.metadata)
             self.counts.setdefault(record.topic, 0)
+        elif isinstance(record, Attachment):
+            self.attachments[record.name] = bytes(record.data)
+        elif isinstance(record, Metadata):
+            self.metadata[record.name] = dict(record.metadata)
 
 
 def _json_messages(scan: _Scan, topic: str) -> list[dict]:

@@ -132,6 +132,7 @@ def plan_kino_rrt(
     *,
     progress: Callable[[float], None] | None = None,
     clock: Callable[[], float] = time.perf_counter,
+    on_iteration: Callable[[int, Tree, float], None] | None = None,
 ) -> PlanResult:
     """Plan from ``problem.start`` to ``problem.goal`` with kinodynamic RRT and motion primitives.
 
@@ -144,6 +145,9 @@ def plan_kino_rrt(
         Called with the used fraction of the budget.
     clock : callable
         Wall clock [s].
+    on_iteration : callable, optional
+        Called before each iteration as ``on_iteration(iterations_done, tree, inf)`` (the tree so far, read only;
+        the search stops at its first solution), e.g. to record the search as it grows.
 
     Returns
     -------
@@ -205,6 +209,8 @@ def plan_kino_rrt(
         if elapsed >= s.time_budget_s:
             stop = "time_budget"
             break
+        if on_iteration is not None:
+            on_iteration(iteration, tree, math.inf)
         iteration += 1
         if rng.random() < s.goal_bias:
             stats["goal_samples"] += 1

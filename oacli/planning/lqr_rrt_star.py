@@ -312,7 +312,8 @@ class _Planner:
         self.rewire_from(new)
         self.connect_goal(np.array([new]))  # first link to the goal, or one that beats its current parent
 
-    def run(self, progress: Callable[[float], None] | None) -> PlanResult:
+    def run(self, progress: Callable[[float], None] | None,
+            on_iteration: Callable[[int, Tree, float], None] | None = None) -> PlanResult:
         s = self.settings
         snapshot_every = max(1, s.max_iterations // max(s.snapshots, 1))
         self.connect_goal(np.array([0]))
@@ -332,6 +333,8 @@ class _Planner:
             self.iteration += 1
             self.iterate()
             self.record_solution()
+            if on_iteration is not None:
+                on_iteration(self.iteration, self.tree, self.best_cost)
             if self.iteration % snapshot_every == 0:
                 self.snapshot()
             if progress is not None and self.iteration % 25 == 0:
@@ -364,6 +367,7 @@ def plan_lqr_rrt_star(
     *,
     progress: Callable[[float], None] | None = None,
     clock: Callable[[], float] = time.perf_counter,
+    on_iteration: Callable[[int, Tree, float], None] | None = None,
 ) -> PlanResult:
     """Plan from ``problem.start`` to ``problem.goal`` with LQR-RRT* (module docstring).
 
@@ -378,9 +382,12 @@ def plan_lqr_rrt_star(
         Called with the used fraction of the budget (iterations or time, whichever is larger).
     clock : callable
         Wall clock [s] (injected for tests).
+    on_iteration : callable, optional
+        Called after each iteration as ``on_iteration(iteration, tree, best_cost)`` (the tree so far, read only;
+        ``best_cost`` is ``inf`` before the first solution), e.g. to record the search as it grows.
 
     Returns
     -------
     PlanResult
     """
-    return _Planner(problem, settings, rng, clock).run(progress)
+    return _Planner(problem, settings, rng, clock).run(progress, on_iteration)

@@ -3,8 +3,10 @@
 Two methods (``excitation.method`` or ``--method``):
 
 * ``offline``: the A/D/E-optimal design of Doerr et al. 2021 (Eq. 30) by sequential convex programming
-  (:mod:`oacli.excitation.design`). The design is computed *before* the run folder is created, so an infeasible
-  problem (exit 3) leaves no folder behind.
+  (:mod:`oacli.excitation.design`). Each SCP iteration is journaled to the MCAP as it is produced
+  (:mod:`oacli.stages.excite_journal`); the run folder is created by the first iteration, so a problem found
+  infeasible before the SCP starts (exit 3) leaves no folder behind, and a design that fails its final check
+  (exit 3) leaves the journal as ``excite.mcap`` next to a ``failed`` summary.
 * ``rattle``: RATTLE's online information-aware planner in closed loop with the simulated plant (the config's
   ``truth``) and the sequential estimator of :mod:`oacli.estimation` (``excitation.rattle.estimator:
   sequential``, configured by the ``estimation`` section), or the Cramér-Rao oracle
@@ -23,6 +25,7 @@ at the design's sample period, the criterion per SCP iteration, the information 
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -50,6 +53,7 @@ from oacli.io.runfolder import StageResult, StageRun
 from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.phases import set_phase
 from oacli.reference_limits import DesignLimits
+from oacli.stages.excite_journal import ExciteJournal
 from oacli.stages.settings import (
     design_limit_log,
     estimator_settings,
@@ -225,9 +229,31 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     wall = time.perf_counter()
     limits = excitation_design_limits(cfg)
     problem = excitation_problem(cfg, limits)
-    design = design_excitation(problem, scp_settings(cfg), progress=progress, rng=np.random.default_rng(cfg.seed))
-    check_design(design, problem)
+    with contextlib.ExitStack() as folder:
+        runs: list[StageRun] = []
 
+        def stage_run() -> StageRun:  # the run folder, created by the journal's first record (or at the end)
+            if not runs:
+                runs.append(folder.enter_context(open_run("excite", cfg, out=out, runs_root=runs_root, started=wall)))
+            return runs[0]
+
+        # Each SCP iteration goes to the MCAP as it is produced (oacli.stages.excite_journal); the complete file
+        # replaces the journal at the end. A design that fails its final check leaves the journal as excite.mcap.
+        with ExciteJournal(lambda: stage_run().open_mcap(method="offline")) as journal:
+            design = design_excitation(problem, scp_settings(cfg), progress=progress,
+                                       rng=np.random.default_rng(cfg.seed), on_iteration=journal.on_iteration)
+            try:
+                check_design(design, problem)
+            except InfeasibleError:
+                journal.commit()
+                raise
+            journal.discard()
+        return _offline_outputs(cfg, problem, limits, design, stage_run())
+
+
+def _offline_outputs(cfg: OacliConfig, problem: ExcitationProblem, limits: DesignLimits, design: ExcitationDesign,
+                     run: StageRun) -> StageResult:
+    """Summary, MCAP, recording and plots of an offline design in its run folder."""
     log: list[LogEntry] = [
         (0.0, "info", f"excitation design: {problem.steps} steps of {problem.dt:.4g} s, criterion {problem.criterion} "
                       f"({problem.scaling}), {len(design.iterations)} SCP iterations ({design.accepted_iterations} "
@@ -268,20 +294,19 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     }
     offline_findings(summary, problem).apply(summary)
     log.extend(status_log(summary))
-    with open_run("excite", cfg, out=out, runs_root=runs_root, started=wall) as run:
-        with run.open_mcap(method="offline") as writer:
-            crb = write_offline_topics(writer, problem, design, log, cfg.environment.frame)
-        scp = ScpSteps(np.array([it.criterion for it in design.iterations]),
-                       np.array([it.candidate_criterion for it in design.iterations]), design.initial.x[:, 0:3])
-        write_excite_recording(
-            run.file("rrd", "excite.rrd"), scene=problem.scene, trajectory=traj,
-            information=InformationSeries(problem.theta, design.information_over_time, crb), limits=problem.limits,
-            scp=scp, log=log, recording_name=f"{cfg.name}/excite",
-        )
-        write_excite_plots(run, summary, t_info_s=traj.t, information=design.information_over_time,
-                           t_input_s=traj.t, u=traj.u, force_limit_N=problem.limits.force_N,
-                           torque_limit_Nm=problem.limits.torque_Nm)
-        return run.finish(summary)
+    with run.open_mcap(method="offline") as writer:
+        crb = write_offline_topics(writer, problem, design, log, cfg.environment.frame)
+    scp = ScpSteps(np.array([it.criterion for it in design.iterations]),
+                   np.array([it.candidate_criterion for it in design.iterations]), design.initial.x[:, 0:3])
+    write_excite_recording(
+        run.file("rrd", "excite.rrd"), scene=problem.scene, trajectory=traj,
+        information=InformationSeries(problem.theta, design.information_over_time, crb), limits=problem.limits,
+        scp=scp, log=log, recording_name=f"{cfg.name}/excite",
+    )
+    write_excite_plots(run, summary, t_info_s=traj.t, information=design.information_over_time,
+                       t_input_s=traj.t, u=traj.u, force_limit_N=problem.limits.force_N,
+                       torque_limit_Nm=problem.limits.torque_Nm)
+    return run.finish(summary)
 
 
 def write_offline_topics(writer: StageMcapWriter, problem: ExcitationProblem, design: ExcitationDesign,

@@ -5,7 +5,8 @@ before the run folder is created (unknown waypoints, a start or goal inside a ke
 boxes: exit 2, no folder). Outputs in the run folder: ``config.yaml`` (resolved, with the segment and planner that
 ran), ``plan.mcap``, ``plan.rrd`` and ``summary.json`` (last). Without a solution within the budget the MCAP and
 the recording still hold the partial tree, ``summary.json`` says ``"status": "no_solution"`` and the command exits
-with code 3.
+with code 3. While the search runs, the tree's growth and the best cost are journaled to ``plan.mcap``'s temporary
+(:mod:`oacli.stages.plan_journal`), so a killed run leaves a readable record; the complete file replaces it.
 
 ``plan.mcap`` topics (besides the contract of docs/mcap.md): ``/trajectory`` (oacli.TrajectorySample, the plan),
 ``/robot/pose``, ``/scene`` (scene and path), ``/plan/tree`` (oacli.PlanTreeNode, one record per node of the final
@@ -42,6 +43,7 @@ from oacli.planning.problem import PlanningProblem
 from oacli.planning.result import PlanResult
 from oacli.planning.translational import TranslationalTrajectory
 from oacli.planning.tree import EDGE_LQR, EDGE_PRIMITIVE
+from oacli.stages.plan_journal import PlanJournal
 from oacli.stages.settings import (
     cost_weights,
     design_limit_log,
@@ -318,15 +320,20 @@ def run_plan(
     limits = planner_design_limits(cfg)
 
     log: list[LogEntry] = design_limit_log(limits)
-    with open_run("plan", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
+    # The tree's growth goes to the MCAP while the search runs (oacli.stages.plan_journal); the journal is
+    # deleted just before the complete file is written.
+    with (open_run("plan", cfg, out=out, runs_root=runs_root, started=wall_start) as run,
+          PlanJournal(run.open_mcap) as journal):
         rng = np.random.default_rng([cfg.seed, PLAN_STREAM])
         log.append((0.0, "info", f"{kind}: segment {seg.name} from {_fmt_point(seg.start[0:3])} to "
                                  f"{_fmt_point(seg.goal[0:3])}; {describe_body(body)}"))
         set_phase(progress, "LQR-RRT* search" if kind == "lqr-rrt-star" else "kinodynamic RRT search")
         if kind == "lqr-rrt-star":
-            result = plan_lqr_rrt_star(problem, lqr_rrt_star_settings(cfg), rng, progress=progress)
+            result = plan_lqr_rrt_star(problem, lqr_rrt_star_settings(cfg), rng, progress=progress,
+                                       on_iteration=journal.on_iteration)
         else:
-            result = plan_kino_rrt(problem, kino_rrt_settings(cfg), rng, progress=progress)
+            result = plan_kino_rrt(problem, kino_rrt_settings(cfg), rng, progress=progress,
+                                   on_iteration=journal.on_iteration)
         output = None
         summary: dict[str, Any] = {
             "stage": "plan",
@@ -363,6 +370,7 @@ def run_plan(
             add_output_trajectory_reasons(report, summary, "plan")
         report.apply(summary)
         log.extend(status_log(summary))
+        journal.discard()
         with run.open_mcap() as writer:
             write_plan_topics(writer, scene, result, output, summary, log)
         write_plan_recording(
