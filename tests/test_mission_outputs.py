@@ -128,3 +128,27 @@ def test_plots_are_valid_pngs(mission):
         assert 600 <= width <= 3000 and 400 <= height <= 3000, (name, width, height)
         assert path.stat().st_size > 20_000, name  # drawn, not blank
     assert sorted(p.name for p in (mission_dir / "plots").iterdir()) == sorted(f"{n}.png" for n in files)
+
+
+def test_mission_plots_are_laid_out_within_the_figure_without_overlaps(mission, tmp_path, monkeypatch):
+    """The fixed layout (oacli.io.plots.common.fixed_layout) leaves room for every title, label and legend."""
+    import oacli.io.plots.common as plot_common
+    import oacli.mission.plots as mission_plots
+    from tests.test_stage_plots import layout_problems
+
+    mission_dir, summary = mission
+    problems: dict[str, list[str]] = {}
+    real_save = mission_plots.save_png
+
+    def check(fig, path):
+        fig.set_dpi(plot_common.DPI)
+        plot_common.fixed_layout(fig)
+        fig.canvas.draw()
+        problems[Path(path).name] = layout_problems(fig)
+        return real_save(fig, path)
+
+    monkeypatch.setattr(mission_plots, "save_png", check)
+    written = mission_plots.write_mission_plots(mission_dir, summary, out_dir=tmp_path)
+    assert sorted(p.name for p in written.values()) == sorted(problems) == sorted(
+        p.name for p in (mission_dir / "plots").iterdir())
+    assert {k: v for k, v in problems.items() if v} == {}
