@@ -152,3 +152,30 @@ def test_mission_plots_are_laid_out_within_the_figure_without_overlaps(mission, 
     assert sorted(p.name for p in written.values()) == sorted(problems) == sorted(
         p.name for p in (mission_dir / "plots").iterdir())
     assert {k: v for k, v in problems.items() if v} == {}
+
+
+def test_cached_reads_follow_the_file(mission, tmp_path):
+    """The mission's read cache returns the same object while a file is unchanged and reads it again when a stage
+    rewrites it (--resume / --from): the files stay the source of truth."""
+    import shutil
+
+    from oacli.mission import records
+
+    mission_dir, _ = mission
+    path = tmp_path / "track.mcap"
+    shutil.copyfile(stage_by_key("segment-1/track").mcap(mission_dir), path)
+    first = records.read_telemetry_cached(path)
+    assert records.read_telemetry_cached(path) is first
+    np.testing.assert_array_equal(first.x_true, read_telemetry(path).x_true)
+    shutil.copyfile(stage_by_key("segment-3/track").mcap(mission_dir), path)  # a rerun stage's new file
+    second = records.read_telemetry_cached(path)
+    assert second is not first
+    np.testing.assert_array_equal(second.x_true, read_telemetry(path).x_true)
+    stage = records.read_stage_cached(path, topics=["/reference"])
+    assert records.read_stage_cached(path, topics=["/reference"]) is stage
+    assert records.read_stage_cached(path, topics=["/log"]) is not stage  # per topic set
+    records.CACHE = False
+    try:
+        assert records.read_telemetry_cached(path) is not records.read_telemetry_cached(path)
+    finally:
+        records.CACHE = True

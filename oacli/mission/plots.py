@@ -25,7 +25,15 @@ matplotlib.use("Agg", force=True)
 import numpy as np
 from matplotlib.patches import Ellipse, Rectangle
 
-from oacli.io.plots.common import decimate, ellipse_projection, legend_outside, save_png, spans_decades, subplots
+from oacli.io.plots.common import (
+    decimate,
+    ellipse_projection,
+    legend_outside,
+    log_scale,
+    save_png,
+    spans_decades,
+    subplots,
+)
 from oacli.mission.layout import BASELINES, SEGMENTS
 from oacli.mission.records import PARAMETERS, MissionRecords, load_mission_records
 
@@ -72,7 +80,7 @@ def plot_tracking_error(records: MissionRecords, path: Path) -> Path:
         ax.set_ylabel("position error [m]")
         ax.grid(True, alpha=0.3)
         if flights and spans_decades(np.concatenate([f.position_error_m for f in flights])):
-            ax.set_yscale("log")
+            log_scale(ax)
         if not flights:
             ax.text(0.5, 0.5, "no flight recorded", transform=ax.transAxes, ha="center", va="center")
         legend_outside(ax)
@@ -136,7 +144,7 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
         name = param.split("_")[0]
         ax.set_ylabel(f"{name} [{unit}]")
         ax_rel.set_ylabel(f"{name}: % of truth")
-        ax_rel.set_yscale("log")
+        log_scale(ax_rel)
         for a in (ax, ax_rel):
             a.grid(True, alpha=0.3, which="both")
             a.axvline(records.grasp_time_s, color="0.5", lw=0.8)

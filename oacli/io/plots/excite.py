@@ -19,6 +19,7 @@ from oacli.io.plots.common import (
     decimate,
     guarded_plots,
     legend_outside,
+    log_scale,
     plot_inputs,
     save_png,
     spans_decades,
@@ -54,7 +55,7 @@ def plot_information(path: Path, t_s: np.ndarray, information: np.ndarray, title
         ax = axes[i]
         ax.plot(*decimate(t, diag[:, i]), color="tab:blue", lw=1.5, label=f"F[{name}, {name}]")
         if spans_decades(diag[:, i]):
-            ax.set_yscale("log")
+            log_scale(ax)
         ax.set_ylabel(f"{name} [{unit}]")
         ax.grid(True, alpha=0.3, which="both")
         legend_outside(ax)

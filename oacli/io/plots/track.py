@@ -23,6 +23,7 @@ from oacli.io.plots.common import (
     finish_view,
     guarded_plots,
     legend_outside,
+    log_scale,
     plot_inputs,
     save_png,
     spans_decades,
@@ -78,7 +79,7 @@ def plot_tracking_error(path: Path, telemetry: Telemetry, reference: Trajectory)
     ax.plot(*decimate(ctrl.t, ctrl.position_m), ".", color="tab:orange", ms=3, label="control instants")
     ax.set_ylabel("position error [m]")
     if spans_decades(dense.position_m, 3.0):
-        ax.set_yscale("log")
+        log_scale(ax)
     ax.set_title("‖r − r_ref‖, true state against the reference at equal times", loc="left", fontsize="medium")
     ax_att.plot(*decimate(dense.t, np.degrees(dense.attitude_rad)), color="tab:purple", lw=1.2, label="attitude error")
     ax_att.set_ylabel("attitude error [deg]")
