@@ -7,7 +7,8 @@ every stage's output call (``write_*_plots``, ``write_*_recording``, ``write_*_t
 
 * ``stage PNGs`` -- :data:`oacli.io.plots.common.LEGACY` (constrained layout + tight bbox + every sample drawn) against
   the fixed layout with decimated series;
-* ``stage Rerun`` / ``stage MCAP`` -- the recordings and the MCAP topics (complete files, as the stages write them);
+* ``stage Rerun`` / ``stage MCAP`` -- the recordings and the MCAP topics (complete files, as the stages write them;
+  their code has no old path: both columns run the same code, the spread between them is the machine's noise);
 * ``mission outputs`` -- ``mission.rrd`` + ``plots/`` + the summary's comparison rows (the stage MCAPs read back),
   :data:`oacli.mission.records.CACHE` off (every reader reads its files) against on (each file read once);
 * ``mission hand-offs`` -- :func:`oacli.mission.run.handoff_for` of every stage (the earlier stages' MCAPs read).
