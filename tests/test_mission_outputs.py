@@ -128,3 +128,54 @@ def test_plots_are_valid_pngs(mission):
         assert 600 <= width <= 3000 and 400 <= height <= 3000, (name, width, height)
         assert path.stat().st_size > 20_000, name  # drawn, not blank
     assert sorted(p.name for p in (mission_dir / "plots").iterdir()) == sorted(f"{n}.png" for n in files)
+
+
+def test_mission_plots_are_laid_out_within_the_figure_without_overlaps(mission, tmp_path, monkeypatch):
+    """The fixed layout (oacli.io.plots.common.fixed_layout) leaves room for every title, label and legend."""
+    import oacli.io.plots.common as plot_common
+    import oacli.mission.plots as mission_plots
+    from tests.test_stage_plots import layout_problems
+
+    mission_dir, summary = mission
+    problems: dict[str, list[str]] = {}
+    real_save = mission_plots.save_png
+
+    def check(fig, path):
+        fig.set_dpi(plot_common.DPI)
+        plot_common.fixed_layout(fig)
+        fig.canvas.draw()
+        problems[Path(path).name] = layout_problems(fig)
+        return real_save(fig, path)
+
+    monkeypatch.setattr(mission_plots, "save_png", check)
+    written = mission_plots.write_mission_plots(mission_dir, summary, out_dir=tmp_path)
+    assert sorted(p.name for p in written.values()) == sorted(problems) == sorted(
+        p.name for p in (mission_dir / "plots").iterdir())
+    assert {k: v for k, v in problems.items() if v} == {}
+
+
+def test_cached_reads_follow_the_file(mission, tmp_path):
+    """The mission's read cache returns the same object while a file is unchanged and reads it again when a stage
+    rewrites it (--resume / --from): the files stay the source of truth."""
+    import shutil
+
+    from oacli.mission import records
+
+    mission_dir, _ = mission
+    path = tmp_path / "track.mcap"
+    shutil.copyfile(stage_by_key("segment-1/track").mcap(mission_dir), path)
+    first = records.read_telemetry_cached(path)
+    assert records.read_telemetry_cached(path) is first
+    np.testing.assert_array_equal(first.x_true, read_telemetry(path).x_true)
+    shutil.copyfile(stage_by_key("segment-3/track").mcap(mission_dir), path)  # a rerun stage's new file
+    second = records.read_telemetry_cached(path)
+    assert second is not first
+    np.testing.assert_array_equal(second.x_true, read_telemetry(path).x_true)
+    stage = records.read_stage_cached(path, topics=["/reference"])
+    assert records.read_stage_cached(path, topics=["/reference"]) is stage
+    assert records.read_stage_cached(path, topics=["/log"]) is not stage  # per topic set
+    records.CACHE = False
+    try:
+        assert records.read_telemetry_cached(path) is not records.read_telemetry_cached(path)
+    finally:
+        records.CACHE = True

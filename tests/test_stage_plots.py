@@ -12,9 +12,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+import oacli.io.plots.common as plot_common
+import oacli.io.plots.estimate as estimate_plots
+import oacli.io.plots.excite as excite_plots
+import oacli.io.plots.plan as plan_plots
 import oacli.io.plots.track as track_plots
 from oacli.cli import app
-from oacli.io.plots.common import guarded_plots, plt
+from oacli.io.plots.common import decimate, guarded_plots, plt
 from tests.plot_checks import PNGS
 from tests.test_cli_estimate import payload_config
 from tests.test_cli_excite import small_iss
@@ -45,30 +49,106 @@ def stage_runs(tmp_path_factory) -> dict[str, Path]:
     captured: dict[str, list[tuple[str, np.ndarray, np.ndarray]]] = {}
     real_save = track_plots.save_png
 
+    layouts: dict[str, list[str]] = {}
+
     def capture(fig, path):
         captured[Path(path).name] = [(ln.get_label(), np.asarray(ln.get_xdata(), dtype=float),
                                       np.asarray(ln.get_ydata(), dtype=float))
                                      for ax in fig.axes for ln in ax.get_lines()]
+        return check_layout(fig, path)
+
+    def check_layout(fig, path):
+        fig.set_dpi(plot_common.DPI)
+        plot_common.fixed_layout(fig)  # as save_png does (it closes the figure: measure first)
+        fig.canvas.draw()
+        layouts[f"{Path(path).parent.name}/{Path(path).name}"] = layout_problems(fig)
         return real_save(fig, path)
 
     payload = payload_config(tmp / "payload.yaml")
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(track_plots, "save_png", capture)
+        for module in (estimate_plots, excite_plots, plan_plots):
+            mp.setattr(module, "save_png", check_layout)
+        mp.setattr(plot_common, "save_png", check_layout)  # plot_inputs
         result = run_cli("track", payload, "--out", tmp / "track", "--quiet")
-    assert result.exit_code == 0, result.output
-    result = run_cli("estimate", payload, "--telemetry", tmp / "track" / "track.mcap", "--method", "batch",
-                     "--out", tmp / "estimate", "--quiet")
-    assert result.exit_code == 0, result.output
-    s1 = small_config(tmp, max_iterations=150, shortcut={"tries": 30})
-    result = run_cli("plan", s1, "--out", tmp / "plan", "--quiet", "--seed", "4")
-    assert result.exit_code == 0, result.output
-    result = run_cli("smooth", s1, "--input", tmp / "plan" / "plan.mcap", "--out", tmp / "smooth", "--quiet")
-    assert result.exit_code == 0, result.output
-    excite = small_iss(tmp / "excite.yaml", steps=20, duration_s=20.0, scp={"max_iterations": 4})
-    result = run_cli("excite", excite, "--out", tmp / "excite", "--quiet")
-    assert result.exit_code == 0, result.output
+        assert result.exit_code == 0, result.output
+        result = run_cli("estimate", payload, "--telemetry", tmp / "track" / "track.mcap", "--method", "batch",
+                         "--out", tmp / "estimate", "--quiet")
+        assert result.exit_code == 0, result.output
+        s1 = small_config(tmp, max_iterations=150, shortcut={"tries": 30})
+        result = run_cli("plan", s1, "--out", tmp / "plan", "--quiet", "--seed", "4")
+        assert result.exit_code == 0, result.output
+        result = run_cli("smooth", s1, "--input", tmp / "plan" / "plan.mcap", "--out", tmp / "smooth", "--quiet")
+        assert result.exit_code == 0, result.output
+        excite = small_iss(tmp / "excite.yaml", steps=20, duration_s=20.0, scp={"max_iterations": 4})
+        result = run_cli("excite", excite, "--out", tmp / "excite", "--quiet")
+        assert result.exit_code == 0, result.output
     return {"track": tmp / "track", "estimate": tmp / "estimate", "plan": tmp / "plan", "smooth": tmp / "smooth",
-            "excite": tmp / "excite", "captured": captured}  # type: ignore[dict-item]
+            "excite": tmp / "excite", "captured": captured, "layouts": layouts}  # type: ignore[dict-item]
+
+
+def layout_problems(fig) -> list[str]:
+    """What a drawn figure's fixed layout got wrong: a title, label, tick label or legend cut by the figure's edge,
+    or two axes' decorations (tick labels, titles, outside legends) overlapping."""
+    renderer = fig.canvas.get_renderer()
+    width, height = fig.bbox.width, fig.bbox.height
+    problems = []
+    boxes = []
+    for i, ax in enumerate(fig.axes):
+        box = ax.get_tightbbox(renderer)  # the axes with its tick labels, labels, title and legend
+        boxes.append(box)
+        if box.x0 < -1 or box.y0 < -1 or box.x1 > width + 1 or box.y1 > height + 1:
+            problems.append(f"axes {i} {ax.get_title(loc='left')!r} cut: {box.bounds} in {width}x{height}")
+    for leg in fig.legends:
+        box = leg.get_window_extent(renderer)
+        if box.y0 < -1 or box.x0 < -1 or box.x1 > width + 1:
+            problems.append(f"figure legend cut: {box.bounds}")
+        boxes.append(box)
+    if fig._suptitle is not None:
+        boxes.append(fig._suptitle.get_window_extent(renderer))
+    for i in range(len(boxes)):
+        for j in range(i + 1, len(boxes)):
+            a, b = boxes[i], boxes[j]
+            dx = min(a.x1, b.x1) - max(a.x0, b.x0)
+            dy = min(a.y1, b.y1) - max(a.y0, b.y0)
+            if dx > 2 and dy > 2:
+                problems.append(f"boxes {i} and {j} overlap by {dx:.0f} x {dy:.0f} px")
+    return problems
+
+
+def test_every_stage_png_is_laid_out_within_the_figure_without_overlaps(stage_runs):
+    layouts = stage_runs["layouts"]
+    assert len(layouts) == sum(len(v) for v in PNGS.values())
+    assert {k: v for k, v in layouts.items() if v} == {}
+
+
+def test_decimate_keeps_the_extremes_and_short_series():
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.0, 100.0, 50_001)
+    y = np.cumsum(rng.normal(size=t.size))
+    y[12_345] = 1e3  # a one-sample spike
+    y[40_000] = np.nan  # a gap
+    x_d, y_d = decimate(t, y, 3000)
+    assert len(x_d) <= 3200 and x_d[0] == t[0] and x_d[-1] == t[-1]
+    assert np.all(np.diff(x_d) > 0)  # a subsequence of the samples, in order
+    assert np.nanmax(y_d) == 1e3 and np.nanmin(y_d) == np.nanmin(y) and np.isnan(y_d).sum() == 1
+    # every kept sample is a sample of the curve
+    np.testing.assert_array_equal(y_d, y[np.searchsorted(t, x_d)])
+    # each bin's extremes are kept: the decimated curve's envelope over any window equals the original's
+    for lo, hi in ((10.0, 20.0), (55.5, 70.25)):
+        inside, inside_d = (t >= lo) & (t <= hi), (x_d >= lo) & (x_d <= hi)
+        assert np.nanmax(y_d[inside_d]) <= np.nanmax(y[inside])
+        assert np.nanmax(y_d[inside_d]) >= np.nanmax(y[(t >= lo + 0.2) & (t <= hi - 0.2)])
+    # paths (x-y): the extremes of both coordinates are kept
+    p = rng.normal(size=(20_000, 2)).cumsum(axis=0)
+    px, py = decimate(p[:, 0], p[:, 1], 2000)
+    assert px.max() == p[:, 0].max() and px.min() == p[:, 0].min() and py.max() == p[:, 1].max()
+    # a short series, and the old path, are drawn as they are
+    x_s, y_s = decimate(t[:100], y[:100], 3000)
+    assert x_s is not None and len(x_s) == 100 and np.array_equal(y_s, y[:100])
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plot_common, "LEGACY", True)
+        assert len(decimate(t, y, 3000)[0]) == t.size
 
 
 @pytest.mark.parametrize("stage", sorted(PNGS))

@@ -12,9 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from oacli.config import load_config
-from oacli.io.mcap_read import read_telemetry
 from oacli.mission.layout import BASELINES
+from oacli.mission.records import load_config_cached, read_telemetry_cached
 
 ARRIVAL_TOLERANCE_M = 0.02
 """Arrival: the true position stays within this distance of the reference's final position [m]."""
@@ -122,8 +121,8 @@ def comparison_row(key: str, summary: dict[str, Any], mission_dir: Path) -> dict
         row["error"] = summary.get("error")
         return row
     folder = Path(mission_dir) / key
-    cfg = load_config(folder / "config.yaml")
-    tel = read_telemetry(folder / "track.mcap")
+    cfg = load_config_cached(folder / "config.yaml")
+    tel = read_telemetry_cached(folder / "track.mcap")
     goal = tel.x_reference[-1, 0:3]
     moving = np.flatnonzero(np.linalg.norm(tel.x_reference[:, 3:6], axis=1) > 1e-6)
     approach = tel.x_reference[moving[-1], 3:6] if moving.size else np.zeros(3)

@@ -22,11 +22,18 @@ import matplotlib
 
 matplotlib.use("Agg", force=True)
 
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Ellipse, Rectangle
 
-from oacli.io.plots.common import ellipse_projection, legend_outside, save_png, spans_decades
+from oacli.io.plots.common import (
+    decimate,
+    ellipse_projection,
+    legend_outside,
+    log_scale,
+    save_png,
+    spans_decades,
+    subplots,
+)
 from oacli.mission.layout import BASELINES, SEGMENTS
 from oacli.mission.records import PARAMETERS, MissionRecords, load_mission_records
 
@@ -61,19 +68,19 @@ def plot_tracking_error(records: MissionRecords, path: Path) -> Path:
     Path
         ``path``.
     """
-    fig, axes = plt.subplots(len(SEGMENTS), 1, figsize=(10, 8.5), constrained_layout=True)
+    fig, axes = subplots(len(SEGMENTS), 1, figsize=(10, 8.5))
     for ax, seg in zip(axes, SEGMENTS, strict=True):
         flights = [f for f in records.flights.values() if f.key.startswith(seg + "/") and f.t_ctrl.size]
         for f in flights:
             rms = float(np.sqrt(np.mean(f.position_error_m**2)))
             label = BASELINES.get(f.key, f.label) + f" (RMS {1e3 * rms:.1f} mm)"
-            ax.plot(f.t_ctrl, f.position_error_m, color=FLIGHT_COLORS.get(f.key), lw=1.3, label=label)
+            ax.plot(*decimate(f.t_ctrl, f.position_error_m), color=FLIGHT_COLORS.get(f.key), lw=1.3, label=label)
         info = records.segments.get(seg, {})
         ax.set_title(f"{seg}: {info.get('from', '?')} → {info.get('to', '?')}", loc="left", fontsize="medium")
         ax.set_ylabel("position error [m]")
         ax.grid(True, alpha=0.3)
         if flights and spans_decades(np.concatenate([f.position_error_m for f in flights])):
-            ax.set_yscale("log")
+            log_scale(ax)
         if not flights:
             ax.text(0.5, 0.5, "no flight recorded", transform=ax.transAxes, ha="center", va="center")
         legend_outside(ax)
@@ -102,7 +109,7 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
         ``path``.
     """
     truth = records.truth_theta
-    fig, axes = plt.subplots(4, 2, figsize=(12, 11), constrained_layout=True, sharex=True)
+    fig, axes = subplots(4, 2, figsize=(12, 11), sharex=True)
     for i, (param, unit) in enumerate(PARAMETERS):
         ax, ax_rel = axes[i, 0], axes[i, 1]
         shown: list[np.ndarray] = []
@@ -137,7 +144,7 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
         name = param.split("_")[0]
         ax.set_ylabel(f"{name} [{unit}]")
         ax_rel.set_ylabel(f"{name}: % of truth")
-        ax_rel.set_yscale("log")
+        log_scale(ax_rel)
         for a in (ax, ax_rel):
             a.grid(True, alpha=0.3, which="both")
             a.axvline(records.grasp_time_s, color="0.5", lw=0.8)
@@ -169,7 +176,7 @@ def plot_top_view(records: MissionRecords, path: Path) -> Path:
     Path
         ``path``.
     """
-    fig, ax = plt.subplots(figsize=(11, 7.5), constrained_layout=True)
+    fig, ax = subplots(figsize=(11, 7.5))
     for j, box in enumerate(records.scene.keep_in):
         c, s = np.asarray(box.center, dtype=float), np.asarray(box.size, dtype=float)
         ax.add_patch(Rectangle((c[0] - s[0] / 2, c[1] - s[1] / 2), s[0], s[1], fc=(0.3, 0.8, 0.45, 0.08),
@@ -187,12 +194,12 @@ def plot_top_view(records: MissionRecords, path: Path) -> Path:
     for key, p in records.paths.items():
         seg = key.split("/")[0]
         ls, lw, what = styles.get(p.kind, (":", 1.0, p.kind))
-        ax.plot(p.positions_m[:, 0], p.positions_m[:, 1], ls=ls, lw=lw, color=_SEGMENT_COLORS.get(seg, "0.4"),
-                alpha=0.8, label=f"{seg} {what}")
+        ax.plot(*decimate(p.positions_m[:, 0], p.positions_m[:, 1]), ls=ls, lw=lw,
+                color=_SEGMENT_COLORS.get(seg, "0.4"), alpha=0.8, label=f"{seg} {what}")
     for key, f in records.flights.items():
         label = f"{key.split('/')[0]} flown" if key not in BASELINES else f"segment 3 flown: {BASELINES[key]}"
         width = {"segment-3/track": 3.0, "segment-3/baseline-mpc-prior": 2.0}.get(key, 1.2)  # overlaid: widest under
-        ax.plot(f.x_true[:, 0], f.x_true[:, 1], lw=width, color=FLIGHT_COLORS.get(key), label=label)
+        ax.plot(*decimate(f.x_true[:, 0], f.x_true[:, 1]), lw=width, color=FLIGHT_COLORS.get(key), label=label)
     for name, pos in records.waypoints_m.items():
         ax.plot(pos[0], pos[1], "k^", ms=9, zorder=5)
         ax.annotate(name, (pos[0], pos[1]), xytext=(6, 6), textcoords="offset points", fontsize=13,
@@ -207,7 +214,8 @@ def plot_top_view(records: MissionRecords, path: Path) -> Path:
     return save_png(fig, path)
 
 
-def write_mission_plots(mission_dir: Path, summary: dict[str, Any]) -> dict[str, Path]:
+def write_mission_plots(mission_dir: Path, summary: dict[str, Any], *, records: MissionRecords | None = None,
+                        out_dir: Path | None = None) -> dict[str, Path]:
     """Write the mission's PNG plots into ``mission_dir/plots/`` (module docstring).
 
     Parameters
@@ -216,6 +224,10 @@ def write_mission_plots(mission_dir: Path, summary: dict[str, Any]) -> dict[str,
         The mission folder (:mod:`oacli.mission.layout`); the stage MCAPs are read from it.
     summary : dict
         The mission summary (segments' ``start_time_s``, ``grasp_time_s``, ``estimate.truth_theta``).
+    records : MissionRecords, optional
+        The records of ``mission_dir`` already read (:func:`load_mission_records`; read here otherwise).
+    out_dir : Path, optional
+        Where the PNGs go (default ``mission_dir/plots``).
 
     Returns
     -------
@@ -230,8 +242,9 @@ def write_mission_plots(mission_dir: Path, summary: dict[str, Any]) -> dict[str,
         No stage folder holds a config.
     """
     mission_dir = Path(mission_dir)
-    records = load_mission_records(mission_dir, summary)
-    out = mission_dir / "plots"
+    if records is None:
+        records = load_mission_records(mission_dir, summary)
+    out = mission_dir / "plots" if out_dir is None else Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     return {
         "tracking_error": plot_tracking_error(records, out / "tracking_error.png"),

@@ -6,13 +6,21 @@ shifts every stage's own time (0 at the start of the stage) by its segment's ``s
 summary (the mission contract: segment-1 from 0, segment-2 from segment-1's end, the three segment-3 flights all
 from segment-3's start; plans, smoothed paths, the excitation reference and the estimates at their segment's start).
 Stages whose MCAP is missing (a failed or interrupted mission) are left out.
+
+The mission reads the same stage MCAPs and configs several times (hand-offs, comparison rows, the recording, the
+plots): :func:`read_telemetry_cached`, :func:`read_stage_cached` and :func:`load_config_cached` read each file once
+per process and return the same
+object while the file's modification time and size are unchanged (the files stay the source of truth: a stage
+rerun by ``--resume`` or ``--from`` writes a new file, which is read again). Callers must not modify what they get.
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -23,6 +31,90 @@ from oacli.io.mcap_read import StageRecord, read_stage, read_telemetry
 from oacli.metrics import tracking_errors
 from oacli.mission.layout import BASELINES, MISSION_STAGES, SEGMENTS, stage_by_key
 from oacli.sets import Polytope
+from oacli.types import Telemetry
+
+#: Cache the stage files read (module docstring); ``benchmarks/bench_outputs.py`` switches it off for the old path.
+CACHE = True
+#: Most files kept read (a mission has 12 stage MCAPs).
+CACHE_SIZE = 32
+_CACHE: OrderedDict[tuple[Any, ...], Any] = OrderedDict()
+_T = TypeVar("_T")
+
+
+def clear_cache() -> None:
+    """Forget every file read (:func:`read_telemetry_cached`, :func:`read_stage_cached`,
+    :func:`load_config_cached`)."""
+    _CACHE.clear()
+
+
+def _cached(kind: str, path: Path, extra: tuple[Any, ...], read: Callable[[], _T]) -> _T:
+    """``read()`` once per (file, modification time, size, ``extra``) while :data:`CACHE` is on."""
+    if not CACHE:
+        return read()
+    path = Path(path)
+    stat = path.stat()
+    key = (kind, str(path.resolve()), stat.st_mtime_ns, stat.st_size, extra)
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]  # type: ignore[no-any-return]
+    value = read()
+    _CACHE[key] = value
+    while len(_CACHE) > CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return value
+
+
+def load_config_cached(path: Path) -> OacliConfig:
+    """:func:`oacli.config.load_config` of a stage folder's ``config.yaml``, parsed once while the file is unchanged
+    (shared: do not modify it).
+
+    Parameters
+    ----------
+    path : Path
+        A ``config.yaml``.
+
+    Returns
+    -------
+    OacliConfig
+    """
+    return _cached("config", path, (), lambda: load_config(path))
+
+
+def read_telemetry_cached(path: Path) -> Telemetry:
+    """:func:`oacli.io.mcap_read.read_telemetry` of ``path``, read once while the file is unchanged (shared: do not
+    modify it).
+
+    Parameters
+    ----------
+    path : Path
+        A ``track.mcap``.
+
+    Returns
+    -------
+    Telemetry
+    """
+    return _cached("telemetry", path, (), lambda: read_telemetry(path))
+
+
+def read_stage_cached(path: Path, topics: Sequence[str] | None = None) -> StageRecord:
+    """:func:`oacli.io.mcap_read.read_stage` of ``path`` (only ``topics`` when given), read once while the file is
+    unchanged (shared: do not modify it).
+
+    Parameters
+    ----------
+    path : Path
+        A stage MCAP.
+    topics : sequence of str, optional
+        The topics to read (all by default).
+
+    Returns
+    -------
+    StageRecord
+    """
+    key = None if topics is None else tuple(topics)
+    return _cached("stage", path, (key,), lambda: read_stage(path) if topics is None else read_stage(path,
+                                                                                                    topics=topics))
+
 
 #: The parameters θ = [m, Ixx, Iyy, Izz] ([Doerr2021] Eq. 29) with their units.
 PARAMETERS: tuple[tuple[str, str], ...] = (
@@ -178,6 +270,22 @@ class MissionRecords:
     log: list[tuple[float, str, str]] = field(default_factory=list)
 
 
+#: The topics :func:`load_mission_records` reads of each stage's MCAP, by command (one read per file: the log too).
+_TOPICS: dict[str, tuple[str, ...]] = {
+    "track": (ms.TOPIC_REFERENCE, ms.TOPIC_STATE_NOMINAL, ms.TOPIC_TUBE_DESIGN, ms.TOPIC_TUBE_DISTURBANCE,
+              ms.TOPIC_LOG),
+    "plan": (ms.TOPIC_TRAJECTORY, ms.TOPIC_PLAN_TREE, ms.TOPIC_LOG),
+    "smooth": (ms.TOPIC_TRAJECTORY, ms.TOPIC_PLAN_TREE, ms.TOPIC_LOG),
+    "excite": (ms.TOPIC_TRAJECTORY, ms.TOPIC_PLAN_TREE, ms.TOPIC_LOG),
+    "estimate": (ms.TOPIC_ESTIMATE_PARAMS, ms.TOPIC_LOG),
+}
+
+
+def _stage_record(path: Path, command: str) -> StageRecord:
+    """The topics of :data:`_TOPICS` of a stage's MCAP (cached)."""
+    return read_stage_cached(path, topics=_TOPICS.get(command, (ms.TOPIC_LOG,)))
+
+
 def segment_offset(summary: dict[str, Any], segment: str) -> float:
     """``summary["segments"][segment]["start_time_s"]`` [s] (0 when the summary lacks it)."""
     return float(summary.get("segments", {}).get(segment, {}).get("start_time_s", 0.0))
@@ -189,7 +297,7 @@ def _stage_config(mission_dir: Path) -> OacliConfig:
     for stage in MISSION_STAGES:
         path = stage.folder(mission_dir) / "config.yaml"
         if path.is_file():
-            return load_config(path)
+            return load_config_cached(path)
     raise FileNotFoundError(f"{mission_dir}: no stage folder with a config.yaml")
 
 
@@ -222,11 +330,10 @@ def _flight(mission_dir: Path, key: str, offset: float) -> Flight | None:
     path = stage.mcap(mission_dir)
     if not path.is_file():
         return None
-    tel = read_telemetry(path)
-    record = read_stage(path, topics=[ms.TOPIC_REFERENCE, ms.TOPIC_STATE_NOMINAL, ms.TOPIC_TUBE_DESIGN,
-                                      ms.TOPIC_TUBE_DISTURBANCE])
+    tel = read_telemetry_cached(path)
+    record = _stage_record(path, "track")
     errors = tracking_errors(tel, record.trajectories[ms.TOPIC_REFERENCE], times=tel.t_ctrl)
-    cfg = load_config(stage.folder(mission_dir) / "config.yaml")
+    cfg = load_config_cached(stage.folder(mission_dir) / "config.yaml")
     tube = _tube(record, tel.t_ctrl)
     return Flight(
         key=key, label=FLIGHT_LABELS[key], offset_s=offset,
@@ -244,7 +351,7 @@ def _path(mission_dir: Path, key: str, offset: float) -> PlannedPath | None:
     path = stage.mcap(mission_dir)
     if not path.is_file():
         return None
-    record = read_stage(path, topics=[ms.TOPIC_TRAJECTORY, ms.TOPIC_PLAN_TREE])
+    record = _stage_record(path, stage.command)
     traj = record.trajectories.get(ms.TOPIC_TRAJECTORY)
     if traj is None:
         return None
@@ -264,7 +371,7 @@ def _estimate(mission_dir: Path, key: str, offset: float) -> EstimateSeries | No
     path = stage_by_key(key).mcap(mission_dir)
     if not path.is_file():
         return None
-    params = read_stage(path, topics=[ms.TOPIC_ESTIMATE_PARAMS]).json_records.get(ms.TOPIC_ESTIMATE_PARAMS, ())
+    params = _stage_record(path, "estimate").json_records.get(ms.TOPIC_ESTIMATE_PARAMS, ())
     if not params:
         return None
     t = np.array([float(p["t"]) for p in params]) + offset
@@ -322,7 +429,7 @@ def load_mission_records(mission_dir: Path, summary: dict[str, Any]) -> MissionR
         if path.is_file():
             offset = segment_offset(summary, stage.segment)
             log.extend((t + offset, level, f"[{stage.key}] {msg}")
-                       for t, level, msg in read_stage(path, topics=[ms.TOPIC_LOG]).log)
+                       for t, level, msg in _stage_record(path, stage.command).log)
     log.sort(key=lambda e: e[0])
     ends = [float(f.t_true[-1]) for f in flights.values() if f.t_true.size]
     ends += [segment_offset(summary, s) + float(segments[s].get("duration_s", 0.0)) for s in SEGMENTS

@@ -22,14 +22,15 @@ import numpy as np
 
 from oacli.config import OacliConfig, dump_config
 from oacli.errors import InputError, OacliError
+from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
-from oacli.io.mcap_read import read_stage, read_telemetry
 from oacli.io.rerun.mission import write_mission_recording
 from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
 from oacli.mission.compare import comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
 from oacli.mission.layout import MISSION_STAGES, SEGMENTS, MissionStage, stage_by_key
 from oacli.mission.plots import write_mission_plots
+from oacli.mission.records import load_mission_records, read_stage_cached, read_telemetry_cached
 from oacli.model.robot_model import RobotModel
 from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED, OK, StatusReport
 
@@ -75,7 +76,7 @@ def mission_stages(cfg: OacliConfig) -> tuple[MissionStage, ...]:
 
 
 def _final_position(track_mcap: Path) -> np.ndarray:
-    tel = read_telemetry(track_mcap)
+    tel = read_telemetry_cached(track_mcap)
     return np.asarray(tel.x_true[-1, 0:3], dtype=float)
 
 
@@ -97,7 +98,7 @@ def estimate_model(cfg: OacliConfig, estimate_mcap: Path) -> RobotModel:
     -------
     RobotModel
     """
-    record = read_stage(estimate_mcap)
+    record = read_stage_cached(estimate_mcap, topics=[ms.TOPIC_ESTIMATE_PARAMS])
     params = [r for r in record.json_records.get("/estimate/params", ()) if r.get("final")]
     if not params:
         raise InputError(f"{estimate_mcap}: no final /estimate/params record")
@@ -329,9 +330,10 @@ def run_mission(
                                  f"(see {folder / 'summary.json'})")
         summary = mission_summary(cfg, mission_dir, stages, results)
         say("writing mission.rrd and plots/")
+        records = load_mission_records(mission_dir, summary)  # once for both (the stage MCAPs are cached)
         write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary,
-                                recording_name=f"{cfg.name}/mission")
-        plots = write_mission_plots(mission_dir, summary)
+                                recording_name=f"{cfg.name}/mission", records=records)
+        plots = write_mission_plots(mission_dir, summary, records=records)
         summary["files"]["rrd"] = "mission.rrd"
         summary["files"]["plots"] = {k: str(p.relative_to(mission_dir)) for k, p in plots.items()}
         summary["wall_time_s"] = time.perf_counter() - wall

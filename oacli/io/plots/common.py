@@ -1,14 +1,23 @@
 """Shared helpers of the stages' PNG plots (matplotlib, Agg backend forced: no display needed).
 
 Figures are rendered to memory and written atomically (:func:`oacli.io.atomic.atomic_path`), so a run folder never
-holds a half-written PNG. :func:`guarded_plots` runs each figure of a stage so that a plotting failure never loses
-the run: the failure becomes a warning in the summary and the status is kept.
+holds a half-written PNG.
+
+Speed (issue 9): a figure is laid out once with fixed margins in inches (:func:`fixed_layout`: room for the tick
+labels, titles and the legends outside the axes, whose sizes are measured, not the whole figure's tight box), no
+constrained layout and no ``bbox_inches="tight"`` (each of those draws every tick label several times); series
+longer than :data:`MAX_POINTS` are drawn through :func:`decimate` (min and max per bin: the peaks stay). The old
+path stays reachable with :data:`LEGACY` (``benchmarks/bench_outputs.py`` compares both).
+
+:func:`guarded_plots` runs each figure of a stage so that a plotting failure never loses the run: the failure
+becomes a warning in the summary and the status is kept.
 """
 
 from __future__ import annotations
 
 import io
 import logging
+import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
@@ -22,12 +31,20 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse, Rectangle
+from matplotlib.ticker import LogLocator
 
 from oacli.geometry import Scene
 from oacli.io.atomic import atomic_path
 
 _LOG = logging.getLogger(__name__)
 DPI = 110
+#: The old drawing path (constrained layout, tight bounding box, every sample drawn); set by
+#: ``benchmarks/bench_outputs.py`` or the environment variable ``OACLI_LEGACY_PLOTS=1``.
+LEGACY = os.environ.get("OACLI_LEGACY_PLOTS", "") == "1"
+#: Longest series drawn as is; longer ones are decimated to about this many points (min and max per bin).
+MAX_POINTS = 4000
+#: zlib level of the PNGs (1: about three times faster to encode than the default 6, files somewhat larger).
+PNG_COMPRESS_LEVEL = 1
 #: Axis names of the world frame.
 AXES = ("x", "y", "z")
 
@@ -47,11 +64,132 @@ def spans_decades(values: np.ndarray, decades: float = 2.0) -> bool:
     return v.size > 1 and float(np.log10(v.max() / v.min())) > decades
 
 
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float],
+             **kwargs: Any) -> tuple[Figure, Any]:
+    """``plt.subplots`` without a layout engine (laid out by :func:`fixed_layout` in :func:`save_png`); with
+    :data:`LEGACY`, with constrained layout as before.
+
+    Axes titles sit at a fixed height (``axes.titley`` 1.0: just above the axes, which carry no top tick labels)
+    instead of being moved above whatever overlaps them at every draw (that search measures every tick label)."""
+    if LEGACY:
+        return plt.subplots(nrows, ncols, figsize=figsize, constrained_layout=True, **kwargs)
+    with matplotlib.rc_context({"axes.titley": 1.0}):
+        return plt.subplots(nrows, ncols, figsize=figsize, **kwargs)
+
+
+def decimate(x: np.ndarray, y: np.ndarray, max_points: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """At most about ``max_points`` samples of the curve ``(x, y)`` that look the same drawn: per bin of consecutive
+    samples its first sample and the samples where ``x`` and ``y`` are smallest and largest (in sample order), and
+    the last sample; NaNs are kept (gaps). Works for time series and for paths (x-y) alike.
+
+    Parameters
+    ----------
+    x, y : ndarray, shape (N,)
+        The curve (``y`` may also be (N, k): the bins keep each column's extremes).
+    max_points : int, optional
+        Target length (default :data:`MAX_POINTS`); a curve this short or shorter, or :data:`LEGACY`, is returned
+        unchanged.
+
+    Returns
+    -------
+    tuple of ndarray
+        The kept ``x`` and ``y`` (views or copies; the global minimum, maximum, first and last samples are kept).
+    """
+    limit = MAX_POINTS if max_points is None else int(max_points)
+    x, y = np.asarray(x), np.asarray(y)
+    n = len(x)
+    if LEGACY or n <= limit:
+        return x, y
+    y2 = np.column_stack([x.astype(float), y.reshape(n, -1)])
+    per_bin = max(3, int(np.ceil((1 + 2 * y2.shape[1]) * n / limit)))
+    bins = n // per_bin
+    edge = bins * per_bin
+    keep = [np.arange(0, edge, per_bin)]
+    with np.errstate(invalid="ignore"):
+        for col in y2.T:
+            block = col[:edge].reshape(bins, per_bin)
+            base = np.arange(bins) * per_bin
+            filled_lo = np.where(np.isnan(block), np.inf, block)
+            filled_hi = np.where(np.isnan(block), -np.inf, block)
+            keep += [base + np.argmin(filled_lo, axis=1), base + np.argmax(filled_hi, axis=1)]
+        nan_at = np.flatnonzero(np.isnan(y2[:edge]).any(axis=1))
+    keep += [nan_at, np.arange(edge, n), np.array([n - 1])]
+    idx = np.unique(np.concatenate(keep))
+    return x[idx], y[idx]
+
+
+def _legend_width_in(ax: Axes, renderer: Any) -> float:
+    """Width [in] of ``ax``'s legend when it sits right of the axes (:func:`legend_outside`), else 0."""
+    leg = ax.get_legend()
+    if leg is None or not getattr(leg, "_oacli_outside", False):
+        return 0.0
+    return float(leg.get_window_extent(renderer).width) / float(ax.figure.dpi)
+
+
+def fixed_layout(fig: Figure) -> None:
+    """Place the axes of a grid figure with margins in inches sized for their decorations, without a layout engine.
+
+    Room: left of each column for its tick labels and y label; right of it for the widest legend outside its axes
+    (measured); above each row for the axes titles (and the figure's title); below each row for x tick labels
+    and x labels where they are shown; the figure legend at the bottom (measured).
+
+    Parameters
+    ----------
+    fig : Figure
+        A figure whose axes all come from one ``subplots`` grid (other figures are left as they are).
+    """
+    axes = [a for a in fig.axes if a.get_subplotspec() is not None]
+    if not axes or fig.get_layout_engine() is not None:
+        return
+    gs = axes[0].get_subplotspec().get_gridspec()
+    if any(a.get_subplotspec().get_gridspec() is not gs for a in axes):
+        return
+    nrows, ncols = gs.get_geometry()
+    renderer = fig.canvas.get_renderer()
+    width_in, height_in = (float(v) for v in fig.get_size_inches())
+    legend_in = [0.0] * ncols
+    titled = [False] * nrows
+    xlabels = [False] * nrows
+    for a in axes:
+        spec = a.get_subplotspec()
+        col, row = spec.colspan.stop - 1, spec.rowspan.start
+        legend_in[col] = max(legend_in[col], _legend_width_in(a, renderer))
+        titled[row] = titled[row] or any(t.get_text() for t in (a.title, a._left_title, a._right_title))
+        last = spec.rowspan.stop - 1
+        shown = bool(a.xaxis.get_tick_params().get("labelbottom", True)) or bool(a.get_xlabel())
+        xlabels[last] = xlabels[last] or shown
+    ylabel_in = 0.95
+    left = ylabel_in
+    right = max(legend_in[-1] + 0.2, 0.3)
+    top = 0.15 + (0.3 if titled[0] else 0.0) + (0.4 if fig._suptitle is not None else 0.0)
+    bottom = 0.15 + (0.5 if xlabels[-1] else 0.0)
+    for leg in fig.legends:
+        bottom += float(leg.get_window_extent(renderer).height) / float(fig.dpi) + 0.1
+    # gaps between rows: the lower row's title and the upper row's x tick labels
+    row_gap = 0.15 + (0.3 if any(titled[1:]) else 0.0) + (0.5 if any(xlabels[:-1]) else 0.0)
+    col_gap = ylabel_in + max(legend_in[:-1], default=0.0) + 0.1
+    avail_h = max(height_in - top - bottom - (nrows - 1) * row_gap, 0.5 * height_in)
+    avail_w = max(width_in - left - right - (ncols - 1) * col_gap, 0.4 * width_in)
+    fig.subplots_adjust(
+        left=left / width_in, right=1.0 - right / width_in, bottom=bottom / height_in, top=1.0 - top / height_in,
+        hspace=row_gap * nrows / avail_h if nrows > 1 else 0.0,
+        wspace=col_gap * ncols / avail_w if ncols > 1 else 0.0,
+    )
+    for leg in fig.legends:  # the figure legend sits in the bottom margin
+        leg.set_bbox_to_anchor((0.5, 0.1 / height_in), transform=fig.transFigure)
+
+
 def save_png(fig: Figure, path: Path) -> Path:
-    """Render ``fig`` to PNG in memory, close it and write the bytes to ``path`` atomically."""
+    """Lay ``fig`` out (:func:`fixed_layout`), render it to PNG in memory, close it and write the bytes to ``path``
+    atomically (with :data:`LEGACY`: constrained layout and a tight bounding box, as before)."""
     buf = io.BytesIO()
     try:
-        fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
+        if LEGACY:
+            fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
+        else:
+            fig.set_dpi(DPI)
+            fixed_layout(fig)
+            fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     finally:
         plt.close(fig)
     with atomic_path(Path(path)) as tmp:
@@ -59,10 +197,19 @@ def save_png(fig: Figure, path: Path) -> Path:
     return Path(path)
 
 
+def log_scale(ax: Axes) -> None:
+    """A log y axis; minor ticks (and minor grid lines) at 2 and 5 times each power of ten only (with
+    :data:`LEGACY`: all eight), which is fewer tick objects to make and draw."""
+    ax.set_yscale("log")
+    if not LEGACY:
+        ax.yaxis.set_minor_locator(LogLocator(base=10.0, subs=(2.0, 5.0)))
+
+
 def legend_outside(ax: Axes) -> None:
     """A legend right of the axes (it never covers the data)."""
     if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
+        leg = ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
+        leg._oacli_outside = True  # type: ignore[attr-defined]  # fixed_layout makes room for it
 
 
 def ellipse_projection(center: np.ndarray, shape: np.ndarray, axes: tuple[int, int] = (0, 1),
@@ -136,11 +283,11 @@ def plot_inputs(path: Path, t_s: np.ndarray, u: np.ndarray, force_limit_N: np.nd
     """
     t = np.asarray(t_s, dtype=float)
     u = np.asarray(u, dtype=float).reshape(len(t), 6)
-    fig, axes = plt.subplots(2, 3, figsize=(13, 6), constrained_layout=True, sharex=True)
+    fig, axes = subplots(2, 3, figsize=(13, 6), sharex=True)
     for k in range(6):
         ax = axes[k // 3, k % 3]
         lim = float((force_limit_N if k < 3 else torque_limit_Nm)[k % 3])
-        ax.step(t, u[:, k], where="post", lw=1.2, color="tab:blue", label="input")
+        ax.step(*decimate(t, u[:, k]), where="post", lw=1.2, color="tab:blue", label="input")
         ax.axhline(lim, color="tab:red", ls="--", lw=1.0, label=f"± {limit_label}")
         ax.axhline(-lim, color="tab:red", ls="--", lw=1.0)
         top = 1.15 * lim
@@ -165,7 +312,8 @@ def plot_inputs(path: Path, t_s: np.ndarray, u: np.ndarray, force_limit_N: np.nd
             if lab not in labels:
                 handles.append(h)
                 labels.append(lab)
-    fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize="small")
+    fig.legend(handles, labels, loc="outside lower center" if LEGACY else "lower center", ncols=len(labels),
+               fontsize="small")
     fig.suptitle(title)
     save_png(fig, path)
     return t, u

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from oacli.io.plots.common import RunFiles, guarded_plots, legend_outside, plt, save_png
+from oacli.io.plots.common import RunFiles, guarded_plots, legend_outside, save_png, subplots
 from oacli.types import ParameterEstimate
 
 PARAMETERS = (("mass", "kg"), ("Ixx", "kg·m²"), ("Iyy", "kg·m²"), ("Izz", "kg·m²"))
@@ -40,7 +40,7 @@ def plot_convergence(path: Path, estimates: Sequence[ParameterEstimate], truth: 
     t = np.array([e.t for e in estimates], dtype=float)
     theta = np.array([e.theta for e in estimates], dtype=float).reshape(-1, 4)
     std = np.array([e.std for e in estimates], dtype=float).reshape(-1, 4)
-    fig, axes = plt.subplots(4, 1, figsize=(11, 10), constrained_layout=True, sharex=True)
+    fig, axes = subplots(4, 1, figsize=(11, 10), sharex=True)
     for i, (name, unit) in enumerate(PARAMETERS):
         ax = axes[i]
         two = 2.0 * std[:, i]

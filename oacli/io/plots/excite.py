@@ -14,7 +14,17 @@ from typing import Any
 
 import numpy as np
 
-from oacli.io.plots.common import RunFiles, guarded_plots, legend_outside, plot_inputs, plt, save_png, spans_decades
+from oacli.io.plots.common import (
+    RunFiles,
+    decimate,
+    guarded_plots,
+    legend_outside,
+    log_scale,
+    plot_inputs,
+    save_png,
+    spans_decades,
+    subplots,
+)
 from oacli.types import ParameterEstimate
 
 PARAMETERS = (("mass", "1/kg²"), ("Ixx", "1/(kg·m²)²"), ("Iyy", "1/(kg·m²)²"), ("Izz", "1/(kg·m²)²"))
@@ -40,12 +50,12 @@ def plot_information(path: Path, t_s: np.ndarray, information: np.ndarray, title
     """
     t = np.asarray(t_s, dtype=float)
     diag = np.diagonal(np.asarray(information, dtype=float), axis1=1, axis2=2)
-    fig, axes = plt.subplots(4, 1, figsize=(11, 9), constrained_layout=True, sharex=True)
+    fig, axes = subplots(4, 1, figsize=(11, 9), sharex=True)
     for i, (name, unit) in enumerate(PARAMETERS):
         ax = axes[i]
-        ax.plot(t, diag[:, i], color="tab:blue", lw=1.5, label=f"F[{name}, {name}]")
+        ax.plot(*decimate(t, diag[:, i]), color="tab:blue", lw=1.5, label=f"F[{name}, {name}]")
         if spans_decades(diag[:, i]):
-            ax.set_yscale("log")
+            log_scale(ax)
         ax.set_ylabel(f"{name} [{unit}]")
         ax.grid(True, alpha=0.3, which="both")
         legend_outside(ax)

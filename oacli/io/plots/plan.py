@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from oacli.geometry import Scene
-from oacli.io.plots.common import RunFiles, draw_scene, finish_view, guarded_plots, plt, save_png
+from oacli.io.plots.common import RunFiles, decimate, draw_scene, finish_view, guarded_plots, save_png, subplots
 
 #: Line style per path label (others: solid).
 _STYLES = {"plan (input)": (":", 1.2, "0.35"), "plan": ("-", 1.8, "tab:blue"), "smoothed": ("-", 1.8, "tab:blue")}
@@ -38,12 +38,12 @@ def plot_view(path: Path, axes: tuple[int, int], title: str, scene: Scene | None
     start_m, goal_m : ndarray, shape (3,)
     """
     i, j = axes
-    fig, ax = plt.subplots(figsize=(10, 7), constrained_layout=True)
+    fig, ax = subplots(figsize=(10, 7))
     draw_scene(ax, scene, robot_radius_m, axes)
     for label, pos in paths.items():
         ls, lw, color = _STYLES.get(label, ("-", 1.4, None))
         p = np.asarray(pos, dtype=float)
-        ax.plot(p[:, i], p[:, j], ls=ls, lw=lw, color=color, label=label)
+        ax.plot(*decimate(p[:, i], p[:, j]), ls=ls, lw=lw, color=color, label=label)
     ax.plot(start_m[i], start_m[j], "ko", ms=7, label="start")
     ax.plot(goal_m[i], goal_m[j], "k^", ms=9, label="goal")
     finish_view(ax, axes, title)

@@ -18,14 +18,16 @@ import numpy as np
 from oacli.geometry import Scene
 from oacli.io.plots.common import (
     RunFiles,
+    decimate,
     draw_scene,
     finish_view,
     guarded_plots,
     legend_outside,
+    log_scale,
     plot_inputs,
-    plt,
     save_png,
     spans_decades,
+    subplots,
 )
 from oacli.metrics import tracking_errors
 from oacli.model.limits import MotionLimits
@@ -71,15 +73,15 @@ def plot_tracking_error(path: Path, telemetry: Telemetry, reference: Trajectory)
     ctrl = tracking_errors(telemetry, reference, telemetry.t_ctrl)
     series = ErrorSeries(dense.t, dense.position_m, dense.attitude_rad, ctrl.t, ctrl.position_m)
     rms = float(np.sqrt(np.mean(dense.position_m**2)))
-    fig, (ax, ax_att) = plt.subplots(2, 1, figsize=(11, 6.5), constrained_layout=True, sharex=True)
-    ax.plot(dense.t, dense.position_m, color="tab:blue", lw=1.2,
+    fig, (ax, ax_att) = subplots(2, 1, figsize=(11, 6.5), sharex=True)
+    ax.plot(*decimate(dense.t, dense.position_m), color="tab:blue", lw=1.2,
             label=f"plant samples (RMS {1e3 * rms:.3g} mm, max {1e3 * dense.position_m.max():.3g} mm)")
-    ax.plot(ctrl.t, ctrl.position_m, ".", color="tab:orange", ms=3, label="control instants")
+    ax.plot(*decimate(ctrl.t, ctrl.position_m), ".", color="tab:orange", ms=3, label="control instants")
     ax.set_ylabel("position error [m]")
     if spans_decades(dense.position_m, 3.0):
-        ax.set_yscale("log")
+        log_scale(ax)
     ax.set_title("‖r − r_ref‖, true state against the reference at equal times", loc="left", fontsize="medium")
-    ax_att.plot(dense.t, np.degrees(dense.attitude_rad), color="tab:purple", lw=1.2, label="attitude error")
+    ax_att.plot(*decimate(dense.t, np.degrees(dense.attitude_rad)), color="tab:purple", lw=1.2, label="attitude error")
     ax_att.set_ylabel("attitude error [deg]")
     ax_att.set_xlabel("time [s]")
     for a in (ax, ax_att):
@@ -92,10 +94,10 @@ def plot_tracking_error(path: Path, telemetry: Telemetry, reference: Trajectory)
 def plot_top_view(path: Path, scene: Scene | None, robot_radius_m: float, reference: Trajectory,
                   telemetry: Telemetry) -> None:
     """Draw ``top_view.png`` (module docstring)."""
-    fig, ax = plt.subplots(figsize=(10, 7), constrained_layout=True)
+    fig, ax = subplots(figsize=(10, 7))
     draw_scene(ax, scene, robot_radius_m)
-    ax.plot(reference.x[:, 0], reference.x[:, 1], "--", color="0.3", lw=1.2, label="reference")
-    ax.plot(telemetry.x_true[:, 0], telemetry.x_true[:, 1], color="tab:blue", lw=1.6, label="flown (true)")
+    ax.plot(*decimate(reference.x[:, 0], reference.x[:, 1]), "--", color="0.3", lw=1.2, label="reference")
+    ax.plot(*decimate(telemetry.x_true[:, 0], telemetry.x_true[:, 1]), color="tab:blue", lw=1.6, label="flown (true)")
     ax.plot(*telemetry.x_true[0, 0:2], "ko", ms=6, label="start")
     ax.plot(*reference.x[-1, 0:2], "k^", ms=8, label="reference end")
     finish_view(ax, (0, 1), "Top view (x-y)")

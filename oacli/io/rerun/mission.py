@@ -265,7 +265,8 @@ def _log_events(rec: StageRecording, records: MissionRecords) -> None:
     rec.log_entries(sorted(events + list(records.log), key=lambda e: e[0]))
 
 
-def write_mission_recording(path: Path, mission_dir: Path, summary: dict[str, Any], *, recording_name: str) -> None:
+def write_mission_recording(path: Path, mission_dir: Path, summary: dict[str, Any], *, recording_name: str,
+                            records: MissionRecords | None = None) -> None:
     """Write ``mission.rrd``: the whole mission on the ``mission_time`` timeline (module docstring) with
     :func:`mission_blueprint`.
 
@@ -279,6 +280,8 @@ def write_mission_recording(path: Path, mission_dir: Path, summary: dict[str, An
         The mission summary (segments' ``start_time_s`` and ``duration_s``, ``grasp_time_s``, ``estimate``).
     recording_name : str
         Recording name shown in the viewer.
+    records : MissionRecords, optional
+        The records of ``mission_dir`` already read (:func:`load_mission_records`; read here otherwise).
 
     Raises
     ------
@@ -287,7 +290,8 @@ def write_mission_recording(path: Path, mission_dir: Path, summary: dict[str, An
     FileNotFoundError
         No stage folder holds a config.
     """
-    records = load_mission_records(Path(mission_dir), summary)
+    if records is None:
+        records = load_mission_records(Path(mission_dir), summary)
     rec = StageRecording(APPLICATION_ID, recording_name)
     rec.log_scene(records.scene)
     _log_events(rec, records)

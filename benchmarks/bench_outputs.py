@@ -1,0 +1,201 @@
+"""Benchmark: the default mission's outputs (stage PNGs, Rerun recordings, MCAP topics, the mission's own outputs and
+hand-offs), the old path against the new one on the same data, alternating per repeat (issue 9).
+
+Runs the mission once (``configs/mission_iss.yaml``, BLAS pinned to one thread) while capturing the arguments of
+every stage's output call (``write_*_plots``, ``write_*_recording``, ``write_*_topics``), then replays each call
+``--repeats`` times into temporary folders, old path then new path, and prints the median time per output kind:
+
+* ``stage PNGs`` -- :data:`oacli.io.plots.common.LEGACY` (constrained layout + tight bbox + every sample drawn) against
+  the fixed layout with decimated series;
+* ``stage Rerun`` / ``stage MCAP`` -- the recordings and the MCAP topics (complete files, as the stages write them;
+  their code has no old path: both columns run the same code, the spread between them is the machine's noise);
+* ``mission outputs`` -- ``mission.rrd`` + ``plots/`` + the summary's comparison rows (the stage MCAPs read back),
+  :data:`oacli.mission.records.CACHE` off (every reader reads its files) against on (each file read once);
+* ``mission hand-offs`` -- :func:`oacli.mission.run.handoff_for` of every stage (the earlier stages' MCAPs read).
+
+Run: ``taskset -c 1 python benchmarks/bench_outputs.py [--repeats 3] [--config configs/mission_iss.yaml]``
+(``--mission DIR`` reuses a finished mission folder for the mission rows and skips the stage rows).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import statistics  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from contextlib import contextmanager  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import oacli.io.plots.common as plot_common  # noqa: E402
+import oacli.mission.records as mission_records  # noqa: E402
+import oacli.stages.estimate as st_estimate  # noqa: E402
+import oacli.stages.excite as st_excite  # noqa: E402
+import oacli.stages.plan as st_plan  # noqa: E402
+import oacli.stages.smooth as st_smooth  # noqa: E402
+import oacli.stages.track as st_track  # noqa: E402
+from oacli.config import load_config  # noqa: E402
+from oacli.io.mcap_write import StageMcapWriter  # noqa: E402
+from oacli.io.rerun.mission import write_mission_recording  # noqa: E402
+from oacli.mission.compare import comparison_row  # noqa: E402
+from oacli.mission.layout import stage_by_key  # noqa: E402
+from oacli.mission.plots import write_mission_plots  # noqa: E402
+from oacli.mission.run import handoff_for, mission_stages, run_mission, start_mission, validate_mission  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: (module, function name, output kind) of every stage output call captured.
+CAPTURED = [
+    (st_track, "write_track_plots", "plots"), (st_estimate, "write_estimate_plots", "plots"),
+    (st_excite, "write_excite_plots", "plots"), (st_plan, "write_path_plots", "plots"),
+    (st_smooth, "write_path_plots", "plots"),
+    (st_track, "write_track_recording", "rerun"), (st_estimate, "write_estimate_recording", "rerun"),
+    (st_excite, "write_excite_recording", "rerun"), (st_plan, "write_plan_recording", "rerun"),
+    (st_smooth, "write_smooth_recording", "rerun"),
+    (st_track, "write_track_topics", "mcap"), (st_estimate, "write_estimate_topics", "mcap"),
+    (st_excite, "write_offline_topics", "mcap"), (st_plan, "write_plan_topics", "mcap"),
+    (st_smooth, "write_smooth_topics", "mcap"),
+]
+
+
+class FakeRun:
+    """What the plot writers need of a run folder, in a temporary folder."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.run_dir = run_dir
+
+    def file(self, role: str, name: str) -> Path:
+        return self.run_dir / name
+
+
+def capture_mission(config: Path, out: Path) -> tuple[list[tuple[str, Callable[..., Any], tuple, dict]], Path]:
+    """Run the mission into ``out`` and return every captured stage output call ``(kind, function, args, kwargs)``."""
+    calls: list[tuple[str, Callable[..., Any], tuple, dict]] = []
+    saved = []
+    for module, name, kind in CAPTURED:
+        real = getattr(module, name)
+        saved.append((module, name, real))
+
+        def wrapper(*args: Any, _real: Callable[..., Any] = real, _kind: str = kind, **kwargs: Any) -> Any:
+            calls.append((_kind, _real, args, kwargs))
+            return _real(*args, **kwargs)
+
+        setattr(module, name, wrapper)
+    try:
+        cfg = load_config(config)
+        validate_mission(cfg)
+        mission_dir = start_mission(cfg, out=out, runs_root=out.parent)
+        run_mission(cfg, mission_dir)
+    finally:
+        for module, name, real in saved:
+            setattr(module, name, real)
+    return calls, mission_dir
+
+
+def replay(kind: str, func: Callable[..., Any], args: tuple, kwargs: dict, tmp: Path, k: int) -> None:
+    """One captured call again, into ``tmp``."""
+    if kind == "plots":
+        func(FakeRun(tmp), {**args[1], "warnings": []}, **kwargs)
+    elif kind == "rerun":
+        func(tmp / f"r{k}.rrd", *args[1:], **kwargs)
+    else:
+        with StageMcapWriter(tmp / f"m{k}.mcap", stage="bench", config_yaml="bench: 1\n", time_ordered=True) as w:
+            func(w, *args[1:], **kwargs)
+
+
+@contextmanager
+def legacy(on: bool):
+    """Switch every old path on (``on``) or off."""
+    before = (plot_common.LEGACY, mission_records.CACHE)
+    plot_common.LEGACY, mission_records.CACHE = on, not on
+    mission_records.clear_cache()
+    try:
+        yield
+    finally:
+        plot_common.LEGACY, mission_records.CACHE = before
+        mission_records.clear_cache()
+
+
+def mission_outputs(mission_dir: Path, tmp: Path) -> None:
+    """What ``run_mission`` does after the last stage: comparison rows, ``mission.rrd``, ``plots/``."""
+    summary = json.loads((mission_dir / "summary.json").read_text())
+    for key in summary["comparison"]:
+        comparison_row(key, json.loads((stage_by_key(key).folder(mission_dir) / "summary.json").read_text()),
+                       mission_dir)
+    if mission_records.CACHE:  # new: read once for both
+        records = mission_records.load_mission_records(mission_dir, summary)
+        write_mission_recording(tmp / "mission.rrd", mission_dir, summary, recording_name="bench", records=records)
+        write_mission_plots(mission_dir, summary, records=records, out_dir=tmp / "plots")
+    else:
+        write_mission_recording(tmp / "mission.rrd", mission_dir, summary, recording_name="bench")
+        write_mission_plots(mission_dir, summary, out_dir=tmp / "plots")
+
+
+def handoffs(mission_dir: Path) -> None:
+    """Every stage's hand-off, read from the mission folder."""
+    cfg = load_config(mission_dir / "config.yaml")
+    for stage in mission_stages(cfg):
+        handoff_for(cfg, stage, mission_dir)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", type=Path, default=ROOT / "configs" / "mission_iss.yaml")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--mission", type=Path, help="a finished mission folder: only the mission rows")
+    args = parser.parse_args()
+    times: dict[tuple[str, str], list[float]] = {}
+    counts: dict[str, int] = {}
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        calls: list[tuple[str, Callable[..., Any], tuple, dict]] = []
+        if args.mission is None:
+            start = time.perf_counter()
+            calls, mission_dir = capture_mission(args.config, tmp / "mission")
+            print(f"mission run (new path, capturing) {time.perf_counter() - start:.1f} s")
+        else:
+            mission_dir = args.mission
+        for kind, *_ in calls:
+            counts[kind] = counts.get(kind, 0) + 1
+        for rep in range(args.repeats):
+            for side in ("old", "new"):
+                with legacy(side == "old"):
+                    out = tmp / f"{side}{rep}"
+                    out.mkdir()
+                    for kind in ("plots", "rerun", "mcap"):
+                        start = time.perf_counter()
+                        for k, (c_kind, func, a, kw) in enumerate(calls):
+                            if c_kind == kind:
+                                replay(kind, func, a, kw, out, k)
+                        times.setdefault((kind, side), []).append(time.perf_counter() - start)
+                    # as in the mission: the hand-offs first (the cache, new path, starts empty), then the outputs
+                    start = time.perf_counter()
+                    handoffs(mission_dir)
+                    times.setdefault(("mission hand-offs", side), []).append(time.perf_counter() - start)
+                    start = time.perf_counter()
+                    mission_outputs(mission_dir, out)
+                    times.setdefault(("mission outputs", side), []).append(time.perf_counter() - start)
+    names = {"plots": "stage PNGs", "rerun": "stage Rerun recordings", "mcap": "stage MCAP topics"}
+    print(f"{args.repeats} repeat(s), old and new alternating, median [s]; calls per kind: {counts}")
+    print(f"  {'output kind':<26} {'old':>8} {'new':>8} {'speed-up':>9}")
+    total = {"old": 0.0, "new": 0.0}
+    for kind in ("plots", "rerun", "mcap", "mission hand-offs", "mission outputs"):
+        if (kind, "old") not in times or (kind in names and not counts.get(kind)):
+            continue
+        old, new = statistics.median(times[(kind, "old")]), statistics.median(times[(kind, "new")])
+        total["old"] += old
+        total["new"] += new
+        print(f"  {names.get(kind, kind):<26} {old:8.2f} {new:8.2f} {old / max(new, 1e-9):8.1f}x")
+    print(f"  {'total':<26} {total['old']:8.2f} {total['new']:8.2f} "
+          f"{total['old'] / max(total['new'], 1e-9):8.1f}x")
+
+
+if __name__ == "__main__":
+    main()
