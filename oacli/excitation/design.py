@@ -53,6 +53,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from oacli.excitation import split_information
 from oacli.excitation.design_types import ExcitationDesign, ExcitationProblem, ScpIterate, ScpSettings
 from oacli.excitation.fim_gradient import SYMMETRIC_PAIRS, criterion_value, fim_gradients, symmetric_basis
 from oacli.excitation.information import (
@@ -96,7 +97,11 @@ class _ScpRun:
         it = len(self.history) + 1
         current = self.current
         if self.lin is None:
-            self.lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)  # type: ignore[assignment]
+            if current.rollout is not None:  # fast path: the iterate's split rollout, batched adjoint
+                self.lin = split_information.fim_gradients(  # type: ignore[assignment]
+                    p.start, current.u, p.theta, p.dt, p.measurement, _BASIS, ro=current.rollout)
+            else:
+                self.lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)  # type: ignore[assignment]
         lin = self.lin
         sub.set_iterate(current, lin, self.d_force, self.d_torque)
         t0 = time.perf_counter()
@@ -119,7 +124,7 @@ class _ScpRun:
         trial = np.clip(current.u + du, -p.limits.input, p.limits.input)
         candidate = merit.evaluate(trial)
         if candidate.violations["terminal_attitude"] > 0 or candidate.violations["terminal_angular_velocity"] > 0:
-            corrected = merit.evaluate(restore_rotation_endpoint(p, trial))
+            corrected = merit.evaluate(restore_rotation_endpoint(p, trial, fast=merit.fast))
             if corrected.merit < candidate.merit:
                 candidate = corrected
         actual = current.merit - candidate.merit
@@ -153,8 +158,13 @@ def design_excitation(
     u_init: np.ndarray | None = None,
     progress: Callable[[float], None] | None = None,
     rng: np.random.Generator | None = None,
+    reference: bool = False,
 ) -> ExcitationDesign:
     """Design an information-optimal excitation trajectory (Doerr Eq. 30) by SCP; see the module docstring.
+
+    The default (fast) path and the reference path run the same SCP on the same subproblem; the fast one rolls out
+    and differentiates with :mod:`oacli.excitation.split_information` (same numbers to rounding) and solves the
+    subproblem through the compiled direct-Clarabel path (:class:`oacli.control.compiled_qp.CompiledQP`).
 
     Parameters
     ----------
@@ -166,6 +176,9 @@ def design_excitation(
         Called with the fraction of the iteration budget used after each iteration (and 1.0 at the end).
     rng : numpy.random.Generator, optional
         Source of the extra starts (:func:`perturbed_guess`); a fixed seed by default.
+    reference : bool, optional
+        Run the reference path (generic rollouts and adjoint of :mod:`oacli.excitation.information` and
+        :mod:`oacli.excitation.fim_gradient`, ``problem.solve()`` per subproblem), kept to check the fast one.
 
     Returns
     -------
@@ -181,12 +194,12 @@ def design_excitation(
     wall = time.perf_counter()
     p = problem
     check_reachable(p.start, p.goal, p.duration_s, p.theta, p.limits)
-    merit = ScpMerit(p, settings.penalty)
+    merit = ScpMerit(p, settings.penalty, fast=not reference)
     if u_init is None:
         u0 = initial_guess(p)
     else:
         u0 = np.clip(np.asarray(u_init, dtype=float), -p.limits.input, p.limits.input)
-    sub = ConvexSubproblem(p, merit, settings.penalty)
+    sub = ConvexSubproblem(p, merit, settings.penalty, compiled=not reference)
     # The first start fixes the merit's normalisation, so that all starts are compared on the same merit.
     runs = [_ScpRun(p, settings, merit, sub, merit.evaluate(u0))]
     rng = np.random.default_rng(0) if rng is None else rng
@@ -241,13 +254,14 @@ def design_excitation(
         violations=current.violations,
         collision_free=collision_free(p.scene, x, current.u, p.dt, p.theta[0]),
         crb_std=cramer_rao_std(fim_meas, p.theta),
-        information_over_time=cumulative_information(x, current.u, p.theta, p.dt, p.measurement),
+        information_over_time=cumulative_information(x, current.u, p.theta, p.dt, p.measurement,
+                                                     rollout=current.rollout),
         initial=initial,
     )
 
 
 def restore_rotation_endpoint(
-    problem: ExcitationProblem, u: np.ndarray, iterations: int = 3, target_fraction: float = 0.1
+    problem: ExcitationProblem, u: np.ndarray, iterations: int = 3, target_fraction: float = 0.1, fast: bool = False
 ) -> np.ndarray:
     """Second-order correction of a trial step: Gauss-Newton on the final attitude and rate, torques only.
 
@@ -267,6 +281,8 @@ def restore_rotation_endpoint(
         Gauss-Newton iterations.
     target_fraction : float, optional
         Stop once the residual is below this fraction of the terminal tolerance.
+    fast : bool, optional
+        Roll out with :func:`oacli.excitation.split_information.rollout` (same Jacobians to rounding).
 
     Returns
     -------
@@ -279,16 +295,20 @@ def restore_rotation_endpoint(
     tau_max = p.limits.torque_Nm
     tol = p.terminal
     for _ in range(iterations):
-        x = np.empty((n + 1, 13))
-        x[0] = p.start
-        a_rot = np.empty((n, 7, 7))
-        b_rot = np.empty((n, 7, 3))
-        for k in range(n):
-            x_next, a, b, _ = rb.rk4_step_jacobians(x[k], u[k], p.theta, p.dt)
-            x_next[6:10] = quat.normalize(x_next[6:10])
-            x[k + 1] = x_next
-            a_rot[k] = a[6:13, 6:13]
-            b_rot[k] = b[6:13, 3:6]
+        if fast:
+            ro = split_information.rollout(p.start, u, p.theta, p.dt)
+            x, a_rot, b_rot = ro.x, ro.a_rot, ro.b_rot
+        else:
+            x = np.empty((n + 1, 13))
+            x[0] = p.start
+            a_rot = np.empty((n, 7, 7))
+            b_rot = np.empty((n, 7, 3))
+            for k in range(n):
+                x_next, a, b, _ = rb.rk4_step_jacobians(x[k], u[k], p.theta, p.dt)
+                x_next[6:10] = quat.normalize(x_next[6:10])
+                x[k + 1] = x_next
+                a_rot[k] = a[6:13, 6:13]
+                b_rot[k] = b[6:13, 3:6]
         err, jac = attitude_error(p.goal[6:10], x[n, 6:10])
         rate = x[n, 10:13] - p.goal[10:13]
         if (np.max(np.abs(err)) <= target_fraction * tol.attitude_rad
@@ -324,7 +344,8 @@ def _fim_step(gradients: np.ndarray, du: np.ndarray) -> np.ndarray:
 
 
 def cumulative_information(
-    x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model: MeasurementModel
+    x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model: MeasurementModel,
+    rollout: split_information.SplitRollout | None = None,
 ) -> np.ndarray:
     """Fisher information of the measurements up to each sample, shape (N+1, 4, 4) (zero at t = 0).
 
@@ -337,13 +358,18 @@ def cumulative_information(
         θ = [m, Ixx, Iyy, Izz] of the model.
     dt : float
     model : MeasurementModel
+    rollout : SplitRollout, optional
+        The split rollout of ``u`` (:func:`oacli.excitation.split_information.rollout`), when at hand.
 
     Returns
     -------
     ndarray, shape (N+1, 4, 4)
     """
     out = np.zeros((u.shape[0] + 1, N_PARAMS, N_PARAMS))
-    out[1:] = np.cumsum(information_per_step(x[0], u, theta, dt, model), axis=0)
+    if rollout is not None:
+        out[1:] = np.cumsum(split_information.information_per_step(rollout, u, theta, model), axis=0)
+    else:
+        out[1:] = np.cumsum(information_per_step(x[0], u, theta, dt, model), axis=0)
     return out
 
 

@@ -20,7 +20,8 @@ from oacli.excitation.information import N_PARAMS
 from oacli.excitation.merit import Evaluation, ScpMerit
 from oacli.excitation.problem import LENGTH_UNIT_M, attitude_error, keep_in_violation
 from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
-from oacli.solver import solve_clarabel
+from oacli.control.compiled_qp import CompiledQP
+from oacli.solver import solve_clarabel, solver_error_status
 
 
 class ConvexSubproblem:
@@ -38,13 +39,19 @@ class ConvexSubproblem:
         never tighter than the current value.
     rate_margin_fraction : float, optional
         The rate limits aim at ``1 − (1 − κ) × rate_margin_fraction`` of the limit, likewise.
+    compiled : bool, optional
+        Solve through :class:`oacli.control.compiled_qp.CompiledQP` (the DPP problem canonicalised once at the
+        first solve, then only its data updated in one Clarabel solver) instead of ``problem.solve()`` (which
+        re-canonicalises every time); the same problem and solver, so the same solution to solver tolerance.
     """
 
     def __init__(
         self, problem: ExcitationProblem, merit: ScpMerit, penalty: float, linearisation_margin: float = 0.5,
-        rate_margin_fraction: float = 0.05,
+        rate_margin_fraction: float = 0.05, compiled: bool = False,
     ) -> None:
         p = problem
+        self.compiled = compiled
+        self._compiled_qp: CompiledQP | None = None
         self.linearisation_margin = linearisation_margin
         self.rate_margin_fraction = rate_margin_fraction
         n = p.steps
@@ -78,8 +85,9 @@ class ConvexSubproblem:
         ]
 
         slacks = []
-        s_v = cp.Variable(n, nonneg=True, name="s_velocity")
-        s_w = cp.Variable(n, nonneg=True, name="s_rate")
+        self._slack_cons: list[cp.Constraint] = []
+        s_v = self._slack(n, "s_velocity")
+        s_w = self._slack(n, "s_rate")
         self.w_bound = cp.Parameter((n, 3), nonneg=True, name="rate_bound")
         cons += [
             cp.abs(self.v_bar[1:] + dv[1:]) <= cp.reshape(1.0 + s_v, (n, 1), order="C") @ lim.velocity_mps[None, :],
@@ -95,7 +103,7 @@ class ConvexSubproblem:
             self.in_hi0 = cp.Parameter((n, 3), name="in_hi0")
             self.in_lo1 = cp.Parameter((n, 3), name="in_lo1")
             self.in_hi1 = cp.Parameter((n, 3), name="in_hi1")
-            s_in = cp.Variable(n, nonneg=True, name="s_keep_in")
+            s_in = self._slack(n, "s_keep_in")
             ls = cp.reshape(LENGTH_UNIT_M * s_in, (n, 1), order="C") @ np.ones((1, 3))
             cons += [
                 dr[:-1] >= self.in_lo0 - ls, dr[:-1] <= self.in_hi0 + ls,
@@ -109,7 +117,7 @@ class ConvexSubproblem:
             n_hat = cp.Parameter((n, 3), name=f"out_n{e}")
             c0 = cp.Parameter(n, name=f"out_c0_{e}")
             c1 = cp.Parameter(n, name=f"out_c1_{e}")
-            s_out = cp.Variable(n, nonneg=True, name=f"s_keep_out{e}")
+            s_out = self._slack(n, f"s_keep_out{e}")
             cons += [
                 cp.sum(cp.multiply(n_hat, dr[:-1]), axis=1) >= c0 - LENGTH_UNIT_M * s_out,
                 cp.sum(cp.multiply(n_hat, dr[1:]), axis=1) >= c1 - LENGTH_UNIT_M * s_out,
@@ -125,7 +133,7 @@ class ConvexSubproblem:
         self.att_jac = cp.Parameter((3, 4), name="attitude_error_jacobian")
         self.att_bound = cp.Parameter(3, nonneg=True, name="attitude_bound")
         self.w_end_bound = cp.Parameter(3, nonneg=True, name="rate_end_bound")
-        s_t = cp.Variable(4, nonneg=True, name="s_terminal")
+        s_t = self._slack(4, "s_terminal")
         cons += [
             cp.abs(self.r_end + dr[n]) <= tol.position_m * (1.0 + s_t[0]),
             cp.abs(self.v_bar[n] + dv[n]) <= tol.velocity_mps * (1.0 + s_t[1]),
@@ -154,9 +162,19 @@ class ConvexSubproblem:
             z = cp.Variable((N_PARAMS, N_PARAMS), PSD=True, name="lmi")
             cons.append(z == fim_var - t_min * self.crit_param)
             crit_expr = -t_min
+        cons += self._slack_cons
         penalty_expr = sum(cp.sum(s) for s in slacks)
         self.problem = cp.Problem(cp.Minimize(crit_expr + penalty * penalty_expr), cons)
         self.merit = merit
+
+    def _slack(self, size: int, name: str) -> cp.Variable:
+        """A non-negative slack: a ``nonneg`` Variable, or (compiled) a plain one with ``s >= 0`` (cvxpy replaces
+        variables with attributes in its reduction chain, and the compiled path reads the original ones)."""
+        if not self.compiled:
+            return cp.Variable(size, nonneg=True, name=name)
+        var = cp.Variable(size, name=name)
+        self._slack_cons.append(var >= 0)
+        return var
 
     def set_iterate(self, ev: Evaluation, lin, delta_force: float, delta_torque: float) -> None:
         """Linearise around an iterate: set every Parameter of the subproblem.
@@ -247,6 +265,19 @@ class ConvexSubproblem:
         slack : float
             Sum of the slacks (NaN when the solve failed).
         """
+        if self.compiled:
+            if self._compiled_qp is None:
+                # Built at the first solve, so that Clarabel equilibrates the data of a real iterate.
+                self._compiled_qp = CompiledQP(self.problem)
+            try:
+                info = self._compiled_qp.solve()
+            except Exception as exc:  # the solver raised: reported in the status, as solve_clarabel does
+                return solver_error_status(exc), None, float("nan")
+            if not info.success:
+                return info.status, None, float("nan")
+            qp = self._compiled_qp
+            slack = float(sum(np.sum(np.maximum(qp.value(s), 0.0)) for s in self.slacks))
+            return info.status, np.array(qp.value(self.du)), slack
         # An inaccurate solve is reported in the status (and judged by the merit test), not as a warning.
         out = solve_clarabel(self.problem, quiet=True)
         status = out.status
