@@ -131,7 +131,36 @@ class _ScpRun:
         ratio = actual / predicted_decrease if predicted_decrease > 0 else float("nan")
         accepted = bool(actual > 0 and predicted_decrease > 0 and ratio >= settings.accept_ratio)
         rotation_blamed = False
-        if accepted:
+        partial = False
+        if not accepted and merit.fast and settings.split_steps and np.any(du[:, 0:3]):
+            # Force-only step. Translation ([r, v], force, mass) and rotation ([q, ω], torque, inertias) are
+            # decoupled in the dynamics, the constraints and the Fisher information (F_mI ≡ 0), so the force part
+            # of a step is judged on its own when the whole step fails (almost always for its rotation): same
+            # merit test, against the model of the force part (its FIM change, its translational slacks, the
+            # rotational violation unchanged). This is a second trial point of the same subproblem, no new solve.
+            dfim_f = _fim_step(lin.gradients[:, :, 0:3], du[:, 0:3])  # type: ignore[attr-defined]
+            crit_f = criterion_value(current.fim + dfim_f, p.criterion, merit.d)
+            pred_f = (merit.normalise(crit_f) + settings.penalty * (sub.translation_slack
+                                                                     + _rotational_violation(current))
+                      if np.isfinite(crit_f) else np.inf)
+            trial_f = current.u.copy()
+            trial_f[:, 0:3] = trial[:, 0:3]
+            cand_f = merit.evaluate(trial_f)
+            dec_f = current.merit - pred_f
+            ratio_f = (current.merit - cand_f.merit) / dec_f if dec_f > 0 else float("nan")
+            if current.merit - cand_f.merit > 0 and dec_f > 0 and ratio_f >= settings.accept_ratio:
+                partial = True
+                rotation_blamed = True
+                self.current = current = cand_f
+                self.lin = None
+                self.d_torque *= settings.shrink
+                if ratio_f >= settings.good_ratio:
+                    self.d_force = min(self.d_force * settings.grow, settings.trust_region_max)
+                candidate, predicted, ratio, accepted = cand_f, pred_f, ratio_f, True
+                status += " (force part)"
+        if partial:
+            pass  # trust regions already updated: force kept or grown, torque shrunk
+        elif accepted:
             self.current = current = candidate
             self.lin = None
             if ratio >= settings.good_ratio:

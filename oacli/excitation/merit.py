@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.errors import InfeasibleError
+from oacli.excitation import split_information
 from oacli.excitation.design_types import ExcitationProblem
 from oacli.excitation.fim_gradient import criterion_value, scaling_matrix
 from oacli.excitation.information import N_PARAMS, output_sensitivities, propagate_with_sensitivities
-from oacli.excitation import split_information
 from oacli.excitation.problem import (
     LENGTH_UNIT_M,
     attitude_error,

@@ -82,7 +82,8 @@ class SplitRollout:
         return out
 
 
-def _rotation_pass(x0_rot: np.ndarray, tau: np.ndarray, inertia: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def _rotation_pass(x0_rot: np.ndarray, tau: np.ndarray, inertia: np.ndarray,
+                   dt: float) -> tuple[np.ndarray, np.ndarray]:
     """RK4 of ``[q, ω]`` in plain floats: states (N+1, 7) (quaternion rescaled) and stage states (4, N, 7)."""
     n = tau.shape[0]
     ix, iy, iz = (float(v) for v in inertia)
