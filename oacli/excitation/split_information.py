@@ -484,26 +484,18 @@ def _rotation_gradient(ro: SplitRollout, tau: np.ndarray, inertia: np.ndarray, d
     s_k = ro.s_rot[:-1]  # (N, 7, 3)
     # Stage values of S and the stage Jacobians of the augmented system, for all steps at once.
     eye = np.eye(N_ROT_AUG)
-    phi_z = None
-    phi_u = None
-    dz = du = None
-    s_stage = s_k
-    gz1 = gu1 = None
-    k_prev = None
-    for i in range(4):
-        if i > 0:
-            s_stage = s_k + _RK4_COEFS[i] * dt * k_prev
+    gz1, gu1 = _augmented_stage_jacobians(ro.stages[0], s_k, ro.fx[0], inertia)
+    dz, du = gz1, gu1
+    phi_z, phi_u = gz1.copy(), gu1.copy()
+    k_prev = ro.fx[0] @ s_k + ro.ft[0]
+    for i in (1, 2, 3):
+        c = _RK4_COEFS[i] * dt
+        s_stage = s_k + c * k_prev
         gz, gu = _augmented_stage_jacobians(ro.stages[i], s_stage, ro.fx[i], inertia)
         k_prev = ro.fx[i] @ s_stage + ro.ft[i]
-        if i == 0:
-            gz1, gu1 = gz, gu
-            dz, du = gz, gu
-            phi_z, phi_u = gz.copy(), gu.copy()
-        else:
-            c = _RK4_COEFS[i] * dt
-            dz, du = gz @ (eye + c * dz), c * (gz @ du) + gu
-            phi_z += _RK4_WEIGHTS[i] * dz
-            phi_u += _RK4_WEIGHTS[i] * du
+        dz, du = gz @ (eye + c * dz), c * (gz @ du) + gu
+        phi_z += _RK4_WEIGHTS[i] * dz
+        phi_u += _RK4_WEIGHTS[i] * du
     phi_z = eye + (dt / 6.0) * phi_z
     phi_u = (dt / 6.0) * phi_u
 

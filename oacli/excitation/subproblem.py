@@ -318,7 +318,7 @@ class ConvexSubproblem:
         self._last_translation_slack = float("nan")
         if not out.success or self.du.value is None:
             return status, None, float("nan")
-        values = [np.maximum(s.value, 0.0) for s in self.slacks]  # type: ignore[type-var]
+        values = [np.maximum(np.asarray(s.value), 0.0) for s in self.slacks]
         self._last_translation_slack = float(sum(np.sum(v) for v, rot in zip(values, self._rotational, strict=True)
                                                  if not rot) + np.sum(values[-1][0:2]))
         slack = float(sum(np.sum(v) for v in values))
