@@ -36,6 +36,17 @@ function of the torques:
   Gauss-Newton on the final attitude and rate with the torques), and the better of the two is judged by the merit
   (the classical remedy for the Maratos effect of exact-penalty SQP).
 
+Fast path (default) and reference path (``reference=True``). Translation (``[r, v]``, force, mass) and rotation
+(``[q, ω]``, torque, inertias) are decoupled in the dynamics, in every constraint and in the Fisher information
+(``F_mI ≡ 0``). The fast path uses that twice: rollouts, information and adjoint gradients come from
+:mod:`oacli.excitation.split_information` (closed-form translation, batched rotational Jacobians; the same numbers
+as the generic functions to rounding), and when a step fails the merit test its force part is tried alone
+against the model of the force part (``ScpSettings.split_steps``; no extra subproblem) — on long horizons the
+whole step fails almost always for its rotation, while the translation, which carries most of the information,
+is modelled exactly. The subproblem is the same cvxpy problem, canonicalised once and re-solved through
+:class:`oacli.control.compiled_qp.CompiledQP`. The reference path keeps the generic functions, ``problem.solve()``
+per subproblem and whole steps only; ``benchmarks/bench_excitation.py`` times both.
+
 Information is a convex function of the inputs and it is *maximised*, so the result is a local optimum that depends
 on the start. The default start (:func:`initial_guess`) already spends long stretches near the speed limit (the mass
 information of velocity measurements grows with ``Σ v²``) and excites every rotation axis; optional extra starts
