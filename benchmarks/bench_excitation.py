@@ -14,13 +14,22 @@ Speed (targets: one replan of the information-aware planner at N = 40 ≤ 0.3 s 
 [ReSWARM2023] Table 5 — and the offline design ≤ 30 s). The planner baseline measured in the same run is the same
 planner with its cvxpy problem rebuilt at every replan.
 
-Run: ``python benchmarks/bench_excitation.py [--replans 10]`` from the repository root. The information table needs
+Speed of the offline design on the default mission (issue 9 target: the ``segment-2/excite`` stage ≤ 2.5 s on one
+core): the mission's segment-2 problem (configs/mission_iss.yaml, B → C, 120 steps) designed by the reference path
+(``design_excitation(..., reference=True)``: generic rollouts and adjoint, ``problem.solve()`` per subproblem, every
+step judged whole) and by the fast path (split translation/rotation rollouts and batched adjoint, compiled Clarabel
+subproblem, force part of a failed step judged on its own), alternating per repeat, with the time ratio, both
+criteria (tr F⁻¹), both designs' dense feasibility, and the whole stage (outputs included) on the fast path.
+
+Run: ``python benchmarks/bench_excitation.py [--replans 10] [--repeats 3] [--only mission]`` from the repository
+root (``taskset -c 1`` to pin one core). The information table needs
 the RATTLE data ([RattleData], docs/references.md) at ../shared/data (skipped with a message when absent).
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from pathlib import Path
 
@@ -35,9 +44,12 @@ from oacli.excitation.information import (
     fisher_information,
     propagate_with_sensitivities,
 )
+from oacli.excitation.problem import collision_free
 from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting
 from oacli.io.reference_files import load_csv
-from oacli.stages.excite import excitation_problem
+from oacli.mission.configs import Handoff, stage_config
+from oacli.mission.layout import stage_by_key
+from oacli.stages.excite import excitation_problem, run_excite
 from oacli.stages.settings import motion_limits, scp_settings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -139,14 +151,81 @@ def replan_speed(cfg, replans: int) -> None:
     print(f"built once vs rebuilt: {np.median(rebuilt) / p50:.2f}x faster; target p50 ≤ 0.3 s")
 
 
+def _design_check(problem, design) -> str:
+    """Dense feasibility of a design: keep-in/keep-out between samples, limits, end conditions."""
+    traj = design.trajectory
+    x, u = traj.x, traj.u[:-1]
+    lim = problem.limits
+    tol = 1 + 1e-9
+    within = bool(np.all(np.abs(u) <= lim.input * tol) and np.all(np.abs(x[:, 3:6]) <= lim.velocity_mps * tol)
+                  and np.all(np.abs(x[:, 10:13]) <= lim.angular_velocity_radps * tol))
+    clear = collision_free(problem.scene, x, u, problem.dt, problem.theta[0], substeps=50)
+    res = design.terminal_residual
+    t = problem.terminal
+    end = (res["position_m"] <= t.position_m * tol and res["velocity_mps"] <= t.velocity_mps * (1 + 1e-6)
+           and res["attitude_rad"] <= t.attitude_rad * tol
+           and res["angular_velocity_radps"] <= t.angular_velocity_radps * tol)
+    return f"limits {'ok' if within else 'VIOLATED'}, dense keep-in/out {'ok' if clear else 'VIOLATED'}, " \
+           f"end {'ok' if end else 'MISSED'}"
+
+
+def mission_design_speed(mission_config: Path, repeats: int) -> None:
+    """Reference vs fast design of the mission's segment-2 excitation, alternating per repeat (same process)."""
+    cfg = stage_config(load_config(mission_config), stage_by_key("segment-2/excite"), Handoff())
+    problem = excitation_problem(cfg)
+    settings = scp_settings(cfg)
+    print(f"\nOffline design, mission segment 2 ({mission_config.name}): {problem.steps} steps of {problem.dt} s, "
+          f"criterion {problem.criterion} ({problem.scaling}), max {settings.max_iterations} SCP iterations, "
+          f"tolerance {settings.tolerance}")
+    print(f"{'repeat':<7} {'path':<10} {'wall [s]':>9} {'cpu [s]':>8} {'SCP it.':>8} {'accepted':>9} "
+          f"{'tr F⁻¹':>14}  stop")
+    rows: dict[str, list[tuple[float, float]]] = {"reference": [], "fast": []}
+    designs = {}
+    for r in range(repeats):
+        order = ("reference", "fast") if r % 2 == 0 else ("fast", "reference")
+        for path in order:
+            t0, c0 = time.perf_counter(), time.process_time()
+            d = design_excitation(problem, settings, rng=np.random.default_rng(cfg.seed), reference=path == "reference")
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            rows[path].append((wall, cpu))
+            designs[path] = d
+            print(f"{r + 1:<7} {path:<10} {wall:>9.2f} {cpu:>8.2f} {len(d.iterations):>8} {d.accepted_iterations:>9} "
+                  f"{d.criterion_final:>14.10g}  {d.stop_reason}")
+    ref_wall = float(np.median([w for w, _ in rows["reference"]]))
+    fast_wall = float(np.median([w for w, _ in rows["fast"]]))
+    ref_cpu = float(np.median([c for _, c in rows["reference"]]))
+    fast_cpu = float(np.median([c for _, c in rows["fast"]]))
+    j_ref, j_fast = designs["reference"].criterion_final, designs["fast"].criterion_final
+    print(f"median wall: reference {ref_wall:.2f} s, fast {fast_wall:.2f} s -> {ref_wall / fast_wall:.1f}x "
+          f"(cpu {ref_cpu:.2f} s vs {fast_cpu:.2f} s -> {ref_cpu / fast_cpu:.1f}x)")
+    print(f"criterion tr F⁻¹: reference {j_ref:.10g}, fast {j_fast:.10g} (fast/reference − 1 = "
+          f"{j_fast / j_ref - 1:+.2e}; SCP tolerance {settings.tolerance} of the merit ≈ "
+          f"{settings.tolerance * designs['fast'].criterion_initial / j_ref:.1e} of tr F⁻¹)")
+    for path, d in designs.items():
+        print(f"{path:<10} {_design_check(problem, d)}")
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        run_excite(cfg, out=Path(tmp) / "excite")
+        stage = time.perf_counter() - t0
+    print(f"segment-2/excite stage on the fast path (design + MCAP, recording, plots): {stage:.2f} s wall "
+          f"(target ≤ 2.5 s on an idle core)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--replans", type=int, default=10, help="replans timed")
+    parser.add_argument("--repeats", type=int, default=3, help="alternating reference/fast design repeats")
     parser.add_argument("--config", type=Path, default=REPO / "configs" / "iss_reswarm.yaml")
+    parser.add_argument("--mission-config", type=Path, default=REPO / "configs" / "mission_iss.yaml")
+    parser.add_argument("--only", choices=("table", "replan", "mission"), help="run one section only")
     args = parser.parse_args()
     cfg = load_config(args.config)
-    information_table(cfg)
-    replan_speed(cfg, args.replans)
+    if args.only in (None, "mission"):
+        mission_design_speed(args.mission_config, args.repeats)
+    if args.only in (None, "table"):
+        information_table(cfg)
+    if args.only in (None, "replan"):
+        replan_speed(cfg, args.replans)
 
 
 if __name__ == "__main__":

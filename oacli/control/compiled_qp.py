@@ -72,25 +72,30 @@ class CompiledQP:
         data, _chain, _inverse = problem.get_problem_data(cp.CLARABEL)
         prog = data[cps.PARAM_PROB]
         n = prog.x.size
-        tensor_a = sp.csc_array(prog.A)
-        m = tensor_a.shape[0] // (n + 1)
+        # The tensor has (n + 1)·m rows (the column-major entries of A, then b), one column per parameter entry
+        # plus the constant: work on its stored entries (COO) rather than slicing a matrix of n·m rows.
+        tensor = sp.coo_array(prog.A)
+        n_cols = tensor.shape[1]
+        m = tensor.shape[0] // (n + 1)
         if prog.P is not None and sp.csc_array(prog.P)[:, :-1].nnz:
             raise ValueError("a parameter enters the quadratic term: use problem.solve()")
-        tensor_a_mat = sp.csr_array(tensor_a[: m * n, :])
+        rows, cols, vals = tensor.coords[0].astype(np.int64), tensor.coords[1].astype(np.int64), tensor.data
+        in_a = rows < m * n
+        ra, ca, va = rows[in_a], cols[in_a], vals[in_a]
         self._t_a: sp.csr_array | None = None
-        if tensor_a[: m * n, :-1].nnz:
+        if np.any((ca < n_cols - 1) & (va != 0)):
             # Structural entries of A (rows of the tensor = column-major positions in A), sorted = CSC order.
             # Clarabel's form A x + s = b holds −A of cvxpy's A x + b ∈ K.
-            flat = np.flatnonzero(np.diff(tensor_a_mat.indptr))
-            self._t_a = sp.csr_array(-tensor_a_mat[flat, :])
+            flat = np.unique(ra)
+            self._t_a = sp.csr_array((-va, (np.searchsorted(flat, ra), ca)), shape=(flat.size, n_cols))
             counts = np.bincount(flat // m, minlength=n)
             self._a_structure = (flat % m, np.concatenate([[0], np.cumsum(counts)]))
-            self._a_param_cols = np.unique(sp.csc_array(tensor_a_mat[:, :-1]).nonzero()[1])
+            self._a_param_cols = np.unique(ca[(ca < n_cols - 1) & (va != 0)])
         else:
             # Clarabel's form A x + s = b: the data already hold A negated by ConicSolver.apply.
             self._a = sp.csc_matrix(data[cps.A])
         self._p = sp.csc_matrix(sp.triu(data[cps.P])) if cps.P in data else sp.csc_matrix((n, n))
-        self._t_b = sp.csr_array(tensor_a[m * n :, :])
+        self._t_b = sp.csr_array((vals[~in_a], (rows[~in_a] - m * n, cols[~in_a])), shape=(m, n_cols))
         t_q = sp.csr_array(prog.q)
         self._t_q, self._t_d = sp.csr_array(t_q[:n, :]), t_q[[n], :].toarray().ravel()
         self._cones = dims_to_solver_cones(data[ConicSolver.DIMS])

@@ -36,6 +36,17 @@ function of the torques:
   Gauss-Newton on the final attitude and rate with the torques), and the better of the two is judged by the merit
   (the classical remedy for the Maratos effect of exact-penalty SQP).
 
+Fast path (default) and reference path (``reference=True``). Translation (``[r, v]``, force, mass) and rotation
+(``[q, ω]``, torque, inertias) are decoupled in the dynamics, in every constraint and in the Fisher information
+(``F_mI ≡ 0``). The fast path uses that twice: rollouts, information and adjoint gradients come from
+:mod:`oacli.excitation.split_information` (closed-form translation, batched rotational Jacobians; the same numbers
+as the generic functions to rounding), and when a step fails the merit test its force part is tried alone
+against the model of the force part (``ScpSettings.split_steps``; no extra subproblem) — on long horizons the
+whole step fails almost always for its rotation, while the translation, which carries most of the information,
+is modelled exactly. The subproblem is the same cvxpy problem, canonicalised once and re-solved through
+:class:`oacli.control.compiled_qp.CompiledQP`. The reference path keeps the generic functions, ``problem.solve()``
+per subproblem and whole steps only; ``benchmarks/bench_excitation.py`` times both.
+
 Information is a convex function of the inputs and it is *maximised*, so the result is a local optimum that depends
 on the start. The default start (:func:`initial_guess`) already spends long stretches near the speed limit (the mass
 information of velocity measurements grows with ``Σ v²``) and excites every rotation axis; optional extra starts
@@ -53,6 +64,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from oacli.excitation import split_information
 from oacli.excitation.design_types import ExcitationDesign, ExcitationProblem, ScpIterate, ScpSettings
 from oacli.excitation.fim_gradient import SYMMETRIC_PAIRS, criterion_value, fim_gradients, symmetric_basis
 from oacli.excitation.information import (
@@ -96,7 +108,11 @@ class _ScpRun:
         it = len(self.history) + 1
         current = self.current
         if self.lin is None:
-            self.lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)  # type: ignore[assignment]
+            if current.rollout is not None:  # fast path: the iterate's split rollout, batched adjoint
+                self.lin = split_information.fim_gradients(  # type: ignore[assignment]
+                    p.start, current.u, p.theta, p.dt, p.measurement, _BASIS, ro=current.rollout)
+            else:
+                self.lin = fim_gradients(p.start, current.u, p.theta, p.dt, p.measurement, _BASIS)  # type: ignore[assignment]
         lin = self.lin
         sub.set_iterate(current, lin, self.d_force, self.d_torque)
         t0 = time.perf_counter()
@@ -119,14 +135,43 @@ class _ScpRun:
         trial = np.clip(current.u + du, -p.limits.input, p.limits.input)
         candidate = merit.evaluate(trial)
         if candidate.violations["terminal_attitude"] > 0 or candidate.violations["terminal_angular_velocity"] > 0:
-            corrected = merit.evaluate(restore_rotation_endpoint(p, trial))
+            corrected = merit.evaluate(restore_rotation_endpoint(p, trial, fast=merit.fast))
             if corrected.merit < candidate.merit:
                 candidate = corrected
         actual = current.merit - candidate.merit
         ratio = actual / predicted_decrease if predicted_decrease > 0 else float("nan")
         accepted = bool(actual > 0 and predicted_decrease > 0 and ratio >= settings.accept_ratio)
         rotation_blamed = False
-        if accepted:
+        partial = False
+        if not accepted and merit.fast and settings.split_steps and np.any(du[:, 0:3]):
+            # Force-only step. Translation ([r, v], force, mass) and rotation ([q, ω], torque, inertias) are
+            # decoupled in the dynamics, the constraints and the Fisher information (F_mI ≡ 0), so the force part
+            # of a step is judged on its own when the whole step fails (almost always for its rotation): same
+            # merit test, against the model of the force part (its FIM change, its translational slacks, the
+            # rotational violation unchanged). This is a second trial point of the same subproblem, no new solve.
+            dfim_f = _fim_step(lin.gradients[:, :, 0:3], du[:, 0:3])  # type: ignore[attr-defined]
+            crit_f = criterion_value(current.fim + dfim_f, p.criterion, merit.d)
+            pred_f = (merit.normalise(crit_f) + settings.penalty * (sub.translation_slack
+                                                                     + _rotational_violation(current))
+                      if np.isfinite(crit_f) else np.inf)
+            trial_f = current.u.copy()
+            trial_f[:, 0:3] = trial[:, 0:3]
+            cand_f = merit.evaluate(trial_f)
+            dec_f = current.merit - pred_f
+            ratio_f = (current.merit - cand_f.merit) / dec_f if dec_f > 0 else float("nan")
+            if current.merit - cand_f.merit > 0 and dec_f > 0 and ratio_f >= settings.accept_ratio:
+                partial = True
+                rotation_blamed = True
+                self.current = current = cand_f
+                self.lin = None
+                self.d_torque *= settings.shrink
+                if ratio_f >= settings.good_ratio:
+                    self.d_force = min(self.d_force * settings.grow, settings.trust_region_max)
+                candidate, predicted, ratio, accepted = cand_f, pred_f, ratio_f, True
+                status += " (force part)"
+        if partial:
+            pass  # trust regions already updated: force kept or grown, torque shrunk
+        elif accepted:
             self.current = current = candidate
             self.lin = None
             if ratio >= settings.good_ratio:
@@ -154,8 +199,13 @@ def design_excitation(
     progress: Callable[[float], None] | None = None,
     rng: np.random.Generator | None = None,
     on_iteration: Callable[..., None] | None = None,
+    reference: bool = False,
 ) -> ExcitationDesign:
     """Design an information-optimal excitation trajectory (Doerr Eq. 30) by SCP; see the module docstring.
+
+    The default (fast) path and the reference path run the same SCP on the same subproblem; the fast one rolls out
+    and differentiates with :mod:`oacli.excitation.split_information` (same numbers to rounding) and solves the
+    subproblem through the compiled direct-Clarabel path (:class:`oacli.control.compiled_qp.CompiledQP`).
 
     Parameters
     ----------
@@ -170,6 +220,9 @@ def design_excitation(
     on_iteration : callable, optional
         Called after each SCP iteration as ``on_iteration(start=k, iterate=ScpIterate, x=(N+1, 13), u=(N, 6))``
         with the start's index and its current (accepted) design, e.g. to record the run as it goes.
+    reference : bool, optional
+        Run the reference path (generic rollouts and adjoint of :mod:`oacli.excitation.information` and
+        :mod:`oacli.excitation.fim_gradient`, ``problem.solve()`` per subproblem), kept to check the fast one.
 
     Returns
     -------
@@ -185,12 +238,12 @@ def design_excitation(
     wall = time.perf_counter()
     p = problem
     check_reachable(p.start, p.goal, p.duration_s, p.theta, p.limits)
-    merit = ScpMerit(p, settings.penalty)
+    merit = ScpMerit(p, settings.penalty, fast=not reference)
     if u_init is None:
         u0 = initial_guess(p)
     else:
         u0 = np.clip(np.asarray(u_init, dtype=float), -p.limits.input, p.limits.input)
-    sub = ConvexSubproblem(p, merit, settings.penalty)
+    sub = ConvexSubproblem(p, merit, settings.penalty, compiled=not reference)
     # The first start fixes the merit's normalisation, so that all starts are compared on the same merit.
     runs = [_ScpRun(p, settings, merit, sub, merit.evaluate(u0))]
     rng = np.random.default_rng(0) if rng is None else rng
@@ -249,13 +302,14 @@ def design_excitation(
         violations=current.violations,
         collision_free=collision_free(p.scene, x, current.u, p.dt, p.theta[0]),
         crb_std=cramer_rao_std(fim_meas, p.theta),
-        information_over_time=cumulative_information(x, current.u, p.theta, p.dt, p.measurement),
+        information_over_time=cumulative_information(x, current.u, p.theta, p.dt, p.measurement,
+                                                     rollout=current.rollout),
         initial=initial,
     )
 
 
 def restore_rotation_endpoint(
-    problem: ExcitationProblem, u: np.ndarray, iterations: int = 3, target_fraction: float = 0.1
+    problem: ExcitationProblem, u: np.ndarray, iterations: int = 3, target_fraction: float = 0.1, fast: bool = False
 ) -> np.ndarray:
     """Second-order correction of a trial step: Gauss-Newton on the final attitude and rate, torques only.
 
@@ -275,6 +329,8 @@ def restore_rotation_endpoint(
         Gauss-Newton iterations.
     target_fraction : float, optional
         Stop once the residual is below this fraction of the terminal tolerance.
+    fast : bool, optional
+        Roll out with :func:`oacli.excitation.split_information.rollout` (same Jacobians to rounding).
 
     Returns
     -------
@@ -287,16 +343,20 @@ def restore_rotation_endpoint(
     tau_max = p.limits.torque_Nm
     tol = p.terminal
     for _ in range(iterations):
-        x = np.empty((n + 1, 13))
-        x[0] = p.start
-        a_rot = np.empty((n, 7, 7))
-        b_rot = np.empty((n, 7, 3))
-        for k in range(n):
-            x_next, a, b, _ = rb.rk4_step_jacobians(x[k], u[k], p.theta, p.dt)
-            x_next[6:10] = quat.normalize(x_next[6:10])
-            x[k + 1] = x_next
-            a_rot[k] = a[6:13, 6:13]
-            b_rot[k] = b[6:13, 3:6]
+        if fast:
+            ro = split_information.rollout(p.start, u, p.theta, p.dt)
+            x, a_rot, b_rot = ro.x, ro.a_rot, ro.b_rot
+        else:
+            x = np.empty((n + 1, 13))
+            x[0] = p.start
+            a_rot = np.empty((n, 7, 7))
+            b_rot = np.empty((n, 7, 3))
+            for k in range(n):
+                x_next, a, b, _ = rb.rk4_step_jacobians(x[k], u[k], p.theta, p.dt)
+                x_next[6:10] = quat.normalize(x_next[6:10])
+                x[k + 1] = x_next
+                a_rot[k] = a[6:13, 6:13]
+                b_rot[k] = b[6:13, 3:6]
         err, jac = attitude_error(p.goal[6:10], x[n, 6:10])
         rate = x[n, 10:13] - p.goal[10:13]
         if (np.max(np.abs(err)) <= target_fraction * tol.attitude_rad
@@ -332,7 +392,8 @@ def _fim_step(gradients: np.ndarray, du: np.ndarray) -> np.ndarray:
 
 
 def cumulative_information(
-    x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model: MeasurementModel
+    x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model: MeasurementModel,
+    rollout: split_information.SplitRollout | None = None,
 ) -> np.ndarray:
     """Fisher information of the measurements up to each sample, shape (N+1, 4, 4) (zero at t = 0).
 
@@ -345,13 +406,18 @@ def cumulative_information(
         θ = [m, Ixx, Iyy, Izz] of the model.
     dt : float
     model : MeasurementModel
+    rollout : SplitRollout, optional
+        The split rollout of ``u`` (:func:`oacli.excitation.split_information.rollout`), when at hand.
 
     Returns
     -------
     ndarray, shape (N+1, 4, 4)
     """
     out = np.zeros((u.shape[0] + 1, N_PARAMS, N_PARAMS))
-    out[1:] = np.cumsum(information_per_step(x[0], u, theta, dt, model), axis=0)
+    if rollout is not None:
+        out[1:] = np.cumsum(split_information.information_per_step(rollout, u, theta, model), axis=0)
+    else:
+        out[1:] = np.cumsum(information_per_step(x[0], u, theta, dt, model), axis=0)
     return out
 
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.errors import InfeasibleError
+from oacli.excitation import split_information
 from oacli.excitation.design_types import ExcitationProblem
 from oacli.excitation.fim_gradient import criterion_value, scaling_matrix
 from oacli.excitation.information import N_PARAMS, output_sensitivities, propagate_with_sensitivities
@@ -47,6 +48,9 @@ class Evaluation:
         Normalised violation per constraint kind (0 when it holds).
     merit : float
         ``criterion_normalised + μ Σ violations``.
+    rollout : SplitRollout or None
+        The split rollout with its Jacobians (fast path, :mod:`oacli.excitation.split_information`), reused for
+        the FIM gradients; None on the reference path.
     """
 
     u: np.ndarray
@@ -56,6 +60,7 @@ class Evaluation:
     criterion_normalised: float
     violations: dict[str, float]
     merit: float
+    rollout: split_information.SplitRollout | None = None
 
     @property
     def violation(self) -> float:
@@ -74,10 +79,15 @@ class ScpMerit:
     problem : ExcitationProblem
     penalty : float
         Exact-penalty weight μ on the normalised violation.
+    fast : bool, optional
+        Roll out with :mod:`oacli.excitation.split_information` (translation/rotation split, time batched; the
+        same numbers to rounding) instead of the generic reference functions of
+        :mod:`oacli.excitation.information`.
     """
 
-    def __init__(self, problem: ExcitationProblem, penalty: float) -> None:
+    def __init__(self, problem: ExcitationProblem, penalty: float, fast: bool = True) -> None:
         self.p = problem
+        self.fast = fast
         self.penalty = penalty
         self.d = scaling_matrix(problem.theta, problem.scaling)
         self.margin = chord_margin_m(problem.limits.force_N, problem.theta[0], problem.dt) + problem.clearance_m
@@ -174,8 +184,14 @@ class ScpMerit:
         InfeasibleError
             When the first evaluation (the reference) carries no information on some parameter.
         """
-        x, s = propagate_with_sensitivities(self.p.start, u, self.p.theta, self.p.dt)
-        fim = self.fim(x, s, u) + self.p.prior
+        ro = None
+        if self.fast:
+            ro = split_information.rollout(self.p.start, u, self.p.theta, self.p.dt)
+            x = ro.x
+            fim = split_information.fisher_information(ro, u, self.p.theta, self.p.measurement) + self.p.prior
+        else:
+            x, s = propagate_with_sensitivities(self.p.start, u, self.p.theta, self.p.dt)
+            fim = self.fim(x, s, u) + self.p.prior
         crit = criterion_value(fim, self.p.criterion, self.d)
         if self.reference is None:
             if not np.isfinite(crit):
@@ -186,7 +202,7 @@ class ScpMerit:
         crit_n = self.normalise(crit) if np.isfinite(crit) else np.inf
         viol = self.violations(x)
         merit = crit_n + self.penalty * sum(viol.values())
-        return Evaluation(u, x, fim, crit, crit_n, viol, merit)
+        return Evaluation(u, x, fim, crit, crit_n, viol, merit, ro)
 
 
 def terminal_residual(x_end: np.ndarray, goal: np.ndarray) -> dict[str, float]:
