@@ -458,3 +458,114 @@ def _propagate_states(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations
         xs = np.where(active[:, None], x_new, xs)
     x_next[:, _ROT] = xs[:, _ROT]
     return x_next
+
+
+def propagate_one(
+    x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`propagate_intervals_structured` for a single interval (what a filter step needs); same outputs.
+
+    A filter propagates one interval at a time, where the stacked arrays of the batched functions are mostly
+    per-call overhead. Here the rotational state is integrated sub-step by sub-step in Python floats (the same RK4
+    stages and normalisation), its stage points are kept, and the Jacobians of all sub-steps are then formed at
+    once: the stage Jacobians of every sub-step in one vectorised evaluation, the RK4 chain of each sub-step as
+    batched (n, 7, 7) products over the sub-steps, and finally the product over the sub-steps.
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+        Start state.
+    u : ndarray, shape (6,)
+        Input held over the interval [N world frame, N·m body frame].
+    theta : ndarray, shape (4,)
+        [m kg, Ixx, Iyy, Izz kg·m²].
+    durations : ndarray, shape (M,) or (1, M)
+        Sub-step durations from :func:`substep_schedule` (zeros are skipped).
+
+    Returns
+    -------
+    x_next : ndarray, shape (13,)
+    a : ndarray, shape (13, 13)
+        ``∂x_next/∂x``.
+    c : ndarray, shape (13, 4)
+        ``∂x_next/∂θ``.
+    """
+    x = np.asarray(x, dtype=float).reshape(STATE_DIM)
+    u = np.asarray(u, dtype=float).reshape(6)
+    dts = [float(d) for d in np.asarray(durations, dtype=float).reshape(-1) if d > 0.0]
+    m = float(theta[0])
+    inertia = (float(theta[1]), float(theta[2]), float(theta[3]))
+    tau = (float(u[3]), float(u[4]), float(u[5]))
+    total_s = float(sum(dts))
+    acc = u[0:3] / m
+    x_next = np.empty(STATE_DIM)
+    x_next[0:3] = x[0:3] + total_s * x[3:6] + (0.5 * total_s**2) * acc
+    x_next[3:6] = x[3:6] + total_s * acc
+    n = len(dts)
+    ix, iy, iz = inertia
+    t0, t1, t2 = tau
+    kx, ky, kz = (iz - iy) / ix, (ix - iz) / iy, (iy - ix) / iz
+    bx, by, bz = t0 / ix, t1 / iy, t2 / iz
+
+    def rate(qx: float, qy: float, qz: float, qw: float, wx: float, wy: float, wz: float
+             ) -> tuple[float, float, float, float, float, float, float]:
+        return (0.5 * (qw * wx - qz * wy + qy * wz), 0.5 * (qz * wx + qw * wy - qx * wz),
+                0.5 * (-qy * wx + qx * wy + qw * wz), 0.5 * (-qx * wx - qy * wy - qz * wz),
+                bx - kx * wy * wz, by - ky * wz * wx, bz - kz * wx * wy)
+
+    stage_rows: list[tuple[float, ...]] = []
+    raw_rows: list[tuple[float, ...]] = []
+    z = tuple(float(v) for v in x[_ROT])
+    for h in dts:
+        hh = 0.5 * h
+        a1 = rate(*z)
+        z2 = tuple(zi + hh * fi for zi, fi in zip(z, a1, strict=True))
+        a2 = rate(*z2)
+        z3 = tuple(zi + hh * fi for zi, fi in zip(z, a2, strict=True))
+        a3 = rate(*z3)
+        z4 = tuple(zi + h * fi for zi, fi in zip(z, a3, strict=True))
+        a4 = rate(*z4)
+        h6 = h / 6.0
+        zn = tuple(zi + h6 * (f1 + 2.0 * f2 + 2.0 * f3 + f4) for zi, f1, f2, f3, f4 in zip(z, a1, a2, a3, a4,
+                                                                                         strict=True))
+        stage_rows += (z, z2, z3, z4)
+        raw_rows.append(zn)
+        qx, qy, qz, qw = zn[0:4]
+        norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        sgn = (-1.0 if qw < 0.0 else 1.0) / norm
+        z = (sgn * qx, sgn * qy, sgn * qz, sgn * qw, *zn[4:7])
+    stages = np.array(stage_rows).reshape(n, 4, 7)
+    q_raw = np.array(raw_rows).reshape(n, 7)[:, 0:4]
+    x_next[_ROT] = z
+    a = np.zeros((STATE_DIM, STATE_DIM))
+    a[0:6, 0:6] = np.eye(6)
+    a[0, 3] = a[1, 4] = a[2, 5] = total_s
+    c = np.zeros((STATE_DIM, N_PARAMS))
+    c[0:3, 0] = -(0.5 * total_s**2) * acc / m
+    c[3:6, 0] = -total_s * acc / m
+    if n == 0:
+        a[_ROT, _ROT] = np.eye(7)
+        return x_next, a, c
+    rate_map = _rate_map(inertia)
+    _, jac = _rotational_rate(stages.reshape(4 * n, 7), np.broadcast_to(u[3:6], (4 * n, 3)), np.array(inertia),
+                              rate_map)
+    jac = jac.reshape(n, 4, 7, 10)
+    hj = np.array(dts)[:, None, None]
+    g1 = jac[:, 0]
+    g2 = jac[:, 1] + 0.5 * hj * (jac[:, 1, :, 0:7] @ g1)
+    g3 = jac[:, 2] + 0.5 * hj * (jac[:, 2, :, 0:7] @ g2)
+    g4 = jac[:, 3] + hj * (jac[:, 3, :, 0:7] @ g3)
+    step = _E7 + (hj / 6.0) * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
+    norm = np.sqrt(np.einsum("ki,ki->k", q_raw, q_raw))
+    sign = np.where(q_raw[:, 3] < 0.0, -1.0, 1.0)
+    q_hat = q_raw / norm[:, None]
+    jn = sign[:, None, None] * (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
+    step[:, 0:4, :] = jn @ step[:, 0:4, :]
+    total = step[0].copy()
+    for s in range(1, n):
+        chained = step[s, :, 0:7] @ total
+        chained[:, 7:] += step[s, :, 7:]
+        total = chained
+    a[_ROT, _ROT] = total[:, 0:7]
+    c[_ROT, 1:4] = total[:, 7:]
+    return x_next, a, c
