@@ -431,7 +431,10 @@ class _Problem:
                 groups.append(_Group(res, idx, jx, phi=jp))
 
         if k > 1:
-            fx, a, c = self._propagate(x, phi, theta)
+            if jacobian:
+                fx, a, c = self._propagate(x, phi, theta)
+            else:  # the end states only (a trial step's cost)
+                fx = propagate_intervals_structured(x[:-1], self.u[:-1], theta, self.durations, jacobians=False)[0]
             e = boxminus(x[1:], fx)
             res = np.einsum("kij,kj->ki", self.w_proc, e)
             parts.append(res.ravel())
@@ -634,9 +637,15 @@ def _levenberg_marquardt(
             x_new = boxplus(x, step[: TANGENT_DIM * k].reshape(k, TANGENT_DIM))
             phi_new = phi + step[TANGENT_DIM * k:]
             with np.errstate(all="ignore"):  # a wild trial step may overflow; it is then rejected below
-                b_new, system_new = _linearise(problem, x_new, phi_new, inliers, reference)
+                if reference:
+                    b_new, system_new = _linearise(problem, x_new, phi_new, inliers, reference)
+                else:  # the cost first; the Jacobians only for a step that is taken
+                    b_new = problem.jacobian_groups(x_new, phi_new, inliers, jacobian=False)[0]
                 cost_new = float(b_new @ b_new)
             if np.isfinite(cost_new) and cost_new <= cost:
+                if not reference:
+                    b_new, system_new = _linearise(problem, x_new, phi_new, inliers, reference)
+                    cost_new = float(b_new @ b_new)
                 break
             lam *= 10.0
             if lam > _LAMBDA_MAX:
