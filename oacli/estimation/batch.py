@@ -766,7 +766,7 @@ def estimate_batch(
     loose = EstimatorSettings(**{**settings.__dict__, "tolerance": max(settings.tolerance, _CONTINUATION_TOLERANCE)})
     rounds = 0
     converged = False
-    for rounds in range(1, settings.max_gating_rounds + 1):  # noqa: B007
+    for rounds in range(1, settings.max_gating_rounds + 1):
         # The continuation in the first round only: a later round starts from the previous round's solution, which
         # dropping a few outliers moves by little (the full Gauss-Newton steps do not overshoot from there).
         for factor in _CONTINUATION if continuation and rounds == 1 else ():
