@@ -16,6 +16,7 @@ exactly (the chain rule of :func:`oacli.model.rigid_body.rk4_step_jacobians`, ba
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -286,8 +287,10 @@ _Q_ROWS = (
 )
 
 
+@functools.lru_cache(maxsize=64)
 def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
-    """Matrix (25, 74) mapping the features of :func:`_rotational_rate` to ``[jacobian (70), q̇ (4)]``."""
+    """Matrix (25, 74) mapping the features of :func:`_rotational_rate` to ``[jacobian (70), q̇ (4)]``
+    (cached per inertia: a filter asks for the same one many times; read-only)."""
     ix, iy, iz = inertia
     out = np.zeros((_N_FEATURES, 74))
     entries = [
@@ -304,6 +307,7 @@ def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
     # q̇ = ½ Ξ(q) ω: the coefficients of ∂q̇/∂ω (rows 0-3, columns 4-6) on the products q_i ω_j.
     for row, col, feature, coef in _Q_ROWS[12:]:
         out[13 + 3 * (feature - _QX) + (col - 4), 70 + row] = coef
+    out.setflags(write=False)
     return out
 
 
@@ -507,35 +511,52 @@ def propagate_one(
     kx, ky, kz = (iz - iy) / ix, (ix - iz) / iy, (iy - ix) / iz
     bx, by, bz = t0 / ix, t1 / iy, t2 / iz
 
-    def rate(qx: float, qy: float, qz: float, qw: float, wx: float, wy: float, wz: float
-             ) -> tuple[float, float, float, float, float, float, float]:
-        return (0.5 * (qw * wx - qz * wy + qy * wz), 0.5 * (qz * wx + qw * wy - qx * wz),
-                0.5 * (-qy * wx + qx * wy + qw * wz), 0.5 * (-qx * wx - qy * wy - qz * wz),
-                bx - kx * wy * wz, by - ky * wz * wx, bz - kz * wx * wy)
-
     stage_rows: list[tuple[float, ...]] = []
     raw_rows: list[tuple[float, ...]] = []
-    z = tuple(float(v) for v in x[_ROT])
+    qx, qy, qz, qw, wx, wy, wz = (float(v) for v in x[_ROT])
     for h in dts:
-        hh = 0.5 * h
-        a1 = rate(*z)
-        z2 = tuple(zi + hh * fi for zi, fi in zip(z, a1, strict=True))
-        a2 = rate(*z2)
-        z3 = tuple(zi + hh * fi for zi, fi in zip(z, a2, strict=True))
-        a3 = rate(*z3)
-        z4 = tuple(zi + h * fi for zi, fi in zip(z, a3, strict=True))
-        a4 = rate(*z4)
-        h6 = h / 6.0
-        zn = tuple(zi + h6 * (f1 + 2.0 * f2 + 2.0 * f3 + f4) for zi, f1, f2, f3, f4 in zip(z, a1, a2, a3, a4,
-                                                                                         strict=True))
-        stage_rows += (z, z2, z3, z4)
-        raw_rows.append(zn)
-        qx, qy, qz, qw = zn[0:4]
+        hh, h6 = 0.5 * h, h / 6.0
+        # Stage 1 (the rates of Doerr Eqs. 34-35 written out: this loop is the cost of a filter step).
+        z1 = (qx, qy, qz, qw, wx, wy, wz)
+        a0, a1, a2, a3 = (0.5 * (qw * wx - qz * wy + qy * wz), 0.5 * (qz * wx + qw * wy - qx * wz),
+                          0.5 * (-qy * wx + qx * wy + qw * wz), 0.5 * (-qx * wx - qy * wy - qz * wz))
+        a4, a5, a6 = bx - kx * wy * wz, by - ky * wz * wx, bz - kz * wx * wy
+        # Stage 2
+        px, py, pz, pw = qx + hh * a0, qy + hh * a1, qz + hh * a2, qw + hh * a3
+        vx, vy, vz = wx + hh * a4, wy + hh * a5, wz + hh * a6
+        z2 = (px, py, pz, pw, vx, vy, vz)
+        b0, b1, b2, b3 = (0.5 * (pw * vx - pz * vy + py * vz), 0.5 * (pz * vx + pw * vy - px * vz),
+                          0.5 * (-py * vx + px * vy + pw * vz), 0.5 * (-px * vx - py * vy - pz * vz))
+        b4, b5, b6 = bx - kx * vy * vz, by - ky * vz * vx, bz - kz * vx * vy
+        # Stage 3
+        px, py, pz, pw = qx + hh * b0, qy + hh * b1, qz + hh * b2, qw + hh * b3
+        vx, vy, vz = wx + hh * b4, wy + hh * b5, wz + hh * b6
+        z3 = (px, py, pz, pw, vx, vy, vz)
+        c0, c1, c2, c3 = (0.5 * (pw * vx - pz * vy + py * vz), 0.5 * (pz * vx + pw * vy - px * vz),
+                          0.5 * (-py * vx + px * vy + pw * vz), 0.5 * (-px * vx - py * vy - pz * vz))
+        c4, c5, c6 = bx - kx * vy * vz, by - ky * vz * vx, bz - kz * vx * vy
+        # Stage 4
+        px, py, pz, pw = qx + h * c0, qy + h * c1, qz + h * c2, qw + h * c3
+        vx, vy, vz = wx + h * c4, wy + h * c5, wz + h * c6
+        z4 = (px, py, pz, pw, vx, vy, vz)
+        d0, d1, d2, d3 = (0.5 * (pw * vx - pz * vy + py * vz), 0.5 * (pz * vx + pw * vy - px * vz),
+                          0.5 * (-py * vx + px * vy + pw * vz), 0.5 * (-px * vx - py * vy - pz * vz))
+        d4, d5, d6 = bx - kx * vy * vz, by - ky * vz * vx, bz - kz * vx * vy
+        stage_rows += (z1, z2, z3, z4)
+        qx = qx + h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
+        qy = qy + h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
+        qz = qz + h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
+        qw = qw + h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
+        wx = wx + h6 * (a4 + 2.0 * b4 + 2.0 * c4 + d4)
+        wy = wy + h6 * (a5 + 2.0 * b5 + 2.0 * c5 + d5)
+        wz = wz + h6 * (a6 + 2.0 * b6 + 2.0 * c6 + d6)
+        raw_rows.append((qx, qy, qz, qw))
         norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
         sgn = (-1.0 if qw < 0.0 else 1.0) / norm
-        z = (sgn * qx, sgn * qy, sgn * qz, sgn * qw, *zn[4:7])
+        qx, qy, qz, qw = sgn * qx, sgn * qy, sgn * qz, sgn * qw
+    z = (qx, qy, qz, qw, wx, wy, wz)
     stages = np.array(stage_rows).reshape(n, 4, 7)
-    q_raw = np.array(raw_rows).reshape(n, 7)[:, 0:4]
+    q_raw = np.array(raw_rows).reshape(n, 4)
     x_next[_ROT] = z
     a = np.zeros((STATE_DIM, STATE_DIM))
     a[0:6, 0:6] = np.eye(6)
