@@ -25,7 +25,7 @@ import numpy as np
 
 from oacli.estimation.manifold import TANGENT_DIM, lift_matrix, project_matrix
 from oacli.estimation.models import MeasurementModel, measured_rows
-from oacli.estimation.propagation import dynamics_jacobians_batch, propagate_intervals, substep_schedule
+from oacli.estimation.propagation import dynamics_jacobians_batch, propagate_intervals_structured, substep_schedule
 from oacli.excitation.information import PARAM_NAMES, cramer_rao_std, unidentifiable_parameters
 
 __all__ = ["CramerRaoBound", "cramer_rao_bound", "unobservable_parameters"]
@@ -127,7 +127,7 @@ def cramer_rao_bound(
     sens[0, :, 0:TANGENT_DIM] = np.eye(TANGENT_DIM)
     if k > 1:
         durations = substep_schedule(t[:-1], t[1:], substep_s)
-        x_next, a, c = propagate_intervals(states[:-1], u[:-1], theta, durations)
+        x_next, a, c = propagate_intervals_structured(states[:-1], u[:-1], theta, durations)
         proj = project_matrix(x_next)
         a_t = proj @ a @ lift_matrix(states[:-1])
         c_t = proj @ c

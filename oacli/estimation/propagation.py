@@ -16,6 +16,7 @@ exactly (the chain rule of :func:`oacli.model.rigid_body.rk4_step_jacobians`, ba
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -286,8 +287,10 @@ _Q_ROWS = (
 )
 
 
+@functools.lru_cache(maxsize=64)
 def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
-    """Matrix (25, 74) mapping the features of :func:`_rotational_rate` to ``[jacobian (70), q̇ (4)]``."""
+    """Matrix (25, 74) mapping the features of :func:`_rotational_rate` to ``[jacobian (70), q̇ (4)]``
+    (cached per inertia: a filter asks for the same one many times; read-only)."""
     ix, iy, iz = inertia
     out = np.zeros((_N_FEATURES, 74))
     entries = [
@@ -304,6 +307,7 @@ def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
     # q̇ = ½ Ξ(q) ω: the coefficients of ∂q̇/∂ω (rows 0-3, columns 4-6) on the products q_i ω_j.
     for row, col, feature, coef in _Q_ROWS[12:]:
         out[13 + 3 * (feature - _QX) + (col - 4), 70 + row] = coef
+    out.setflags(write=False)
     return out
 
 
@@ -458,3 +462,131 @@ def _propagate_states(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations
         xs = np.where(active[:, None], x_new, xs)
     x_next[:, _ROT] = xs[:, _ROT]
     return x_next
+
+
+def propagate_one(
+    x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`propagate_intervals_structured` for a single interval (what a filter step needs); same outputs.
+
+    A filter propagates one interval at a time, where the stacked arrays of the batched functions are mostly
+    per-call overhead. Here the rotational state is integrated sub-step by sub-step in Python floats (the same RK4
+    stages and normalisation), its stage points are kept, and the Jacobians of all sub-steps are then formed at
+    once: the stage Jacobians of every sub-step in one vectorised evaluation, the RK4 chain of each sub-step as
+    batched (n, 7, 7) products over the sub-steps, and finally the product over the sub-steps.
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+        Start state.
+    u : ndarray, shape (6,)
+        Input held over the interval [N world frame, N·m body frame].
+    theta : ndarray, shape (4,)
+        [m kg, Ixx, Iyy, Izz kg·m²].
+    durations : ndarray, shape (M,) or (1, M)
+        Sub-step durations from :func:`substep_schedule` (zeros are skipped).
+
+    Returns
+    -------
+    x_next : ndarray, shape (13,)
+    a : ndarray, shape (13, 13)
+        ``∂x_next/∂x``.
+    c : ndarray, shape (13, 4)
+        ``∂x_next/∂θ``.
+    """
+    x = np.asarray(x, dtype=float).reshape(STATE_DIM)
+    u = np.asarray(u, dtype=float).reshape(6)
+    dts = [float(d) for d in np.asarray(durations, dtype=float).reshape(-1) if d > 0.0]
+    m = float(theta[0])
+    inertia = (float(theta[1]), float(theta[2]), float(theta[3]))
+    tau = (float(u[3]), float(u[4]), float(u[5]))
+    total_s = float(sum(dts))
+    acc = u[0:3] / m
+    x_next = np.empty(STATE_DIM)
+    x_next[0:3] = x[0:3] + total_s * x[3:6] + (0.5 * total_s**2) * acc
+    x_next[3:6] = x[3:6] + total_s * acc
+    n = len(dts)
+    ix, iy, iz = inertia
+    t0, t1, t2 = tau
+    kx, ky, kz = (iz - iy) / ix, (ix - iz) / iy, (iy - ix) / iz
+    bx, by, bz = t0 / ix, t1 / iy, t2 / iz
+
+    stage_rows: list[tuple[float, ...]] = []
+    raw_rows: list[tuple[float, ...]] = []
+    qx, qy, qz, qw, wx, wy, wz = (float(v) for v in x[_ROT])
+    for h in dts:
+        hh, h6 = 0.5 * h, h / 6.0
+        # Stage 1 (the rates of Doerr Eqs. 34-35 written out: this loop is the cost of a filter step).
+        z1 = (qx, qy, qz, qw, wx, wy, wz)
+        a0, a1, a2, a3 = (0.5 * (qw * wx - qz * wy + qy * wz), 0.5 * (qz * wx + qw * wy - qx * wz),
+                          0.5 * (-qy * wx + qx * wy + qw * wz), 0.5 * (-qx * wx - qy * wy - qz * wz))
+        a4, a5, a6 = bx - kx * wy * wz, by - ky * wz * wx, bz - kz * wx * wy
+        # Stage 2
+        px, py, pz, pw = qx + hh * a0, qy + hh * a1, qz + hh * a2, qw + hh * a3
+        vx, vy, vz = wx + hh * a4, wy + hh * a5, wz + hh * a6
+        z2 = (px, py, pz, pw, vx, vy, vz)
+        b0, b1, b2, b3 = (0.5 * (pw * vx - pz * vy + py * vz), 0.5 * (pz * vx + pw * vy - px * vz),
+                          0.5 * (-py * vx + px * vy + pw * vz), 0.5 * (-px * vx - py * vy - pz * vz))
+        b4, b5, b6 = bx - kx * vy * vz, by - ky * vz * vx, bz - kz * vx * vy
+        # Stage 3
+        px, py, pz, pw = qx + hh * b0, qy + hh * b1, qz + hh * b2, qw + hh * b3
+        vx, vy, vz = wx + hh * b4, wy + hh * b5, wz + hh * b6
+        z3 = (px, py, pz, pw, vx, vy, vz)
+        c0, c1, c2, c3 = (0.5 * (pw * vx - pz * vy + py * vz), 0.5 * (pz * vx + pw * vy - px * vz),
+                          0.5 * (-py * vx + px * vy + pw * vz), 0.5 * (-px * vx - py * vy - pz * vz))
+        c4, c5, c6 = bx - kx * vy * vz, by - ky * vz * vx, bz - kz * vx * vy
+        # Stage 4
+        px, py, pz, pw = qx + h * c0, qy + h * c1, qz + h * c2, qw + h * c3
+        vx, vy, vz = wx + h * c4, wy + h * c5, wz + h * c6
+        z4 = (px, py, pz, pw, vx, vy, vz)
+        d0, d1, d2, d3 = (0.5 * (pw * vx - pz * vy + py * vz), 0.5 * (pz * vx + pw * vy - px * vz),
+                          0.5 * (-py * vx + px * vy + pw * vz), 0.5 * (-px * vx - py * vy - pz * vz))
+        d4, d5, d6 = bx - kx * vy * vz, by - ky * vz * vx, bz - kz * vx * vy
+        stage_rows += (z1, z2, z3, z4)
+        qx = qx + h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
+        qy = qy + h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
+        qz = qz + h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
+        qw = qw + h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
+        wx = wx + h6 * (a4 + 2.0 * b4 + 2.0 * c4 + d4)
+        wy = wy + h6 * (a5 + 2.0 * b5 + 2.0 * c5 + d5)
+        wz = wz + h6 * (a6 + 2.0 * b6 + 2.0 * c6 + d6)
+        raw_rows.append((qx, qy, qz, qw))
+        norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        sgn = (-1.0 if qw < 0.0 else 1.0) / norm
+        qx, qy, qz, qw = sgn * qx, sgn * qy, sgn * qz, sgn * qw
+    z = (qx, qy, qz, qw, wx, wy, wz)
+    stages = np.array(stage_rows).reshape(n, 4, 7)
+    q_raw = np.array(raw_rows).reshape(n, 4)
+    x_next[_ROT] = z
+    a = np.zeros((STATE_DIM, STATE_DIM))
+    a[0:6, 0:6] = np.eye(6)
+    a[0, 3] = a[1, 4] = a[2, 5] = total_s
+    c = np.zeros((STATE_DIM, N_PARAMS))
+    c[0:3, 0] = -(0.5 * total_s**2) * acc / m
+    c[3:6, 0] = -total_s * acc / m
+    if n == 0:
+        a[_ROT, _ROT] = np.eye(7)
+        return x_next, a, c
+    rate_map = _rate_map(inertia)
+    _, jac = _rotational_rate(stages.reshape(4 * n, 7), np.broadcast_to(u[3:6], (4 * n, 3)), np.array(inertia),
+                              rate_map)
+    jac = jac.reshape(n, 4, 7, 10)
+    hj = np.array(dts)[:, None, None]
+    g1 = jac[:, 0]
+    g2 = jac[:, 1] + 0.5 * hj * (jac[:, 1, :, 0:7] @ g1)
+    g3 = jac[:, 2] + 0.5 * hj * (jac[:, 2, :, 0:7] @ g2)
+    g4 = jac[:, 3] + hj * (jac[:, 3, :, 0:7] @ g3)
+    step = _E7 + (hj / 6.0) * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
+    norm = np.sqrt(np.einsum("ki,ki->k", q_raw, q_raw))
+    sign = np.where(q_raw[:, 3] < 0.0, -1.0, 1.0)
+    q_hat = q_raw / norm[:, None]
+    jn = sign[:, None, None] * (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
+    step[:, 0:4, :] = jn @ step[:, 0:4, :]
+    total = step[0].copy()
+    for s in range(1, n):
+        chained = step[s, :, 0:7] @ total
+        chained[:, 7:] += step[s, :, 7:]
+        total = chained
+    a[_ROT, _ROT] = total[:, 0:7]
+    c[_ROT, 1:4] = total[:, 7:]
+    return x_next, a, c

@@ -50,6 +50,7 @@ Usage (what an online planner does)::
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,7 +64,6 @@ from oacli.estimation.manifold import (
     boxplus,
     lift_matrix,
     project_matrix,
-    so3_left_jacobian_inverse,
     so3_right_jacobian_inverse,
 )
 from oacli.estimation.models import EstimatorSettings, Measurement, measured_rows
@@ -72,6 +72,7 @@ from oacli.estimation.propagation import (
     dynamics_batch,
     dynamics_jacobians_batch,
     propagate_intervals,
+    propagate_one,
     substep_schedule,
 )
 from oacli.types import ParameterEstimate
@@ -82,6 +83,88 @@ _ACCEL_ROWS = np.r_[3:6, 10:13]
 _N = TANGENT_DIM + par.N_PARAMS
 _UNMEASURED_VARIANCE = 1.0  # initial variance of state components no sensor measures (gauge, see batch.py)
 _MAX_UPDATE_ITERATIONS = 5
+
+
+# -- one state at a time: the manifold operations of :mod:`oacli.estimation.manifold` in Python floats ---------------
+# (a filter step handles one state; the stacked numpy versions are mostly per-call overhead there)
+
+
+def _qmul(p: tuple[float, ...], q: tuple[float, ...]) -> tuple[float, float, float, float]:
+    px, py, pz, pw = p
+    qx, qy, qz, qw = q
+    return (pw * qx + qw * px + (py * qz - pz * qy), pw * qy + qw * py + (pz * qx - px * qz),
+            pw * qz + qw * pz + (px * qy - py * qx), pw * qw - (px * qx + py * qy + pz * qz))
+
+
+def _qnormalise(q: tuple[float, ...]) -> tuple[float, float, float, float]:
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    s = -1.0 / n if q[3] / n < 0.0 else 1.0 / n
+    return (q[0] * s, q[1] * s, q[2] * s, q[3] * s)
+
+
+def _qlog(q: tuple[float, ...]) -> tuple[float, float, float]:
+    x, y, z, w = _qnormalise(q)
+    s = math.sqrt(x * x + y * y + z * z)
+    k = 2.0 / w if s < 1e-9 else 2.0 * math.atan2(s, w) / s
+    return (k * x, k * y, k * z)
+
+
+def _qexp(v: np.ndarray) -> tuple[float, float, float, float]:
+    vx, vy, vz = float(v[0]), float(v[1]), float(v[2])
+    angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+    k = 0.5 - angle**2 / 48.0 if angle < 1e-6 else math.sin(0.5 * angle) / angle
+    return (k * vx, k * vy, k * vz, math.cos(0.5 * angle))
+
+
+def _boxminus1(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``y ⊟ x`` (12,) of one state (:func:`oacli.estimation.manifold.boxminus`)."""
+    out = np.empty(TANGENT_DIM)
+    out[0:6] = y[0:6] - x[0:6]
+    qx = (-float(x[6]), -float(x[7]), -float(x[8]), float(x[9]))
+    out[6:9] = _qlog(_qmul(qx, (float(y[6]), float(y[7]), float(y[8]), float(y[9]))))
+    out[9:12] = y[10:13] - x[10:13]
+    return out
+
+
+def _boxplus1(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """``x ⊞ δx`` (13,) of one state (:func:`oacli.estimation.manifold.boxplus`)."""
+    out = np.array(x, dtype=float, copy=True)
+    out[0:6] += dx[0:6]
+    out[6:10] = _qnormalise(_qmul((float(x[6]), float(x[7]), float(x[8]), float(x[9])), _qexp(dx[6:9])))
+    out[10:13] += dx[9:12]
+    return out
+
+
+def _jr_inv(phi: np.ndarray) -> np.ndarray:
+    """``J_r⁻¹(φ)`` (3, 3) of one rotation vector (:func:`oacli.estimation.manifold.so3_right_jacobian_inverse`)."""
+    x, y, z = float(phi[0]), float(phi[1]), float(phi[2])
+    theta = math.sqrt(x * x + y * y + z * z)
+    if theta < 1e-5:
+        coef = 1.0 / 12.0 + theta**2 / 720.0
+    else:
+        coef = 1.0 / theta**2 - (1.0 + math.cos(theta)) / (2.0 * theta * math.sin(theta))
+    s = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + 0.5 * s + coef * (s @ s)
+
+
+def _lift1(x: np.ndarray) -> np.ndarray:
+    """:func:`oacli.estimation.manifold.lift_matrix` of one state, (13, 12)."""
+    qx, qy, qz, qw = (0.5 * float(v) for v in x[6:10])
+    out = np.zeros((13, TANGENT_DIM))
+    out[0:6, 0:6] = np.eye(6)
+    out[6:10, 6:9] = ((qw, -qz, qy), (qz, qw, -qx), (-qy, qx, qw), (-qx, -qy, -qz))
+    out[10:13, 9:12] = np.eye(3)
+    return out
+
+
+def _project1(x: np.ndarray) -> np.ndarray:
+    """:func:`oacli.estimation.manifold.project_matrix` of one state, (12, 13)."""
+    qx, qy, qz, qw = (2.0 * float(v) for v in x[6:10])
+    out = np.zeros((TANGENT_DIM, 13))
+    out[0:6, 0:6] = np.eye(6)
+    out[6:9, 6:10] = ((qw, qz, -qy, -qx), (-qz, qw, qx, -qy), (qy, -qx, qw, -qz))
+    out[9:12, 10:13] = np.eye(3)
+    return out
 
 
 @dataclass(frozen=True)
@@ -133,12 +216,16 @@ class SequentialEstimator:
     bootstrap_max_records : int
         Hand over after this many records even if θ is not yet that well known (the batch covariance is used as
         it is; if it is singular -- unexciting data -- the filter starts from the last record and the prior).
+    reference : bool
+        Use the original implementation (the general batched RK4 :func:`~oacli.estimation.propagation.
+        propagate_intervals` for every propagation, no reuse of the prediction's linearisation, the batch bootstrap
+        on its reference path); the same filter, kept to check the default path against (tests, benchmark).
     """
 
     def __init__(
         self, settings: EstimatorSettings, prior: ParameterEstimate, *, reinitialise_after: int = 5,
         bootstrap_relative_std: float | None = 0.05, bootstrap_check_every: int = 5,
-        bootstrap_max_records: int = 200,
+        bootstrap_max_records: int = 200, reference: bool = False,
     ) -> None:
         if reinitialise_after < 1:
             raise ValueError("reinitialise_after must be >= 1")
@@ -146,6 +233,13 @@ class SequentialEstimator:
             raise ValueError("bootstrap_check_every must be >= 1 and bootstrap_relative_std > 0 or None")
         self.settings = settings
         self.prior = prior
+        self.reference = bool(reference)
+        self._predicted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        if self.reference:
+            self._bm, self._bp, self._jr, self._lift, self._proj = (
+                boxminus, boxplus, so3_right_jacobian_inverse, lift_matrix, project_matrix)
+        else:
+            self._bm, self._bp, self._jr, self._lift, self._proj = _boxminus1, _boxplus1, _jr_inv, _lift1, _project1
         self.reinitialise_after = int(reinitialise_after)
         self.bootstrap_relative_std = bootstrap_relative_std
         self.bootstrap_check_every = int(bootstrap_check_every)
@@ -253,12 +347,12 @@ class SequentialEstimator:
         theta = par.theta_from_phi(self._phi)
         durations = substep_schedule(np.array([self._t_last]), np.array([t]), self.settings.substep_s)
         self._before = (self._x.copy(), self._phi.copy(), self._p.copy(), durations)
-        x_new, a, c = propagate_intervals(self._x[None], self._u_last[None], theta, durations)
-        x_new = x_new[0]
-        proj = project_matrix(x_new)
+        x_new, a, c = self._propagate(self._x, theta, durations)
+        self._predicted = (x_new, a, c)  # the first iterate of the update linearises at this very point
+        proj = self._proj(x_new)
         phi_mat = np.eye(_N)
-        phi_mat[:TANGENT_DIM, :TANGENT_DIM] = proj @ a[0] @ lift_matrix(self._x)
-        phi_mat[:TANGENT_DIM, TANGENT_DIM:] = proj @ c[0] @ par.theta_jacobian(self._phi)
+        phi_mat[:TANGENT_DIM, :TANGENT_DIM] = proj @ a @ self._lift(self._x)
+        phi_mat[:TANGENT_DIM, TANGENT_DIM:] = proj @ c @ par.theta_jacobian(self._phi)
         q = self.settings.process.covariance(np.array([t - self._t_last]), self.prior.theta)[0]
         self._q = q
         p = phi_mat @ self._p @ phi_mat.T
@@ -266,13 +360,23 @@ class SequentialEstimator:
         self._x = x_new
         self._p = 0.5 * (p + p.T)
 
+    def _propagate(self, x: np.ndarray, theta: np.ndarray, durations: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The process model over the current interval from ``x`` with the held input: ``x⁺``, ``∂x⁺/∂x``,
+        ``∂x⁺/∂θ``."""
+        assert self._u_last is not None
+        if self.reference:
+            x_new, a, c = propagate_intervals(x[None], self._u_last[None], theta, durations)
+            return x_new[0], a[0], c[0]
+        return propagate_one(x, self._u_last, theta, durations)
+
     def _innovation(self, rec: Measurement) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``ν``, ``H`` (m, 16) and ``R`` diagonal (m,) for the measured components of ``rec``."""
         assert self._x is not None
-        e = boxminus(rec.x_measured, self._x)
+        e = self._bm(rec.x_measured, self._x)
         h_state = np.zeros((TANGENT_DIM, _N))
         h_state[:, :TANGENT_DIM] = np.eye(TANGENT_DIM)
-        h_state[6:9, 6:9] = so3_left_jacobian_inverse(e[6:9])
+        h_state[6:9, 6:9] = self._jr(-e[6:9])
         nu = [e[self._state_rows]]
         h = [h_state[self._state_rows]]
         r = [self._r_state]
@@ -285,7 +389,7 @@ class SequentialEstimator:
             pred = dynamics_batch(x1, u1, theta)[0, _ACCEL_ROWS]
             jac = dynamics_jacobians_batch(x1, u1, theta)[0][_ACCEL_ROWS]
             h_acc = np.zeros((6, _N))
-            h_acc[:, :TANGENT_DIM] = jac[:, 0:13] @ lift_matrix(self._x)
+            h_acc[:, :TANGENT_DIM] = jac[:, 0:13] @ self._lift(self._x)
             h_acc[:, TANGENT_DIM:] = jac[:, 13:] @ par.theta_jacobian(self._phi)
             nu.append((acc - pred)[sel])
             h.append(h_acc[sel])
@@ -293,9 +397,10 @@ class SequentialEstimator:
         return np.concatenate(nu), np.vstack(h), np.concatenate(r)
 
     def _step_residuals(
-        self, rec: Measurement, xa: np.ndarray, ph: np.ndarray, xb: np.ndarray
+        self, rec: Measurement, xa: np.ndarray, ph: np.ndarray, xb: np.ndarray, first: bool = False
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Whitened residuals and Jacobian of the last step's problem at ``(x_{k-1}, φ, x_k)`` (see below)."""
+        """Whitened residuals and Jacobian of the last step's problem at ``(x_{k-1}, φ, x_k)`` (see below);
+        ``first``: ``(x_{k-1}, φ)`` is the prediction's point, whose propagation is reused."""
         assert self._u_last is not None
         x_prev, phi_prev, _, durations = self._before
         w_prior, w_proc = self._w_prior, self._w_proc
@@ -303,34 +408,36 @@ class SequentialEstimator:
         kb = TANGENT_DIM + par.N_PARAMS
         theta = par.theta_from_phi(ph)
         dtheta = par.theta_jacobian(ph)
-        fx, a, c = propagate_intervals(xa[None], self._u_last[None], theta, durations)
-        fx = fx[0]
+        if first and not self.reference and self._predicted is not None:
+            fx, a, c = self._predicted
+        else:
+            fx, a, c = self._propagate(xa, theta, durations)
         rows, jacs = [], []
         # Prior on [x_{k-1}, φ] (the previous posterior).
-        e_prior = np.concatenate([boxminus(xa, x_prev), ph - phi_prev])
+        e_prior = np.concatenate([self._bm(xa, x_prev), ph - phi_prev])
         j_prior = np.zeros((kb, n))
         j_prior[:, :kb] = np.eye(kb)
-        j_prior[6:9, 6:9] = so3_right_jacobian_inverse(e_prior[6:9])
+        j_prior[6:9, 6:9] = self._jr(e_prior[6:9])
         rows.append(w_prior @ e_prior)
         jacs.append(w_prior @ j_prior)
         # Process: x_k ⊟ f(x_{k-1}, u, θ).
-        e_proc = boxminus(xb, fx)
+        e_proc = self._bm(xb, fx)
         blk_next = np.eye(TANGENT_DIM)
-        blk_next[6:9, 6:9] = so3_right_jacobian_inverse(e_proc[6:9])
+        blk_next[6:9, 6:9] = self._jr(e_proc[6:9])
         blk_pred = np.eye(TANGENT_DIM)
-        blk_pred[6:9, 6:9] = so3_left_jacobian_inverse(e_proc[6:9])
-        proj = blk_pred @ project_matrix(fx)
+        blk_pred[6:9, 6:9] = self._jr(-e_proc[6:9])
+        proj = blk_pred @ self._proj(fx)
         j_proc = np.zeros((TANGENT_DIM, n))
-        j_proc[:, :TANGENT_DIM] = -proj @ a[0] @ lift_matrix(xa)
-        j_proc[:, TANGENT_DIM:kb] = -proj @ c[0] @ dtheta
+        j_proc[:, :TANGENT_DIM] = -proj @ a @ self._lift(xa)
+        j_proc[:, TANGENT_DIM:kb] = -proj @ c @ dtheta
         j_proc[:, kb:] = blk_next
         rows.append(w_proc @ e_proc)
         jacs.append(w_proc @ j_proc)
         # Measurement: x_k ⊟ ỹ_k.
         w_meas = 1.0 / np.sqrt(self._r_state)
-        e_meas = boxminus(xb, rec.x_measured)
+        e_meas = self._bm(xb, rec.x_measured)
         blk = np.eye(TANGENT_DIM)
-        blk[6:9, 6:9] = so3_right_jacobian_inverse(e_meas[6:9])
+        blk[6:9, 6:9] = self._jr(e_meas[6:9])
         j_meas = np.zeros((len(self._state_rows), n))
         j_meas[:, kb:] = blk[self._state_rows]
         rows.append(w_meas * e_meas[self._state_rows])
@@ -344,7 +451,7 @@ class SequentialEstimator:
             jac = dynamics_jacobians_batch(x1, u1, theta)[0][_ACCEL_ROWS]
             j_acc = np.zeros((6, n))
             j_acc[:, TANGENT_DIM:kb] = jac[:, 13:] @ dtheta
-            j_acc[:, kb:] = jac[:, 0:13] @ lift_matrix(xb)
+            j_acc[:, kb:] = jac[:, 0:13] @ self._lift(xb)
             rows.append(w_acc * (pred - acc)[acc_rows])
             jacs.append(w_acc[:, None] * j_acc[acc_rows])
         return np.concatenate(rows), np.vstack(jacs)
@@ -366,11 +473,11 @@ class SequentialEstimator:
         kb = TANGENT_DIM + par.N_PARAMS
         n = kb + TANGENT_DIM
         xa, ph, xb = x_prev.copy(), phi_prev.copy(), self._x.copy()
-        r, j = self._step_residuals(rec, xa, ph, xb)
+        r, j = self._step_residuals(rec, xa, ph, xb, first=True)
         best = (float(r @ r), (xa, ph, xb), j)
         for _ in range(_MAX_UPDATE_ITERATIONS):
             step = -np.linalg.solve(j.T @ j, j.T @ r)
-            xa, ph, xb = boxplus(xa, step[:TANGENT_DIM]), ph + step[TANGENT_DIM:kb], boxplus(xb, step[kb:])
+            xa, ph, xb = self._bp(xa, step[:TANGENT_DIM]), ph + step[TANGENT_DIM:kb], self._bp(xb, step[kb:])
             with np.errstate(all="ignore"):
                 r, j = self._step_residuals(rec, xa, ph, xb)
             cost = float(r @ r)
@@ -401,7 +508,8 @@ class SequentialEstimator:
             init_states = extend_states(self._boot_result.states, self._boot, self._boot_result.estimate.theta,
                                         self.settings.substep_s)
         result = estimate_batch(self._boot, self.settings, self.prior, initial_phi=init_phi,
-                                initial_states=init_states)
+                                initial_states=init_states, reference=self.reference,
+                                continuation=self._boot_result is None)  # a warm start needs no continuation
         self._boot_result = result
         est = result.estimate
         self._boot_estimate = ParameterEstimate(est.t, est.theta, est.covariance, "sequential", est.samples_used,
