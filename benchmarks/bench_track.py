@@ -1,0 +1,101 @@
+"""Benchmark: the mission's five ``track`` stages (closed loop, controller, journal, summary), PNGs left out.
+
+Runs ``run_track`` in-process on the stage configs of a finished mission (``oacli mission configs/mission_iss.yaml
+--out DIR`` first; each ``segment-*/track`` and ``segment-*/baseline-*`` config.yaml holds its reference file), with the PNG writer
+replaced by a no-op (another benchmark covers the plots), and prints per stage: control steps, simulated time, the
+wall time of the closed-loop simulation (controller steps, plant integration, journal) and of the whole stage
+without PNGs, plus the sum over the stages (issue 9 target: <= 3 s for the five). ``--save FILE`` writes every
+stage's true trajectory and commands to an ``.npz`` and ``--compare FILE`` prints the largest relative difference
+against such a file (same seed -> same trajectory).
+
+Run: ``python benchmarks/bench_track.py MISSION_DIR [--repeats 3] [--save base.npz | --compare base.npz]``
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import oacli.stages.track as track_stage  # noqa: E402
+from oacli.config import load_config  # noqa: E402
+
+
+def stage_configs(mission_dir: Path) -> list[Path]:
+    """The stage configs of the track stages under ``mission_dir`` (sorted)."""
+    found = [*mission_dir.glob("segment-*/track/config.yaml"), *mission_dir.glob("segment-*/baseline-*/config.yaml")]
+    return sorted(found)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("mission_dir", type=Path)
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--save", type=Path)
+    parser.add_argument("--compare", type=Path)
+    args = parser.parse_args()
+    configs = stage_configs(args.mission_dir)
+    if not configs:
+        raise SystemExit(f"no segment-*/track*/config.yaml under {args.mission_dir}")
+    sim_wall: list[float] = []
+    runs: dict[str, object] = {}
+    real_simulate = track_stage.simulate
+
+    def timed_simulate(*a, **k):
+        start = time.perf_counter()
+        tel = real_simulate(*a, **k)
+        sim_wall.append(time.perf_counter() - start)
+        runs["tel"] = tel
+        return tel
+
+    track_stage.simulate = timed_simulate
+    track_stage.write_track_plots = lambda *a, **k: None
+    table: dict[str, list[tuple[float, float]]] = {}
+    saved: dict[str, np.ndarray] = {}
+    info: dict[str, tuple[int, float]] = {}
+    for rep in range(args.repeats):
+        for path in configs:
+            name = str(path.parent.relative_to(args.mission_dir))
+            cfg = load_config(path)
+            with tempfile.TemporaryDirectory() as tmp:
+                start = time.perf_counter()
+                track_stage.run_track(cfg, out=Path(tmp) / "run")
+                wall = time.perf_counter() - start
+            tel = runs["tel"]
+            table.setdefault(name, []).append((sim_wall[-1], wall))
+            info[name] = (len(tel.t_ctrl), float(tel.t_true[-1]))
+            if rep == 0:
+                saved[f"{name}/x_true"] = tel.x_true
+                saved[f"{name}/u_command"] = tel.u_command
+    print(f"{'stage':<28} {'steps':>6} {'sim [s]':>8} {'closed loop [s]':>16} {'stage, no PNG [s]':>18}")
+    tot_loop = tot_stage = 0.0
+    for name, rows in table.items():
+        loop = float(np.median([r[0] for r in rows]))
+        stage = float(np.median([r[1] for r in rows]))
+        tot_loop, tot_stage = tot_loop + loop, tot_stage + stage
+        print(f"{name:<28} {info[name][0]:>6} {info[name][1]:>8.1f} {loop:>16.3f} {stage:>18.3f}")
+    print(f"{'total':<28} {sum(i[0] for i in info.values()):>6} {sum(i[1] for i in info.values()):>8.1f} "
+          f"{tot_loop:>16.3f} {tot_stage:>18.3f}   (medians over {args.repeats} repeats)")
+    if args.save:
+        np.savez(args.save, **saved)
+    if args.compare:
+        base = np.load(args.compare)
+        for key in base.files:
+            a, b = base[key], saved[key]
+            if a.shape != b.shape:
+                print(f"{key}: shape {a.shape} -> {b.shape}")
+                continue
+            rel = np.max(np.abs(a - b)) / max(np.max(np.abs(a)), 1e-300)
+            print(f"{key:<40} max |diff| / max |value| = {rel:.2e}")
+
+
+if __name__ == "__main__":
+    main()
