@@ -1,9 +1,9 @@
 """Benchmark: the mission's five ``track`` stages (closed loop, controller, journal, summary), PNGs left out.
 
 Runs ``run_track`` in-process on the stage configs of a finished mission (``oacli mission configs/mission_iss.yaml
---out DIR`` first; each ``segment-*/track`` and ``segment-*/baseline-*`` config.yaml holds its reference file), with the PNG writer
-replaced by a no-op (another benchmark covers the plots), and prints per stage: control steps, simulated time, the
-wall time of the closed-loop simulation (controller steps, plant integration, journal) and of the whole stage
+--out DIR`` first; the config.yaml of each ``segment-*/track`` and ``segment-*/baseline-*`` names its reference
+file), with the PNG writer replaced by a no-op (another benchmark covers the plots), and prints per stage: control
+steps, simulated time, the wall time of the closed-loop simulation (controller steps, plant integration, journal) and of the whole stage
 without PNGs, plus the sum over the stages (issue 9 target: <= 3 s for the five). ``--save FILE`` writes every
 stage's true trajectory and commands to an ``.npz`` and ``--compare FILE`` prints the largest relative difference
 against such a file (same seed -> same trajectory).

@@ -13,11 +13,10 @@ a flight log would. Every random draw comes from the generator passed in.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
-
-import math
 
 from oacli.model import quaternion as quat
 from oacli.model.rigid_body import theta_of
