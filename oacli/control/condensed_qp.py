@@ -44,7 +44,7 @@ class CondensedQP:
         When the cones are not of that form or the equalities depend on the parameters.
     """
 
-    def __init__(self, compiled: CompiledQP, ridge: float = 1e-9) -> None:
+    def __init__(self, compiled: CompiledQP, ridge: float = 1e-7) -> None:
         import daqp
 
         self._daqp = daqp
@@ -59,6 +59,7 @@ class CondensedQP:
         a_eq, self._a_in = a[:n_eq], a[n_eq:]
         if compiled._t_a is not None:
             theta_probe = np.random.default_rng(0).standard_normal(compiled._n_params + 1)
+            theta_probe[compiled._const_col] = 1.0
             a_probe = compiled._a.copy()
             a_probe.data = compiled._t_a @ theta_probe
             if np.any(a_probe.toarray()[:n_eq] != a_eq):
@@ -121,6 +122,7 @@ class CondensedQP:
                                                 **settings)
         wall = time.perf_counter() - start
         ok = flag == 1
+        self.exitflag = int(flag)
         self._x = x_p + self._z @ np.asarray(y) if ok else None
         return ok, int(info["iterations"]), wall
 

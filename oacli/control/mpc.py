@@ -226,6 +226,8 @@ class LinearMPC:
         for key, value in self.clarabel_options.items():
             setattr(settings, key, value)
         self.compiled = CompiledQP(self.problem, settings) if fast else None
+        #: Parameter values of the last solve, by parameter id (what :meth:`CompiledQP.solve` took).
+        self.last_values: dict[int, np.ndarray] = {}
 
     @property
     def has_position_rows(self) -> bool:
@@ -262,6 +264,7 @@ class LinearMPC:
                 values[self.box_lower.id], values[self.box_upper.id] = rows.lower, rows.upper
             for j, (normal, offset) in enumerate(zip(self.out_normals, self.out_offsets, strict=True)):
                 values[normal.id], values[offset.id] = rows.normals[j], rows.offsets[j]
+        self.last_values = values
         start = time.perf_counter()
         value: Callable[[cp.Variable], np.ndarray] | None
         if self.compiled is not None:
