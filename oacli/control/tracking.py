@@ -39,13 +39,14 @@ import numpy as np
 
 from oacli.control.lqr import dlqr
 from oacli.control.mpc import POSITION_PENALTY, LinearMPC
+from oacli.control.reference_sampler import ReferenceSampler
 from oacli.control.workspace import WorkspaceRows, shifted_plan
 from oacli.geometry.collision import RobotBody
 from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
 from oacli.model.limits import MotionLimits
-from oacli.trajectory import feedforward_inputs, sample_states
+from oacli.trajectory import feedforward_inputs
 from oacli.types import ControlStep, InertialParams, SolveInfo, Trajectory
 
 
@@ -138,6 +139,7 @@ class TrackingMPC:
         if max_consecutive_failures is not None and max_consecutive_failures < 1:
             raise ValueError("max_consecutive_failures must be >= 1")
         self.reference = reference
+        self._sampler = ReferenceSampler(reference)
         self.params = params
         self.dt_s = float(dt_s)
         self.horizon = int(horizon)
@@ -198,7 +200,7 @@ class TrackingMPC:
         """
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
-        x_ref_full = sample_states(self.reference, t + self._offsets)
+        x_ref_full = self._sampler.states(t + self._offsets)
         if self._hold_q is not None:
             info = SolveInfo("hold (safe_hold)", False, solve_time_s=0.0, step_time_s=time.perf_counter() - start)
             return ControlStep(u=self._hold_input(x, self._hold_q), info=info, x_reference=x_ref_full[0])
