@@ -61,17 +61,22 @@ def main() -> None:
     table: dict[str, list[tuple[float, float]]] = {}
     saved: dict[str, np.ndarray] = {}
     info: dict[str, tuple[int, float]] = {}
+    outcome: dict[str, str] = {}
     for rep in range(args.repeats):
         for path in configs:
             name = str(path.parent.relative_to(args.mission_dir))
             cfg = load_config(path)
             with tempfile.TemporaryDirectory() as tmp:
                 start = time.perf_counter()
-                track_stage.run_track(cfg, out=Path(tmp) / "run")
+                result = track_stage.run_track(cfg, out=Path(tmp) / "run")
                 wall = time.perf_counter() - start
             tel = runs["tel"]
             table.setdefault(name, []).append((sim_wall[-1], wall))
             info[name] = (len(tel.t_ctrl), float(tel.t_true[-1]))
+            summ = result.summary
+            rms_mm = 1e3 * summ["rms_position_error_m"]
+            outcome[name] = (f"{summ['status']}, {summ['constraint_violations']} violations, "
+                             f"{summ.get('tube_violations', '-')} tube, rms {rms_mm:.4f} mm")
             if rep == 0:
                 saved[f"{name}/x_true"] = tel.x_true
                 saved[f"{name}/u_command"] = tel.u_command
@@ -84,6 +89,8 @@ def main() -> None:
         print(f"{name:<28} {info[name][0]:>6} {info[name][1]:>8.1f} {loop:>16.3f} {stage:>18.3f}")
     print(f"{'total':<28} {sum(i[0] for i in info.values()):>6} {sum(i[1] for i in info.values()):>8.1f} "
           f"{tot_loop:>16.3f} {tot_stage:>18.3f}   (medians over {args.repeats} repeats)")
+    for name, text in outcome.items():
+        print(f"{name:<28} {text}")
     if args.save:
         np.savez(args.save, **saved)
     if args.compare:
