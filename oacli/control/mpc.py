@@ -14,6 +14,13 @@ with ``P = L Lᵀ`` the terminal weight (by default the discrete Riccati solutio
 constraint the MPC law equals the infinite-horizon LQR law). State limits are soft so that a measured state
 slightly outside them (noise, a disturbance) never makes the problem infeasible; the slack is reported.
 
+The cvxpy problem is written so that canonicalisation adds no auxiliary variable (as
+:class:`oacli.control.tube_qp.NominalQP`): the terminal state is its own variable, the references enter only the
+linear cost term (``‖c ⊙ (x − r)‖² = Σ w x² − 2 Σ (w ⊙ r) x + Σ w r²``, the constant added back to the reported
+objective) and the absolute values are pairs of linear rows. The same problem as the textbook form above with half
+the variables (262 instead of 574 for the mission's N = 10 tracking MPC with workspace rows); Clarabel runs with
+:data:`oacli.control.compiled_qp.CLARABEL_OPTIONS`.
+
 Optionally the predicted positions ``p_k = x_k[i:i+3]`` (k = 1..N) are kept in the workspace
 (:mod:`oacli.control.workspace`): a keep-in box ``lower_k ≤ p_k ≤ upper_k``, braking rows that keep the point
 where each predicted state would stop (braking at half the given deceleration) in that box
