@@ -1,13 +1,15 @@
 """The controllers' reference sampler gives the samples of oacli.trajectory.sample_states (before, inside and after
-the reference, on and between its knots, a single-sample reference)."""
+the reference, on and between its knots, a single-sample reference); its attitude chart and feed-forward are those
+of oacli.model.quaternion.error_vector and oacli.trajectory.feedforward_inputs."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from oacli.control.reference_sampler import ReferenceSampler
+from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
+from oacli.model import quaternion as quat
 from oacli.reference import waypoint_reference
-from oacli.trajectory import sample_states
+from oacli.trajectory import feedforward_inputs, sample_states
 from oacli.types import InertialParams, Trajectory
 
 PARAMS = InertialParams(9.5, np.array([0.153, 0.143, 0.162]))
@@ -36,3 +38,16 @@ def test_single_sample_reference_holds_its_pose():
     one = Trajectory(ref.t[:1], ref.x[:1], ref.u[:1], name="one", frame=ref.frame)
     times = np.array([-1.0, 0.0, 2.0])
     np.testing.assert_array_equal(ReferenceSampler(one).states(times), sample_states(one, times))
+
+
+def test_attitude_errors_and_feedforward_are_the_generic_helpers(rng):
+    for _ in range(200):
+        anchor = quat.normalize(rng.normal(size=4))
+        q = quat.normalize(rng.normal(size=(11, 4)))
+        q[0] = anchor  # zero error: the small-angle branch
+        np.testing.assert_allclose(attitude_errors(anchor, q), quat.error_vector(anchor, q), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(attitude_errors(anchor, q[5]), quat.error_vector(anchor, q[5]), rtol=0,
+                                   atol=1e-15)
+        x = rng.normal(size=(11, 13))
+        np.testing.assert_allclose(feedforward(x, 0.2, PARAMS.mass_kg, PARAMS.inertia_kgm2),
+                                   feedforward_inputs(x, 0.2, PARAMS), rtol=0, atol=1e-15)

@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from oacli.control.lqr import dlqr, solve_dare
-from oacli.control.reference_sampler import ReferenceSampler
+from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_qp import LinearConstraint, NominalQP, PositionRowsSpec, QPBlock
@@ -61,7 +61,6 @@ from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
 from oacli.model.limits import MotionLimits
-from oacli.trajectory import feedforward_inputs
 from oacli.types import ControlStep, InertialParams, SolveInfo, Trajectory
 
 MODES = ("mpc", "fallback", "hold")
@@ -187,6 +186,7 @@ class TubeMPC:
             raise ValueError("prediction_step_s must be an integer multiple of the control period")
         self.reference, self.params, self.design = reference, params, design
         self._sampler = ReferenceSampler(reference)
+        self._inertia = np.asarray(params.inertia_kgm2, dtype=float)
         self.horizon, self.step_s, self.dt_s = int(horizon), float(prediction_step_s), design.dt_s
         self.limits, self.max_failures = limits, int(max_consecutive_failures)
         a12, b12 = hover_error_model(params, self.step_s)
@@ -313,14 +313,14 @@ class TubeMPC:
         info: SolveInfo
         attempted = self._hold_q is None
         if attempted:
-            u_ref = feedforward_inputs(x_ref_full, self.step_s, self.params)
+            u_ref = feedforward(x_ref_full, self.step_s, self.params.mass_kg, self._inertia)
             anchor = x_ref_full[0, 6:10]
             # Translation is exactly linear: the QP works relative to the measured position (small numbers,
             # so the solver's absolute tolerances are small against Z).
             origin = np.concatenate([x[0:3], np.zeros(3)])
             ref_t = x_ref_full[:, 0:6] - origin
-            ref_r = np.column_stack([quat.error_vector(anchor, x_ref_full[:, 6:10]), x_ref_full[:, 10:13]])
-            x_r = np.concatenate([quat.error_vector(anchor, x[6:10]), x[10:13]])
+            ref_r = np.column_stack([attitude_errors(anchor, x_ref_full[:, 6:10]), x_ref_full[:, 10:13]])
+            x_r = np.concatenate([attitude_errors(anchor, x[6:10]), x[10:13]])
             self.qp.set_parameters("translation", x_t - origin, ref_t, u_ref[:, 0:3])
             self.qp.set_parameters("attitude", x_r, ref_r, u_ref[:, 3:6])
             if self.workspace is not None:
