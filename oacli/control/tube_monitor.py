@@ -207,6 +207,7 @@ class TubeMonitor:
         self.noise_allowance = (np.zeros((3, 2)) if noise_allowance is None
                                 else np.asarray(noise_allowance, dtype=float).reshape(3, 2))
         self.designs: list[tuple[float, TubeDesign]] = [(0.0, design)]
+        self._hw_cache: tuple[TubeDesign, np.ndarray] | None = None  # W's half-widths of the design in use
         self._w_cache: dict[int, tuple[TubeDesign, list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]]] = {}
         self.controllers: list[TubeMPC] = [factory(design)]
         self.events: list[BeyondWEvent] = []
@@ -333,7 +334,10 @@ class TubeMonitor:
                 self.events.append(BeyondWEvent(t, "ignore", "the disturbance left W (beyond_w: ignore)",
                                                 self._max_abs.copy(), hw, hw, None))
         rec = self._rec
-        for key, value in (("t", t), ("w", w), ("hw", half_widths(self.designs[design_used][1])),
+        design_now = self.designs[design_used][1]
+        if self._hw_cache is None or self._hw_cache[0] is not design_now:
+            self._hw_cache = (design_now, half_widths(design_now))
+        for key, value in (("t", t), ("w", w), ("hw", self._hw_cache[1].copy()),
                            ("margin", margin), ("violated", violated), ("design", self.redesigns)):
             rec[key].append(value)
         before_step = self.clock()
