@@ -4,9 +4,9 @@ Runs ``run_track`` in-process on the stage configs of a finished mission (``oacl
 --out DIR`` first; the config.yaml of each ``segment-*/track`` and ``segment-*/baseline-*`` names its reference
 file), with the PNG writer replaced by a no-op (another benchmark covers the plots), and prints per stage: control
 steps, simulated time, the wall time of the closed-loop simulation (controller steps, plant integration, journal)
-and of the whole stage without PNGs (wall and process CPU time), plus the sum over the stages (issue 9 target: <= 3 s for the five). ``--save
-FILE`` writes every stage's true trajectory and commands to an ``.npz`` and ``--compare FILE`` prints the largest
-relative difference against such a file (same seed -> same trajectory).
+and of the whole stage without PNGs (wall and process CPU time), plus the sum over the stages (issue 9 target: <= 3
+s for the five). ``--save FILE`` writes every stage's true trajectory and commands to an ``.npz`` and ``--compare
+FILE`` prints the largest relative difference against such a file (same seed -> same trajectory).
 
 Run: ``python benchmarks/bench_track.py MISSION_DIR [--repeats 3] [--save base.npz | --compare base.npz]``
 """
