@@ -21,7 +21,16 @@ loop (the preset's random force drawn from that seed) records the measured state
 all stepped at every state in an order that rotates from step to step, so each sees the same inputs and the same
 machine load. Medians over all steps of all seeds; the ratio is with / without.
 
-Run: ``python benchmarks/bench_tube_mpc.py [--steps 200] [--seeds 5]``
+Third table — the lower limit (issue 13 item 4): the same tube MPC problem condensed (equalities eliminated, a
+dense QP in the inputs, the free initial nominal state and the slacks; :mod:`oacli.control.condensed_qp`) and
+solved by DAQP (dual active-set, the fastest dense QP solver on PyPI for small MPC problems), against our full
+controller step (compiled direct-Clarabel path), at N = 5 and N = 40. A first pass records each step's parameter
+values; the timed pass replays the states, the controller step and the DAQP solve of the same instance alternating
+which goes first. The limit is the wall time of the condensing (matrix-vector products) plus the DAQP call; the
+last column is the largest difference of the first nominal force between the two. Needs ``pip install daqp``
+(the ``bench`` extra); skipped without it.
+
+Run: ``python benchmarks/bench_tube_mpc.py [--steps 200] [--seeds 5] [--only-workspace | --only-limit]``
 """
 
 from __future__ import annotations
@@ -136,11 +145,56 @@ def _terminal(cfg):
     return None if term is None else TerminalWeights(np.asarray(term.position), np.asarray(term.velocity))
 
 
+def daqp_limit(cfg, reference, design, limits, weights, times, states) -> None:
+    """Third table of the module docstring."""
+    try:
+        import daqp  # noqa: F401
+
+        from oacli.control.condensed_qp import CondensedQP
+    except ImportError:
+        print("\nlower limit: skipped (pip install daqp)")
+        return
+    print(f"\nlower limit: condensed QP + DAQP vs our controller step, {len(times) - 1} steps (medians; alternating)")
+    print(f"{'N':>3} {'unknowns':>9} {'rows':>5} {'our step [ms]':>14} {'our solver [ms]':>16} {'DAQP limit [ms]':>16} "
+          f"{'step/limit':>11} {'DAQP iter':>10} {'max |dv0| [N]':>14}")
+    for horizon in (5, 40):
+        cfg_n = with_controller(cfg, horizon=horizon)
+        recorder = tube_controller_from_config(cfg_n, reference, design, weights, limits)
+        ctrl = tube_controller_from_config(cfg_n, reference, design, weights, limits)
+        ids = {p.name(): p.id for p in ctrl.qp.problem.parameters()}  # the recorder's Parameters -> ctrl's
+        names = {p.id: p.name() for p in recorder.qp.problem.parameters()}
+        instances = []
+        for t, x in zip(times, states, strict=True):
+            recorder.step(float(t), x)
+            instances.append({ids[names[k]]: np.array(v) for k, v in recorder.qp._values.items()})
+        limit = CondensedQP(ctrl.qp.compiled)
+        v = ctrl.qp._vars["translation"].v
+        ours, solver, lim, iters, dv = [], [], [], [], []
+        ctrl.step(float(times[0]), states[0])  # first step builds caches: left out
+        for j in range(1, len(times)):
+            order = (0, 1) if j % 2 else (1, 0)
+            for who in order:
+                if who == 0:
+                    out = ctrl.step(float(times[j]), states[j])
+                else:
+                    ok, it, wall = limit.solve(instances[j])
+            ours.append(out.info.step_time_s)
+            solver.append(out.info.solve_time_s)
+            lim.append(wall)
+            iters.append(it)
+            if ok and out.info.success and ctrl.qp.compiled._x is not None:
+                dv.append(float(np.max(np.abs(limit.value(v)[0] - ctrl.qp.compiled.value(v)[0]))))
+        step_ms, lim_ms = 1e3 * np.median(ours), 1e3 * np.median(lim)
+        print(f"{horizon:>3} {limit.n_unknowns:>9} {limit.n_rows:>5} {step_ms:>14.3f} {1e3 * np.median(solver):>16.3f} "
+              f"{lim_ms:>16.3f} {step_ms / lim_ms:>11.2f} {np.median(iters):>10.0f} {max(dv, default=np.nan):>14.1e}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=200, help="replayed steps per horizon (and per seed)")
     parser.add_argument("--seeds", type=int, default=5, help="closed loops replayed for the workspace table")
     parser.add_argument("--only-workspace", action="store_true", help="print the workspace table only")
+    parser.add_argument("--only-limit", action="store_true", help="print the DAQP lower-limit table only")
     args = parser.parse_args()
     cfg = load_config(PRESET)
     reference = reference_from_config(cfg)
@@ -153,6 +207,9 @@ def main() -> None:
         return
     times, states = record_states(cfg, reference, design, limits, weights)
     times, states = times[: args.steps], states[: args.steps]
+    if args.only_limit:
+        daqp_limit(cfg, reference, design, limits, weights, times, states)
+        return
     print(f"tube design (3 axes: K, RPI s={design.axes[0].rpi.s}, {design.axes[0].reduction.facets_before} -> "
           f"{design.axes[0].reduction.facets_after} facets, tightening): {design_s:.3f} s; {len(times)} steps")
     header = (f"{'N':>3} {'vars':>5} {'rows':>5} {'direct p50 [ms]':>16} {'solver p50':>11} {'solve() p50 [ms]':>17}"
@@ -182,6 +239,7 @@ def main() -> None:
               f"{1e3 * np.median(solver):>11.3f} {s:>17.3f} {s / f:>6.2f} {first['direct']:>17.3f} "
               f"{first['cvxpy']:>18.3f} {max(du):>9.1e}")
     workspace_overhead(cfg, reference, design, limits, weights, args.seeds, args.steps)
+    daqp_limit(cfg, reference, design, limits, weights, times, states)
 
 
 if __name__ == "__main__":

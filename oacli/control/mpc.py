@@ -14,6 +14,13 @@ with ``P = L Lᵀ`` the terminal weight (by default the discrete Riccati solutio
 constraint the MPC law equals the infinite-horizon LQR law). State limits are soft so that a measured state
 slightly outside them (noise, a disturbance) never makes the problem infeasible; the slack is reported.
 
+The cvxpy problem is written so that canonicalisation adds no auxiliary variable (as
+:class:`oacli.control.tube_qp.NominalQP`): the terminal state is its own variable, the references enter only the
+linear cost term (``‖c ⊙ (x − r)‖² = Σ w x² − 2 Σ (w ⊙ r) x + Σ w r²``, the constant added back to the reported
+objective) and the absolute values are pairs of linear rows. The same problem as the textbook form above with half
+the variables (262 instead of 574 for the mission's N = 10 tracking MPC with workspace rows); Clarabel runs with
+:data:`oacli.control.compiled_qp.CLARABEL_OPTIONS`.
+
 Optionally the predicted positions ``p_k = x_k[i:i+3]`` (k = 1..N) are kept in the workspace
 (:mod:`oacli.control.workspace`): a keep-in box ``lower_k ≤ p_k ≤ upper_k``, braking rows that keep the point
 where each predicted state would stop (braking at half the given deceleration) in that box
@@ -31,10 +38,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import clarabel
 import cvxpy as cp
 import numpy as np
 
-from oacli.control.compiled_qp import CompiledQP
+from oacli.control.compiled_qp import CLARABEL_OPTIONS, CompiledQP
 from oacli.control.lqr import solve_dare
 from oacli.control.workspace import PositionRows, braking_lines
 from oacli.solver import solve_clarabel
@@ -148,22 +156,39 @@ class LinearMPC:
         self.x0 = cp.Parameter(n, name="x0")
         self.x_ref = cp.Parameter((n_steps + 1, n), name="x_ref")
         self.u_ref = cp.Parameter((n_steps, m), name="u_ref")
-        self._x = cp.Variable((n_steps + 1, n), name="x")
+        # States 0..N-1 and the terminal state are separate variables and the references enter only the linear
+        # term (‖c ⊙ (x − r)‖² = Σ w x² − 2 Σ (w ⊙ r) x + Σ w r²): cvxpy then puts the weights straight into P and
+        # adds no auxiliary variable (a quadratic term on a slice or an affine residual, or an abs atom, costs one
+        # per entry). The constant Σ w r² is added back to the reported objective.
+        self._z = cp.Variable((n_steps, n), name="x")
+        self._z_n = cp.Variable(n, name="x_terminal")
         self._u = cp.Variable((n_steps, m), name="u")
 
         chol = np.linalg.cholesky(self.terminal + 1e-12 * np.eye(n))
-        sq_q = np.sqrt(self.q_diag)
-        sq_r = np.sqrt(self.r_diag)
+        p_n = chol @ chol.T
+        p_n = 0.5 * (p_n + p_n.T)
+        q_w = np.tile(self.q_diag, (n_steps, 1))
+        r_w = np.tile(self.r_diag, (n_steps, 1))
+        self._weights = (q_w, r_w, p_n)
         cost = (
-            cp.sum_squares(cp.multiply(sq_q[None, :], self._x[:n_steps] - self.x_ref[:n_steps]))
-            + cp.sum_squares(cp.multiply(sq_r[None, :], self._u - self.u_ref))
-            + cp.sum_squares(chol.T @ (self._x[n_steps] - self.x_ref[n_steps]))
+            cp.sum(cp.multiply(q_w, cp.square(self._z)))
+            - 2 * cp.sum(cp.multiply(cp.multiply(q_w, self.x_ref[:n_steps]), self._z))
+            + cp.sum(cp.multiply(r_w, cp.square(self._u)))
+            - 2 * cp.sum(cp.multiply(cp.multiply(r_w, self.u_ref), self._u))
+            + cp.quad_form(self._z_n, p_n, assume_PSD=True)
+            - 2 * (self.x_ref[n_steps] @ p_n) @ self._z_n
         )
+        u_bound = np.tile(self.u_max, (n_steps, 1))
         constraints = [
-            self._x[0] == self.x0,
-            self._x[1:] == self._x[:-1] @ a.T + self._u @ b.T,
-            cp.abs(self._u) <= np.tile(self.u_max, (n_steps, 1)),
+            self._z[0] == self.x0,
+            self._z_n == a @ self._z[n_steps - 1] + b @ self._u[n_steps - 1],
+            self._u <= u_bound,
+            -self._u <= u_bound,
         ]
+        if n_steps > 1:
+            constraints.insert(1, self._z[1:] == self._z[:-1] @ a.T + self._u[:-1] @ b.T)
+        # Predicted states 1..N.
+        future = cp.vstack([self._z[1:], self._z_n[None, :]]) if n_steps > 1 else self._z_n[None, :]
         self._limited = np.flatnonzero(np.isfinite(self.x_max))
         self._slack = None
         if self._limited.size:
@@ -171,14 +196,15 @@ class LinearMPC:
             # (nonneg=True) by new ones, which the compiled path could then not read back.
             self._slack = cp.Variable((n_steps, self._limited.size), name="slack")
             bound = np.tile(self.x_max[self._limited], (n_steps, 1))
-            constraints += [cp.abs(self._x[1:, self._limited]) <= bound + self._slack, self._slack >= 0]
+            limited = future[:, self._limited]
+            constraints += [limited <= bound + self._slack, -limited <= bound + self._slack, self._slack >= 0]
             cost = cost + soft_penalty * cp.sum(self._slack)
         self.box_lower = self.box_upper = None
         self.out_normals: list[cp.Parameter] = []
         self.out_offsets: list[cp.Parameter] = []
         self._pos_slack = None
         if keep_in or keep_out_zones:
-            pos = self._x[1:, position_index : position_index + 3]
+            pos = future[:, position_index : position_index + 3]
             self._pos_slack = cp.Variable(n_steps, name="position_slack")
             sigma = self._pos_slack[:, None]
             constraints.append(self._pos_slack >= 0)
@@ -189,13 +215,11 @@ class LinearMPC:
                 if braking_mps2 is not None:
                     if braking_speed_mps is None:
                         raise ValueError("braking rows need braking_speed_mps")
-                    p_n = self._x[1:, position_index : position_index + 3]
-                    v_n = self._x[1:, position_index + 3 : position_index + 6]
-                    s_n = sigma
+                    v_n = future[:, position_index + 3 : position_index + 6]
                     for slope, icpt in braking_lines(braking_mps2, braking_speed_mps):
                         sl, ic = np.tile(slope, (n_steps, 1)), np.tile(icpt, (n_steps, 1))
-                        constraints += [v_n <= ic + cp.multiply(sl, self.box_upper - p_n) + s_n,
-                                        -v_n <= ic + cp.multiply(sl, p_n - self.box_lower) + s_n]
+                        constraints += [v_n <= ic + cp.multiply(sl, self.box_upper - pos) + sigma,
+                                        -v_n <= ic + cp.multiply(sl, pos - self.box_lower) + sigma]
             for j in range(keep_out_zones):
                 normal = cp.Parameter((n_steps, 3), name=f"out_normal_{j}")
                 offset = cp.Parameter(n_steps, name=f"out_offset_{j}")
@@ -204,7 +228,13 @@ class LinearMPC:
                 self.out_offsets.append(offset)
             cost = cost + position_penalty * cp.sum(self._pos_slack)
         self.problem = cp.Problem(cp.Minimize(cost), constraints)
-        self.compiled = CompiledQP(self.problem) if fast else None
+        self.clarabel_options = dict(CLARABEL_OPTIONS)
+        settings = clarabel.DefaultSettings()
+        for key, value in self.clarabel_options.items():
+            setattr(settings, key, value)
+        self.compiled = CompiledQP(self.problem, settings) if fast else None
+        #: Parameter values of the last solve, by parameter id (what :meth:`CompiledQP.solve` took).
+        self.last_values: dict[int, np.ndarray] = {}
 
     @property
     def has_position_rows(self) -> bool:
@@ -232,32 +262,37 @@ class LinearMPC:
         MPCSolution
             Inputs, predicted states, slacks and the solve record (NaN arrays when the solve failed).
         """
-        self.x0.value = np.asarray(x0, dtype=float)
-        self.x_ref.value = np.asarray(x_ref, dtype=float)
-        self.u_ref.value = np.asarray(u_ref, dtype=float)
+        values = {self.x0.id: np.asarray(x0, dtype=float), self.x_ref.id: np.asarray(x_ref, dtype=float),
+                  self.u_ref.id: np.asarray(u_ref, dtype=float)}
         if self.has_position_rows:
             if rows is None:
                 raise ValueError("this MPC constrains positions: pass the workspace rows")
             if self.box_lower is not None and self.box_upper is not None:
-                self.box_lower.value, self.box_upper.value = rows.lower, rows.upper
+                values[self.box_lower.id], values[self.box_upper.id] = rows.lower, rows.upper
             for j, (normal, offset) in enumerate(zip(self.out_normals, self.out_offsets, strict=True)):
-                normal.value, offset.value = rows.normals[j], rows.offsets[j]
+                values[normal.id], values[offset.id] = rows.normals[j], rows.offsets[j]
+        self.last_values = values
         start = time.perf_counter()
         value: Callable[[cp.Variable], np.ndarray] | None
         if self.compiled is not None:
-            out = self.compiled.solve()
+            out = self.compiled.solve(values)
             value = self.compiled.value if out.success else None
         else:
-            out = solve_clarabel(self.problem)
+            for param in self.problem.parameters():
+                param.value = values[param.id]  # cvxpy validates shapes and values here
+            out = solve_clarabel(self.problem, **self.clarabel_options)
             value = (lambda v: np.asarray(v.value)) if out.success and self._u.value is not None else None
         status, objective, iterations, solve_time = out.status, out.objective, out.iterations, out.solve_time_s
         wall = time.perf_counter() - start
         if value is not None:
-            u, x = np.array(value(self._u)), np.array(value(self._x))
+            q_w, r_w, p_n = self._weights
+            xr, ur = values[self.x_ref.id], values[self.u_ref.id]
+            objective = objective + float(np.sum(q_w * xr[:-1] ** 2) + np.sum(r_w * ur**2) + xr[-1] @ p_n @ xr[-1])
+            u, x = np.array(value(self._u)), np.vstack([value(self._z), value(self._z_n)[None, :]])
             slack = 0.0 if self._slack is None else float(np.max(value(self._slack), initial=0.0))
             pos_slack = 0.0 if self._pos_slack is None else float(np.max(value(self._pos_slack), initial=0.0))
             info = SolveInfo(status, True, float(objective), int(iterations), float(solve_time), wall)
             return MPCSolution(u, x, slack, info, max(pos_slack, 0.0))
         nan_u = np.full(self._u.shape, np.nan)
-        nan_x = np.full(self._x.shape, np.nan)
+        nan_x = np.full((self.horizon + 1, self._z_n.size), np.nan)
         return MPCSolution(nan_u, nan_x, float("nan"), SolveInfo(status, False, float("nan"), -1, wall, wall))

@@ -10,7 +10,7 @@ in a local error chart and solves the standard MPC of Doerr Eq. 26 on the exact 
 * attitude as the body-frame rotation vector relative to the current reference attitude ``q_a``
   (``q = q_a ⊗ exp(φ)``), body angular rate.
 
-Reference inputs over the horizon are the model-consistent feed-forward (:func:`feedforward_inputs`).
+Reference inputs over the horizon are the model-consistent feed-forward (:func:`oacli.trajectory.feedforward_inputs`).
 
 Workspace (optional, given a scene): the predicted positions of steps 1..N stay in the keep-in box of the
 reference and outside the keep-out zones grown by the robot's body (:mod:`oacli.control.workspace`, half-spaces
@@ -39,13 +39,13 @@ import numpy as np
 
 from oacli.control.lqr import dlqr
 from oacli.control.mpc import POSITION_PENALTY, LinearMPC
+from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
 from oacli.control.workspace import WorkspaceRows, shifted_plan
 from oacli.geometry.collision import RobotBody
 from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
 from oacli.model.limits import MotionLimits
-from oacli.trajectory import feedforward_inputs, sample_states
 from oacli.types import ControlStep, InertialParams, SolveInfo, Trajectory
 
 
@@ -88,7 +88,7 @@ def to_error_state(x: np.ndarray, origin_m: np.ndarray, q_anchor: np.ndarray) ->
     ndarray, shape (..., 12)
     """
     x = np.asarray(x, dtype=float)
-    phi = quat.error_vector(q_anchor, x[..., 6:10])
+    phi = attitude_errors(q_anchor, x[..., 6:10])
     return np.concatenate([x[..., 0:3] - origin_m, x[..., 3:6], phi, x[..., 10:13]], axis=-1)
 
 
@@ -138,6 +138,8 @@ class TrackingMPC:
         if max_consecutive_failures is not None and max_consecutive_failures < 1:
             raise ValueError("max_consecutive_failures must be >= 1")
         self.reference = reference
+        self._sampler = ReferenceSampler(reference)
+        self._inertia = np.asarray(params.inertia_kgm2, dtype=float)
         self.params = params
         self.dt_s = float(dt_s)
         self.horizon = int(horizon)
@@ -198,11 +200,11 @@ class TrackingMPC:
         """
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
-        x_ref_full = sample_states(self.reference, t + self._offsets)
+        x_ref_full = self._sampler.states(t + self._offsets)
         if self._hold_q is not None:
             info = SolveInfo("hold (safe_hold)", False, solve_time_s=0.0, step_time_s=time.perf_counter() - start)
             return ControlStep(u=self._hold_input(x, self._hold_q), info=info, x_reference=x_ref_full[0])
-        u_ref = feedforward_inputs(x_ref_full, self.dt_s, self.params)
+        u_ref = feedforward(x_ref_full, self.dt_s, self.params.mass_kg, self._inertia)
         origin = x_ref_full[0, 0:3]
         anchor = x_ref_full[0, 6:10]
         e0 = to_error_state(x, origin, anchor)

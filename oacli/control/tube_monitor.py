@@ -207,6 +207,8 @@ class TubeMonitor:
         self.noise_allowance = (np.zeros((3, 2)) if noise_allowance is None
                                 else np.asarray(noise_allowance, dtype=float).reshape(3, 2))
         self.designs: list[tuple[float, TubeDesign]] = [(0.0, design)]
+        self._hw_cache: tuple[TubeDesign, np.ndarray] | None = None  # W's half-widths of the design in use
+        self._w_cache: dict[int, tuple[TubeDesign, list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]]] = {}
         self.controllers: list[TubeMPC] = [factory(design)]
         self.events: list[BeyondWEvent] = []
         self.held = False
@@ -243,15 +245,29 @@ class TubeMonitor:
         w = np.empty((3, 2))
         margin = np.inf
         violated = False
-        for i, ax in enumerate(design.axes):
+        for i, (ax, (w_a, w_b, w_noise, tolerance)) in enumerate(zip(design.axes, self._w_rows(design), strict=True)):
             e_now = np.array([x_t[i], x_t[i + 3]])
             e_prev = np.array([x_prev[i], x_prev[i + 3]])
             w[i] = e_now - ax.a @ e_prev - ax.b[:, 0] * u_prev[i]
-            wset = ax.disturbance.w
-            slack = wset.b - wset.a @ w[i] + np.abs(wset.a) @ self.noise_allowance[i]
+            slack = w_b - w_a @ w[i] + w_noise
             margin = min(margin, float(np.min(slack)))
-            violated |= bool(np.any(slack < -W_TOLERANCE_REL * float(np.max(np.abs(wset.b)))))
+            violated |= bool(np.any(slack < tolerance))
         return w, margin, violated
+
+    def _w_rows(self, design: TubeDesign) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+        """Per axis ``(H, b, |H| n, −tol·max|b|)`` of W's rows ``H w ≤ b`` with the noise allowance n, computed once
+        per design (the constant parts of :meth:`_measure`'s check)."""
+        key = id(design)
+        cached = self._w_cache.get(key)
+        if cached is None or cached[0] is not design:
+            rows = []
+            for i, ax in enumerate(design.axes):
+                wset = ax.disturbance.w
+                rows.append((wset.a, wset.b, np.abs(wset.a) @ self.noise_allowance[i],
+                             -W_TOLERANCE_REL * float(np.max(np.abs(wset.b)))))
+            cached = (design, rows)
+            self._w_cache[key] = cached
+        return cached[1]
 
     # -- responses ---------------------------------------------------------------------------------------------
 
@@ -318,7 +334,10 @@ class TubeMonitor:
                 self.events.append(BeyondWEvent(t, "ignore", "the disturbance left W (beyond_w: ignore)",
                                                 self._max_abs.copy(), hw, hw, None))
         rec = self._rec
-        for key, value in (("t", t), ("w", w), ("hw", half_widths(self.designs[design_used][1])),
+        design_now = self.designs[design_used][1]
+        if self._hw_cache is None or self._hw_cache[0] is not design_now:
+            self._hw_cache = (design_now, half_widths(design_now))
+        for key, value in (("t", t), ("w", w), ("hw", self._hw_cache[1].copy()),
                            ("margin", margin), ("violated", violated), ("design", self.redesigns)):
             rec[key].append(value)
         before_step = self.clock()

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from oacli.control.lqr import dlqr, solve_dare
+from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_qp import LinearConstraint, NominalQP, PositionRowsSpec, QPBlock
@@ -60,7 +61,6 @@ from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
 from oacli.model.double_integrator import hover_error_model
 from oacli.model.limits import MotionLimits
-from oacli.trajectory import feedforward_inputs, sample_states
 from oacli.types import ControlStep, InertialParams, SolveInfo, Trajectory
 
 MODES = ("mpc", "fallback", "hold")
@@ -185,6 +185,8 @@ class TubeMPC:
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError("prediction_step_s must be an integer multiple of the control period")
         self.reference, self.params, self.design = reference, params, design
+        self._sampler = ReferenceSampler(reference)
+        self._inertia = np.asarray(params.inertia_kgm2, dtype=float)
         self.horizon, self.step_s, self.dt_s = int(horizon), float(prediction_step_s), design.dt_s
         self.limits, self.max_failures = limits, int(max_consecutive_failures)
         a12, b12 = hover_error_model(params, self.step_s)
@@ -304,21 +306,21 @@ class TubeMPC:
         """
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
-        x_ref_full = sample_states(self.reference, t + self._offsets)
+        x_ref_full = self._sampler.states(t + self._offsets)
         x_t = x[0:6]  # measured translational state [r (world), v]
         z_pred = self._z_pred  # world coordinates
         tube_margin = np.nan if z_pred is None else self.design.error_margin(x_t - z_pred)
         info: SolveInfo
         attempted = self._hold_q is None
         if attempted:
-            u_ref = feedforward_inputs(x_ref_full, self.step_s, self.params)
+            u_ref = feedforward(x_ref_full, self.step_s, self.params.mass_kg, self._inertia)
             anchor = x_ref_full[0, 6:10]
             # Translation is exactly linear: the QP works relative to the measured position (small numbers,
             # so the solver's absolute tolerances are small against Z).
             origin = np.concatenate([x[0:3], np.zeros(3)])
             ref_t = x_ref_full[:, 0:6] - origin
-            ref_r = np.column_stack([quat.error_vector(anchor, x_ref_full[:, 6:10]), x_ref_full[:, 10:13]])
-            x_r = np.concatenate([quat.error_vector(anchor, x[6:10]), x[10:13]])
+            ref_r = np.column_stack([attitude_errors(anchor, x_ref_full[:, 6:10]), x_ref_full[:, 10:13]])
+            x_r = np.concatenate([attitude_errors(anchor, x[6:10]), x[10:13]])
             self.qp.set_parameters("translation", x_t - origin, ref_t, u_ref[:, 0:3])
             self.qp.set_parameters("attitude", x_r, ref_r, u_ref[:, 3:6])
             if self.workspace is not None:

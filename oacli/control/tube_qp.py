@@ -44,15 +44,10 @@ import clarabel
 import cvxpy as cp
 import numpy as np
 
-from oacli.control.compiled_qp import CompiledQP
+from oacli.control.compiled_qp import CLARABEL_OPTIONS, CompiledQP
 from oacli.control.workspace import PositionRows, braking_lines
 from oacli.solver import solve_clarabel
 from oacli.types import SolveInfo
-
-#: Clarabel settings of both solve paths: the defaults except iterative refinement of the KKT solves, which
-#: costs more than half the solve time on these small, well-scaled QPs; the interior-point method still stops
-#: only when Clarabel's residual and gap tolerances (1e-8) are met (tests compare with the default settings).
-CLARABEL_OPTIONS: dict[str, Any] = {"iterative_refinement_enable": False}
 
 
 @dataclass(frozen=True)

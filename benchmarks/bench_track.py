@@ -1,0 +1,113 @@
+"""Benchmark: the mission's five ``track`` stages (closed loop, controller, journal, summary), PNGs left out.
+
+Runs ``run_track`` in-process on the stage configs of a finished mission (``oacli mission configs/mission_iss.yaml
+--out DIR`` first; the config.yaml of each ``segment-*/track`` and ``segment-*/baseline-*`` names its reference
+file), with the PNG writer replaced by a no-op (another benchmark covers the plots), and prints per stage: control
+steps, simulated time, the wall time of the closed-loop simulation (controller steps, plant integration, journal)
+and of the whole stage without PNGs (wall and process CPU time), plus the sum over the stages (issue 9 target: <= 3
+s for the five). ``--save FILE`` writes every stage's true trajectory and commands to an ``.npz`` and ``--compare
+FILE`` prints the largest relative difference against such a file (same seed -> same trajectory).
+
+Run: ``python benchmarks/bench_track.py MISSION_DIR [--repeats 3] [--save base.npz | --compare base.npz]``
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import oacli.stages.track as track_stage  # noqa: E402
+from oacli.config import load_config  # noqa: E402
+
+
+def stage_configs(mission_dir: Path) -> list[Path]:
+    """The stage configs of the track stages under ``mission_dir`` (sorted)."""
+    found = [*mission_dir.glob("segment-*/track/config.yaml"), *mission_dir.glob("segment-*/baseline-*/config.yaml")]
+    return sorted(found)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("mission_dir", type=Path)
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--save", type=Path)
+    parser.add_argument("--compare", type=Path)
+    args = parser.parse_args()
+    configs = stage_configs(args.mission_dir)
+    if not configs:
+        raise SystemExit(f"no segment-*/track*/config.yaml under {args.mission_dir}")
+    sim_wall: list[float] = []
+    sim_cpu: list[float] = []
+    runs: dict[str, object] = {}
+    real_simulate = track_stage.simulate
+
+    def timed_simulate(*a, **k):
+        start, cpu = time.perf_counter(), time.process_time()
+        tel = real_simulate(*a, **k)
+        sim_wall.append(time.perf_counter() - start)
+        sim_cpu.append(time.process_time() - cpu)
+        runs["tel"] = tel
+        return tel
+
+    track_stage.simulate = timed_simulate
+    track_stage.write_track_plots = lambda *a, **k: None
+    table: dict[str, list[tuple[float, float]]] = {}
+    saved: dict[str, np.ndarray] = {}
+    info: dict[str, tuple[int, float]] = {}
+    outcome: dict[str, str] = {}
+    for rep in range(args.repeats):
+        for path in configs:
+            name = str(path.parent.relative_to(args.mission_dir))
+            cfg = load_config(path)
+            with tempfile.TemporaryDirectory() as tmp:
+                start, cpu = time.perf_counter(), time.process_time()
+                result = track_stage.run_track(cfg, out=Path(tmp) / "run")
+                wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+            tel = runs["tel"]
+            table.setdefault(name, []).append((sim_wall[-1], wall, sim_cpu[-1], cpu))
+            info[name] = (len(tel.t_ctrl), float(tel.t_true[-1]))
+            summ = result.summary
+            rms_mm = 1e3 * summ["rms_position_error_m"]
+            outcome[name] = (f"{summ['status']}, {summ['constraint_violations']} violations, "
+                             f"{summ.get('tube_violations', '-')} tube, rms {rms_mm:.4f} mm")
+            if rep == 0:
+                saved[f"{name}/x_true"] = tel.x_true
+                saved[f"{name}/u_command"] = tel.u_command
+    print("wall and process CPU time [s] (CPU time is less sensitive to other load on the machine)")
+    print(f"{'stage':<28} {'steps':>6} {'sim [s]':>8} {'loop wall':>10} {'loop CPU':>9} {'stage wall':>11} "
+          f"{'stage CPU':>10}")
+    totals = np.zeros(4)
+    for name, rows in table.items():
+        med = np.median(np.array(rows), axis=0)  # loop wall, stage wall, loop CPU, stage CPU
+        totals += med
+        print(f"{name:<28} {info[name][0]:>6} {info[name][1]:>8.1f} {med[0]:>10.3f} {med[2]:>9.3f} {med[1]:>11.3f} "
+              f"{med[3]:>10.3f}")
+    print(f"{'total':<28} {sum(i[0] for i in info.values()):>6} {sum(i[1] for i in info.values()):>8.1f} "
+          f"{totals[0]:>10.3f} {totals[2]:>9.3f} {totals[1]:>11.3f} {totals[3]:>10.3f}   (medians over "
+          f"{args.repeats} repeats; loop = closed-loop simulation, stage = run_track without PNGs)")
+    for name, text in outcome.items():
+        print(f"{name:<28} {text}")
+    if args.save:
+        np.savez(args.save, **saved)
+    if args.compare:
+        base = np.load(args.compare)
+        for key in base.files:
+            a, b = base[key], saved[key]
+            if a.shape != b.shape:
+                print(f"{key}: shape {a.shape} -> {b.shape}")
+                continue
+            rel = np.max(np.abs(a - b)) / max(np.max(np.abs(a)), 1e-300)
+            print(f"{key:<40} max |diff| / max |value| = {rel:.2e}")
+
+
+if __name__ == "__main__":
+    main()

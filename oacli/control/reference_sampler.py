@@ -1,0 +1,152 @@
+"""The controllers' reference sampler: :func:`oacli.trajectory.sample_states` with the per-segment work done once.
+
+Every controller step samples the reference at ``t + k·T`` (k = 0..N). :func:`~oacli.trajectory.sample_states`
+recomputes, for each sample, the segment's relative rotation ``δ = log(q_iᵀ ⊗ q_{i+1})`` and its state difference;
+here they are computed once per reference segment at construction, and the slerp ``q_i ⊗ exp(s δ)`` (then
+normalised) is written out per component instead of through the generic quaternion helpers (their
+``np.cross``/``concatenate`` calls dominate on a handful of rows). The formulas and their order of operations are
+those of :mod:`oacli.model.quaternion`, so the samples agree with ``sample_states`` to rounding (the tests check).
+:func:`attitude_errors` and :func:`feedforward` do the same for the controllers' attitude chart
+(:func:`oacli.model.quaternion.error_vector`) and feed-forward (:func:`oacli.trajectory.feedforward_inputs`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from oacli.model import quaternion as quat
+from oacli.types import Trajectory
+
+
+class ReferenceSampler:
+    """Samples of a reference at arbitrary times, as :func:`oacli.trajectory.sample_states` (see the module docstring).
+
+    Parameters
+    ----------
+    reference : Trajectory
+    """
+
+    def __init__(self, reference: Trajectory) -> None:
+        self.t = np.asarray(reference.t, dtype=float)
+        self.x = np.asarray(reference.x, dtype=float)
+        if self.t.size > 1:
+            self._dx = self.x[1:] - self.x[:-1]
+            self._dt = self.t[1:] - self.t[:-1]
+            q = self.x[:, 6:10]
+            self._delta = quat.log(quat.multiply(quat.conjugate(q[:-1]), q[1:]))
+
+    def states(self, times: np.ndarray) -> np.ndarray:
+        """States at ``times`` [s], shape (k, 13): linear in position, velocity and rate, slerp in attitude; the
+        first state before the start, the final pose at rest after the end.
+
+        Parameters
+        ----------
+        times : ndarray, shape (k,)
+
+        Returns
+        -------
+        ndarray, shape (k, 13)
+        """
+        times = np.atleast_1d(np.asarray(times, dtype=float))
+        t = self.t
+        out = np.empty((times.size, 13))
+        if t.size == 1:
+            out[:] = self.x[0]
+            after = times > t[0]
+            out[after, 3:6] = 0.0
+            out[after, 10:13] = 0.0
+            return out
+        idx = np.clip(np.searchsorted(t, times, side="right") - 1, 0, t.size - 2)
+        s = np.clip((times - t[idx]) / self._dt[idx], 0.0, 1.0)
+        x0 = self.x[idx]
+        out[:] = x0 + s[:, None] * self._dx[idx]
+        # exp(s δ) (quat.exp), then q0 ⊗ e (quat.multiply), then quat.normalize.
+        phi = s[:, None] * self._delta[idx]
+        angle = np.linalg.norm(phi, axis=-1, keepdims=True)
+        half = 0.5 * angle
+        small = angle < 1e-6
+        safe = np.where(small, 1.0, angle)
+        k = np.where(small, 0.5 - angle**2 / 48.0, np.sin(half) / safe)
+        ev = k * phi
+        ew = np.cos(half)
+        pv, pw = x0[:, 6:9], x0[:, 9:10]
+        cross = np.empty_like(pv)
+        cross[:, 0] = pv[:, 1] * ev[:, 2] - pv[:, 2] * ev[:, 1]
+        cross[:, 1] = pv[:, 2] * ev[:, 0] - pv[:, 0] * ev[:, 2]
+        cross[:, 2] = pv[:, 0] * ev[:, 1] - pv[:, 1] * ev[:, 0]
+        q = np.empty((times.size, 4))
+        q[:, 0:3] = pw * ev + ew * pv + cross
+        q[:, 3:4] = pw * ew - np.sum(pv * ev, axis=-1, keepdims=True)
+        q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+        out[:, 6:10] = np.where(q[:, 3:4] < 0.0, -q, q)
+        after = times > t[-1]
+        out[after, 3:6] = 0.0
+        out[after, 10:13] = 0.0
+        return out
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of (k, 3) rows, written out (the same products and differences)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def attitude_errors(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """:func:`oacli.model.quaternion.error_vector` (``φ = log(q_refᵀ ⊗ q)``) with its helpers written out.
+
+    Parameters
+    ----------
+    q_ref : ndarray, shape (4,) or (k, 4)
+        Reference attitude(s).
+    q : ndarray, shape (k, 4) or (4,)
+        Attitude(s).
+
+    Returns
+    -------
+    ndarray, shape (k, 3) or (3,)
+        φ [rad].
+    """
+    p = np.asarray(q_ref, dtype=float)
+    q = np.asarray(q, dtype=float)
+    pv, pw = -p[..., :3], p[..., 3:4]  # the conjugate
+    qv, qw = q[..., :3], q[..., 3:4]
+    shape = np.broadcast_shapes(p.shape, q.shape)
+    r = np.empty(shape)
+    r[..., :3] = pw * qv + qw * pv + _cross(pv, qv)
+    r[..., 3:4] = pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)
+    # log (normalise, w >= 0, 2 atan2(|v|, w) v/|v|).
+    r = r / np.linalg.norm(r, axis=-1, keepdims=True)
+    r = np.where(r[..., 3:4] < 0.0, -r, r)
+    v, w = r[..., :3], r[..., 3:4]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, w)
+    small = s < 1e-9
+    k = np.where(small, 2.0 / np.where(small, w, 1.0), angle / np.where(small, 1.0, s))
+    return np.asarray(k * v)
+
+
+def feedforward(x_ref: np.ndarray, dt: float, mass_kg: float, inertia_kgm2: np.ndarray) -> np.ndarray:
+    """:func:`oacli.trajectory.feedforward_inputs` written out (the same operations), shape (N, 6).
+
+    Parameters
+    ----------
+    x_ref : ndarray, shape (N+1, 13)
+        Reference states.
+    dt : float
+        Sample period [s].
+    mass_kg : float
+    inertia_kgm2 : ndarray, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (N, 6)
+        ``m (v_{k+1} − v_k)/dt`` and ``I (ω_{k+1} − ω_k)/dt + ω_k × I ω_k``.
+    """
+    out = np.empty((x_ref.shape[0] - 1, 6))
+    out[:, 0:3] = mass_kg * ((x_ref[1:, 3:6] - x_ref[:-1, 3:6]) / dt)
+    w = x_ref[:-1, 10:13]
+    out[:, 3:6] = inertia_kgm2 * ((x_ref[1:, 10:13] - x_ref[:-1, 10:13]) / dt) + _cross(w, inertia_kgm2 * w)
+    return out
