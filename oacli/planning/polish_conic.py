@@ -39,6 +39,10 @@ _STATUS = {
 }
 
 
+#: A row is left out only when the reachable set satisfies it with at least this margin [m].
+_IMPLIED_M = 1e-6
+
+
 class _Rows:
     """COO triplets of a block of constraint rows."""
 
@@ -135,6 +139,7 @@ class PolishConic:
             ineq.add([self._v[1:n]], [1.0], v_lim)
             ineq.add([self._v[1:n]], [-1.0], v_lim)
         ineq.add([self._s], [-1.0], np.zeros(n))
+        self._v_bound = np.maximum((1.0 - eps) * np.asarray(velocity_limit_mps, dtype=float), np.abs(start[3:6]))
         self._ineq_const = ineq.matrix(self.n_var)
         # Control points as (column, coefficient) lists, per piece and axis: P0 = r_k, P1 = r_k + h/2 v_k,
         # P2 = r_{k+1}.
@@ -219,24 +224,38 @@ class PolishConic:
         rows.add([self._r], [-1.0], rad - r_ref)
         s_col = np.repeat(self._s[:, None], 3, axis=1)
         lo, hi = np.asarray(self.box_lower, dtype=float), np.asarray(self.box_upper, dtype=float)
-        for cols, vals in self._points:
-            rows.add([*cols, s_col], [*vals, -1.0], hi)  # P − s <= upper
-            rows.add([*cols, s_col], [*(-v for v in vals), -1.0], -lo)  # −P − s <= −lower
+        # Rows implied by the trust region and the velocity limits are left out (the feasible set, hence the
+        # optimum, is the same; Clarabel's KKT system gets smaller): every control point stays in the interval
+        # r̄ ± Δ (P0, P2) or r̄ ± (Δ + h/2 V̄) (P1) around the reference, V̄ = max(velocity limit, |start velocity|).
+        reach = [np.full((n, 3), rad), rad + 0.5 * self.h[:, None] * self._v_bound, np.full((n, 3), rad)]
+        centre = [r_ref[:-1], r_ref[:-1], r_ref[1:]]
+        for (cols, vals), c_p, d_p in zip(self._points, centre, reach, strict=True):
+            p_lo, p_hi = c_p - d_p, c_p + d_p
+            for sign, bound, extreme in ((1.0, hi, p_hi), (-1.0, -lo, -p_lo)):  # ±P − s <= ±bound
+                keep = extreme > bound - _IMPLIED_M
+                if np.any(keep):
+                    rows.add([c[keep] for c in cols] + [s_col[keep]],
+                             [sign * np.broadcast_to(v, (n, 3))[keep] for v in vals] + [-1.0],
+                             bound[keep])
         for nrm, off in zip(self.normals, self.offsets, strict=True):
-            nrm = np.asarray(nrm, dtype=float)
-            for cols, vals in self._points:
-                # −nᵀP − s <= −b: one row per piece, entries over the three axes (and the velocity for P1).
-                r_idx = rows.count + np.arange(n)
+            nrm, off = np.asarray(nrm, dtype=float), np.asarray(off, dtype=float)
+            for (cols, vals), c_p, d_p in zip(self._points, centre, reach, strict=True):
+                # −nᵀP − s <= −b, kept unless min over the reachable interval of nᵀP is at least b.
+                least = np.einsum("ki,ki->k", nrm, c_p) - np.einsum("ki,ki->k", np.abs(nrm), d_p)
+                keep = np.flatnonzero(least < off + _IMPLIED_M)
+                if keep.size == 0:
+                    continue
+                r_idx = rows.count + np.arange(keep.size)
                 for c, v in zip(cols, vals, strict=True):
                     for i in range(3):
                         rows.rows.append(r_idx)
-                        rows.cols.append(np.asarray(c, dtype=np.int64)[:, i])
-                        rows.vals.append(-nrm[:, i] * np.broadcast_to(v, (n, 3))[:, i])
+                        rows.cols.append(np.asarray(c, dtype=np.int64)[keep, i])
+                        rows.vals.append(-nrm[keep, i] * np.broadcast_to(v, (n, 3))[keep, i])
                 rows.rows.append(r_idx)
-                rows.cols.append(self._s)
-                rows.vals.append(-np.ones(n))
-                rows.b.append(-np.asarray(off, dtype=float))
-                rows.count += n
+                rows.cols.append(self._s[keep])
+                rows.vals.append(-np.ones(keep.size))
+                rows.b.append(-off[keep])
+                rows.count += keep.size
         return rows.matrix(self.n_var)
 
     def solve(self) -> str:
