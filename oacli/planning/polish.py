@@ -13,11 +13,15 @@ Grid
 ----
 The polish re-plans the held force on a grid of pieces of ``step_s`` (the last one shorter when the duration is
 not a multiple; every piece a multiple of the output step ``dt_s``), ``k = 0 .. N``, so the subproblem stays small
-(its size, and cvxpy's one-time canonicalisation, grow with N and with N² respectively). The result is sampled back
-on ``dt_s`` exactly (:meth:`~oacli.planning.translational.TranslationalTrajectory.refined`).
+(its size grows with N; cvxpy's one-time canonicalisation of the reference formulation with N²). The result is
+sampled back on ``dt_s`` exactly (:meth:`~oacli.planning.translational.TranslationalTrajectory.refined`).
 
-Subproblem (one cvxpy problem, built once per trajectory and re-solved with new Parameter values)
-----------------------------------------------------------------------------------------------------
+Subproblem (built once per trajectory, re-solved with the data of each iteration)
+--------------------------------------------------------------------------------
+Assembled directly in Clarabel's conic form by :class:`~oacli.planning.polish_conic.PolishConic` (default), or as
+the DPP cvxpy problem :class:`~oacli.planning.polish_subproblem.PolishSubproblem` (``backend='cvxpy'``, the
+reference; the tests check that both have the same optimum). Rows implied by the trust region and the velocity
+limits are left out of the direct form (same feasible set).
 ::
 
     minimise    Σ_k ( ‖P1_k − P0_k‖ + ‖P2_k − P1_k‖ )  +  w_e Σ_k h_k ‖f_k‖²  +  λ Σ_k s_k
@@ -122,7 +126,7 @@ class PolishIteration:
     trust_radius_m : float
         Δ used [m].
     status : str
-        cvxpy status of the subproblem.
+        cvxpy-style status of the subproblem.
     objective : float
         Subproblem optimum (length bound + effort + buffer penalty), NaN when the solve failed.
     buffer_m : float
@@ -134,7 +138,8 @@ class PolishIteration:
     cost : float
         LQR cost ``J`` of the candidate.
     solve_time_s : float
-        Wall time of the subproblem solve [s] (the first includes cvxpy's canonicalisation).
+        Wall time of the subproblem solve [s] (with ``backend='cvxpy'`` the first includes cvxpy's
+        canonicalisation).
     outcome : str
         ``accepted`` (the new result) or why not (:data:`STEP_OUTCOMES`).
     """
