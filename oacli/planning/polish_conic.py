@@ -53,7 +53,7 @@ class _Rows:
         self.b: list[np.ndarray] = []
         self.count = 0
 
-    def add(self, cols: list[np.ndarray], vals: list[np.ndarray], b: np.ndarray) -> None:
+    def add(self, cols: list[np.ndarray], vals: list[np.ndarray | float], b: np.ndarray) -> None:
         """Add ``len(b)`` rows ``Σ_j vals[j][r] x[cols[j][r]]`` (each entry list of length len(b))."""
         b = np.asarray(b, dtype=float)
         idx = self.count + np.arange(b.size)
