@@ -175,14 +175,34 @@ class PolishConic:
 
     def set_reference(self, r_ref: np.ndarray, radius: float, box_lower: np.ndarray, box_upper: np.ndarray,
                       normals: list[np.ndarray], offsets: list[np.ndarray]) -> None:
-        """Set the data of one SCP iteration (trust-region centre and radius, keep-in bounds, half-spaces)."""
+        """Set the data of one SCP iteration (trust-region centre and radius, keep-in bounds, half-spaces).
+
+        Parameters
+        ----------
+        r_ref : ndarray, shape (N+1, 3)
+            Trust-region centre: the reference's knot positions [m].
+        radius : float
+            Trust radius Δ [m].
+        box_lower, box_upper : ndarray, shape (N, 3)
+            Keep-in box of each piece [m].
+        normals : list of ndarray, shape (N, 3)
+            Per keep-out zone, the half-space normals of the pieces.
+        offsets : list of ndarray, shape (N,)
+            Per keep-out zone, the half-space offsets.
+        """
         self.r_ref, self.radius = np.asarray(r_ref, dtype=float), float(radius)
         self.box_lower, self.box_upper = np.asarray(box_lower, dtype=float), np.asarray(box_upper, dtype=float)
         self.normals = [np.asarray(v, dtype=float) for v in normals]
         self.offsets = [np.asarray(v, dtype=float) for v in offsets]
 
     def set_cost_cap(self, cap: float) -> None:
-        """Set ``J_max`` (built with ``with_cost_cap``)."""
+        """Set ``J_max`` (built with ``with_cost_cap``).
+
+        Parameters
+        ----------
+        cap : float
+            The LQR cost cap ``J_max``.
+        """
         self.cost_cap = float(cap)
 
     def _cap_rows(self, h: np.ndarray, m: float, weights: CostWeights,
