@@ -209,6 +209,42 @@ def test_the_cost_expression_is_the_exact_lqr_cost_and_the_subproblem_is_dpp():
         assert sub.problem.is_dpp()
 
 
+@pytest.mark.parametrize("cap,n_zones,robot", [(False, 1, 0.0), (True, 2, 0.05)])
+def test_direct_conic_subproblem_equals_the_cvxpy_formulation(cap, n_zones, robot):
+    """PolishConic (assembled for Clarabel directly) and PolishSubproblem (cvxpy, DPP) solve the same problem: the
+    same optimum and forces on one SCP iteration around a random reference, with half-spaces from the real
+    convexification, a keep-in box and (optionally) the LQR cost cap."""
+    from oacli.planning.polish import PolishConic, keep_in_bounds
+
+    weights = CostWeights([0.3, 0.1, 0.2], [2.0, 1.0, 0.5], [1.0, 2.0, 0.5], 0.1)
+    rng = np.random.default_rng(11)
+    h = polish_grid(6.3, 0.5, 0.1)  # the last piece shorter
+    ref = TranslationalTrajectory.from_forces(np.zeros(6), rng.uniform(-0.2, 0.2, (h.size, 3)), h, MASS)
+    goal = ref.x[-1].copy()
+    goal[3:6] = 0.0
+    zones_cfg = [Ellipsoid.from_semi_axes(rng.uniform(-0.3, 0.3, 3) + ref.x[h.size // 2, 0:3] + [0.3, 0, 0],
+                                          rng.uniform(0.1, 0.3, 3)) for _ in range(n_zones)]
+    checker = CollisionChecker(Scene(keep_in=(Box([-2, -2, -2], [2, 2, 2]),), keep_out=tuple(zones_cfg)),
+                               RobotBody.sphere(robot))
+    zones = keep_out_zones(checker.scene, checker.robot)
+    x = ref.x
+    p0, p1, p2 = x[:-1, 0:3], x[:-1, 0:3] + 0.5 * h[:, None] * x[:-1, 3:6], x[1:, 0:3]
+    planes = [keep_out_halfspaces(z, p0, p1, p2, 1e-4) for z in zones]
+    lo, hi = keep_in_bounds(checker, p0, p1, p2)
+    results = []
+    for builder in (PolishSubproblem, PolishConic):
+        sub = builder(h, MASS, x[0], goal, F_MAX, V_MAX, n_zones, PolishSettings(), weights, with_cost_cap=cap)
+        if cap:
+            sub.set_cost_cap(1.5 * ref.cost(weights, goal))
+        sub.set_reference(x[:, 0:3], 0.1, lo, hi, [pl[0] for pl in planes], [pl[1] for pl in planes])
+        assert sub.solve() == "optimal"
+        results.append((sub.objective, sub.f_value, sub.buffer_value))
+    (obj_a, f_a, s_a), (obj_b, f_b, s_b) = results
+    assert obj_b == pytest.approx(obj_a, rel=1e-6)
+    np.testing.assert_allclose(f_b, f_a, atol=1e-4 * F_MAX[0])
+    np.testing.assert_allclose(s_b, s_a, atol=1e-6)
+
+
 # ------------------------------------------------------------------------------------------------------------
 # Closed-form shortest paths
 # ------------------------------------------------------------------------------------------------------------

@@ -13,11 +13,15 @@ Grid
 ----
 The polish re-plans the held force on a grid of pieces of ``step_s`` (the last one shorter when the duration is
 not a multiple; every piece a multiple of the output step ``dt_s``), ``k = 0 .. N``, so the subproblem stays small
-(its size, and cvxpy's one-time canonicalisation, grow with N and with N² respectively). The result is sampled back
-on ``dt_s`` exactly (:meth:`~oacli.planning.translational.TranslationalTrajectory.refined`).
+(its size grows with N; cvxpy's one-time canonicalisation of the reference formulation with N²). The result is
+sampled back on ``dt_s`` exactly (:meth:`~oacli.planning.translational.TranslationalTrajectory.refined`).
 
-Subproblem (one cvxpy problem, built once per trajectory and re-solved with new Parameter values)
-----------------------------------------------------------------------------------------------------
+Subproblem (built once per trajectory, re-solved with the data of each iteration)
+--------------------------------------------------------------------------------
+Assembled directly in Clarabel's conic form by :class:`~oacli.planning.polish_conic.PolishConic` (default), or as
+the DPP cvxpy problem :class:`~oacli.planning.polish_subproblem.PolishSubproblem` (``backend='cvxpy'``, the
+reference; the tests check that both have the same optimum). Rows implied by the trust region and the velocity
+limits are left out of the direct form (same feasible set).
 ::
 
     minimise    Σ_k ( ‖P1_k − P0_k‖ + ‖P2_k − P1_k‖ )  +  w_e Σ_k h_k ‖f_k‖²  +  λ Σ_k s_k
@@ -122,7 +126,7 @@ class PolishIteration:
     trust_radius_m : float
         Δ used [m].
     status : str
-        cvxpy status of the subproblem.
+        cvxpy-style status of the subproblem.
     objective : float
         Subproblem optimum (length bound + effort + buffer penalty), NaN when the solve failed.
     buffer_m : float
@@ -134,7 +138,8 @@ class PolishIteration:
     cost : float
         LQR cost ``J`` of the candidate.
     solve_time_s : float
-        Wall time of the subproblem solve [s] (the first includes cvxpy's canonicalisation).
+        Wall time of the subproblem solve [s] (with ``backend='cvxpy'`` the first includes cvxpy's
+        canonicalisation).
     outcome : str
         ``accepted`` (the new result) or why not (:data:`STEP_OUTCOMES`).
     """
@@ -204,6 +209,7 @@ class PolishResult:
 # The polish is split in four modules: polish_grid (time grid, projection, exact propagation), polish_geometry
 # (half-spaces and bounds of the convexification), polish_subproblem (the convex subproblem) and this one (types
 # and the SCP loop); their public names are re-exported here.
+from oacli.planning.polish_conic import PolishConic  # noqa: E402
 from oacli.planning.polish_geometry import (  # noqa: E402
     keep_in_bounds,
     keep_out_halfspaces,
@@ -222,7 +228,7 @@ from oacli.planning.polish_subproblem import PolishSubproblem, lqr_cost_expressi
 
 __all__ = [
     "ACCEPTED", "COLLISION", "COST", "IMPROVED", "LIMITS", "MIN_GAIN", "NOT_IMPROVED", "NOT_SHORTER", "SKIPPED",
-    "SOLVER", "STEP_OUTCOMES", "PolishIteration", "PolishResult", "PolishSettings", "PolishSubproblem",
+    "SOLVER", "STEP_OUTCOMES", "PolishConic", "PolishIteration", "PolishResult", "PolishSettings", "PolishSubproblem",
     "exact_trajectory", "keep_in_bounds", "keep_out_halfspaces", "lqr_cost_expression", "min_norm_on_triangles",
     "polish_grid", "polish_trajectory", "project_onto_grid", "terminal_correction", "trim_rest", "within_limits",
 ]
@@ -289,10 +295,11 @@ def polish_trajectory(
     if n < 2:
         return result(SKIPPED, traj, f"the input is shorter than two polish steps of {s.step_s:g} s")
     zones = keep_out_zones(checker.scene, checker.robot)
-    sub = PolishSubproblem(h, traj.mass_kg, traj.x[0], goal, force_limit_N, velocity_limit_mps, len(zones), s,
-                           weights, with_cost_cap=cap is not None)
-    if sub.cost_cap is not None:
-        sub.cost_cap.value = cap
+    builder = PolishConic if s.backend == "direct" else PolishSubproblem
+    sub = builder(h, traj.mass_kg, traj.x[0], goal, force_limit_N, velocity_limit_mps, len(zones), s,
+                  weights, with_cost_cap=cap is not None)
+    if cap is not None:
+        sub.set_cost_cap(cap)
     ref = project_onto_grid(traj, h, goal)
     best: TranslationalTrajectory | None = None
     best_len = length0
@@ -305,25 +312,21 @@ def polish_trajectory(
             break
         x = ref.x
         p0, p1, p2 = x[:-1, 0:3], x[:-1, 0:3] + 0.5 * h[:, None] * x[:-1, 3:6], x[1:, 0:3]
-        for j, zone in enumerate(zones):
-            nrm, off, _ = keep_out_halfspaces(zone, p0, p1, p2, s.clearance_m)
-            sub.normals[j].value = nrm
-            sub.offsets[j].value = off
-        sub.box_lower.value, sub.box_upper.value = keep_in_bounds(checker, p0, p1, p2)
-        sub.r_ref.value = x[:, 0:3]
-        sub.radius.value = radius
+        planes = [keep_out_halfspaces(zone, p0, p1, p2, s.clearance_m) for zone in zones]
+        sub.set_reference(x[:, 0:3], radius, *keep_in_bounds(checker, p0, p1, p2),
+                          [pl[0] for pl in planes], [pl[1] for pl in planes])
         t0 = time.perf_counter()
         status = sub.solve()
         base = dict(index=i, trust_radius_m=radius, status=status, solve_time_s=time.perf_counter() - t0)
-        if status not in SUCCESS_STATUSES or sub.f.value is None:
+        if status not in SUCCESS_STATUSES or sub.f_value is None:
             iters.append(PolishIteration(**base, objective=np.nan, buffer_m=np.nan, length_m=np.nan,  # type: ignore[arg-type]
                                          duration_s=np.nan, cost=np.nan, outcome=SOLVER))
             radius *= 0.5
             continue
-        full = exact_trajectory(traj.x[0], sub.f.value, goal, h, traj.mass_kg)
+        full = exact_trajectory(traj.x[0], sub.f_value, goal, h, traj.mass_kg)
         coarse = trim_rest(full, goal, s.rest_tolerance)
         cand = coarse.refined(dt_s)  # the output, judged as it would be returned
-        buffer = float(np.max(sub.buffer.value))  # type: ignore[arg-type]
+        buffer = float(np.max(sub.buffer_value))  # type: ignore[arg-type]
         certified = buffer <= _CERTIFIED_M
         length, cost = cand.path_length_m(), cand.cost(weights, goal)
         if not within_limits(cand, force_limit_N, velocity_limit_mps):
@@ -336,7 +339,7 @@ def polish_trajectory(
             outcome = NOT_SHORTER
         else:
             outcome = ACCEPTED
-        objective = float(sub.problem.value)
+        objective = float(sub.objective)
         iters.append(PolishIteration(**base, objective=objective, buffer_m=buffer, length_m=length,  # type: ignore[arg-type]
                                      duration_s=cand.duration_s, cost=cost, outcome=outcome))
         if outcome == ACCEPTED:

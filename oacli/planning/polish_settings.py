@@ -31,6 +31,10 @@ class PolishSettings:
         Stop when a certified step lowers the subproblem objective by less than this fraction.
     rest_tolerance : float
         A trailing piece within this distance [m] and speed [m/s] of the goal at rest counts as arrived.
+    backend : str
+        ``direct``: the subproblem assembled directly for Clarabel (:mod:`oacli.planning.polish_conic`, no
+        canonicalisation); ``cvxpy``: the DPP cvxpy formulation (:mod:`oacli.planning.polish_subproblem`), the
+        reference the tests compare with.
     """
 
     iterations: int = 30
@@ -44,3 +48,4 @@ class PolishSettings:
     limit_margin: float = 1e-6
     tolerance: float = 1e-5
     rest_tolerance: float = 1e-7
+    backend: str = "direct"

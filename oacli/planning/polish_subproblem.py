@@ -77,6 +77,55 @@ class PolishSubproblem:
             cons.append(lqr_cost_expression(r, v, f, h, m, weights, goal) <= self.cost_cap)
         self.problem = cp.Problem(cp.Minimize(objective), cons)
 
+    def set_reference(self, r_ref: np.ndarray, radius: float, box_lower: np.ndarray, box_upper: np.ndarray,
+                      normals: list[np.ndarray], offsets: list[np.ndarray]) -> None:
+        """Set the Parameters of one SCP iteration (trust-region centre and radius, keep-in bounds, half-spaces).
+
+        Parameters
+        ----------
+        r_ref : ndarray, shape (N+1, 3)
+            Trust-region centre: the reference's knot positions [m].
+        radius : float
+            Trust radius Δ [m].
+        box_lower, box_upper : ndarray, shape (N, 3)
+            Keep-in box of each piece [m].
+        normals : list of ndarray, shape (N, 3)
+            Per keep-out zone, the half-space normals of the pieces.
+        offsets : list of ndarray, shape (N,)
+            Per keep-out zone, the half-space offsets.
+        """
+        self.r_ref.value, self.radius.value = r_ref, radius
+        self.box_lower.value, self.box_upper.value = box_lower, box_upper
+        for j, (nrm, off) in enumerate(zip(normals, offsets, strict=True)):
+            self.normals[j].value = nrm
+            self.offsets[j].value = off
+
+    def set_cost_cap(self, cap: float) -> None:
+        """Set ``J_max`` (built with ``with_cost_cap``).
+
+        Parameters
+        ----------
+        cap : float
+            The LQR cost cap ``J_max``.
+        """
+        assert self.cost_cap is not None
+        self.cost_cap.value = cap
+
+    @property
+    def f_value(self) -> np.ndarray | None:
+        """Forces (N, 3) of the last solve."""
+        return None if self.f.value is None else np.asarray(self.f.value)
+
+    @property
+    def buffer_value(self) -> np.ndarray | None:
+        """Buffers (N,) of the last solve."""
+        return None if self.buffer.value is None else np.asarray(self.buffer.value)
+
+    @property
+    def objective(self) -> float:
+        """Optimum of the last solve."""
+        return float(self.problem.value)  # type: ignore[arg-type]
+
     def solve(self) -> str:
         """Solve with Clarabel (:func:`oacli.solver.solve_clarabel`; an inaccurate solve is reported by its status,
         not a warning).

@@ -105,6 +105,11 @@ class ShortcutResult:
         return {r: sum(a.outcome == r for a in self.attempts) for r in REJECTIONS}
 
 
+def _cumulative_costs(traj: TranslationalTrajectory, weights, goal: np.ndarray) -> np.ndarray:
+    """``[0, J_0, J_0 + J_1, ...]``: the cost of samples ``a..b`` is ``cum[b] - cum[a]``."""
+    return np.concatenate([[0.0], np.cumsum(traj.interval_costs(weights, goal))])
+
+
 def splice(
     traj: TranslationalTrajectory, a: int, b: int, section: TranslationalTrajectory
 ) -> TranslationalTrajectory:
@@ -177,6 +182,7 @@ def lqr_shortcut(
     cost_before = traj.cost(weights, goal)
     attempts: list[ShortcutAttempt] = []
     sections: list[tuple[int, TranslationalTrajectory]] = []
+    cum = _cumulative_costs(traj, weights, goal)  # changes only when a section is spliced in
     for i in range(int(tries)):
         n = len(traj)
         if n < 3:
@@ -185,7 +191,6 @@ def lqr_shortcut(
         a = int(rng.integers(0, n - 2))
         span = n - 1 - a  # log-uniform section length: as many local as global tries
         b = a + min(span, max(2, int(np.exp(rng.uniform(np.log(2.0), np.log(span + 1.0))))))
-        cum = np.concatenate([[0.0], np.cumsum(traj.interval_costs(weights, goal))])
         old = float(cum[b] - cum[a])
         x_a, x_b = traj.x[a], traj.x[b]
         costs = connector.costs(x_a, x_b, goal)[0]
@@ -194,15 +199,16 @@ def lqr_shortcut(
         if not np.any(lower):
             attempts.append(ShortcutAttempt(**base, steps=0, new_cost=np.nan, outcome=NOT_LOWER_COST))  # type: ignore[arg-type]
             continue
-        f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps)
+        candidates = np.flatnonzero(lower)  # only the cheaper horizons matter below: test only their limits
+        f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps, steps=candidates)
         f_ok, v_ok = f_ok[0], v_ok[0]
-        ok = lower & f_ok & v_ok
+        ok = f_ok & v_ok
         if not np.any(ok):
-            best = int(np.argmin(np.where(lower, costs, np.inf)))
-            reason = INPUT_LIMIT if not np.any(lower & f_ok) else VELOCITY_LIMIT
+            best = int(candidates[np.argmin(costs[candidates])])
+            reason = INPUT_LIMIT if not np.any(f_ok) else VELOCITY_LIMIT
             attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))  # type: ignore[arg-type]
             continue
-        order = np.flatnonzero(ok)[np.argsort(costs[ok], kind="stable")]
+        order = candidates[ok][np.argsort(costs[candidates[ok]], kind="stable")]
         outcome, steps = COLLISION, int(order[0])
         for n_steps in order[:max_collision_checks]:
             section = connector.trajectory(x_a, x_b, goal, int(n_steps))
@@ -210,6 +216,7 @@ def lqr_shortcut(
                 if sample_dt_s is not None:
                     section = section.refined(sample_dt_s)
                 traj = splice(traj, a, b, section)
+                cum = _cumulative_costs(traj, weights, goal)
                 sections.append((i, section))
                 outcome, steps = ACCEPTED, int(n_steps)
                 break

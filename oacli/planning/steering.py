@@ -102,19 +102,23 @@ def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: f
     g = np.zeros((n_max + 1, n_max, 6))
     states = np.zeros((n_max + 1, n_max + 1, 2, 6))
     cost = np.zeros((n_max + 1, 6, 6))
-    for n in range(MIN_STEPS, n_max + 1):
-        pn = p[n]
-        p_vv, p_vx = pn[6:8, 6:8], pn[6:8, 0:6]
-        nu = -np.linalg.solve(p_vv, p_vx)  # ν* = nu @ ξ0
-        c_x = pn[0:6, 0:6] + p_vx.T @ nu
-        zeta = np.vstack([np.eye(6), nu]) @ perm  # ζ_0 as a map of y
-        cost[n] = 0.5 * perm.T @ (0.5 * (c_x + c_x.T)) @ perm
-        for k in range(n):
-            states[n, k] = zeta[0:2]
-            u = gains[n - k] @ zeta
-            g[n, k] = u[0]
-            zeta = phi @ zeta + gam @ u
-        states[n, n] = perm[4:6]  # x_N = x_b exactly
+    # Every horizon N at once: ν* and the cost from P⁽ᴺ⁾, then the gains rolled forward for all N > k together.
+    ns = np.arange(MIN_STEPS, n_max + 1)
+    pn = p[ns]
+    p_vv, p_vx = pn[:, 6:8, 6:8], pn[:, 6:8, 0:6]
+    nu = -np.linalg.solve(p_vv, p_vx)  # ν* = nu @ ξ0, per N
+    c_x = pn[:, 0:6, 0:6] + np.swapaxes(p_vx, 1, 2) @ nu
+    cost[ns] = 0.5 * perm.T @ (0.5 * (c_x + np.swapaxes(c_x, 1, 2))) @ perm
+    zeta = np.concatenate([np.broadcast_to(np.eye(6), (ns.shape[0], 6, 6)), nu], axis=1) @ perm  # ζ_0 maps of y
+    for k in range(n_max):
+        first = max(0, k + 1 - MIN_STEPS)  # horizons N > k still running at step k
+        idx = ns[first:]
+        z = zeta[first:]
+        states[idx, k] = z[:, 0:2]
+        u = gains[idx - k] @ z
+        g[idx, k] = u[:, 0]
+        zeta[first:] = phi @ z + gam @ u
+    states[ns, ns] = perm[4:6]  # x_N = x_b exactly
     return g, states, cost
 
 
@@ -162,10 +166,12 @@ class LqrConnector:
         self.weights = weights
         self.max_steps = int(max_steps)
         n_max = self.max_steps
-        maps = [
-            axis_maps(n_max, self.dt_s, self.mass_kg, weights.position[i], weights.velocity[i], weights.force[i])
-            for i in range(3)
-        ]
+        per_axis = [(float(weights.position[i]), float(weights.velocity[i]), float(weights.force[i])) for i in range(3)]
+        computed: dict[tuple[float, float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        for w_axis in per_axis:  # axes with equal weights share their maps
+            if w_axis not in computed:
+                computed[w_axis] = axis_maps(n_max, self.dt_s, self.mass_kg, *w_axis)
+        maps = [computed[w_axis] for w_axis in per_axis]
         self._g = np.stack([m[0] for m in maps])  # (3, N+1, N, 6)
         self._x = np.stack([m[1] for m in maps])  # (3, N+1, N+1, 2, 6)
         self._m = np.stack([m[2] for m in maps])  # (3, N+1, 6, 6)

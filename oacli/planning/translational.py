@@ -394,18 +394,16 @@ class TranslationalTrajectory:
             raise ValueError(f"every interval must be a multiple of {dt_s} s")
         if np.all(counts == 1):
             return self
-        t_new = [self.t[:1]]
-        u_new = []
-        for k in range(h.shape[0]):
-            sub = self.t[k] + h[k] * np.arange(1, counts[k] + 1) / counts[k]
-            sub[-1] = self.t[k + 1]
-            t_new.append(sub)
-            u_new.append(np.tile(self.u[k], (counts[k], 1)))
-        t_all = np.concatenate(t_new)
-        x_all = self.states_at(t_all)
+        piece = np.repeat(np.arange(h.shape[0]), counts)  # the interval of every new sample after the first
         sample_idx = np.concatenate([[0], np.cumsum(counts)])
+        j = np.arange(1, piece.shape[0] + 1) - sample_idx[piece]  # 1 .. counts[k] within interval k
+        t_all = np.empty(piece.shape[0] + 1)
+        t_all[0] = self.t[0]
+        t_all[1:] = self.t[piece] + h[piece] * j / counts[piece]
+        t_all[sample_idx] = self.t  # interval ends exact
+        x_all = self.states_at(t_all)
         x_all[sample_idx] = self.x  # keep the original samples bit-exact
-        return TranslationalTrajectory(t_all, x_all, np.vstack(u_new), self.mass_kg)
+        return TranslationalTrajectory(t_all, x_all, self.u[piece], self.mass_kg)
 
     def zoh_residual(self) -> float:
         """Largest deviation [m or m/s] of the samples from the exact propagation of the held forces.

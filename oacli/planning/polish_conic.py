@@ -1,0 +1,320 @@
+"""Trajectory polish, part 4: the SCP subproblem assembled directly in Clarabel's conic form (the fast path).
+
+The same second-order cone program as :class:`~oacli.planning.polish_subproblem.PolishSubproblem` (the module
+docstring of :mod:`oacli.planning.polish`; that cvxpy/DPP formulation stays the reference, and the tests check
+that both give the same optimum). cvxpy's one-time canonicalisation of that problem grows with N² and costs
+seconds for a 30 s trajectory, longer than all the subproblem solves together; here the data are written down
+directly: ``minimise ½ xᵀ P x + qᵀ x  s.t.  A x + s = b, s ∈ K`` with the variables stacked as
+``x = [r (N+1)×3, v (N+1)×3, f N×3, s N, t¹ N, t² N]`` (row-major per knot), ``K`` = zero cone (start, goal and
+the exact dynamics), non-negative cone (force, velocity, trust-region, buffer, keep-in and keep-out rows),
+second-order cones ``‖P1_k − P0_k‖ <= t¹_k``, ``‖P2_k − P1_k‖ <= t²_k`` and, with a cost cap, one cone for
+``½ ‖G z‖² <= J_max − w_t Σ h``, written as ``‖[2 G z; α − 1]‖ <= α + 1`` with ``α = 2 (J_max − w_t Σ h)``.
+``G`` per piece and axis is the factor ``W(h) = Gᵀ G`` of :func:`~oacli.planning.translational.
+interval_cost_matrix` (as :func:`~oacli.planning.polish_subproblem.lqr_cost_expression`).
+
+The constant structure (dynamics, limits, cones, objective) is built once per grid; each :meth:`solve` writes the
+rows that depend on the reference (keep-in bounds, keep-out half-spaces, trust region) and calls Clarabel.
+"""
+
+from __future__ import annotations
+
+import clarabel
+import numpy as np
+import scipy.sparse as sp
+
+from oacli.planning.polish_settings import PolishSettings
+from oacli.planning.translational import CostWeights, interval_cost_matrix
+from oacli.solver import solver_error_status
+
+#: Clarabel status -> cvxpy status (as cvxpy maps them; :mod:`oacli.control.compiled_qp`).
+_STATUS = {
+    "Solved": "optimal",
+    "AlmostSolved": "optimal_inaccurate",
+    "PrimalInfeasible": "infeasible",
+    "AlmostPrimalInfeasible": "infeasible_inaccurate",
+    "DualInfeasible": "unbounded",
+    "AlmostDualInfeasible": "unbounded_inaccurate",
+    "MaxIterations": "user_limit",
+    "MaxTime": "user_limit",
+}
+
+
+#: A row is left out only when the reachable set satisfies it with at least this margin [m].
+_IMPLIED_M = 1e-6
+
+
+class _Rows:
+    """COO triplets of a block of constraint rows."""
+
+    def __init__(self) -> None:
+        self.rows: list[np.ndarray] = []
+        self.cols: list[np.ndarray] = []
+        self.vals: list[np.ndarray] = []
+        self.b: list[np.ndarray] = []
+        self.count = 0
+
+    def add(self, cols: list[np.ndarray], vals: list[np.ndarray | float], b: np.ndarray) -> None:
+        """Add ``len(b)`` rows ``Σ_j vals[j][r] x[cols[j][r]]`` (each entry list of length len(b))."""
+        b = np.asarray(b, dtype=float)
+        idx = self.count + np.arange(b.size)
+        for c, v in zip(cols, vals, strict=True):
+            self.rows.append(idx)
+            self.cols.append(np.asarray(c, dtype=np.int64).ravel())
+            self.vals.append(np.broadcast_to(np.asarray(v, dtype=float), b.shape).ravel())
+        self.b.append(b.ravel())
+        self.count += b.size
+
+    def matrix(self, n: int) -> tuple[sp.coo_matrix, np.ndarray]:
+        if not self.count:
+            return sp.coo_matrix((0, n)), np.zeros(0)
+        a = sp.coo_matrix((np.concatenate(self.vals), (np.concatenate(self.rows), np.concatenate(self.cols))),
+                          shape=(self.count, n))
+        return a, np.concatenate(self.b)
+
+
+class PolishConic:
+    """The polish subproblem assembled directly for Clarabel (module docstring); same inputs as
+    :class:`~oacli.planning.polish_subproblem.PolishSubproblem`.
+
+    Set before each :meth:`solve`: ``r_ref`` (N+1, 3), ``radius``, ``box_lower``/``box_upper`` (N, 3),
+    ``normals[j]`` (N, 3), ``offsets[j]`` (N,) and ``cost_cap`` (when built with one). After a successful solve,
+    ``f_value`` (N, 3), ``buffer_value`` (N,) and ``objective`` hold the solution.
+    """
+
+    def __init__(self, h: np.ndarray, mass_kg: float, start: np.ndarray, goal: np.ndarray,
+                 force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray, n_zones: int, settings: PolishSettings,
+                 weights: CostWeights, with_cost_cap: bool = False) -> None:
+        h = np.asarray(h, dtype=float)
+        n, m = h.shape[0], float(mass_kg)
+        self.h, self.n = h, n
+        self.n_zones = int(n_zones)
+        self.r_ref: np.ndarray | None = None
+        self.radius: float | None = None
+        self.box_lower: np.ndarray | None = None
+        self.box_upper: np.ndarray | None = None
+        self.normals: list[np.ndarray | None] = [None] * self.n_zones
+        self.offsets: list[np.ndarray | None] = [None] * self.n_zones
+        self.cost_cap: float | None = None
+        self.with_cost_cap = bool(with_cost_cap)
+        self.f_value: np.ndarray | None = None
+        self.buffer_value: np.ndarray | None = None
+        self.objective = float("nan")
+        # Variable layout.
+        k_idx = np.arange(n + 1)
+        self._r = (3 * k_idx[:, None] + np.arange(3)).astype(np.int64)  # (N+1, 3)
+        self._v = self._r + 3 * (n + 1)
+        self._f = (6 * (n + 1) + 3 * np.arange(n)[:, None] + np.arange(3)).astype(np.int64)  # (N, 3)
+        self._s = 6 * (n + 1) + 3 * n + np.arange(n)
+        self._t1 = self._s + n
+        self._t2 = self._t1 + n
+        self.n_var = int(self._t2[-1] + 1)
+        hc = np.repeat(h[:, None], 3, axis=1)
+        # Objective: Σ t¹ + Σ t² + λ Σ s + w_e Σ h ‖f‖² (½ xᵀ P x with P = 2 w_e h on the forces).
+        self._q = np.zeros(self.n_var)
+        self._q[self._t1] = 1.0
+        self._q[self._t2] = 1.0
+        self._q[self._s] = settings.buffer_penalty
+        p_diag = np.zeros(self.n_var)
+        p_diag[self._f.ravel()] = 2.0 * settings.effort_weight * hc.ravel()
+        self._p = sp.csc_matrix(sp.diags(p_diag))
+        # Equalities: start, goal, exact dynamics.
+        eq = _Rows()
+        start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+        eq.add([self._r[0]], [1.0], start[0:3])
+        eq.add([self._v[0]], [1.0], start[3:6])
+        eq.add([self._r[n]], [1.0], goal[0:3])
+        eq.add([self._v[n]], [1.0], goal[3:6])
+        eq.add([self._r[1:], self._r[:-1], self._v[:-1], self._f], [1.0, -1.0, -hc, -0.5 * hc * hc / m],
+               np.zeros((n, 3)))
+        eq.add([self._v[1:], self._v[:-1], self._f], [1.0, -1.0, -hc / m], np.zeros((n, 3)))
+        self._eq = eq.matrix(self.n_var)
+        # Constant inequalities (A x <= b): force, velocity, buffer >= 0.
+        eps = settings.limit_margin
+        f_lim = np.tile((1.0 - eps) * np.asarray(force_limit_N, dtype=float), (n, 1))
+        ineq = _Rows()
+        ineq.add([self._f], [1.0], f_lim)
+        ineq.add([self._f], [-1.0], f_lim)
+        if n > 1:
+            v_lim = np.tile((1.0 - eps) * np.asarray(velocity_limit_mps, dtype=float), (n - 1, 1))
+            ineq.add([self._v[1:n]], [1.0], v_lim)
+            ineq.add([self._v[1:n]], [-1.0], v_lim)
+        ineq.add([self._s], [-1.0], np.zeros(n))
+        self._v_bound = np.maximum((1.0 - eps) * np.asarray(velocity_limit_mps, dtype=float), np.abs(start[3:6]))
+        self._ineq_const = ineq.matrix(self.n_var)
+        # Control points as (column, coefficient) lists, per piece and axis: P0 = r_k, P1 = r_k + h/2 v_k,
+        # P2 = r_{k+1}.
+        self._points = [
+            ([self._r[:-1]], [np.ones((n, 3))]),
+            ([self._r[:-1], self._v[:-1]], [np.ones((n, 3)), 0.5 * hc]),
+            ([self._r[1:]], [np.ones((n, 3))]),
+        ]
+        # Second-order cones of the length terms: s = b − A x = (t, d), d = P1 − P0 or P2 − P1.
+        soc = _Rows()
+        cone_rows = np.empty((2, n, 4), dtype=np.int64)
+        for which, (t_col, cols, vals) in enumerate((
+            (self._t1, [self._v[:-1]], [0.5 * hc]),
+            (self._t2, [self._r[1:], self._r[:-1], self._v[:-1]], [np.ones((n, 3)), -np.ones((n, 3)), -0.5 * hc]),
+        )):
+            # Interleave per piece: [t_k, d_k,x, d_k,y, d_k,z].
+            cone_rows[which] = soc.count + 4 * np.arange(n)[:, None] + np.arange(4)
+            for c, v in zip(cols, vals, strict=True):
+                soc.rows.append((cone_rows[which][:, 1:]).ravel())
+                soc.cols.append(np.asarray(c, dtype=np.int64).ravel())
+                soc.vals.append(-np.asarray(v, dtype=float).ravel())
+            soc.rows.append(cone_rows[which][:, 0])
+            soc.cols.append(t_col)
+            soc.vals.append(-np.ones(n))
+            soc.b.append(np.zeros(4 * n))
+            soc.count += 4 * n
+        self._soc = soc.matrix(self.n_var)
+        self._n_soc = 2 * n
+        self._cap = self._cap_rows(h, m, weights, goal) if self.with_cost_cap else None
+        self._time_cost = weights.time * float(h.sum())
+        self._settings = clarabel.DefaultSettings()
+        self._settings.verbose = False
+
+    def set_reference(self, r_ref: np.ndarray, radius: float, box_lower: np.ndarray, box_upper: np.ndarray,
+                      normals: list[np.ndarray], offsets: list[np.ndarray]) -> None:
+        """Set the data of one SCP iteration (trust-region centre and radius, keep-in bounds, half-spaces).
+
+        Parameters
+        ----------
+        r_ref : ndarray, shape (N+1, 3)
+            Trust-region centre: the reference's knot positions [m].
+        radius : float
+            Trust radius Δ [m].
+        box_lower, box_upper : ndarray, shape (N, 3)
+            Keep-in box of each piece [m].
+        normals : list of ndarray, shape (N, 3)
+            Per keep-out zone, the half-space normals of the pieces.
+        offsets : list of ndarray, shape (N,)
+            Per keep-out zone, the half-space offsets.
+        """
+        self.r_ref, self.radius = np.asarray(r_ref, dtype=float), float(radius)
+        self.box_lower, self.box_upper = np.asarray(box_lower, dtype=float), np.asarray(box_upper, dtype=float)
+        self.normals = [np.asarray(v, dtype=float) for v in normals]
+        self.offsets = [np.asarray(v, dtype=float) for v in offsets]
+
+    def set_cost_cap(self, cap: float) -> None:
+        """Set ``J_max`` (built with ``with_cost_cap``).
+
+        Parameters
+        ----------
+        cap : float
+            The LQR cost cap ``J_max``.
+        """
+        self.cost_cap = float(cap)
+
+    def _cap_rows(self, h: np.ndarray, m: float, weights: CostWeights,
+                  goal: np.ndarray) -> tuple[sp.coo_matrix, np.ndarray]:
+        """Rows ``2 G z`` of the cost cap's cone: A = −2 G M, b = −2 G c with ``z = M x − c`` per piece and axis."""
+        rows: list[np.ndarray] = []
+        cols: list[np.ndarray] = []
+        vals: list[np.ndarray] = []
+        b: list[np.ndarray] = []
+        count = 1  # row 0 of the cone is the constant α + 1
+        for step in np.unique(h):
+            idx = np.flatnonzero(h == step)
+            for i in range(3):
+                w = interval_cost_matrix(float(step), m, weights.position[i], weights.velocity[i], weights.force[i])
+                lam, vec = np.linalg.eigh(0.5 * (w + w.T))
+                keep = lam > 1e-14 * max(float(lam.max()), 1e-300)
+                g = np.sqrt(lam[keep])[:, None] * vec[:, keep].T  # (q, 4) on z = [r − r_g, v, v − v_g, f]
+                z_cols = [self._r[idx, i], self._v[idx, i], self._v[idx, i], self._f[idx, i]]
+                c = np.array([goal[i], 0.0, goal[3 + i], 0.0])
+                for row_g in g:
+                    r_idx = count + np.arange(idx.shape[0])
+                    for coef, zc in zip(row_g, z_cols, strict=True):
+                        rows.append(r_idx)
+                        cols.append(zc)
+                        vals.append(np.full(idx.shape[0], -2.0 * coef))
+                    b.append(np.full(idx.shape[0], -2.0 * float(row_g @ c)))
+                    count += idx.shape[0]
+        a = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(count + 1, self.n_var))
+        return a, np.concatenate([[0.0], *b, [0.0]])
+
+    def _variable_rows(self) -> tuple[sp.coo_matrix, np.ndarray]:
+        """Trust region, keep-in and keep-out rows for the current reference (A x <= b)."""
+        n = self.n
+        rows = _Rows()
+        r_ref = np.asarray(self.r_ref, dtype=float)
+        rad = float(self.radius)  # type: ignore[arg-type]
+        rows.add([self._r], [1.0], r_ref + rad)
+        rows.add([self._r], [-1.0], rad - r_ref)
+        s_col = np.repeat(self._s[:, None], 3, axis=1)
+        lo, hi = np.asarray(self.box_lower, dtype=float), np.asarray(self.box_upper, dtype=float)
+        # Rows implied by the trust region and the velocity limits are left out (the feasible set, hence the
+        # optimum, is the same; Clarabel's KKT system gets smaller): every control point stays in the interval
+        # r̄ ± Δ (P0, P2) or r̄ ± (Δ + h/2 V̄) (P1) around the reference, V̄ = max(velocity limit, |start velocity|).
+        reach = [np.full((n, 3), rad), rad + 0.5 * self.h[:, None] * self._v_bound, np.full((n, 3), rad)]
+        centre = [r_ref[:-1], r_ref[:-1], r_ref[1:]]
+        for (cols, vals), c_p, d_p in zip(self._points, centre, reach, strict=True):
+            p_lo, p_hi = c_p - d_p, c_p + d_p
+            for sign, bound, extreme in ((1.0, hi, p_hi), (-1.0, -lo, -p_lo)):  # ±P − s <= ±bound
+                keep = extreme > bound - _IMPLIED_M
+                if np.any(keep):
+                    rows.add([c[keep] for c in cols] + [s_col[keep]],
+                             [sign * np.broadcast_to(v, (n, 3))[keep] for v in vals] + [-1.0],
+                             bound[keep])
+        for nrm, off in zip(self.normals, self.offsets, strict=True):
+            nrm, off = np.asarray(nrm, dtype=float), np.asarray(off, dtype=float)
+            for (cols, vals), c_p, d_p in zip(self._points, centre, reach, strict=True):
+                # −nᵀP − s <= −b, kept unless min over the reachable interval of nᵀP is at least b.
+                least = np.einsum("ki,ki->k", nrm, c_p) - np.einsum("ki,ki->k", np.abs(nrm), d_p)
+                keep = np.flatnonzero(least < off + _IMPLIED_M)
+                if keep.size == 0:
+                    continue
+                r_idx = rows.count + np.arange(keep.size)
+                for c, v in zip(cols, vals, strict=True):
+                    for i in range(3):
+                        rows.rows.append(r_idx)
+                        rows.cols.append(np.asarray(c, dtype=np.int64)[keep, i])
+                        rows.vals.append(-nrm[keep, i] * np.broadcast_to(v, (n, 3))[keep, i])
+                rows.rows.append(r_idx)
+                rows.cols.append(self._s[keep])
+                rows.vals.append(-np.ones(keep.size))
+                rows.b.append(-off[keep])
+                rows.count += keep.size
+        return rows.matrix(self.n_var)
+
+    def solve(self) -> str:
+        """Assemble the reference-dependent rows and solve with Clarabel.
+
+        Returns
+        -------
+        str
+            cvxpy-style status (``optimal``, ``optimal_inaccurate``, ``infeasible`` ...), or
+            ``solver_error: ...``.
+        """
+        a_eq, b_eq = self._eq
+        a_c, b_c = self._ineq_const
+        a_v, b_v = self._variable_rows()
+        a_s, b_s = self._soc
+        blocks, rhs = [a_eq, a_c, a_v, a_s], [b_eq, b_c, b_v, b_s]
+        cones = [clarabel.ZeroConeT(a_eq.shape[0]), clarabel.NonnegativeConeT(a_c.shape[0] + a_v.shape[0])]
+        cones += [clarabel.SecondOrderConeT(4)] * self._n_soc
+        if self._cap is not None:
+            a_cap, b_cap = self._cap
+            alpha = 2.0 * (float(self.cost_cap) - self._time_cost)  # type: ignore[arg-type]
+            b_cap = b_cap.copy()
+            b_cap[0], b_cap[-1] = alpha + 1.0, alpha - 1.0
+            blocks.append(a_cap)
+            rhs.append(b_cap)
+            cones.append(clarabel.SecondOrderConeT(a_cap.shape[0]))
+        a = sp.csc_matrix(sp.vstack(blocks, format="csc"))
+        b = np.concatenate(rhs)
+        self.f_value = self.buffer_value = None
+        self.objective = float("nan")
+        try:
+            solver = clarabel.DefaultSolver(self._p, self._q, a, b, cones, self._settings)
+            sol = solver.solve()
+        except Exception as exc:
+            return solver_error_status(exc)
+        status = _STATUS.get(str(sol.status)) or solver_error_status(f"Clarabel status {sol.status}")
+        if status in ("optimal", "optimal_inaccurate"):
+            x = np.asarray(sol.x)
+            self.f_value = x[self._f]
+            self.buffer_value = np.maximum(x[self._s], 0.0)
+            self.objective = float(sol.obj_val)
+        return status
