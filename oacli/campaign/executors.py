@@ -2,8 +2,10 @@
 
 - ``serial``: in the driver process, one run after the other (debugging, ``rerun``; a worker death is the
   driver's death here).
-- ``local``: a :class:`~concurrent.futures.ProcessPoolExecutor` (``spawn``: fresh interpreters, no inherited
-  threads), one BLAS/OpenMP thread per worker; after a worker dies the broken pool is shut down and a new one built
+- ``local``: a :class:`~concurrent.futures.ProcessPoolExecutor` (``forkserver``: workers fork from a clean
+  server process that has imported the job's modules once, no inherited threads), one BLAS/OpenMP thread per
+  worker (the driver's environment gets the ``*_NUM_THREADS=1`` variables for its children); after a worker
+  dies the broken pool is shut down and a new one built
   (:meth:`ExecutorHandle.rebuild`), and the driver resubmits.
 - ``dask://HOST:PORT``: an existing Dask scheduler, through ``distributed.Client(address).get_executor()``.
 - ``dask-local``: a :class:`distributed.LocalCluster` of worker processes bound to 127.0.0.1 (one thread each).
@@ -14,6 +16,7 @@ retry rule applies on every executor (:mod:`oacli.campaign.driver`).
 
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import os
 import signal
@@ -119,26 +122,26 @@ class ExecutorHandle:
         """Shut the executor (and a local Dask cluster) down."""
         if self.kind == "local":
             self.kill_workers()
-        self.executor.shutdown(wait=False, cancel_futures=True)
-        for close in reversed(self._closers):
+            self.executor.shutdown(wait=False, cancel_futures=True)
+        else:
+            self.executor.shutdown(wait=False)
+        for close in self._closers:
             try:
                 close()
             except Exception:
                 pass
 
 
+PRELOAD = ("oacli.campaign.jobs", "oacli.stages.track", "oacli.control.tracking", "oacli.sim.simulator")
+"""Modules the fork server imports once, so that a new worker (also one replacing a dead one) starts warm."""
+
+
 def _process_pool(workers: int, memory_limit_mb: int) -> ProcessPoolExecutor:
-    saved = {k: os.environ.get(k) for k in BLAS_ENV}
-    os.environ.update({k: "1" for k in BLAS_ENV})  # inherited by the spawned interpreters before numpy loads
-    try:
-        return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_worker_init, initargs=(memory_limit_mb,))
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    os.environ.update({k: "1" for k in BLAS_ENV})  # inherited by the fork server and every worker
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(list(PRELOAD))
+    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                               initargs=(memory_limit_mb,))
 
 
 def _dask_client(address: str | None, workers: int, memory_limit_mb: int) -> tuple[Any, list[Any], int]:
@@ -152,10 +155,9 @@ def _dask_client(address: str | None, workers: int, memory_limit_mb: int) -> tup
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                                dashboard_address=None, memory_limit=(f"{memory_limit_mb}MiB" if memory_limit_mb
                                                                      else 0),
-                               env=env)
+                               env=env, silence_logs=logging.ERROR)
         client = Client(cluster)
-        closers += [cluster.close, client.close]
-        closers.reverse()
+        closers += [client.close, cluster.close]
     else:
         client = Client(address)
         closers.append(client.close)
