@@ -72,7 +72,7 @@ def serial_campaign(tmp_path_factory):
 
 
 def test_serial_campaign_outputs(serial_campaign):
-    path, summary, folder = serial_campaign
+    _, summary, folder = serial_campaign
     assert summary["finished"] == RUNS and summary["missing"] == 0
     assert sum(summary["status_counts"].values()) == RUNS
     assert summary["success_rate"] == pytest.approx(
