@@ -145,7 +145,7 @@ class CampaignFaults(Section):
 
 
 class FlightFigures(Section):
-    """The flight's estimation errors to compare against ([ReSWARM2023] RATTLE table, seed 001)."""
+    """The flight's estimation errors to compare against ([ReSWARM2023] RATTLE table)."""
 
     mass_pct: NonNegativeReal = Field(default=0.39, description="Flight mass error [%].")
     inertia_pct: NonNegativeVector3 = Field(default=(0.91, 1.35, 6.92), description="Flight Ixx, Iyy, Izz errors [%].")
