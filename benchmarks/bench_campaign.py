@@ -31,11 +31,12 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 
+from test_campaign import tiny_campaign  # noqa: E402
+
 from oacli.campaign import manifest  # noqa: E402
 from oacli.campaign.driver import load_campaign, prepare, read_spec, run_campaign  # noqa: E402
 from oacli.campaign.executors import make_executor  # noqa: E402
 from oacli.campaign.jobs import pin_threads, run_job  # noqa: E402
-from test_campaign import tiny_campaign  # noqa: E402
 
 
 def _campaign(folder: Path, runs: int) -> Path:
