@@ -84,8 +84,8 @@ def _set(data: dict[str, Any], keys: list[str], value: Any) -> None:
 
 def _tensor_sets(job: str, tensor: np.ndarray) -> dict[str, Any]:
     rows = [[float(v) for v in row] for row in tensor]
-    if job == "mission":  # the payload's tensor acts after the grasp (segments 2 and 3)
-        truth = {"truth": {"inertia_tensor_kgm2": rows}}
+    if job == "mission":  # the payload's tensor acts after the grasp (segments 2 and 3); its diagonal is grasped's
+        truth = {"truth": {"inertia_tensor_kgm2": rows, "inertia_kgm2": [float(v) for v in np.diag(tensor)]}}
         return {"mission": {"segments": {"segment-2": truth, "segment-3": copy.deepcopy(truth)}}}
     return {"truth": {"inertia_tensor_kgm2": rows}}
 
