@@ -293,7 +293,8 @@ def run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | N
                 wait(list(inflight))
                 solo_queue.extend(item.k for item in inflight.values())
                 inflight.clear()
-            if handle.broken():
+                handle.rebuild()
+            elif handle.broken():
                 handle.rebuild()
     finally:
         for fut in inflight:

@@ -33,6 +33,8 @@ BLAS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_
 
 STATUS_FAILED = "failed"
 STATUS_OOM = "oom"
+THETA_KEYS = ("mass_kg", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2")
+"""Keys of the estimate's per-parameter entries (``crb_std``, ``error_pct``) in a mission summary."""
 TIMING_KEYS = ("wall_time_s", "solve_time_ms", "step_time_ms", "started_utc", "finished_utc", "created_utc")
 
 
@@ -41,7 +43,7 @@ def pin_threads() -> None:
     for key in BLAS_ENV:
         os.environ[key] = "1"
     try:
-        from threadpoolctl import threadpool_limits
+        from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
         threadpool_limits(1)
     except ImportError:  # pragma: no cover - a dependency; the environment variables still hold for new processes
         pass
@@ -201,7 +203,10 @@ def estimate_metrics(estimate: dict[str, Any]) -> dict[str, Any]:
     """
     theta = np.array([estimate["mass_kg"], *estimate["inertia_kgm2"]], dtype=float)
     truth = np.asarray(estimate["truth_theta"], dtype=float)
-    crb = np.asarray(estimate.get("crb_std") or [np.nan] * 4, dtype=float)
+    crb_entry = estimate.get("crb_std") or {}
+    crb = np.array([crb_entry.get(key, np.nan) if isinstance(crb_entry, dict) else np.nan for key in THETA_KEYS]
+                   if isinstance(crb_entry, dict) else crb_entry, dtype=float)
+    crb = np.where(np.isfinite(crb), crb, np.nan)
     err = theta - truth
     return {"error_pct": (100.0 * err / truth).tolist(),
             "error_over_crb": np.where(crb > 0, err / np.where(crb > 0, crb, 1.0), np.nan).tolist(),
@@ -210,19 +215,38 @@ def estimate_metrics(estimate: dict[str, Any]) -> dict[str, Any]:
 
 def _mission(cfg: Any, out: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
     """``oacli mission`` (``job: mission``): every segment, the estimate, the baselines."""
-    from oacli.mission.layout import stage_by_key
+    from oacli.config import dump_config
     from oacli.mission.run import run_mission
 
     folder = out / "mission"
     folder.mkdir()
-    from oacli.config import dump_config
-
     write_text_atomic(folder / "config.yaml", dump_config(cfg))
-    result = run_mission(cfg, folder)
-    summary = result.summary
-    tracks = {k: v for k, v in result.stages.items() if k.endswith("/track")}
+    run_mission(cfg, folder)
+    return mission_metrics(folder)
+
+
+def mission_metrics(folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
+    """The campaign's figures of a complete mission folder, and its tracking stages' time series.
+
+    Parameters
+    ----------
+    folder : Path
+        A mission folder.
+
+    Returns
+    -------
+    metrics : dict
+        Segment 3's tracking figures, violations and tube/fallback counts summed over every tracking stage,
+        ``estimate`` (:func:`estimate_metrics`), ``segments`` (each tracking stage's figures).
+    arrays : list of ndarray
+    """
+    from oacli.mission.layout import stage_by_key
+
+    summary = json.loads((folder / "summary.json").read_text())
+    tracks = {k: json.loads((stage_by_key(k).folder(folder) / "summary.json").read_text())
+              for k in summary["stages"] if k.endswith("/track")}
     per_track = {k: track_metrics(v) for k, v in tracks.items()}
-    metrics = track_metrics(result.stages["segment-3/track"])
+    metrics = dict(per_track["segment-3/track"])
     metrics["status"] = summary.get("status")
     metrics["violations"] = {kind: sum(m["violations"][kind] for m in per_track.values())
                              for kind in ("keep_in", "keep_out", "limits")}
