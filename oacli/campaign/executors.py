@@ -165,6 +165,32 @@ def _dask_client(address: str | None, workers: int, memory_limit_mb: int) -> tup
     return client, closers, workers
 
 
+def check_executor(spec: str, workers: int) -> None:
+    """Refuse an unknown executor or a worker count below 1 before anything is written.
+
+    Parameters
+    ----------
+    spec : str
+        ``--executor``.
+    workers : int
+        ``--workers``.
+
+    Raises
+    ------
+    InputError
+    """
+    if workers < 1:
+        raise InputError(f"--workers: {workers}: must be >= 1")
+    if spec in ("serial", "local", "dask-local"):
+        return
+    if spec.startswith("dask://"):
+        host, sep, port = spec.removeprefix("dask://").rpartition(":")
+        if sep and host and port.isdigit():
+            return
+        raise InputError(f"--executor: {spec!r}: expected dask://HOST:PORT")
+    raise InputError(f"--executor: {spec!r}: unknown executor (expected {EXECUTOR_HELP})")
+
+
 def make_executor(spec: str, workers: int, *, memory_limit_mb: int = 0) -> ExecutorHandle:
     """Build the executor ``spec`` names (module docstring).
 
@@ -205,4 +231,4 @@ def make_executor(spec: str, workers: int, *, memory_limit_mb: int = 0) -> Execu
     raise InputError(f"--executor: {spec!r}: unknown executor (expected {EXECUTOR_HELP})")
 
 
-__all__ = ["EXECUTOR_HELP", "ExecutorHandle", "SerialExecutor", "make_executor"]
+__all__ = ["EXECUTOR_HELP", "ExecutorHandle", "SerialExecutor", "check_executor", "make_executor"]

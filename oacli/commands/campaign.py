@@ -71,10 +71,11 @@ def campaign(
 
     def action():
         from oacli.campaign.driver import load_campaign, prepare, run_campaign
-        from oacli.campaign.executors import make_executor
+        from oacli.campaign.executors import check_executor, make_executor
         from oacli.campaign.finalize import finalize
         from oacli.errors import InputError
 
+        check_executor(executor, workers)
         if rest:
             raise ConfigError(f"unexpected arguments {rest} (only 'rerun' takes DIR K)")
         path = Path(target)
