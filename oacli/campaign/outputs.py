@@ -42,6 +42,13 @@ def _series(final: dict[int, dict[str, Any]]) -> dict[str, tuple[np.ndarray, np.
             for key, pts in out.items()}
 
 
+def _cdf(ax: Any, values: np.ndarray, **kwargs: Any) -> None:
+    """Empirical CDF of ``values`` as a step line from 0 (visible with a single run too)."""
+    xs = np.sort(values)
+    ax.step(np.r_[xs[0], xs], np.r_[0.0, np.arange(1, xs.size + 1) / xs.size], where="post", **kwargs)
+    ax.set_ylim(0.0, 1.05)
+
+
 def write_plots(folder: Path, final: dict[int, dict[str, Any]], summary: dict[str, Any]) -> dict[str, str]:
     """Histogram and CDF of the tracking error, CDFs of the estimation errors with the flight figures, statuses.
 
@@ -74,15 +81,15 @@ def write_plots(folder: Path, final: dict[int, dict[str, Any]], summary: dict[st
     ax.set_title(f"{summary['name']}: run status ({summary['runs']} runs)")
     save_png(fig, plots / "status.png")
     written["status"] = "plots/status.png"
-    if "rms_position_error_mm" in series:
-        v = series["rms_position_error_mm"][1]
-        v = v[np.isfinite(v)]
+    v = series["rms_position_error_mm"][1] if "rms_position_error_mm" in series else np.empty(0)
+    v = v[np.isfinite(v)]
+    if v.size:
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.5))
         a1.hist(v, bins=max(5, min(40, v.size // 2)), color="#5a8ff0")
         a1.set_xlabel("RMS position error [mm]")
         a1.set_ylabel("runs")
         a1.set_title("tracking error: histogram")
-        a2.step(np.sort(v), np.arange(1, v.size + 1) / v.size, where="post")
+        _cdf(a2, v)
         a2.set_xlabel("RMS position error [mm]")
         a2.set_ylabel("fraction of runs ≤")
         a2.set_title("tracking error: CDF")
@@ -94,7 +101,7 @@ def write_plots(folder: Path, final: dict[int, dict[str, Any]], summary: dict[st
         fig, axes = plt.subplots(1, 4, figsize=(14, 3.5))
         for ax, name in zip(axes, PARAMS, strict=True):
             v = np.abs(series[f"estimate_error_pct/{name}"][1])
-            ax.step(np.sort(v), np.arange(1, v.size + 1) / v.size, where="post", label="simulated runs")
+            _cdf(ax, v, label="simulated runs")
             ax.axvline(est["flight_pct"][name], color="#d04040", ls="--", label="flight (ReSWARM)")
             ax.set_xlabel(f"|{name} error| [%]")
             ax.set_title(f"{name}: {est['agreement'][name]['verdict']}")
