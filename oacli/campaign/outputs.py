@@ -67,6 +67,7 @@ def write_plots(folder: Path, final: dict[int, dict[str, Any]], summary: dict[st
         Plot name to path relative to ``folder``.
     """
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     from oacli.io.plots.common import save_png
 
@@ -78,6 +79,7 @@ def write_plots(folder: Path, final: dict[int, dict[str, Any]], summary: dict[st
     names = list(summary["status_counts"])
     ax.bar(names, [summary["status_counts"][n] for n in names], color="#5a8ff0")
     ax.set_ylabel("runs")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_title(f"{summary['name']}: run status ({summary['runs']} runs)")
     save_png(fig, plots / "status.png")
     written["status"] = "plots/status.png"
