@@ -15,6 +15,7 @@ from typing import Annotated
 import typer
 
 from oacli import __version__
+from oacli.commands.campaign import campaign
 from oacli.commands.common import hide_flag_types
 from oacli.commands.config_show import config_app
 from oacli.commands.estimate import estimate
@@ -39,6 +40,7 @@ app = typer.Typer(
 
 # Each command lives in its own module under oacli.commands (shared options and helpers in oacli.commands.common);
 # registered here, in this order (the order of `oacli --help`).
+app.command("campaign")(campaign)
 app.command("estimate")(estimate)
 app.command("excite")(excite)
 app.command("mission")(mission)

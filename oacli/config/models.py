@@ -31,6 +31,7 @@ from oacli.config.controller import MAX_HORIZON, ControllerConfig, ControllerTyp
 from oacli.config.environment import EnvironmentConfig, KeepInBox, KeepOutEllipsoid, Pose
 from oacli.config.estimation import EstimationConfig
 from oacli.config.excitation import ExcitationConfig
+from oacli.config.faults import FaultsConfig
 from oacli.config.fields import (
     IDENTITY_QUATERNION,
     INERTIA_TRIANGLE_RTOL,
@@ -78,6 +79,9 @@ class OacliConfig(Section):
     )
     simulation: Annotated[SimulationConfig, none_to({})] = Field(
         default_factory=SimulationConfig, description="Closed-loop simulation settings."
+    )
+    faults: Annotated[FaultsConfig, none_to({})] = Field(
+        default_factory=FaultsConfig, description="Actuator saturation and controller stall faults (off by default)."
     )
     controller: Annotated[ControllerConfig, none_to({})] = Field(
         default_factory=ControllerConfig, description="Tracking controller settings."

@@ -5,8 +5,10 @@ from __future__ import annotations
 from typing import Annotated
 
 import numpy as np
-from pydantic import BeforeValidator, Field, field_validator
+from pydantic import BeforeValidator, Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
+from oacli.config.faults import InertiaTensor
 from oacli.config.fields import (
     NonNegativeReal,
     NonNegativeVector3,
@@ -107,6 +109,11 @@ class TruthConfig(Section):
                     "x, y, z (body)], in [0.5, 1.5]; 1 = perfect actuators. Unmodelled: controllers and estimators "
                     "see the commanded (saturated) input ([ReSWARM2023] §5.3: impeller thrust varies).",
     )
+    inertia_tensor_kgm2: InertiaTensor | None = Field(
+        default=None,
+        description="Full inertia tensor with products of inertia [kg·m²] (3×3, symmetric positive definite, "
+                    "principal moments satisfying the triangle inequality); its diagonal is inertia_kgm2 (filled "
+                    "from it when that is unset). Unmodelled: controllers and estimators use principal inertias.")
     com_offset_m: Vector3 = Field(
         default=(0.0, 0.0, 0.0),
         description="Centre of mass relative to the geometric centre the thrust acts on, body frame [m], each "
@@ -121,6 +128,19 @@ class TruthConfig(Section):
             raise ValueError("each component must be within ±0.05 m (a centre of mass outside the 30 cm body "
                              "is not a small offset)")
         return value
+
+    @model_validator(mode="after")
+    def _tensor_diagonal(self) -> TruthConfig:
+        if self.inertia_tensor_kgm2 is None:
+            return self
+        diag = tuple(float(self.inertia_tensor_kgm2[i][i]) for i in range(3))
+        if self.inertia_kgm2 is None:
+            object.__setattr__(self, "inertia_kgm2", diag)
+        elif any(abs(a - b) > 1e-9 * max(abs(b), 1e-12) for a, b in zip(self.inertia_kgm2, diag, strict=True)):
+            raise PydanticCustomError("oacli_inertia", "inertia_kgm2 {a} must equal the diagonal of "
+                                      "inertia_tensor_kgm2 {b}",
+                                      {"a": str(list(self.inertia_kgm2)), "b": str(list(diag))})
+        return self
 
     def inertial_params(self) -> InertialParams:
         """True mass and principal inertias (only valid once filled, i.e. on a validated :class:`OacliConfig`)."""

@@ -164,6 +164,8 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         "seed": stage_seed(cfg.seed, index),
         "simulation": {"settle_time_s": mission.settle_s, "initial_offset_m": list(handoff.initial_offset_m)},
     }
+    if stage.segment == "segment-1":  # the mission's own start offset (a campaign disperses it); later ones hand off
+        sets["simulation"]["initial_offset_m"] = list(cfg.simulation.initial_offset_m)
     if stage.segment == "segment-1":
         sets["planner"] = {"segment": f"{a}-{b}"}
         sets["controller"] = {"type": "mpc"}

@@ -20,6 +20,7 @@ import numpy as np
 
 from oacli.model import quaternion as quat
 from oacli.model.rigid_body import theta_of
+from oacli.sim.full_inertia import TensorPlant
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.types import Controller, InertialParams, SolveInfo, Telemetry
 
@@ -42,6 +43,8 @@ def simulate(
     actuator_scale: np.ndarray | None = None,
     com_offset_m: np.ndarray | None = None,
     on_step: Callable[..., None] | None = None,
+    inertia_tensor_kgm2: np.ndarray | None = None,
+    delivered_limits: np.ndarray | None = None,
 ) -> Telemetry:
     """Run the closed loop from ``x0`` for ``duration_s`` [s].
 
@@ -72,6 +75,12 @@ def simulate(
         during the step (``t_true`` shape (M,), ``x_true`` (M, 13); step 0 includes the initial state at t = 0 and
         the last step the final state at the end time) and the step's controller record (the same values as the
         returned :class:`Telemetry`), so a caller can write the run while it is produced. Arrays are copies.
+    inertia_tensor_kgm2 : ndarray, shape (3, 3), optional
+        Full inertia tensor of the plant (products of inertia, :class:`oacli.sim.full_inertia.TensorPlant`);
+        default: ``diag(truth.inertia_kgm2)``.
+    delivered_limits : ndarray, shape (6,), optional
+        Actuator saturation fault: the plant receives the applied input clipped again at these bounds
+        (``faults.actuator_saturation``; unmodelled, ``u_applied`` is unchanged). Default: no further clipping.
 
     Returns
     -------
@@ -82,6 +91,7 @@ def simulate(
     if duration_s <= 0 or control_period_s <= 0 or plant_period_s <= 0:
         raise ValueError("duration and periods must be > 0")
     theta = theta_of(truth)
+    tensor_plant = None if inertia_tensor_kgm2 is None else TensorPlant(truth.mass_kg, inertia_tensor_kgm2)
     scale = np.ones(6) if actuator_scale is None else np.asarray(actuator_scale, dtype=float).reshape(6)
     offset = None if com_offset_m is None or not np.any(com_offset_m) else np.asarray(com_offset_m, float).reshape(3)
     n_ctrl = int(np.floor(duration_s / control_period_s + _TIME_TOL))
@@ -115,12 +125,18 @@ def simulate(
         w = disturbance.sample(rng)
         rec_meas[j], rec_ref[j], rec_cmd[j], rec_app[j], rec_dist[j] = y, step.x_reference, u_cmd, u_app, w
         infos.append(step.info)
-        u_total = [float(v) for v in scale * u_app + w]
+        u_del = u_app if delivered_limits is None else np.clip(u_app, -delivered_limits, delivered_limits)
+        u_total = [float(v) for v in scale * u_del + w]
         t = t0
         while t < t1 - _TIME_TOL:
             tick = next_tick * plant_period_s
             t_next = min(tick, t1)
-            state = _propagate(state, u_total, mass, inertia, offset_r, t_next - t)
+            if tensor_plant is None:
+                state = _propagate(state, u_total, mass, inertia, offset_r, t_next - t)
+            else:  # products of inertia: the numpy step of the full tensor (campaign dispersions)
+                x_now, u_now = np.array(state), np.array(u_total)
+                u_step = u_now if offset is None else _with_offset_torque(u_now, x_now, offset)
+                state = [float(v) for v in tensor_plant.propagate(x_now, u_step, theta, t_next - t)]
             t = t_next
             if abs(t - tick) <= _TIME_TOL:
                 next_tick += 1

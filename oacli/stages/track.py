@@ -33,6 +33,8 @@ from oacli.phases import set_phase
 from oacli.reference import waypoint_reference
 from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
 from oacli.sim.simulator import simulate
+from oacli.sim.stall import with_stall
+from oacli.stages.faults import fault_arguments
 from oacli.stages.flown_sensors import FlownSensors, flown_sensors, write_flown_sensor_topics
 from oacli.stages.settings import (
     open_run,
@@ -261,14 +263,15 @@ def run_track(
             rng = np.random.default_rng(cfg.seed)
             set_phase(progress, "closed-loop simulation")
             tel = simulate(
-                controller, x0, plant.params,
+                with_stall(controller, cfg.faults.controller_stall.start_s, cfg.faults.controller_stall.duration_s),
+                x0, plant.params,
                 duration_s=reference.duration_s + cfg.simulation.settle_time_s,
                 control_period_s=cfg.controller.period_s,
                 plant_period_s=cfg.simulation.plant_period_s,
                 input_limits=limits.input,
                 sensors=sensors, disturbance=disturbance, rng=rng, progress=progress,
                 actuator_scale=np.asarray(cfg.truth.actuator_scale), com_offset_m=np.asarray(cfg.truth.com_offset_m),
-                on_step=journal.on_step,
+                on_step=journal.on_step, **fault_arguments(cfg, limits.input),
             )
             journal.flush(final=True)
             summary, ctrl_errors = _track_summary(cfg, reference, tel, limits)
