@@ -29,6 +29,7 @@ matplotlib.use("Agg", force=True)
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse, Rectangle
 from matplotlib.ticker import LogLocator
@@ -138,30 +139,30 @@ def fixed_layout(fig: Figure) -> None:
     fig : Figure
         A figure whose axes all come from one ``subplots`` grid (other figures are left as they are).
     """
-    axes = [a for a in fig.axes if a.get_subplotspec() is not None]
-    if not axes or fig.get_layout_engine() is not None:
+    specs = [(a, spec) for a in fig.axes if (spec := a.get_subplotspec()) is not None]
+    if not specs or fig.get_layout_engine() is not None:
         return
-    gs = axes[0].get_subplotspec().get_gridspec()
-    if any(a.get_subplotspec().get_gridspec() is not gs for a in axes):
+    gs = specs[0][1].get_gridspec()
+    if any(spec.get_gridspec() is not gs for _, spec in specs):
         return
     nrows, ncols = gs.get_geometry()
-    renderer = fig.canvas.get_renderer()
+    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+    renderer = canvas.get_renderer()
     width_in, height_in = (float(v) for v in fig.get_size_inches())
     legend_in = [0.0] * ncols
     titled = [False] * nrows
     xlabels = [False] * nrows
-    for a in axes:
-        spec = a.get_subplotspec()
+    for a, spec in specs:
         col, row = spec.colspan.stop - 1, spec.rowspan.start
         legend_in[col] = max(legend_in[col], _legend_width_in(a, renderer))
-        titled[row] = titled[row] or any(t.get_text() for t in (a.title, a._left_title, a._right_title))
+        titled[row] = titled[row] or any(a.get_title(loc) for loc in ("left", "center", "right"))
         last = spec.rowspan.stop - 1
         shown = bool(a.xaxis.get_tick_params().get("labelbottom", True)) or bool(a.get_xlabel())
         xlabels[last] = xlabels[last] or shown
     ylabel_in = 0.95
     left = ylabel_in
     right = max(legend_in[-1] + 0.2, 0.3)
-    top = 0.15 + (0.3 if titled[0] else 0.0) + (0.4 if fig._suptitle is not None else 0.0)
+    top = 0.15 + (0.3 if titled[0] else 0.0) + (0.4 if fig.get_suptitle() else 0.0)
     bottom = 0.15 + (0.5 if xlabels[-1] else 0.0)
     for leg in fig.legends:
         bottom += float(leg.get_window_extent(renderer).height) / float(fig.dpi) + 0.1
