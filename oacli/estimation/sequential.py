@@ -508,8 +508,7 @@ class SequentialEstimator:
             init_states = extend_states(self._boot_result.states, self._boot, self._boot_result.estimate.theta,
                                         self.settings.substep_s)
         result = estimate_batch(self._boot, self.settings, self.prior, initial_phi=init_phi,
-                                initial_states=init_states, reference=self.reference,
-                                continuation=self._boot_result is None)  # a warm start needs no continuation
+                                initial_states=init_states, reference=self.reference)
         self._boot_result = result
         est = result.estimate
         self._boot_estimate = ParameterEstimate(est.t, est.theta, est.covariance, "sequential", est.samples_used,
