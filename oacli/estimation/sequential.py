@@ -112,6 +112,8 @@ def _qlog(q: tuple[float, ...]) -> tuple[float, float, float]:
 def _qexp(v: np.ndarray) -> tuple[float, float, float, float]:
     vx, vy, vz = float(v[0]), float(v[1]), float(v[2])
     angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if not math.isfinite(angle):  # a wild trial step: NaN as numpy gives (the step is then rejected)
+        return (math.nan, math.nan, math.nan, math.nan)
     k = 0.5 - angle**2 / 48.0 if angle < 1e-6 else math.sin(0.5 * angle) / angle
     return (k * vx, k * vy, k * vz, math.cos(0.5 * angle))
 
@@ -139,6 +141,8 @@ def _jr_inv(phi: np.ndarray) -> np.ndarray:
     """``J_r⁻¹(φ)`` (3, 3) of one rotation vector (:func:`oacli.estimation.manifold.so3_right_jacobian_inverse`)."""
     x, y, z = float(phi[0]), float(phi[1]), float(phi[2])
     theta = math.sqrt(x * x + y * y + z * z)
+    if not math.isfinite(theta):
+        return np.full((3, 3), math.nan)
     if theta < 1e-5:
         coef = 1.0 / 12.0 + theta**2 / 720.0
     else:
