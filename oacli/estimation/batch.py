@@ -44,8 +44,7 @@ Choices the paper leaves open, and what is done here:
   continuation runs in the first gating round only: a later round starts at the previous round's solution, which
   dropping a few outliers moves by little, and converges in a few full steps from there (on the 60 s ISS run, with
   or without 5 % localisation jumps, it reaches the same θ̂ to 2e-12 relative as restarting the continuation every
-  round, with 40 % fewer iterations). Growing windows (:func:`estimate_batch_windows`) start each window after
-  the first from the previous window's solution, without the continuation.
+  round, with 40 % fewer iterations).
 * **Gauge.** State components that are not measured at all (e.g. position when only velocities are used) have
   unobservable offsets that do not affect θ; the first state's unmeasured components get a unit-weight tie to the
   first record so that ``AᵀA`` stays invertible.
@@ -864,9 +863,8 @@ def estimate_batch_windows(
 ) -> list[BatchResult]:
     """Batch estimates on growing windows ``[t_first, t_end]`` (to show convergence over mission time).
 
-    Each window is warm-started from the previous solution (states and θ, the new records' states propagated with
-    the process model) and solved without the continuation (the first window with it); windows with fewer than two
-    records are skipped. The last entry of ``window_ends_s`` should be the last record time to include all data.
+    Each window is warm-started from the previous solution (states and θ); windows with fewer than two records
+    are skipped. The last entry of ``window_ends_s`` should be the last record time to include all data.
     ``progress`` is called with the fraction of windows done.
 
     Parameters
@@ -896,8 +894,7 @@ def estimate_batch_windows(
         if n >= 2:
             init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)  # type: ignore[arg-type]
             result = estimate_batch(ordered[:n], settings, prior, initial_theta=theta, initial_states=init,
-                                    initial_phi=phi, reference=reference,
-                                    continuation=states is None)
+                                    initial_phi=phi, reference=reference)
             results.append(result)
             theta, phi, states = result.estimate.theta, result.phi, result.states
         if progress is not None:

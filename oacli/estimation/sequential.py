@@ -112,6 +112,8 @@ def _qlog(q: tuple[float, ...]) -> tuple[float, float, float]:
 def _qexp(v: np.ndarray) -> tuple[float, float, float, float]:
     vx, vy, vz = float(v[0]), float(v[1]), float(v[2])
     angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if not math.isfinite(angle):  # a wild trial step: NaN as numpy gives (the step is then rejected)
+        return (math.nan, math.nan, math.nan, math.nan)
     k = 0.5 - angle**2 / 48.0 if angle < 1e-6 else math.sin(0.5 * angle) / angle
     return (k * vx, k * vy, k * vz, math.cos(0.5 * angle))
 
@@ -139,6 +141,8 @@ def _jr_inv(phi: np.ndarray) -> np.ndarray:
     """``J_r⁻¹(φ)`` (3, 3) of one rotation vector (:func:`oacli.estimation.manifold.so3_right_jacobian_inverse`)."""
     x, y, z = float(phi[0]), float(phi[1]), float(phi[2])
     theta = math.sqrt(x * x + y * y + z * z)
+    if not math.isfinite(theta):
+        return np.full((3, 3), math.nan)
     if theta < 1e-5:
         coef = 1.0 / 12.0 + theta**2 / 720.0
     else:
@@ -508,8 +512,7 @@ class SequentialEstimator:
             init_states = extend_states(self._boot_result.states, self._boot, self._boot_result.estimate.theta,
                                         self.settings.substep_s)
         result = estimate_batch(self._boot, self.settings, self.prior, initial_phi=init_phi,
-                                initial_states=init_states, reference=self.reference,
-                                continuation=self._boot_result is None)  # a warm start needs no continuation
+                                initial_states=init_states, reference=self.reference)
         self._boot_result = result
         est = result.estimate
         self._boot_estimate = ParameterEstimate(est.t, est.theta, est.covariance, "sequential", est.samples_used,
