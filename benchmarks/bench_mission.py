@@ -30,8 +30,10 @@ from oacli.mission.run import run_mission, start_mission, validate_mission  # no
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def one_mission(config: Path, profile: bool) -> tuple[float, dict, str]:
+def one_mission(config: Path, profile: bool, plots: bool = True) -> tuple[float, dict, str]:
     cfg = load_config(config)
+    if not plots:
+        cfg = cfg.model_copy(update={"outputs": cfg.outputs.model_copy(update={"plots": False})})
     validate_mission(cfg)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
@@ -56,11 +58,17 @@ def main() -> None:
     parser.add_argument("--config", type=Path, default=ROOT / "configs" / "mission_iss.yaml")
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--profile", action="store_true", help="cProfile the last repeat")
+    parser.add_argument("--no-plots", action="store_true",
+                        help="also time the mission with outputs.plots false (no PNGs), alternating with the default")
     args = parser.parse_args()
-    walls, per_stage = [], {}
+    walls, per_stage, walls_no_plots = [], {}, []
     summary, profile_text = {}, ""
     for k in range(args.repeats):
+        if args.no_plots and k % 2 == 1:      # alternate which variant runs first
+            walls_no_plots.append(one_mission(args.config, False, plots=False)[0])
         wall, summary, text = one_mission(args.config, args.profile and k == args.repeats - 1)
+        if args.no_plots and k % 2 == 0:
+            walls_no_plots.append(one_mission(args.config, False, plots=False)[0])
         walls.append(wall)
         profile_text = text or profile_text
         for key, entry in summary["stages"].items():
@@ -72,6 +80,10 @@ def main() -> None:
     print(f"wall time (median)            {wall:8.1f} s")
     print(f"mission time (3 segments)     {mission_s:8.1f} s   -> {mission_s / wall:5.2f}x real time (target >= 10x)")
     print(f"all simulated tracking        {flown:8.1f} s   -> {flown / wall:5.2f}x real time (with the baselines)")
+    if walls_no_plots:
+        bare = statistics.median(walls_no_plots)
+        print(f"without PNGs (outputs.plots false) {bare:5.1f} s   -> {mission_s / bare:5.2f}x real time; the PNGs "
+              f"cost {wall - bare:.1f} s ({100 * (wall - bare) / wall:.0f} %)")
     print("where the time goes (median wall per stage):")
     total = sum(statistics.median(v) for v in per_stage.values())
     for key, values in sorted(per_stage.items(), key=lambda kv: -statistics.median(kv[1])):

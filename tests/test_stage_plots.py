@@ -208,3 +208,21 @@ def test_a_failing_figure_becomes_a_warning_and_the_others_are_written(tmp_path)
     assert summary["warnings"] == ["plot broken.png not written: ValueError: no data to draw"]
     assert set(run.files) == {"png_fine"} and png_size(tmp_path / "fine.png")[0] > 0
     assert not (tmp_path / "broken.png").exists()
+
+
+def test_outputs_plots_false_writes_no_png_and_keeps_the_rest(tmp_path):
+    """``outputs.plots: false`` (campaigns, benchmarks): no PNG and none listed; MCAP, .rrd and summary still
+    written, and the summary's numbers are those of the same run with the PNGs."""
+    doerr = Path(__file__).resolve().parents[1] / "configs" / "doerr2021.yaml"
+    common = ("--set", "simulation.settle_time_s=1", "--quiet")
+    result = run_cli("track", doerr, *common, "--set", "outputs.plots=false", "--out", tmp_path / "bare")
+    assert result.exit_code == 0, result.output
+    result = run_cli("track", doerr, *common, "--out", tmp_path / "full")
+    assert result.exit_code == 0, result.output
+    bare = json.loads((tmp_path / "bare" / "summary.json").read_text())
+    full = json.loads((tmp_path / "full" / "summary.json").read_text())
+    assert not list((tmp_path / "bare").glob("*.png"))
+    assert not [k for k in bare["files"] if k.startswith("png_")]
+    assert {"mcap", "rrd"} <= set(bare["files"]) and (tmp_path / "bare" / "track.mcap").stat().st_size > 0
+    assert list((tmp_path / "full").glob("*.png"))
+    assert bare["rms_position_error_m"] == full["rms_position_error_m"]

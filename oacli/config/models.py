@@ -45,6 +45,7 @@ from oacli.config.fields import (
 )
 from oacli.config.inputs import InputsConfig
 from oacli.config.mission import SEGMENT_NAMES, MissionConfig, deep_merge
+from oacli.config.outputs import OutputsConfig
 from oacli.config.planner import PlannerConfig
 from oacli.config.reference import ReferenceConfig
 from oacli.config.robot import DisturbanceConfig, RobotConfig, TruthConfig
@@ -100,6 +101,9 @@ class OacliConfig(Section):
     )
     inputs: Annotated[InputsConfig, none_to({})] = Field(
         default_factory=InputsConfig, description="Files smooth and estimate read (recorded by the commands)."
+    )
+    outputs: Annotated[OutputsConfig, none_to({})] = Field(
+        default_factory=OutputsConfig, description="Optional outputs: the PNG figures."
     )
     mission: MissionConfig | None = Field(
         default=None, description="The three-segment assembly mission (oacli mission); other commands ignore it."

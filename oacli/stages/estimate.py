@@ -447,7 +447,8 @@ def run_estimate(
             run_folder.file("rrd", "estimate.rrd"), estimates=run.history, truth=truth, crb_std=run.bound.std,
             records=per_record, log=log, recording_name=f"{cfg.name}/estimate",
         )
-        write_estimate_plots(run_folder, summary, estimates=run.history, truth=truth, crb_std=run.bound.std)
+        if cfg.outputs.plots:
+            write_estimate_plots(run_folder, summary, estimates=run.history, truth=truth, crb_std=run.bound.std)
         return run_folder.finish(summary)
 
 

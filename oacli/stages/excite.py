@@ -303,9 +303,10 @@ def _offline_outputs(cfg: OacliConfig, problem: ExcitationProblem, limits: Desig
         information=InformationSeries(problem.theta, design.information_over_time, crb), limits=problem.limits,
         scp=scp, log=log, recording_name=f"{cfg.name}/excite",
     )
-    write_excite_plots(run, summary, t_info_s=traj.t, information=design.information_over_time,
-                       t_input_s=traj.t, u=traj.u, force_limit_N=problem.limits.force_N,
-                       torque_limit_Nm=problem.limits.torque_Nm)
+    if cfg.outputs.plots:
+        write_excite_plots(run, summary, t_info_s=traj.t, information=design.information_over_time,
+                           t_input_s=traj.t, u=traj.u, force_limit_N=problem.limits.force_N,
+                           torque_limit_Nm=problem.limits.torque_Nm)
     return run.finish(summary)
 
 
@@ -397,9 +398,10 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true)
         t_info, info = gathered_information(run.estimates, prior_cov)
         robot_lim = robot_limit_set(cfg.robot)
-        write_excite_plots(stage_run, summary, t_info_s=t_info, information=info, t_input_s=run.telemetry.t_ctrl,
-                           u=run.telemetry.u_applied, force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,
-                           actuator=(robot_lim.force_N, robot_lim.torque_Nm))
+        if cfg.outputs.plots:
+            write_excite_plots(stage_run, summary, t_info_s=t_info, information=info, t_input_s=run.telemetry.t_ctrl,
+                               u=run.telemetry.u_applied, force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,
+                               actuator=(robot_lim.force_N, robot_lim.torque_Nm))
         return stage_run.finish(summary)
 
 

@@ -377,9 +377,10 @@ def run_plan(
             run.file("rrd", "plan.rrd"), scene=scene, start=seg.start[0:3], goal=seg.goal[0:3], result=result,
             trajectory=output, limits=limits.limits, log=log, recording_name=f"{cfg.name}/plan",
         )
-        write_path_plots(run, summary, scene=scene, robot_radius_m=float(cfg.robot.radius_m),
-                         paths={} if output is None else {"plan": output.x[:, 0:3]}, start_m=seg.start[0:3],
-                         goal_m=seg.goal[0:3])
+        if cfg.outputs.plots:
+            write_path_plots(run, summary, scene=scene, robot_radius_m=float(cfg.robot.radius_m),
+                             paths={} if output is None else {"plan": output.x[:, 0:3]}, start_m=seg.start[0:3],
+                             goal_m=seg.goal[0:3])
         stage = run.finish(summary)
     if not result.solved:
         raise InfeasibleError(

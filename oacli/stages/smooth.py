@@ -317,8 +317,9 @@ def run_smooth(
             run.file("rrd", "smooth.rrd"), scene=checker.scene, before=traj_in, after=traj_out,
             shortcuts=shortcut_steps, polish=polish_steps, limits=lim, log=log, recording_name=f"{cfg.name}/smooth",
         )
-        write_path_plots(run, summary, scene=checker.scene, robot_radius_m=float(cfg.robot.radius_m),
-                         paths={"plan (input)": traj_in.x[:, 0:3], "smoothed": traj_out.x[:, 0:3]},
-                         start_m=traj_in.x[0, 0:3], goal_m=goal[0:3])
+        if cfg.outputs.plots:
+            write_path_plots(run, summary, scene=checker.scene, robot_radius_m=float(cfg.robot.radius_m),
+                             paths={"plan (input)": traj_in.x[:, 0:3], "smoothed": traj_out.x[:, 0:3]},
+                             start_m=traj_in.x[0, 0:3], goal_m=goal[0:3])
         return run.finish(summary)
 

@@ -311,8 +311,9 @@ def run_track(
                 extra=None if monitor is None or history is None else tube_layers(monitor, history),
                 blueprint=None if design is None else tube_track_blueprint(),
             )
-            write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,
-                              robot_radius_m=float(cfg.robot.radius_m))
+            if cfg.outputs.plots:
+                write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,
+                                  robot_radius_m=float(cfg.robot.radius_m))
             return run.finish(summary)
 
 
