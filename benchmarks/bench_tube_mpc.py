@@ -27,7 +27,8 @@ solved by DAQP (dual active-set, the fastest dense QP solver on PyPI for small M
 controller step (compiled direct-Clarabel path), at N = 5 and N = 40. A first pass records each step's parameter
 values; the timed pass replays the states, the controller step and the DAQP solve of the same instance alternating
 which goes first. The limit is the wall time of the condensing (matrix-vector products) plus the DAQP call; the
-last column is the largest difference of the first nominal force between the two. Needs ``pip install daqp``
+last column is the largest difference of the first nominal force between the two. A second line gives the process
+CPU times (less sensitive to other load on a shared machine than the wall times). Needs ``pip install daqp``
 (the ``bench`` extra); skipped without it.
 
 Run: ``python benchmarks/bench_tube_mpc.py [--steps 200] [--seeds 5] [--only-workspace | --only-limit]``
@@ -169,15 +170,18 @@ def daqp_limit(cfg, reference, design, limits, weights, times, states) -> None:
             instances.append({ids[names[k]]: np.array(v) for k, v in recorder.qp._values.items()})
         limit = CondensedQP(ctrl.qp.compiled)
         v = ctrl.qp._vars["translation"].v
-        ours, solver, lim, iters, dv = [], [], [], [], []
+        ours, solver, lim, iters, dv, ours_cpu, lim_cpu = [], [], [], [], [], [], []
         ctrl.step(float(times[0]), states[0])  # first step builds caches: left out
         for j in range(1, len(times)):
             order = (0, 1) if j % 2 else (1, 0)
             for who in order:
+                cpu = time.process_time()
                 if who == 0:
                     out = ctrl.step(float(times[j]), states[j])
+                    ours_cpu.append(time.process_time() - cpu)
                 else:
                     ok, it, wall = limit.solve(instances[j])
+                    lim_cpu.append(time.process_time() - cpu)
             ours.append(out.info.step_time_s)
             solver.append(out.info.solve_time_s)
             lim.append(wall)
@@ -185,8 +189,11 @@ def daqp_limit(cfg, reference, design, limits, weights, times, states) -> None:
             if ok and out.info.success and ctrl.qp.compiled._x is not None:
                 dv.append(float(np.max(np.abs(limit.value(v)[0] - ctrl.qp.compiled.value(v)[0]))))
         step_ms, lim_ms = 1e3 * np.median(ours), 1e3 * np.median(lim)
+        step_cpu, lim_cpu_ms = 1e3 * np.median(ours_cpu), 1e3 * np.median(lim_cpu)
         print(f"{horizon:>3} {limit.n_unknowns:>9} {limit.n_rows:>5} {step_ms:>14.3f} {1e3 * np.median(solver):>16.3f} "
               f"{lim_ms:>16.3f} {step_ms / lim_ms:>11.2f} {np.median(iters):>10.0f} {max(dv, default=np.nan):>14.1e}")
+        print(f"{'':>3} process CPU time: our step {step_cpu:.3f} ms, DAQP limit {lim_cpu_ms:.3f} ms, "
+              f"step/limit {step_cpu / lim_cpu_ms:.2f}")
 
 
 def main() -> None:
