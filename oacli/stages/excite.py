@@ -399,8 +399,9 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         t_info, info = gathered_information(run.estimates, prior_cov)
         robot_lim = robot_limit_set(cfg.robot)
         if cfg.outputs.plots:
-            write_excite_plots(stage_run, summary, t_info_s=t_info, information=info, t_input_s=run.telemetry.t_ctrl,
-                               u=run.telemetry.u_applied, force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,
+            write_excite_plots(stage_run, summary, t_info_s=t_info, information=info,
+                               t_input_s=run.telemetry.t_ctrl, u=run.telemetry.u_applied,
+                               force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,
                                actuator=(robot_lim.force_N, robot_lim.torque_Nm))
         return stage_run.finish(summary)
 
