@@ -110,14 +110,12 @@ def test_serial_campaign_outputs(serial_campaign):
     assert tracking["max"] == pytest.approx(values[-1]) and tracking["n"] == RUNS
 
 
-def test_hashes_equal_local_dask_and_rerun(serial_campaign, tmp_path):
-    """Per-run result hashes are equal across serial, process-pool and Dask LocalCluster execution and a lone
-    rerun."""
+def test_hashes_equal_local_and_rerun(serial_campaign, tmp_path):
+    """Per-run result hashes are equal across serial and process-pool execution and a lone rerun (Dask
+    LocalCluster: tests/test_campaign_jobs.py, slow)."""
     path, serial, serial_folder = serial_campaign
     local = run_with(path, tmp_path / "local", "local", workers=2)
     assert local["hashes"] == serial["hashes"]
-    dask = run_with(path, tmp_path / "dask", "dask-local", workers=2)
-    assert dask["hashes"] == serial["hashes"]
     result = CliRunner().invoke(app, ["campaign", "rerun", str(serial_folder), "2", "--json"])
     assert result.exit_code == 0, result.output
     outcome = json.loads(result.stdout)
