@@ -110,14 +110,12 @@ def test_serial_campaign_outputs(serial_campaign):
     assert tracking["max"] == pytest.approx(values[-1]) and tracking["n"] == RUNS
 
 
-def test_hashes_equal_local_dask_and_rerun(serial_campaign, tmp_path):
-    """Per-run result hashes are equal across serial, process-pool and Dask LocalCluster execution and a lone
-    rerun."""
+def test_hashes_equal_local_and_rerun(serial_campaign, tmp_path):
+    """Per-run result hashes are equal across serial and process-pool execution and a lone rerun (Dask
+    LocalCluster: tests/test_campaign_jobs.py, slow)."""
     path, serial, serial_folder = serial_campaign
     local = run_with(path, tmp_path / "local", "local", workers=2)
     assert local["hashes"] == serial["hashes"]
-    dask = run_with(path, tmp_path / "dask", "dask-local", workers=2)
-    assert dask["hashes"] == serial["hashes"]
     result = CliRunner().invoke(app, ["campaign", "rerun", str(serial_folder), "2", "--json"])
     assert result.exit_code == 0, result.output
     outcome = json.loads(result.stdout)
@@ -192,3 +190,20 @@ def test_bad_campaign_config_names_the_field(tmp_path):
     assert result.exit_code == 2
     assert "faults.controller_stall.probability" in result.output and "Traceback" not in result.output
     assert not (tmp_path / "x").exists()
+
+
+def test_flight_preset_writes_valid_mission_configs(tmp_path):
+    """The flight preset's runs are valid mission configs: the tensor reaches segments 2 and 3 only, with the
+    grasped plant's diagonal."""
+    campaign = load_campaign(ROOT / "configs" / "campaign_reswarm_flight.yaml", ["runs=3"])
+    assert campaign.config.job == "mission" and campaign.base["mission"]["excitation_method"] == "rattle"
+    folder = prepare(campaign, out=tmp_path / "dry", runs_root=tmp_path)
+    for k in range(3):
+        spec = json.loads((folder / "runs" / f"run-{k:05d}" / "spec.json").read_text())
+        mission = spec["config"]["mission"]
+        assert mission["grasped"]["mass_kg"] == spec["draws"]["mass_kg"]
+        for seg in ("segment-2", "segment-3"):
+            truth = mission["segments"][seg]["truth"]
+            assert truth["inertia_kgm2"] == mission["grasped"]["inertia_kgm2"] == spec["draws"]["inertia_kgm2"]
+        assert "truth" not in (mission["segments"].get("segment-1") or {})
+        assert "actuator_scale_errors" in spec["draws"]["faults"]  # probability 1 in the preset

@@ -16,6 +16,14 @@ from oacli.cli import app
 pytestmark = pytest.mark.slow
 
 
+def test_hashes_equal_on_dask_local_cluster(tmp_path):
+    """Per-run result hashes on a Dask LocalCluster equal the serial ones."""
+    path = tiny_campaign(tmp_path)
+    serial = run_with(path, tmp_path / "serial", "serial")
+    dask = run_with(path, tmp_path / "dask", "dask-local", workers=2)
+    assert dask["hashes"] == serial["hashes"] and len(set(serial["hashes"].values())) == 3
+
+
 def test_hanging_run_times_out_and_is_retried_then_infra_failed(tmp_path):
     path = tiny_campaign(tmp_path, runs=2, inject={1: "hang"})
     data = yaml.safe_load(path.read_text())
