@@ -545,6 +545,30 @@ class SequentialEstimator:
         self._rejected_in_a_row = 0 if gate is None or result.inliers[-1] else 1
         self._boot = None
 
+    def _predict_and_update(self, rec: Measurement) -> tuple[str, float, int]:
+        """Predict to ``rec.t``, gate the innovation (χ², Mahalanobis d²) and update; returns (status, d², dof)."""
+        self._predict(rec.t)
+        nu, h, r = self._innovation(rec)
+        dof = nu.size
+        s = h @ self._p @ h.T + np.diag(r)
+        s = 0.5 * (s + s.T)
+        chol = np.linalg.cholesky(s)
+        z = np.linalg.solve(chol, nu)
+        d2 = float(z @ z)
+        gate = self.settings.gate_probability
+        if gate is not None and d2 > chi2_threshold(dof, gate):
+            self.samples_rejected += 1
+            self._rejected_in_a_row += 1
+            if self._rejected_in_a_row >= self.reinitialise_after:
+                self._initialise(rec)
+                self.reinitialisations += 1
+                return "reinitialised", d2, dof
+            return "rejected", d2, dof
+        self._iterated_update(rec)
+        self._rejected_in_a_row = 0
+        self.samples_used += 1
+        return "accepted", d2, dof
+
     def _process(self, rec: Measurement) -> None:
         if self._boot is not None:
             self._boot.append(rec)
@@ -573,27 +597,25 @@ class SequentialEstimator:
             status = "initialised"
             self.samples_used += 1
         else:
-            self._predict(rec.t)
-            nu, h, r = self._innovation(rec)
-            dof = nu.size
-            s = h @ self._p @ h.T + np.diag(r)
-            s = 0.5 * (s + s.T)
-            chol = np.linalg.cholesky(s)
-            z = np.linalg.solve(chol, nu)
-            d2 = float(z @ z)
-            gate = self.settings.gate_probability
-            if gate is not None and d2 > chi2_threshold(dof, gate):
+            phi_before, p_before = self._phi.copy(), self._p.copy()
+            counts = (self.samples_used, self.samples_rejected, self.reinitialisations)
+            try:
+                with np.errstate(all="ignore"):
+                    status, d2, dof = self._predict_and_update(rec)
+                lost = not (np.all(np.isfinite(self._x)) and np.all(np.isfinite(self._phi))
+                            and np.all(np.isfinite(self._p)))
+            except (ZeroDivisionError, OverflowError, ValueError, np.linalg.LinAlgError):
+                lost = True
+            if lost:
+                # The state estimate diverged numerically (e.g. an attitude pushed through zero norm on very noisy
+                # data): restart the state from this measurement, keep θ and its covariance from before the
+                # step, and count it as a reinitialisation (never hidden).
+                self._phi, self._p = phi_before, p_before
+                self._initialise(rec)
+                self.samples_used, self.samples_rejected, self.reinitialisations = counts
+                self.reinitialisations += 1
                 self.samples_rejected += 1
-                self._rejected_in_a_row += 1
-                status = "rejected"
-                if self._rejected_in_a_row >= self.reinitialise_after:
-                    self._initialise(rec)
-                    self.reinitialisations += 1
-                    status = "reinitialised"
-            else:
-                self._iterated_update(rec)
-                self._rejected_in_a_row = 0
-                self.samples_used += 1
+                status = "reinitialised"
         self._t_last = rec.t
         self._u_last = np.array(rec.u_applied, dtype=float)
         state = self._x.copy() if self._x is not None else np.full(13, np.nan)
