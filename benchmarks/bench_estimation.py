@@ -41,7 +41,8 @@ RATTLE's R (albee/rattle-iros-2022, ``param_est/scripts/param_est_config.py``) i
 diag(vec_R)`` enters ``S = H P Hᵀ + R``; its velocity entry 0.5e-5 is a variance (std 2.24 mm/s), angular velocity
 0.25e-3 (std 0.0158 rad/s). P₀ likewise (``P = diag(vec_cov)``).
 
-Run: ``python benchmarks/bench_estimation.py [--seeds 20] [--jobs 1] [--reference PATH] [--jumps 0]``
+Run: ``python benchmarks/bench_estimation.py [--seeds 20] [--jobs 1] [--reference PATH] [--jumps 0]
+[--rows clean,gapped] [--methods batch]``
 """
 
 from __future__ import annotations
@@ -193,10 +194,14 @@ def one_seed(seed: int, jumps: float) -> dict:
                      METHODS))
     out["prepare_s"] = time.perf_counter() - start
     for name, records, sets, methods in data:
+        if _SETUP["rows"] and name not in _SETUP["rows"]:
+            continue
         for method in methods:
+            if method not in _SETUP["methods"]:
+                continue
             out["rows"][(method, name)] = _result(run_estimation(records, sets, PRIOR, method, window_s=1e6))
-    if "swapped_reuses_clean" in out:
-        for method in METHODS:
+    if "swapped_reuses_clean" in out and (not _SETUP["rows"] or "swapped" in _SETUP["rows"]):
+        for method in _SETUP["methods"]:
             out["rows"][(method, "swapped")] = dict(out["rows"][(method, "clean")])
     out["total_s"] = out["track_s"] + out["prepare_s"] + sum(
         r["time"] for (m, d), r in out["rows"].items() if not (d == "swapped" and "swapped_reuses_clean" in out))
@@ -240,10 +245,17 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=1, help="processes, each pinned to one allowed core")
     parser.add_argument("--reference", type=Path, default=DEFAULT_REFERENCE, help="excitation CSV (19 rows)")
     parser.add_argument("--jumps", type=float, default=0.0, help="fraction of records replaced by jumps (0: no row)")
+    parser.add_argument("--rows", default="", help="comma-separated data rows to run (default: all; clean is needed "
+                        "for swapped)")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated: batch, sequential")
     args = parser.parse_args()
     if not args.reference.exists():
         raise SystemExit(f"--reference {args.reference}: not found (RATTLE data, see README)")
     _setup(args.reference)
+    _SETUP["rows"] = [r.strip() for r in args.rows.split(",") if r.strip()]
+    _SETUP["methods"] = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if _SETUP["rows"] and "swapped" in _SETUP["rows"] and "clean" not in _SETUP["rows"]:
+        _SETUP["rows"].append("clean")
     cpus = sorted(os.sched_getaffinity(0))
     print(f"reference {args.reference.name}: {_SETUP['reference'].duration_s:.0f} s; {args.seeds} seeds; "
           f"{args.jobs} process(es) on cores {cpus}", flush=True)
@@ -260,9 +272,9 @@ def main() -> None:
     try:
         for res in iterator:
             results.append(res)
-            gap = res["rows"][("batch", "gapped")]
-            print(f"seed {res['seed']:2d}: {res['total_s']:5.1f} s (track {res['track_s']:4.1f} s); gapped "
-                  f"{gap['segments']} segments", flush=True)
+            segs = [r["segments"] for (m, d), r in res["rows"].items() if d == "gapped"]
+            print(f"seed {res['seed']:2d}: {res['total_s']:5.1f} s (track {res['track_s']:4.1f} s)"
+                  + (f"; gapped {segs[0]} segments" if segs else ""), flush=True)
     finally:
         if pool is not None:
             pool.close()
@@ -306,6 +318,11 @@ def main() -> None:
         note = "met" if np.all(ratio <= SPREAD_TARGET) else (
             "MISSED, interval above the target: " + ",".join(over) if over else "missed, interval reaches the target")
         print(f"{method:<10} {name:<16} | {cells} | {note}")
+    print()
+    print(f"Bias: mean((θ̂ − θ) / CRB) over {n} seeds (standard error {1 / math.sqrt(n):.2f} if unbiased):")
+    for (method, name), *_ in spreads:
+        z = np.mean([r["rows"][(method, name)]["err"] / r["rows"][(method, name)]["crb"] for r in results], axis=0)
+        print(f"{method:<10} {name:<16} | " + "  ".join(f"{p} {v:+5.2f}" for p, v in zip(NAMES, z, strict=True)))
     print()
     reused = sum("swapped_reuses_clean" in r for r in results)
     print(f"swapped: aligned records identical to clean in {reused} of {n} seeds (estimates reused), "
