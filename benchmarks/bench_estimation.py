@@ -17,7 +17,7 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
 * ``gapped`` -- 10 % of whole control steps lost, every stream (measurement, applied input *and* command): the
   input over each lost step is unknown, so each loss starts a new segment whose initial state is estimated afresh
   (~30 segments of ~2 s);
-* ``gapped, cmd kept`` -- the same steps lost from the measurement and applied-input streams but ``/control/command``
+* ``gapped+command`` -- the same steps lost from the measurement and applied-input streams but ``/control/command``
   kept: the inputs are bridged from the command history (batch only);
 * ``IMU`` -- RATTLE-level noise plus the accelerometer at 62.5 Hz, σ = sqrt(5e-6) m/s² and a constant bias of
   1e-3 m/s² per axis, fitted and removed (:mod:`oacli.estimation.imu`);
@@ -84,7 +84,7 @@ FLIGHT_ERROR_PCT = np.array([0.39, 0.91, 1.35, 6.92])  # [ReSWARM2023] RATTLE ta
 SPREAD_TARGET = 1.2
 NAMES = ("m", "Ixx", "Iyy", "Izz")
 METHODS = ("batch", "sequential")
-GAPPED_CMD = "gapped, cmd kept"
+GAPPED_CMD = "gapped+command"
 
 _SETUP: dict = {}  # filled by _setup() before the worker processes fork
 
