@@ -2,48 +2,70 @@
 
 Scenario (issue 5 targets): simulated Astrobee carrying the 3D-printed object ([Doerr2021] Table 1: 15 kg,
 0.1464 / 0.1376 / 0.1604 kg·m²) tracks RATTLE's flown ISS excitation trajectory (``excitation_iss_11.csv``, B → C,
-60 s) with the ISS preset's MPC whose model is the bare robot. Measurement noise: RATTLE's ``param_est`` R
-(variances, see below) for velocity and angular velocity, the ISS preset's localisation noise for position and
-attitude; prior as in RATTLE (θ₀ = [15, 0.1, 0.1, 0.1], P₀ = diag(15, 0.005, 0.005, 0.005), variances). For every
-seed one closed-loop run is estimated twice, clean and with 5 % of the records replaced by localisation jumps
-(0.1-0.3 m, 0.05-0.2 rad), by the batch maximum-likelihood solver and by the sequential filter. Issue 10 rows,
-from the same run aligned by time stamp (:func:`oacli.estimation.alignment.align_records`): ``swapped`` (10 % of
-the localisation messages swapped with their successor in arrival order, true stamps kept), ``dropped`` (10 % of
-them lost), ``gapped`` (10 % of whole control steps lost, every stream), and ``IMU`` (RATTLE-level noise plus the
-accelerometer at 62.5 Hz, σ = sqrt(5e-6) m/s² and a constant bias of 1e-3 m/s² per axis, fitted and removed,
-:mod:`oacli.estimation.imu`). Their bound is evaluated over the records each estimator used (segments included).
+60 s, 325 control steps at 5 Hz) with the ISS preset's MPC whose model is the bare robot. Measurement noise:
+RATTLE's ``param_est`` R (variances, see below) for velocity and angular velocity, the ISS preset's localisation
+noise for position and attitude; prior as in RATTLE (θ₀ = [15, 0.1, 0.1, 0.1], P₀ = diag(15, 0.005, 0.005, 0.005),
+variances). Every seed flies one closed-loop run; its telemetry is estimated by the batch maximum-likelihood solver
+and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one window) as:
 
-Printed per method × data: the median absolute error per parameter [%], the spread over seeds (root-mean-square
-error) divided by the Cramér-Rao bound measured along each run in this benchmark (initial state unknown, as for the
-estimators), the median covariance reduction against the prior [%], the median time per estimate [s] and the
-records rejected. Targets: median error mass ≤ 0.39 %, each inertia ≤ 0.9 % (flight: 0.39 / 0.91 / 1.35 /
-6.92 %, [ReSWARM2023]), spread ≤ 1.2 × the bound.
+* ``clean`` -- the records as logged;
+* ``swapped`` -- 10 % of the localisation messages swapped with their successor in arrival order (true stamps kept),
+  aligned by stamp (:func:`oacli.estimation.alignment.align_records`, reorder window 8). The window puts every swap
+  back, so the aligned records are checked to be identical to ``clean`` and ``clean``'s estimates are reused
+  (a record that differed would be estimated afresh; the line ``swapped: ... re-estimated`` says how often);
+* ``dropped`` -- 10 % of the localisation messages lost (input-only records at those steps);
+* ``gapped`` -- 10 % of whole control steps lost, every stream (measurement, applied input *and* command): the
+  input over each lost step is unknown, so each loss starts a new segment whose initial state is estimated afresh
+  (~30 segments of ~2 s);
+* ``gapped+command`` -- the same steps lost from the measurement and applied-input streams but ``/control/command``
+  kept: the inputs are bridged from the command history (batch only);
+* ``clean split`` -- every clean record kept, but a segment started where ``gapped`` starts one (batch only): what
+  the segmentation alone does, without lost data (on 20 seeds it reproduces ``gapped``'s mass bias);
+* ``IMU`` -- RATTLE-level noise plus the accelerometer at 62.5 Hz, σ = sqrt(5e-6) m/s² and a constant bias of
+  1e-3 m/s² per axis, fitted and removed (:mod:`oacli.estimation.imu`);
+* ``N % jumps`` (only with ``--jumps N/100 > 0``) -- N % of the records replaced by localisation jumps
+  (0.1-0.3 m, 0.05-0.2 rad).
+
+Each row's Cramér-Rao bound is evaluated along its own estimate over the records it used (segments included;
+initial state unknown, as for the estimators).
+
+Printed per method × data over the seeds: the median absolute error per parameter [%] against the flight figures
+([ReSWARM2023] RATTLE table: 0.39 / 0.91 / 1.35 / 6.92 %), the median bound [%], the median number of segments,
+the median time per estimate (estimator and bound) [s], the batch solves that did not converge; then the spread
+against the bound, ``sqrt(mean_seeds((θ̂ − θ)² / CRB²))`` per parameter, with its 95 % interval: if the errors are
+``N(0, (c·CRB)²)``, ``n · ratio² / c² ~ χ²_n`` over n seeds, so ``c ∈ ratio · [sqrt(n / χ²_n(0.975)),
+sqrt(n / χ²_n(0.025))]`` ([0.77, 1.44] × ratio for n = 20). Targets: median error ≤ the flight figures, spread ≤ 1.2.
+
+``--jobs 2`` runs the seeds in two processes, each pinned to its own core of those the benchmark may use
+(``taskset -c 0,1``); the wall time and the summed per-seed times are printed.
 
 RATTLE's R (albee/rattle-iros-2022, ``param_est/scripts/param_est_config.py``) is a covariance: ``R_6DOF =
 diag(vec_R)`` enters ``S = H P Hᵀ + R``; its velocity entry 0.5e-5 is a variance (std 2.24 mm/s), angular velocity
 0.25e-3 (std 0.0158 rad/s). P₀ likewise (``P = diag(vec_cov)``).
 
-Run: ``python benchmarks/bench_estimation.py [--seeds 20] [--reference PATH] [--jumps 0.05]``
+Run: ``python benchmarks/bench_estimation.py [--seeds 20] [--jobs 1] [--reference PATH] [--jumps 0]
+[--rows clean,gapped] [--methods batch]``
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import multiprocessing as mp
+import os
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2
 
 from oacli.config import load_config
 from oacli.estimation.alignment import align_records
-from oacli.estimation.batch import estimate_batch
-from oacli.estimation.bounds import cramer_rao_bound
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
 from oacli.estimation.models import EstimatorSettings, Measurement, MeasurementModel, ProcessNoise
 from oacli.estimation.preprocessing import measurements_from_telemetry
-from oacli.estimation.sequential import SequentialEstimator
 from oacli.io.mcap_io import read_telemetry
 from oacli.io.reference_files import load_reference
 from oacli.sim.delivered import DeliveredInput
@@ -60,23 +82,40 @@ TRUTH = np.array([15.0, 0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1
 PRIOR = ParameterEstimate(0.0, [15.0, 0.1, 0.1, 0.1], np.diag([15.0, 0.005, 0.005, 0.005]), "prior")  # rattle
 NOISE = {"position_std_m": 0.01, "velocity_std_mps": math.sqrt(5e-6), "attitude_std_rad": 0.005,
          "angular_velocity_std_radps": math.sqrt(2.5e-4)}
-TARGET_ERROR_PCT = np.array([0.39, 0.9, 0.9, 0.9])
+ACCEL_STD_MPS2 = math.sqrt(5e-6)
 FLIGHT_ERROR_PCT = np.array([0.39, 0.91, 1.35, 6.92])  # [ReSWARM2023] RATTLE table
+SPREAD_TARGET = 1.2
 NAMES = ("m", "Ixx", "Iyy", "Izz")
+METHODS = ("batch", "sequential")
+GAPPED_CMD = "gapped+command"
+SPLIT = "clean split"
+
+_SETUP: dict = {}  # filled by _setup() before the worker processes fork
 
 
-def run_sequential(records: list[Measurement], settings: EstimatorSettings) -> tuple[ParameterEstimate, list]:
-    est = SequentialEstimator(settings, PRIOR)
-    for rec in records:
-        est.update(rec)
-    final = est.flush()
-    steps = [s for s in est.history if s.status != "late"]
-    return final, steps
+def _setup(reference_path: Path) -> None:
+    base = load_config(REPO / "configs" / "iss_reswarm.yaml")
+    cfg0 = base.model_copy(update={
+        "truth": base.truth.model_copy(update={"mass_kg": float(TRUTH[0]), "inertia_kgm2": tuple(TRUTH[1:])}),
+        "sensors": base.sensors.model_copy(update=NOISE),
+    })
+    process = ProcessNoise(1e-5, 1e-6)
+    substep = cfg0.simulation.plant_period_s
+    _SETUP.update(
+        cfg0=cfg0,
+        reference=load_reference(reference_path, sample_period_s=0.5, frame="iss"),
+        settings=EstimatorSettings(MeasurementModel(**NOISE), process, substep_s=substep),
+        imu_settings=EstimatorSettings(MeasurementModel(**NOISE, linear_acceleration_std_mps2=ACCEL_STD_MPS2),
+                                       process, substep_s=substep),
+        limits=np.r_[cfg0.robot.force_limit_N, cfg0.robot.torque_limit_Nm],
+    )
 
 
-def tampered_records(tel, kind: str, rng: np.random.Generator) -> list[Measurement]:
-    """The run's records after ``kind`` (swapped, dropped, gapped), aligned by time stamp."""
+def tampered_records(tel, kind: str, rng: np.random.Generator, input_limits: np.ndarray | None = None
+                     ) -> list[Measurement]:
+    """The run's records after ``kind`` (swapped, dropped, gapped, gapped_cmd), aligned by time stamp."""
     t_m, x_m, t_u, u = tel.t_ctrl.copy(), tel.x_measured.copy(), tel.t_ctrl.copy(), tel.u_applied.copy()
+    t_c = u_c = None
     k = len(t_m)
     if kind == "swapped":
         for a in rng.choice(np.arange(1, k - 1, 2), size=round(0.1 * k), replace=False):
@@ -85,18 +124,23 @@ def tampered_records(tel, kind: str, rng: np.random.Generator) -> list[Measureme
         keep = np.ones(k, dtype=bool)
         keep[rng.choice(np.arange(1, k), size=round(0.1 * k), replace=False)] = False
         t_m, x_m = t_m[keep], x_m[keep]
-    elif kind == "gapped":
+    elif kind in ("gapped", "gapped_cmd"):
         keep = np.ones(k, dtype=bool)
         keep[rng.choice(np.arange(1, k - 1), size=round(0.1 * k), replace=False)] = False
         t_m, x_m, t_u, u = t_m[keep], x_m[keep], t_u[keep], u[keep]
-    records, _ = align_records(t_m, x_m, t_u, u, reorder_window=8)
+        if kind == "gapped_cmd":
+            t_c, u_c = tel.t_ctrl, tel.u_command
+    else:
+        raise ValueError(kind)
+    records, _ = align_records(t_m, x_m, t_u, u, reorder_window=8, t_command=t_c, u_command=u_c,
+                               input_limits=input_limits)
     return records
 
 
 def imu_records(tel, cfg, seed: int) -> list[Measurement]:
     """The run's records with the accelerometer (RATTLE level, biased; bias fitted and removed)."""
     delivered = DeliveredInput.from_telemetry(tel, np.asarray(cfg.truth.actuator_scale))
-    model = ImuModel(accelerometer_noise_std_mps2=math.sqrt(5e-6), accelerometer_bias_std_mps2=1e-3)
+    model = ImuModel(accelerometer_noise_std_mps2=ACCEL_STD_MPS2, accelerometer_bias_std_mps2=1e-3)
     imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), TRUTH[0], model,
                        sensor_rng(seed, "imu"))
     records, report = align_records(tel.t_ctrl, tel.x_measured, tel.t_ctrl, tel.u_applied, reorder_window=8)
@@ -106,103 +150,192 @@ def imu_records(tel, cfg, seed: int) -> list[Measurement]:
     return records
 
 
+def _same_records(a: list[Measurement], b: list[Measurement]) -> bool:
+    return len(a) == len(b) and all(
+        r.t == s.t and np.array_equal(r.x_measured, s.x_measured) and np.array_equal(r.u_applied, s.u_applied)
+        and r.state_measured == s.state_measured and r.starts_segment == s.starts_segment
+        for r, s in zip(a, b, strict=True))
+
+
+def _result(run) -> dict:
+    return {"err": run.final.theta - TRUTH, "crb": np.asarray(run.bound.std, float),
+            "time": float(run.solve_time_s), "segments": int(run.segments),
+            "rejected": int(run.final.samples_rejected),
+            "converged": None if run.batch is None else bool(run.batch.converged)}
+
+
+def one_seed(seed: int, jumps: float) -> dict:
+    """Fly one closed-loop run and estimate every row; returns {(method, data): result} and timings."""
+    cfg0, settings, limits = _SETUP["cfg0"], _SETUP["settings"], _SETUP["limits"]
+    cfg = cfg0.model_copy(update={"seed": seed})
+    out: dict = {"seed": seed, "rows": {}, "reestimated_swapped": False}
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        run_track(cfg, reference=_SETUP["reference"], out=Path(tmp) / "track")
+        tel = read_telemetry(Path(tmp) / "track" / "track.mcap")
+        out["track_s"] = time.perf_counter() - start
+    start = time.perf_counter()
+    clean = measurements_from_telemetry(tel)
+    data: list[tuple[str, list[Measurement], EstimatorSettings, tuple[str, ...]]] = [
+        ("clean", clean, settings, METHODS)]
+    swapped = tampered_records(tel, "swapped", np.random.default_rng(20_000 + seed))
+    if _same_records(swapped, clean):
+        out["swapped_reuses_clean"] = True
+    else:
+        out["reestimated_swapped"] = True
+        data.append(("swapped", swapped, settings, METHODS))
+    data.append(("dropped", tampered_records(tel, "dropped", np.random.default_rng(20_000 + seed)), settings,
+                 METHODS))
+    data.append(("gapped", tampered_records(tel, "gapped", np.random.default_rng(20_000 + seed)), settings,
+                 METHODS))
+    gap_starts = {r.t for r in data[-1][1] if r.starts_segment}
+    data.append((SPLIT, [replace(r, starts_segment=r.t in gap_starts) for r in clean], settings, ("batch",)))
+    data.append((GAPPED_CMD, tampered_records(tel, "gapped_cmd", np.random.default_rng(20_000 + seed), limits),
+                 settings, ("batch",)))
+    data.append(("IMU", imu_records(tel, cfg, seed), _SETUP["imu_settings"], METHODS))
+    if jumps > 0:
+        jumped_x, _ = inject_localisation_jumps(tel.x_measured, jumps, np.random.default_rng(10_000 + seed))
+        data.append((f"{100 * jumps:.0f} % jumps",
+                     [Measurement(r.t, x, r.u_applied) for r, x in zip(clean, jumped_x, strict=True)], settings,
+                     METHODS))
+    out["prepare_s"] = time.perf_counter() - start
+    for name, records, sets, methods in data:
+        if _SETUP["rows"] and name not in _SETUP["rows"]:
+            continue
+        for method in methods:
+            if method not in _SETUP["methods"]:
+                continue
+            out["rows"][(method, name)] = _result(run_estimation(records, sets, PRIOR, method, window_s=1e6))
+    if "swapped_reuses_clean" in out and (not _SETUP["rows"] or "swapped" in _SETUP["rows"]):
+        for method in _SETUP["methods"]:
+            out["rows"][(method, "swapped")] = dict(out["rows"][(method, "clean")])
+    out["total_s"] = out["track_s"] + out["prepare_s"] + sum(
+        r["time"] for (m, d), r in out["rows"].items() if not (d == "swapped" and "swapped_reuses_clean" in out))
+    return out
+
+
+def _pin(counter, cpus: list[int]) -> None:
+    with counter.get_lock():
+        i = counter.value
+        counter.value += 1
+    os.sched_setaffinity(0, {cpus[i % len(cpus)]})
+
+
+def _one_seed_star(arg: tuple[int, float]) -> dict:
+    return one_seed(*arg)
+
+
+def spread_ratio(err: np.ndarray, crb: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``sqrt(mean((err / crb)²))`` per parameter over the seeds and its χ² interval (module docstring).
+
+    Parameters
+    ----------
+    err, crb : ndarray, shape (n, p)
+        Errors and Cramér-Rao standard deviations per seed.
+    level : float
+        Confidence level.
+
+    Returns
+    -------
+    ratio, low, high : ndarray, shape (p,)
+    """
+    n = err.shape[0]
+    ratio = np.sqrt(np.mean((err / crb) ** 2, axis=0))
+    a = (1.0 - level) / 2.0
+    return ratio, ratio * math.sqrt(n / chi2.ppf(1.0 - a, n)), ratio * math.sqrt(n / chi2.ppf(a, n))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20, help="closed-loop runs (seeds 0..N-1)")
+    parser.add_argument("--jobs", type=int, default=1, help="processes, each pinned to one allowed core")
     parser.add_argument("--reference", type=Path, default=DEFAULT_REFERENCE, help="excitation CSV (19 rows)")
-    parser.add_argument("--jumps", type=float, default=0.05, help="fraction of records replaced by jumps")
+    parser.add_argument("--jumps", type=float, default=0.0, help="fraction of records replaced by jumps (0: no row)")
+    parser.add_argument("--rows", default="", help="comma-separated data rows to run (default: all; clean is needed "
+                        "for swapped)")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated: batch, sequential")
     args = parser.parse_args()
+    if not args.reference.exists():
+        raise SystemExit(f"--reference {args.reference}: not found (RATTLE data, see README)")
+    _setup(args.reference)
+    _SETUP["rows"] = [r.strip() for r in args.rows.split(",") if r.strip()]
+    _SETUP["methods"] = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if _SETUP["rows"] and "swapped" in _SETUP["rows"] and "clean" not in _SETUP["rows"]:
+        _SETUP["rows"].append("clean")
+    cpus = sorted(os.sched_getaffinity(0))
+    print(f"reference {args.reference.name}: {_SETUP['reference'].duration_s:.0f} s; {args.seeds} seeds; "
+          f"{args.jobs} process(es) on cores {cpus}", flush=True)
+    wall = time.perf_counter()
+    tasks = [(seed, args.jumps) for seed in range(args.seeds)]
+    results: list[dict] = []
+    if args.jobs <= 1:
+        iterator = map(_one_seed_star, tasks)
+        pool = None
+    else:
+        ctx = mp.get_context("fork")
+        pool = ctx.Pool(args.jobs, initializer=_pin, initargs=(ctx.Value("i", 0), cpus))
+        iterator = pool.imap_unordered(_one_seed_star, tasks)
+    try:
+        for res in iterator:
+            results.append(res)
+            segs = [r["segments"] for (m, d), r in res["rows"].items() if d == "gapped"]
+            print(f"seed {res['seed']:2d}: {res['total_s']:5.1f} s (track {res['track_s']:4.1f} s)"
+                  + (f"; gapped {segs[0]} segments" if segs else ""), flush=True)
+    finally:
+        if pool is not None:
+            pool.close()
+            pool.join()
+    wall = time.perf_counter() - wall
+    results.sort(key=lambda r: r["seed"])
 
-    base = load_config(REPO / "configs" / "iss_reswarm.yaml")
-    cfg0 = base.model_copy(update={
-        "truth": base.truth.model_copy(update={"mass_kg": float(TRUTH[0]), "inertia_kgm2": tuple(TRUTH[1:])}),
-        "sensors": base.sensors.model_copy(update=NOISE),
-    })
-    reference = load_reference(args.reference, sample_period_s=0.5, frame="iss")
-    model = MeasurementModel(**NOISE)
-    settings = EstimatorSettings(model, ProcessNoise(1e-5, 1e-6), substep_s=cfg0.simulation.plant_period_s)
-    rows: dict[tuple[str, str], dict[str, list]] = {}
-    not_converged = 0
-    print(f"reference {args.reference.name}: {reference.duration_s:.0f} s; {args.seeds} seeds; jumps "
-          f"{100 * args.jumps:.0f} %")
-    with tempfile.TemporaryDirectory() as tmp:
-        for seed in range(args.seeds):
-            cfg = cfg0.model_copy(update={"seed": seed})
-            run_track(cfg, reference=reference, out=Path(tmp) / f"track{seed}")
-            tel = read_telemetry(Path(tmp) / f"track{seed}" / "track.mcap")
-            clean = measurements_from_telemetry(tel)
-            jumped_x, _ = inject_localisation_jumps(tel.x_measured, args.jumps, np.random.default_rng(10_000 + seed))
-            jumped = [Measurement(r.t, x, r.u_applied) for r, x in zip(clean, jumped_x, strict=True)]
-            for data_name, recs in (("clean", clean), (f"{100 * args.jumps:.0f} % jumps", jumped)):
-                for method in ("batch", "sequential"):
-                    start = time.perf_counter()
-                    if method == "batch":
-                        result = estimate_batch(recs, settings, PRIOR)
-                        est, t, states, used = result.estimate, result.t, result.states, result.inliers
-                        not_converged += not result.converged
-                    else:
-                        est, steps = run_sequential(recs, settings)
-                        t = np.array([s.t for s in steps])
-                        states = np.array([s.state for s in steps])
-                        used = np.array([s.status in ("accepted", "initialised") for s in steps])
-                    elapsed = time.perf_counter() - start
-                    bound = cramer_rao_bound(t, states, tel.u_applied, est.theta, model, settings.substep_s,
-                                             used=used)
-                    row = rows.setdefault((method, data_name), {"err": [], "crb": [], "crb0": [], "red": [],
-                                                                "time": [], "rej": []})
-                    row["err"].append(est.theta - TRUTH)
-                    row["crb"].append(bound.std)
-                    row["crb0"].append(bound.std_known_initial_state)
-                    row["red"].append(100 * (1 - np.diag(est.covariance) / np.diag(PRIOR.covariance)))
-                    row["time"].append(elapsed)
-                    row["rej"].append(est.samples_rejected)
-            imu_settings = EstimatorSettings(MeasurementModel(**NOISE, linear_acceleration_std_mps2=math.sqrt(5e-6)),
-                                             settings.process, substep_s=settings.substep_s)
-            extra = [(kind, tampered_records(tel, kind, np.random.default_rng(20_000 + seed)), settings)
-                     for kind in ("swapped", "dropped", "gapped")]
-            extra.append(("IMU", imu_records(tel, cfg, seed), imu_settings))
-            for data_name, recs, sets in extra:
-                for method in ("batch", "sequential"):
-                    run = run_estimation(recs, sets, PRIOR, method, window_s=1e6)
-                    not_converged += method == "batch" and not run.batch.converged
-                    row = rows.setdefault((method, data_name), {"err": [], "crb": [], "crb0": [], "red": [],
-                                                                "time": [], "rej": []})
-                    row["err"].append(run.final.theta - TRUTH)
-                    row["crb"].append(run.bound.std)
-                    row["crb0"].append(run.bound.std_known_initial_state)
-                    row["red"].append(100 * (1 - np.diag(run.final.covariance) / np.diag(PRIOR.covariance)))
-                    row["time"].append(run.solve_time_s)
-                    row["rej"].append(run.final.samples_rejected)
-            print(f"seed {seed:2d} done", flush=True)
-
-    head = (f"{'method':<11} {'data':<10} | {'median error %  m / Ixx / Iyy / Izz':^36} | "
-            f"{'spread / CRB  m / Ixx / Iyy / Izz':^34} | {'cov. red. %':>11} | {'time s':>6} | {'rej.':>4}")
+    keys = list(results[0]["rows"])
+    order = ["clean", "swapped", "dropped", "gapped", SPLIT, GAPPED_CMD, "IMU"]
+    keys.sort(key=lambda k: (order.index(k[1]) if k[1] in order else len(order), METHODS.index(k[0])))
+    n = len(results)
     print()
+    print(f"Accuracy and time over {n} seeds (median |error| %, flight figures "
+          + " / ".join(f"{v:.2f}" for v in FLIGHT_ERROR_PCT) + " %):")
+    head = (f"{'method':<10} {'data':<16} | {'median |error| %  m / Ixx / Iyy / Izz':^37} | {'vs flight':<14} | "
+            f"{'median CRB %  m / Ixx / Iyy / Izz':^35} | {'segs':>4} | {'time s':>6} | {'not conv.':>9}")
     print(head)
     print("-" * len(head))
-    verdicts = []
-    for (method, data_name), row in rows.items():
-        err = np.array(row["err"])
-        crb = np.array(row["crb"])
-        med_pct = 100 * np.median(np.abs(err) / TRUTH, axis=0)
-        spread = np.sqrt(np.mean(err**2, axis=0)) / np.mean(crb, axis=0)
-        red = np.median(np.array(row["red"]), axis=0)
-        print(f"{method:<11} {data_name:<10} | {' / '.join(f'{v:6.3f}' for v in med_pct):^36} | "
-              f"{' / '.join(f'{v:5.2f}' for v in spread):^34} | {np.min(red):11.4f} | "
-              f"{np.median(row['time']):6.2f} | {np.median(row['rej']):4.0f}")
-        verdicts.append((method, data_name, bool(np.all(med_pct <= TARGET_ERROR_PCT)), bool(np.all(spread <= 1.2))))
-    crb_pct = 100 * np.median(np.array(rows[("batch", "clean")]["crb"]) / TRUTH, axis=0)
-    crb0_pct = 100 * np.median(np.array(rows[("batch", "clean")]["crb0"]) / TRUTH, axis=0)
+    spreads = []
+    for key in keys:
+        method, name = key
+        rows = [r["rows"][key] for r in results]
+        err = np.array([r["err"] for r in rows])
+        crb = np.array([r["crb"] for r in rows])
+        med = 100 * np.median(np.abs(err) / TRUTH, axis=0)
+        missed = [p for p, v, f in zip(NAMES, med, FLIGHT_ERROR_PCT, strict=True) if v > f]
+        verdict = "met" if not missed else "missed " + ",".join(missed)
+        crb_pct = 100 * np.median(crb / TRUTH, axis=0)
+        conv = [r["converged"] for r in rows if r["converged"] is not None]
+        print(f"{method:<10} {name:<16} | {' / '.join(f'{v:6.3f}' for v in med):^37} | {verdict:<14} | "
+              f"{' / '.join(f'{v:6.3f}' for v in crb_pct):^35} | {np.median([r['segments'] for r in rows]):4.0f} | "
+              f"{np.median([r['time'] for r in rows]):6.2f} | "
+              f"{(str(len(conv) - sum(conv)) if conv else '-'):>9}")
+        spreads.append((key, *spread_ratio(err, crb)))
     print()
-    print("Cramér-Rao bound % (median, initial state unknown):", " / ".join(f"{v:.3f}" for v in crb_pct))
-    print("Cramér-Rao bound % (initial state known, information.py's):", " / ".join(f"{v:.3f}" for v in crb0_pct))
-    print("targets: median error % ≤", " / ".join(f"{v:.2f}" for v in TARGET_ERROR_PCT),
-          "(flight, [ReSWARM2023]:", " / ".join(f"{v:.2f}" for v in FLIGHT_ERROR_PCT) + "); spread ≤ 1.2 × CRB")
-    for method, data_name, ok_err, ok_spread in verdicts:
-        print(f"  {method:<11} {data_name:<10} error target {'met' if ok_err else 'MISSED'}, "
-              f"spread target {'met' if ok_spread else 'MISSED'}")
-    print(f"({', '.join(NAMES)}; cov. red. = smallest of the four medians of 1 − P/P₀; batch solves that did not "
-          f"meet the tolerance: {not_converged})")
+    print(f"Spread / CRB = sqrt(mean((θ̂ − θ)² / CRB²)) over {n} seeds, [95 % χ² interval]; target ≤ {SPREAD_TARGET}:")
+    for (method, name), ratio, low, high in spreads:
+        cells = "  ".join(f"{p} {r:5.2f} [{lo:4.2f}, {hi:4.2f}]"
+                          for p, r, lo, hi in zip(NAMES, ratio, low, high, strict=True))
+        over = [p for p, lo in zip(NAMES, low, strict=True) if lo > SPREAD_TARGET]
+        note = "met" if np.all(ratio <= SPREAD_TARGET) else (
+            "MISSED, interval above the target: " + ",".join(over) if over else "missed, interval reaches the target")
+        print(f"{method:<10} {name:<16} | {cells} | {note}")
+    print()
+    print(f"Bias: mean((θ̂ − θ) / CRB) over {n} seeds (standard error {1 / math.sqrt(n):.2f} if unbiased):")
+    for (method, name), *_ in spreads:
+        z = np.mean([r["rows"][(method, name)]["err"] / r["rows"][(method, name)]["crb"] for r in results], axis=0)
+        print(f"{method:<10} {name:<16} | " + "  ".join(f"{p} {v:+5.2f}" for p, v in zip(NAMES, z, strict=True)))
+    print()
+    reused = sum("swapped_reuses_clean" in r for r in results)
+    print(f"swapped: aligned records identical to clean in {reused} of {n} seeds (estimates reused), "
+          f"{n - reused} re-estimated")
+    per_seed = [r["total_s"] for r in results]
+    print(f"per seed: median {np.median(per_seed):.1f} s (track {np.median([r['track_s'] for r in results]):.1f} s); "
+          f"sum {sum(per_seed):.0f} s; wall {wall:.0f} s with {max(args.jobs, 1)} process(es)")
 
 
 if __name__ == "__main__":

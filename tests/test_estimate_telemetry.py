@@ -110,6 +110,29 @@ def test_dropped_control_steps_split_the_run_and_stay_within_two_sigma(clean, tm
         assert s["chi2_ratio"] < 1.5
 
 
+def test_dropped_control_steps_with_the_command_logged_are_bridged_not_split(clean, tmp_path):
+    """The same loss as above, but ``/control/command`` survives: its history bridges every lost input, so the run
+    stays one segment and keeps nearly all the clean run's information (the split run of the test above loses most
+    of it: the benchmark's ``gapped`` rows)."""
+    cfg, telemetry, ref = clean
+    inner, dropped = drop_control_steps(0.1, np.random.default_rng(4))
+
+    def keep_command(messages):
+        commands = [m for m in messages if m[0] == "/control/command"]
+        return [m for m in inner(messages) if m[0] != "/control/command"] + commands
+
+    tampered = rewrite(telemetry, tmp_path / "tampered.mcap", keep_command)
+    s = estimate(cfg, tampered, tmp_path / "est")
+    counts = s["telemetry_records"]
+    assert counts["bridged"] == len(dropped) and counts["input_only"] == len(dropped), counts
+    assert counts["gaps"] == 0 and s["segments"] == 1
+    assert s["status"] == "ok", s["status_reasons"]
+    assert_within_two_sigma(s, ref)
+    crb, crb_ref = (np.array([d["crb_std"][n] for n in NAMES]) for d in (s, ref))
+    # Only the lost measurements cost information (10 % of them: about 1/sqrt(0.9) = 1.05x the clean bound).
+    assert np.all(crb >= crb_ref * (1 - 1e-6)) and np.all(crb < 1.15 * crb_ref), crb / crb_ref
+
+
 def test_dropped_control_steps_aligned_by_time_fit_their_model(clean):
     """Dropped control steps aligned by time: each gap starts a segment and the fit's χ² matches its expected
     value (the positional alignment of the issue held the input over the gaps: cost 175× expected)."""
