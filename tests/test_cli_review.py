@@ -46,6 +46,11 @@ def test_set_is_validated_like_file_values():
     assert result.exit_code == 2 and "KEY=VALUE" in result.output
     shown = yaml.safe_load(run_cli("config", "show", DOERR, "--set", "robot.mass_kg=15").stdout)
     assert shown["robot"]["mass_kg"] == 15.0 and "controller" in shown  # defaults filled in
+    # --set values are read like file values, YAML 1.2: no sexagesimal 1:30 = 90, and 1e1 is a number
+    result = run_cli("config", "show", DOERR, "--set", "seed=1:30")
+    assert result.exit_code == 2 and "seed: '1:30': must be an integer" in result.output
+    shown = yaml.safe_load(run_cli("config", "show", DOERR, "--set", "robot.mass_kg=1e1").stdout)
+    assert shown["robot"]["mass_kg"] == 10.0
 
 
 def test_info_refuses_a_missing_path(tmp_path):

@@ -35,7 +35,7 @@ from oacli.campaign import manifest
 from oacli.campaign.executors import ExecutorHandle
 from oacli.campaign.jobs import STATUS_OOM, execute_run
 from oacli.campaign.sampling import sample_run
-from oacli.config import ConfigError, config_from_dict, dump_config, load_config
+from oacli.config import ConfigError, config_from_dict, dump_config, load_config, read_yaml_file
 from oacli.config.campaign import CampaignConfig
 from oacli.config.mission import deep_merge
 from oacli.errors import InputError
@@ -79,12 +79,7 @@ def load_campaign(path: Path, sets: list[str] | None = None) -> Campaign:
     from oacli.config import format_validation_errors
 
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{path}: cannot read: {exc}") from None
+    data = read_yaml_file(path)  # bounded read, strict YAML 1.2 loader: as for every config file
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping (runs, base, dispersions, faults ...)")
     data = apply_overrides(data, sets)

@@ -154,17 +154,15 @@ def apply_overrides(data: dict[str, Any], sets: list[str] | None) -> dict[str, A
     ConfigError
         An item without ``=`` or an empty path, or a path through a value that is not a section.
     """
-    import yaml
+    from oacli.config import parse_yaml_value
 
     for item in sets or ():
         key, sep, text = item.partition("=")
         key = key.strip()
         if not sep or not key or any(not part for part in key.split(".")):
             raise ConfigError(f"--set {item}: expected KEY=VALUE with a dotted key, e.g. robot.mass_kg=15")
-        try:
-            value = yaml.safe_load(text) if text.strip() else None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {key}: value {text!r} is not valid YAML: {exc}") from None
+        # The loader of config files: YAML 1.2 scalars (``1:30`` stays text, ``1e3`` is a number), size caps.
+        value = parse_yaml_value(text, f"--set {key}") if text.strip() else None
         node = data
         parts = key.split(".")
         for depth, part in enumerate(parts[:-1]):

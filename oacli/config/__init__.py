@@ -106,6 +106,55 @@ def load_config(path: str | os.PathLike[str]) -> OacliConfig:
     return config_from_dict(data, source=source, base_dir=os.path.dirname(os.path.abspath(source)))
 
 
+def read_yaml_file(path: str | os.PathLike[str]) -> Any:
+    """Read a YAML file as :func:`load_config` does, without validating it as an oacli config: a size-bounded read
+    of a regular file, UTF-8, the strict loader (YAML 1.2 scalars, duplicate keys and size caps refused).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    Any
+        The parsed document (None for an empty file).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file and the reason.
+    """
+    source = os.fspath(path)
+    raw = _read_bounded(source)
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{source}: not valid UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start})"
+        ) from None
+    return _parse_yaml(text, source)
+
+
+def parse_yaml_value(text: str, source: str) -> Any:
+    """Parse one YAML value (e.g. of ``--set KEY=VALUE``) with the strict loader of config files.
+
+    Parameters
+    ----------
+    text : str
+    source : str
+        Named in an error message (e.g. ``--set seed``).
+
+    Returns
+    -------
+    Any
+
+    Raises
+    ------
+    ConfigError
+    """
+    return _parse_yaml(text, source)
+
+
 def _read_bounded(source: str) -> bytes:
     """Read a config file through a size-bounded read: a regular file only (no FIFO, device or folder), at most
     :data:`MAX_CONFIG_BYTES` bytes read whatever its size claims."""
