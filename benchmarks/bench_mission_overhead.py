@@ -74,6 +74,54 @@ def mission_reads(mission_dir: Path, cfg, summary: dict) -> None:
     records.load_mission_records(mission_dir, summary)
 
 
+class _OldPaths:
+    """Switch the mission to the former paths that are still reachable: the per-record ``StreamReader`` chunk
+    parser, the pure-Python YAML emitter, ``stage_config`` preceded by the removed ``yaml.safe_load(dump_config)``
+    round trip, stage configs parsed again instead of remembered. (Not reverted: the shared read of each track file
+    and of the batch estimate, which the former code read twice.)"""
+
+    def __enter__(self) -> None:
+        import oacli.mission.run as run_module
+
+        self.saved = (run_module.stage_config, run_module.remember_config)
+        original = run_module.stage_config
+
+        def stage_config_round_trip(cfg, stage, handoff, **kw):
+            yaml.safe_load(config_module.dump_config(cfg))
+            return original(cfg, stage, handoff, **kw)
+
+        run_module.stage_config = stage_config_round_trip
+        run_module.remember_config = lambda path, cfg: False
+        mcap_walk.IN_PLACE_CHUNKS = False
+        self.restore = _python_dumper()
+
+    def __exit__(self, *exc: object) -> None:
+        import oacli.mission.run as run_module
+
+        run_module.stage_config, run_module.remember_config = self.saved
+        mcap_walk.IN_PLACE_CHUNKS = True
+        self.restore()
+
+
+def mission_overhead(cfg, old: bool) -> tuple[float, float]:
+    """Run the mission (no PNGs) into a temporary folder; (wall [s], wall minus the stages' own wall times [s])."""
+    validate_mission(cfg)
+    with tempfile.TemporaryDirectory() as tmp:
+        records.clear_cache()
+        start = time.perf_counter()
+        if old:
+            with _OldPaths():
+                mission_dir = start_mission(cfg, out=Path(tmp) / "run", runs_root=Path(tmp))
+                result = run_mission(cfg, mission_dir)
+        else:
+            mission_dir = start_mission(cfg, out=Path(tmp) / "run", runs_root=Path(tmp))
+            result = run_mission(cfg, mission_dir)
+        wall = time.perf_counter() - start
+        stages = sum(float(s["wall_time_s"]) for s in result.summary["stages"].values())
+        records.clear_cache()
+        return wall, wall - stages
+
+
 def timed(fn: Callable[[], object]) -> float:
     start = time.perf_counter()
     fn()
@@ -85,6 +133,9 @@ def main() -> None:
     parser.add_argument("--mission-dir", type=Path, help="a finished mission folder (default: run one first)")
     parser.add_argument("--config", type=Path, default=ROOT / "configs" / "mission_iss.yaml")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--missions", type=int, default=0,
+                        help="also run the whole mission this many times per side (old paths / new), alternating, "
+                             "and print its overhead: wall time minus the stages' own wall times")
     args = parser.parse_args()
     tmp = tempfile.TemporaryDirectory()
     cfg = load_config(args.config)
@@ -182,6 +233,17 @@ def main() -> None:
             print(f"{name:52s} {o:8.3f} {n:8.3f} {o / n:8.1f}x")
         else:
             print(f"{name:52s} {o:8.3f} {'':>8s}")
+    if args.missions:
+        sides: dict[bool, list[tuple[float, float]]] = {True: [], False: []}
+        for k in range(args.missions):
+            for old in ((True, False) if k % 2 == 0 else (False, True)):
+                sides[old].append(mission_overhead(cfg, old))
+        for old in (True, False):
+            walls = [w for w, _ in sides[old]]
+            over = [o for _, o in sides[old]]
+            print(f"whole mission, {'old' if old else 'new'} paths: wall {statistics.median(walls):7.2f} s, "
+                  f"outside the stages {statistics.median(over):6.2f} s  (runs: "
+                  + ", ".join(f"{o:.2f}" for o in over) + ")")
     records.clear_cache()
     tmp.cleanup()
 

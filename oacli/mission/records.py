@@ -12,6 +12,8 @@ plots): :func:`read_telemetry_cached`, :func:`read_stage_cached` and :func:`load
 per process and return the same
 object while the file's modification time and size are unchanged (the files stay the source of truth: a stage
 rerun by ``--resume`` or ``--from`` writes a new file, which is read again). Callers must not modify what they get.
+A ``track.mcap`` is read once for both its telemetry and what the mission records show (:func:`stage_record`), and
+the config a stage just ran with is remembered (:func:`remember_config`) instead of parsed back from its file.
 """
 
 from __future__ import annotations
