@@ -225,7 +225,7 @@ if hasattr(yaml, "CSafeDumper"):  # libyaml's emitter: the same text (same repre
         """:class:`_FlowVectorDumper` with libyaml's C emitter (our own validated data only)."""
 
     _CFlowVectorDumper.add_representer(list, _represent_list)
-    _DUMPERS: tuple[type, ...] = (_FlowVectorDumper, _CFlowVectorDumper)
+    _DUMPERS: tuple[Any, ...] = (_FlowVectorDumper, _CFlowVectorDumper)
 else:  # pragma: no cover - PyYAML built without libyaml
     _DUMPERS = (_FlowVectorDumper,)
 
@@ -290,7 +290,7 @@ _StrictSafeLoader.add_constructor("tag:yaml.org,2002:int", _construct_yaml12_int
 
 #: The dumper :func:`dump_config` uses (the C emitter when PyYAML has libyaml; ``tests/test_config.py`` checks both
 #: write the same text).
-_DUMPER: type = _DUMPERS[-1]
+_DUMPER: Any = _DUMPERS[-1]
 
 
 def _parse_yaml(text: str, source: str) -> Any:

@@ -591,7 +591,7 @@ class McapWalk:
                 raise _Stop
             self.channels[record.id] = record.topic
             self.per_channel[record.id] = 0
-            if self.wanted_channels is not None and record.topic in self.topics:
+            if self.wanted_channels is not None and self.topics is not None and record.topic in self.topics:
                 self.wanted_channels.add(record.id)
             self.result.channels += 1
         elif isinstance(record, Metadata):
