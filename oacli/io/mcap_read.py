@@ -35,6 +35,7 @@ __all__ = [
     "MAX_DECOMPRESSED_BYTES",
     "MAX_EXPANSION",
     "MIN_DECOMPRESSED_BUDGET",
+    "TELEMETRY_TOPICS",
     "StageRecord",
     "TelemetryStreams",
     "decompressed_budget",
@@ -42,6 +43,7 @@ __all__ = [
     "read_telemetry",
     "read_telemetry_streams",
     "read_trajectory",
+    "telemetry_from_record",
 ]
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Telemetry, Trajectory
 
@@ -165,8 +167,11 @@ class _Scan:
         return InputError(f"{self.path}: {reason}")
 
     def run(self) -> None:
-        walk = McapWalk(self.path, self._record, validate_crcs=self.validate)
+        walk = McapWalk(self.path, self._record, validate_crcs=self.validate, topics=self.wanted)
         result = walk.run()
+        for channel_id, count in walk.per_channel.items():  # every message, wanted or not
+            topic = walk.channels[channel_id]
+            self.counts[topic] = self.counts.get(topic, 0) + count
         data = walk.data
         ends_with_magic = len(data) >= 2 * len(MAGIC) and data[-len(MAGIC) :] == MAGIC
         for problem in result.problems:
@@ -180,9 +185,7 @@ class _Scan:
     def _record(self, record: Any) -> None:
         if isinstance(record, Message):
             topic = self.channels[record.channel_id].topic  # the walk refuses unknown channels
-            self.counts[topic] = self.counts.get(topic, 0) + 1
-            if self.wanted is None or topic in self.wanted:
-                self.messages.setdefault(topic, []).append((record.log_time, record.data))
+            self.messages.setdefault(topic, []).append((record.log_time, record.data))  # the walk filters topics
         elif isinstance(record, Schema):
             self.schemas[record.id] = record
         elif isinstance(record, Channel):
@@ -400,16 +403,40 @@ def read_telemetry(path: Path, *, allow_truncated: bool = False) -> Telemetry:
     InputError
         Unreadable, corrupt or truncated file, a missing topic, or controller-rate topics whose times differ.
     """
-    wanted = [
-        ms.TOPIC_STATE_TRUE,
-        ms.TOPIC_STATE_MEASURED,
-        ms.TOPIC_REFERENCE,
-        ms.TOPIC_CONTROL_COMMAND,
-        ms.TOPIC_CONTROL_APPLIED,
-        ms.TOPIC_DISTURBANCE,
-        ms.TOPIC_SOLVER_STATS,
-    ]
-    record = read_stage(path, topics=wanted)
+    return telemetry_from_record(read_stage(path, topics=TELEMETRY_TOPICS), allow_truncated=allow_truncated)
+
+
+#: The topics :func:`read_telemetry` reads.
+TELEMETRY_TOPICS: tuple[str, ...] = (
+    ms.TOPIC_STATE_TRUE,
+    ms.TOPIC_STATE_MEASURED,
+    ms.TOPIC_REFERENCE,
+    ms.TOPIC_CONTROL_COMMAND,
+    ms.TOPIC_CONTROL_APPLIED,
+    ms.TOPIC_DISTURBANCE,
+    ms.TOPIC_SOLVER_STATS,
+)
+
+
+def telemetry_from_record(record: StageRecord, *, allow_truncated: bool = False) -> Telemetry:
+    """:func:`read_telemetry` of a file already read (its :data:`TELEMETRY_TOPICS` at least).
+
+    Parameters
+    ----------
+    record : StageRecord
+        A ``track.mcap`` read with :func:`read_stage` (all topics, or a set including :data:`TELEMETRY_TOPICS`).
+    allow_truncated : bool
+        As for :func:`read_telemetry`.
+
+    Returns
+    -------
+    Telemetry
+
+    Raises
+    ------
+    InputError
+        As for :func:`read_telemetry`.
+    """
     if record.truncated and not allow_truncated:
         _refuse_truncated(record)
     for topic in (ms.TOPIC_STATE_TRUE, ms.TOPIC_STATE_MEASURED, ms.TOPIC_REFERENCE):

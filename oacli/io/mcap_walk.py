@@ -9,8 +9,8 @@ at the cut, after every complete record. Kept here is only what it lacks:
   :func:`decompressed_budget` in total (:data:`MAX_EXPANSION` × its size, at least :data:`MIN_DECOMPRESSED_BUDGET`,
   at most :data:`MAX_DECOMPRESSED_BYTES`), and the decompressor never produces more than declared (the package's
   ``breakup_chunk`` trusts the declared size for zstd and none at all for lz4). The chunk CRC is then checked and
-  the chunk's records are parsed lazily by a second ``StreamReader`` over the decompressed bytes (no list of
-  millions of records);
+  the chunk's records are parsed in place by struct-unpacking their headers (no list of millions of records; a
+  message object is built only for the topics the caller wants, :class:`McapWalk` ``topics``);
 * **counts**: at most :data:`oacli.config.sizes.MAX_MESSAGES_PER_TOPIC` messages on one topic,
   :data:`~oacli.config.sizes.MAX_MCAP_MESSAGES` in a file and :data:`~oacli.config.sizes.MAX_MCAP_CHANNELS`
   channels. A complete file whose summary statistics already say more is refused before any chunk is read; a file
@@ -27,13 +27,12 @@ from __future__ import annotations
 import io
 import struct
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import EndOfFile
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader
@@ -54,6 +53,10 @@ MIN_DECOMPRESSED_BUDGET = 64 * 1024 * 1024
 
 MAX_DECOMPRESSED_BYTES = 2 * 1024 * 1024 * 1024
 """Absolute cap on the decompressed bytes of one file [bytes]."""
+
+IN_PLACE_CHUNKS = True
+"""Parse a chunk's records in place (:meth:`McapWalk._chunk_records`); off: the former per-record
+``StreamReader`` (for ``benchmarks/bench_mission_overhead.py`` only)."""
 
 
 def decompressed_budget(file_bytes: int) -> int:
@@ -157,15 +160,6 @@ class _StreamReader(StreamReader):
         return super()._read_record(opcode, length)
 
 
-def _frames_end_exactly(data: bytes) -> bool:
-    """The records of a decompressed chunk tile it exactly (no record runs past its end)."""
-    header = _RECORD_HEADER.unpack_from
-    pos, end = 0, len(data)
-    while pos + 9 <= end:
-        pos += 9 + header(data, pos)[1]
-    return pos == end
-
-
 def opcode_name(opcode: int) -> str:
     """The record type's name (``chunk``, ``message``...) or ``unknown opcode 0x..``."""
     from mcap.opcode import Opcode
@@ -195,6 +189,8 @@ _MIN_MESSAGE_RECORD = 9 + 22
 """Bytes of the smallest message record (opcode, length, channel id, sequence, log and publish times)."""
 
 _RECORD_HEADER = struct.Struct("<BQ")
+_MESSAGE_HEADER = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_OP_MESSAGE, _OP_SCHEMA, _OP_CHANNEL = int(Opcode.MESSAGE), int(Opcode.SCHEMA), int(Opcode.CHANNEL)
 _CHANNEL_ID = struct.Struct("<H")
 
 
@@ -233,10 +229,14 @@ class McapWalk:
         Check chunk, attachment, data-section and summary CRCs.
     data : bytes, optional
         The file's bytes, when already read.
+    topics : iterable of str, optional
+        Pass to ``sink`` only the messages of these topics (all by default); every message is still counted
+        against the caps and checked for a known channel, every chunk still decompressed and CRC-checked.
     """
 
     def __init__(self, path: Path, sink: Callable[[Any], None] | None = None, *, keep_going: bool = False,
-                 validate_crcs: bool = True, data: bytes | None = None) -> None:
+                 validate_crcs: bool = True, data: bytes | None = None,
+                 topics: Iterable[str] | None = None) -> None:
         self.path = Path(path)
         self.sink = sink
         self.keep_going = keep_going
@@ -249,6 +249,8 @@ class McapWalk:
         self.channels: dict[int, str] = {}
         self.per_channel: dict[int, int] = {}
         self.footer_seen = False
+        self.topics = None if topics is None else frozenset(topics)
+        self.wanted_channels: set[int] | None = None if topics is None else set()
 
     def problem(self, kind: str, offset: int, message: str) -> None:
         self.result.problems.append(Problem(kind, offset, f"{self.path}: {message}"))
@@ -472,17 +474,20 @@ class McapWalk:
                                        "corrupt")
                 return
         self.result.chunks += 1
+        if IN_PLACE_CHUNKS:
+            self._chunk_records(data, start)
+        else:
+            self._chunk_records_stream(data, start)
+
+    def _chunk_records_stream(self, data: bytes, start: int) -> None:
+        """The former chunk parser (a second ``StreamReader`` over the decompressed bytes, a record object per
+        record), kept for ``benchmarks/bench_mission_overhead.py`` (:data:`IN_PLACE_CHUNKS` off)."""
         inner = io.BytesIO(data)
         records = _StreamReader(inner, skip_magic=True, record_size_limit=len(data)).records
         while inner.tell() < len(data):
             try:
                 record = next(records)
             except StopIteration:
-                break
-            except EndOfFile:  # rare: only after records of unknown types the reader skipped, or a cut record
-                if not _frames_end_exactly(data):  # a record runs past the chunk's end
-                    self._bad_chunk(start, f"chunk at byte {start} ends inside a record: the file is corrupt")
-                    return
                 break
             except Exception as exc:
                 self._bad_chunk(start, f"chunk at byte {start} holds a corrupt record at its byte {inner.tell()}: "
@@ -492,6 +497,56 @@ class McapWalk:
                 self._inner(record, start)
         if inner.tell() != len(data):
             self._bad_chunk(start, f"chunk at byte {start} ends inside a record: the file is corrupt")
+
+    def _chunk_records(self, data: bytes, start: int) -> None:
+        """Parse a decompressed chunk's records in place (struct unpacking of the record headers; a message's
+        payload is sliced out only when its channel is wanted, a schema or channel parsed by the ``mcap`` package).
+
+        Raises :class:`_Stop` (via :meth:`_bad_chunk`) at a record that runs past the chunk's end or is malformed."""
+        header, message_header = _RECORD_HEADER.unpack_from, _MESSAGE_HEADER.unpack_from
+        channels, per_channel, wanted = self.channels, self.per_channel, self.wanted_channels
+        emit = self.sink
+        pos, end = 0, len(data)
+        while pos < end:
+            if pos + 9 > end:
+                self._bad_chunk(start, f"chunk at byte {start} ends inside a record: the file is corrupt")
+                return
+            opcode, length = header(data, pos)
+            body, nxt = pos + 9, pos + 9 + length
+            if nxt > end:
+                self._bad_chunk(start, f"chunk at byte {start} ends inside a record: the file is corrupt")
+                return
+            if opcode == _OP_MESSAGE:
+                if length < 22:
+                    self._bad_chunk(start, f"chunk at byte {start} holds a corrupt record at its byte {pos}: "
+                                           f"a message record of {length} bytes (at least 22)")
+                    return
+                channel_id, sequence, log_time, publish_time = message_header(data, body)
+                count = per_channel.get(channel_id)
+                if count is None:
+                    self.problem("corrupt", start, f"message at byte {start} is on unknown channel id {channel_id}")
+                    raise _Stop
+                per_channel[channel_id] = count = count + 1
+                self.result.messages += 1
+                if count > MAX_MESSAGES_PER_TOPIC:
+                    self._too_many_on(channels[channel_id], None, start)
+                    raise _Stop
+                if self.result.messages > MAX_MCAP_MESSAGES:
+                    self._too_many_messages(start)
+                    raise _Stop
+                if emit is not None and (wanted is None or channel_id in wanted):
+                    emit(Message(channel_id=channel_id, sequence=sequence, log_time=log_time,
+                                 publish_time=publish_time, data=data[body + 22 : nxt]))
+            elif opcode in (_OP_SCHEMA, _OP_CHANNEL):
+                try:
+                    stream = ReadDataStream(io.BytesIO(data[body:nxt]))
+                    record = Schema.read(stream) if opcode == _OP_SCHEMA else Channel.read(stream)
+                except Exception as exc:
+                    self._bad_chunk(start, f"chunk at byte {start} holds a corrupt record at its byte {pos}: "
+                                           f"{exc or type(exc).__name__}")
+                    return
+                self._inner(record, start)
+            pos = nxt
 
     def _bad_chunk(self, start: int, message: str) -> None:
         self.problem("corrupt", start, message)
@@ -510,9 +565,10 @@ class McapWalk:
                 self._too_many_on(topic, None, start)
                 raise _Stop
             if self.result.messages > MAX_MCAP_MESSAGES:
-                self.problem("too_large", start, f"the file holds more than {MAX_MCAP_MESSAGES} messages, the most "
-                                                 "oacli reads from one file (oacli.config.sizes.MAX_MCAP_MESSAGES)")
+                self._too_many_messages(start)
                 raise _Stop
+            if self.wanted_channels is not None and record.channel_id not in self.wanted_channels:
+                return
         elif isinstance(record, Schema):
             if record.id in self.schemas:
                 return  # repeated
@@ -535,10 +591,16 @@ class McapWalk:
                 raise _Stop
             self.channels[record.id] = record.topic
             self.per_channel[record.id] = 0
+            if self.wanted_channels is not None and self.topics is not None and record.topic in self.topics:
+                self.wanted_channels.add(record.id)
             self.result.channels += 1
         elif isinstance(record, Metadata):
             self.result.metadata += 1
         self._emit(record)
+
+    def _too_many_messages(self, start: int) -> None:
+        self.problem("too_large", start, f"the file holds more than {MAX_MCAP_MESSAGES} messages, the most "
+                                         "oacli reads from one file (oacli.config.sizes.MAX_MCAP_MESSAGES)")
 
     def _emit(self, record: Any) -> None:
         if self.sink is not None:

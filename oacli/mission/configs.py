@@ -16,9 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from oacli.config import OacliConfig, config_from_dict, dump_config
+from oacli.config import OacliConfig, config_from_dict
 from oacli.config.mission import MissionConfig, deep_merge
 from oacli.errors import ConfigError
 from oacli.mission.layout import MISSION_STAGES, MissionStage
@@ -153,7 +152,7 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
     """
     mission = mission_section(cfg)
     a, b, c = mission.route
-    data = yaml.safe_load(dump_config(cfg))
+    data = cfg.model_dump(mode="json")  # what dump_config writes, without the YAML text round trip
     data.pop("mission", None)
     data = deep_merge(data, mission.segments.get(stage.segment) or {})
     index = next(i for i, s in enumerate(MISSION_STAGES) if s.key == stage.key)

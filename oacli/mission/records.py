@@ -12,6 +12,8 @@ plots): :func:`read_telemetry_cached`, :func:`read_stage_cached` and :func:`load
 per process and return the same
 object while the file's modification time and size are unchanged (the files stay the source of truth: a stage
 rerun by ``--resume`` or ``--from`` writes a new file, which is read again). Callers must not modify what they get.
+A ``track.mcap`` is read once for both its telemetry and what the mission records show (:func:`stage_record`), and
+the config a stage just ran with is remembered (:func:`remember_config`) instead of parsed back from its file.
 """
 
 from __future__ import annotations
@@ -24,10 +26,10 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from oacli.config import OacliConfig, load_config
+from oacli.config import OacliConfig, dump_config, load_config
 from oacli.geometry import Scene
 from oacli.io import mcap_schema as ms
-from oacli.io.mcap_read import StageRecord, read_stage, read_telemetry
+from oacli.io.mcap_read import TELEMETRY_TOPICS, StageRecord, read_stage, telemetry_from_record
 from oacli.metrics import tracking_errors
 from oacli.mission.layout import BASELINES, MISSION_STAGES, SEGMENTS, stage_by_key
 from oacli.sets import Polytope
@@ -47,21 +49,59 @@ def clear_cache() -> None:
     _CACHE.clear()
 
 
+def _key(kind: str, path: Path, extra: tuple[Any, ...]) -> tuple[Any, ...]:
+    path = Path(path)
+    stat = path.stat()
+    return (kind, str(path.resolve()), stat.st_mtime_ns, stat.st_size, extra)
+
+
+def _store(key: tuple[Any, ...], value: Any) -> None:
+    _CACHE[key] = value
+    while len(_CACHE) > CACHE_SIZE:
+        _CACHE.popitem(last=False)
+
+
 def _cached(kind: str, path: Path, extra: tuple[Any, ...], read: Callable[[], _T]) -> _T:
     """``read()`` once per (file, modification time, size, ``extra``) while :data:`CACHE` is on."""
     if not CACHE:
         return read()
-    path = Path(path)
-    stat = path.stat()
-    key = (kind, str(path.resolve()), stat.st_mtime_ns, stat.st_size, extra)
+    key = _key(kind, path, extra)
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]  # type: ignore[no-any-return]
     value = read()
-    _CACHE[key] = value
-    while len(_CACHE) > CACHE_SIZE:
-        _CACHE.popitem(last=False)
+    _store(key, value)
     return value
+
+
+def remember_config(path: Path, cfg: OacliConfig) -> bool:
+    """Let :func:`load_config_cached` of ``path`` return ``cfg`` (the config a stage just ran with, kept in memory)
+    when the file holds exactly ``dump_config(cfg)``: :func:`~oacli.config.load_config` reads that text back into
+    an equal model (paths in it are absolute). Otherwise nothing is remembered and the file is read when asked.
+
+    Parameters
+    ----------
+    path : Path
+        A stage folder's ``config.yaml``.
+    cfg : OacliConfig
+        The config the stage ran with.
+
+    Returns
+    -------
+    bool
+        Whether ``cfg`` was remembered.
+    """
+    if not CACHE:
+        return False
+    try:
+        key = _key("config", path, ())
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return False
+    if text != dump_config(cfg):
+        return False
+    _store(key, cfg)
+    return True
 
 
 def load_config_cached(path: Path) -> OacliConfig:
@@ -93,7 +133,7 @@ def read_telemetry_cached(path: Path) -> Telemetry:
     -------
     Telemetry
     """
-    return _cached("telemetry", path, (), lambda: read_telemetry(path))
+    return _cached("telemetry", path, (), lambda: telemetry_from_record(read_stage_cached(path, _TRACK_TOPICS)))
 
 
 def read_stage_cached(path: Path, topics: Sequence[str] | None = None) -> StageRecord:
@@ -270,10 +310,13 @@ class MissionRecords:
     log: list[tuple[float, str, str]] = field(default_factory=list)
 
 
+#: The topics read of a ``track.mcap``: the telemetry and what the mission records show (one walk of the file).
+_TRACK_TOPICS: tuple[str, ...] = (*TELEMETRY_TOPICS, ms.TOPIC_STATE_NOMINAL, ms.TOPIC_TUBE_DESIGN,
+                                  ms.TOPIC_TUBE_DISTURBANCE, ms.TOPIC_LOG)
+
 #: The topics :func:`load_mission_records` reads of each stage's MCAP, by command (one read per file: the log too).
 _TOPICS: dict[str, tuple[str, ...]] = {
-    "track": (ms.TOPIC_REFERENCE, ms.TOPIC_STATE_NOMINAL, ms.TOPIC_TUBE_DESIGN, ms.TOPIC_TUBE_DISTURBANCE,
-              ms.TOPIC_LOG),
+    "track": _TRACK_TOPICS,
     "plan": (ms.TOPIC_TRAJECTORY, ms.TOPIC_PLAN_TREE, ms.TOPIC_LOG),
     "smooth": (ms.TOPIC_TRAJECTORY, ms.TOPIC_PLAN_TREE, ms.TOPIC_LOG),
     "excite": (ms.TOPIC_TRAJECTORY, ms.TOPIC_PLAN_TREE, ms.TOPIC_LOG),
@@ -281,8 +324,21 @@ _TOPICS: dict[str, tuple[str, ...]] = {
 }
 
 
-def _stage_record(path: Path, command: str) -> StageRecord:
-    """The topics of :data:`_TOPICS` of a stage's MCAP (cached)."""
+def stage_record(path: Path, command: str) -> StageRecord:
+    """The topics of :data:`_TOPICS` of a stage's MCAP by its ``command`` (cached: the hand-offs, the comparison and
+    the mission records share one read of each file).
+
+    Parameters
+    ----------
+    path : Path
+        A stage MCAP.
+    command : str
+        The stage's command (``track``, ``plan``, ``smooth``, ``excite``, ``estimate``).
+
+    Returns
+    -------
+    StageRecord
+    """
     return read_stage_cached(path, topics=_TOPICS.get(command, (ms.TOPIC_LOG,)))
 
 
@@ -331,7 +387,7 @@ def _flight(mission_dir: Path, key: str, offset: float) -> Flight | None:
     if not path.is_file():
         return None
     tel = read_telemetry_cached(path)
-    record = _stage_record(path, "track")
+    record = stage_record(path, "track")
     errors = tracking_errors(tel, record.trajectories[ms.TOPIC_REFERENCE], times=tel.t_ctrl)
     cfg = load_config_cached(stage.folder(mission_dir) / "config.yaml")
     tube = _tube(record, tel.t_ctrl)
@@ -351,7 +407,7 @@ def _path(mission_dir: Path, key: str, offset: float) -> PlannedPath | None:
     path = stage.mcap(mission_dir)
     if not path.is_file():
         return None
-    record = _stage_record(path, stage.command)
+    record = stage_record(path, stage.command)
     traj = record.trajectories.get(ms.TOPIC_TRAJECTORY)
     if traj is None:
         return None
@@ -371,7 +427,7 @@ def _estimate(mission_dir: Path, key: str, offset: float) -> EstimateSeries | No
     path = stage_by_key(key).mcap(mission_dir)
     if not path.is_file():
         return None
-    params = _stage_record(path, "estimate").json_records.get(ms.TOPIC_ESTIMATE_PARAMS, ())
+    params = stage_record(path, "estimate").json_records.get(ms.TOPIC_ESTIMATE_PARAMS, ())
     if not params:
         return None
     t = np.array([float(p["t"]) for p in params]) + offset
@@ -429,7 +485,7 @@ def load_mission_records(mission_dir: Path, summary: dict[str, Any]) -> MissionR
         if path.is_file():
             offset = segment_offset(summary, stage.segment)
             log.extend((t + offset, level, f"[{stage.key}] {msg}")
-                       for t, level, msg in _stage_record(path, stage.command).log)
+                       for t, level, msg in stage_record(path, stage.command).log)
     log.sort(key=lambda e: e[0])
     ends = [float(f.t_true[-1]) for f in flights.values() if f.t_true.size]
     ends += [segment_offset(summary, s) + float(segments[s].get("duration_s", 0.0)) for s in SEGMENTS

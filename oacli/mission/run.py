@@ -30,7 +30,7 @@ from oacli.mission.compare import comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
 from oacli.mission.layout import MISSION_STAGES, SEGMENTS, MissionStage, stage_by_key
 from oacli.mission.plots import write_mission_plots
-from oacli.mission.records import load_mission_records, read_stage_cached, read_telemetry_cached
+from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
 from oacli.model.robot_model import RobotModel
 from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED, OK, StatusReport
 
@@ -98,8 +98,8 @@ def estimate_model(cfg: OacliConfig, estimate_mcap: Path) -> RobotModel:
     -------
     RobotModel
     """
-    record = read_stage_cached(estimate_mcap, topics=[ms.TOPIC_ESTIMATE_PARAMS])
-    params = [r for r in record.json_records.get("/estimate/params", ()) if r.get("final")]
+    record = stage_record(estimate_mcap, "estimate")  # the topics the mission records read too: one read
+    params = [r for r in record.json_records.get(ms.TOPIC_ESTIMATE_PARAMS, ()) if r.get("final")]
     if not params:
         raise InputError(f"{estimate_mcap}: no final /estimate/params record")
     final = params[-1]
@@ -323,6 +323,7 @@ def run_mission(
                 say(f"[{i}/{len(stages)}] {stage.key}: failed: {'; '.join(exc.problems)}")
                 continue
             results[stage.key] = result.summary
+            remember_config(folder / "config.yaml", stage_cfg)  # the outputs below need not parse it again
             say(f"[{i}/{len(stages)}] {stage.key}: {result.summary['status']} "
                 f"({result.summary.get('wall_time_s', 0.0):.1f} s)")
             if result.summary.get("status") not in COMPLETE_STATUSES or result.summary.get("status") == "no_solution":
