@@ -18,6 +18,8 @@ from __future__ import annotations
 import io
 import logging
 import os
+import struct
+import zlib
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
@@ -32,7 +34,8 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse, Rectangle
-from matplotlib.ticker import LogLocator
+from matplotlib.ticker import AutoLocator, Formatter, LogLocator, MaxNLocator
+from matplotlib.transforms import Bbox
 
 from oacli.geometry import Scene
 from oacli.io.atomic import atomic_path
@@ -42,9 +45,15 @@ DPI = 110
 #: The old drawing path (constrained layout, tight bounding box, every sample drawn); set by
 #: ``benchmarks/bench_outputs.py`` or the environment variable ``OACLI_LEGACY_PLOTS=1``.
 LEGACY = os.environ.get("OACLI_LEGACY_PLOTS", "") == "1"
+#: Reuse one blank figure per shape (:func:`subplots`, :func:`_blank`) instead of building a new one per PNG.
+REUSE = True
+#: Blank template figures per shape (:func:`subplots`).
+_TEMPLATES: dict[tuple, list[Figure]] = {}
+#: Most major ticks per axis (linear axes; a long axis would get about ten).
+MAX_TICKS = 6
 #: Longest series drawn as is; longer ones are decimated to about this many points (min and max per bin).
 MAX_POINTS = 4000
-#: zlib level of the PNGs (1: about three times faster to encode than the default 6, files somewhat larger).
+#: zlib level of the PNGs (1: several times faster to encode than the default 6, files somewhat larger).
 PNG_COMPRESS_LEVEL = 1
 #: Axis names of the world frame.
 AXES = ("x", "y", "z")
@@ -67,17 +76,65 @@ def spans_decades(values: np.ndarray, decades: float = 2.0) -> bool:
 
 def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float],
              **kwargs: Any) -> tuple[Figure, Any]:
-    """``plt.subplots`` without a layout engine (laid out by :func:`fixed_layout` in :func:`save_png`); with
-    :data:`LEGACY`, with constrained layout as before.
+    """A figure with a grid of axes, laid out by :func:`fixed_layout` in :func:`save_png` (no layout engine); with
+    :data:`LEGACY`, ``plt.subplots`` with constrained layout as before.
 
     Axes titles sit at a fixed height (``axes.titley`` 1.0: just above the axes, which carry no top tick labels)
-    instead of being moved above whatever overlaps them at every draw (that search measures every tick label)."""
+    instead of being moved above whatever overlaps them at every draw (that search measures every tick label).
+
+    The figure is a plain :class:`~matplotlib.figure.Figure` on its own Agg canvas (no pyplot figure manager) and,
+    with :data:`REUSE`, a blank template of this shape saved by an earlier :func:`save_png` (:func:`_blank`): its
+    axes, tick objects and the text metrics cached on its renderer are made once per shape, not once per PNG.
+    """
     if LEGACY:
         return plt.subplots(nrows, ncols, figsize=figsize, constrained_layout=True, **kwargs)
+    key = (nrows, ncols, tuple(float(v) for v in figsize), tuple(sorted(kwargs.items())))
+    free = _TEMPLATES.get(key, []) if REUSE else []
+    if free:
+        fig = free.pop()
+        return fig, fig._oacli_axes  # type: ignore[attr-defined]
     with matplotlib.rc_context({"axes.titley": 1.0}):
-        return plt.subplots(nrows, ncols, figsize=figsize, **kwargs)
+        fig = Figure(figsize=figsize)
+        FigureCanvasAgg(fig)
+        axes = fig.subplots(nrows, ncols, **kwargs)
+    fig._oacli_template = key  # type: ignore[attr-defined]
+    fig._oacli_axes = axes  # type: ignore[attr-defined]
+    fig._oacli_title_sizes = [  # type: ignore[attr-defined]
+        tuple(t.get_fontsize() for t in (a.title, a._left_title, a._right_title)) for a in fig.axes]
+    return fig, axes
 
 
+def _blank(fig: Figure) -> None:
+    """Make a drawn template figure blank again, as :func:`subplots` made it: every artist added to its axes
+    (lines, patches, collections, texts, legends), the figure legends and title removed; titles, labels, scales,
+    limits, aspect, grids and the colour cycle back to their defaults. The axes and their tick objects stay
+    (``tests/test_stage_plots.py`` checks that a figure drawn on a reused template is pixel-identical to a fresh one).
+    """
+    for leg in list(fig.legends):
+        leg.remove()
+    if fig._suptitle is not None:
+        fig._suptitle.remove()
+        fig._suptitle = None
+    for ax, sizes in zip(fig.axes, fig._oacli_title_sizes, strict=True):  # type: ignore[attr-defined]
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+        for artist in [*ax.lines, *ax.patches, *ax.collections, *ax.texts, *ax.images, *ax.artists]:
+            artist.remove()
+        for title, size in zip((ax.title, ax._left_title, ax._right_title), sizes, strict=True):
+            title.set_text("")
+            title.set_fontsize(size)
+        ax.set_xlabel("")
+        ax.set_ylabel("")
+        ax.grid(False, which="both")
+        for axis, set_scale in ((ax.xaxis, ax.set_xscale), (ax.yaxis, ax.set_yscale)):
+            if axis.get_scale() != "linear":  # setting a scale autoscales (costly); linear axes keep theirs
+                set_scale("linear")
+        ax.set_aspect("auto", adjustable="box")
+        ax.set_prop_cycle(None)
+        ax.dataLim = Bbox.null()
+        ax.ignore_existing_data_limits = True
+        ax.set_autoscale_on(True)
+        ax._request_autoscale_view()
 def decimate(x: np.ndarray, y: np.ndarray, max_points: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """At most about ``max_points`` samples of the curve ``(x, y)`` that look the same drawn: per bin of consecutive
     samples its first sample and the samples where ``x`` and ``y`` are smallest and largest (in sample order), and
@@ -180,19 +237,102 @@ def fixed_layout(fig: Figure) -> None:
         leg.set_bbox_to_anchor((0.5, 0.1 / height_in), transform=fig.transFigure)
 
 
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def png_bytes(rgba: np.ndarray, level: int | None = None) -> bytes:
+    """A PNG of an opaque RGBA image (a drawn figure): 8-bit RGB, no row filter, zlib ``level`` (default
+    :data:`PNG_COMPRESS_LEVEL`). About twice as fast as Pillow's encoder at level 1, whose adaptive row filters
+    cost more than they save on plots (large flat areas); files are somewhat larger.
+
+    Parameters
+    ----------
+    rgba : ndarray, shape (H, W, 4), uint8
+        The pixels (alpha dropped: the figure's background is opaque).
+    level : int, optional
+        zlib level 0-9.
+
+    Returns
+    -------
+    bytes
+        The PNG file.
+    """
+    height, width = rgba.shape[:2]
+    rows = np.empty((height, 1 + 3 * width), dtype=np.uint8)
+    rows[:, 0] = 0  # filter type 0 (None) per row
+    rows[:, 1:].reshape(height, width, 3)[...] = rgba[..., :3]
+    data = zlib.compress(rows, PNG_COMPRESS_LEVEL if level is None else level)
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, deflate, no filter, no interlace
+    return b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", header) + _png_chunk(b"IDAT", data) + _png_chunk(b"IEND", b"")
+
+
+_SUPERSCRIPT = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
+
+
+class PowerFormatter(Formatter):
+    """Tick labels of a log axis as plain text: ``10⁻³`` at the powers of ten; other ticks (minor) labelled
+    (``0.002``) only when the axis spans at most a decade. The default formatter typesets every label with mathtext
+    (``$10^{-3}$``), which costs more than the rest of the axis."""
+
+    def __call__(self, x: float, pos: int | None = None) -> str:
+        if not np.isfinite(x) or x <= 0:
+            return ""
+        exponent = float(np.log10(x))
+        if abs(exponent - round(exponent)) < 1e-9:
+            return "10" + str(round(exponent)).translate(_SUPERSCRIPT)
+        lo, hi = (float(v) for v in self.axis.get_view_interval()) if self.axis is not None else (x, x)
+        if lo > 0 and hi > 0 and abs(np.log10(hi / lo)) > 1.0:
+            return ""
+        return f"{x:.3g}"
+
+
+class FewTicks(MaxNLocator):
+    """The default linear tick locator (steps 1, 2, 2.5, 5, 10; as many ticks as fit the axis' length) with at most
+    :data:`MAX_TICKS` ticks: fewer tick objects to make, lay out and draw."""
+
+    def __init__(self) -> None:
+        super().__init__(nbins="auto", steps=[1, 2, 2.5, 5, 10])
+
+    def _raw_ticks(self, vmin: float, vmax: float) -> np.ndarray:
+        space = self.axis.get_tick_space() if self.axis is not None else MAX_TICKS
+        self._nbins = int(np.clip(space, 1, MAX_TICKS - 1))
+        return super()._raw_ticks(vmin, vmax)
+
+
+def few_ticks(fig: Figure) -> None:
+    """Every linear axis of ``fig`` with the default locator gets :class:`FewTicks`."""
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            if axis.get_scale() == "linear" and type(axis.get_major_locator()) is AutoLocator:
+                axis.set_major_locator(FewTicks())
+
+
 def save_png(fig: Figure, path: Path) -> Path:
-    """Lay ``fig`` out (:func:`fixed_layout`), render it to PNG in memory, close it and write the bytes to ``path``
-    atomically (with :data:`LEGACY`: constrained layout and a tight bounding box, as before)."""
+    """Lay ``fig`` out (:func:`few_ticks`, :func:`fixed_layout`), render it to PNG in memory, write the bytes to
+    ``path`` atomically and close the figure, or, for a template of :func:`subplots`, blank it for the next PNG of its
+    shape (with :data:`LEGACY`: constrained layout and a tight bounding box, as before)."""
     buf = io.BytesIO()
+    template = getattr(fig, "_oacli_template", None)
+    reuse = False
     try:
         if LEGACY:
             fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
         else:
             fig.set_dpi(DPI)
+            few_ticks(fig)
             fixed_layout(fig)
-            fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
+            canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+            canvas.draw()
+            buf.write(png_bytes(np.asarray(canvas.buffer_rgba())))
+            if REUSE and template is not None:
+                _blank(fig)
+                reuse = True
     finally:
-        plt.close(fig)
+        if reuse:
+            _TEMPLATES.setdefault(template, []).append(fig)
+        elif template is None:
+            plt.close(fig)
     with atomic_path(Path(path)) as tmp:
         tmp.write_bytes(buf.getvalue())
     return Path(path)
@@ -200,10 +340,13 @@ def save_png(fig: Figure, path: Path) -> Path:
 
 def log_scale(ax: Axes) -> None:
     """A log y axis; minor ticks (and minor grid lines) at 2 and 5 times each power of ten only (with
-    :data:`LEGACY`: all eight), which is fewer tick objects to make and draw."""
+    :data:`LEGACY`: all eight), which is fewer tick objects to make and draw; plain-text labels
+    (:class:`PowerFormatter`)."""
     ax.set_yscale("log")
     if not LEGACY:
         ax.yaxis.set_minor_locator(LogLocator(base=10.0, subs=(2.0, 5.0)))
+        ax.yaxis.set_major_formatter(PowerFormatter())
+        ax.yaxis.set_minor_formatter(PowerFormatter())
 
 
 def legend_outside(ax: Axes) -> None:
