@@ -6,8 +6,13 @@ holds a half-written PNG.
 Speed (issue 9): a figure is laid out once with fixed margins in inches (:func:`fixed_layout`: room for the tick
 labels, titles and the legends outside the axes, whose sizes are measured, not the whole figure's tight box), no
 constrained layout and no ``bbox_inches="tight"`` (each of those draws every tick label several times); series
-longer than :data:`MAX_POINTS` are drawn through :func:`decimate` (min and max per bin: the peaks stay). The old
-path stays reachable with :data:`LEGACY` (``benchmarks/bench_outputs.py`` compares both).
+longer than :data:`MAX_POINTS` are drawn through :func:`decimate` (min and max per bin: the peaks stay). Second pass:
+figures are plain :class:`~matplotlib.figure.Figure` objects (no pyplot), one per shape kept blank between PNGs
+(:data:`REUSE`: its axes and tick objects are made once per mission, not once per PNG); horizontal text is drawn as
+cached whole-string bitmaps (:class:`TextCachingRenderer`, :data:`FAST_TEXT`); linear axes get at most
+:data:`MAX_TICKS` ticks (:class:`FewTicks`), log axes plain-text labels (:class:`PowerFormatter`, no mathtext); the
+PNG is written by :func:`png_bytes` (RGB, no row filter, zlib level 1). The old path stays reachable with
+:data:`LEGACY` (``benchmarks/bench_outputs.py`` compares both).
 
 :func:`guarded_plots` runs each figure of a stage so that a plotting failure never loses the run: the failure
 becomes a warning in the summary and the status is kept.
@@ -31,7 +36,7 @@ matplotlib.use("Agg", force=True)
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg, get_hinting_flag
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse, Rectangle
 from matplotlib.ticker import AutoLocator, Formatter, LogLocator, MaxNLocator
@@ -49,6 +54,8 @@ LEGACY = os.environ.get("OACLI_LEGACY_PLOTS", "") == "1"
 REUSE = True
 #: Blank template figures per shape (:func:`subplots`).
 _TEMPLATES: dict[tuple, list[Figure]] = {}
+#: Draw horizontal text through :class:`TextCachingRenderer`.
+FAST_TEXT = True
 #: Most major ticks per axis (linear axes; a long axis would get about ten).
 MAX_TICKS = 6
 #: Longest series drawn as is; longer ones are decimated to about this many points (min and max per bin).
@@ -74,6 +81,51 @@ def spans_decades(values: np.ndarray, decades: float = 2.0) -> bool:
     return v.size > 1 and float(np.log10(v.max() / v.min())) > decades
 
 
+#: Text bitmaps already rendered (:class:`TextCachingRenderer`), by string, font, dpi and antialiasing.
+_TEXT_BITMAPS: dict[tuple, tuple[np.ndarray, float, float]] = {}
+_TEXT_BITMAPS_MAX = 4000
+
+
+class TextCachingRenderer(RendererAgg):
+    """The Agg renderer drawing each horizontal plain-text string as one bitmap (rendered by FreeType in one call,
+    placed at a whole pixel, as matplotlib did before 3.11) and reusing that bitmap wherever the same string in the
+    same font is drawn again (tick labels, titles and legends repeat across the figures of a mission). Matplotlib 3.11
+    renders every glyph through several Python calls per draw, the largest cost of a plot figure. Rotated text and
+    mathtext are drawn as matplotlib does."""
+
+    def draw_text(self, gc: Any, x: float, y: float, s: str, prop: Any, angle: float, ismath: Any = False,
+                  mtext: Any = None) -> None:
+        if ismath or angle != 0 or (mtext is not None and (mtext.get_fontfeatures() or mtext.get_language())):
+            return super().draw_text(gc, x, y, s, prop, angle, ismath, mtext)
+        key = (s, hash(prop), prop.get_size_in_points(), self.dpi, bool(gc.get_antialiased()))
+        hit = _TEXT_BITMAPS.get(key)
+        if hit is None:
+            font = self._prepare_font(prop)
+            font.set_text(s, 0, flags=get_hinting_flag())
+            font.draw_glyphs_to_bitmap(antialiased=bool(gc.get_antialiased()))
+            x_off, y_off = font.get_bitmap_offset()
+            image = np.array(font.get_image(), dtype=np.uint8)
+            hit = (image, x_off / 64.0, y_off / 64.0 + font.get_descent() / 64.0)
+            if len(_TEXT_BITMAPS) >= _TEXT_BITMAPS_MAX:
+                _TEXT_BITMAPS.clear()
+            _TEXT_BITMAPS[key] = hit
+        image, x_off, y_off = hit
+        self._renderer.draw_text_image(image, round(x + x_off), round(y + y_off) + 1, 0, gc)
+        return None
+
+
+class CachingCanvas(FigureCanvasAgg):
+    """An Agg canvas drawing with :class:`TextCachingRenderer`."""
+
+    def get_renderer(self) -> TextCachingRenderer:
+        w, h = self.get_width_height(physical=True)
+        key = w, h, self.figure.dpi
+        if self._lastKey != key:
+            self.renderer = TextCachingRenderer(w, h, self.figure.dpi)
+            self._lastKey = key
+        return self.renderer
+
+
 def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float],
              **kwargs: Any) -> tuple[Figure, Any]:
     """A figure with a grid of axes, laid out by :func:`fixed_layout` in :func:`save_png` (no layout engine); with
@@ -95,7 +147,7 @@ def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float],
         return fig, fig._oacli_axes  # type: ignore[attr-defined]
     with matplotlib.rc_context({"axes.titley": 1.0}):
         fig = Figure(figsize=figsize)
-        FigureCanvasAgg(fig)
+        (CachingCanvas if FAST_TEXT else FigureCanvasAgg)(fig)
         axes = fig.subplots(nrows, ncols, **kwargs)
     fig._oacli_template = key  # type: ignore[attr-defined]
     fig._oacli_axes = axes  # type: ignore[attr-defined]
