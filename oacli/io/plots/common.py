@@ -38,9 +38,10 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg, get_hinting_flag
 from matplotlib.figure import Figure
+from matplotlib.font_manager import FontProperties
 from matplotlib.patches import Ellipse, Rectangle
 from matplotlib.ticker import AutoLocator, Formatter, LogLocator, MaxNLocator
-from matplotlib.transforms import Bbox
+from matplotlib.transforms import Bbox, offset_copy
 
 from oacli.geometry import Scene
 from oacli.io.atomic import atomic_path
@@ -122,7 +123,7 @@ class CachingCanvas(FigureCanvasAgg):
         key = w, h, self.figure.dpi
         if self._lastKey != key:
             self.renderer = TextCachingRenderer(w, h, self.figure.dpi)
-            self._lastKey = key
+            self._lastKey = key  # type: ignore[assignment]
         return self.renderer
 
 
@@ -151,8 +152,7 @@ def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float],
         axes = fig.subplots(nrows, ncols, **kwargs)
     fig._oacli_template = key  # type: ignore[attr-defined]
     fig._oacli_axes = axes  # type: ignore[attr-defined]
-    fig._oacli_title_sizes = [  # type: ignore[attr-defined]
-        tuple(t.get_fontsize() for t in (a.title, a._left_title, a._right_title)) for a in fig.axes]
+    fig._oacli_title_size = matplotlib.rcParams["axes.titlesize"]  # type: ignore[attr-defined]
     return fig, axes
 
 
@@ -164,17 +164,18 @@ def _blank(fig: Figure) -> None:
     """
     for leg in list(fig.legends):
         leg.remove()
-    if fig._suptitle is not None:
-        fig._suptitle.remove()
-        fig._suptitle = None
-    for ax, sizes in zip(fig.axes, fig._oacli_title_sizes, strict=True):  # type: ignore[attr-defined]
-        if ax.get_legend() is not None:
-            ax.get_legend().remove()
+    if fig.get_suptitle():
+        fig.suptitle("")  # an empty title draws nothing; the next suptitle() sets all its properties again
+    size = fig._oacli_title_size  # type: ignore[attr-defined]
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is not None:
+            legend.remove()
         for artist in [*ax.lines, *ax.patches, *ax.collections, *ax.texts, *ax.images, *ax.artists]:
             artist.remove()
-        for title, size in zip((ax.title, ax._left_title, ax._right_title), sizes, strict=True):
-            title.set_text("")
-            title.set_fontsize(size)
+        for loc in ("left", "center", "right"):
+            if ax.get_title(loc):
+                ax.set_title("", loc=loc, y=1.0, fontsize=size)  # type: ignore[arg-type]
         ax.set_xlabel("")
         ax.set_ylabel("")
         ax.grid(False, which="both")
@@ -186,7 +187,9 @@ def _blank(fig: Figure) -> None:
         ax.dataLim = Bbox.null()
         ax.ignore_existing_data_limits = True
         ax.set_autoscale_on(True)
-        ax._request_autoscale_view()
+        ax._request_autoscale_view()  # type: ignore[attr-defined]
+
+
 def decimate(x: np.ndarray, y: np.ndarray, max_points: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """At most about ``max_points`` samples of the curve ``(x, y)`` that look the same drawn: per bin of consecutive
     samples its first sample and the samples where ``x`` and ``y`` are smallest and largest (in sample order), and
@@ -314,7 +317,7 @@ def png_bytes(rgba: np.ndarray, level: int | None = None) -> bytes:
     rows = np.empty((height, 1 + 3 * width), dtype=np.uint8)
     rows[:, 0] = 0  # filter type 0 (None) per row
     rows[:, 1:].reshape(height, width, 3)[...] = rgba[..., :3]
-    data = zlib.compress(rows, PNG_COMPRESS_LEVEL if level is None else level)
+    data = zlib.compress(rows.data, PNG_COMPRESS_LEVEL if level is None else level)
     header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, deflate, no filter, no interlace
     return b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", header) + _png_chunk(b"IDAT", data) + _png_chunk(b"IEND", b"")
 
@@ -349,7 +352,7 @@ class FewTicks(MaxNLocator):
     def _raw_ticks(self, vmin: float, vmax: float) -> np.ndarray:
         space = self.axis.get_tick_space() if self.axis is not None else MAX_TICKS
         self._nbins = int(np.clip(space, 1, MAX_TICKS - 1))
-        return super()._raw_ticks(vmin, vmax)
+        return super()._raw_ticks(vmin, vmax)  # type: ignore[misc]
 
 
 def few_ticks(fig: Figure) -> None:
@@ -358,6 +361,29 @@ def few_ticks(fig: Figure) -> None:
         for axis in (ax.xaxis, ax.yaxis):
             if axis.get_scale() == "linear" and type(axis.get_major_locator()) is AutoLocator:
                 axis.set_major_locator(FewTicks())
+
+
+def fixed_xlabels(fig: Figure) -> None:
+    """Put each x label where matplotlib would (``labelpad`` below the x tick labels, or below the axes when they are
+    hidden) at a fixed offset from the axes instead of measuring the tick labels at every draw (that measurement
+    formats and places every tick a second time). The tick labels are one line of text: their height is the font's
+    line height."""
+    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+    renderer = canvas.get_renderer()
+    dpi = float(fig.dpi)
+    for ax in fig.axes:
+        axis = ax.xaxis
+        if axis.get_label_position() != "bottom":
+            continue
+        offset_pt = float(axis.labelpad)
+        params = axis.get_tick_params()
+        if params.get("labelbottom", True):
+            tick = axis.majorTicks[0]
+            size = FontProperties(size=tick.label1.get_fontsize(), family=tick.label1.get_fontfamily())
+            _, line_px, _ = renderer.get_text_width_height_descent("lp", size, ismath=False)
+            pad_pt = float(tick._pad)  # type: ignore[attr-defined]  # tick length (out) and tick label pad
+            offset_pt += pad_pt + float(line_px) * 72.0 / dpi
+        axis.set_label_coords(0.5, 0.0, transform=offset_copy(ax.transAxes, fig=fig, y=-offset_pt, units="points"))
 
 
 def save_png(fig: Figure, path: Path) -> Path:
@@ -373,6 +399,7 @@ def save_png(fig: Figure, path: Path) -> Path:
         else:
             fig.set_dpi(DPI)
             few_ticks(fig)
+            fixed_xlabels(fig)
             fixed_layout(fig)
             canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
             canvas.draw()
@@ -381,7 +408,7 @@ def save_png(fig: Figure, path: Path) -> Path:
                 _blank(fig)
                 reuse = True
     finally:
-        if reuse:
+        if reuse and template is not None:
             _TEMPLATES.setdefault(template, []).append(fig)
         elif template is None:
             plt.close(fig)
