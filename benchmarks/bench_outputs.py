@@ -5,8 +5,11 @@ Runs the mission once (``configs/mission_iss.yaml``, BLAS pinned to one thread) 
 every stage's output call (``write_*_plots``, ``write_*_recording``, ``write_*_topics``), then replays each call
 ``--repeats`` times into temporary folders, old path then new path, and prints the median time per output kind:
 
-* ``stage PNGs`` -- :data:`oacli.io.plots.common.LEGACY` (constrained layout + tight bbox + every sample drawn) against
-  the fixed layout with decimated series;
+* ``stage PNGs`` -- :data:`oacli.io.plots.common.LEGACY` (pyplot figures, constrained layout + tight bbox, every
+  sample drawn, Pillow's PNG encoder) against the new path: fixed layout, decimated series, one blank figure reused per
+  shape (:data:`~oacli.io.plots.common.REUSE`), text bitmaps cached
+  (:data:`~oacli.io.plots.common.FAST_TEXT`), at most six ticks per linear axis, plain-text log tick labels, own PNG
+  writer (RGB, no row filter, zlib 1);
 * ``stage Rerun`` / ``stage MCAP`` -- the recordings and the MCAP topics (complete files, as the stages write them;
   their code has no old path: both columns run the same code, the spread between them is the machine's noise);
 * ``mission outputs`` -- ``mission.rrd`` + ``plots/`` + the summary's comparison rows (the stage MCAPs read back),

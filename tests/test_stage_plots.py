@@ -226,3 +226,61 @@ def test_outputs_plots_false_writes_no_png_and_keeps_the_rest(tmp_path):
     assert {"mcap", "rrd"} <= set(bare["files"]) and (tmp_path / "bare" / "track.mcap").stat().st_size > 0
     assert list((tmp_path / "full").glob("*.png"))
     assert bare["rms_position_error_m"] == full["rms_position_error_m"]
+
+
+def _pixels(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        return np.asarray(im.convert("RGB"))
+
+
+def _figure_pairs(rng: np.random.Generator):
+    """Two different data sets per reusable figure kind: (draw function, args A, args B); A and B differ in what a
+    leftover from A would show in B (log against linear scale, aspect, titles, legends, colour cycle, limits)."""
+    from oacli.geometry.shapes import Box, Ellipsoid, Scene
+    from oacli.types import ParameterEstimate
+
+    t = np.linspace(0.0, 30.0, 151)
+    u_a, u_b = rng.normal(scale=0.1, size=(151, 6)), rng.normal(scale=0.02, size=(151, 6))
+    lim = np.array([0.4, 0.2, 0.25]), np.array([0.04, 0.02, 0.025])
+    info_log = np.einsum("k,ij->kij", np.logspace(-2, 4, 151), np.eye(4))
+    info_lin = np.einsum("k,ij->kij", np.linspace(1.0, 2.0, 151), np.eye(4))
+    scene = Scene(keep_in=(Box(np.array([-1.0, -1.0, -1.0]), np.array([2.0, 1.5, 1.0])),),
+                  keep_out=(Ellipsoid(np.array([0.5, 0.2, 0.0]), np.diag([16.0, 25.0, 9.0])),))
+    path_a = {"plan": np.column_stack([np.linspace(-0.5, 1.5, 40), np.linspace(-0.5, 1.0, 40), np.zeros(40)]),
+              "other": np.column_stack([np.linspace(-0.8, 1.2, 40), np.zeros(40), np.linspace(0, 0.5, 40)])}
+    path_b = {"extra": np.column_stack([np.linspace(0.0, 0.4, 9), np.linspace(0.0, 0.1, 9), np.zeros(9)])}
+    cov = np.diag([0.01, 1e-6, 1e-6, 1e-6])
+    est_a = [ParameterEstimate(float(k), np.array([10.0 + 0.1 * k, 0.15, 0.16, 0.17]), cov / (k + 1), "batch")
+             for k in range(30)]
+    est_b = [ParameterEstimate(float(k), np.array([12.0, 0.2, 0.21, 0.22]), cov, "batch") for k in range(5)]
+    truth = np.array([10.0, 0.15, 0.16, 0.17])
+    return [
+        (plot_common.plot_inputs, (t, u_a, *lim, "A"), (t, u_b, *lim, "B title", "design limit", (2 * lim[0], lim[1]))),
+        (excite_plots.plot_information, (t, info_log, "A"), (t, info_lin, "B")),
+        (excite_plots.plot_information, (t, info_lin, "A"), (t, info_log, "B")),
+        (plan_plots.plot_view, ((0, 1), "A view", scene, 0.2, path_a, np.zeros(3), np.ones(3)),
+         ((0, 2), "B view", None, 0.0, path_b, np.zeros(3), np.full(3, 0.4))),
+        (estimate_plots.plot_convergence, (est_a, truth, np.full(4, 1e-3)), (est_b, None, None)),
+    ]
+
+
+def test_a_figure_drawn_on_a_reused_template_is_pixel_identical_to_a_fresh_one(tmp_path):
+    """subplots() hands out a blanked template of the same shape (common.REUSE): nothing of the previous figure
+    (lines, patches, legends, titles, log scale, equal aspect, limits, colour cycle) may survive into the next."""
+    rng = np.random.default_rng(11)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plot_common, "_TEMPLATES", {})
+        for k, (draw, args_a, args_b) in enumerate(_figure_pairs(rng)):
+            mp.setattr(plot_common, "REUSE", False)
+            draw(tmp_path / f"fresh{k}.png", *args_b)
+            mp.setattr(plot_common, "REUSE", True)
+            plot_common._TEMPLATES.clear()
+            draw(tmp_path / f"a{k}.png", *args_a)
+            assert sum(len(v) for v in plot_common._TEMPLATES.values()) == 1  # A's figure went back to the pool
+            draw(tmp_path / f"reused{k}.png", *args_b)
+            fresh, reused = _pixels(tmp_path / f"fresh{k}.png"), _pixels(tmp_path / f"reused{k}.png")
+            assert fresh.shape == reused.shape, draw.__name__
+            differ = np.any(fresh != reused, axis=-1)
+            assert not differ.any(), f"{draw.__name__} #{k}: {int(differ.sum())} pixels differ"

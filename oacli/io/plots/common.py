@@ -6,8 +6,13 @@ holds a half-written PNG.
 Speed (issue 9): a figure is laid out once with fixed margins in inches (:func:`fixed_layout`: room for the tick
 labels, titles and the legends outside the axes, whose sizes are measured, not the whole figure's tight box), no
 constrained layout and no ``bbox_inches="tight"`` (each of those draws every tick label several times); series
-longer than :data:`MAX_POINTS` are drawn through :func:`decimate` (min and max per bin: the peaks stay). The old
-path stays reachable with :data:`LEGACY` (``benchmarks/bench_outputs.py`` compares both).
+longer than :data:`MAX_POINTS` are drawn through :func:`decimate` (min and max per bin: the peaks stay). Second pass:
+figures are plain :class:`~matplotlib.figure.Figure` objects (no pyplot), one per shape kept blank between PNGs
+(:data:`REUSE`: its axes and tick objects are made once per mission, not once per PNG); horizontal text is drawn as
+cached whole-string bitmaps (:class:`TextCachingRenderer`, :data:`FAST_TEXT`); linear axes get at most
+:data:`MAX_TICKS` ticks (:class:`FewTicks`), log axes plain-text labels (:class:`PowerFormatter`, no mathtext); the
+PNG is written by :func:`png_bytes` (RGB, no row filter, zlib level 1). The old path stays reachable with
+:data:`LEGACY` (``benchmarks/bench_outputs.py`` compares both).
 
 :func:`guarded_plots` runs each figure of a stage so that a plotting failure never loses the run: the failure
 becomes a warning in the summary and the status is kept.
@@ -18,6 +23,8 @@ from __future__ import annotations
 import io
 import logging
 import os
+import struct
+import zlib
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
@@ -29,10 +36,12 @@ matplotlib.use("Agg", force=True)
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg, get_hinting_flag
 from matplotlib.figure import Figure
+from matplotlib.font_manager import FontProperties
 from matplotlib.patches import Ellipse, Rectangle
-from matplotlib.ticker import LogLocator
+from matplotlib.ticker import AutoLocator, Formatter, LogLocator, MaxNLocator
+from matplotlib.transforms import Bbox, offset_copy
 
 from oacli.geometry import Scene
 from oacli.io.atomic import atomic_path
@@ -42,9 +51,17 @@ DPI = 110
 #: The old drawing path (constrained layout, tight bounding box, every sample drawn); set by
 #: ``benchmarks/bench_outputs.py`` or the environment variable ``OACLI_LEGACY_PLOTS=1``.
 LEGACY = os.environ.get("OACLI_LEGACY_PLOTS", "") == "1"
+#: Reuse one blank figure per shape (:func:`subplots`, :func:`_blank`) instead of building a new one per PNG.
+REUSE = True
+#: Blank template figures per shape (:func:`subplots`).
+_TEMPLATES: dict[tuple, list[Figure]] = {}
+#: Draw horizontal text through :class:`TextCachingRenderer`.
+FAST_TEXT = True
+#: Most major ticks per axis (linear axes; a long axis would get about ten).
+MAX_TICKS = 6
 #: Longest series drawn as is; longer ones are decimated to about this many points (min and max per bin).
 MAX_POINTS = 4000
-#: zlib level of the PNGs (1: about three times faster to encode than the default 6, files somewhat larger).
+#: zlib level of the PNGs (1: several times faster to encode than the default 6, files somewhat larger).
 PNG_COMPRESS_LEVEL = 1
 #: Axis names of the world frame.
 AXES = ("x", "y", "z")
@@ -65,17 +82,112 @@ def spans_decades(values: np.ndarray, decades: float = 2.0) -> bool:
     return v.size > 1 and float(np.log10(v.max() / v.min())) > decades
 
 
+#: Text bitmaps already rendered (:class:`TextCachingRenderer`), by string, font, dpi and antialiasing.
+_TEXT_BITMAPS: dict[tuple, tuple[np.ndarray, float, float]] = {}
+_TEXT_BITMAPS_MAX = 4000
+
+
+class TextCachingRenderer(RendererAgg):
+    """The Agg renderer drawing each horizontal plain-text string as one bitmap (rendered by FreeType in one call,
+    placed at a whole pixel, as matplotlib did before 3.11) and reusing that bitmap wherever the same string in the
+    same font is drawn again (tick labels, titles and legends repeat across the figures of a mission). Matplotlib 3.11
+    renders every glyph through several Python calls per draw, the largest cost of a plot figure. Rotated text and
+    mathtext are drawn as matplotlib does."""
+
+    def draw_text(self, gc: Any, x: float, y: float, s: str, prop: Any, angle: float, ismath: Any = False,
+                  mtext: Any = None) -> None:
+        if ismath or angle != 0 or (mtext is not None and (mtext.get_fontfeatures() or mtext.get_language())):
+            return super().draw_text(gc, x, y, s, prop, angle, ismath, mtext)
+        key = (s, hash(prop), prop.get_size_in_points(), self.dpi, bool(gc.get_antialiased()))
+        hit = _TEXT_BITMAPS.get(key)
+        if hit is None:
+            font = self._prepare_font(prop)
+            font.set_text(s, 0, flags=get_hinting_flag())
+            font.draw_glyphs_to_bitmap(antialiased=bool(gc.get_antialiased()))
+            x_off, y_off = font.get_bitmap_offset()
+            image = np.array(font.get_image(), dtype=np.uint8)
+            hit = (image, x_off / 64.0, y_off / 64.0 + font.get_descent() / 64.0)
+            if len(_TEXT_BITMAPS) >= _TEXT_BITMAPS_MAX:
+                _TEXT_BITMAPS.clear()
+            _TEXT_BITMAPS[key] = hit
+        image, x_off, y_off = hit
+        self._renderer.draw_text_image(image, round(x + x_off), round(y + y_off) + 1, 0, gc)
+        return None
+
+
+class CachingCanvas(FigureCanvasAgg):
+    """An Agg canvas drawing with :class:`TextCachingRenderer`."""
+
+    def get_renderer(self) -> TextCachingRenderer:
+        w, h = self.get_width_height(physical=True)
+        key = w, h, self.figure.dpi
+        if self._lastKey != key:
+            self.renderer = TextCachingRenderer(w, h, self.figure.dpi)
+            self._lastKey = key  # type: ignore[assignment]
+        return self.renderer
+
+
 def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float],
              **kwargs: Any) -> tuple[Figure, Any]:
-    """``plt.subplots`` without a layout engine (laid out by :func:`fixed_layout` in :func:`save_png`); with
-    :data:`LEGACY`, with constrained layout as before.
+    """A figure with a grid of axes, laid out by :func:`fixed_layout` in :func:`save_png` (no layout engine); with
+    :data:`LEGACY`, ``plt.subplots`` with constrained layout as before.
 
     Axes titles sit at a fixed height (``axes.titley`` 1.0: just above the axes, which carry no top tick labels)
-    instead of being moved above whatever overlaps them at every draw (that search measures every tick label)."""
+    instead of being moved above whatever overlaps them at every draw (that search measures every tick label).
+
+    The figure is a plain :class:`~matplotlib.figure.Figure` on its own Agg canvas (no pyplot figure manager) and,
+    with :data:`REUSE`, a blank template of this shape saved by an earlier :func:`save_png` (:func:`_blank`): its
+    axes, tick objects and the text metrics cached on its renderer are made once per shape, not once per PNG.
+    """
     if LEGACY:
         return plt.subplots(nrows, ncols, figsize=figsize, constrained_layout=True, **kwargs)
+    key = (nrows, ncols, tuple(float(v) for v in figsize), tuple(sorted(kwargs.items())))
+    free = _TEMPLATES.get(key, []) if REUSE else []
+    if free:
+        fig = free.pop()
+        return fig, fig._oacli_axes  # type: ignore[attr-defined]
     with matplotlib.rc_context({"axes.titley": 1.0}):
-        return plt.subplots(nrows, ncols, figsize=figsize, **kwargs)
+        fig = Figure(figsize=figsize)
+        (CachingCanvas if FAST_TEXT else FigureCanvasAgg)(fig)
+        axes = fig.subplots(nrows, ncols, **kwargs)
+    fig._oacli_template = key  # type: ignore[attr-defined]
+    fig._oacli_axes = axes  # type: ignore[attr-defined]
+    fig._oacli_title_size = matplotlib.rcParams["axes.titlesize"]  # type: ignore[attr-defined]
+    return fig, axes
+
+
+def _blank(fig: Figure) -> None:
+    """Make a drawn template figure blank again, as :func:`subplots` made it: every artist added to its axes
+    (lines, patches, collections, texts, legends), the figure legends and title removed; titles, labels, scales,
+    limits, aspect, grids and the colour cycle back to their defaults. The axes and their tick objects stay
+    (``tests/test_stage_plots.py`` checks that a figure drawn on a reused template is pixel-identical to a fresh one).
+    """
+    for leg in list(fig.legends):
+        leg.remove()
+    if fig.get_suptitle():
+        fig.suptitle("")  # an empty title draws nothing; the next suptitle() sets all its properties again
+    size = fig._oacli_title_size  # type: ignore[attr-defined]
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is not None:
+            legend.remove()
+        for artist in [*ax.lines, *ax.patches, *ax.collections, *ax.texts, *ax.images, *ax.artists]:
+            artist.remove()
+        for loc in ("left", "center", "right"):
+            if ax.get_title(loc):
+                ax.set_title("", loc=loc, y=1.0, fontsize=size)  # type: ignore[arg-type]
+        ax.set_xlabel("")
+        ax.set_ylabel("")
+        ax.grid(False, which="both")
+        for axis, set_scale in ((ax.xaxis, ax.set_xscale), (ax.yaxis, ax.set_yscale)):
+            if axis.get_scale() != "linear":  # setting a scale autoscales (costly); linear axes keep theirs
+                set_scale("linear")
+        ax.set_aspect("auto", adjustable="box")
+        ax.set_prop_cycle(None)
+        ax.dataLim = Bbox.null()
+        ax.ignore_existing_data_limits = True
+        ax.set_autoscale_on(True)
+        ax._request_autoscale_view()  # type: ignore[attr-defined]
 
 
 def decimate(x: np.ndarray, y: np.ndarray, max_points: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -180,19 +292,126 @@ def fixed_layout(fig: Figure) -> None:
         leg.set_bbox_to_anchor((0.5, 0.1 / height_in), transform=fig.transFigure)
 
 
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def png_bytes(rgba: np.ndarray, level: int | None = None) -> bytes:
+    """A PNG of an opaque RGBA image (a drawn figure): 8-bit RGB, no row filter, zlib ``level`` (default
+    :data:`PNG_COMPRESS_LEVEL`). About twice as fast as Pillow's encoder at level 1, whose adaptive row filters
+    cost more than they save on plots (large flat areas); files are somewhat larger.
+
+    Parameters
+    ----------
+    rgba : ndarray, shape (H, W, 4), uint8
+        The pixels (alpha dropped: the figure's background is opaque).
+    level : int, optional
+        zlib level 0-9.
+
+    Returns
+    -------
+    bytes
+        The PNG file.
+    """
+    height, width = rgba.shape[:2]
+    rows = np.empty((height, 1 + 3 * width), dtype=np.uint8)
+    rows[:, 0] = 0  # filter type 0 (None) per row
+    rows[:, 1:].reshape(height, width, 3)[...] = rgba[..., :3]
+    data = zlib.compress(rows.data, PNG_COMPRESS_LEVEL if level is None else level)
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, deflate, no filter, no interlace
+    return b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", header) + _png_chunk(b"IDAT", data) + _png_chunk(b"IEND", b"")
+
+
+_SUPERSCRIPT = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
+
+
+class PowerFormatter(Formatter):
+    """Tick labels of a log axis as plain text: ``10⁻³`` at the powers of ten; other ticks (minor) labelled
+    (``0.002``) only when the axis spans at most a decade. The default formatter typesets every label with mathtext
+    (``$10^{-3}$``), which costs more than the rest of the axis."""
+
+    def __call__(self, x: float, pos: int | None = None) -> str:
+        if not np.isfinite(x) or x <= 0:
+            return ""
+        exponent = float(np.log10(x))
+        if abs(exponent - round(exponent)) < 1e-9:
+            return "10" + str(round(exponent)).translate(_SUPERSCRIPT)
+        lo, hi = (float(v) for v in self.axis.get_view_interval()) if self.axis is not None else (x, x)
+        if lo > 0 and hi > 0 and abs(np.log10(hi / lo)) > 1.0:
+            return ""
+        return f"{x:.3g}"
+
+
+class FewTicks(MaxNLocator):
+    """The default linear tick locator (steps 1, 2, 2.5, 5, 10; as many ticks as fit the axis' length) with at most
+    :data:`MAX_TICKS` ticks: fewer tick objects to make, lay out and draw."""
+
+    def __init__(self) -> None:
+        super().__init__(nbins="auto", steps=[1, 2, 2.5, 5, 10])
+
+    def _raw_ticks(self, vmin: float, vmax: float) -> np.ndarray:
+        space = self.axis.get_tick_space() if self.axis is not None else MAX_TICKS
+        self._nbins = int(np.clip(space, 1, MAX_TICKS - 1))
+        return super()._raw_ticks(vmin, vmax)  # type: ignore[misc]
+
+
+def few_ticks(fig: Figure) -> None:
+    """Every linear axis of ``fig`` with the default locator gets :class:`FewTicks`."""
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            if axis.get_scale() == "linear" and type(axis.get_major_locator()) is AutoLocator:
+                axis.set_major_locator(FewTicks())
+
+
+def fixed_xlabels(fig: Figure) -> None:
+    """Put each x label where matplotlib would (``labelpad`` below the x tick labels, or below the axes when they are
+    hidden) at a fixed offset from the axes instead of measuring the tick labels at every draw (that measurement
+    formats and places every tick a second time). The tick labels are one line of text: their height is the font's
+    line height."""
+    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+    renderer = canvas.get_renderer()
+    dpi = float(fig.dpi)
+    for ax in fig.axes:
+        axis = ax.xaxis
+        if axis.get_label_position() != "bottom":
+            continue
+        offset_pt = float(axis.labelpad)
+        params = axis.get_tick_params()
+        if params.get("labelbottom", True):
+            tick = axis.majorTicks[0]
+            size = FontProperties(size=tick.label1.get_fontsize(), family=tick.label1.get_fontfamily())
+            _, line_px, _ = renderer.get_text_width_height_descent("lp", size, ismath=False)
+            pad_pt = float(tick._pad)  # type: ignore[attr-defined]  # tick length (out) and tick label pad
+            offset_pt += pad_pt + float(line_px) * 72.0 / dpi
+        axis.set_label_coords(0.5, 0.0, transform=offset_copy(ax.transAxes, fig=fig, y=-offset_pt, units="points"))
+
+
 def save_png(fig: Figure, path: Path) -> Path:
-    """Lay ``fig`` out (:func:`fixed_layout`), render it to PNG in memory, close it and write the bytes to ``path``
-    atomically (with :data:`LEGACY`: constrained layout and a tight bounding box, as before)."""
+    """Lay ``fig`` out (:func:`few_ticks`, :func:`fixed_layout`), render it to PNG in memory, write the bytes to
+    ``path`` atomically and close the figure, or, for a template of :func:`subplots`, blank it for the next PNG of its
+    shape (with :data:`LEGACY`: constrained layout and a tight bounding box, as before)."""
     buf = io.BytesIO()
+    template = getattr(fig, "_oacli_template", None)
+    reuse = False
     try:
         if LEGACY:
             fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
         else:
             fig.set_dpi(DPI)
+            few_ticks(fig)
+            fixed_xlabels(fig)
             fixed_layout(fig)
-            fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
+            canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+            canvas.draw()
+            buf.write(png_bytes(np.asarray(canvas.buffer_rgba())))
+            if REUSE and template is not None:
+                _blank(fig)
+                reuse = True
     finally:
-        plt.close(fig)
+        if reuse and template is not None:
+            _TEMPLATES.setdefault(template, []).append(fig)
+        elif template is None:
+            plt.close(fig)
     with atomic_path(Path(path)) as tmp:
         tmp.write_bytes(buf.getvalue())
     return Path(path)
@@ -200,10 +419,13 @@ def save_png(fig: Figure, path: Path) -> Path:
 
 def log_scale(ax: Axes) -> None:
     """A log y axis; minor ticks (and minor grid lines) at 2 and 5 times each power of ten only (with
-    :data:`LEGACY`: all eight), which is fewer tick objects to make and draw."""
+    :data:`LEGACY`: all eight), which is fewer tick objects to make and draw; plain-text labels
+    (:class:`PowerFormatter`)."""
     ax.set_yscale("log")
     if not LEGACY:
         ax.yaxis.set_minor_locator(LogLocator(base=10.0, subs=(2.0, 5.0)))
+        ax.yaxis.set_major_formatter(PowerFormatter())
+        ax.yaxis.set_minor_formatter(PowerFormatter())
 
 
 def legend_outside(ax: Axes) -> None:
