@@ -52,11 +52,15 @@ DPI = 110
 #: ``benchmarks/bench_outputs.py`` or the environment variable ``OACLI_LEGACY_PLOTS=1``.
 LEGACY = os.environ.get("OACLI_LEGACY_PLOTS", "") == "1"
 #: Reuse one blank figure per shape (:func:`subplots`, :func:`_blank`) instead of building a new one per PNG.
-REUSE = True
+#: Relies on private matplotlib API (``Axes._request_autoscale_view``, ``FigureCanvasAgg._lastKey``): on only where
+#: it exists, and the pixel-identity test of ``tests/test_stage_plots.py`` checks a reused figure draws as a fresh one.
+REUSE = hasattr(matplotlib.axes.Axes, "_request_autoscale_view")
 #: Blank template figures per shape (:func:`subplots`).
 _TEMPLATES: dict[tuple, list[Figure]] = {}
 #: Draw horizontal text through :class:`TextCachingRenderer`.
-FAST_TEXT = True
+#: Relies on private Agg renderer API (``_prepare_font``, ``_renderer.draw_text_image``), checked on the matplotlib
+#: versions it was written for (3.11): any other version draws text as matplotlib does.
+FAST_TEXT = matplotlib.__version__.startswith("3.11.") and hasattr(RendererAgg, "_prepare_font")
 #: Most major ticks per axis (linear axes; a long axis would get about ten).
 MAX_TICKS = 6
 #: Longest series drawn as is; longer ones are decimated to about this many points (min and max per bin).
