@@ -264,12 +264,22 @@ def minimal_rpi_support(
     power = np.eye(a_k.shape[0])
     norm_sum = 0.0
     tail = np.full(d2.shape[0], np.inf)
-    for k in range(max_terms):
-        total += w.support(d2 @ power)  # rows dᵀ A_Kᵏ → h_W((A_Kᵏ)ᵀ d)
-        norm_sum += float(np.linalg.norm(power, 2))
-        power = a_k @ power
-        if k % 8 == 7:
-            q = float(np.linalg.norm(power, 2))
+    n_dir = d2.shape[0]
+    block = 8  # terms per batch: one support evaluation and one batched 2-norm per block (same sums, term order)
+    for k0 in range(0, max_terms, block):
+        count = min(block, max_terms - k0)
+        powers = np.empty((count + 1, *power.shape))
+        powers[0] = power
+        for j in range(count):
+            powers[j + 1] = a_k @ powers[j]
+        terms = w.support((d2 @ powers[:count]).reshape(count * n_dir, -1)).reshape(count, n_dir)
+        norms = np.linalg.norm(powers, 2, axis=(1, 2))
+        for j in range(count):
+            total += terms[j]  # h_W((A_Kᵏ)ᵀ d), rows dᵀ A_Kᵏ
+            norm_sum += float(norms[j])
+        power = powers[count]
+        if count == block:
+            q = float(norms[count])
             if q < 1.0:
                 tail = r_w * d_norm * q / (1.0 - q) * norm_sum
                 if np.all(tail <= max(rtol, 1e-15) * total):
