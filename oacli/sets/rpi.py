@@ -30,7 +30,7 @@ from typing import Literal, cast
 import numpy as np
 
 from oacli.errors import InfeasibleError
-from oacli.sets.hull import convex_hull_2d, hull_normals, minkowski_sum_polygons
+from oacli.sets.hull import convex_hull_2d, hull_normals, minkowski_sum_linear_images
 from oacli.sets.polytope import Polytope
 
 EpsilonMode = Literal["absolute", "relative"]
@@ -294,17 +294,16 @@ def _scaled_minkowski_series(a_k: np.ndarray, w: Polytope, s: int, scale: float)
     powers = [np.eye(n)]
     for _ in range(1, s):
         powers.append(a_k @ powers[-1])
-    if n == 2:  # exact polygon sums by merging edges (linear time per term)
-        points = convex_hull_2d(w.vertices)
-        for p in powers[1:]:
-            points = minkowski_sum_polygons(points, convex_hull_2d(w.vertices @ p.T))
+    if n == 2:  # exact polygon sum by merging the edges of all terms in angular order
+        points = minkowski_sum_linear_images(convex_hull_2d(w.vertices), np.array(powers))
     else:
         points = w.vertices.copy()
         for p in powers[1:]:
             points = (points[:, None, :] + (w.vertices @ p.T)[None, :, :]).reshape(-1, n)
             _, points = hull_normals(points)  # keep the hull vertices only (a point dropped lies inside the hull)
     normals, hull_vertices = hull_normals(points)
-    offsets = sum(w.support(normals @ p) for p in powers)
+    # Σ_i h_W((A_Kⁱ)ᵀ a) for every normal a: one support evaluation for all terms, summed term by term.
+    offsets = np.sum(w.support((normals @ np.array(powers)).reshape(-1, n)).reshape(len(powers), -1), axis=0)
     return Polytope(normals, cast(np.ndarray, scale * offsets), vertices=scale * hull_vertices)
 
 
