@@ -449,7 +449,50 @@ def _axis_from_parts(
     max_terms: int,
     facet_growth: float,
 ) -> AxisTube:
-    """Z (Raković et al. 2005 + facet reduction) and the tightened bounds of one axis from A, B, K and W."""
+    """Z (Raković et al. 2005 + facet reduction) and the tightened bounds of one axis from A, B, K and W.
+
+    The result depends on the inputs only (numbers, no randomness), so it is memoised within the process by their
+    exact values (:data:`_AXIS_CACHE`): the mission's tube stages and their summaries' flight-settings baselines
+    often design the same axis twice. The returned :class:`AxisTube` is immutable; its cached figures
+    (``minimal_support``, ``baseline``) are shared with every later caller of the same inputs.
+    """
+    key = (name, *(np.ascontiguousarray(m, dtype=float).tobytes() for m in (a, b, gain, dist.w.a, dist.w.b,
+                                                                         dist.mass_term, dist.force_term,
+                                                                         dist.box_term, dist.noise_bound)),
+           a.shape, dist.w.a.shape, float(dist.scale), float(force_limit_N), float(velocity_limit_mps),
+           float(epsilon), epsilon_mode, int(max_terms), float(facet_growth))
+    cached = _AXIS_CACHE.get(key)
+    if cached is not None:
+        return cached
+    axis = _design_axis_from_parts(name, a, b, gain, dist, force_limit_N=force_limit_N,
+                                   velocity_limit_mps=velocity_limit_mps, epsilon=epsilon,
+                                   epsilon_mode=epsilon_mode, max_terms=max_terms, facet_growth=facet_growth)
+    if len(_AXIS_CACHE) >= _AXIS_CACHE_SIZE:
+        _AXIS_CACHE.pop(next(iter(_AXIS_CACHE)))
+    _AXIS_CACHE[key] = axis
+    return axis
+
+
+#: Memo of :func:`_axis_from_parts` by the exact input values (oldest entry dropped beyond the size).
+_AXIS_CACHE: dict[tuple[Any, ...], AxisTube] = {}
+_AXIS_CACHE_SIZE = 64
+
+
+def _design_axis_from_parts(
+    name: str,
+    a: np.ndarray,
+    b: np.ndarray,
+    gain: np.ndarray,
+    dist: AxisDisturbance,
+    *,
+    force_limit_N: float,
+    velocity_limit_mps: float,
+    epsilon: float,
+    epsilon_mode: EpsilonMode,
+    max_terms: int,
+    facet_growth: float,
+) -> AxisTube:
+    """The uncached body of :func:`_axis_from_parts`."""
     a_k = a + b @ gain
     if epsilon_mode == "relative":
         epsilon_rpi, _ = split_relative_epsilon(epsilon, facet_growth)

@@ -85,6 +85,45 @@ def minkowski_sum_polygons(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return cast(np.ndarray, p[0] + q[0] + np.vstack([np.zeros(2), np.cumsum(steps[:-1], axis=0)]))
 
 
+def minkowski_sum_linear_images(polygon: np.ndarray, maps: np.ndarray) -> np.ndarray:
+    """Vertices of ``⊕_i M_i conv(polygon)`` for 2×2 matrices ``M_i``, by one merge of all edges in angular order.
+
+    The sum of convex polygons is the polygon whose edges are all their edges sorted by angle, starting from the
+    sum of their lowest vertices (the same edge merge as :func:`minkowski_sum_polygons`, done once for all terms
+    instead of term by term). A map with a negative determinant reverses the orientation of the image, which is
+    undone; a singular map falls back to the hull of its image (a segment or a point, as pairwise sums).
+
+    Parameters
+    ----------
+    polygon : ndarray, shape (k, 2)
+        Vertices of a convex polygon, counter-clockwise (as from :func:`convex_hull_2d`), k ≥ 3.
+    maps : ndarray, shape (s, 2, 2)
+        The linear maps.
+
+    Returns
+    -------
+    ndarray, shape (h, 2)
+        Points whose convex hull is the sum (every vertex of the sum is among them; collinear points may
+        remain).
+    """
+    poly = np.asarray(polygon, dtype=float)
+    mats = np.asarray(maps, dtype=float)
+    det = mats[:, 0, 0] * mats[:, 1, 1] - mats[:, 0, 1] * mats[:, 1, 0]
+    if poly.shape[0] < 3 or np.any(det == 0.0):  # degenerate: term-by-term sums
+        points = convex_hull_2d(poly @ mats[0].T)
+        for m in mats[1:]:
+            points = minkowski_sum_polygons(points, convex_hull_2d(poly @ m.T))
+        return points
+    images = np.einsum("kj,sij->ski", poly, mats)  # (s, k, 2): rows poly @ M_iᵀ
+    images[det < 0] = images[det < 0, ::-1]  # counter-clockwise again
+    edges = (np.roll(images, -1, axis=1) - images).reshape(-1, 2)
+    lowest = np.lexsort((images[..., 0], images[..., 1]), axis=-1)[:, 0]  # lowest y, then lowest x, per image
+    start = images[np.arange(images.shape[0]), lowest].sum(axis=0)
+    angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), 2 * np.pi)
+    steps = edges[np.argsort(angles, kind="stable")]
+    return cast(np.ndarray, start + np.vstack([np.zeros(2), np.cumsum(steps[:-1], axis=0)]))
+
+
 def _unit_rows(a: np.ndarray) -> np.ndarray:
     return cast(np.ndarray, a / np.linalg.norm(a, axis=1, keepdims=True))
 

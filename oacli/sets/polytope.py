@@ -221,6 +221,15 @@ class Polytope:
 
     def _check_bounded(self) -> bool:
         n = self.dim
+        if n == 2 and self._a.shape[0] >= 3:
+            # Normals that positively span the plane (every angular gap between consecutive normals < π) leave
+            # no recession direction: bounded (or empty), without an LP. Otherwise decide by the LPs below.
+            nonzero = np.any(self._a != 0.0, axis=1)
+            angle = np.sort(np.arctan2(self._a[nonzero, 1], self._a[nonzero, 0]))
+            if angle.size >= 3:
+                gaps = np.diff(np.append(angle, angle[0] + 2.0 * np.pi))
+                if float(np.max(gaps)) < np.pi - 1e-9:
+                    return True
         for d in np.vstack([np.eye(n), -np.eye(n)]):
             res = linprog(-d, A_ub=self._a, b_ub=self._b, bounds=[(None, None)] * n, method="highs")
             if res.status == 3:

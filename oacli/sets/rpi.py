@@ -30,7 +30,7 @@ from typing import Literal, cast
 import numpy as np
 
 from oacli.errors import InfeasibleError
-from oacli.sets.hull import convex_hull_2d, hull_normals, minkowski_sum_polygons
+from oacli.sets.hull import convex_hull_2d, hull_normals, minkowski_sum_linear_images
 from oacli.sets.polytope import Polytope
 
 EpsilonMode = Literal["absolute", "relative"]
@@ -264,12 +264,22 @@ def minimal_rpi_support(
     power = np.eye(a_k.shape[0])
     norm_sum = 0.0
     tail = np.full(d2.shape[0], np.inf)
-    for k in range(max_terms):
-        total += w.support(d2 @ power)  # rows dᵀ A_Kᵏ → h_W((A_Kᵏ)ᵀ d)
-        norm_sum += float(np.linalg.norm(power, 2))
-        power = a_k @ power
-        if k % 8 == 7:
-            q = float(np.linalg.norm(power, 2))
+    n_dir = d2.shape[0]
+    block = 8  # terms per batch: one support evaluation and one batched 2-norm per block (same sums, term order)
+    for k0 in range(0, max_terms, block):
+        count = min(block, max_terms - k0)
+        powers = np.empty((count + 1, *power.shape))
+        powers[0] = power
+        for j in range(count):
+            powers[j + 1] = a_k @ powers[j]
+        terms = w.support((d2 @ powers[:count]).reshape(count * n_dir, -1)).reshape(count, n_dir)
+        norms = np.linalg.norm(powers, 2, axis=(1, 2))
+        for j in range(count):
+            total += terms[j]  # h_W((A_Kᵏ)ᵀ d), rows dᵀ A_Kᵏ
+            norm_sum += float(norms[j])
+        power = powers[count]
+        if count == block:
+            q = float(norms[count])
             if q < 1.0:
                 tail = r_w * d_norm * q / (1.0 - q) * norm_sum
                 if np.all(tail <= max(rtol, 1e-15) * total):
@@ -284,17 +294,16 @@ def _scaled_minkowski_series(a_k: np.ndarray, w: Polytope, s: int, scale: float)
     powers = [np.eye(n)]
     for _ in range(1, s):
         powers.append(a_k @ powers[-1])
-    if n == 2:  # exact polygon sums by merging edges (linear time per term)
-        points = convex_hull_2d(w.vertices)
-        for p in powers[1:]:
-            points = minkowski_sum_polygons(points, convex_hull_2d(w.vertices @ p.T))
+    if n == 2:  # exact polygon sum by merging the edges of all terms in angular order
+        points = minkowski_sum_linear_images(convex_hull_2d(w.vertices), np.array(powers))
     else:
         points = w.vertices.copy()
         for p in powers[1:]:
             points = (points[:, None, :] + (w.vertices @ p.T)[None, :, :]).reshape(-1, n)
             _, points = hull_normals(points)  # keep the hull vertices only (a point dropped lies inside the hull)
     normals, hull_vertices = hull_normals(points)
-    offsets = sum(w.support(normals @ p) for p in powers)
+    # Σ_i h_W((A_Kⁱ)ᵀ a) for every normal a: one support evaluation for all terms, summed term by term.
+    offsets = np.sum(w.support((normals @ np.array(powers)).reshape(-1, n)).reshape(len(powers), -1), axis=0)
     return Polytope(normals, cast(np.ndarray, scale * offsets), vertices=scale * hull_vertices)
 
 

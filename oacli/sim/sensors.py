@@ -41,9 +41,23 @@ class SensorNoise:
         y = x.copy()
         y[0:3] += self.position_std_m * n[0:3]
         y[3:6] += self.velocity_std_mps * n[3:6]
-        y[6:10] = quat.normalize(quat.multiply(x[6:10], quat.exp(self.attitude_std_rad * n[6:9])))
+        y[6:10] = quat.normalize(_multiply(x[6:10], quat.exp(self.attitude_std_rad * n[6:9])))
         y[10:13] += self.angular_velocity_std_radps * n[9:12]
         return y
+
+
+def _multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product ``p ⊗ q`` of two single quaternions ``[x, y, z, w]`` on Python floats: the same
+    operations in the same order as :func:`oacli.model.quaternion.multiply` (bit-identical), without the
+    per-call array overhead of its broadcasting form."""
+    px, py, pz, pw = (float(c) for c in p)
+    qx, qy, qz, qw = (float(c) for c in q)
+    return np.array([
+        (pw * qx + qw * px) + (py * qz - pz * qy),
+        (pw * qy + qw * py) + (pz * qx - px * qz),
+        (pw * qz + qw * pz) + (px * qy - py * qx),
+        pw * qw - ((px * qx + py * qy) + pz * qz),
+    ])
 
 
 @dataclass(frozen=True)
