@@ -272,7 +272,7 @@ def minimal_rpi_support(
         powers[0] = power
         for j in range(count):
             powers[j + 1] = a_k @ powers[j]
-        terms = w.support((d2 @ powers[:count]).reshape(count * n_dir, -1)).reshape(count, n_dir)
+        terms = np.asarray(w.support((d2 @ powers[:count]).reshape(count * n_dir, -1))).reshape(count, n_dir)
         norms = np.linalg.norm(powers, 2, axis=(1, 2))
         for j in range(count):
             total += terms[j]  # h_W((A_Kᵏ)ᵀ d), rows dᵀ A_Kᵏ
@@ -303,7 +303,8 @@ def _scaled_minkowski_series(a_k: np.ndarray, w: Polytope, s: int, scale: float)
             _, points = hull_normals(points)  # keep the hull vertices only (a point dropped lies inside the hull)
     normals, hull_vertices = hull_normals(points)
     # Σ_i h_W((A_Kⁱ)ᵀ a) for every normal a: one support evaluation for all terms, summed term by term.
-    offsets = np.sum(w.support((normals @ np.array(powers)).reshape(-1, n)).reshape(len(powers), -1), axis=0)
+    offsets = np.sum(np.asarray(w.support((normals @ np.array(powers)).reshape(-1, n))).reshape(len(powers), -1),
+                     axis=0)
     return Polytope(normals, cast(np.ndarray, scale * offsets), vertices=scale * hull_vertices)
 
 
