@@ -78,4 +78,19 @@ def solve_clarabel(problem: cp.Problem, *, quiet: bool = False, **solve_options:
     return SolveInfo(status, success, objective, iterations, solve_time)
 
 
-__all__ = ["MAX_STATUS_CHARS", "SUCCESS_STATUSES", "solve_clarabel", "solver_error_status"]
+
+
+#: Clarabel's status strings -> cvxpy's status names (as cvxpy maps them), for the paths that call Clarabel
+#: directly (:mod:`oacli.control.compiled_qp`, :mod:`oacli.planning.polish_conic`).
+CLARABEL_STATUS = {
+    "Solved": "optimal",
+    "AlmostSolved": "optimal_inaccurate",
+    "PrimalInfeasible": "infeasible",
+    "AlmostPrimalInfeasible": "infeasible_inaccurate",
+    "DualInfeasible": "unbounded",
+    "AlmostDualInfeasible": "unbounded_inaccurate",
+    "MaxIterations": "user_limit",
+    "MaxTime": "user_limit",
+}
+
+__all__ = ["CLARABEL_STATUS", "MAX_STATUS_CHARS", "SUCCESS_STATUSES", "solve_clarabel", "solver_error_status"]

@@ -93,14 +93,7 @@ def load_config(path: str | os.PathLike[str]) -> OacliConfig:
         ``path``).
     """
     source = os.fspath(path)
-    raw = _read_bounded(source)
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise ConfigError(
-            f"{source}: not valid UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start})"
-        ) from None
-    data = _parse_yaml(text, source)
+    data = read_yaml_file(source)
     if data is None:
         raise ConfigError(f"{source}: file is empty (expected a mapping with at least a 'robot' section)")
     return config_from_dict(data, source=source, base_dir=os.path.dirname(os.path.abspath(source)))

@@ -31,25 +31,13 @@ from cvxpy import settings as cps
 from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import dims_to_solver_cones
 from cvxpy.reductions.solvers.conic_solvers.conic_solver import ConicSolver
 
-from oacli.solver import SUCCESS_STATUSES, solver_error_status
+from oacli.solver import CLARABEL_STATUS, SUCCESS_STATUSES, solver_error_status
 from oacli.types import SolveInfo
 
 #: Clarabel settings of the controllers' QPs (both solve paths): the defaults except iterative refinement of the
 #: KKT solves, which costs more than half the solve time on these small, well-scaled QPs; the interior-point method
 #: still stops only when Clarabel's residual and gap tolerances (1e-8) are met (tests compare with the defaults).
 CLARABEL_OPTIONS: dict[str, Any] = {"iterative_refinement_enable": False}
-
-#: Clarabel status strings and what they mean for the caller (as cvxpy maps them).
-_STATUS = {
-    "Solved": "optimal",
-    "AlmostSolved": "optimal_inaccurate",
-    "PrimalInfeasible": "infeasible",
-    "AlmostPrimalInfeasible": "infeasible_inaccurate",
-    "DualInfeasible": "unbounded",
-    "AlmostDualInfeasible": "unbounded_inaccurate",
-    "MaxIterations": "user_limit",
-    "MaxTime": "user_limit",
-}
 
 
 class CompiledQP:
@@ -193,7 +181,7 @@ class CompiledQP:
                 self._a_last = a_values
         sol = self._solver.solve()
         wall = time.perf_counter() - start
-        status = _STATUS.get(str(sol.status)) or solver_error_status(f"Clarabel status {sol.status}")
+        status = CLARABEL_STATUS.get(str(sol.status)) or solver_error_status(f"Clarabel status {sol.status}")
         self._x = np.asarray(sol.x) if status in SUCCESS_STATUSES else None
         objective = float(sol.obj_val + self._t_d @ theta) if self._x is not None else float("nan")
         return SolveInfo(status, self._x is not None, objective, int(sol.iterations), wall)

@@ -24,20 +24,7 @@ import scipy.sparse as sp
 
 from oacli.planning.polish_settings import PolishSettings
 from oacli.planning.translational import CostWeights, interval_cost_matrix
-from oacli.solver import solver_error_status
-
-#: Clarabel status -> cvxpy status (as cvxpy maps them; :mod:`oacli.control.compiled_qp`).
-_STATUS = {
-    "Solved": "optimal",
-    "AlmostSolved": "optimal_inaccurate",
-    "PrimalInfeasible": "infeasible",
-    "AlmostPrimalInfeasible": "infeasible_inaccurate",
-    "DualInfeasible": "unbounded",
-    "AlmostDualInfeasible": "unbounded_inaccurate",
-    "MaxIterations": "user_limit",
-    "MaxTime": "user_limit",
-}
-
+from oacli.solver import CLARABEL_STATUS, solver_error_status
 
 #: A row is left out only when the reachable set satisfies it with at least this margin [m].
 _IMPLIED_M = 1e-6
@@ -311,7 +298,7 @@ class PolishConic:
             sol = solver.solve()
         except Exception as exc:
             return solver_error_status(exc)
-        status = _STATUS.get(str(sol.status)) or solver_error_status(f"Clarabel status {sol.status}")
+        status = CLARABEL_STATUS.get(str(sol.status)) or solver_error_status(f"Clarabel status {sol.status}")
         if status in ("optimal", "optimal_inaccurate"):
             x = np.asarray(sol.x)
             self.f_value = x[self._f]
