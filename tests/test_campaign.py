@@ -207,3 +207,11 @@ def test_flight_preset_writes_valid_mission_configs(tmp_path):
             assert truth["inertia_kgm2"] == mission["grasped"]["inertia_kgm2"] == spec["draws"]["inertia_kgm2"]
         assert "truth" not in (mission["segments"].get("segment-1") or {})
         assert "actuator_scale_errors" in spec["draws"]["faults"]  # probability 1 in the preset
+
+
+def test_hashes_equal_on_dask_local_cluster(tmp_path):
+    """Per-run result hashes on a Dask LocalCluster (bound to 127.0.0.1) equal the serial ones (issue 15)."""
+    path = tiny_campaign(tmp_path)
+    serial = run_with(path, tmp_path / "serial", "serial")
+    dask = run_with(path, tmp_path / "dask", "dask-local", workers=2)
+    assert dask["hashes"] == serial["hashes"] and len(set(serial["hashes"].values())) == 3
