@@ -75,8 +75,8 @@ def load_campaign(path: Path, sets: list[str] | None = None) -> Campaign:
     """
     from pydantic import ValidationError
 
-    from oacli.commands.common import apply_overrides
     from oacli.config import format_validation_errors
+    from oacli.config.overrides import apply_overrides
 
     path = Path(path)
     data = read_yaml_file(path)  # bounded read, strict YAML 1.2 loader: as for every config file
