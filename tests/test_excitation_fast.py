@@ -122,7 +122,7 @@ def test_compiled_subproblem_is_dpp_and_solves_to_the_reference_optimum(criterio
             assert abs(obj_fast - obj_ref) <= scale
         else:  # cvxpy's solve of the log-det / λ_min cones reports 'optimal_inaccurate' here: never better
             assert obj_fast <= obj_ref + scale
-        assert np.all(np.abs(du_fast) <= fast.delta.value * (1 + 1e-7) + 1e-9)
+        assert np.all(np.abs(du_fast) <= fast.delta * (1 + 1e-7) + 1e-9)
         assert np.all(np.abs(ev.u + du_fast) <= LIMITS.input * (1 + 1e-7) + 1e-9)
 
 

@@ -25,6 +25,20 @@ from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
 from oacli.solver import solve_clarabel, solver_error_status
 
 
+_MASS_INDEX = SYMMETRIC_PAIRS.index((0, 0))
+_INERTIA_PAIRS = tuple((a, b) for a, b in SYMMETRIC_PAIRS if a > 0)
+_SCATTER = np.zeros((N_PARAMS * N_PARAMS, 1 + len(_INERTIA_PAIRS)))
+"""Row-major vec of the 4×4 change of F from ``[ΔF_mm, ΔF_II (a ≤ b)]`` (symmetric; F_mI unchanged)."""
+_SCATTER[0, 0] = 1.0
+for _col, (_a, _b) in enumerate(_INERTIA_PAIRS, start=1):
+    _SCATTER[_a * N_PARAMS + _b, _col] = _SCATTER[_b * N_PARAMS + _a, _col] = 1.0
+
+
+def _two_sided(expr: cp.Expression, bound: cp.Expression) -> list[cp.Constraint]:
+    """``|expr| ≤ bound`` as two linear rows per entry (``cp.abs`` adds an epigraph variable and a third row)."""
+    return [expr <= bound, -bound <= expr]
+
+
 class ConvexSubproblem:
     """The convexified design problem around an iterate; cvxpy problem built once with Parameters.
 
@@ -61,17 +75,16 @@ class ConvexSubproblem:
         lim = p.limits
         self.p = p
         self.n = n
-        u_max = lim.input
         self.du = cp.Variable((n, 6), name="du")
         dr = cp.Variable((n + 1, 3), name="dr")
         dv = cp.Variable((n + 1, 3), name="dv")
         drot = cp.Variable((n + 1, 7), name="drot")  # [δq (4), δω (3)]
         du = self.du
 
-        self.u_bar = cp.Parameter((n, 6), name="u_bar")
         self.v_bar = cp.Parameter((n + 1, 3), name="v_bar")
         self.w_bar = cp.Parameter((n + 1, 3), name="w_bar")
-        self.delta = cp.Parameter(6, nonneg=True, name="trust_region")  # per channel [N, N·m]
+        self.delta = np.zeros(6)
+        """Trust region of the last :meth:`set_iterate` per channel [N, N·m]."""
 
         self.rotation = RotationDynamics(drot, du[:, 3:6])
         cons = [dr[0] == 0, dv[0] == 0, *self.rotation.constraints]
@@ -79,22 +92,20 @@ class ConvexSubproblem:
             dr[1:] == dr[:-1] + dt * dv[:-1] + (dt**2 / (2.0 * m)) * du[:, 0:3],
             dv[1:] == dv[:-1] + (dt / m) * du[:, 0:3],
         ]
-        u_row = u_max[None, :]
-        cons += [
-            cp.abs(self.u_bar + du) <= np.tile(u_row, (n, 1)),
-            cp.abs(du) <= np.ones((n, 1)) @ cp.reshape(self.delta, (1, 6), order="C"),
-        ]
+        # Input bounds and trust region in one box per entry: max(−u_max − ū, −Δ) ≤ δu ≤ min(u_max − ū, Δ) (two rows
+        # per entry; |·| would add an epigraph variable and three rows per entry for the same feasible set).
+        self.du_lower = cp.Parameter((n, 6), name="du_lower")
+        self.du_upper = cp.Parameter((n, 6), name="du_upper")
+        cons += [du >= self.du_lower, du <= self.du_upper]
 
         slacks = []
         self._slack_cons: list[cp.Constraint] = []
         s_v = self._slack(n, "s_velocity")
         s_w = self._slack(n, "s_rate")
         self.w_bound = cp.Parameter((n, 3), nonneg=True, name="rate_bound")
-        cons += [
-            cp.abs(self.v_bar[1:] + dv[1:]) <= cp.reshape(1.0 + s_v, (n, 1), order="C") @ lim.velocity_mps[None, :],
-            cp.abs(self.w_bar[1:] + drot[1:, 4:7])
-            <= self.w_bound + cp.reshape(s_w, (n, 1), order="C") @ lim.angular_velocity_radps[None, :],
-        ]
+        v_cap = cp.reshape(1.0 + s_v, (n, 1), order="C") @ lim.velocity_mps[None, :]
+        w_cap = self.w_bound + cp.reshape(s_w, (n, 1), order="C") @ lim.angular_velocity_radps[None, :]
+        cons += [*_two_sided(self.v_bar[1:] + dv[1:], v_cap), *_two_sided(self.w_bar[1:] + drot[1:, 4:7], w_cap)]
         slacks += [s_v, s_w]
         self._rotational = [False, True]  # per slack (the terminal one, last, is split by hand)
 
@@ -139,10 +150,10 @@ class ConvexSubproblem:
         self.w_end_bound = cp.Parameter(3, nonneg=True, name="rate_end_bound")
         s_t = self._slack(4, "s_terminal")
         cons += [
-            cp.abs(self.r_end + dr[n]) <= tol.position_m * (1.0 + s_t[0]),
-            cp.abs(self.v_bar[n] + dv[n]) <= tol.velocity_mps * (1.0 + s_t[1]),
-            cp.abs(self.att_err + self.att_jac @ drot[n, 0:4]) <= self.att_bound + tol.attitude_rad * s_t[2],
-            cp.abs(self.w_bar[n] + drot[n, 4:7]) <= self.w_end_bound + tol.angular_velocity_radps * s_t[3],
+            *_two_sided(self.r_end + dr[n], tol.position_m * (1.0 + s_t[0])),
+            *_two_sided(self.v_bar[n] + dv[n], tol.velocity_mps * (1.0 + s_t[1])),
+            *_two_sided(self.att_err + self.att_jac @ drot[n, 0:4], self.att_bound + tol.attitude_rad * s_t[2]),
+            *_two_sided(self.w_bar[n] + drot[n, 4:7], self.w_end_bound + tol.angular_velocity_radps * s_t[3]),
         ]
         slacks.append(s_t)
         self._rotational.append(True)
@@ -154,13 +165,21 @@ class ConvexSubproblem:
         """Slacks of the last (compiled) solve on translational constraints (velocity, keep-in, keep-out, terminal
         position and velocity): the model's violation of a force-only step."""
 
-        # Affine model of the (scaled) FIM: F̃(δu) = F̃0 + reshape(Gm vec δu).
+        # Affine model of the (scaled) FIM: F̃(δu) = F̃0 + Σ_ab E_ab ⟨∇F̃_ab, δu⟩. Translation and rotation are
+        # decoupled (F_mI ≡ 0 for every input, :mod:`oacli.excitation.split_information`): F_mm moves with the
+        # forces only, the six entries of F_II with the torques only, F_mI not at all. So the gradient has 7 rows
+        # of N·3 (not 16 of N·6, four times the dense entries in the solver's KKT system), kept in a variable
+        # ``dfim`` (7) so that the 4×4 matrix refers to each of them by one entry.
         self.f0 = cp.Parameter((N_PARAMS, N_PARAMS), name="fim0")
-        self.gm = cp.Parameter((N_PARAMS * N_PARAMS, 6 * n), name="fim_gradient")
+        self.g_force = cp.Parameter((1, 3 * n), name="fim_gradient_force")
+        self.g_torque = cp.Parameter((len(_INERTIA_PAIRS), 3 * n), name="fim_gradient_torque")
+        dfim = cp.Variable(1 + len(_INERTIA_PAIRS), name="fim_change")
+        cons += [
+            dfim[0:1] == self.g_force @ cp.vec(du[:, 0:3], order="C"),
+            dfim[1:] == self.g_torque @ cp.vec(du[:, 3:6], order="C"),
+        ]
         fim_var = cp.Variable((N_PARAMS, N_PARAMS), symmetric=True, name="fim")
-        cons.append(
-            fim_var == self.f0 + cp.reshape(self.gm @ cp.vec(du, order="C"), (N_PARAMS, N_PARAMS), order="C")
-        )
+        cons.append(fim_var == self.f0 + cp.reshape(_SCATTER @ dfim, (N_PARAMS, N_PARAMS), order="C"))
         self.crit_param = cp.Parameter((N_PARAMS, N_PARAMS), name="criterion_weight")
         if p.criterion == "A":
             z = cp.Variable((2 * N_PARAMS, 2 * N_PARAMS), PSD=True, name="schur")
@@ -202,11 +221,13 @@ class ConvexSubproblem:
         p = self.p
         n = self.n
         x = ev.x
-        self.u_bar.value = ev.u
+        u_max = p.limits.input
+        self.delta = np.concatenate([delta_force * p.limits.force_N, delta_torque * p.limits.torque_Nm])
+        self.du_lower.value = np.maximum(-u_max - ev.u, -self.delta)
+        self.du_upper.value = np.minimum(u_max - ev.u, self.delta)
         self.v_bar.value = x[:, 3:6]
         self.w_bar.value = x[:, 10:13]
         self.rotation.set(lin.a, lin.b)
-        self.delta.value = np.concatenate([delta_force * p.limits.force_N, delta_torque * p.limits.torque_Nm])
         pos = x[:, 0:3]
         margin = self.merit.margin
         if self.has_keep_in:
@@ -247,12 +268,10 @@ class ConvexSubproblem:
         f_rel = d_theta[:, None] * ev.fim * d_theta[None, :]
         c = float(np.trace(f_rel)) / N_PARAMS
         self.f0.value = f_rel / c
-        gm = np.zeros((N_PARAMS * N_PARAMS, 6 * n))
-        for idx, (a, b) in enumerate(SYMMETRIC_PAIRS):
-            row = lin.gradients[idx].reshape(-1) * d_theta[a] * d_theta[b] / c
-            gm[a * N_PARAMS + b] = row
-            gm[b * N_PARAMS + a] = row
-        self.gm.value = gm
+        grads = lin.gradients
+        self.g_force.value = (grads[_MASS_INDEX, :, 0:3].reshape(1, -1) * (d_theta[0] ** 2 / c))
+        self.g_torque.value = np.stack([grads[SYMMETRIC_PAIRS.index((a, b)), :, 3:6].reshape(-1)
+                                        * (d_theta[a] * d_theta[b] / c) for a, b in _INERTIA_PAIRS])
         # Criterion on F_s = D_s F D_s = c T F̃ T with T = D_s Dθ⁻¹ (see the module docstring of fim_gradient).
         t_diag = np.diag(self.merit.d) / d_theta
         ref = self.merit.reference
