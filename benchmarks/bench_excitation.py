@@ -261,10 +261,9 @@ def compare_trees(trees: list[Path], mission_config: Path, repeats: int) -> None
         med = {k: (float(np.median([b[k] for b in base])), float(np.median([o[k] for o in other])))
                for k in ("wall", "cpu", "stage_wall", "stage_cpu")}
         j_this, j_other = base[-1]["criterion"], other[-1]["criterion"]
-        print(f"median vs {name}: design wall {med['wall'][0]:.3f} s vs {med['wall'][1]:.3f} s "
-              f"({med['wall'][1] / med['wall'][0]:.2f}x), cpu {med['cpu'][0]:.3f} vs {med['cpu'][1]:.3f} s; stage wall "
-              f"{med['stage_wall'][0]:.3f} vs {med['stage_wall'][1]:.3f} s ({med['stage_wall'][1] / med['stage_wall'][0]:.2f}x), "
-              f"cpu {med['stage_cpu'][0]:.3f} vs {med['stage_cpu'][1]:.3f} s")
+        (w, w_o), (c, c_o), (sw, sw_o), (sc, sc_o) = (med[k] for k in ("wall", "cpu", "stage_wall", "stage_cpu"))
+        print(f"median vs {name}: design wall {w:.3f} s vs {w_o:.3f} s ({w_o / w:.2f}x), cpu {c:.3f} vs {c_o:.3f} s; "
+              f"stage wall {sw:.3f} vs {sw_o:.3f} s ({sw_o / sw:.2f}x), cpu {sc:.3f} vs {sc_o:.3f} s")
         print(f"tr F⁻¹: this {j_this:.10g}, {name} {j_other:.10g} (this/other − 1 = {j_this / j_other - 1:+.2e})")
 
 

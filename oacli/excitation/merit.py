@@ -158,7 +158,8 @@ class ScpMerit:
                 np.sum(np.maximum(np.max(np.abs(x[1:, 10:13]) / lim.angular_velocity_radps, axis=1) - 1.0, 0.0))
             ),
             "keep_in": float(np.sum(keep_in_violation(p.scene, x[:, 0:3], self.margin)[0]) / LENGTH_UNIT_M),
-            "keep_out": float(np.sum(keep_out_violation(p.scene, x[:, 0:3], self.keep_out_margin)) / LENGTH_UNIT_M),
+            "keep_out": float(np.sum(keep_out_violation(p.scene, x[:, 0:3], self.keep_out_margin,
+                                                                lateral_inside=True)) / LENGTH_UNIT_M),
         }
         res = terminal_residual(x[-1], p.goal)
         out["terminal_position"] = max(res["position_m"] / tol.position_m - 1.0, 0.0)

@@ -20,10 +20,9 @@ from oacli.excitation.design_types import ExcitationProblem
 from oacli.excitation.fim_gradient import SYMMETRIC_PAIRS
 from oacli.excitation.information import N_PARAMS
 from oacli.excitation.merit import Evaluation, ScpMerit
-from oacli.excitation.problem import LENGTH_UNIT_M, attitude_error, keep_in_violation
-from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
+from oacli.excitation.problem import LENGTH_UNIT_M, attitude_error, keep_in_violation, segment_halfspaces
+from oacli.geometry.halfspaces import keep_out_zone
 from oacli.solver import solve_clarabel, solver_error_status
-
 
 _MASS_INDEX = SYMMETRIC_PAIRS.index((0, 0))
 _INERTIA_PAIRS = tuple((a, b) for a, b in SYMMETRIC_PAIRS if a > 0)
@@ -238,9 +237,8 @@ class ConvexSubproblem:
             self.in_hi0.value = hi - pos[:-1]
             self.in_lo1.value = lo - pos[1:]
             self.in_hi1.value = hi - pos[1:]
-        mid = 0.5 * (pos[:-1] + pos[1:])
         for e, ell in enumerate(p.scene.keep_out):
-            n_hat, beta, _ = point_halfspaces(keep_out_zone(ell), mid)
+            n_hat, beta = segment_halfspaces(keep_out_zone(ell), pos[:-1], pos[1:], lateral_inside=True)
             bound = beta + self.merit.keep_out_margin
             self.out_n[e].value = n_hat
             self.out_c0[e].value = bound - np.einsum("ki,ki->k", n_hat, pos[:-1])
