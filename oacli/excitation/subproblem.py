@@ -66,6 +66,7 @@ class ConvexSubproblem:
         p = problem
         self.compiled = compiled
         self._compiled_qp: CompiledQP | None = None
+        self._values: dict[int, np.ndarray] = {}
         self.linearisation_margin = linearisation_margin
         self.rate_margin_fraction = rate_margin_fraction
         n = p.steps
@@ -219,67 +220,80 @@ class ConvexSubproblem:
         """
         p = self.p
         n = self.n
+        # After the compiled problem's first solve its data come straight from these values (no cvxpy validation of
+        # each Parameter assignment); before it, and on the reference path, the Parameters get them.
+        direct = self._compiled_qp is not None
+        values = self._values
+
+        def put(param: cp.Parameter, value: np.ndarray) -> None:
+            if direct:
+                values[param.id] = value
+            else:
+                param.value = value
+
         x = ev.x
         u_max = p.limits.input
         self.delta = np.concatenate([delta_force * p.limits.force_N, delta_torque * p.limits.torque_Nm])
-        self.du_lower.value = np.maximum(-u_max - ev.u, -self.delta)
-        self.du_upper.value = np.minimum(u_max - ev.u, self.delta)
-        self.v_bar.value = x[:, 3:6]
-        self.w_bar.value = x[:, 10:13]
-        self.rotation.set(lin.a, lin.b)
+        put(self.du_lower, np.maximum(-u_max - ev.u, -self.delta))
+        put(self.du_upper, np.minimum(u_max - ev.u, self.delta))
+        put(self.v_bar, x[:, 3:6])
+        put(self.w_bar, x[:, 10:13])
+        for j, param in enumerate(self.rotation.a_cols):
+            put(param, lin.a[:, 6:13, 6 + j])
+        for j, param in enumerate(self.rotation.b_cols):
+            put(param, lin.b[:, 6:13, 3 + j])
         pos = x[:, 0:3]
         margin = self.merit.margin
         if self.has_keep_in:
             _, boxes = keep_in_violation(p.scene, pos, margin)
             lo = np.array([p.scene.keep_in[i].lower for i in boxes]) + margin
             hi = np.array([p.scene.keep_in[i].upper for i in boxes]) - margin
-            self.in_lo0.value = lo - pos[:-1]
-            self.in_hi0.value = hi - pos[:-1]
-            self.in_lo1.value = lo - pos[1:]
-            self.in_hi1.value = hi - pos[1:]
+            put(self.in_lo0, lo - pos[:-1])
+            put(self.in_hi0, hi - pos[:-1])
+            put(self.in_lo1, lo - pos[1:])
+            put(self.in_hi1, hi - pos[1:])
         for e, ell in enumerate(p.scene.keep_out):
             n_hat, beta = segment_halfspaces(keep_out_zone(ell), pos[:-1], pos[1:], lateral_inside=True)
             bound = beta + self.merit.keep_out_margin
-            self.out_n[e].value = n_hat
-            self.out_c0[e].value = bound - np.einsum("ki,ki->k", n_hat, pos[:-1])
-            self.out_c1[e].value = bound - np.einsum("ki,ki->k", n_hat, pos[1:])
-        self.r_end.value = pos[n] - p.goal[0:3]
+            put(self.out_n[e], n_hat)
+            put(self.out_c0[e], bound - np.einsum("ki,ki->k", n_hat, pos[:-1]))
+            put(self.out_c1[e], bound - np.einsum("ki,ki->k", n_hat, pos[1:]))
+        put(self.r_end, pos[n] - p.goal[0:3])
         err, jac = attitude_error(p.goal[6:10], x[n, 6:10])
-        self.att_err.value = err
-        self.att_jac.value = jac
+        put(self.att_err, err)
+        put(self.att_jac, jac)
         # Constraints the linear model predicts only to first order (rotation) are aimed at a tightened bound
         # (κ × the true one) but never tighter than the current value, so the slacks at zero step still equal the
         # true violations: linearisation errors of a step then stay inside the true bound (no Maratos effect).
         kappa = self.linearisation_margin
         tol = p.terminal
-        self.att_bound.value = np.minimum(tol.attitude_rad, np.maximum(kappa * tol.attitude_rad, np.abs(err)))
+        put(self.att_bound, np.minimum(tol.attitude_rad, np.maximum(kappa * tol.attitude_rad, np.abs(err))))
         w_end = np.abs(x[n, 10:13])
-        self.w_end_bound.value = np.minimum(
-            tol.angular_velocity_radps, np.maximum(kappa * tol.angular_velocity_radps, w_end)
-        )
+        put(self.w_end_bound, np.minimum(tol.angular_velocity_radps,
+                                         np.maximum(kappa * tol.angular_velocity_radps, w_end)))
         w_max = p.limits.angular_velocity_radps[None, :]
         rate_kappa = 1.0 - (1.0 - kappa) * self.rate_margin_fraction
-        self.w_bound.value = np.minimum(w_max, np.maximum(rate_kappa * w_max, np.abs(x[1:, 10:13])))
+        put(self.w_bound, np.minimum(w_max, np.maximum(rate_kappa * w_max, np.abs(x[1:, 10:13]))))
 
         # Scaled FIM model: F̃ = Dθ F Dθ / c with c = tr(Dθ F Dθ)/4 (O(1) numbers for the conic solver).
         d_theta = np.abs(p.theta)
         f_rel = d_theta[:, None] * ev.fim * d_theta[None, :]
         c = float(np.trace(f_rel)) / N_PARAMS
-        self.f0.value = f_rel / c
+        put(self.f0, f_rel / c)
         grads = lin.gradients
-        self.g_force.value = (grads[_MASS_INDEX, :, 0:3].reshape(1, -1) * (d_theta[0] ** 2 / c))
-        self.g_torque.value = np.stack([grads[SYMMETRIC_PAIRS.index((a, b)), :, 3:6].reshape(-1)
-                                        * (d_theta[a] * d_theta[b] / c) for a, b in _INERTIA_PAIRS])
+        put(self.g_force, (grads[_MASS_INDEX, :, 0:3].reshape(1, -1) * (d_theta[0] ** 2 / c)))
+        put(self.g_torque, np.stack([grads[SYMMETRIC_PAIRS.index((a, b)), :, 3:6].reshape(-1)
+                                     * (d_theta[a] * d_theta[b] / c) for a, b in _INERTIA_PAIRS]))
         # Criterion on F_s = D_s F D_s = c T F̃ T with T = D_s Dθ⁻¹ (see the module docstring of fim_gradient).
         t_diag = np.diag(self.merit.d) / d_theta
         ref = self.merit.reference
         assert ref is not None
         if p.criterion == "A":
-            self.crit_param.value = np.diag(1.0 / t_diag) / np.sqrt(c * ref)
+            put(self.crit_param, np.diag(1.0 / t_diag) / np.sqrt(c * ref))
         elif p.criterion == "E":
-            self.crit_param.value = np.diag(1.0 / t_diag**2) * abs(ref) / c
+            put(self.crit_param, np.diag(1.0 / t_diag**2) * abs(ref) / c)
         else:
-            self.crit_param.value = np.eye(N_PARAMS)
+            put(self.crit_param, np.eye(N_PARAMS))
 
     def solve(self) -> tuple[str, np.ndarray | None, float]:
         """Solve with Clarabel.
@@ -307,7 +321,7 @@ class ConvexSubproblem:
                 self._compiled_qp = CompiledQP(self.problem, settings)
             failure = ""
             try:
-                info = self._compiled_qp.solve()
+                info = self._compiled_qp.solve(self._values or None)
             except Exception as exc:  # the solver raised: reported in the status, as solve_clarabel does
                 info = None
                 failure = solver_error_status(exc)
@@ -315,6 +329,9 @@ class ConvexSubproblem:
                 # Fall back to cvxpy's solve of the same problem (with Clarabel's defaults) for this iterate.
                 if info is not None:
                     failure = info.status
+                for param in self.problem.parameters():  # the values the compiled solve took directly
+                    if param.id in self._values:
+                        param.value = self._values[param.id]
                 status, du, slack = self._solve_cvxpy()
                 self.translation_slack = self._last_translation_slack
                 return f"{status} (compiled: {failure})", du, slack
