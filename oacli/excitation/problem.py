@@ -134,6 +134,63 @@ def keep_in_violation(
     return np.maximum(excess.max(axis=1), 0.0), boxes
 
 
+def keep_in_sample_bounds(scene: Scene, positions: np.ndarray, margin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sample keep-in bounds: the intersection of the (shrunk) boxes of the sample's two segments.
+
+    Segment k runs from sample k to k+1 and must lie in its box (:func:`box_assignment`, shrunk by ``margin``);
+    by convexity of a box that holds exactly when both its ends do, so the whole path is inside when every sample
+    lies in the boxes of the segments it ends and starts, the intersection of two boxes (one box per axis
+    interval). The offline design states the keep-in constraint this way: one pair of bounds per sample and axis
+    instead of two per segment end (half the rows of its subproblem), the same set of paths.
+
+    Parameters
+    ----------
+    scene : Scene
+        Has at least one keep-in box.
+    positions : ndarray, shape (N+1, 3)
+        Sample positions [m] (the box of each segment is chosen at them).
+    margin : ndarray, shape (3,)
+        Inward margin of the boxes [m].
+
+    Returns
+    -------
+    lower, upper : ndarray, shape (N+1, 3)
+        [m]; ``lower > upper`` on an axis where the two boxes do not overlap.
+    """
+    boxes = box_assignment(scene, positions[:-1], positions[1:], margin)
+    lo_seg = np.array([scene.keep_in[i].lower for i in boxes]) + margin
+    hi_seg = np.array([scene.keep_in[i].upper for i in boxes]) - margin
+    lower = np.vstack([lo_seg, lo_seg[-1:]])
+    upper = np.vstack([hi_seg, hi_seg[-1:]])
+    lower[1:] = np.maximum(lower[1:], lo_seg)
+    upper[1:] = np.minimum(upper[1:], hi_seg)
+    return lower, upper
+
+
+def keep_in_sample_violation(scene: Scene, positions: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """Violation [m] of the keep-in constraint per sample against :func:`keep_in_sample_bounds` (largest axis).
+
+    Zero for every sample exactly when :func:`keep_in_violation` is zero for every segment.
+
+    Parameters
+    ----------
+    scene : Scene
+    positions : ndarray, shape (N+1, 3)
+        Sample positions [m].
+    margin : ndarray, shape (3,)
+        Inward margin of the boxes [m].
+
+    Returns
+    -------
+    ndarray, shape (N+1,)
+        [m], 0 where the sample is inside (all zeros without keep-in boxes).
+    """
+    if not scene.keep_in:
+        return np.zeros(positions.shape[0])
+    lower, upper = keep_in_sample_bounds(scene, positions, margin)
+    return np.maximum(np.max(np.maximum(lower - positions, positions - upper), axis=1), 0.0)
+
+
 def segment_halfspaces(zone: KeepOutZone, p0: np.ndarray, p1: np.ndarray,
                        lateral_inside: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Half-spaces ``n̂ᵀp ≥ β̂`` of a keep-out zone for the segments ``p0[k] → p1[k]``, taken at their midpoints.

@@ -20,7 +20,7 @@ from oacli.excitation.design_types import ExcitationProblem
 from oacli.excitation.fim_gradient import SYMMETRIC_PAIRS
 from oacli.excitation.information import N_PARAMS
 from oacli.excitation.merit import Evaluation, ScpMerit
-from oacli.excitation.problem import LENGTH_UNIT_M, attitude_error, keep_in_violation, segment_halfspaces
+from oacli.excitation.problem import LENGTH_UNIT_M, attitude_error, keep_in_sample_bounds, segment_halfspaces
 from oacli.geometry.halfspaces import keep_out_zone
 from oacli.solver import solve_clarabel, solver_error_status
 
@@ -111,17 +111,13 @@ class ConvexSubproblem:
 
         self.has_keep_in = bool(p.scene.keep_in)
         if self.has_keep_in:
-            # Bounds on dr relative to the iterate: lower/upper for the start and the end sample of each segment.
-            self.in_lo0 = cp.Parameter((n, 3), name="in_lo0")
-            self.in_hi0 = cp.Parameter((n, 3), name="in_hi0")
-            self.in_lo1 = cp.Parameter((n, 3), name="in_lo1")
-            self.in_hi1 = cp.Parameter((n, 3), name="in_hi1")
-            s_in = self._slack(n, "s_keep_in")
-            ls = cp.reshape(LENGTH_UNIT_M * s_in, (n, 1), order="C") @ np.ones((1, 3))
-            cons += [
-                dr[:-1] >= self.in_lo0 - ls, dr[:-1] <= self.in_hi0 + ls,
-                dr[1:] >= self.in_lo1 - ls, dr[1:] <= self.in_hi1 + ls,
-            ]
+            # Bounds on dr relative to the iterate, per sample: the intersection of the boxes of its two segments
+            # (:func:`oacli.excitation.problem.keep_in_sample_bounds`), one slack per sample.
+            self.in_lo = cp.Parameter((n + 1, 3), name="in_lo")
+            self.in_hi = cp.Parameter((n + 1, 3), name="in_hi")
+            s_in = self._slack(n + 1, "s_keep_in")
+            ls = cp.reshape(LENGTH_UNIT_M * s_in, (n + 1, 1), order="C") @ np.ones((1, 3))
+            cons += [dr >= self.in_lo - ls, dr <= self.in_hi + ls]
             slacks.append(s_in)
             self._rotational.append(False)
         self.out_n: list[cp.Parameter] = []
@@ -245,13 +241,9 @@ class ConvexSubproblem:
         pos = x[:, 0:3]
         margin = self.merit.margin
         if self.has_keep_in:
-            _, boxes = keep_in_violation(p.scene, pos, margin)
-            lo = np.array([p.scene.keep_in[i].lower for i in boxes]) + margin
-            hi = np.array([p.scene.keep_in[i].upper for i in boxes]) - margin
-            put(self.in_lo0, lo - pos[:-1])
-            put(self.in_hi0, hi - pos[:-1])
-            put(self.in_lo1, lo - pos[1:])
-            put(self.in_hi1, hi - pos[1:])
+            lo, hi = keep_in_sample_bounds(p.scene, pos, margin)
+            put(self.in_lo, lo - pos)
+            put(self.in_hi, hi - pos)
         for e, ell in enumerate(p.scene.keep_out):
             n_hat, beta = segment_halfspaces(keep_out_zone(ell), pos[:-1], pos[1:], lateral_inside=True)
             bound = beta + self.merit.keep_out_margin
