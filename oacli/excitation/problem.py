@@ -221,20 +221,21 @@ def segment_halfspaces(zone: KeepOutZone, p0: np.ndarray, p1: np.ndarray,
     mid = 0.5 * (p0 + p1)
     w = metric_directions(zone, mid)
     if lateral_inside:
-        inside = np.sum(w * w, axis=1) < 1.0
+        w_raw = (mid - zone.center) @ zone.metric.T  # the centre itself included (metric_directions: +x there)
+        inside = np.sum(w_raw * w_raw, axis=1) < 1.0
         if inside.any():
             d = (p1[inside] - p0[inside]) @ zone.metric.T
             d_norm = np.linalg.norm(d, axis=1, keepdims=True)
             d_hat = np.divide(d, d_norm, out=np.zeros_like(d), where=d_norm > 0)
-            wi = w[inside]
+            wi = w_raw[inside]
             lateral = wi - np.sum(wi * d_hat, axis=1, keepdims=True) * d_hat
             flat = np.sum(lateral * lateral, axis=1) <= 1e-18 * np.maximum(np.sum(wi * wi, axis=1), 1e-30)
             if flat.any():  # through the centre: the normalised axis most perpendicular to the segment
                 eye = np.eye(3)
                 axis = eye[np.argmin(np.abs(d_hat[flat]), axis=1)]
                 lateral[flat] = axis - np.sum(axis * d_hat[flat], axis=1, keepdims=True) * d_hat[flat]
-            keep = np.sum(lateral * lateral, axis=1) > 0
-            w_in = wi.copy()
+            keep = np.sum(lateral * lateral, axis=1) > 0  # a zero-length segment keeps its plain direction
+            w_in = w[inside]
             w_in[keep] = lateral[keep]
             w[inside] = w_in
     return supporting_halfspaces(zone, w)
