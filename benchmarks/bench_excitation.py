@@ -22,8 +22,10 @@ subproblem, force part of a failed step judged on its own), alternating per repe
 criteria (tr F⁻¹), both designs' dense feasibility, and the whole stage (outputs included) on the fast path.
 
 Run: ``python benchmarks/bench_excitation.py [--replans 10] [--repeats 3] [--only mission]`` from the repository
-root (``taskset -c 1`` to pin one core). The information table needs
-the RATTLE data ([RattleData], docs/references.md) at ../shared/data (skipped with a message when absent).
+root (``taskset -c 1`` to pin one core). ``--compare-tree DIR`` (repeatable) times this checkout's design and stage
+against another oacli checkout (e.g. ``git worktree add /tmp/base main``), each in fresh processes, alternating per
+repeat, with both criteria. The information table needs the RATTLE data ([RattleData], docs/references.md) at
+../shared/data (skipped with a message when absent).
 """
 
 from __future__ import annotations
