@@ -22,8 +22,10 @@ subproblem, force part of a failed step judged on its own), alternating per repe
 criteria (tr F⁻¹), both designs' dense feasibility, and the whole stage (outputs included) on the fast path.
 
 Run: ``python benchmarks/bench_excitation.py [--replans 10] [--repeats 3] [--only mission]`` from the repository
-root (``taskset -c 1`` to pin one core). The information table needs
-the RATTLE data ([RattleData], docs/references.md) at ../shared/data (skipped with a message when absent).
+root (``taskset -c 1`` to pin one core). ``--compare-tree DIR`` (repeatable) times this checkout's design and stage
+against another oacli checkout (e.g. ``git worktree add /tmp/base main``), each in fresh processes, alternating per
+repeat, with both criteria. The information table needs the RATTLE data ([RattleData], docs/references.md) at
+../shared/data (skipped with a message when absent).
 """
 
 from __future__ import annotations
@@ -213,6 +215,60 @@ def mission_design_speed(mission_config: Path, repeats: int) -> None:
           f"{stage_cpu:.2f} s cpu, of which the design {design_s:.2f} s wall (target ≤ 2.5 s on an idle core)")
 
 
+def _child_design(mission_config: Path) -> None:
+    """One measured design and stage of the mission's segment-2 excitation in this process (``--child``): prints JSON.
+
+    The stage runs once first (imports, first-call caches, as in a mission where earlier stages ran), then the
+    design and the whole stage are measured fresh (the subproblem is built and canonicalised again each time).
+    """
+    cfg = stage_config(load_config(mission_config), stage_by_key("segment-2/excite"), Handoff())
+    problem = excitation_problem(cfg)
+    with tempfile.TemporaryDirectory() as tmp:
+        run_excite(cfg, out=Path(tmp) / "warm")
+        t0, c0 = time.perf_counter(), time.process_time()
+        d = design_excitation(problem, scp_settings(cfg), rng=np.random.default_rng(cfg.seed))
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        t0, c0 = time.perf_counter(), time.process_time()
+        run_excite(cfg, out=Path(tmp) / "excite")
+        stage, stage_cpu = time.perf_counter() - t0, time.process_time() - c0
+    print(json.dumps({"wall": wall, "cpu": cpu, "stage_wall": stage, "stage_cpu": stage_cpu,
+                      "criterion": d.criterion_final, "iterations": len(d.iterations),
+                      "accepted": d.accepted_iterations, "stop": d.stop_reason}))
+
+
+def compare_trees(trees: list[Path], mission_config: Path, repeats: int) -> None:
+    """This checkout against other checkouts of oacli (e.g. main's), the same benchmark in fresh processes,
+    alternating the order per repeat; the timings are of the mission's segment-2 design and its whole stage."""
+    import subprocess
+    import sys
+
+    sides = [("this", REPO), *((str(t), t.resolve()) for t in trees)]
+    rows: dict[str, list[dict]] = {name: [] for name, _ in sides}
+    print(f"\nOffline design of the mission's segment 2, this checkout vs {', '.join(str(t) for t in trees)} "
+          f"({repeats} repeats, alternating; fresh process each)")
+    print(f"{'repeat':<7} {'tree':<28} {'design wall':>11} {'cpu':>6} {'stage wall':>10} {'cpu':>6} {'SCP it.':>7} "
+          f"{'tr F⁻¹':>16}")
+    for r in range(repeats):
+        for name, tree in (sides if r % 2 == 0 else sides[::-1]):
+            env = {**__import__("os").environ, "PYTHONPATH": str(tree)}
+            out = subprocess.run([sys.executable, __file__, "--child", "--mission-config", str(mission_config)],
+                                 env=env, cwd=tree, capture_output=True, text=True, check=True)
+            row = json.loads(out.stdout.strip().splitlines()[-1])
+            rows[name].append(row)
+            print(f"{r + 1:<7} {name[-28:]:<28} {row['wall']:>11.3f} {row['cpu']:>6.3f} {row['stage_wall']:>10.3f} "
+                  f"{row['stage_cpu']:>6.3f} {row['iterations']:>7} {row['criterion']:>16.10g}")
+    base = rows["this"]
+    for name, _ in sides[1:]:
+        other = rows[name]
+        med = {k: (float(np.median([b[k] for b in base])), float(np.median([o[k] for o in other])))
+               for k in ("wall", "cpu", "stage_wall", "stage_cpu")}
+        j_this, j_other = base[-1]["criterion"], other[-1]["criterion"]
+        (w, w_o), (c, c_o), (sw, sw_o), (sc, sc_o) = (med[k] for k in ("wall", "cpu", "stage_wall", "stage_cpu"))
+        print(f"median vs {name}: design wall {w:.3f} s vs {w_o:.3f} s ({w_o / w:.2f}x), cpu {c:.3f} vs {c_o:.3f} s; "
+              f"stage wall {sw:.3f} vs {sw_o:.3f} s ({sw_o / sw:.2f}x), cpu {sc:.3f} vs {sc_o:.3f} s")
+        print(f"tr F⁻¹: this {j_this:.10g}, {name} {j_other:.10g} (this/other − 1 = {j_this / j_other - 1:+.2e})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--replans", type=int, default=10, help="replans timed")
@@ -220,7 +276,18 @@ def main() -> None:
     parser.add_argument("--config", type=Path, default=REPO / "configs" / "iss_reswarm.yaml")
     parser.add_argument("--mission-config", type=Path, default=REPO / "configs" / "mission_iss.yaml")
     parser.add_argument("--only", choices=("table", "replan", "mission"), help="run one section only")
+    parser.add_argument("--compare-tree", type=Path, action="append", default=[],
+                        help="another oacli checkout (e.g. a worktree of main) to time against this one, fresh "
+                             "processes alternating per repeat (with --only mission: instead of reference vs fast)")
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.child:
+        _child_design(args.mission_config)
+        return
+    if args.compare_tree:
+        compare_trees(args.compare_tree, args.mission_config, args.repeats)
+        if args.only == "mission":
+            return
     cfg = load_config(args.config)
     if args.only in (None, "mission"):
         mission_design_speed(args.mission_config, args.repeats)

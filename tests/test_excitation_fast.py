@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from oacli.excitation import split_information as si
 from oacli.excitation.design import ScpSettings, design_excitation
@@ -21,10 +23,17 @@ from oacli.excitation.information import (
     propagate_with_sensitivities,
 )
 from oacli.excitation.merit import ScpMerit
-from oacli.excitation.problem import rest_to_rest_inputs
+from oacli.excitation.problem import (
+    keep_in_sample_bounds,
+    keep_in_sample_violation,
+    keep_in_violation,
+    rest_to_rest_inputs,
+    segment_halfspaces,
+)
 from oacli.excitation.starts import initial_guess
 from oacli.excitation.subproblem import ConvexSubproblem
 from oacli.geometry import Box, Ellipsoid, Scene
+from oacli.geometry.halfspaces import keep_out_zone, metric_directions, point_halfspaces
 from oacli.geometry.verify import dense_positions
 from oacli.model import quaternion as quat
 from tests.test_excitation_design import FULL, LIMITS, RATTLE, THETA, problem
@@ -122,7 +131,7 @@ def test_compiled_subproblem_is_dpp_and_solves_to_the_reference_optimum(criterio
             assert abs(obj_fast - obj_ref) <= scale
         else:  # cvxpy's solve of the log-det / λ_min cones reports 'optimal_inaccurate' here: never better
             assert obj_fast <= obj_ref + scale
-        assert np.all(np.abs(du_fast) <= fast.delta.value * (1 + 1e-7) + 1e-9)
+        assert np.all(np.abs(du_fast) <= fast.delta * (1 + 1e-7) + 1e-9)
         assert np.all(np.abs(ev.u + du_fast) <= LIMITS.input * (1 + 1e-7) + 1e-9)
 
 
@@ -174,3 +183,70 @@ def test_fast_design_is_deterministic(both_paths):
     again = design_excitation(p, settings, u_init=fast.initial.u[:-1])
     assert again.criterion_final == fast.criterion_final
     np.testing.assert_array_equal(again.trajectory.u, fast.trajectory.u)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_per_sample_keep_in_bounds_accept_exactly_the_paths_the_segment_boxes_accept(seed):
+    """The subproblem's per-sample keep-in rows (intersection of the boxes of both segments) hold for every sample
+    exactly when every segment lies in its box; and the violation is zero for exactly those paths."""
+    rng = np.random.default_rng(seed)
+    scene = Scene(keep_in=(Box((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)), Box((0.8, -0.3, -0.3), (2.5, 0.3, 0.3)),
+                           Box((2.3, -1.0, -1.0), (3.5, 1.0, 1.0))))
+    margin = np.array([0.02, 0.03, 0.01])
+    # A random walk along the three boxes, sometimes poking out of them.
+    steps = rng.normal(0.0, 0.08, (40, 3)) + np.array([0.09, 0.0, 0.0])
+    pos = np.vstack([[-0.9, rng.uniform(-0.2, 0.2), 0.0], steps]).cumsum(axis=0)
+    pos[:, 1:] *= rng.uniform(0.2, 2.0)
+    seg_viol, boxes = keep_in_violation(scene, pos, margin)
+    lo, hi = keep_in_sample_bounds(scene, pos, margin)
+    box_lo = np.array([scene.keep_in[i].lower for i in boxes]) + margin
+    box_hi = np.array([scene.keep_in[i].upper for i in boxes]) - margin
+    start_in = np.all((pos[:-1] >= box_lo) & (pos[:-1] <= box_hi), axis=1)  # sample k in the box of segment k
+    end_in = np.all((pos[1:] >= box_lo) & (pos[1:] <= box_hi), axis=1)  # sample k+1 in the box of segment k
+    sample_ok = np.all((pos >= lo) & (pos <= hi), axis=1)
+    np.testing.assert_array_equal(sample_ok, np.append(start_in, True) & np.insert(end_in, 0, True))
+    assert np.all(start_in & end_in) == np.all(sample_ok)
+    sample_viol = keep_in_sample_violation(scene, pos, margin)
+    assert (np.max(seg_viol) == 0.0) == (np.max(sample_viol) == 0.0)
+    np.testing.assert_array_equal(sample_viol == 0.0, sample_ok)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_lateral_halfspace_of_a_segment_inside_the_zone_lies_in_free_space(seed):
+    """A segment whose midpoint is inside the zone gets a supporting half-space normal to the segment (in the zone's
+    metric), every point of which is outside the ellipsoid; through the centre too; outside, the plain rule."""
+    rng = np.random.default_rng(seed)
+    rot = quat.to_rotation_matrix(quat.normalize(rng.standard_normal(4)))
+    ell = Ellipsoid.from_semi_axes(rng.uniform(-1, 1, 3), rng.uniform(0.1, 1.0, 3), rot)
+    zone = keep_out_zone(ell)
+    direction = rng.normal(size=3)
+    half = 0.05 * direction / np.linalg.norm(direction)
+    mids = np.vstack([ell.center, ell.center + 0.3 * (ell.center - ell.center) + rng.uniform(-0.05, 0.05, 3),
+                      ell.center + rng.normal(0, 2.0, 3)])
+    p0, p1 = mids - half, mids + half
+    n_hat, beta = segment_halfspaces(zone, p0, p1, lateral_inside=True)
+    pts = rng.uniform(-4, 4, (4000, 3))
+    for k in range(3):
+        assert not np.any(ell.contains(pts[pts @ n_hat[k] >= beta[k]]))
+    d_metric = (p1 - p0) @ zone.metric.T
+    n_metric = n_hat @ np.linalg.inv(zone.metric)  # the normal's direction in the normalised coordinates
+    for k in (0, 1):  # inside: normal to the segment in the metric
+        assert abs(n_metric[k] @ d_metric[k]) <= 1e-9 * np.linalg.norm(n_metric[k]) * np.linalg.norm(d_metric[k])
+    plain_n, plain_beta, _ = point_halfspaces(zone, mids[2:])
+    if np.sum(metric_directions(zone, mids[2:]) ** 2) >= 1.0:  # outside: unchanged
+        np.testing.assert_allclose(n_hat[2], plain_n[0], atol=1e-12)
+        assert beta[2] == pytest.approx(plain_beta[0])
+
+
+def test_design_from_a_symmetric_start_through_the_obstacle_centre_goes_around():
+    """A straight start through the centre of a keep-out zone has no lateral sensitivity at all (exactly zero
+    lateral forces): the design still ends feasible, around the zone (lateral keep-out half-spaces inside it)."""
+    p = problem(n=20, duration=20.0, scene=_scene(), start=(0.0, 0.0, 0.4), goal=(0.0, 0.0, -0.4))
+    straight = rest_to_rest_inputs(p.start, p.goal, p.steps, p.dt, p.theta,
+                                   excitation=np.vstack([np.zeros(3), 0.2 * LIMITS.torque_Nm]))
+    assert np.all(straight[:, 0:2] == 0)
+    design = design_excitation(p, ScpSettings(max_iterations=20, trust_region_initial=1.0), u_init=straight)
+    _dense_feasible(p, design)
+    assert np.abs(design.trajectory.x[:, 0:2]).max() > 0.1  # went around

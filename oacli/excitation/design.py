@@ -15,7 +15,10 @@ exactly); around the current one a convex subproblem in the step ``δu`` is solv
 * the FIM linearised, ``F(u + δu) ≈ F(u) + Σ_ab E_ab ⟨∂F_ab/∂u, δu⟩`` with exact adjoint gradients
   (:mod:`oacli.excitation.fim_gradient`), and the *exact convex* criterion of that affine matrix (tr_inv by a
   Schur complement, log_det, λ_min by an LMI) — a model that keeps the criterion's curvature in F;
-* keep-in boxes and keep-out tangent half-spaces per segment; velocity, rate and terminal constraints linearised;
+* keep-in boxes per sample (the intersection of the boxes of its two segments,
+  :func:`oacli.excitation.problem.keep_in_sample_bounds`) and keep-out tangent half-spaces per segment (pushed
+  sideways for segments inside a zone, :func:`oacli.excitation.problem.segment_halfspaces`); velocity, rate and
+  terminal constraints linearised;
 * every constraint but the input bounds is softened by a non-negative slack with an exact ℓ1 penalty μ, so the
   subproblem is always feasible (feasibility restoration when the linearised problem is not);
 * a trust region ``|δu_i| ≤ Δ·u_max,i``.
@@ -44,8 +47,11 @@ as the generic functions to rounding), and when a step fails the merit test its 
 against the model of the force part (``ScpSettings.split_steps``; no extra subproblem) — on long horizons the
 whole step fails almost always for its rotation, while the translation, which carries most of the information,
 is modelled exactly. The subproblem is the same cvxpy problem, canonicalised once and re-solved through
-:class:`oacli.control.compiled_qp.CompiledQP`. The reference path keeps the generic functions, ``problem.solve()``
-per subproblem and whole steps only; ``benchmarks/bench_excitation.py`` times both.
+:class:`oacli.control.compiled_qp.CompiledQP` with the parameter values passed directly. The decoupling also shapes
+the subproblem (both paths): the FIM model has 7 gradient rows (F_mm in the forces, the six F_II entries in the
+torques) instead of 16 dense ones, and input bounds and trust region are one box per input entry. The reference
+path keeps the generic functions, ``problem.solve()`` per subproblem and whole steps only;
+``benchmarks/bench_excitation.py`` times both.
 
 Information is a convex function of the inputs and it is *maximised*, so the result is a local optimum that depends
 on the start. The default start (:func:`initial_guess`) already spends long stretches near the speed limit (the mass

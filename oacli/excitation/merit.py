@@ -23,7 +23,7 @@ from oacli.excitation.problem import (
     LENGTH_UNIT_M,
     attitude_error,
     chord_margin_m,
-    keep_in_violation,
+    keep_in_sample_violation,
     keep_out_violation,
 )
 
@@ -157,8 +157,9 @@ class ScpMerit:
             "angular_velocity": float(
                 np.sum(np.maximum(np.max(np.abs(x[1:, 10:13]) / lim.angular_velocity_radps, axis=1) - 1.0, 0.0))
             ),
-            "keep_in": float(np.sum(keep_in_violation(p.scene, x[:, 0:3], self.margin)[0]) / LENGTH_UNIT_M),
-            "keep_out": float(np.sum(keep_out_violation(p.scene, x[:, 0:3], self.keep_out_margin)) / LENGTH_UNIT_M),
+            "keep_in": float(np.sum(keep_in_sample_violation(p.scene, x[:, 0:3], self.margin)) / LENGTH_UNIT_M),
+            "keep_out": float(np.sum(keep_out_violation(p.scene, x[:, 0:3], self.keep_out_margin,
+                                                                lateral_inside=True)) / LENGTH_UNIT_M),
         }
         res = terminal_residual(x[-1], p.goal)
         out["terminal_position"] = max(res["position_m"] / tol.position_m - 1.0, 0.0)

@@ -25,7 +25,13 @@ import numpy as np
 
 from oacli.errors import InfeasibleError
 from oacli.geometry import Scene
-from oacli.geometry.halfspaces import best_box, keep_out_zone, point_halfspaces
+from oacli.geometry.halfspaces import (
+    KeepOutZone,
+    best_box,
+    keep_out_zone,
+    metric_directions,
+    supporting_halfspaces,
+)
 from oacli.geometry.verify import dense_positions
 from oacli.model import quaternion as quat
 from oacli.model.limits import MotionLimits
@@ -128,11 +134,119 @@ def keep_in_violation(
     return np.maximum(excess.max(axis=1), 0.0), boxes
 
 
-def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end_extra_m: float = 0.0) -> np.ndarray:
+def keep_in_sample_bounds(scene: Scene, positions: np.ndarray, margin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sample keep-in bounds: the intersection of the (shrunk) boxes of the sample's two segments.
+
+    Segment k runs from sample k to k+1 and must lie in its box (:func:`box_assignment`, shrunk by ``margin``);
+    by convexity of a box that holds exactly when both its ends do, so the whole path is inside when every sample
+    lies in the boxes of the segments it ends and starts, the intersection of two boxes (one box per axis
+    interval). The offline design states the keep-in constraint this way: one pair of bounds per sample and axis
+    instead of two per segment end (half the rows of its subproblem), the same set of paths.
+
+    Parameters
+    ----------
+    scene : Scene
+        Has at least one keep-in box.
+    positions : ndarray, shape (N+1, 3)
+        Sample positions [m] (the box of each segment is chosen at them).
+    margin : ndarray, shape (3,)
+        Inward margin of the boxes [m].
+
+    Returns
+    -------
+    lower, upper : ndarray, shape (N+1, 3)
+        [m]; ``lower > upper`` on an axis where the two boxes do not overlap.
+    """
+    boxes = box_assignment(scene, positions[:-1], positions[1:], margin)
+    lo_seg = np.array([scene.keep_in[i].lower for i in boxes]) + margin
+    hi_seg = np.array([scene.keep_in[i].upper for i in boxes]) - margin
+    lower = np.vstack([lo_seg, lo_seg[-1:]])
+    upper = np.vstack([hi_seg, hi_seg[-1:]])
+    lower[1:] = np.maximum(lower[1:], lo_seg)
+    upper[1:] = np.minimum(upper[1:], hi_seg)
+    return lower, upper
+
+
+def keep_in_sample_violation(scene: Scene, positions: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """Violation [m] of the keep-in constraint per sample against :func:`keep_in_sample_bounds` (largest axis).
+
+    Zero for every sample exactly when :func:`keep_in_violation` is zero for every segment.
+
+    Parameters
+    ----------
+    scene : Scene
+    positions : ndarray, shape (N+1, 3)
+        Sample positions [m].
+    margin : ndarray, shape (3,)
+        Inward margin of the boxes [m].
+
+    Returns
+    -------
+    ndarray, shape (N+1,)
+        [m], 0 where the sample is inside (all zeros without keep-in boxes).
+    """
+    if not scene.keep_in:
+        return np.zeros(positions.shape[0])
+    lower, upper = keep_in_sample_bounds(scene, positions, margin)
+    return np.maximum(np.max(np.maximum(lower - positions, positions - upper), axis=1), 0.0)
+
+
+def segment_halfspaces(zone: KeepOutZone, p0: np.ndarray, p1: np.ndarray,
+                       lateral_inside: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Half-spaces ``n̂ᵀp ≥ β̂`` of a keep-out zone for the segments ``p0[k] → p1[k]``, taken at their midpoints.
+
+    With ``lateral_inside``, a segment whose midpoint lies inside the zone is pushed out sideways: its metric
+    direction loses its component along the segment (in the zone's normalised coordinates), and a segment through
+    the centre takes the normalised axis most perpendicular to it. Along the path, the plain rule gives the samples
+    of a straight run through the zone opposite normals on either side of the centre (forward and backward), a
+    linearisation that no step satisfies and that has no lateral sensitivity to escape by (an SCP from an exactly
+    symmetric start stalls there); the lateral rule gives them one consistent way around. Outside the zone both
+    rules agree.
+
+    Parameters
+    ----------
+    zone : KeepOutZone
+    p0, p1 : ndarray, shape (K, 3)
+        Segment ends [m].
+    lateral_inside : bool, optional
+        Apply the lateral rule to midpoints inside the zone.
+
+    Returns
+    -------
+    normal : ndarray, shape (K, 3)
+        Unit normals.
+    offset : ndarray, shape (K,)
+        β̂ [m].
+    """
+    mid = 0.5 * (p0 + p1)
+    w = metric_directions(zone, mid)
+    if lateral_inside:
+        w_raw = (mid - zone.center) @ zone.metric.T  # the centre itself included (metric_directions: +x there)
+        inside = np.sum(w_raw * w_raw, axis=1) < 1.0
+        if inside.any():
+            d = (p1[inside] - p0[inside]) @ zone.metric.T
+            d_norm = np.linalg.norm(d, axis=1, keepdims=True)
+            d_hat = np.divide(d, d_norm, out=np.zeros_like(d), where=d_norm > 0)
+            wi = w_raw[inside]
+            lateral = wi - np.sum(wi * d_hat, axis=1, keepdims=True) * d_hat
+            flat = np.sum(lateral * lateral, axis=1) <= 1e-18 * np.maximum(np.sum(wi * wi, axis=1), 1e-30)
+            if flat.any():  # through the centre: the normalised axis most perpendicular to the segment
+                eye = np.eye(3)
+                axis = eye[np.argmin(np.abs(d_hat[flat]), axis=1)]
+                lateral[flat] = axis - np.sum(axis * d_hat[flat], axis=1, keepdims=True) * d_hat[flat]
+            keep = np.sum(lateral * lateral, axis=1) > 0  # a zero-length segment keeps its plain direction
+            w_in = w[inside]
+            w_in[keep] = lateral[keep]
+            w[inside] = w_in
+    return supporting_halfspaces(zone, w)
+
+
+def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end_extra_m: float = 0.0,
+                       lateral_inside: bool = False) -> np.ndarray:
     """Violation [m] per keep-out zone and segment: ``max(0, β̂ + δ − n̂ᵀp)`` over both chord ends.
 
-    The half-space is taken at the chord midpoint (see the module docstring); the very last sample needs
-    ``end_extra_m`` more.
+    The half-space is taken at the chord midpoint (see the module docstring; ``lateral_inside``: see
+    :func:`segment_halfspaces`); the very last sample needs ``end_extra_m`` more.
 
     Parameters
     ----------
@@ -142,18 +256,18 @@ def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end
     margin_m : float
         Clearance δ [m].
     end_extra_m : float, optional
+    lateral_inside : bool, optional
 
     Returns
     -------
     ndarray, shape (E, N)
     """
     p0, p1 = positions[:-1], positions[1:]
-    mid = 0.5 * (p0 + p1)
     out = np.zeros((len(scene.keep_out), p0.shape[0]))
     extra = np.zeros(p0.shape[0])
     extra[-1] = end_extra_m
     for e, ell in enumerate(scene.keep_out):
-        n_hat, beta, _ = point_halfspaces(keep_out_zone(ell), mid)
+        n_hat, beta = segment_halfspaces(keep_out_zone(ell), p0, p1, lateral_inside)
         gap0 = np.einsum("ki,ki->k", n_hat, p0) - beta - margin_m
         gap1 = np.einsum("ki,ki->k", n_hat, p1) - beta - margin_m - extra
         out[e] = np.maximum(-np.minimum(gap0, gap1), 0.0)

@@ -397,8 +397,9 @@ def fim_gradients(x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, m
 
     # Rotation: adjoint of the 28-state augmented system z = [q, ω, vec S] (S = ∂[q, ω]/∂I), batched stages.
     m_ii = weights[:, 1:4, 1:4]  # (P, 3, 3)
-    if np.any(m_ii):
-        grads[:, :, 3:6] = _rotation_gradient(ro, u[:, 3:6], inertia, dt, w_state, w_acc, m_ii)
+    active = np.any(m_ii != 0, axis=(1, 2))  # functionals that see the inertia block (the others: zero gradient)
+    if np.any(active):
+        grads[active, :, 3:6] = _rotation_gradient(ro, u[:, 3:6], inertia, dt, w_state, w_acc, m_ii[active])
 
     fim = fisher_information(ro, u, theta, model)
     a_full = np.zeros((n, 13, 13))

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from oacli.excitation.design_types import ExcitationProblem
-from oacli.excitation.information import propagate_with_sensitivities
 from oacli.excitation.problem import chord_margin_m, rest_to_rest_inputs, rest_to_rest_profile, translation_excitation
+from oacli.excitation.split_information import rollout
 
 
 def initial_guess(problem: ExcitationProblem, excitation_fraction: float = 0.3) -> np.ndarray:
@@ -41,7 +41,7 @@ def initial_guess(problem: ExcitationProblem, excitation_fraction: float = 0.3) 
         amp = frac * np.vstack([np.where(np.any(pattern != 0, axis=0), 0.0, lim.force_N), lim.torque_Nm])
         u = rest_to_rest_inputs(p.start, p.goal, p.steps, p.dt, p.theta, excitation=amp)
         u[:, 0:3] += pattern
-        x, _ = propagate_with_sensitivities(p.start, u, p.theta, p.dt)
+        x = rollout(p.start, u, p.theta, p.dt).x  # the split rollout: same states to rounding
         ok = (
             np.all(np.abs(u) <= 0.9 * lim.input)
             and np.all(np.abs(x[:, 3:6]) <= 0.9 * lim.velocity_mps)
@@ -83,7 +83,7 @@ def perturbed_guess(problem: ExcitationProblem, rng: np.random.Generator) -> np.
         u = base.copy()
         u[:, 0:3] += frac * lim.force_N * shapes[:, 0:3]
         u[:, 3:6] += frac * lim.torque_Nm * shapes[:, 3:6]
-        x, _ = propagate_with_sensitivities(p.start, u, p.theta, p.dt)
+        x = rollout(p.start, u, p.theta, p.dt).x  # the split rollout: same states to rounding
         if (np.all(np.abs(u) <= 0.9 * lim.input) and np.all(np.abs(x[:, 3:6]) <= 0.9 * lim.velocity_mps)
                 and np.all(np.abs(x[:, 10:13]) <= 0.9 * lim.angular_velocity_radps)):
             break
