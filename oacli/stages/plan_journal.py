@@ -67,21 +67,31 @@ class PlanJournal(StageJournal):
         self._written = 0  # nodes written so far
         self._parents = np.zeros(0, dtype=np.int64)  # their parents as last written
         self._last_iteration = 0
+        self._latest: tuple[int, Tree, float, int] | None = None  # the last callback's iteration, tree, cost, nodes
 
     def on_iteration(self, iteration: int, tree: Tree, best_cost: float) -> None:
         """Take the tree after ``iteration`` iterations (a planner's ``on_iteration`` callback)."""
+        self._latest = (iteration, tree, best_cost, tree.n)
         if iteration - self._last_iteration >= FLUSH_ITERATIONS or self.due():
             self.record(iteration, tree, best_cost)
 
-    def record(self, iteration: int, tree: Tree, best_cost: float) -> None:
-        """Write the growth since the last record and finish a chunk on disk."""
+    def on_interrupt(self, writer: StageMcapWriter) -> None:
+        """Record the growth since the last record up to the last iteration the planner finished (the nodes it
+        had then; an iteration cut short adds nothing)."""
+        if self._latest is not None and self._latest[0] > self._last_iteration:
+            iteration, tree, best_cost, nodes = self._latest
+            self.record(iteration, tree, best_cost, nodes=nodes)
+
+    def record(self, iteration: int, tree: Tree, best_cost: float, *, nodes: int | None = None) -> None:
+        """Write the growth since the last record (the tree's first ``nodes`` nodes, default all) and finish a
+        chunk on disk."""
         writer = self.writer()
         if writer is None:
             return
-        parent = tree.parent
+        n = tree.n if nodes is None else min(int(nodes), tree.n)
+        parent = tree.parent[:n]
         old = parent[: self._written]
         rewired = np.flatnonzero(old != self._parents)
-        n = tree.n
         first = True
         while first or self._written < n:
             first = False
