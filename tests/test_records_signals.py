@@ -55,7 +55,9 @@ def _plan_config(tmp_path: Path) -> Path:
 
 def _offline_config(tmp_path: Path) -> Path:
     data = yaml.safe_load(ISS.read_text())
-    data["excitation"].update({"steps": 40, "scp": {"max_iterations": 500}})
+    # 20 starts screened for 50 iterations each: about 1000 SCP iterations (a minute), never converged early
+    data["excitation"].update({"steps": 40, "scp": {"max_iterations": 1000, "tolerance": 1e-300, "starts": 20,
+                                                    "screening_iterations": 50}})
     path = tmp_path / "excite_long.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
@@ -190,19 +192,21 @@ def _kill_at_random_moment(case: str, tmp_path: Path, seed: int) -> None:
         if true_t:
             assert ctrl_t and abs(max(true_t) - max(ctrl_t)) <= 0.2e9 + 1
             assert max(true_t) >= max(t for _, t, _ in messages) - 0.2e9
-    assert seen_topic or all(complete_chunks(p.read_bytes()) == 0 for p in files)
+    # the journal's own records whenever a chunk of messages was complete (not only the metadata)
+    assert seen_topic or not any(stream_read(p.read_bytes())[0] for p in files)
     assert not is_complete(out) and not (out / "summary.json").exists()
 
 
-@pytest.mark.parametrize("case", list(CASES))
-def test_sigkill_at_a_random_moment_leaves_mcaps_readable_to_their_last_chunk(case, tmp_path):
-    _kill_at_random_moment(case, tmp_path, seed=1)
+def test_sigkill_at_a_random_moment_of_the_rattle_loop_leaves_mcaps_readable_to_their_last_chunk(tmp_path):
+    """The fast variant: the RATTLE loop (plan and the offline design are killed at a fixed moment in the default
+    run, tests/test_records_journal.py)."""
+    _kill_at_random_moment("excite-rattle", tmp_path, seed=1)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [2, 3, 4, 5])
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
 @pytest.mark.parametrize("case", list(CASES))
-def test_sigkill_at_more_random_moments(case, seed, tmp_path):
+def test_sigkill_at_random_moments(case, seed, tmp_path):
     _kill_at_random_moment(case, tmp_path, seed)
 
 

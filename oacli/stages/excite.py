@@ -215,6 +215,8 @@ def run_excite(
     method = method or cfg.excitation.method
     if method not in ("offline", "rattle"):
         raise ConfigError(f"--method: {method!r}: must be 'offline' or 'rattle'")
+    # recorded in the run's config.yaml, so `oacli excite RUN/config.yaml` reruns the same method
+    cfg = cfg.model_copy(update={"excitation": cfg.excitation.model_copy(update={"method": method})})
     if method == "offline":
         return _run_offline(cfg, out=out, runs_root=runs_root, progress=progress)
     return _run_rattle(cfg, out=out, runs_root=runs_root, progress=progress)
