@@ -49,7 +49,8 @@ _raised: list[int] = []
 
 #: Signal numbers received inside a :class:`held` block and not raised yet (a list: its truth is cheap to test).
 PENDING: list[int] = []
-_held = [0]  # depth of nested held blocks
+_held = [0]  # depth of nested held blocks (main thread only)
+_MAIN_THREAD = threading.main_thread().ident
 
 
 def _interruption(signum: int) -> KeyboardInterrupt:
@@ -72,9 +73,12 @@ class held:
     __slots__ = ()
 
     def __enter__(self) -> None:
-        _held[0] += 1
+        if threading.get_ident() == _MAIN_THREAD:  # signal handlers run only in the main thread
+            _held[0] += 1
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
+        if threading.get_ident() != _MAIN_THREAD:
+            return
         _held[0] -= 1
         if _held[0] == 0 and PENDING:
             if exc is not None:  # already leaving by an error: that error goes on, the interruption is noted

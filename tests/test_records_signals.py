@@ -352,3 +352,28 @@ def test_an_interrupted_plan_journal_writes_its_last_growth(tmp_path):
     assert [g["iteration"] for g in growth] == [1, 30]
     assert growth[-1]["nodes"] == 31 and growth[-1]["best_cost"] == 70.0  # root + 30 nodes; not the cut one
     np.testing.assert_array_equal(np.concatenate([g["node"] for g in growth]), np.arange(31))
+
+
+def test_held_in_another_thread_does_not_hold_the_main_threads_signals():
+    import threading
+
+    from oacli.signals import Terminated, held, terminate_like_interrupt
+
+    inside, release = threading.Event(), threading.Event()
+
+    def worker() -> None:
+        with held():
+            inside.set()
+            release.wait(5)
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    try:
+        inside.wait(5)
+        with pytest.raises(Terminated), terminate_like_interrupt():
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1.0)  # interrupted at once: the worker's block does not hold it
+            pytest.fail("the signal was held by another thread's block")
+    finally:
+        release.set()
+        thread.join()
