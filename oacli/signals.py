@@ -90,6 +90,33 @@ class held:
             raise_pending()
 
 
+_atomic = [0]  # depth of nested atomic blocks (main thread only)
+
+
+class atomic(held):
+    """A :class:`held` block without interruption points: everything in it completes (e.g. a journal record, its
+    bookkeeping and its flush to disk), and the interruption is raised when the outermost held block ends."""
+
+    __slots__ = ()
+
+    def __enter__(self) -> None:
+        if threading.get_ident() == _MAIN_THREAD:
+            _atomic[0] += 1
+        super().__enter__()
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
+        if threading.get_ident() == _MAIN_THREAD:
+            _atomic[0] -= 1
+        super().__exit__(exc_type, exc, tb)
+
+
+def interruption_point() -> None:
+    """Raise the interruption held so far here (a point where native code is not running, e.g. between two
+    messages of a long write), unless inside an :class:`atomic` block."""
+    if PENDING and not _atomic[0]:
+        raise_pending()
+
+
 def interruption_message(exc: BaseException) -> str:
     """The CLI's line: ``"interrupted"`` (Ctrl-C) or ``"interrupted (terminated by SIGTERM)"``."""
     return f"interrupted ({exc})" if isinstance(exc, Terminated) else "interrupted"

@@ -377,3 +377,43 @@ def test_held_in_another_thread_does_not_hold_the_main_threads_signals():
     finally:
         release.set()
         thread.join()
+
+
+def test_an_interruption_while_a_plan_record_is_flushed_keeps_every_node_once(tmp_path, monkeypatch):
+    """The signal arrives while a growth record goes to disk: the record and its bookkeeping complete first (an
+    atomic block), then the interruption; the kept file numbers every node once (it was lost: the journal's
+    bookkeeping was half updated and keeping it failed)."""
+    from oacli.io.mcap_write import StageMcapWriter
+    from oacli.planning.tree import Tree
+    from oacli.signals import terminate_like_interrupt
+    from oacli.stages.plan_journal import PlanJournal
+
+    original = StageMcapWriter.flush
+    armed: list[bool] = []
+
+    def flush(self):
+        if armed:
+            armed.clear()
+            signal.getsignal(signal.SIGINT)(signal.SIGINT, None)  # Ctrl-C arrives here
+        return original(self)
+
+    monkeypatch.setattr(StageMcapWriter, "flush", flush)
+    path = tmp_path / "plan.mcap"
+    tree = Tree(np.zeros(6))
+    done = []
+    with pytest.raises(KeyboardInterrupt), terminate_like_interrupt():
+        with PlanJournal(lambda: StageMcapWriter(path, stage="plan", config_yaml="a: 1\n", time_ordered=True)) as j:
+            for i in range(1, 200):
+                tree.add(np.full(6, 0.01 * i), i - 1, float(i), 1, steps=10, iteration=i, wall_time_s=0.0)
+                j.on_iteration(i, tree, 100.0 - 0.1 * i)
+                if i % 10 == 0:
+                    armed.extend([True] if i == 50 else [])
+                    j.record(i, tree, 100.0 - 0.1 * i)
+                done.append(i)
+    assert done[-1] == 49  # interrupted at the end of iteration 50's record, not inside it
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        growth = [json.loads(m.data) for _, c, m in reader.iter_messages() if c.topic == TOPIC_PLAN_GROWTH]
+    assert [g["iteration"] for g in growth] == [10, 20, 30, 40, 50]
+    np.testing.assert_array_equal(np.concatenate([g["node"] for g in growth]), np.arange(51))
+    assert growth[-1]["nodes"] == 51 and growth[-1]["best_cost"] == pytest.approx(95.0)

@@ -62,7 +62,7 @@ from oacli.io import mcap_schema as ms
 from oacli.io.atomic import WriteError, atomic_file, describe_os_error
 from oacli.io.jsonsafe import to_json_safe
 from oacli.model.quaternion import from_rotation_matrix
-from oacli.signals import PENDING, held, raise_pending
+from oacli.signals import PENDING, held, interruption_point
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
 
 #: Target uncompressed chunk size [bytes]; a hard crash loses at most the chunk being filled.
@@ -432,7 +432,7 @@ class StageMcapWriter:
                 if spool is not None and spool.pending:  # a chunk was completed: to the file now
                     self._spill()
                 if PENDING:
-                    raise_pending()
+                    interruption_point()
 
     def _spill(self) -> None:
         try:

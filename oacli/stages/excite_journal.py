@@ -34,6 +34,7 @@ import numpy as np
 
 from oacli.excitation.design_types import ScpIterate
 from oacli.io.mcap_write import StageMcapWriter
+from oacli.signals import atomic
 from oacli.stages.stage_journal import StageJournal
 from oacli.types import SolveInfo
 
@@ -83,6 +84,10 @@ class ExciteJournal(StageJournal):
 
     def on_iteration(self, *, start: int, iterate: ScpIterate, x: np.ndarray, u: np.ndarray) -> None:
         """Take one SCP iteration (the keyword arguments of ``design_excitation``'s ``on_iteration``)."""
+        with atomic():  # an interruption waits until the record is on disk
+            self._on_iteration(start, iterate, x, u)
+
+    def _on_iteration(self, start: int, iterate: ScpIterate, x: np.ndarray, u: np.ndarray) -> None:
         writer = self.writer()
         if writer is None:
             return
@@ -124,6 +129,12 @@ class RattleJournal(StageJournal):
         """Take control step ``j`` (the keyword arguments of :func:`oacli.sim.simulator.simulate`'s ``on_step``)."""
         if self._closed:
             return
+        with atomic():  # an interruption waits until the step is buffered (and a due flush is on disk)
+            self._take(t_true, x_true, t_ctrl, x_measured, x_reference, u_command, u_applied, disturbance, info)
+
+    def _take(self, t_true: np.ndarray, x_true: np.ndarray, t_ctrl: float, x_measured: np.ndarray,
+              x_reference: np.ndarray, u_command: np.ndarray, u_applied: np.ndarray, disturbance: np.ndarray,
+              info: SolveInfo) -> None:
         self._ctrl.append((float(t_ctrl), x_measured, x_reference, u_command, u_applied, disturbance, info))
         t = np.asarray(t_true, dtype=float)
         if t.size:
