@@ -2,6 +2,12 @@
 SIGHUP raise :class:`Terminated`, a :class:`KeyboardInterrupt`, so every cleanup path that handles Ctrl-C runs
 (temporary files removed, ``summary.json`` written with ``"status": "interrupted"``). The command then exits
 with ``128 + signal number`` (143 for SIGTERM; 130 for Ctrl-C), as a shell reports a process killed by it.
+
+Native code that calls back into Python (the foxglove MCAP writer writes every chunk through a Python file object)
+turns an exception raised in the callback into its own error: a Ctrl-C arriving there would end the run as
+``failed`` with "I/O error from writing" and break the writer. Within :func:`terminate_like_interrupt`, SIGINT,
+SIGTERM and SIGHUP arriving inside a :class:`held` block are therefore held (:data:`PENDING`) and raised when the
+block ends, or earlier by :func:`raise_pending` at a point where native code is not running (between two messages).
 """
 
 from __future__ import annotations
@@ -41,6 +47,75 @@ def describe_interruption(exc: BaseException) -> str:
 
 _raised: list[int] = []
 
+#: Signal numbers received inside a :class:`held` block and not raised yet (a list: its truth is cheap to test).
+PENDING: list[int] = []
+_held = [0]  # depth of nested held blocks (main thread only)
+_MAIN_THREAD = threading.main_thread().ident
+
+
+def _interruption(signum: int) -> KeyboardInterrupt:
+    return KeyboardInterrupt() if signum == int(signal.SIGINT) else Terminated(signum)
+
+
+def raise_pending() -> None:
+    """Raise the interruption held so far (if any), e.g. between two writes of a long :class:`held` block."""
+    if PENDING:
+        signum = PENDING[0]
+        PENDING.clear()
+        raise _interruption(signum)
+
+
+class held:
+    """Within the block, an interruption (SIGINT, SIGTERM, SIGHUP, as handled by :func:`terminate_like_interrupt`)
+    is held and raised when the outermost block ends (module docstring). Cheap enough to wrap every call into a
+    native writer."""
+
+    __slots__ = ()
+
+    def __enter__(self) -> None:
+        if threading.get_ident() == _MAIN_THREAD:  # signal handlers run only in the main thread
+            _held[0] += 1
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
+        if threading.get_ident() != _MAIN_THREAD:
+            return
+        _held[0] -= 1
+        if _held[0] == 0 and PENDING:
+            if exc is not None:  # already leaving by an error: that error goes on, the interruption is noted
+                signum = PENDING[0]
+                PENDING.clear()
+                if not isinstance(exc, KeyboardInterrupt):
+                    exc.add_note(f"({signal.Signals(signum).name} received while this error was raised)")
+                return
+            raise_pending()
+
+
+_atomic = [0]  # depth of nested atomic blocks (main thread only)
+
+
+class atomic(held):
+    """A :class:`held` block without interruption points: everything in it completes (e.g. a journal record, its
+    bookkeeping and its flush to disk), and the interruption is raised when the outermost held block ends."""
+
+    __slots__ = ()
+
+    def __enter__(self) -> None:
+        if threading.get_ident() == _MAIN_THREAD:
+            _atomic[0] += 1
+        super().__enter__()
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
+        if threading.get_ident() == _MAIN_THREAD:
+            _atomic[0] -= 1
+        super().__exit__(exc_type, exc, tb)
+
+
+def interruption_point() -> None:
+    """Raise the interruption held so far here (a point where native code is not running, e.g. between two
+    messages of a long write), unless inside an :class:`atomic` block."""
+    if PENDING and not _atomic[0]:
+        raise_pending()
+
 
 def interruption_message(exc: BaseException) -> str:
     """The CLI's line: ``"interrupted"`` (Ctrl-C) or ``"interrupted (terminated by SIGTERM)"``."""
@@ -51,12 +126,25 @@ def _raise_terminated(signum: int, frame: FrameType | None) -> None:
     if _raised:  # a second signal while the first one's cleanup runs: let the cleanup finish
         return
     _raised.append(signum)
+    if _held[0]:
+        PENDING.append(signum)
+        return
     raise Terminated(signum)
+
+
+def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
+    if _held[0]:
+        if not PENDING:
+            PENDING.append(signum)
+        return
+    raise KeyboardInterrupt
 
 
 @contextlib.contextmanager
 def terminate_like_interrupt() -> Iterator[None]:
-    """Within the block, SIGTERM and SIGHUP raise :class:`Terminated`; the previous handlers are restored after.
+    """Within the block, SIGTERM and SIGHUP raise :class:`Terminated`, and SIGINT (when Python's own handler is
+    installed, i.e. not ignored) :class:`KeyboardInterrupt`, both held inside :class:`held` blocks; the previous
+    handlers are restored after.
 
     Outside the main thread (where Python cannot install handlers) the block runs unchanged.
     """
@@ -64,9 +152,12 @@ def terminate_like_interrupt() -> Iterator[None]:
         yield
         return
     _raised.clear()
+    PENDING.clear()
     previous = {}
     for signum in HANDLED:
         previous[signum] = signal.signal(signum, _raise_terminated)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, _raise_interrupt)
     try:
         yield
     finally:

@@ -102,6 +102,12 @@ def fail(exc: BaseException) -> typer.Exit:
         return typer.Exit(exc.exit_code)
     if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, or SIGTERM/SIGHUP (oacli.signals): exit 130 / 143
         typer.echo(f"error: {interruption_message(exc)}", err=True)
+        for note in getattr(exc, "__notes__", ()):  # e.g. what could not be kept or written while stopping
+            typer.echo(f"warning: {note.strip('()')}", err=True)
+        if os.environ.get("OACLI_DEBUG"):
+            import traceback
+
+            traceback.print_exception(exc)
         return typer.Exit(exit_code_for(exc))
     if os.environ.get("OACLI_DEBUG"):
         raise exc

@@ -148,8 +148,8 @@ def _bounded_position(p: tuple[float, float, float]) -> tuple[float, float, floa
     if worst > MAX_COORDINATE_M:
         raise PydanticCustomError(
             "oacli_workspace",
-            "coordinate {value} m is beyond the workspace bound of ±{bound:g} m",
-            {"value": f"{worst:.3g}", "bound": MAX_COORDINATE_M},
+            "coordinate {value} m is beyond the workspace bound of ±{bound} m",
+            {"value": f"{worst:.3g}", "bound": f"{MAX_COORDINATE_M:g}"},
         )
     return p
 

@@ -253,6 +253,7 @@ def run_rattle(
     rate_limit_radps: np.ndarray | None = None,
     actuator_scale: np.ndarray | None = None,
     com_offset_m: np.ndarray | None = None,
+    on_step: Callable[..., None] | None = None,
 ) -> RattleRun:
     """Simulate RATTLE in closed loop from ``x0`` for ``duration_s`` (see :class:`RattleController`).
 
@@ -284,6 +285,10 @@ def run_rattle(
         Body-rate limit of the rate governor [rad/s]; no governor when omitted.
     actuator_scale, com_offset_m : ndarray, optional
         The plant's unmodelled actuator scale error and centre-of-mass offset (:func:`oacli.sim.simulator.simulate`).
+    on_step : callable, optional
+        Called after each control step with what the step produced (passed to :func:`oacli.sim.simulator.simulate`,
+        whose docstring lists the arguments; ``x_reference`` is the plan's state at the step), e.g. to journal
+        the loop as it runs.
 
     Returns
     -------
@@ -297,6 +302,6 @@ def run_rattle(
     tel = simulate(
         controller, x0, truth, duration_s=duration_s, control_period_s=control_period_s,
         plant_period_s=plant_period_s, input_limits=input_limits, sensors=sensors, disturbance=disturbance,
-        rng=rng, progress=progress, actuator_scale=actuator_scale, com_offset_m=com_offset_m,
+        rng=rng, progress=progress, actuator_scale=actuator_scale, com_offset_m=com_offset_m, on_step=on_step,
     )
     return RattleRun(tel, tuple(controller.replans), tuple(controller.estimates), controller.governed_steps)

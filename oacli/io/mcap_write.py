@@ -62,6 +62,7 @@ from oacli.io import mcap_schema as ms
 from oacli.io.atomic import WriteError, atomic_file, describe_os_error
 from oacli.io.jsonsafe import to_json_safe
 from oacli.model.quaternion import from_rotation_matrix
+from oacli.signals import PENDING, held, interruption_point
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
 
 #: Target uncompressed chunk size [bytes]; a hard crash loses at most the chunk being filled.
@@ -320,7 +321,8 @@ class StageMcapWriter:
                 calculate_attachment_crcs=True,
             )
             sink = cast(BinaryIO, self._file)  # our spool: write/flush/seek/tell as open_mcap needs
-            self._writer = foxglove.open_mcap(sink, context=self._context, writer_options=options)
+            with held():  # Ctrl-C inside the native writer's callbacks is raised after them (oacli.signals)
+                self._writer = foxglove.open_mcap(sink, context=self._context, writer_options=options)
             self._state = "open"
             created = datetime.now(UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
             info = {
@@ -335,7 +337,8 @@ class StageMcapWriter:
             }
             self.write_metadata(ms.METADATA_NAME, info)
             self.attach(ms.CONFIG_ATTACHMENT, self._config_yaml.encode("utf-8"), ms.CONFIG_MEDIA_TYPE)
-            self._writer.flush()
+            with held():
+                self._writer.flush()
             self._spill()  # the metadata and the config are on disk before any message
         except BaseException:
             self.__exit__(*sys.exc_info())
@@ -350,6 +353,10 @@ class StageMcapWriter:
     ) -> None:
         if self._state == "closed":
             return
+        with held():  # an interruption while closing is raised once the file is committed or removed
+            self._close(exc)
+
+    def _close(self, exc: BaseException | None) -> None:
         error = exc
         try:
             if error is None and self._writer is not None:
@@ -419,10 +426,13 @@ class StageMcapWriter:
 
     def _write(self, messages: Iterable[_Pending]) -> None:
         spool = self._file
-        for log_time, emit, payload in messages:
-            emit(payload, log_time)
-            if spool is not None and spool.pending:  # a chunk was completed: to the file now
-                self._spill()
+        with held():  # Ctrl-C inside the native writer is held, then raised between two messages (oacli.signals)
+            for log_time, emit, payload in messages:
+                emit(payload, log_time)
+                if spool is not None and spool.pending:  # a chunk was completed: to the file now
+                    self._spill()
+                if PENDING:
+                    interruption_point()
 
     def _spill(self) -> None:
         try:
@@ -455,7 +465,8 @@ class StageMcapWriter:
             return channel
         full_schema = {**schema, "title": schema_name}
         full_schema.setdefault("type", "object")
-        channel = foxglove.Channel(topic, schema=full_schema, context=self._context, metadata=metadata or None)
+        with held():
+            channel = foxglove.Channel(topic, schema=full_schema, context=self._context, metadata=metadata or None)
         self._channels[topic] = (channel, schema_name, metadata)
         return channel
 
@@ -466,7 +477,8 @@ class StageMcapWriter:
             if entry[1] != schema_name:
                 raise ValueError(f"topic {topic} carries {entry[1]} messages; cannot write {schema_name} on it")
             return entry[0]
-        channel = channel_cls(topic, context=self._context)
+        with held():
+            channel = channel_cls(topic, context=self._context)
         self._channels[topic] = (channel, schema_name, {})
         return channel
 
@@ -844,9 +856,11 @@ class StageMcapWriter:
         """
         self._require_open()
         _, ns = _times_ns(f"attachment {name}", t)
-        self._writer.attach(
-            log_time=ns[0], create_time=time.time_ns(), name=str(name), media_type=str(media_type), data=bytes(data)
-        )
+        with held():
+            self._writer.attach(
+                log_time=ns[0], create_time=time.time_ns(), name=str(name), media_type=str(media_type),
+                data=bytes(data),
+            )
 
     def write_metadata(self, name: str, data: Mapping[str, object]) -> None:
         """Write a metadata record (string keys and values; values converted with ``str``).
@@ -861,7 +875,8 @@ class StageMcapWriter:
         self._require_open()
         if not data:
             raise ValueError(f"metadata record {name!r} is empty (MCAP writers drop empty records)")
-        self._writer.write_metadata(str(name), {str(k): str(v) for k, v in data.items()})
+        with held():
+            self._writer.write_metadata(str(name), {str(k): str(v) for k, v in data.items()})
 
     def flush(self) -> None:
         """Write the queued messages (merged by time), finish the current chunk and flush it to disk.
@@ -871,5 +886,6 @@ class StageMcapWriter:
         self._require_open()
         if self._queue:
             self._drain()
-        self._writer.flush()
+        with held():
+            self._writer.flush()
         self._spill()

@@ -10,7 +10,11 @@ Two methods (``excitation.method`` or ``--method``):
 * ``rattle``: RATTLE's online information-aware planner in closed loop with the simulated plant (the config's
   ``truth``) and the sequential estimator of :mod:`oacli.estimation` (``excitation.rattle.estimator:
   sequential``, configured by the ``estimation`` section), or the Cramér-Rao oracle
-  (:class:`oacli.excitation.oracle.CramerRaoOracle`, ``oracle``), named so in every output.
+  (:class:`oacli.excitation.oracle.CramerRaoOracle`, ``oracle``), named so in every output. Each control step is
+  journaled to the MCAP as it is produced (:class:`oacli.stages.excite_journal.RattleJournal`).
+
+Ctrl-C or a termination signal (SIGTERM, SIGHUP) keeps the journal of either method as ``excite.mcap`` (valid, the
+computation so far) next to an ``interrupted`` ``summary.json`` (exit 130 / 143).
 
 Both design within the limits of :func:`oacli.stages.settings.excitation_design_limits`: the robot's with
 ``excitation.margin`` (the force also × m_prior/m_upper, Doerr Eq. 28), capped by ``excitation.limits`` (RATTLE:
@@ -53,7 +57,7 @@ from oacli.io.runfolder import StageResult, StageRun
 from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.phases import set_phase
 from oacli.reference_limits import DesignLimits
-from oacli.stages.excite_journal import ExciteJournal
+from oacli.stages.excite_journal import ExciteJournal, RattleJournal
 from oacli.stages.settings import (
     design_limit_log,
     estimator_settings,
@@ -211,6 +215,8 @@ def run_excite(
     method = method or cfg.excitation.method
     if method not in ("offline", "rattle"):
         raise ConfigError(f"--method: {method!r}: must be 'offline' or 'rattle'")
+    # recorded in the run's config.yaml, so `oacli excite RUN/config.yaml` reruns the same method
+    cfg = cfg.model_copy(update={"excitation": cfg.excitation.model_copy(update={"method": method})})
     if method == "offline":
         return _run_offline(cfg, out=out, runs_root=runs_root, progress=progress)
     return _run_rattle(cfg, out=out, runs_root=runs_root, progress=progress)
@@ -382,8 +388,11 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior))
     cw = cfg.controller.weights
 
-    with open_run("excite", cfg, out=out, runs_root=runs_root, started=wall) as stage_run:
+    with (open_run("excite", cfg, out=out, runs_root=runs_root, started=wall) as stage_run,
+          RattleJournal(lambda: stage_run.open_mcap(method="rattle")) as journal):
         set_phase(progress, "RATTLE closed loop")
+        # Each control step goes to the MCAP as it is produced (oacli.stages.excite_journal); the complete file
+        # replaces the journal at the end (an interrupted run keeps it as excite.mcap).
         run = run_rattle(
             planner, estimator, weighting, problem.start, truth,
             duration_s=rcfg.duration_s, replan_period_s=rcfg.replan_period_s,
@@ -393,8 +402,11 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             rng=np.random.default_rng(cfg.seed), progress=progress,
             rate_limit_radps=np.asarray(cfg.robot.angular_velocity_limit_radps),
             actuator_scale=np.asarray(cfg.truth.actuator_scale), com_offset_m=np.asarray(cfg.truth.com_offset_m),
+            on_step=journal.on_step,
         )
+        journal.flush()
         summary, traj, log = _rattle_summary(cfg, problem, design_lim, run, prior_cov, theta_true)
+        journal.discard()  # before the complete file is written: the disk never holds both
         _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true)
         t_info, info = gathered_information(run.estimates, prior_cov)
         robot_lim = robot_limit_set(cfg.robot)

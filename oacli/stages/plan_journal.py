@@ -21,6 +21,7 @@ import numpy as np
 
 from oacli.io.mcap_write import StageMcapWriter
 from oacli.planning.tree import Tree
+from oacli.signals import atomic
 from oacli.stages.stage_journal import StageJournal
 
 #: Longest wall time between two records [s].
@@ -67,35 +68,47 @@ class PlanJournal(StageJournal):
         self._written = 0  # nodes written so far
         self._parents = np.zeros(0, dtype=np.int64)  # their parents as last written
         self._last_iteration = 0
+        self._latest: tuple[int, Tree, float, int] | None = None  # the last callback's iteration, tree, cost, nodes
 
     def on_iteration(self, iteration: int, tree: Tree, best_cost: float) -> None:
         """Take the tree after ``iteration`` iterations (a planner's ``on_iteration`` callback)."""
+        self._latest = (iteration, tree, best_cost, tree.n)
         if iteration - self._last_iteration >= FLUSH_ITERATIONS or self.due():
             self.record(iteration, tree, best_cost)
 
-    def record(self, iteration: int, tree: Tree, best_cost: float) -> None:
-        """Write the growth since the last record and finish a chunk on disk."""
-        writer = self.writer()
-        if writer is None:
-            return
-        parent = tree.parent
-        old = parent[: self._written]
-        rewired = np.flatnonzero(old != self._parents)
-        n = tree.n
-        first = True
-        while first or self._written < n:
-            first = False
-            lo, hi = self._written, min(n, self._written + MAX_NODES_PER_RECORD)
-            cost = float(best_cost)
-            writer.write_json(TOPIC_PLAN_GROWTH, PLAN_GROWTH, PLAN_GROWTH_SCHEMA, self.elapsed_s(), {
-                "iteration": int(iteration), "nodes": int(n), "best_cost": cost if math.isfinite(cost) else None,
-                "node": np.arange(lo, hi), "parent": parent[lo:hi], "position": tree.states[lo:hi, 0:3],
-                "velocity": tree.states[lo:hi, 3:6], "cost": tree.cost[lo:hi],
-                "node_iteration": tree.iteration[lo:hi], "rewired": rewired, "new_parent": old[rewired],
-            })
-            rewired = rewired[:0]
-            self._written = hi
-            self.records += 1
-            self.flush()
-        self._parents = parent[:n].copy()
-        self._last_iteration = iteration
+    def on_interrupt(self, writer: StageMcapWriter) -> None:
+        """Record the growth since the last record up to the last iteration the planner finished (the nodes it
+        had then; an iteration cut short adds nothing)."""
+        if self._latest is not None and self._latest[0] > self._last_iteration:
+            iteration, tree, best_cost, nodes = self._latest
+            self.record(iteration, tree, best_cost, nodes=nodes)
+
+    def record(self, iteration: int, tree: Tree, best_cost: float, *, nodes: int | None = None) -> None:
+        """Write the growth since the last record (the tree's first ``nodes`` nodes, default all) and finish a
+        chunk on disk."""
+        with atomic():  # an interruption waits until the record is on disk and its bookkeeping done
+            writer = self.writer()
+            if writer is None:
+                return
+            n = tree.n if nodes is None else min(int(nodes), tree.n)
+            parent = tree.parent[:n]
+            old = parent[: self._written]
+            rewired = np.flatnonzero(old != self._parents)
+            first = True
+            while first or self._written < n:
+                first = False
+                lo, hi = self._written, min(n, self._written + MAX_NODES_PER_RECORD)
+                cost = float(best_cost)
+                writer.write_json(TOPIC_PLAN_GROWTH, PLAN_GROWTH, PLAN_GROWTH_SCHEMA, self.elapsed_s(), {
+                    "iteration": int(iteration), "nodes": int(n),
+                    "best_cost": cost if math.isfinite(cost) else None,
+                    "node": np.arange(lo, hi), "parent": parent[lo:hi], "position": tree.states[lo:hi, 0:3],
+                    "velocity": tree.states[lo:hi, 3:6], "cost": tree.cost[lo:hi],
+                    "node_iteration": tree.iteration[lo:hi], "rewired": rewired, "new_parent": old[rewired],
+                })
+                rewired = rewired[:0]
+                self._written = hi
+                self._parents = parent[:hi].copy()  # the parents as written (the next record's rewires)
+                self.records += 1
+                self.flush()
+            self._last_iteration = iteration

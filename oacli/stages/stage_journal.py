@@ -6,20 +6,32 @@ the stage's MCAP path, opened lazily (the first record creates the run folder wh
 under the writer's exclusive temporary name (``.<stage>.mcap.<random>.partial``). :meth:`StageJournal.flush` writes
 what was queued merged by time and finishes a chunk on disk, so a process killed by SIGKILL or a power loss leaves a
 ``.partial`` MCAP that the ``mcap`` package reads up to its last complete chunk (``oacli logs recover`` turns it
-into a valid file). The journal is never renamed to the final name: the stage deletes it (:meth:`discard`) just
-before it writes its complete MCAP, so a run folder never looks complete because of it.
+into a valid file). When the stage ends normally the journal is deleted (:meth:`discard`) just before the stage
+writes its complete MCAP.
 
-Journal records carry ``t`` = wall time since the journal was created [s] (the computation has no mission time),
-monotone, so the file is in time order.
+A stage stopped by Ctrl-C or a termination signal (a :class:`KeyboardInterrupt`, :mod:`oacli.signals`) keeps what it
+computed: leaving the ``with`` block, the journal writes its last records (:meth:`StageJournal.on_interrupt`), one
+``/log`` warning naming the signal, and closes as a valid MCAP under the stage's final name (:meth:`commit`, summary
+section and CRCs); the run folder's ``summary.json`` then says ``"status": "interrupted"`` and lists it, so the folder
+never looks complete (:func:`oacli.io.runfolder.is_complete`). Should that close fail (e.g. the interruption came in
+the middle of a write and broke the writer), the temporary file is removed and the interruption goes on, with a note.
+Any other error deletes the journal (a stage may :meth:`commit` it itself, as ``excite`` does for a design that
+fails its final check).
+
+Journal records carry ``t`` = wall time since the journal was created [s] when the computation has no mission time
+(``plan``, the offline ``excite``), or the mission time (the RATTLE closed loop), monotone, so the file is in time
+order.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from typing import Self
 
 from oacli.io.mcap_write import StageMcapWriter
+from oacli.signals import describe_interruption
 
 
 class _Discarded(Exception):
@@ -49,8 +61,37 @@ class StageJournal:
     def __enter__(self) -> Self:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.discard()
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
+        if isinstance(exc, KeyboardInterrupt):
+            self.keep(exc)
+        else:
+            self.discard()
+
+    def on_interrupt(self, writer: StageMcapWriter) -> None:
+        """Write what is still buffered before an interrupted journal is kept (nothing here; subclasses)."""
+
+    def keep(self, interruption: BaseException) -> None:
+        """Keep an interrupted stage's journal as its MCAP: the last records, a ``/log`` warning naming the
+        interruption, then :meth:`commit`. Never raises: a failure deletes the temporary file and is added to
+        ``interruption``'s notes."""
+        if self._closed or self._writer is None:
+            self._closed = True
+            return
+        try:
+            writer = self._writer
+            self.on_interrupt(writer)
+            writer.write_log(self.log_time_s(), "warning", f"stage {describe_interruption(interruption)}: the "
+                             "journal of the computation so far is kept as the stage's MCAP")
+            self.commit()
+        except BaseException as err:
+            self._closed = True
+            with contextlib.suppress(BaseException):
+                self._writer.__exit__(type(err), err, err.__traceback__)  # removes the temporary file if still open
+            interruption.add_note(f"(the journal could not be kept: {type(err).__name__}: {err})")
+
+    def log_time_s(self) -> float:
+        """The ``t`` of the journal's closing ``/log`` record (default: the wall time since it was created)."""
+        return self.elapsed_s()
 
     def elapsed_s(self) -> float:
         """Wall time since the journal was created [s] (the ``t`` of its records)."""
@@ -66,8 +107,8 @@ class StageJournal:
             return None
         if self._writer is None:
             writer = self._open_writer()
+            self._writer = writer  # before entering: an interruption while it opens still finds (and closes) it
             writer.__enter__()
-            self._writer = writer
         return self._writer
 
     def flush(self) -> None:
