@@ -8,7 +8,12 @@ and of the whole stage without PNGs (wall and process CPU time), plus the sum ov
 s for the five). ``--save FILE`` writes every stage's true trajectory and commands to an ``.npz`` and ``--compare
 FILE`` prints the largest relative difference against such a file (same seed -> same trajectory).
 
-Run: ``python benchmarks/bench_track.py MISSION_DIR [--repeats 3] [--save base.npz | --compare base.npz]``
+``--against SRC`` measures two source trees in the same run, alternating per repeat: each repeat runs this
+benchmark once in a subprocess with ``PYTHONPATH=SRC`` (e.g. a worktree of main) and once with this file's tree,
+and prints both sides' median totals and their ratio (the machine's load then weighs on both alike).
+
+Run: ``python benchmarks/bench_track.py MISSION_DIR [--repeats 3] [--save base.npz | --compare base.npz]
+[--against /path/to/other/tree]``
 """
 
 from __future__ import annotations
@@ -19,6 +24,9 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
 import argparse  # noqa: E402
+import json  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -35,13 +43,45 @@ def stage_configs(mission_dir: Path) -> list[Path]:
     return sorted(found)
 
 
+ROOT = Path(__file__).resolve().parents[1]
+COLUMNS = ("loop wall", "loop CPU", "stage wall", "stage CPU")
+
+
+def _one_run(src: Path, mission_dir: Path) -> list[float]:
+    """Totals (loop wall, loop CPU, stage wall, stage CPU) [s] of one run of this benchmark on the tree ``src``."""
+    env = {**os.environ, "PYTHONPATH": str(src)}
+    out = subprocess.run([sys.executable, __file__, str(mission_dir), "--totals-json"], env=env, check=True,
+                         capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def against(other: Path, mission_dir: Path, repeats: int) -> None:
+    """Alternate runs of the tree ``other`` and of this file's tree; print both sides' medians and the ratio."""
+    sides: dict[str, list[list[float]]] = {"other": [], "this": []}
+    for rep in range(repeats):
+        for side, src in (("other", other), ("this", ROOT)):
+            sides[side].append(_one_run(src, mission_dir))
+            print(f"repeat {rep + 1} {side:<5} " + "  ".join(f"{c} {v:.3f}" for c, v in
+                                                           zip(COLUMNS, sides[side][-1], strict=True)), flush=True)
+    med = {side: np.median(np.array(rows), axis=0) for side, rows in sides.items()}
+    print(f"medians over {repeats} alternating repeats [s]: other = {other}, this = {ROOT}")
+    for i, col in enumerate(COLUMNS):
+        print(f"  {col:<11} other {med['other'][i]:7.3f}   this {med['this'][i]:7.3f}   this/other "
+              f"{med['this'][i] / med['other'][i]:.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("mission_dir", type=Path)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--save", type=Path)
     parser.add_argument("--compare", type=Path)
+    parser.add_argument("--against", type=Path, help="another source tree, measured alternately with this one")
+    parser.add_argument("--totals-json", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.against is not None:
+        against(args.against, args.mission_dir, args.repeats)
+        return
     configs = stage_configs(args.mission_dir)
     if not configs:
         raise SystemExit(f"no segment-*/track*/config.yaml under {args.mission_dir}")
@@ -82,6 +122,10 @@ def main() -> None:
             if rep == 0:
                 saved[f"{name}/x_true"] = tel.x_true
                 saved[f"{name}/u_command"] = tel.u_command
+    if args.totals_json:
+        totals_json = np.sum([np.median(np.array(rows), axis=0) for rows in table.values()], axis=0)
+        print(json.dumps([float(totals_json[0]), float(totals_json[2]), float(totals_json[1]), float(totals_json[3])]))
+        return
     print("wall and process CPU time [s] (CPU time is less sensitive to other load on the machine)")
     print(f"{'stage':<28} {'steps':>6} {'sim [s]':>8} {'loop wall':>10} {'loop CPU':>9} {'stage wall':>11} "
           f"{'stage CPU':>10}")

@@ -566,3 +566,47 @@ def test_robot_body_follows_the_pose_thinned_to_the_rate(tmp_path, rng):
     assert body.entities[0].frame_id == "iss"
     with writer(tmp_path / "bad.mcap") as w, pytest.raises(ValueError, match="increasing"):
         w.write_robot_body(t[::-1], traj.x)
+
+
+def _raw_messages(path: Path) -> list[tuple[str, int, bytes]]:
+    with path.open("rb") as f:
+        return [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
+
+
+def test_a_second_file_reuses_kept_payloads_only_for_exactly_the_same_rows(tmp_path, rng):
+    """``keep_encoded`` / ``reuse_encoded`` (the track journal and its complete file): a topic whose rows equal the
+    kept ones, written in two parts before, takes the kept payloads; the file equals one encoded from scratch,
+    message for message. A topic whose rows differ in one value is encoded anew (its new value is in the file)."""
+    traj = random_trajectory(rng, n=120)
+    wrench = rng.normal(size=(120, 6))
+    with writer(tmp_path / "journal.mcap", time_ordered=True) as first:
+        kept = first.keep_encoded()
+        for part in (slice(0, 50), slice(50, 120)):
+            first.write_states("/state/true", traj.t[part], traj.x[part], traj.u[part])
+            first.write_wrenches("/control/applied", traj.t[part], wrench[part])
+            first.flush()
+    changed = wrench.copy()
+    changed[77, 4] += 1e-9
+    calls: list[str] = []
+    original = type(kept).payloads
+
+    def spy(self, topic, template, rows):
+        out = original(self, topic, template, rows)
+        calls.append(f"{topic}:{out is not None}")
+        return out
+
+    type(kept).payloads = spy
+    try:
+        with writer(tmp_path / "reused.mcap", time_ordered=True) as second:
+            second.reuse_encoded(kept)
+            second.write_states("/state/true", traj.t, traj.x, traj.u)
+            second.write_wrenches("/control/applied", traj.t, changed)
+    finally:
+        type(kept).payloads = original
+    assert calls == ["/state/true:True", "/control/applied:False"]
+    with writer(tmp_path / "fresh.mcap", time_ordered=True) as third:
+        third.write_states("/state/true", traj.t, traj.x, traj.u)
+        third.write_wrenches("/control/applied", traj.t, changed)
+    assert _raw_messages(tmp_path / "reused.mcap") == _raw_messages(tmp_path / "fresh.mcap")
+    applied = [json.loads(d) for topic, _, d in _raw_messages(tmp_path / "reused.mcap") if topic == "/control/applied"]
+    assert applied[77]["torque"][1] == changed[77, 4]

@@ -169,15 +169,18 @@ class CompiledQP:
         """
         theta = self.parameter_vector(values)
         start = time.perf_counter()
+        # The data go to Clarabel as lists: its binding reads a list of floats about twice as fast as an array
+        # (the same values).
+        q, b = (self._t_q @ theta).tolist(), (self._t_b @ theta).tolist()
         if self._t_a is None:
-            self._solver.update(q=self._t_q @ theta, b=self._t_b @ theta)
+            self._solver.update(q=q, b=b)
         else:
             a_values = self._t_a @ theta
             if self._a_last is not None and np.array_equal(a_values, self._a_last):
                 # A unchanged (e.g. keep-out rows inactive from step to step): Clarabel keeps its scaled copy.
-                self._solver.update(q=self._t_q @ theta, b=self._t_b @ theta)
+                self._solver.update(q=q, b=b)
             else:
-                self._solver.update(q=self._t_q @ theta, b=self._t_b @ theta, A=a_values)
+                self._solver.update(q=q, b=b, A=a_values.tolist())
                 self._a_last = a_values
         sol = self._solver.solve()
         wall = time.perf_counter() - start

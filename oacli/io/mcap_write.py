@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import heapq
+import itertools
 import json
 import math
 import os
@@ -221,6 +222,53 @@ class _SpoolFile:
         self._buffer.clear()
 
 
+class EncodedRows:
+    """The JSON payloads of a writer's sample records (``write_states``, ``write_wrenches``) kept with their rows,
+    by topic, so that a second file writing the same rows on the same topic takes them instead of encoding again
+    (:meth:`StageMcapWriter.keep_encoded`, :meth:`StageMcapWriter.reuse_encoded`: the ``track`` stage's journal and
+    its complete file, :mod:`oacli.stages.track_journal`).
+
+    A topic's payloads are reused only when the rows written equal, value for value and in order, every row kept
+    for that topic and record template, and every one of them was encoded (a queue dropped by an exception leaves
+    rows without payloads): the bytes written are then exactly those encoding would give.
+    """
+
+    def __init__(self) -> None:
+        # (topic, template) -> (row blocks as written, payloads in the same order)
+        self._parts: dict[tuple[str, str], tuple[list[np.ndarray], list[bytes]]] = {}
+
+    def keep(self, topic: str, template: str, rows: np.ndarray) -> list[bytes]:
+        """Record ``rows`` of ``topic``; returns the list their payloads are to be appended to, in order."""
+        blocks, payloads = self._parts.setdefault((topic, template), ([], []))
+        blocks.append(rows)
+        return payloads
+
+    def payloads(self, topic: str, template: str, rows: np.ndarray) -> list[bytes] | None:
+        """The payloads of ``rows`` on ``topic`` when they are exactly the rows kept (else None).
+
+        Parameters
+        ----------
+        topic : str
+            Topic name.
+        template : str
+            The record template (:data:`oacli.io.mcap_schema.TRAJECTORY_SAMPLE_TEMPLATE`, ...).
+        rows : ndarray, shape (N, k)
+            The rows about to be written.
+
+        Returns
+        -------
+        list of bytes or None
+        """
+        parts = self._parts.get((topic, template))
+        if parts is None:
+            return None
+        blocks, payloads = parts
+        if len(payloads) != rows.shape[0] or sum(b.shape[0] for b in blocks) != rows.shape[0]:
+            return None
+        kept = blocks[0] if len(blocks) == 1 else np.vstack(blocks)
+        return payloads if np.array_equal(kept, rows) else None
+
+
 class StageMcapWriter:
     """Context manager writing one stage's MCAP file atomically.
 
@@ -298,6 +346,8 @@ class StageMcapWriter:
         self._last_t: dict[str, float] = {}
         self._ordered = bool(time_ordered)
         self._queue: list[Iterator[_Pending]] | None = [] if self._ordered else None
+        self._kept: EncodedRows | None = None  # payloads of sample records are kept here (keep_encoded)
+        self._reuse: EncodedRows | None = None  # payloads taken from here when the rows match (reuse_encoded)
 
     # -- context management ------------------------------------------------------------------------------
 
@@ -501,12 +551,44 @@ class StageMcapWriter:
     def _typed_emitter(channel: Any) -> Callable[[Any, int], None]:
         return lambda message, log_time: channel.log(message, log_time=log_time)
 
-    def _log_rows(self, channel: Any, template: str, rows: np.ndarray, ns: list[int]) -> None:
+    def keep_encoded(self) -> EncodedRows:
+        """Keep the payloads of the sample records written from now on (for :meth:`reuse_encoded` by another
+        writer).
+
+        Returns
+        -------
+        EncodedRows
+            Filled as the records are encoded.
+        """
+        if self._kept is None:
+            self._kept = EncodedRows()
+        return self._kept
+
+    def reuse_encoded(self, encoded: EncodedRows | None) -> None:
+        """Take the payloads of sample records from ``encoded`` when a topic's rows are exactly those it kept
+        (:class:`EncodedRows`); other records are encoded as usual. None: encode everything.
+
+        Parameters
+        ----------
+        encoded : EncodedRows or None
+            Another writer's kept payloads (:meth:`keep_encoded`).
+        """
+        self._reuse = encoded
+
+    def _log_rows(self, topic: str, channel: Any, template: str, rows: np.ndarray, ns: list[int]) -> None:
         emit = self._raw_emitter(channel)
+        reused = None if self._reuse is None else self._reuse.payloads(topic, template, rows)
+        if reused is not None:
+            self._emit(zip(ns, itertools.repeat(emit, len(ns)), reused, strict=True))
+            return
+        kept = None if self._kept is None else self._kept.keep(topic, template, rows)
 
         def messages() -> Iterator[_Pending]:
             for row, log_time in zip(rows.tolist(), ns, strict=True):
-                yield log_time, emit, (template % tuple(row)).encode()
+                payload = (template % tuple(row)).encode()
+                if kept is not None:
+                    kept.append(payload)
+                yield log_time, emit, payload
 
         self._emit(messages())
 
@@ -546,7 +628,7 @@ class StageMcapWriter:
         meta = {"frame": self.frame if frame is None else str(frame), "name": name or topic.strip("/")}
         channel = self._json_channel(topic, ms.TRAJECTORY_SAMPLE, ms.TRAJECTORY_SAMPLE_SCHEMA, meta)
         if n:
-            self._log_rows(channel, ms.TRAJECTORY_SAMPLE_TEMPLATE, np.column_stack([times, xs, us]), ns)
+            self._log_rows(topic, channel, ms.TRAJECTORY_SAMPLE_TEMPLATE, np.column_stack([times, xs, us]), ns)
             self._last_t[topic] = float(times[-1])
 
     def write_trajectory(self, topic: str, traj: Trajectory) -> None:
@@ -577,7 +659,7 @@ class StageMcapWriter:
         w = _finite_array(f"{topic}: wrench", wrench, (times.shape[0], INPUT_DIM))
         channel = self._json_channel(topic, ms.WRENCH, ms.WRENCH_SCHEMA, {"frame": self.frame})
         if times.size:
-            self._log_rows(channel, ms.WRENCH_TEMPLATE, np.column_stack([times, w]), ns)
+            self._log_rows(topic, channel, ms.WRENCH_TEMPLATE, np.column_stack([times, w]), ns)
             self._last_t[topic] = float(times[-1])
 
     def write_solver_stats(self, t: np.ndarray, infos: Sequence[SolveInfo], topic: str = ms.TOPIC_SOLVER_STATS) -> None:

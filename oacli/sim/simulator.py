@@ -127,21 +127,35 @@ def simulate(
         infos.append(step.info)
         u_del = u_app if delivered_limits is None else np.clip(u_app, -delivered_limits, delivered_limits)
         u_total = [float(v) for v in scale * u_del + w]
+        # The plant steps of this control period: up to each plant tick, the last one cut at t1.
+        steps: list[float] = []
+        ticks: list[float | None] = []
         t = t0
         while t < t1 - _TIME_TOL:
             tick = next_tick * plant_period_s
             t_next = min(tick, t1)
-            if tensor_plant is None:
-                state = _propagate(state, u_total, mass, inertia, offset_r, t_next - t)
-            else:  # products of inertia: the numpy step of the full tensor (campaign dispersions)
-                x_now, u_now = np.array(state), np.array(u_total)
-                u_step = u_now if offset is None else _with_offset_torque(u_now, x_now, offset)
-                state = [float(v) for v in tensor_plant.propagate(x_now, u_step, theta, t_next - t)]
+            steps.append(t_next - t)
             t = t_next
             if abs(t - tick) <= _TIME_TOL:
                 next_tick += 1
-                t_true.append(tick)
-                x_true.append(tuple(state))
+                ticks.append(tick)
+            else:
+                ticks.append(None)
+        if tensor_plant is None:
+            states = _propagate_steps(state, u_total, mass, inertia, offset_r, steps)
+        else:  # products of inertia: the numpy step of the full tensor (campaign dispersions)
+            states = []
+            for dt in steps:
+                x_now, u_now = np.array(state), np.array(u_total)
+                u_step = u_now if offset is None else _with_offset_torque(u_now, x_now, offset)
+                state = [float(v) for v in tensor_plant.propagate(x_now, u_step, theta, dt)]
+                states.append(tuple(state))
+        if states:
+            state = list(states[-1])
+        for tick_s, sample in zip(ticks, states, strict=True):
+            if tick_s is not None:
+                t_true.append(tick_s)
+                x_true.append(sample)
         if j == n_ctrl - 1 and t_end - t_true[-1] > _TIME_TOL:
             t_true.append(t_end)
             x_true.append(tuple(state))
@@ -167,61 +181,103 @@ def simulate(
     )
 
 
-def _derivative(s: list[float], u: list[float], mass: float, inertia: tuple[float, float, float]) -> list[float]:
-    """:func:`oacli.model.rigid_body.dynamics` on Python floats (Doerr Eqs. 34-35): one plant derivative costs a
-    few microseconds instead of numpy's per-call overhead on 13-element arrays."""
-    qx, qy, qz, qw = s[6], s[7], s[8], s[9]
-    wx, wy, wz = s[10], s[11], s[12]
+def _propagate_steps(s: list[float], u: list[float], mass: float, inertia: tuple[float, float, float],
+                     offset: tuple[float, float, float] | None, steps: list[float]) -> list[tuple[float, ...]]:
+    """The plant over consecutive steps ``steps`` [s] under the held input ``u``: the state after each step.
+
+    Each step is :func:`oacli.model.rigid_body.propagate` (RK4 of Doerr Eqs. 34-35 with ``u`` held, then the
+    quaternion renormalised with ``w >= 0``) with the centre-of-mass torque (:func:`_with_offset_torque`) taken at
+    the step's initial attitude, written out on Python floats: the same operations in the same order as the numpy
+    version (bit-identical; ``tests/test_simulator.py`` checks), without its per-call array overhead. The
+    translational stages need no position (the force is held), so only the velocities of the stages are formed.
+    """
+    px, py, pz, vx, vy, vz, qx, qy, qz, qw, wx, wy, wz = s
     ix, iy, iz = inertia
-    return [
-        s[3], s[4], s[5],
-        u[0] / mass, u[1] / mass, u[2] / mass,
-        0.5 * (qw * wx - qz * wy + qy * wz),
-        0.5 * (qz * wx + qw * wy - qx * wz),
-        0.5 * (-qy * wx + qx * wy + qw * wz),
-        0.5 * (-qx * wx - qy * wy - qz * wz),
-        (u[3] - (iz - iy) * wy * wz) / ix,
-        (u[4] - (ix - iz) * wz * wx) / iy,
-        (u[5] - (iy - ix) * wx * wy) / iz,
-    ]
-
-
-def _propagate(s: list[float], u: list[float], mass: float, inertia: tuple[float, float, float],
-               offset: tuple[float, float, float] | None, dt: float) -> list[float]:
-    """One plant step: :func:`oacli.model.rigid_body.propagate` (RK4 with ``u`` held, then the quaternion
-    renormalised with ``w >= 0``) on Python floats, the centre-of-mass torque (:func:`_with_offset_torque`) taken
-    at the step's initial attitude. The same operations in the same order as the numpy version."""
-    if offset is not None:
-        u = _offset_torque_floats(u, s, offset)
-    h = 0.5 * dt
-    k1 = _derivative(s, u, mass, inertia)
-    k2 = _derivative([a + h * b for a, b in zip(s, k1, strict=True)], u, mass, inertia)
-    k3 = _derivative([a + h * b for a, b in zip(s, k2, strict=True)], u, mass, inertia)
-    k4 = _derivative([a + dt * b for a, b in zip(s, k3, strict=True)], u, mass, inertia)
-    c = dt / 6.0
-    out = [a + c * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4, strict=True)]
-    qx, qy, qz, qw = out[6], out[7], out[8], out[9]
-    norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-    if qw / norm < 0.0:
-        norm = -norm
-    out[6], out[7], out[8], out[9] = qx / norm, qy / norm, qz / norm, qw / norm
+    f0, f1, f2, t0, t1, t2 = u
+    ax, ay, az = f0 / mass, f1 / mass, f2 / mass
+    dyz, dzx, dxy = iz - iy, ix - iz, iy - ix
+    out: list[tuple[float, ...]] = []
+    for dt in steps:
+        if offset is None:
+            tx, ty, tz = t0, t1, t2
+        else:
+            tx, ty, tz = _offset_torque(f0, f1, f2, t0, t1, t2, qx, qy, qz, qw, offset)
+        h = 0.5 * dt
+        # k1 at s
+        a1 = 0.5 * (qw * wx - qz * wy + qy * wz)
+        b1 = 0.5 * (qz * wx + qw * wy - qx * wz)
+        c1 = 0.5 * (-qy * wx + qx * wy + qw * wz)
+        d1 = 0.5 * (-qx * wx - qy * wy - qz * wz)
+        e1 = (tx - dyz * wy * wz) / ix
+        g1 = (ty - dzx * wz * wx) / iy
+        k1 = (tz - dxy * wx * wy) / iz
+        # k2 at s + h k1
+        sx, sy, sz, sw = qx + h * a1, qy + h * b1, qz + h * c1, qw + h * d1
+        ox, oy, oz = wx + h * e1, wy + h * g1, wz + h * k1
+        a2 = 0.5 * (sw * ox - sz * oy + sy * oz)
+        b2 = 0.5 * (sz * ox + sw * oy - sx * oz)
+        c2 = 0.5 * (-sy * ox + sx * oy + sw * oz)
+        d2 = 0.5 * (-sx * ox - sy * oy - sz * oz)
+        e2 = (tx - dyz * oy * oz) / ix
+        g2 = (ty - dzx * oz * ox) / iy
+        k2 = (tz - dxy * ox * oy) / iz
+        # k3 at s + h k2
+        sx, sy, sz, sw = qx + h * a2, qy + h * b2, qz + h * c2, qw + h * d2
+        ox, oy, oz = wx + h * e2, wy + h * g2, wz + h * k2
+        a3 = 0.5 * (sw * ox - sz * oy + sy * oz)
+        b3 = 0.5 * (sz * ox + sw * oy - sx * oz)
+        c3 = 0.5 * (-sy * ox + sx * oy + sw * oz)
+        d3 = 0.5 * (-sx * ox - sy * oy - sz * oz)
+        e3 = (tx - dyz * oy * oz) / ix
+        g3 = (ty - dzx * oz * ox) / iy
+        k3 = (tz - dxy * ox * oy) / iz
+        # k4 at s + dt k3
+        sx, sy, sz, sw = qx + dt * a3, qy + dt * b3, qz + dt * c3, qw + dt * d3
+        ox, oy, oz = wx + dt * e3, wy + dt * g3, wz + dt * k3
+        a4 = 0.5 * (sw * ox - sz * oy + sy * oz)
+        b4 = 0.5 * (sz * ox + sw * oy - sx * oz)
+        c4 = 0.5 * (-sy * ox + sx * oy + sw * oz)
+        d4 = 0.5 * (-sx * ox - sy * oy - sz * oz)
+        e4 = (tx - dyz * oy * oz) / ix
+        g4 = (ty - dzx * oz * ox) / iy
+        k4 = (tz - dxy * ox * oy) / iz
+        c = dt / 6.0
+        # Translation: the position's stage derivatives are the stage velocities v, v + h a, v + h a, v + dt a.
+        hx, hy, hz = vx + h * ax, vy + h * ay, vz + h * az
+        px = px + c * (vx + 2.0 * hx + 2.0 * hx + (vx + dt * ax))
+        py = py + c * (vy + 2.0 * hy + 2.0 * hy + (vy + dt * ay))
+        pz = pz + c * (vz + 2.0 * hz + 2.0 * hz + (vz + dt * az))
+        vx = vx + c * (ax + 2.0 * ax + 2.0 * ax + ax)
+        vy = vy + c * (ay + 2.0 * ay + 2.0 * ay + ay)
+        vz = vz + c * (az + 2.0 * az + 2.0 * az + az)
+        qx = qx + c * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        qy = qy + c * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+        qz = qz + c * (c1 + 2.0 * c2 + 2.0 * c3 + c4)
+        qw = qw + c * (d1 + 2.0 * d2 + 2.0 * d3 + d4)
+        wx = wx + c * (e1 + 2.0 * e2 + 2.0 * e3 + e4)
+        wy = wy + c * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
+        wz = wz + c * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        if qw / norm < 0.0:
+            norm = -norm
+        qx, qy, qz, qw = qx / norm, qy / norm, qz / norm, qw / norm
+        out.append((px, py, pz, vx, vy, vz, qx, qy, qz, qw, wx, wy, wz))
     return out
 
 
-def _offset_torque_floats(u: list[float], s: list[float], r: tuple[float, float, float]) -> list[float]:
-    """:func:`_with_offset_torque` on Python floats: ``τ += (−r) × (Rᵀ F)``, R from the normalised attitude."""
-    qx, qy, qz, qw = s[6], s[7], s[8], s[9]
+def _offset_torque(f0: float, f1: float, f2: float, t0: float, t1: float, t2: float, qx: float, qy: float,
+                   qz: float, qw: float, r: tuple[float, float, float]) -> tuple[float, float, float]:
+    """The torque of :func:`_with_offset_torque` on Python floats: ``τ + (−r) × (Rᵀ F)``, R from the normalised
+    attitude (the same operations, written out)."""
     norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
     if qw / norm < 0.0:
         norm = -norm
     x, y, z, w = qx / norm, qy / norm, qz / norm, qw / norm
-    f0, f1, f2 = u[0], u[1], u[2]
-    # F_body = Rᵀ F: column i of R dotted with F.
     b0 = (1 - 2 * (y * y + z * z)) * f0 + 2 * (x * y + z * w) * f1 + 2 * (x * z - y * w) * f2
     b1 = 2 * (x * y - z * w) * f0 + (1 - 2 * (x * x + z * z)) * f1 + 2 * (y * z + x * w) * f2
     b2 = 2 * (x * z + y * w) * f0 + 2 * (y * z - x * w) * f1 + (1 - 2 * (x * x + y * y)) * f2
     a0, a1, a2 = -r[0], -r[1], -r[2]
-    return [f0, f1, f2, u[3] + (a1 * b2 - a2 * b1), u[4] + (a2 * b0 - a0 * b2), u[5] + (a0 * b1 - a1 * b0)]
+    return t0 + (a1 * b2 - a2 * b1), t1 + (a2 * b0 - a0 * b2), t2 + (a0 * b1 - a1 * b0)
 
 
 def _with_offset_torque(u: np.ndarray, x: np.ndarray, com_offset_m: np.ndarray) -> np.ndarray:

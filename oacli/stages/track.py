@@ -304,6 +304,7 @@ def run_track(
             # temporary, every topic in time order up to its last chunk.
             journal.discard()
             with run.open_mcap() as writer:
+                writer.reuse_encoded(journal.encoded)  # the rows the journal wrote are encoded once
                 write_track_topics(writer, reference, tel, scene, log, monitor, history, flown)
             write_track_recording(
                 run.file("rrd", "track.rrd"), scene=scene, reference=reference, telemetry=tel, errors=ctrl_errors,

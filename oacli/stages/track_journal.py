@@ -10,7 +10,9 @@ complete chunk (``oacli logs recover`` turns it into a valid file).
 
 The complete ``track.mcap`` is still written at the end from the whole run (topics that need it: the scene's flown
 path, the summary-derived log, tube topics, flown sensors), merged by time over the whole file; the journal is
-deleted just before (:meth:`TrackJournal.discard`), so the disk never holds both. A crash during that last write
+deleted just before (:meth:`TrackJournal.discard`), so the disk never holds both. The topics both files hold are
+encoded once: the complete file takes the journal's JSON payloads where its rows are exactly the journal's
+(:attr:`TrackJournal.encoded`, :class:`oacli.io.mcap_write.EncodedRows`). A crash during that last write
 leaves the complete file's temporary (every topic in time order up to its last complete chunk).
 """
 
@@ -22,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from oacli.io.mcap_io import StageMcapWriter
+from oacli.io.mcap_write import EncodedRows
 from oacli.trajectory import sample_inputs
 from oacli.types import SolveInfo, Trajectory
 
@@ -49,6 +52,8 @@ class TrackJournal:
     def __init__(self, writer: StageMcapWriter, reference: Trajectory) -> None:
         self._writer = writer
         self._reference = reference
+        #: JSON payloads of the sample records written, for the complete file (``StageMcapWriter.reuse_encoded``).
+        self.encoded: EncodedRows = writer.keep_encoded()
         self._open = False
         self._ctrl: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, SolveInfo]] = []
         self._true: list[np.ndarray] = []  # rows [t, x (13), u (6)] ready to write
