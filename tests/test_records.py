@@ -236,14 +236,32 @@ def test_sigkill_during_the_simulation_leaves_the_run_so_far(tmp_path):
 def test_sigterm_while_the_mcap_is_written_is_an_interruption(tmp_path):
     out = tmp_path / "run"
     proc = _start_track(out)
-    _wait_for(proc, lambda: _partial_mcap(out, 1) is not None)
+    _wait_for(proc, lambda: _partial_mcap(out, 200_000) is not None)  # the simulation is under way
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 143, err
     assert "terminated by SIGTERM" in err and "Traceback" not in err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and "SIGTERM" in summary["error"]
-    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.json"]  # no .partial left
+    # The journal is kept as a valid track.mcap (no .partial left): the simulation so far and a closing warning.
+    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.json", "track.mcap"]
+    assert summary["files"].get("mcap") == "track.mcap"
+    _assert_kept_journal(out / "track.mcap", "SIGTERM")
+
+
+def _assert_kept_journal(path: Path, signal_name: str) -> None:
+    """An interrupted track's MCAP: valid for the mcap package with CRCs, /state/true in time order abreast of
+    the controller topics, and the closing /log warning naming the signal."""
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        assert reader.get_summary() is not None  # closed properly: summary section written
+        rows = [(channel.topic, message.log_time, message.data) for _, channel, message in reader.iter_messages()]
+    true_times = [t for topic, t, _ in rows if topic == "/state/true"]
+    ctrl_times = [t for topic, t, _ in rows if topic == "/state/measured"]
+    assert true_times and ctrl_times and true_times == sorted(true_times)
+    assert abs(max(true_times) - max(ctrl_times)) <= 0.2e9 + 1
+    logs = [data for topic, _, data in rows if topic == "/log"]  # foxglove.Log (protobuf): the text is in it
+    assert any(signal_name.encode() in log and b"journal of the simulation so far is kept" in log for log in logs)
 
 
 @pytest.mark.slow
@@ -257,7 +275,11 @@ def test_sigint_during_the_simulation_is_an_interruption(tmp_path):
     assert proc.returncode == 130, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted"
-    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "summary.json"]
+    names = sorted(p.name for p in out.iterdir())
+    # Before the simulation's journal opens there is nothing to keep; after, it is kept as track.mcap.
+    assert names in (["config.yaml", "summary.json"], ["config.yaml", "summary.json", "track.mcap"]), names
+    if "track.mcap" in names:
+        _assert_kept_journal(out / "track.mcap", "interrupted by the user")
 
 
 def test_ctrl_c_while_the_recording_is_written_is_not_ok(tmp_path, monkeypatch):

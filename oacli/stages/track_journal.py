@@ -14,10 +14,17 @@ deleted just before (:meth:`TrackJournal.discard`), so the disk never holds both
 encoded once: the complete file takes the journal's JSON payloads where its rows are exactly the journal's
 (:attr:`TrackJournal.encoded`, :class:`oacli.io.mcap_write.EncodedRows`). A crash during that last write
 leaves the complete file's temporary (every topic in time order up to its last complete chunk).
+
+Ctrl-C or a termination signal (a :class:`KeyboardInterrupt`, :mod:`oacli.signals`) during the simulation keeps the
+journal as ``track.mcap``: the steps still buffered are written, then a ``/log`` warning naming the interruption, and
+the file is closed valid (summary section, CRCs) next to the ``interrupted`` ``summary.json``, as ``plan`` and
+``excite`` do (:mod:`oacli.stages.stage_journal`). Each step is taken whole (:class:`oacli.signals.atomic`), so an
+interruption never finds the buffers half updated.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 from typing import Any
 
@@ -25,6 +32,7 @@ import numpy as np
 
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.mcap_write import EncodedRows
+from oacli.signals import atomic, describe_interruption
 from oacli.trajectory import sample_inputs
 from oacli.types import SolveInfo, Trajectory
 
@@ -60,6 +68,7 @@ class TrackJournal:
         self._pending: tuple[np.ndarray, np.ndarray] | None = None  # plant samples of the latest step
         self._u_last: np.ndarray | None = None  # applied input of the latest step
         self._steps = 0
+        self._t_last = 0.0  # control time of the latest step [s] (the kept journal's closing /log record)
         self._last_flush = time.monotonic()
 
     def __enter__(self) -> TrackJournal:
@@ -67,8 +76,29 @@ class TrackJournal:
         self._open = True
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.discard()
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
+        if isinstance(exc, KeyboardInterrupt):
+            self.keep(exc)
+        else:
+            self.discard()
+
+    def keep(self, interruption: BaseException) -> None:
+        """Keep an interrupted run's journal as its MCAP: the buffered steps, a ``/log`` warning naming the
+        interruption, then close it under its final name. Never raises: a failure deletes the temporary file and is
+        added to ``interruption``'s notes."""
+        if not self._open:
+            return
+        try:
+            self.flush(final=True)
+            self._writer.write_log(self._t_last, "warning", f"stage {describe_interruption(interruption)}: the "
+                                   "journal of the simulation so far is kept as the stage's MCAP")
+            self._open = False
+            self._writer.__exit__(None, None, None)
+        except BaseException as err:
+            self._open = False
+            with contextlib.suppress(BaseException):
+                self._writer.__exit__(type(err), err, err.__traceback__)  # removes the temporary file if still open
+            interruption.add_note(f"(the journal could not be kept: {type(err).__name__}: {err})")
 
     def _resolve(self, t_now: float | None, u_now: np.ndarray | None) -> None:
         """Give the pending plant samples their applied input: the latest step's, or from ``t_now`` on the new
@@ -89,13 +119,15 @@ class TrackJournal:
         """Take control step ``j`` (the keyword arguments of :func:`oacli.sim.simulator.simulate`'s ``on_step``)."""
         if not self._open:
             return
-        self._resolve(t_ctrl, u_applied)
-        self._ctrl.append((t_ctrl, x_measured, x_reference, u_command, u_applied, disturbance, info))
-        self._pending = (np.asarray(t_true, dtype=float), np.asarray(x_true, dtype=float).reshape(-1, 13))
-        self._u_last = u_applied
-        self._steps += 1
-        if self._steps >= FLUSH_STEPS or time.monotonic() - self._last_flush >= FLUSH_WALL_S:
-            self.flush()
+        with atomic():  # an interruption waits until the step is buffered (and a due flush is on disk)
+            self._resolve(t_ctrl, u_applied)
+            self._ctrl.append((t_ctrl, x_measured, x_reference, u_command, u_applied, disturbance, info))
+            self._pending = (np.asarray(t_true, dtype=float), np.asarray(x_true, dtype=float).reshape(-1, 13))
+            self._u_last = u_applied
+            self._t_last = float(t_ctrl)
+            self._steps += 1
+            if self._steps >= FLUSH_STEPS or time.monotonic() - self._last_flush >= FLUSH_WALL_S:
+                self.flush()
 
     def flush(self, *, final: bool = False) -> None:
         """Write the buffered steps (merged by time) and finish a chunk on disk; ``final`` also writes the plant
