@@ -212,7 +212,7 @@ class _Planner:
             x_from, x_to, self.goal, steps, self.problem.force_limit_N, self.problem.velocity_limit_mps
         )
         x_new = roll.x[-1]
-        if np.allclose(x_new, x_from, rtol=0.0, atol=1e-9):
+        if float(np.max(np.abs(x_new - x_from))) <= 1e-9:
             return None
         if not self.problem.checker.points_free(x_new[0:3]):
             return None

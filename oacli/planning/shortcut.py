@@ -149,6 +149,7 @@ def lqr_shortcut(
     tries: int,
     sample_dt_s: float | None = None,
     max_collision_checks: int = 3,
+    batch_size: int = 16,
 ) -> ShortcutResult:
     """Smooth ``traj`` by ``tries`` random LQR shortcuts (module docstring).
 
@@ -172,6 +173,10 @@ def lqr_shortcut(
         Sample spliced sections every ``sample_dt_s`` (must divide the connector's step); default: its step.
     max_collision_checks : int
         Connections (in cost order) checked for collisions per try.
+    batch_size : int
+        Tries drawn at once against the current trajectory, their connection costs computed together (the
+        tries after an accepted one in the same batch are dropped and drawn again: every try sees the trajectory
+        as it is at that try).
 
     Returns
     -------
@@ -183,42 +188,61 @@ def lqr_shortcut(
     attempts: list[ShortcutAttempt] = []
     sections: list[tuple[int, TranslationalTrajectory]] = []
     cum = _cumulative_costs(traj, weights, goal)  # changes only when a section is spliced in
-    for i in range(int(tries)):
+    tries = int(tries)
+    batch = max(1, int(batch_size))
+    while len(attempts) < tries:
         n = len(traj)
         if n < 3:
+            i = len(attempts)
             attempts.append(ShortcutAttempt(i, 0, n - 1, 0.0, traj.duration_s, 0, 0.0, np.nan, NOT_LOWER_COST))
             continue
-        a = int(rng.integers(0, n - 2))
-        span = n - 1 - a  # log-uniform section length: as many local as global tries
-        b = a + min(span, max(2, int(np.exp(rng.uniform(np.log(2.0), np.log(span + 1.0))))))
-        old = float(cum[b] - cum[a])
-        x_a, x_b = traj.x[a], traj.x[b]
-        costs = connector.costs(x_a, x_b, goal)[0]
-        lower = costs < old - _IMPROVE_RTOL * max(1.0, abs(old))
-        base = dict(index=i, a=a, b=b, t_a=float(traj.t[a]), t_b=float(traj.t[b]), old_cost=old)
-        if not np.any(lower):
-            attempts.append(ShortcutAttempt(**base, steps=0, new_cost=np.nan, outcome=NOT_LOWER_COST))  # type: ignore[arg-type]
-            continue
-        candidates = np.flatnonzero(lower)  # only the cheaper horizons matter below: test only their limits
-        f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps, steps=candidates)
-        f_ok, v_ok = f_ok[0], v_ok[0]
-        ok = f_ok & v_ok
-        if not np.any(ok):
-            best = int(candidates[np.argmin(costs[candidates])])
-            reason = INPUT_LIMIT if not np.any(f_ok) else VELOCITY_LIMIT
-            attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))  # type: ignore[arg-type]
-            continue
-        order = candidates[ok][np.argsort(costs[candidates[ok]], kind="stable")]
-        outcome, steps = COLLISION, int(order[0])
-        for n_steps in order[:max_collision_checks]:
-            section = connector.trajectory(x_a, x_b, goal, int(n_steps))
-            if checker.is_free(section.pieces()):
-                if sample_dt_s is not None:
-                    section = section.refined(sample_dt_s)
-                traj = splice(traj, a, b, section)
-                cum = _cumulative_costs(traj, weights, goal)
-                sections.append((i, section))
-                outcome, steps = ACCEPTED, int(n_steps)
-                break
-        attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))  # type: ignore[arg-type]
+        # A batch of tries drawn against the current trajectory; their connection costs in one vectorised call.
+        # Tries are recorded in order; once one is spliced in, the rest of the batch (drawn on the old
+        # trajectory) is dropped unrecorded and a new batch is drawn.
+        k = min(batch, tries - len(attempts))
+        a_all = rng.integers(0, n - 2, size=k)
+        span = n - 1 - a_all  # log-uniform section length: as many local as global tries
+        u = rng.uniform(size=k)
+        length = np.exp(np.log(2.0) + u * (np.log(span + 1.0) - np.log(2.0))).astype(int)
+        b_all = a_all + np.minimum(span, np.maximum(2, length))
+        old_all = cum[b_all] - cum[a_all]
+        cost_all = connector.costs(traj.x[a_all], traj.x[b_all], goal)
+        lower_all = cost_all < (old_all - _IMPROVE_RTOL * np.maximum(1.0, np.abs(old_all)))[:, None]
+        any_lower = lower_all.any(axis=1)
+        t_traj = traj.t
+        for j in range(k):
+            i = len(attempts)
+            a, b = int(a_all[j]), int(b_all[j])
+            old = float(old_all[j])
+            base = dict(index=i, a=a, b=b, t_a=float(t_traj[a]), t_b=float(t_traj[b]), old_cost=old)
+            if not any_lower[j]:
+                attempts.append(ShortcutAttempt(**base, steps=0, new_cost=np.nan, outcome=NOT_LOWER_COST))  # type: ignore[arg-type]
+                continue
+            costs = cost_all[j]
+            x_a, x_b = traj.x[a], traj.x[b]
+            candidates = np.flatnonzero(lower_all[j])  # only the cheaper horizons matter: test only their limits
+            f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps,
+                                                 steps=candidates)
+            f_ok, v_ok = f_ok[0], v_ok[0]
+            ok = f_ok & v_ok
+            if not np.any(ok):
+                best = int(candidates[np.argmin(costs[candidates])])
+                reason = INPUT_LIMIT if not np.any(f_ok) else VELOCITY_LIMIT
+                attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))  # type: ignore[arg-type]
+                continue
+            order = candidates[ok][np.argsort(costs[candidates[ok]], kind="stable")]
+            outcome, steps = COLLISION, int(order[0])
+            for n_steps in order[:max_collision_checks]:
+                section = connector.trajectory(x_a, x_b, goal, int(n_steps))
+                if checker.is_free(section.pieces()):
+                    if sample_dt_s is not None:
+                        section = section.refined(sample_dt_s)
+                    traj = splice(traj, a, b, section)
+                    cum = _cumulative_costs(traj, weights, goal)
+                    sections.append((i, section))
+                    outcome, steps = ACCEPTED, int(n_steps)
+                    break
+            attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))  # type: ignore[arg-type]
+            if outcome == ACCEPTED:
+                break  # the rest of the batch was drawn on the old trajectory
     return ShortcutResult(traj, cost_before, traj.cost(weights, goal), tuple(attempts), tuple(sections))

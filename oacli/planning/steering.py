@@ -180,6 +180,7 @@ class LqrConnector:
         self._m_flat = self._m.reshape(3, -1, 6)
         self._v_flat = self._v.reshape(3, -1, 6)
         self._time_cost = weights.time * self.dt_s * np.arange(n_max + 1)
+        self._first_gain = self._g[:, :, 0, :].tolist()  # first force of every horizon, per axis (3, N+1, 6)
 
     # -- vectorised over candidate pairs and horizons ----------------------------------------------------------
 
@@ -357,28 +358,36 @@ class LqrConnector:
         """
         self._check_steps(steps)
         m, dt = self.mass_kg, self.dt_s
-        f_lim = np.asarray(force_limit_N, dtype=float)
-        v_lim = np.asarray(velocity_limit_mps, dtype=float)
-        x = np.asarray(x_a, dtype=float).reshape(6).copy()
-        target = np.asarray(x_target, dtype=float).reshape(6)
-        goal = np.asarray(goal, dtype=float).reshape(6)
-        xs = [x.copy()]
+        # Scalar arithmetic per axis: a handful of flops per step, far below numpy's per-call overhead.
+        f_lim = [float(f) for f in np.asarray(force_limit_N, dtype=float).reshape(3)]
+        v_lim = [float(v) for v in np.asarray(velocity_limit_mps, dtype=float).reshape(3)]
+        x = [float(v) for v in np.asarray(x_a, dtype=float).reshape(6)]
+        target = [float(v) for v in np.asarray(x_target, dtype=float).reshape(6)]
+        goal = [float(v) for v in np.asarray(goal, dtype=float).reshape(6)]
+        g0 = self._first_gain
+        xs = [list(x)]
         us = []
         for k in range(steps):
             left = steps - k
-            if left >= MIN_STEPS:
-                y = self._y(x, target, goal)[0]  # (3, 6)
-                u = np.einsum("ia,ia->i", self._g[:, left, 0], y)
-            else:
-                u = m * (target[3:6] - x[3:6]) / dt
-            lo = np.maximum(-f_lim, m * (-v_lim - x[3:6]) / dt)
-            hi = np.minimum(f_lim, m * (v_lim - x[3:6]) / dt)
-            u = np.clip(u, lo, np.maximum(lo, hi))
-            acc = u / m
-            x = np.concatenate([x[0:3] + x[3:6] * dt + 0.5 * acc * dt * dt, x[3:6] + acc * dt])
-            xs.append(x.copy())
+            u = [0.0, 0.0, 0.0]
+            for i in range(3):
+                r, v = x[i], x[3 + i]
+                if left >= MIN_STEPS:
+                    g = g0[i][left]
+                    ui = (g[0] * r + g[1] * v + g[2] * target[i] + g[3] * target[3 + i] + g[4] * goal[i]
+                          + g[5] * goal[3 + i])
+                else:
+                    ui = m * (target[3 + i] - v) / dt
+                lo = max(-f_lim[i], m * (-v_lim[i] - v) / dt)
+                hi = max(lo, min(f_lim[i], m * (v_lim[i] - v) / dt))
+                ui = min(max(ui, lo), hi)
+                acc = ui / m
+                x[i] = r + v * dt + 0.5 * acc * dt * dt
+                x[3 + i] = v + acc * dt
+                u[i] = ui
+            xs.append(list(x))
             us.append(u)
-        return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us), m)
+        return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us).reshape(-1, 3), m)
 
     def value_function(self, steps: int, x_b: np.ndarray, goal: np.ndarray) -> ValueFunction:
         """Cost-to-go ``V(x_a)`` of reaching ``x_b`` in ``steps`` steps, in the form of Doerr Eq. 8.
