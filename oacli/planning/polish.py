@@ -180,7 +180,8 @@ class PolishResult:
     iterations : tuple of PolishIteration
     reason : str
         Why the polish stopped: ``iterations`` (budget spent), ``converged`` (a certified step gained less than the
-        tolerance), ``trust_radius`` (Δ fell below its minimum), or why it was skipped.
+        tolerance), ``stalled`` (``stall_iterations`` certified steps in a row were not shorter than the best),
+        ``trust_radius`` (Δ fell below its minimum), or why it was skipped.
     accepted_trajectories : tuple of (int, TranslationalTrajectory)
         Every accepted candidate with its iteration index (sampled every ``dt_s``), for replaying the polish.
     """
@@ -305,6 +306,7 @@ def polish_trajectory(
     best_len = length0
     radius = s.trust_radius_m
     last_objective = np.inf
+    stalled = 0
     reason = "iterations"
     for i in range(s.iterations):
         if radius < s.min_trust_radius_m:
@@ -345,6 +347,10 @@ def polish_trajectory(
         if outcome == ACCEPTED:
             best, best_len = cand, length
             accepted.append((i, cand))
+        stalled = stalled + 1 if (certified and outcome == NOT_SHORTER) else 0
+        if s.stall_iterations > 0 and stalled >= s.stall_iterations:
+            reason = "stalled"
+            break
         if certified and outcome in (LIMITS, COST, COLLISION):
             radius *= 0.5  # a certified solution should pass: numerical trouble, take smaller steps
             continue
