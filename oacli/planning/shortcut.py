@@ -134,6 +134,8 @@ def splice(
     t = np.concatenate([traj.t[: a + 1], t_sec[1:], traj.t[b + 1 :] + delay])
     x = np.concatenate([traj.x[: a + 1], section.x[1:], traj.x[b + 1 :]])
     u = np.concatenate([traj.u[:a], section.u, traj.u[b:]])
+    if np.all(np.diff(t) > 0):  # always, unless rounding of the shift merged two samples
+        return TranslationalTrajectory.trusted(t, x, u, traj.mass_kg)
     return TranslationalTrajectory(t, x, u, traj.mass_kg)
 
 
@@ -238,7 +240,9 @@ def lqr_shortcut(
                     if sample_dt_s is not None:
                         section = section.refined(sample_dt_s)
                     traj = splice(traj, a, b, section)
-                    cum = _cumulative_costs(traj, weights, goal)
+                    # The cost is additive over intervals and time-invariant: only the section's are new.
+                    sec_cum = cum[a] + np.cumsum(section.interval_costs(weights, goal))
+                    cum = np.concatenate([cum[: a + 1], sec_cum, cum[b + 1 :] + (sec_cum[-1] - cum[b])])
                     sections.append((i, section))
                     outcome, steps = ACCEPTED, int(n_steps)
                     break

@@ -20,6 +20,7 @@ the tree node ``x_a`` (fixed sample ``x_b``) it is ``(x_a - m)ᵀ M_aa (x_a - m)
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,24 @@ from oacli.planning.translational import CostWeights, TranslationalTrajectory, i
 MIN_STEPS = 2
 #: Limits are accepted up to this relative excess (rounding of the linear maps).
 LIMIT_RTOL = 1e-9
+
+
+@functools.lru_cache(maxsize=8)
+def _connector_maps(n_max: int, dt: float, mass: float, per_axis: tuple[tuple[float, float, float], ...]):
+    """The stacked per-axis maps of :class:`LqrConnector` (read-only): they depend only on these numbers, so they
+    are built once per process (the plan and smooth stages of a mission, the seeds of a benchmark share them)."""
+    computed: dict[tuple[float, float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    for w_axis in per_axis:  # axes with equal weights share their maps
+        if w_axis not in computed:
+            computed[w_axis] = axis_maps(n_max, dt, mass, *w_axis)
+    maps = [computed[w_axis] for w_axis in per_axis]
+    g = np.stack([m[0] for m in maps])  # (3, N+1, N, 6)
+    x = np.stack([m[1] for m in maps])  # (3, N+1, N+1, 2, 6)
+    m = np.stack([m[2] for m in maps])  # (3, N+1, 6, 6)
+    v = np.ascontiguousarray(x[:, :, :, 1, :])  # velocity maps (3, N+1, N+1, 6)
+    for arr in (g, x, m, v):
+        arr.setflags(write=False)
+    return g, x, m, v, g[:, :, 0, :].tolist()
 
 
 def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: float):
@@ -167,20 +186,12 @@ class LqrConnector:
         self.max_steps = int(max_steps)
         n_max = self.max_steps
         per_axis = [(float(weights.position[i]), float(weights.velocity[i]), float(weights.force[i])) for i in range(3)]
-        computed: dict[tuple[float, float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        for w_axis in per_axis:  # axes with equal weights share their maps
-            if w_axis not in computed:
-                computed[w_axis] = axis_maps(n_max, self.dt_s, self.mass_kg, *w_axis)
-        maps = [computed[w_axis] for w_axis in per_axis]
-        self._g = np.stack([m[0] for m in maps])  # (3, N+1, N, 6)
-        self._x = np.stack([m[1] for m in maps])  # (3, N+1, N+1, 2, 6)
-        self._m = np.stack([m[2] for m in maps])  # (3, N+1, 6, 6)
-        self._v = np.ascontiguousarray(self._x[:, :, :, 1, :])  # velocity maps (3, N+1, N+1, 6)
+        self._g, self._x, self._m, self._v, self._first_gain = _connector_maps(
+            n_max, self.dt_s, self.mass_kg, tuple(per_axis))
         self._g_flat = self._g.reshape(3, -1, 6)
         self._m_flat = self._m.reshape(3, -1, 6)
         self._v_flat = self._v.reshape(3, -1, 6)
         self._time_cost = weights.time * self.dt_s * np.arange(n_max + 1)
-        self._first_gain = self._g[:, :, 0, :].tolist()  # first force of every horizon, per axis (3, N+1, 6)
 
     # -- vectorised over candidate pairs and horizons ----------------------------------------------------------
 
@@ -249,6 +260,21 @@ class LqrConnector:
             False for horizons below ``MIN_STEPS``.
         """
         y = self._y(x_a, x_b, goal)
+        if y.shape[0] == 1:  # one pair: every horizon in two batched products beats gathering a subset
+            f_lim = np.asarray(force_limit_N, dtype=float).reshape(3, 1) * (1.0 + LIMIT_RTOL)
+            v_lim = np.asarray(velocity_limit_mps, dtype=float).reshape(3, 1) * (1.0 + LIMIT_RTOL)
+            n_all = self.max_steps + 1
+            f_all = np.ones(n_all, dtype=bool)
+            v_all = np.ones(n_all, dtype=bool)
+            for i in range(3):  # matrix-vector products (BLAS), not a stacked matmul
+                f_all &= np.abs(self._g_flat[i] @ y[0, i]).reshape(n_all, -1).max(axis=1) <= f_lim[i, 0]
+                v_all &= np.abs(self._v_flat[i] @ y[0, i]).reshape(n_all, -1).max(axis=1) <= v_lim[i, 0]
+            f_all[:MIN_STEPS] = False
+            v_all[:MIN_STEPS] = False
+            if steps is not None:
+                steps = np.asarray(steps, dtype=int)
+                f_all, v_all = f_all[steps], v_all[steps]
+            return f_all[None, :], v_all[None, :]
         if steps is None:
             g, v = self._g_flat, self._v_flat
             n_steps = self.max_steps + 1
@@ -319,9 +345,11 @@ class LqrConnector:
         """
         self._check_steps(steps)
         y = self._y(x_a, x_b, goal)[0]
-        u = np.einsum("ija,ia->ji", self._g[:, steps, :steps], y)
-        states = np.einsum("ikja,ia->kji", self._x[:, steps, : steps + 1], y)  # (steps+1, 2, 3)
-        x = np.concatenate([states[:, 0, :], states[:, 1, :]], axis=1)
+        u = (self._g[:, steps, :steps] @ y[:, :, None])[:, :, 0].T  # (steps, 3)
+        states = (self._x[:, steps, : steps + 1].reshape(3, -1, 6) @ y[:, :, None]).reshape(3, steps + 1, 2)
+        x = np.empty((steps + 1, 6))
+        x[:, 0:3] = states[:, :, 0].T
+        x[:, 3:6] = states[:, :, 1].T
         x[0] = np.asarray(x_a, dtype=float).reshape(6)
         x[-1] = np.asarray(x_b, dtype=float).reshape(6)
         t = t0 + self.dt_s * np.arange(steps + 1)
