@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.geometry.collision import CollisionChecker
-from oacli.planning.steering import LqrConnector
+from oacli.planning.steering import LIMIT_RTOL, LqrConnector
 from oacli.planning.translational import TranslationalTrajectory
 
 ACCEPTED = "accepted"
@@ -34,6 +34,8 @@ COLLISION = "collision"
 REJECTIONS = (NOT_LOWER_COST, INPUT_LIMIT, VELOCITY_LIMIT, COLLISION)
 
 _IMPROVE_RTOL = 1e-12
+#: Connections whose limits are checked one by one (on the connection itself) before the rest are checked together.
+_LAZY_LIMIT_CHECKS = 4
 
 
 @dataclass(frozen=True)
@@ -192,6 +194,8 @@ def lqr_shortcut(
     cum = _cumulative_costs(traj, weights, goal)  # changes only when a section is spliced in
     tries = int(tries)
     batch = max(1, int(batch_size))
+    f_lim = np.asarray(force_limit_N, dtype=float) * (1.0 + LIMIT_RTOL)
+    v_lim = np.asarray(velocity_limit_mps, dtype=float) * (1.0 + LIMIT_RTOL)
     while len(attempts) < tries:
         n = len(traj)
         if n < 3:
@@ -210,32 +214,38 @@ def lqr_shortcut(
         old_all = cum[b_all] - cum[a_all]
         cost_all = connector.costs(traj.x[a_all], traj.x[b_all], goal)
         lower_all = cost_all < (old_all - _IMPROVE_RTOL * np.maximum(1.0, np.abs(old_all)))[:, None]
-        any_lower = lower_all.any(axis=1)
-        t_traj = traj.t
+        any_lower = lower_all.any(axis=1).tolist()
+        a_list, b_list, old_list = a_all.tolist(), b_all.tolist(), old_all.tolist()
+        t_a_list, t_b_list = traj.t[a_all].tolist(), traj.t[b_all].tolist()
         for j in range(k):
             i = len(attempts)
-            a, b = int(a_all[j]), int(b_all[j])
-            old = float(old_all[j])
-            base = dict(index=i, a=a, b=b, t_a=float(t_traj[a]), t_b=float(t_traj[b]), old_cost=old)
+            a, b, old = a_list[j], b_list[j], old_list[j]
             if not any_lower[j]:
-                attempts.append(ShortcutAttempt(**base, steps=0, new_cost=np.nan, outcome=NOT_LOWER_COST))  # type: ignore[arg-type]
+                attempts.append(ShortcutAttempt(i, a, b, t_a_list[j], t_b_list[j], 0, old, np.nan, NOT_LOWER_COST))
                 continue
+            base = dict(index=i, a=a, b=b, t_a=t_a_list[j], t_b=t_b_list[j], old_cost=old)
             costs = cost_all[j]
             x_a, x_b = traj.x[a], traj.x[b]
-            candidates = np.flatnonzero(lower_all[j])  # only the cheaper horizons matter: test only their limits
-            f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps,
-                                                 steps=candidates)
-            f_ok, v_ok = f_ok[0], v_ok[0]
-            ok = f_ok & v_ok
-            if not np.any(ok):
-                best = int(candidates[np.argmin(costs[candidates])])
-                reason = INPUT_LIMIT if not np.any(f_ok) else VELOCITY_LIMIT
-                attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))  # type: ignore[arg-type]
-                continue
-            order = candidates[ok][np.argsort(costs[candidates[ok]], kind="stable")]
-            outcome, steps = COLLISION, int(order[0])
-            for n_steps in order[:max_collision_checks]:
-                section = connector.trajectory(x_a, x_b, goal, int(n_steps))
+            candidates = np.flatnonzero(lower_all[j])  # only the cheaper horizons matter
+            # The cheaper horizons in cost order; each one's limits are checked on its connection, which the
+            # collision check needs anyway, until ``max_collision_checks`` within the limits were checked.
+            outcome, steps, checked = "", -1, 0
+            order = candidates[np.argsort(costs[candidates], kind="stable")]
+            pos = 0
+            while pos < order.shape[0] and checked < max_collision_checks:
+                n_steps = int(order[pos])
+                pos += 1
+                section = connector.trajectory(x_a, x_b, goal, n_steps)
+                if not (np.all(np.abs(section.u) <= f_lim) and np.all(np.abs(section.x[:, 3:6]) <= v_lim)):
+                    if pos == _LAZY_LIMIT_CHECKS and pos < order.shape[0]:
+                        # Many beyond the limits: test the remaining horizons' limits together instead.
+                        f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps,
+                                                             steps=order[pos:])
+                        order = np.concatenate([order[:pos], order[pos:][f_ok[0] & v_ok[0]]])
+                    continue
+                if checked == 0:
+                    outcome, steps = COLLISION, n_steps
+                checked += 1
                 if checker.is_free(section.pieces()):
                     if sample_dt_s is not None:
                         section = section.refined(sample_dt_s)
@@ -244,8 +254,15 @@ def lqr_shortcut(
                     sec_cum = cum[a] + np.cumsum(section.interval_costs(weights, goal))
                     cum = np.concatenate([cum[: a + 1], sec_cum, cum[b + 1 :] + (sec_cum[-1] - cum[b])])
                     sections.append((i, section))
-                    outcome, steps = ACCEPTED, int(n_steps)
+                    outcome, steps = ACCEPTED, n_steps
                     break
+            if checked == 0:  # no cheaper connection within the limits: name the limit
+                f_ok, _ = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps,
+                                                  steps=candidates)
+                best = int(candidates[np.argmin(costs[candidates])])
+                reason = INPUT_LIMIT if not np.any(f_ok[0]) else VELOCITY_LIMIT
+                attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))  # type: ignore[arg-type]
+                continue
             attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))  # type: ignore[arg-type]
             if outcome == ACCEPTED:
                 break  # the rest of the batch was drawn on the old trajectory

@@ -353,7 +353,7 @@ class LqrConnector:
         x[0] = np.asarray(x_a, dtype=float).reshape(6)
         x[-1] = np.asarray(x_b, dtype=float).reshape(6)
         t = t0 + self.dt_s * np.arange(steps + 1)
-        return TranslationalTrajectory(t, x, u, self.mass_kg)
+        return TranslationalTrajectory.trusted(t, x, np.ascontiguousarray(u), self.mass_kg)
 
     def saturated_rollout(
         self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
