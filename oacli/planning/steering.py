@@ -384,6 +384,19 @@ class LqrConnector:
         TranslationalTrajectory
             ``steps`` intervals of ``dt_s`` from ``x_a``.
         """
+        xs, us = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
+        m, dt = self.mass_kg, self.dt_s
+        return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us).reshape(-1, 3), m)
+
+    def saturated_end(
+        self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
+        velocity_limit_mps: np.ndarray,
+    ) -> np.ndarray:
+        """The last state of :meth:`saturated_rollout` (the same arithmetic), shape (6,)."""
+        xs, _ = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
+        return np.array(xs[-1])
+
+    def _saturated(self, x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps):
         self._check_steps(steps)
         m, dt = self.mass_kg, self.dt_s
         # Scalar arithmetic per axis: a handful of flops per step, far below numpy's per-call overhead.
@@ -415,7 +428,7 @@ class LqrConnector:
                 u[i] = ui
             xs.append(list(x))
             us.append(u)
-        return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us).reshape(-1, 3), m)
+        return xs, us
 
     def value_function(self, steps: int, x_b: np.ndarray, goal: np.ndarray) -> ValueFunction:
         """Cost-to-go ``V(x_a)`` of reaching ``x_b`` in ``steps`` steps, in the form of Doerr Eq. 8.
