@@ -51,7 +51,7 @@ STATE_DIM = 6
 #: Relative margin a rewire must improve a cost by.
 _IMPROVE_RTOL = 1e-9
 #: Connections whose limits are checked one by one before the rest are checked together.
-_LAZY_LIMIT_CHECKS = 4
+_LAZY_LIMIT_CHECKS = 1
 
 
 @dataclass(frozen=True)

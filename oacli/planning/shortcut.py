@@ -35,7 +35,7 @@ REJECTIONS = (NOT_LOWER_COST, INPUT_LIMIT, VELOCITY_LIMIT, COLLISION)
 
 _IMPROVE_RTOL = 1e-12
 #: Connections whose limits are checked one by one (on the connection itself) before the rest are checked together.
-_LAZY_LIMIT_CHECKS = 4
+_LAZY_LIMIT_CHECKS = 2
 
 
 @dataclass(frozen=True)

@@ -264,16 +264,26 @@ class LqrConnector:
             f_lim = np.asarray(force_limit_N, dtype=float).reshape(3, 1) * (1.0 + LIMIT_RTOL)
             v_lim = np.asarray(velocity_limit_mps, dtype=float).reshape(3, 1) * (1.0 + LIMIT_RTOL)
             n_all = self.max_steps + 1
-            f_all = np.ones(n_all, dtype=bool)
-            v_all = np.ones(n_all, dtype=bool)
-            for i in range(3):  # matrix-vector products (BLAS), not a stacked matmul
-                f_all &= np.abs(self._g_flat[i] @ y[0, i]).reshape(n_all, -1).max(axis=1) <= f_lim[i, 0]
-                v_all &= np.abs(self._v_flat[i] @ y[0, i]).reshape(n_all, -1).max(axis=1) <= v_lim[i, 0]
-            f_all[:MIN_STEPS] = False
-            v_all[:MIN_STEPS] = False
-            if steps is not None:
+            if steps is None:
+                lo, hi = 0, n_all - 1
+            else:
                 steps = np.asarray(steps, dtype=int)
-                f_all, v_all = f_all[steps], v_all[steps]
+                if steps.size == 0:
+                    return np.zeros((1, 0), dtype=bool), np.zeros((1, 0), dtype=bool)
+                lo, hi = int(steps.min()), int(steps.max())
+            n_rng = hi - lo + 1
+            rows_g, rows_v = self.max_steps, n_all  # rows per horizon of the force and velocity maps
+            f_all = np.ones(n_rng, dtype=bool)
+            v_all = np.ones(n_rng, dtype=bool)
+            for i in range(3):  # matrix-vector products (BLAS) on the horizons lo..hi only
+                g = self._g_flat[i, lo * rows_g:(hi + 1) * rows_g]
+                v = self._v_flat[i, lo * rows_v:(hi + 1) * rows_v]
+                f_all &= np.abs(g @ y[0, i]).reshape(n_rng, -1).max(axis=1) <= f_lim[i, 0]
+                v_all &= np.abs(v @ y[0, i]).reshape(n_rng, -1).max(axis=1) <= v_lim[i, 0]
+            f_all[: max(0, MIN_STEPS - lo)] = False
+            v_all[: max(0, MIN_STEPS - lo)] = False
+            if steps is not None:
+                f_all, v_all = f_all[steps - lo], v_all[steps - lo]
             return f_all[None, :], v_all[None, :]
         if steps is None:
             g, v = self._g_flat, self._v_flat
