@@ -230,17 +230,21 @@ def lqr_shortcut(
             # The cheaper horizons in cost order; each one's limits are checked on its connection, which the
             # collision check needs anyway, until ``max_collision_checks`` within the limits were checked.
             outcome, steps, checked = "", -1, 0
+            force_ok_any = False  # some cheaper connection keeps the force limits (names the rejection)
             order = candidates[np.argsort(costs[candidates], kind="stable")]
             pos = 0
             while pos < order.shape[0] and checked < max_collision_checks:
                 n_steps = int(order[pos])
                 pos += 1
                 section = connector.trajectory(x_a, x_b, goal, n_steps)
-                if not (np.all(np.abs(section.u) <= f_lim) and np.all(np.abs(section.x[:, 3:6]) <= v_lim)):
+                f_pass = bool(np.all(np.abs(section.u) <= f_lim))
+                force_ok_any |= f_pass
+                if not (f_pass and np.all(np.abs(section.x[:, 3:6]) <= v_lim)):
                     if pos == _LAZY_LIMIT_CHECKS and pos < order.shape[0]:
                         # Many beyond the limits: test the remaining horizons' limits together instead.
                         f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps,
                                                              steps=order[pos:])
+                        force_ok_any |= bool(np.any(f_ok))
                         order = np.concatenate([order[:pos], order[pos:][f_ok[0] & v_ok[0]]])
                     continue
                 if checked == 0:
@@ -257,10 +261,8 @@ def lqr_shortcut(
                     outcome, steps = ACCEPTED, n_steps
                     break
             if checked == 0:  # no cheaper connection within the limits: name the limit
-                f_ok, _ = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps,
-                                                  steps=candidates)
                 best = int(candidates[np.argmin(costs[candidates])])
-                reason = INPUT_LIMIT if not np.any(f_ok[0]) else VELOCITY_LIMIT
+                reason = INPUT_LIMIT if not force_ok_any else VELOCITY_LIMIT
                 attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))  # type: ignore[arg-type]
                 continue
             attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))  # type: ignore[arg-type]
