@@ -74,7 +74,10 @@ limits, passes the EXACT continuous collision check (:class:`~oacli.geometry.col
 the cost cap and is shorter than the best so far by more than :data:`MIN_GAIN` (relative; exact arc length,
 :meth:`~oacli.planning.translational.TranslationalTrajectory.path_length_m`, of the candidate sampled every ``dt_s``
 as it would be returned). The result is therefore never longer than the input and never breaks the limits or
-collision-freedom; its duration never exceeds the budget.
+collision-freedom; its duration never exceeds the budget. The iteration stops when a certified step lowers the
+subproblem objective by less than ``tolerance`` (relative), or when ``stall_iterations`` certified steps in a row
+are not shorter than the best (the objective can keep creeping down through its effort term while the returned
+length no longer changes).
 
 Cost semantics
 --------------

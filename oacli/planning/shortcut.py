@@ -12,7 +12,14 @@ for ``σ2`` only if it
 3. is collision-free in continuous time (:mod:`oacli.geometry.collision`).
 
 (The ReSWARM flight code spliced shortcuts in without the collision check.) Every try is recorded with its
-outcome, so the smoothing can be audited. The result never costs more than the input, and stays within the
+outcome, so the smoothing can be audited.
+
+Speed (issue 13): tries are drawn in batches against the current trajectory and their connection costs for every
+horizon computed in one vectorised call (most tries end there: no cheaper connection); the cheaper horizons of a
+try are then taken in cost order, each one's limits checked on the connection itself (which the collision check
+needs anyway; all remaining horizons together after a couple of misses). A try after an accepted one in the same
+batch was drawn on the old trajectory: it is dropped unrecorded and drawn again, so every recorded try saw the
+trajectory as it was at that try, and ``tries`` tries are recorded. The result never costs more than the input, and stays within the
 limits and collision-free if the input was.
 """
 
