@@ -402,7 +402,26 @@ class LqrConnector:
         self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
         velocity_limit_mps: np.ndarray,
     ) -> np.ndarray:
-        """The last state of :meth:`saturated_rollout` (the same arithmetic), shape (6,)."""
+        """The last state of :meth:`saturated_rollout` (the same arithmetic), without building the trajectory.
+
+        Parameters
+        ----------
+        x_a : ndarray, shape (6,)
+            Start state.
+        x_target : ndarray, shape (6,)
+            State to steer to.
+        goal : ndarray, shape (6,)
+            Goal state of the plan (the cost's ``x_g``).
+        steps : int
+            Number of steps of the rollout.
+        force_limit_N, velocity_limit_mps : ndarray, shape (3,)
+            Limits per axis.
+
+        Returns
+        -------
+        ndarray, shape (6,)
+            The rollout's end state.
+        """
         xs, _ = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
         return np.array(xs[-1])
 
