@@ -19,8 +19,9 @@ horizon computed in one vectorised call (most tries end there: no cheaper connec
 try are then taken in cost order, each one's limits checked on the connection itself (which the collision check
 needs anyway; all remaining horizons together after a couple of misses). A try after an accepted one in the same
 batch was drawn on the old trajectory: it is dropped unrecorded and drawn again, so every recorded try saw the
-trajectory as it was at that try, and ``tries`` tries are recorded. The result never costs more than the input, and stays within the
-limits and collision-free if the input was.
+trajectory as it was at that try, and ``tries`` tries are recorded.
+
+The result never costs more than the input, and stays within the limits and collision-free if the input was.
 """
 
 from __future__ import annotations
