@@ -372,6 +372,7 @@ class CollisionChecker:
             self._lam[j] = lam
             radii[j] = e.principal_axes()[0].max()
         self._broad_radius = radii + self.robot.bounding_radius_m
+        self._point_robot = self.robot.is_point
         self._lower = np.array([b.lower for b in scene.keep_in], dtype=float).reshape(-1, 3)
         self._upper = np.array([b.upper for b in scene.keep_in], dtype=float).reshape(-1, 3)
 
@@ -393,7 +394,7 @@ class CollisionChecker:
         p = np.asarray(points, dtype=float)
         delta = p[..., None, :] - self._centers
         w2 = np.einsum("nij,...nj->...ni", self._transform, delta) ** 2
-        if self.robot.is_point:
+        if self._point_robot:
             return w2.sum(axis=-1)
         g, _ = max_clearance_sq(w2, self._lam)
         return g
@@ -432,7 +433,20 @@ class CollisionChecker:
         p = np.asarray(points, dtype=float)
         ok = self.in_keep_in(p)
         if self._centers.shape[0]:
-            ok &= np.all(self.clearance_sq(p) >= 1.0, axis=-1)
+            if self._point_robot:
+                ok &= np.all(self.clearance_sq(p) >= 1.0, axis=-1)
+                return ok
+            # Broad phase (exact outer bound): beyond the zone's bounding sphere grown by the robot's, the
+            # robot cannot touch the zone; the overlap test (a Newton search) runs only for the nearer points.
+            flat = p.reshape(-1, 3)
+            dist = np.linalg.norm(flat[:, None, :] - self._centers, axis=-1)  # (K, n_obstacles)
+            near = dist <= self._broad_radius * (1.0 + 1e-9) + 1e-12
+            if np.any(near):
+                rows = np.flatnonzero(near.any(axis=1))
+                g = self.clearance_sq(flat[rows])
+                clear = np.ones(flat.shape[0], dtype=bool)
+                clear[rows] = np.all((g >= 1.0) | ~near[rows], axis=-1)
+                ok &= clear.reshape(ok.shape)
         return ok
 
     def point_violations(self, point: np.ndarray) -> list[tuple[str, int]]:

@@ -42,7 +42,7 @@ from oacli.planning.result import (
     path_trajectory,
     tree_record,
 )
-from oacli.planning.steering import MIN_STEPS, LqrConnector
+from oacli.planning.steering import LIMIT_RTOL, MIN_STEPS, LqrConnector
 from oacli.planning.translational import TranslationalTrajectory
 from oacli.planning.tree import EDGE_LQR, RewireEvent, Tree
 
@@ -50,6 +50,8 @@ from oacli.planning.tree import EDGE_LQR, RewireEvent, Tree
 STATE_DIM = 6
 #: Relative margin a rewire must improve a cost by.
 _IMPROVE_RTOL = 1e-9
+#: Connections whose limits are checked one by one before the rest are checked together.
+_LAZY_LIMIT_CHECKS = 1
 
 
 @dataclass(frozen=True)
@@ -117,6 +119,8 @@ class _Planner:
         self.t0 = clock()
         self.conn = LqrConnector(problem.mass_kg, settings.dt_s, problem.weights, settings.max_steps)
         self.metric = self.conn.metric(settings.metric_steps)
+        self._f_lim = problem.force_limit_N * (1.0 + LIMIT_RTOL)
+        self._v_lim = problem.velocity_limit_mps * (1.0 + LIMIT_RTOL)
         self.goal = problem.goal
         self.tree = Tree(problem.start)
         self.sources = PointIndex(STATE_DIM)
@@ -160,8 +164,10 @@ class _Planner:
         )
         return f_ok & v_ok
 
-    def edge(self, x_a: np.ndarray, x_b: np.ndarray, steps: int) -> tuple[bool, TranslationalTrajectory]:
-        traj = self.conn.trajectory(x_a, x_b, self.goal, steps)
+    def edge(self, x_a: np.ndarray, x_b: np.ndarray, steps: int,
+             traj: TranslationalTrajectory | None = None) -> tuple[bool, TranslationalTrajectory]:
+        if traj is None:
+            traj = self.conn.trajectory(x_a, x_b, self.goal, steps)
         self.stats["edge_checks"] += 1
         free = self.problem.checker.is_free(traj.pieces())
         if not free:
@@ -180,21 +186,40 @@ class _Planner:
     def best_connection(self, parents: np.ndarray, x: np.ndarray, bound: float = math.inf) -> tuple[int, int, float]:
         """Least total cost (cost-to-come + connection) parent and horizon with a free connection to ``x``.
 
-        Only connections cheaper than ``bound`` are considered.
+        Only connections cheaper than ``bound`` and within the limits are considered; up to ``max_edge_checks`` of
+        them are collision-checked in cost order. The limits are checked lazily on each connection in that order
+        (its trajectory is needed for the collision check anyway), all at once after a few misses.
         """
         tree = self.tree
         xs = tree.states[parents]
         total = tree.cost[parents][:, None] + self.conn.costs(xs, x, self.goal)
-        total[~self.limits_ok(xs, x)] = np.inf
         total[total >= bound] = np.inf
         flat = np.argsort(total, axis=None, kind="stable")
-        for f in flat[: self.settings.max_edge_checks]:
-            k, n = divmod(int(f), total.shape[1])
-            if not np.isfinite(total[k, n]):
+        f_lim = self._f_lim
+        v_lim = self._v_lim
+        ok_mask: np.ndarray | None = None
+        misses = checks = 0
+        width = total.shape[1]
+        for f in flat.tolist():
+            k, n = divmod(f, width)
+            if not total[k, n] < math.inf:
                 break
-            free, _ = self.edge(xs[k], x, n)
+            traj = None
+            if ok_mask is None:
+                traj = self.conn.trajectory(xs[k], x, self.goal, n)
+                if not (np.all(np.abs(traj.u) <= f_lim) and np.all(np.abs(traj.x[:, 3:6]) <= v_lim)):
+                    misses += 1
+                    if misses >= _LAZY_LIMIT_CHECKS:
+                        ok_mask = self.limits_ok(xs, x)
+                    continue
+            elif not ok_mask[k, n]:
+                continue
+            free, _ = self.edge(xs[k], x, n, traj)
             if free:
                 return int(parents[k]), n, float(total[k, n])
+            checks += 1
+            if checks >= self.settings.max_edge_checks:
+                break
         return -1, 0, math.inf
 
     # -- steps -----------------------------------------------------------------------------------------------
@@ -208,11 +233,10 @@ class _Planner:
         """
         costs = self.conn.costs(x_from, x_to, self.goal)[0, : self.settings.metric_steps + 1]
         steps = int(np.argmin(costs))
-        roll = self.conn.saturated_rollout(
+        x_new = self.conn.saturated_end(
             x_from, x_to, self.goal, steps, self.problem.force_limit_N, self.problem.velocity_limit_mps
         )
-        x_new = roll.x[-1]
-        if np.allclose(x_new, x_from, rtol=0.0, atol=1e-9):
+        if float(np.max(np.abs(x_new - x_from))) <= 1e-9:
             return None
         if not self.problem.checker.points_free(x_new[0:3]):
             return None

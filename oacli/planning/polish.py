@@ -74,7 +74,10 @@ limits, passes the EXACT continuous collision check (:class:`~oacli.geometry.col
 the cost cap and is shorter than the best so far by more than :data:`MIN_GAIN` (relative; exact arc length,
 :meth:`~oacli.planning.translational.TranslationalTrajectory.path_length_m`, of the candidate sampled every ``dt_s``
 as it would be returned). The result is therefore never longer than the input and never breaks the limits or
-collision-freedom; its duration never exceeds the budget.
+collision-freedom; its duration never exceeds the budget. The iteration stops when a certified step lowers the
+subproblem objective by less than ``tolerance`` (relative), or when ``stall_iterations`` certified steps in a row
+are not shorter than the best (the objective can keep creeping down through its effort term while the returned
+length no longer changes).
 
 Cost semantics
 --------------
@@ -180,7 +183,8 @@ class PolishResult:
     iterations : tuple of PolishIteration
     reason : str
         Why the polish stopped: ``iterations`` (budget spent), ``converged`` (a certified step gained less than the
-        tolerance), ``trust_radius`` (Δ fell below its minimum), or why it was skipped.
+        tolerance), ``stalled`` (``stall_iterations`` certified steps in a row were not shorter than the best),
+        ``trust_radius`` (Δ fell below its minimum), or why it was skipped.
     accepted_trajectories : tuple of (int, TranslationalTrajectory)
         Every accepted candidate with its iteration index (sampled every ``dt_s``), for replaying the polish.
     """
@@ -305,6 +309,7 @@ def polish_trajectory(
     best_len = length0
     radius = s.trust_radius_m
     last_objective = np.inf
+    stalled = 0
     reason = "iterations"
     for i in range(s.iterations):
         if radius < s.min_trust_radius_m:
@@ -345,6 +350,10 @@ def polish_trajectory(
         if outcome == ACCEPTED:
             best, best_len = cand, length
             accepted.append((i, cand))
+        stalled = stalled + 1 if (certified and outcome == NOT_SHORTER) else 0
+        if s.stall_iterations > 0 and stalled >= s.stall_iterations:
+            reason = "stalled"
+            break
         if certified and outcome in (LIMITS, COST, COLLISION):
             radius *= 0.5  # a certified solution should pass: numerical trouble, take smaller steps
             continue

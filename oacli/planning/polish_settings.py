@@ -29,6 +29,10 @@ class PolishSettings:
         ε [-]: the subproblem keeps ``|f_i| <= (1 − ε) F_i`` and ``|v_i| <= (1 − ε) V_i``.
     tolerance : float
         Stop when a certified step lowers the subproblem objective by less than this fraction.
+    stall_iterations : int
+        Stop after this many certified steps in a row whose exact path length is not shorter than the best so far
+        (the objective may still creep down through its effort term while the length no longer improves);
+        0 never stops for that.
     rest_tolerance : float
         A trailing piece within this distance [m] and speed [m/s] of the goal at rest counts as arrived.
     backend : str
@@ -47,5 +51,6 @@ class PolishSettings:
     clearance_m: float = 1e-4
     limit_margin: float = 1e-6
     tolerance: float = 1e-5
+    stall_iterations: int = 2
     rest_tolerance: float = 1e-7
     backend: str = "direct"

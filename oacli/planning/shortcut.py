@@ -12,8 +12,16 @@ for ``σ2`` only if it
 3. is collision-free in continuous time (:mod:`oacli.geometry.collision`).
 
 (The ReSWARM flight code spliced shortcuts in without the collision check.) Every try is recorded with its
-outcome, so the smoothing can be audited. The result never costs more than the input, and stays within the
-limits and collision-free if the input was.
+outcome, so the smoothing can be audited.
+
+Speed (issue 13): tries are drawn in batches against the current trajectory and their connection costs for every
+horizon computed in one vectorised call (most tries end there: no cheaper connection); the cheaper horizons of a
+try are then taken in cost order, each one's limits checked on the connection itself (which the collision check
+needs anyway; all remaining horizons together after a couple of misses). A try after an accepted one in the same
+batch was drawn on the old trajectory: it is dropped unrecorded and drawn again, so every recorded try saw the
+trajectory as it was at that try, and ``tries`` tries are recorded.
+
+The result never costs more than the input, and stays within the limits and collision-free if the input was.
 """
 
 from __future__ import annotations
@@ -23,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.geometry.collision import CollisionChecker
-from oacli.planning.steering import LqrConnector
+from oacli.planning.steering import LIMIT_RTOL, LqrConnector
 from oacli.planning.translational import TranslationalTrajectory
 
 ACCEPTED = "accepted"
@@ -34,6 +42,8 @@ COLLISION = "collision"
 REJECTIONS = (NOT_LOWER_COST, INPUT_LIMIT, VELOCITY_LIMIT, COLLISION)
 
 _IMPROVE_RTOL = 1e-12
+#: Connections whose limits are checked one by one (on the connection itself) before the rest are checked together.
+_LAZY_LIMIT_CHECKS = 2
 
 
 @dataclass(frozen=True)
@@ -134,6 +144,8 @@ def splice(
     t = np.concatenate([traj.t[: a + 1], t_sec[1:], traj.t[b + 1 :] + delay])
     x = np.concatenate([traj.x[: a + 1], section.x[1:], traj.x[b + 1 :]])
     u = np.concatenate([traj.u[:a], section.u, traj.u[b:]])
+    if np.all(np.diff(t) > 0):  # always, unless rounding of the shift merged two samples
+        return TranslationalTrajectory.trusted(t, x, u, traj.mass_kg)
     return TranslationalTrajectory(t, x, u, traj.mass_kg)
 
 
@@ -149,6 +161,7 @@ def lqr_shortcut(
     tries: int,
     sample_dt_s: float | None = None,
     max_collision_checks: int = 3,
+    batch_size: int = 16,
 ) -> ShortcutResult:
     """Smooth ``traj`` by ``tries`` random LQR shortcuts (module docstring).
 
@@ -172,6 +185,10 @@ def lqr_shortcut(
         Sample spliced sections every ``sample_dt_s`` (must divide the connector's step); default: its step.
     max_collision_checks : int
         Connections (in cost order) checked for collisions per try.
+    batch_size : int
+        Tries drawn at once against the current trajectory, their connection costs computed together (the
+        tries after an accepted one in the same batch are dropped and drawn again: every try sees the trajectory
+        as it is at that try).
 
     Returns
     -------
@@ -183,42 +200,80 @@ def lqr_shortcut(
     attempts: list[ShortcutAttempt] = []
     sections: list[tuple[int, TranslationalTrajectory]] = []
     cum = _cumulative_costs(traj, weights, goal)  # changes only when a section is spliced in
-    for i in range(int(tries)):
+    tries = int(tries)
+    batch = max(1, int(batch_size))
+    f_lim = np.asarray(force_limit_N, dtype=float) * (1.0 + LIMIT_RTOL)
+    v_lim = np.asarray(velocity_limit_mps, dtype=float) * (1.0 + LIMIT_RTOL)
+    while len(attempts) < tries:
         n = len(traj)
         if n < 3:
+            i = len(attempts)
             attempts.append(ShortcutAttempt(i, 0, n - 1, 0.0, traj.duration_s, 0, 0.0, np.nan, NOT_LOWER_COST))
             continue
-        a = int(rng.integers(0, n - 2))
-        span = n - 1 - a  # log-uniform section length: as many local as global tries
-        b = a + min(span, max(2, int(np.exp(rng.uniform(np.log(2.0), np.log(span + 1.0))))))
-        old = float(cum[b] - cum[a])
-        x_a, x_b = traj.x[a], traj.x[b]
-        costs = connector.costs(x_a, x_b, goal)[0]
-        lower = costs < old - _IMPROVE_RTOL * max(1.0, abs(old))
-        base = dict(index=i, a=a, b=b, t_a=float(traj.t[a]), t_b=float(traj.t[b]), old_cost=old)
-        if not np.any(lower):
-            attempts.append(ShortcutAttempt(**base, steps=0, new_cost=np.nan, outcome=NOT_LOWER_COST))  # type: ignore[arg-type]
-            continue
-        candidates = np.flatnonzero(lower)  # only the cheaper horizons matter below: test only their limits
-        f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps, steps=candidates)
-        f_ok, v_ok = f_ok[0], v_ok[0]
-        ok = f_ok & v_ok
-        if not np.any(ok):
-            best = int(candidates[np.argmin(costs[candidates])])
-            reason = INPUT_LIMIT if not np.any(f_ok) else VELOCITY_LIMIT
-            attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))  # type: ignore[arg-type]
-            continue
-        order = candidates[ok][np.argsort(costs[candidates[ok]], kind="stable")]
-        outcome, steps = COLLISION, int(order[0])
-        for n_steps in order[:max_collision_checks]:
-            section = connector.trajectory(x_a, x_b, goal, int(n_steps))
-            if checker.is_free(section.pieces()):
-                if sample_dt_s is not None:
-                    section = section.refined(sample_dt_s)
-                traj = splice(traj, a, b, section)
-                cum = _cumulative_costs(traj, weights, goal)
-                sections.append((i, section))
-                outcome, steps = ACCEPTED, int(n_steps)
-                break
-        attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))  # type: ignore[arg-type]
+        # A batch of tries drawn against the current trajectory; their connection costs in one vectorised call.
+        # Tries are recorded in order; once one is spliced in, the rest of the batch (drawn on the old
+        # trajectory) is dropped unrecorded and a new batch is drawn.
+        k = min(batch, tries - len(attempts))
+        a_all = rng.integers(0, n - 2, size=k)
+        span = n - 1 - a_all  # log-uniform section length: as many local as global tries
+        u = rng.uniform(size=k)
+        length = np.exp(np.log(2.0) + u * (np.log(span + 1.0) - np.log(2.0))).astype(int)
+        b_all = a_all + np.minimum(span, np.maximum(2, length))
+        old_all = cum[b_all] - cum[a_all]
+        cost_all = connector.costs(traj.x[a_all], traj.x[b_all], goal)
+        lower_all = cost_all < (old_all - _IMPROVE_RTOL * np.maximum(1.0, np.abs(old_all)))[:, None]
+        any_lower = lower_all.any(axis=1).tolist()
+        a_list, b_list, old_list = a_all.tolist(), b_all.tolist(), old_all.tolist()
+        t_a_list, t_b_list = traj.t[a_all].tolist(), traj.t[b_all].tolist()
+        for j in range(k):
+            i = len(attempts)
+            a, b, old = a_list[j], b_list[j], old_list[j]
+            if not any_lower[j]:
+                attempts.append(ShortcutAttempt(i, a, b, t_a_list[j], t_b_list[j], 0, old, np.nan, NOT_LOWER_COST))
+                continue
+            base = dict(index=i, a=a, b=b, t_a=t_a_list[j], t_b=t_b_list[j], old_cost=old)
+            costs = cost_all[j]
+            x_a, x_b = traj.x[a], traj.x[b]
+            candidates = np.flatnonzero(lower_all[j])  # only the cheaper horizons matter
+            # The cheaper horizons in cost order; each one's limits are checked on its connection, which the
+            # collision check needs anyway, until ``max_collision_checks`` within the limits were checked.
+            outcome, steps, checked = "", -1, 0
+            force_ok_any = False  # some cheaper connection keeps the force limits (names the rejection)
+            order = candidates[np.argsort(costs[candidates], kind="stable")]
+            pos = 0
+            while pos < order.shape[0] and checked < max_collision_checks:
+                n_steps = int(order[pos])
+                pos += 1
+                section = connector.trajectory(x_a, x_b, goal, n_steps)
+                f_pass = bool(np.all(np.abs(section.u) <= f_lim))
+                force_ok_any |= f_pass
+                if not (f_pass and np.all(np.abs(section.x[:, 3:6]) <= v_lim)):
+                    if pos == _LAZY_LIMIT_CHECKS and pos < order.shape[0]:
+                        # Many beyond the limits: test the remaining horizons' limits together instead.
+                        f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps,
+                                                             steps=order[pos:])
+                        force_ok_any |= bool(np.any(f_ok))
+                        order = np.concatenate([order[:pos], order[pos:][f_ok[0] & v_ok[0]]])
+                    continue
+                if checked == 0:
+                    outcome, steps = COLLISION, n_steps
+                checked += 1
+                if checker.is_free(section.pieces()):
+                    if sample_dt_s is not None:
+                        section = section.refined(sample_dt_s)
+                    traj = splice(traj, a, b, section)
+                    # The cost is additive over intervals and time-invariant: only the section's are new.
+                    sec_cum = cum[a] + np.cumsum(section.interval_costs(weights, goal))
+                    cum = np.concatenate([cum[: a + 1], sec_cum, cum[b + 1 :] + (sec_cum[-1] - cum[b])])
+                    sections.append((i, section))
+                    outcome, steps = ACCEPTED, n_steps
+                    break
+            if checked == 0:  # no cheaper connection within the limits: name the limit
+                best = int(candidates[np.argmin(costs[candidates])])
+                reason = INPUT_LIMIT if not force_ok_any else VELOCITY_LIMIT
+                attempts.append(ShortcutAttempt(**base, steps=best, new_cost=float(costs[best]), outcome=reason))  # type: ignore[arg-type]
+                continue
+            attempts.append(ShortcutAttempt(**base, steps=steps, new_cost=float(costs[steps]), outcome=outcome))  # type: ignore[arg-type]
+            if outcome == ACCEPTED:
+                break  # the rest of the batch was drawn on the old trajectory
     return ShortcutResult(traj, cost_before, traj.cost(weights, goal), tuple(attempts), tuple(sections))

@@ -20,6 +20,7 @@ the tree node ``x_a`` (fixed sample ``x_b``) it is ``(x_a - m)ᵀ M_aa (x_a - m)
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,24 @@ from oacli.planning.translational import CostWeights, TranslationalTrajectory, i
 MIN_STEPS = 2
 #: Limits are accepted up to this relative excess (rounding of the linear maps).
 LIMIT_RTOL = 1e-9
+
+
+@functools.lru_cache(maxsize=8)
+def _connector_maps(n_max: int, dt: float, mass: float, per_axis: tuple[tuple[float, float, float], ...]):
+    """The stacked per-axis maps of :class:`LqrConnector` (read-only): they depend only on these numbers, so they
+    are built once per process (the plan and smooth stages of a mission, the seeds of a benchmark share them)."""
+    computed: dict[tuple[float, float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    for w_axis in per_axis:  # axes with equal weights share their maps
+        if w_axis not in computed:
+            computed[w_axis] = axis_maps(n_max, dt, mass, *w_axis)
+    maps = [computed[w_axis] for w_axis in per_axis]
+    g = np.stack([m[0] for m in maps])  # (3, N+1, N, 6)
+    x = np.stack([m[1] for m in maps])  # (3, N+1, N+1, 2, 6)
+    m = np.stack([m[2] for m in maps])  # (3, N+1, 6, 6)
+    v = np.ascontiguousarray(x[:, :, :, 1, :])  # velocity maps (3, N+1, N+1, 6)
+    for arr in (g, x, m, v):
+        arr.setflags(write=False)
+    return g, x, m, v, g[:, :, 0, :].tolist()
 
 
 def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: float):
@@ -167,15 +186,8 @@ class LqrConnector:
         self.max_steps = int(max_steps)
         n_max = self.max_steps
         per_axis = [(float(weights.position[i]), float(weights.velocity[i]), float(weights.force[i])) for i in range(3)]
-        computed: dict[tuple[float, float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        for w_axis in per_axis:  # axes with equal weights share their maps
-            if w_axis not in computed:
-                computed[w_axis] = axis_maps(n_max, self.dt_s, self.mass_kg, *w_axis)
-        maps = [computed[w_axis] for w_axis in per_axis]
-        self._g = np.stack([m[0] for m in maps])  # (3, N+1, N, 6)
-        self._x = np.stack([m[1] for m in maps])  # (3, N+1, N+1, 2, 6)
-        self._m = np.stack([m[2] for m in maps])  # (3, N+1, 6, 6)
-        self._v = np.ascontiguousarray(self._x[:, :, :, 1, :])  # velocity maps (3, N+1, N+1, 6)
+        self._g, self._x, self._m, self._v, self._first_gain = _connector_maps(
+            n_max, self.dt_s, self.mass_kg, tuple(per_axis))
         self._g_flat = self._g.reshape(3, -1, 6)
         self._m_flat = self._m.reshape(3, -1, 6)
         self._v_flat = self._v.reshape(3, -1, 6)
@@ -248,6 +260,31 @@ class LqrConnector:
             False for horizons below ``MIN_STEPS``.
         """
         y = self._y(x_a, x_b, goal)
+        if y.shape[0] == 1:  # one pair: every horizon in two batched products beats gathering a subset
+            f_lim = np.asarray(force_limit_N, dtype=float).reshape(3, 1) * (1.0 + LIMIT_RTOL)
+            v_lim = np.asarray(velocity_limit_mps, dtype=float).reshape(3, 1) * (1.0 + LIMIT_RTOL)
+            n_all = self.max_steps + 1
+            if steps is None:
+                lo, hi = 0, n_all - 1
+            else:
+                steps = np.asarray(steps, dtype=int)
+                if steps.size == 0:
+                    return np.zeros((1, 0), dtype=bool), np.zeros((1, 0), dtype=bool)
+                lo, hi = int(steps.min()), int(steps.max())
+            n_rng = hi - lo + 1
+            rows_g, rows_v = self.max_steps, n_all  # rows per horizon of the force and velocity maps
+            f_all = np.ones(n_rng, dtype=bool)
+            v_all = np.ones(n_rng, dtype=bool)
+            for i in range(3):  # matrix-vector products (BLAS) on the horizons lo..hi only
+                g = self._g_flat[i, lo * rows_g:(hi + 1) * rows_g]
+                v = self._v_flat[i, lo * rows_v:(hi + 1) * rows_v]
+                f_all &= np.abs(g @ y[0, i]).reshape(n_rng, -1).max(axis=1) <= f_lim[i, 0]
+                v_all &= np.abs(v @ y[0, i]).reshape(n_rng, -1).max(axis=1) <= v_lim[i, 0]
+            f_all[: max(0, MIN_STEPS - lo)] = False
+            v_all[: max(0, MIN_STEPS - lo)] = False
+            if steps is not None:
+                f_all, v_all = f_all[steps - lo], v_all[steps - lo]
+            return f_all[None, :], v_all[None, :]
         if steps is None:
             g, v = self._g_flat, self._v_flat
             n_steps = self.max_steps + 1
@@ -318,13 +355,15 @@ class LqrConnector:
         """
         self._check_steps(steps)
         y = self._y(x_a, x_b, goal)[0]
-        u = np.einsum("ija,ia->ji", self._g[:, steps, :steps], y)
-        states = np.einsum("ikja,ia->kji", self._x[:, steps, : steps + 1], y)  # (steps+1, 2, 3)
-        x = np.concatenate([states[:, 0, :], states[:, 1, :]], axis=1)
+        u = (self._g[:, steps, :steps] @ y[:, :, None])[:, :, 0].T  # (steps, 3)
+        states = (self._x[:, steps, : steps + 1].reshape(3, -1, 6) @ y[:, :, None]).reshape(3, steps + 1, 2)
+        x = np.empty((steps + 1, 6))
+        x[:, 0:3] = states[:, :, 0].T
+        x[:, 3:6] = states[:, :, 1].T
         x[0] = np.asarray(x_a, dtype=float).reshape(6)
         x[-1] = np.asarray(x_b, dtype=float).reshape(6)
         t = t0 + self.dt_s * np.arange(steps + 1)
-        return TranslationalTrajectory(t, x, u, self.mass_kg)
+        return TranslationalTrajectory.trusted(t, x, np.ascontiguousarray(u), self.mass_kg)
 
     def saturated_rollout(
         self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
@@ -355,30 +394,70 @@ class LqrConnector:
         TranslationalTrajectory
             ``steps`` intervals of ``dt_s`` from ``x_a``.
         """
+        xs, us = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
+        m, dt = self.mass_kg, self.dt_s
+        return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us).reshape(-1, 3), m)
+
+    def saturated_end(
+        self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
+        velocity_limit_mps: np.ndarray,
+    ) -> np.ndarray:
+        """The last state of :meth:`saturated_rollout` (the same arithmetic), without building the trajectory.
+
+        Parameters
+        ----------
+        x_a : ndarray, shape (6,)
+            Start state.
+        x_target : ndarray, shape (6,)
+            State to steer to.
+        goal : ndarray, shape (6,)
+            Goal state of the plan (the cost's ``x_g``).
+        steps : int
+            Number of steps of the rollout.
+        force_limit_N, velocity_limit_mps : ndarray, shape (3,)
+            Limits per axis.
+
+        Returns
+        -------
+        ndarray, shape (6,)
+            The rollout's end state.
+        """
+        xs, _ = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
+        return np.array(xs[-1])
+
+    def _saturated(self, x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps):
         self._check_steps(steps)
         m, dt = self.mass_kg, self.dt_s
-        f_lim = np.asarray(force_limit_N, dtype=float)
-        v_lim = np.asarray(velocity_limit_mps, dtype=float)
-        x = np.asarray(x_a, dtype=float).reshape(6).copy()
-        target = np.asarray(x_target, dtype=float).reshape(6)
-        goal = np.asarray(goal, dtype=float).reshape(6)
-        xs = [x.copy()]
+        # Scalar arithmetic per axis: a handful of flops per step, far below numpy's per-call overhead.
+        f_lim = [float(f) for f in np.asarray(force_limit_N, dtype=float).reshape(3)]
+        v_lim = [float(v) for v in np.asarray(velocity_limit_mps, dtype=float).reshape(3)]
+        x = [float(v) for v in np.asarray(x_a, dtype=float).reshape(6)]
+        target = [float(v) for v in np.asarray(x_target, dtype=float).reshape(6)]
+        goal = [float(v) for v in np.asarray(goal, dtype=float).reshape(6)]
+        g0 = self._first_gain
+        xs = [list(x)]
         us = []
         for k in range(steps):
             left = steps - k
-            if left >= MIN_STEPS:
-                y = self._y(x, target, goal)[0]  # (3, 6)
-                u = np.einsum("ia,ia->i", self._g[:, left, 0], y)
-            else:
-                u = m * (target[3:6] - x[3:6]) / dt
-            lo = np.maximum(-f_lim, m * (-v_lim - x[3:6]) / dt)
-            hi = np.minimum(f_lim, m * (v_lim - x[3:6]) / dt)
-            u = np.clip(u, lo, np.maximum(lo, hi))
-            acc = u / m
-            x = np.concatenate([x[0:3] + x[3:6] * dt + 0.5 * acc * dt * dt, x[3:6] + acc * dt])
-            xs.append(x.copy())
+            u = [0.0, 0.0, 0.0]
+            for i in range(3):
+                r, v = x[i], x[3 + i]
+                if left >= MIN_STEPS:
+                    g = g0[i][left]
+                    ui = (g[0] * r + g[1] * v + g[2] * target[i] + g[3] * target[3 + i] + g[4] * goal[i]
+                          + g[5] * goal[3 + i])
+                else:
+                    ui = m * (target[3 + i] - v) / dt
+                lo = max(-f_lim[i], m * (-v_lim[i] - v) / dt)
+                hi = max(lo, min(f_lim[i], m * (v_lim[i] - v) / dt))
+                ui = min(max(ui, lo), hi)
+                acc = ui / m
+                x[i] = r + v * dt + 0.5 * acc * dt * dt
+                x[3 + i] = v + acc * dt
+                u[i] = ui
+            xs.append(list(x))
             us.append(u)
-        return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us), m)
+        return xs, us
 
     def value_function(self, steps: int, x_b: np.ndarray, goal: np.ndarray) -> ValueFunction:
         """Cost-to-go ``V(x_a)`` of reaching ``x_b`` in ``steps`` steps, in the form of Doerr Eq. 8.

@@ -204,6 +204,33 @@ class TranslationalTrajectory:
     # -- construction ----------------------------------------------------------------------------------------
 
     @classmethod
+    def trusted(cls, t: np.ndarray, x: np.ndarray, u: np.ndarray, mass_kg: float) -> TranslationalTrajectory:
+        """Wrap float arrays of the right shapes, ``t`` strictly increasing, without copying or checking them.
+
+        For the planners' inner loops, whose arrays are built from already valid trajectories; the arrays are
+        made read-only like the checked constructor's.
+
+        Parameters
+        ----------
+        t : ndarray, shape (n+1,)
+        x : ndarray, shape (n+1, 6)
+        u : ndarray, shape (n, 3)
+        mass_kg : float
+
+        Returns
+        -------
+        TranslationalTrajectory
+        """
+        out = object.__new__(cls)
+        for arr in (t, x, u):
+            arr.setflags(write=False)
+        object.__setattr__(out, "t", t)
+        object.__setattr__(out, "x", x)
+        object.__setattr__(out, "u", u)
+        object.__setattr__(out, "mass_kg", float(mass_kg))
+        return out
+
+    @classmethod
     def from_forces(cls, x0: np.ndarray, forces: np.ndarray, h: np.ndarray, mass_kg: float, t0: float = 0.0):
         """Propagate the exact double integrator from ``x0`` under held ``forces (n, 3)`` for durations ``h``.
 
@@ -394,6 +421,8 @@ class TranslationalTrajectory:
             raise ValueError(f"every interval must be a multiple of {dt_s} s")
         if np.all(counts == 1):
             return self
+        if np.all(counts == counts[0]) and np.all(h == h[0]):
+            return self._refined_uniform(int(counts[0]))
         piece = np.repeat(np.arange(h.shape[0]), counts)  # the interval of every new sample after the first
         sample_idx = np.concatenate([[0], np.cumsum(counts)])
         j = np.arange(1, piece.shape[0] + 1) - sample_idx[piece]  # 1 .. counts[k] within interval k
@@ -404,6 +433,25 @@ class TranslationalTrajectory:
         x_all = self.states_at(t_all)
         x_all[sample_idx] = self.x  # keep the original samples bit-exact
         return TranslationalTrajectory(t_all, x_all, self.u[piece], self.mass_kg)
+
+    def _refined_uniform(self, c: int) -> TranslationalTrajectory:
+        """:meth:`refined` when every interval has the same length and splits into ``c`` samples."""
+        n = len(self) - 1
+        h = float(self.t[1] - self.t[0])
+        tau = h * np.arange(c) / c  # offsets of the new samples in an interval, the start included
+        acc = self.u / self.mass_kg  # (n, 3)
+        r0, v0 = self.x[:-1, None, 0:3], self.x[:-1, None, 3:6]
+        tt = tau[None, :, None]
+        x_all = np.empty((n * c + 1, 6))
+        body = x_all[:-1].reshape(n, c, 6)
+        body[:, :, 0:3] = r0 + v0 * tt + 0.5 * acc[:, None, :] * tt * tt
+        body[:, :, 3:6] = v0 + acc[:, None, :] * tt
+        body[:, 0, :] = self.x[:-1]  # keep the original samples bit-exact
+        x_all[-1] = self.x[-1]
+        t_all = np.empty(n * c + 1)
+        t_all[:-1] = (self.t[:-1, None] + tau[None, :]).reshape(-1)
+        t_all[::c] = self.t
+        return TranslationalTrajectory.trusted(t_all, x_all, np.repeat(self.u, c, axis=0), self.mass_kg)
 
     def zoh_residual(self) -> float:
         """Largest deviation [m or m/s] of the samples from the exact propagation of the held forces.
