@@ -6,7 +6,7 @@ et al. and ReSWARM §4.1.3 do: attitude is interpolated afterwards (:mod:`oacli.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,6 +45,8 @@ class PlanningProblem:
     sample_lower: np.ndarray
     sample_upper: np.ndarray
     weights: CostWeights
+    #: Cumulative volume fractions of the sampling boxes (set in ``__post_init__``; picks a box by one draw).
+    _box_cdf: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name, shape in (("start", (6,)), ("goal", (6,)), ("force_limit_N", (3,)), ("velocity_limit_mps", (3,))):
