@@ -232,13 +232,15 @@ def test_alignment_splits_at_unknown_inputs_and_never_holds_one():
     starts = [r.t for r in recs if r.starts_segment]
     np.testing.assert_allclose(starts, [t[6], t[9]])
     assert rep.gaps == 2 and rep.segments == 3 and rep.input_only == 0
+    # The first lost instant (t[4]) is an input-only record: t[3]'s input is held over one control period only.
+    assert not recs[4].state_measured and recs[4].t == pytest.approx(t[4]) and rep.lost_instants == 1
     settings = EstimatorSettings(MeasurementModel(position_std_m=0.01), ProcessNoise(1e-5, 1e-6), substep_s=0.016)
-    # No process residual across a gap: the cost is the same whatever input is logged at the segment's end.
+    # The unknown input's placeholder is never used: the cost is the same whatever it says.
     theta0 = np.array([10.0, 0.15, 0.15, 0.15])
     prior = ParameterEstimate(0.0, theta0, np.diag([1.0, 1e-3, 1e-3, 1e-3]), "prior")
     a = estimate_batch(recs, settings, prior)
-    wild = [Measurement(r.t, r.x_measured, r.u_applied * (50.0 if i == 3 else 1.0), starts_segment=r.starts_segment)
-            for i, r in enumerate(recs)]  # recs[3] is t[3], the last record before the first gap
+    wild = [Measurement(r.t, r.x_measured, r.u_applied + (50.0 if i == 4 else 0.0), state_measured=r.state_measured,
+                        starts_segment=r.starts_segment) for i, r in enumerate(recs)]
     b = estimate_batch(wild, settings, prior)
     np.testing.assert_allclose(b.chi2, a.chi2, rtol=1e-6)
 

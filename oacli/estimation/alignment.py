@@ -19,9 +19,14 @@ topics, so records are built by **time stamp**, never by position in the file:
   to the actuator limits when they are given (``bridged``);
 * when the input over an interval is unknown -- a control instant with neither an applied nor a commanded input, or
   a gap in the stamps longer than 1.5 control periods -- the record after it starts a new segment
-  (``Measurement.starts_segment``): the estimators do not link the two states through the process model and
-  estimate the new segment's initial state afresh (``gaps``, ``segments``). An input is never held silently across a
-  gap.
+  (``Measurement.starts_segment``: the input over the interval before it is unknown; ``gaps``, ``segments``). A gap
+  in the stamps after a known input gets an input-only record at the first lost control instant (``lost_instants``;
+  its own input is unknown, a zero placeholder), so the last known input is held for exactly its control period;
+  after a single lost instant the unknown interval spans one control period, over which the controller held one
+  (unknown) wrench. The batch estimator predicts that wrench's force from its neighbours, with the prediction's
+  error measured on the run, and keeps the translational process residual across the gap; the rotational state
+  after a gap is estimated afresh (:func:`oacli.estimation.batch.segment_link_weights`). The sequential filter
+  re-initialises the robot state. An input is never held silently across a gap.
 
 The control period is the median spacing of the input stamps (robust to dropped records).
 """
@@ -74,6 +79,9 @@ class AlignmentReport:
     held : int
         Measurements between control instants given the input held since the last one (reported only when not 0,
         so telemetry on the control grid keeps its summary).
+    lost_instants : int
+        Gaps after a known input whose first lost control instant got an input-only record with an unknown input
+        (reported only when not 0).
     control_period_s : float
         Median spacing of the input stamps [s] (NaN with fewer than two).
     """
@@ -90,6 +98,7 @@ class AlignmentReport:
     segments: int
     control_period_s: float
     held: int = 0
+    lost_instants: int = 0
 
     def as_dict(self) -> dict[str, float | int]:
         """The counts as a plain dict (for ``summary.json``).
@@ -99,8 +108,9 @@ class AlignmentReport:
         dict
         """
         out = asdict(self)
-        if not self.held:
-            del out["held"]
+        for key in ("held", "lost_instants"):
+            if not out[key]:
+                del out[key]
         return out
 
 
@@ -194,7 +204,7 @@ def align_records(
     limits = None if input_limits is None else np.asarray(input_limits, dtype=float)
 
     records: list[Measurement] = []
-    bridged = input_only = gaps = unusable = segments = held = 0
+    bridged = input_only = gaps = unusable = segments = held = lost = 0
     last_input: tuple[float, np.ndarray] | None = None  # the last control instant with a known input
     prev_t: float | None = None
     prev_input_known = False
@@ -221,6 +231,15 @@ def align_records(
             not np.isfinite(period) or t - prev_t <= _GAP_FACTOR * period)
         if prev_t is not None and not linked:
             gaps += 1
+            if prev_input_known and prev_x is not None and np.isfinite(period) and t - prev_t > 1.5 * period:
+                # The first control instant lost in the gap: an input-only record with an unknown input, so the last
+                # known input is held for its control period only (module docstring). Later lost instants would
+                # only add unconstrained states: the interval after this record is unknown either way.
+                t_v = prev_t + period
+                x_v = prev_x.copy()  # a seed for the solver only
+                x_v[0:3] += x_v[3:6] * period
+                records.append(Measurement(t_v, x_v, zero_u, state_measured=False))
+                lost += 1
         if key in states:
             x = states[key][1]
             measured = True
@@ -240,6 +259,6 @@ def align_records(
     report = AlignmentReport(
         measurements_received=int(t_measured.size), reordered=max(reordered, 0), late=late, duplicates=duplicates,
         input_duplicates=input_duplicates, input_only=input_only, bridged=bridged, gaps=gaps, unusable=unusable,
-        segments=segments, control_period_s=period, held=held,
+        segments=segments, control_period_s=period, held=held, lost_instants=lost,
     )
     return records, report

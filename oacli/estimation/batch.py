@@ -50,9 +50,12 @@ Choices the paper leaves open, and what is done here:
   first record so that ``AᵀA`` stays invertible.
 * **Imperfect telemetry** (:mod:`oacli.estimation.alignment`). An input-only record (``state_measured=False``: the
   localisation message was lost) keeps its state variable and process residuals but has no measurement residual
-  and is never an inlier. A record that ``starts_segment`` (the input before it is unknown) has no process residual
-  to its predecessor: each segment's first state is estimated afresh (with its own gauge tie), never bridged by
-  holding an input over the gap.
+  and is never an inlier. A record that ``starts_segment`` (the input over the interval before it is unknown) is
+  never reached by holding an input over the gap (:func:`segment_link_weights`): the unknown wrench is predicted
+  from its neighbours with the prediction's error (measured on the run, :func:`lost_input_prior`) as extra process
+  noise over that interval; without a prediction its force is profiled out (position continuity kept) and the
+  rotational state after the gap is estimated afresh; a longer gap is cut (the segment's first state free, with
+  its own gauge tie). Cutting every gap biases θ in closed loop (see :func:`segment_link_weights`).
 * **Goodness of fit.** At the solution the cost ``‖b‖²`` of a correct model is χ²-distributed with
   ``m − n`` degrees of freedom (residuals minus unknowns); :attr:`BatchResult.chi2` and ``chi2_dof`` report both,
   so a fit far outside its expected range (a wrong input record, an unmodelled effect) is visible.
@@ -116,8 +119,187 @@ gap converged to a different inlier set than a cold solve); with the full contin
 (16 instead of 21 iterations per window on the default mission, 10 with this one stage)."""
 _CONTINUATION_TOLERANCE = 1e-6
 
+_BRIDGE_FACTOR = 1.5
+"""A gap link is bridged (translational residual kept) when it spans at most this many typical record spacings."""
+_MIN_PREDICTION_SAMPLES = 10
+"""Triples of known inputs needed to measure the error of a lost input's prediction (else it is profiled out)."""
 
 
+def unknown_torque_directions(dt_s: np.ndarray, inertia_kgm2: np.ndarray) -> np.ndarray:
+    """Directions ``(K, 12, 3)`` along which a wrong body torque ``Δτ`` held over ``dt_s`` moves the end state, per
+    unit of ``Δτ``, to first order and without the gyroscopic coupling: ``½T² J⁻¹ Δτ`` on the attitude and
+    ``T J⁻¹ Δτ`` on the angular velocity (Doerr Eq. 35 linearised at rest). Used only to weight a predicted
+    torque's error (:func:`segment_link_weights`), never to move the state.
+
+    Parameters
+    ----------
+    dt_s : ndarray, shape (K,)
+        Interval lengths [s].
+    inertia_kgm2 : ndarray, shape (3,)
+        Principal inertias [kg·m²] (the weighting point).
+
+    Returns
+    -------
+    ndarray, shape (K, 12, 3)
+    """
+    dt = np.atleast_1d(np.asarray(dt_s, dtype=float))
+    j_inv = np.diag(1.0 / np.asarray(inertia_kgm2, dtype=float))
+    out = np.zeros((dt.size, TANGENT_DIM, 3))
+    out[:, 6:9, :] = 0.5 * dt[:, None, None] ** 2 * j_inv
+    out[:, 9:12, :] = dt[:, None, None] * j_inv
+    return out
+
+
+def unknown_force_directions(dt_s: np.ndarray) -> np.ndarray:
+    """Directions ``D_k`` (K, 12, 3) of ``x_{k+1} ⊟ f(x_k, u_k, θ)`` along which a wrong force held over an interval
+    of ``dt_s`` moves the end state, per unit of ``Δf / m``.
+
+    The translational dynamics are linear with the force in the world frame (Doerr Eq. 34): a force error ``Δf``
+    held over ``T`` moves ``r⁺`` by ``½T² Δf/m`` and ``v⁺`` by ``T Δf/m``, whatever the state, the attitude or the
+    inertia, so the directions are exact and ``m`` only scales them.
+
+    Parameters
+    ----------
+    dt_s : ndarray, shape (K,)
+        Interval lengths [s].
+
+    Returns
+    -------
+    ndarray, shape (K, 12, 3)
+    """
+    dt = np.atleast_1d(np.asarray(dt_s, dtype=float))
+    out = np.zeros((dt.size, TANGENT_DIM, 3))
+    eye = np.eye(3)
+    out[:, 0:3, :] = 0.5 * dt[:, None, None] ** 2 * eye
+    out[:, 3:6, :] = dt[:, None, None] * eye
+    return out
+
+
+def lost_input_prior(t: np.ndarray, u: np.ndarray, links: np.ndarray, min_samples: int | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A data-driven prior for the unknown input over each gap interval: the mean of its neighbours.
+
+    A record whose outgoing interval has an unknown input (``links[k]`` False) lies between two known inputs when
+    ``links[k-1]`` and ``links[k+1]`` hold (one lost control instant). Its input is then predicted as
+    ``(u_{k-1} + u_{k+1}) / 2``; the prediction's error variance is measured on the same run, from every triple of
+    consecutive known inputs on an even grid: ``mean((u_i − (u_{i-1} + u_{i+1}) / 2)²)`` per axis. Controller
+    records lost at random are like the others, so this is the error the interpolation makes on average (the
+    controller's feedback on the measurement noise included); it is a stated assumption, not a held input.
+
+    Parameters
+    ----------
+    t : ndarray, shape (K,)
+        Record times [s].
+    u : ndarray, shape (K, 6)
+        Inputs [N, N·m] (placeholders where unknown).
+    links : ndarray of bool, shape (K - 1,)
+        The input over interval k is known.
+    min_samples : int, optional
+        Fewer triples than this: no prediction (the force is profiled out); default ``_MIN_PREDICTION_SAMPLES``.
+
+    Returns
+    -------
+    u_prior : ndarray, shape (K, 6)
+        ``u`` with the predicted inputs in place of the placeholders that can be predicted.
+    predicted : ndarray of bool, shape (K - 1,)
+        Intervals whose unknown input has a prediction.
+    variance : ndarray, shape (6,)
+        Its error variance per axis [N², (N·m)²] (``inf`` without enough triples).
+    """
+    k = t.size
+    min_samples = _MIN_PREDICTION_SAMPLES if min_samples is None else min_samples
+    links = np.asarray(links, dtype=bool)
+    u_prior = np.array(u, dtype=float)
+    known = np.zeros(k, dtype=bool)
+    known[:-1] = links
+    dt = np.diff(t)
+    mid = np.arange(1, k - 1)
+    even = np.abs(dt[1:] - dt[:-1]) <= TIME_TOL_S + 1e-6 * np.abs(dt[1:]) if k > 2 else np.zeros(0, dtype=bool)
+    triples = mid[known[mid - 1] & known[mid] & known[mid + 1] & even]
+    variance = np.full(6, np.inf)
+    if triples.size >= min_samples:
+        d = u_prior[triples] - 0.5 * (u_prior[triples - 1] + u_prior[triples + 1])
+        variance = np.mean(d * d, axis=0)
+    predicted = np.zeros(max(k - 1, 0), dtype=bool)
+    if np.all(np.isfinite(variance)):
+        cand = mid[~known[mid] & known[mid - 1] & known[mid + 1] & even]
+        predicted[cand] = True
+        u_prior[cand] = 0.5 * (u_prior[cand - 1] + u_prior[cand + 1])
+    return u_prior, predicted, variance
+
+
+def segment_link_weights(
+    w_proc: np.ndarray, q_proc: np.ndarray, dt_s: np.ndarray, links: np.ndarray, predicted: np.ndarray,
+    input_variance: np.ndarray, theta: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Process-residual whitening across the gaps of the input record (``links[k]`` False: the input over
+    ``[t_k, t_{k+1})`` is unknown, :mod:`oacli.estimation.alignment`).
+
+    The input over such an interval is a constant (the controller's zero-order hold) but unknown wrench.
+
+    * Where :func:`lost_input_prior` predicts it (``predicted``), the process residual is computed with the
+      prediction and whitened with ``Q_k + D Σ_u Dᵀ``: the prediction's error is process noise over that interval
+      (a random effect), ``D`` its force (:func:`unknown_force_directions`, exact, ``/m``) and torque
+      (:func:`unknown_torque_directions`, first order) directions. All twelve residuals remain.
+    * Elsewhere the force is *profiled out*: the whitened translational residual is projected onto the orthogonal
+      complement of ``W_t D`` (the cost minimised over the force in closed form; exact, the directions depend on
+      neither the state nor θ), which leaves position continuity (three residuals); the rotational residuals are
+      dropped (the attitude and angular velocity after the gap are estimated afresh).
+    * A gap longer than ``_BRIDGE_FACTOR`` typical record spacings (several unknown inputs) is cut.
+
+    Cutting every gap link (each segment's initial state free) is consistent but, in closed loop, biased: the
+    controller's input depends on the noisy measurement that also fixes the segment's initial state, and a short
+    segment's free initial state absorbs part of that noise -- least squares with fixed effects and predetermined
+    regressors (Nickell 1981), a bias of order 1/segment length per segment that does not average out over
+    segments (``benchmarks/bench_estimation.py``, row ``clean split``; open loop it is absent).
+
+    Parameters
+    ----------
+    w_proc, q_proc : ndarray, shape (K, 12, 12)
+        Whitening matrices ``Q_k^-½`` and covariances ``Q_k`` of every interval.
+    dt_s : ndarray, shape (K,)
+        Interval lengths [s].
+    links : ndarray of bool, shape (K,)
+        The input over interval k is known.
+    predicted : ndarray of bool, shape (K,)
+        The unknown input over interval k has a prediction (:func:`lost_input_prior`).
+    input_variance : ndarray, shape (6,)
+        The prediction's error variance per axis [N², (N·m)²].
+    theta : ndarray, shape (4,)
+        θ at which the directions are evaluated (the weighting point, like ``Q_k``).
+
+    Returns
+    -------
+    weights : ndarray, shape (K, 12, 12)
+        ``w_proc`` on the linked intervals, the bridged weights on the gaps, zeros on the cut ones.
+    rows : ndarray of int, shape (K,)
+        Residual rows that carry information per interval (12 linked or predicted, 3 profiled, 0 cut).
+    """
+    links = np.asarray(links, dtype=bool)
+    dt = np.asarray(dt_s, dtype=float)
+    theta = np.asarray(theta, dtype=float)
+    out = w_proc * links[:, None, None]
+    rows = np.where(links, TANGENT_DIM, 0)
+    gaps = np.flatnonzero(~links)
+    if gaps.size == 0:
+        return out, rows
+    typical = float(np.median(dt[links])) if np.any(links) else float(np.median(dt))
+    gaps = gaps[dt[gaps] <= _BRIDGE_FACTOR * typical + TIME_TOL_S]
+    with_prior = gaps[np.asarray(predicted, dtype=bool)[gaps]]
+    profiled = np.setdiff1d(gaps, with_prior)
+    if with_prior.size:
+        d = np.concatenate([unknown_force_directions(dt[with_prior]) / theta[0],
+                            unknown_torque_directions(dt[with_prior], theta[1:4])], axis=2)
+        var = np.asarray(input_variance, dtype=float)
+        cov = q_proc[with_prior] + d @ (var[None, :, None] * d.transpose(0, 2, 1))
+        out[with_prior] = np.linalg.inv(np.linalg.cholesky(cov))
+        rows[with_prior] = TANGENT_DIM
+    if profiled.size:
+        wt = w_proc[profiled, 0:6, 0:6]
+        q, _ = np.linalg.qr(wt @ unknown_force_directions(dt[profiled])[:, 0:6, :])  # whitened force directions
+        out[profiled, 0:6, 0:6] = (np.eye(6) - q @ q.transpose(0, 2, 1)) @ wt
+        rows[profiled] = 3
+    return out, rows
 
 Propagated = tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray | None, np.ndarray | None]]
 """A cached process-model propagation: (states, φ, (x_next, a, c))."""
@@ -299,8 +481,14 @@ class _Problem:
         self.gauge_rows = np.setdiff1d(np.arange(TANGENT_DIM), self.state_rows)
         self.durations = substep_schedule(self.t[:-1], self.t[1:], settings.substep_s)
         self._w_proc_nominal = settings.process.sqrt_information(np.diff(self.t), weights_theta)
-        if self.k > 1:  # no process residual across a gap in the input record
-            self._w_proc_nominal = self._w_proc_nominal * self.links[:, None, None]
+        self.link_rows = TANGENT_DIM * self.links.astype(int)  # informative process residuals per interval
+        if self.k > 1 and not np.all(self.links):
+            # Across a gap in the input record: the unknown wrench predicted from its neighbours, or its force
+            # profiled out and the rotation cut (segment_link_weights).
+            self.u, predicted, variance = lost_input_prior(self.t, self.u, self.links)
+            self._w_proc_nominal, self.link_rows = segment_link_weights(
+                self._w_proc_nominal, settings.process.covariance(np.diff(self.t), weights_theta), np.diff(self.t),
+                self.links, predicted, variance, weights_theta)
         self.w_proc = self._w_proc_nominal
         self._propagation_cache: Propagated | None = None
         self.prior = prior
@@ -598,7 +786,7 @@ class _Problem:
 
     def residual_count(self, inliers: np.ndarray) -> int:
         """Rows of ``b`` that carry information (measurement, acceleration, linked process, gauge, prior)."""
-        n = int(inliers.sum()) * self.dof + TANGENT_DIM * int(self.links.sum())
+        n = int(inliers.sum()) * self.dof + int(self.link_rows.sum())
         n += self.gauge_rows.size * self.segment_starts.size
         return n + (par.N_PARAMS if self.prior is not None else 0)
 
