@@ -15,16 +15,17 @@ every stage's output call (``write_*_plots``, ``write_*_recording``, ``write_*_t
 * ``mission outputs`` -- ``mission.rrd`` + ``plots/`` + the summary's comparison rows (the stage MCAPs read back),
   :data:`oacli.mission.records.CACHE` off (every reader reads its files) against on (each file read once);
 * ``mission hand-offs`` -- :func:`oacli.mission.run.handoff_for` of every stage (the earlier stages' MCAPs read);
-* ``stage configs`` -- ``validate_mission`` and every stage's :func:`oacli.mission.configs.stage_config`, the former
-  deep merge (``copy.deepcopy`` at every level) against the new one (one plain copy).
+* ``stage configs`` -- ``validate_mission`` and every stage's :func:`oacli.mission.configs.stage_config` (no old
+  path: both columns run the same code).
 
 Last, the PNGs and the mission's outputs and overhead of the default mission, wall and CPU: with ``outputs.plots:
-all`` as main's default was (every stage's PNGs, new drawing path; the former stage configs) against the new default
+all`` as main's default was (every stage's PNGs, new drawing path) against the new default
 ``outputs.plots: mission`` (the mission's three PNGs only; ``oacli plots RUN_DIR`` draws the rest on demand).
 The mission is run with ``outputs.plots: all`` so that every stage's PNG call is captured.
 
 Run: ``taskset -c 1 python benchmarks/bench_outputs.py [--repeats 3] [--config configs/mission_iss.yaml]``
-(``--mission DIR`` reuses a finished mission folder for the mission rows and skips the stage rows).
+(``--mission DIR`` reuses a finished mission folder: its stage PNGs are drawn from its MCAPs as ``oacli plots`` draws
+them, the same figures as at run time, and the stage Rerun and MCAP rows are skipped).
 """
 
 from __future__ import annotations
@@ -35,18 +36,16 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
 import argparse  # noqa: E402
-import copy  # noqa: E402
 import json  # noqa: E402
 import statistics  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
-from collections.abc import Callable, Mapping  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from contextlib import contextmanager  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import oacli.io.plots.common as plot_common  # noqa: E402
-import oacli.mission.configs as mission_configs  # noqa: E402
 import oacli.mission.records as mission_records  # noqa: E402
 import oacli.stages.estimate as st_estimate  # noqa: E402
 import oacli.stages.excite as st_excite  # noqa: E402
@@ -56,10 +55,12 @@ import oacli.stages.track as st_track  # noqa: E402
 from oacli.config import load_config  # noqa: E402
 from oacli.config.outputs import PlotSet  # noqa: E402
 from oacli.io.mcap_write import StageMcapWriter  # noqa: E402
+from oacli.io.plots.from_run import stage_figures  # noqa: E402
 from oacli.io.rerun.mission import write_mission_recording  # noqa: E402
+from oacli.io.runfolder import is_complete  # noqa: E402
 from oacli.mission.compare import comparison_row  # noqa: E402
 from oacli.mission.configs import stage_config  # noqa: E402
-from oacli.mission.layout import stage_by_key  # noqa: E402
+from oacli.mission.layout import MISSION_STAGES, stage_by_key  # noqa: E402
 from oacli.mission.plots import write_mission_plots  # noqa: E402
 from oacli.mission.run import handoff_for, mission_stages, run_mission, start_mission, validate_mission  # noqa: E402
 
@@ -118,7 +119,9 @@ def capture_mission(config: Path, out: Path) -> tuple[list[tuple[str, Callable[.
 
 def replay(kind: str, func: Callable[..., Any], args: tuple, kwargs: dict, tmp: Path, k: int) -> None:
     """One captured call again, into ``tmp``."""
-    if kind == "plots":
+    if kind == "plots" and not args:  # a stage's figure read back from its folder (--mission)
+        func(tmp / f"p{k}.png")
+    elif kind == "plots":
         func(FakeRun(tmp), {**args[1], "warnings": []}, **kwargs)
     elif kind == "rerun":
         func(tmp / f"r{k}.rrd", *args[1:], **kwargs)
@@ -162,29 +165,13 @@ def handoffs(mission_dir: Path) -> None:
         handoff_for(cfg, stage, mission_dir)
 
 
-def _deep_merge_deepcopy(base: Any, override: Any) -> dict[str, Any]:
-    """The former :func:`oacli.config.mission.deep_merge`: ``copy.deepcopy`` at every level."""
-    out = copy.deepcopy(dict(base))
-    for key, value in override.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = _deep_merge_deepcopy(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
-
-
-def stage_configs(mission_dir: Path, old: bool) -> None:
+def stage_configs(mission_dir: Path) -> None:
     """What the mission derives per stage: every config up front (``validate_mission``), then each with its
-    hand-off (the hand-offs' files cached); old: the former deep merge (``copy.deepcopy`` at every level)."""
+    hand-off (the hand-offs' files cached)."""
     cfg = load_config(mission_dir / "config.yaml")
-    saved = mission_configs.deep_merge
-    mission_configs.deep_merge = _deep_merge_deepcopy if old else saved
-    try:
-        validate_mission(cfg)
-        for stage in mission_stages(cfg):
-            stage_config(cfg, stage, handoff_for(cfg, stage, mission_dir))
-    finally:
-        mission_configs.deep_merge = saved
+    validate_mission(cfg)
+    for stage in mission_stages(cfg):
+        stage_config(cfg, stage, handoff_for(cfg, stage, mission_dir))
 
 
 class _Clock:
@@ -217,6 +204,10 @@ def main() -> None:
             print(f"mission run (new path, capturing) {time.perf_counter() - start:.1f} s")
         else:
             mission_dir = args.mission
+            # the stage PNGs from the folder's MCAPs, as `oacli plots` draws them (the same figures as at run time)
+            for stage in MISSION_STAGES:
+                if is_complete(stage.folder(mission_dir)):
+                    calls += [("plots", draw, (), {}) for draw in stage_figures(stage.folder(mission_dir)).values()]
         for kind, *_ in calls:
             counts[kind] = counts.get(kind, 0) + 1
         for rep in range(args.repeats):
@@ -233,7 +224,7 @@ def main() -> None:
                     with _Clock(times, "mission hand-offs", side):
                         handoffs(mission_dir)
                     with _Clock(times, "stage configs", side):
-                        stage_configs(mission_dir, old=side == "old")
+                        stage_configs(mission_dir)
                     with _Clock(times, "mission outputs", side):
                         mission_outputs(mission_dir, out)
     names = {"plots": f"stage PNGs ({counts.get('plots', 0)} calls)", "rerun": "stage Rerun recordings",
@@ -254,12 +245,10 @@ def main() -> None:
     overhead = ("mission hand-offs", "stage configs", "mission outputs")
     if counts.get("plots"):
         for which, unit in ((0, "wall"), (1, "CPU")):
-            # main's code = the new path of every row but the stage configs (their merge is what changed since)
-            main_default = (med("plots", "new", which) + med("stage configs", "old", which)
-                            + med("mission hand-offs", "new", which) + med("mission outputs", "new", which))
+            main_default = med("plots", "new", which) + sum(med(r, "new", which) for r in overhead)
             now_default = sum(med(r, "new", which) for r in overhead)
             print(f"PNGs + mission outputs and overhead ({unit}): outputs.plots all, as main's default (every "
-                  f"stage's PNGs, former configs and outputs) {main_default:.2f} s; outputs.plots mission (the new "
+                  f"stage's PNGs) {main_default:.2f} s; outputs.plots mission (the new "
                   f"default: the mission's PNGs only) {now_default:.2f} s")
 
 

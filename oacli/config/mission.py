@@ -43,34 +43,13 @@ def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str
     dict
         A new mapping (the inputs are not modified).
     """
-    out = _copy_plain(dict(base))
-    _merge_into(out, override)
-    return out
-
-
-def _copy_plain(value: Any) -> Any:
-    """A deep copy of plain config data (dicts, lists, tuples of numbers, text, booleans, None); anything else
-    through :func:`copy.deepcopy`. Several times faster than ``copy.deepcopy`` on a whole config (no memo)."""
-    if isinstance(value, dict):
-        return {k: _copy_plain(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_copy_plain(v) for v in value]
-    if value is None or isinstance(value, str | int | float | bool):
-        return value
-    if isinstance(value, tuple):
-        return tuple(_copy_plain(v) for v in value)
-    return copy.deepcopy(value)
-
-
-def _merge_into(out: dict[str, Any], override: Mapping[str, Any]) -> None:
-    """Merge ``override`` into ``out`` (a private copy) in place: mappings recursively, anything else replaced."""
+    out = copy.deepcopy(dict(base))
     for key, value in override.items():
         if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            if not isinstance(out[key], dict):
-                out[key] = _copy_plain(dict(out[key]))
-            _merge_into(out[key], value)
+            out[key] = deep_merge(out[key], value)
         else:
-            out[key] = _copy_plain(value)
+            out[key] = copy.deepcopy(value)
+    return out
 
 
 class GraspedPlantConfig(Section):

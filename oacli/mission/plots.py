@@ -137,8 +137,9 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
         if truth is not None:
             ax.axhline(truth[i], color="k", ls="--", lw=1.0, label="truth")
             shown.append(np.array([truth[i]]))
+        flight = " / ".join(f"{v:g}" for v in FLIGHT_ERROR_PCT)
         ax_rel.axhline(FLIGHT_ERROR_PCT[i], color="tab:red", ls="--", lw=1.0,
-                       label=f"flight error {FLIGHT_ERROR_PCT[i]:g} % (ReSWARM)")
+                       label=f"flight error (ReSWARM):\n{flight} %, top to bottom")
         if shown:
             lo, hi = float(np.nanmin(np.concatenate(shown))), float(np.nanmax(np.concatenate(shown)))
             pad = 0.1 * (hi - lo) if hi > lo else 0.05 * max(abs(hi), 1e-9)
@@ -150,8 +151,8 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
         for a in (ax, ax_rel):
             a.grid(True, alpha=0.3, which="both")
             a.axvline(records.grasp_time_s, color="0.5", lw=0.8)
-        legend_outside(ax_rel)
-        if i == 0:
+        if i == 0:  # one legend per column: the rows draw the same series
+            legend_outside(ax_rel)
             legend_outside(ax)
             ax.set_title("estimate ± 2σ (y range: converged half; grey line: grasp)", loc="left",
                          fontsize="medium")
