@@ -7,7 +7,7 @@ uses (:func:`~oacli.io.plots.track.track_figures`, :func:`~oacli.io.plots.plan.p
 those the stage would have drawn (pixel for pixel: the MCAP's floats are the run's, written round-trippable):
 
 * ``plan`` -- ``/trajectory``, the config's segment (start, goal), scene and robot radius;
-* ``smooth`` -- ``/trajectory`` and the input plan (``inputs.smooth_input``);
+* ``smooth`` -- ``/trajectory`` and ``/trajectory/input`` (the input plan as read);
 * ``track`` -- the telemetry and the reference the config names (``reference.file`` or its waypoints); the robot's
   limits;
 * ``excite`` -- ``/excitation/information`` and ``/trajectory`` (offline design) or the flown inputs (RATTLE; its
@@ -45,6 +45,8 @@ Figures = dict[str, Callable[[Path], object]]
 STAGE_MCAPS = {"plan": "plan.mcap", "smooth": "smooth.mcap", "excite": "excite.mcap", "track": "track.mcap",
                "estimate": "estimate.mcap"}
 PARAM_NAMES = ("mass_kg", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2")
+#: The smooth stage's input plan as it read it.
+SMOOTH_INPUT_TOPIC = "/trajectory/input"
 
 
 def read_summary(folder: Path) -> dict[str, Any]:
@@ -95,9 +97,11 @@ def _plan_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Fi
 
 
 def _smooth_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Figures:
-    record = read_stage(folder / "smooth.mcap", topics=[ms.TOPIC_TRAJECTORY])
-    source = cfg.inputs.smooth_input or record.metadata.get("oacli.smooth", {}).get("input")
-    traj_in = read_trajectory(_recorded_file(source, summary, folder, "input plan"))
+    record = read_stage(folder / "smooth.mcap", topics=[ms.TOPIC_TRAJECTORY, SMOOTH_INPUT_TOPIC])
+    traj_in = record.trajectories.get(SMOOTH_INPUT_TOPIC)  # the input as read
+    if traj_in is None:  # a file from before the topic: the input file itself
+        source = cfg.inputs.smooth_input or record.metadata.get("oacli.smooth", {}).get("input")
+        traj_in = read_trajectory(_recorded_file(source, summary, folder, "input plan"))
     traj_out = record.trajectories[ms.TOPIC_TRAJECTORY]
     return path_figures(stage="smooth", scene=cfg.scene(), robot_radius_m=float(cfg.robot.radius_m),
                         paths={"plan (input)": traj_in.x[:, 0:3], "smoothed": traj_out.x[:, 0:3]},
