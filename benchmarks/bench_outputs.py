@@ -167,11 +167,13 @@ def handoffs(mission_dir: Path) -> None:
 
 def stage_configs(mission_dir: Path) -> None:
     """What the mission derives per stage: every config up front (``validate_mission``), then each with its
-    hand-off (the hand-offs' files cached)."""
+    hand-off (the hand-offs' files cached), remembered as the stage's config (``remember_config``: the outputs need
+    not parse its file; a no-op with the cache off)."""
     cfg = load_config(mission_dir / "config.yaml")
     validate_mission(cfg)
     for stage in mission_stages(cfg):
-        stage_config(cfg, stage, handoff_for(cfg, stage, mission_dir))
+        mission_records.remember_config(stage.folder(mission_dir) / "config.yaml",
+                                        stage_config(cfg, stage, handoff_for(cfg, stage, mission_dir)))
 
 
 class _Clock:

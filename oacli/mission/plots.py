@@ -157,6 +157,12 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
             ax.set_title("estimate ± 2σ (y range: converged half; grey line: grasp)", loc="left",
                          fontsize="medium")
             ax_rel.set_title("error and 2σ relative to the truth (log)", loc="left", fontsize="medium")
+    # x range set, not autoscaled: an axvline's data limits go through the view it is drawn into, whose last bits
+    # differ on a reused figure (common.REUSE)
+    t_all = np.concatenate([[records.grasp_time_s], *(e.t for e in records.estimates.values())])
+    t_lo, t_hi = float(np.min(t_all)), float(np.max(t_all))
+    pad = 0.05 * (t_hi - t_lo) if t_hi > t_lo else 1.0
+    axes[0, 0].set_xlim(t_lo - pad, t_hi + pad)  # shared by every panel
     for a in axes[-1]:
         a.set_xlabel("mission time [s]")
     fig.suptitle("Inertial parameter estimates after the grasp (segment 2); flight figures: mass 0.39 %, "

@@ -188,10 +188,6 @@ def _blank(fig: Figure) -> None:
                 set_scale("linear")
         ax.set_aspect("auto", adjustable="box")
         ax.set_prop_cycle(None)
-        # the view limits of a new axes: artists whose limits go through the axes' transforms (axvline, axhline)
-        # round according to the view they are added to
-        ax.set_xlim(0.0, 1.0)
-        ax.set_ylim(0.0, 1.0)
         ax.dataLim = Bbox.null()
         ax.ignore_existing_data_limits = True
         ax.set_autoscale_on(True)
