@@ -14,10 +14,18 @@ every stage's output call (``write_*_plots``, ``write_*_recording``, ``write_*_t
   their code has no old path: both columns run the same code, the spread between them is the machine's noise);
 * ``mission outputs`` -- ``mission.rrd`` + ``plots/`` + the summary's comparison rows (the stage MCAPs read back),
   :data:`oacli.mission.records.CACHE` off (every reader reads its files) against on (each file read once);
-* ``mission hand-offs`` -- :func:`oacli.mission.run.handoff_for` of every stage (the earlier stages' MCAPs read).
+* ``mission hand-offs`` -- :func:`oacli.mission.run.handoff_for` of every stage (the earlier stages' MCAPs read);
+* ``stage configs`` -- ``validate_mission`` and every stage's :func:`oacli.mission.configs.stage_config` (no old
+  path: both columns run the same code).
+
+Last, the PNGs and the mission's outputs and overhead of the default mission, wall and CPU: with ``outputs.plots:
+all`` as main's default was (every stage's PNGs, new drawing path) against the new default
+``outputs.plots: mission`` (the mission's three PNGs only; ``oacli plots RUN_DIR`` draws the rest on demand).
+The mission is run with ``outputs.plots: all`` so that every stage's PNG call is captured.
 
 Run: ``taskset -c 1 python benchmarks/bench_outputs.py [--repeats 3] [--config configs/mission_iss.yaml]``
-(``--mission DIR`` reuses a finished mission folder for the mission rows and skips the stage rows).
+(``--mission DIR`` reuses a finished mission folder: its stage PNGs are drawn from its MCAPs as ``oacli plots`` draws
+them, the same figures as at run time, and the stage Rerun and MCAP rows are skipped).
 """
 
 from __future__ import annotations
@@ -45,10 +53,14 @@ import oacli.stages.plan as st_plan  # noqa: E402
 import oacli.stages.smooth as st_smooth  # noqa: E402
 import oacli.stages.track as st_track  # noqa: E402
 from oacli.config import load_config  # noqa: E402
+from oacli.config.outputs import PlotSet  # noqa: E402
 from oacli.io.mcap_write import StageMcapWriter  # noqa: E402
+from oacli.io.plots.from_run import stage_figures  # noqa: E402
 from oacli.io.rerun.mission import write_mission_recording  # noqa: E402
+from oacli.io.runfolder import is_complete  # noqa: E402
 from oacli.mission.compare import comparison_row  # noqa: E402
-from oacli.mission.layout import stage_by_key  # noqa: E402
+from oacli.mission.configs import stage_config  # noqa: E402
+from oacli.mission.layout import MISSION_STAGES, stage_by_key  # noqa: E402
 from oacli.mission.plots import write_mission_plots  # noqa: E402
 from oacli.mission.run import handoff_for, mission_stages, run_mission, start_mission, validate_mission  # noqa: E402
 
@@ -93,6 +105,9 @@ def capture_mission(config: Path, out: Path) -> tuple[list[tuple[str, Callable[.
         setattr(module, name, wrapper)
     try:
         cfg = load_config(config)
+        # every stage's PNG call is captured: run as outputs.plots all (main's default before the mission presets
+        # drew only the mission's PNGs)
+        cfg = cfg.model_copy(update={"outputs": cfg.outputs.model_copy(update={"plots": PlotSet.ALL})})
         validate_mission(cfg)
         mission_dir = start_mission(cfg, out=out, runs_root=out.parent)
         run_mission(cfg, mission_dir)
@@ -104,7 +119,9 @@ def capture_mission(config: Path, out: Path) -> tuple[list[tuple[str, Callable[.
 
 def replay(kind: str, func: Callable[..., Any], args: tuple, kwargs: dict, tmp: Path, k: int) -> None:
     """One captured call again, into ``tmp``."""
-    if kind == "plots":
+    if kind == "plots" and not args:  # a stage's figure read back from its folder (--mission)
+        func(tmp / f"p{k}.png")
+    elif kind == "plots":
         func(FakeRun(tmp), {**args[1], "warnings": []}, **kwargs)
     elif kind == "rerun":
         func(tmp / f"r{k}.rrd", *args[1:], **kwargs)
@@ -148,13 +165,37 @@ def handoffs(mission_dir: Path) -> None:
         handoff_for(cfg, stage, mission_dir)
 
 
+def stage_configs(mission_dir: Path) -> None:
+    """What the mission derives per stage: every config up front (``validate_mission``), then each with its
+    hand-off (the hand-offs' files cached), remembered as the stage's config (``remember_config``: the outputs need
+    not parse its file; a no-op with the cache off)."""
+    cfg = load_config(mission_dir / "config.yaml")
+    validate_mission(cfg)
+    for stage in mission_stages(cfg):
+        mission_records.remember_config(stage.folder(mission_dir) / "config.yaml",
+                                        stage_config(cfg, stage, handoff_for(cfg, stage, mission_dir)))
+
+
+class _Clock:
+    """Wall and CPU time of a block, appended to ``times[(row, side)]`` as ``(wall, cpu)`` [s]."""
+
+    def __init__(self, times: dict[tuple[str, str], list[tuple[float, float]]], row: str, side: str) -> None:
+        self.times, self.key = times, (row, side)
+
+    def __enter__(self) -> None:
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+
+    def __exit__(self, *exc: object) -> None:
+        self.times.setdefault(self.key, []).append((time.perf_counter() - self.wall, time.process_time() - self.cpu))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", type=Path, default=ROOT / "configs" / "mission_iss.yaml")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--mission", type=Path, help="a finished mission folder: only the mission rows")
     args = parser.parse_args()
-    times: dict[tuple[str, str], list[float]] = {}
+    times: dict[tuple[str, str], list[tuple[float, float]]] = {}
     counts: dict[str, int] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
@@ -165,39 +206,52 @@ def main() -> None:
             print(f"mission run (new path, capturing) {time.perf_counter() - start:.1f} s")
         else:
             mission_dir = args.mission
+            # the stage PNGs from the folder's MCAPs, as `oacli plots` draws them (the same figures as at run time)
+            for stage in MISSION_STAGES:
+                if is_complete(stage.folder(mission_dir)):
+                    calls += [("plots", draw, (), {}) for draw in stage_figures(stage.folder(mission_dir)).values()]
         for kind, *_ in calls:
             counts[kind] = counts.get(kind, 0) + 1
         for rep in range(args.repeats):
-            for side in ("old", "new"):
+            for side in ("old", "new") if rep % 2 == 0 else ("new", "old"):
                 with legacy(side == "old"):
                     out = tmp / f"{side}{rep}"
                     out.mkdir()
                     for kind in ("plots", "rerun", "mcap"):
-                        start = time.perf_counter()
-                        for k, (c_kind, func, a, kw) in enumerate(calls):
-                            if c_kind == kind:
-                                replay(kind, func, a, kw, out, k)
-                        times.setdefault((kind, side), []).append(time.perf_counter() - start)
+                        with _Clock(times, kind, side):
+                            for k, (c_kind, func, a, kw) in enumerate(calls):
+                                if c_kind == kind:
+                                    replay(kind, func, a, kw, out, k)
                     # as in the mission: the hand-offs first (the cache, new path, starts empty), then the outputs
-                    start = time.perf_counter()
-                    handoffs(mission_dir)
-                    times.setdefault(("mission hand-offs", side), []).append(time.perf_counter() - start)
-                    start = time.perf_counter()
-                    mission_outputs(mission_dir, out)
-                    times.setdefault(("mission outputs", side), []).append(time.perf_counter() - start)
-    names = {"plots": "stage PNGs", "rerun": "stage Rerun recordings", "mcap": "stage MCAP topics"}
-    print(f"{args.repeats} repeat(s), old and new alternating, median [s]; calls per kind: {counts}")
-    print(f"  {'output kind':<26} {'old':>8} {'new':>8} {'speed-up':>9}")
-    total = {"old": 0.0, "new": 0.0}
-    for kind in ("plots", "rerun", "mcap", "mission hand-offs", "mission outputs"):
+                    with _Clock(times, "mission hand-offs", side):
+                        handoffs(mission_dir)
+                    with _Clock(times, "stage configs", side):
+                        stage_configs(mission_dir)
+                    with _Clock(times, "mission outputs", side):
+                        mission_outputs(mission_dir, out)
+    names = {"plots": f"stage PNGs ({counts.get('plots', 0)} calls)", "rerun": "stage Rerun recordings",
+             "mcap": "stage MCAP topics"}
+
+    def med(row: str, side: str, which: int) -> float:
+        return statistics.median(v[which] for v in times[(row, side)])
+
+    print(f"{args.repeats} repeat(s), old and new alternating, median wall [s] (CPU [s] in brackets); calls per kind: "
+          f"{counts}")
+    print(f"  {'output kind':<28} {'old':>15} {'new':>15} {'speed-up':>9}")
+    for kind in ("plots", "rerun", "mcap", "mission hand-offs", "stage configs", "mission outputs"):
         if (kind, "old") not in times or (kind in names and not counts.get(kind)):
             continue
-        old, new = statistics.median(times[(kind, "old")]), statistics.median(times[(kind, "new")])
-        total["old"] += old
-        total["new"] += new
-        print(f"  {names.get(kind, kind):<26} {old:8.2f} {new:8.2f} {old / max(new, 1e-9):8.1f}x")
-    print(f"  {'total':<26} {total['old']:8.2f} {total['new']:8.2f} "
-          f"{total['old'] / max(total['new'], 1e-9):8.1f}x")
+        old, new = med(kind, "old", 0), med(kind, "new", 0)
+        print(f"  {names.get(kind, kind):<28} {old:6.2f} ({med(kind, 'old', 1):6.2f}) {new:6.2f} "
+              f"({med(kind, 'new', 1):6.2f}) {old / max(new, 1e-9):8.1f}x")
+    overhead = ("mission hand-offs", "stage configs", "mission outputs")
+    if counts.get("plots"):
+        for which, unit in ((0, "wall"), (1, "CPU")):
+            main_default = med("plots", "new", which) + sum(med(r, "new", which) for r in overhead)
+            now_default = sum(med(r, "new", which) for r in overhead)
+            print(f"PNGs + mission outputs and overhead ({unit}): outputs.plots all, as main's default (every "
+                  f"stage's PNGs) {main_default:.2f} s; outputs.plots mission (the new "
+                  f"default: the mission's PNGs only) {now_default:.2f} s")
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ from oacli.commands.info import info
 from oacli.commands.logs import logs_app
 from oacli.commands.mission import mission
 from oacli.commands.plan import plan
+from oacli.commands.plots import plots
 from oacli.commands.runs import runs_app
 from oacli.commands.smooth import smooth
 from oacli.commands.track import track
@@ -47,6 +48,7 @@ app.command("mission")(mission)
 app.command("plan")(plan)
 app.command("smooth")(smooth)
 app.command("track")(track)
+app.command("plots")(plots)
 app.command("info")(info)
 app.add_typer(runs_app, name="runs")
 app.add_typer(config_app, name="config")

@@ -23,8 +23,8 @@ from oacli.excitation.design_types import ScpSettings
 from tests.conftest import REPO
 
 DOERR = REPO / "configs" / "doerr2021.yaml"
-COMMANDS = (["plan"], ["smooth"], ["track"], ["excite"], ["estimate"], ["mission"], ["info"], ["runs", "list"],
-            ["config", "show"], [])
+COMMANDS = (["plan"], ["smooth"], ["track"], ["excite"], ["estimate"], ["mission"], ["plots"], ["info"],
+            ["runs", "list"], ["config", "show"], [])
 
 
 def run_cli(*args):

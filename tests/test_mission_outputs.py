@@ -121,7 +121,7 @@ def _png_size(path: Path) -> tuple[int, int]:
 def test_plots_are_valid_pngs(mission):
     mission_dir, summary = mission
     files = {name: mission_dir / rel for name, rel in summary["files"]["plots"].items()}   # written by the runner
-    assert set(files) == {"tracking_error", "estimate_convergence", "top_view"}
+    assert set(files) == {"tracking_error", "estimate_convergence", "paths"}
     for name, path in files.items():
         assert path == mission_dir / "plots" / f"{name}.png"
         width, height = _png_size(path)

@@ -7,8 +7,10 @@
 * ``estimate_convergence.png`` -- mass and the three principal inertias over mission time with ± 2σ bands and the
   truth (dashed), and the estimate's error and 2σ relative to the truth on a log scale against the ReSWARM flight
   figures (mass 0.39 %, inertias 0.91 / 1.35 / 6.92 %);
-* ``top_view.png`` -- x-y view: keep-in boxes, keep-out ellipsoids (projected; dashed: grown by the robot radius),
-  plan, smoothed path or excitation reference and the flown path of each segment, A, B and C.
+* ``paths.png`` -- the paths in the two projections that show them (:func:`view_axes`; the ISS mission: y-z along
+  the module, and x-y), side by side and zoomed on the paths: keep-in boxes, keep-out ellipsoids (projected;
+  dashed: grown by the robot radius), plan, smoothed path or excitation reference and the flown path of each
+  segment, A, B and C.
 
 Each file is rendered to memory and written atomically (:func:`oacli.io.atomic.atomic_path`).
 """
@@ -23,11 +25,11 @@ import matplotlib
 matplotlib.use("Agg", force=True)
 
 import numpy as np
-from matplotlib.patches import Ellipse, Rectangle
 
 from oacli.io.plots.common import (
+    AXES,
     decimate,
-    ellipse_projection,
+    draw_scene,
     legend_outside,
     log_scale,
     save_png,
@@ -135,8 +137,9 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
         if truth is not None:
             ax.axhline(truth[i], color="k", ls="--", lw=1.0, label="truth")
             shown.append(np.array([truth[i]]))
+        flight = " / ".join(f"{v:g}" for v in FLIGHT_ERROR_PCT)
         ax_rel.axhline(FLIGHT_ERROR_PCT[i], color="tab:red", ls="--", lw=1.0,
-                       label=f"flight error {FLIGHT_ERROR_PCT[i]:g} % (ReSWARM)")
+                       label=f"flight error (ReSWARM):\n{flight} %, top to bottom")
         if shown:
             lo, hi = float(np.nanmin(np.concatenate(shown))), float(np.nanmax(np.concatenate(shown)))
             pad = 0.1 * (hi - lo) if hi > lo else 0.05 * max(abs(hi), 1e-9)
@@ -148,12 +151,18 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
         for a in (ax, ax_rel):
             a.grid(True, alpha=0.3, which="both")
             a.axvline(records.grasp_time_s, color="0.5", lw=0.8)
-        legend_outside(ax_rel)
-        if i == 0:
+        if i == 0:  # one legend per column: the rows draw the same series
+            legend_outside(ax_rel)
             legend_outside(ax)
             ax.set_title("estimate ± 2σ (y range: converged half; grey line: grasp)", loc="left",
                          fontsize="medium")
             ax_rel.set_title("error and 2σ relative to the truth (log)", loc="left", fontsize="medium")
+    # x range set, not autoscaled: an axvline's data limits go through the view it is drawn into, whose last bits
+    # differ on a reused figure (common.REUSE)
+    t_all = np.concatenate([[records.grasp_time_s], *(e.t for e in records.estimates.values())])
+    t_lo, t_hi = float(np.min(t_all)), float(np.max(t_all))
+    pad = 0.05 * (t_hi - t_lo) if t_hi > t_lo else 1.0
+    axes[0, 0].set_xlim(t_lo - pad, t_hi + pad)  # shared by every panel
     for a in axes[-1]:
         a.set_xlabel("mission time [s]")
     fig.suptitle("Inertial parameter estimates after the grasp (segment 2); flight figures: mass 0.39 %, "
@@ -161,8 +170,68 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
     return save_png(fig, path)
 
 
-def plot_top_view(records: MissionRecords, path: Path) -> Path:
-    """x-y top view of the scene and the paths of every segment (see the module docstring).
+#: Room around the paths in the path views [m] (the robot's radius and some).
+VIEW_MARGIN_M = 0.35
+
+
+def view_axes(points_m: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]]:
+    """The two projections that show a mission's paths: the plane of the two world axes along which the points
+    spread most, then the plane of the most spread axis and the remaining one (each pair in x, y, z order).
+
+    The ISS mission's route A -> B -> C -> A runs along the JEM's y and up and down in z (x stays within a few
+    decimetres, where segment 1 swerves around the keep-out): y-z, then x-y.
+
+    Parameters
+    ----------
+    points_m : ndarray, shape (N, 3)
+        Every path's positions [m].
+
+    Returns
+    -------
+    tuple of (int, int)
+        World axes of the main view and of the second view.
+    """
+    pts = np.asarray(points_m, dtype=float).reshape(-1, 3)
+    spread = np.ptp(pts, axis=0) if len(pts) else np.zeros(3)
+    order = [int(i) for i in np.argsort(-spread, kind="stable")]
+    main = tuple(sorted(order[:2]))
+    second = tuple(sorted((order[0], order[2])))
+    return main, second  # type: ignore[return-value]
+
+
+def _path_view(ax: Any, records: MissionRecords, axes: tuple[int, int], lower: np.ndarray, upper: np.ndarray,
+               title: str) -> None:
+    """One projection of the scene, the paths and the waypoints, limited to the paths' box ``lower``-``upper``."""
+    i, j = axes
+    draw_scene(ax, records.scene, records.robot_radius_m, axes)
+    styles = {"plan": (":", 1.0, "plan"), "smooth": ("--", 1.2, "smoothed"), "excite": ("--", 1.2, "excitation ref.")}
+    for key, p in records.paths.items():
+        seg = key.split("/")[0]
+        ls, lw, what = styles.get(p.kind, (":", 1.0, p.kind))
+        ax.plot(*decimate(p.positions_m[:, i], p.positions_m[:, j]), ls=ls, lw=lw,
+                color=_SEGMENT_COLORS.get(seg, "0.4"), alpha=0.8, label=f"{seg} {what}")
+    for key, f in records.flights.items():
+        label = f"{key.split('/')[0]} flown" if key not in BASELINES else f"segment 3 flown: {BASELINES[key]}"
+        width = {"segment-3/track": 3.0, "segment-3/baseline-mpc-prior": 2.0}.get(key, 1.2)  # overlaid: widest under
+        ax.plot(*decimate(f.x_true[:, i], f.x_true[:, j]), lw=width, color=FLIGHT_COLORS.get(key), label=label)
+    for name, pos in records.waypoints_m.items():
+        ax.plot(pos[i], pos[j], "k^", ms=9, zorder=5)
+        ax.annotate(name, (pos[i], pos[j]), xytext=(6, 6), textcoords="offset points", fontsize=13,
+                    fontweight="bold", zorder=6)
+    # the view: the paths' box (the keep-in boxes reach far beyond), widened to equal scales by the aspect
+    ax.dataLim.set_points(np.array([[lower[i], lower[j]], [upper[i], upper[j]]], dtype=float))
+    ax.margins(0.0)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel(f"{AXES[i]} [m]")
+    ax.set_ylabel(f"{AXES[j]} [m]")
+    ax.grid(True, alpha=0.3)
+    ax.set_title(title, loc="left", fontsize="medium")
+
+
+def plot_paths(records: MissionRecords, path: Path) -> Path:
+    """The paths of every segment in the two projections that show them (:func:`view_axes`), side by side, zoomed
+    on the paths: keep-in boxes, keep-out ellipsoids (projected; dashed: grown by the robot radius), plans,
+    smoothed paths, the excitation reference and the flown paths; A, B, C marked.
 
     Parameters
     ----------
@@ -176,41 +245,23 @@ def plot_top_view(records: MissionRecords, path: Path) -> Path:
     Path
         ``path``.
     """
-    fig, ax = subplots(figsize=(11, 7.5))
-    for j, box in enumerate(records.scene.keep_in):
-        c, s = np.asarray(box.center, dtype=float), np.asarray(box.size, dtype=float)
-        ax.add_patch(Rectangle((c[0] - s[0] / 2, c[1] - s[1] / 2), s[0], s[1], fc=(0.3, 0.8, 0.45, 0.08),
-                               ec="tab:green", lw=1.2, label="keep-in" if j == 0 else None))
-    for j, zone in enumerate(records.scene.keep_out):
-        x, y, w, h, a = ellipse_projection(zone.center, zone.shape)
-        ax.add_patch(Ellipse((x, y), w, h, angle=a, fc=(0.9, 0.25, 0.25, 0.35), ec="tab:red", lw=1.0,
-                             label="keep-out (safety factor incl.)" if j == 0 else None))
-        if records.robot_radius_m > 0:
-            x, y, w, h, a = ellipse_projection(zone.center, zone.shape, grow_m=records.robot_radius_m)
-            ax.add_patch(Ellipse((x, y), w, h, angle=a, fill=False, ec="tab:red", ls="--", lw=0.8,
-                                 label=f"keep-out + robot radius {records.robot_radius_m:g} m" if j == 0
-                                 else None))
-    styles = {"plan": (":", 1.0, "plan"), "smooth": ("--", 1.2, "smoothed"), "excite": ("--", 1.2, "excitation ref.")}
-    for key, p in records.paths.items():
-        seg = key.split("/")[0]
-        ls, lw, what = styles.get(p.kind, (":", 1.0, p.kind))
-        ax.plot(*decimate(p.positions_m[:, 0], p.positions_m[:, 1]), ls=ls, lw=lw,
-                color=_SEGMENT_COLORS.get(seg, "0.4"), alpha=0.8, label=f"{seg} {what}")
-    for key, f in records.flights.items():
-        label = f"{key.split('/')[0]} flown" if key not in BASELINES else f"segment 3 flown: {BASELINES[key]}"
-        width = {"segment-3/track": 3.0, "segment-3/baseline-mpc-prior": 2.0}.get(key, 1.2)  # overlaid: widest under
-        ax.plot(*decimate(f.x_true[:, 0], f.x_true[:, 1]), lw=width, color=FLIGHT_COLORS.get(key), label=label)
-    for name, pos in records.waypoints_m.items():
-        ax.plot(pos[0], pos[1], "k^", ms=9, zorder=5)
-        ax.annotate(name, (pos[0], pos[1]), xytext=(6, 6), textcoords="offset points", fontsize=13,
-                    fontweight="bold", zorder=6)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.autoscale_view()
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.grid(True, alpha=0.3)
-    ax.set_title("Top view (x-y): keep-in, keep-out zones, plans and flown paths; A, B, C marked")
-    legend_outside(ax)
+    points = [p.positions_m for p in records.paths.values()] + [f.x_true[:, 0:3] for f in records.flights.values()]
+    points += [np.asarray(list(records.waypoints_m.values()), dtype=float).reshape(-1, 3)]
+    pts = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 3) for p in points])
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if not len(pts):  # nothing flown nor planned: the scene
+        pts = np.array([b.lower for b in records.scene.keep_in] + [b.upper for b in records.scene.keep_in]
+                       ).reshape(-1, 3) if records.scene.keep_in else np.zeros((1, 3))
+    lower, upper = pts.min(axis=0) - VIEW_MARGIN_M, pts.max(axis=0) + VIEW_MARGIN_M
+    main, second = view_axes(pts)
+    fig, (ax_main, ax_second) = subplots(1, 2, figsize=(15, 7))
+    name = {(0, 1): "top", (0, 2): "side", (1, 2): "side"}
+    for ax, axes in ((ax_main, main), (ax_second, second)):
+        _path_view(ax, records, axes, lower, upper,
+                   f"{name[axes]} view ({AXES[axes[0]]}-{AXES[axes[1]]})")
+    legend_outside(ax_second)
+    fig.suptitle("Plans and flown paths of every segment, zoomed on the paths (keep-in: green, keep-out: red); "
+                 "A, B, C marked")
     return save_png(fig, path)
 
 
@@ -232,7 +283,7 @@ def write_mission_plots(mission_dir: Path, summary: dict[str, Any], *, records: 
     Returns
     -------
     dict[str, Path]
-        ``tracking_error``, ``estimate_convergence``, ``top_view`` -> the PNG written.
+        ``tracking_error``, ``estimate_convergence``, ``paths`` -> the PNG written.
 
     Raises
     ------
@@ -249,5 +300,5 @@ def write_mission_plots(mission_dir: Path, summary: dict[str, Any], *, records: 
     return {
         "tracking_error": plot_tracking_error(records, out / "tracking_error.png"),
         "estimate_convergence": plot_estimate_convergence(records, out / "estimate_convergence.png"),
-        "top_view": plot_top_view(records, out / "top_view.png"),
+        "paths": plot_paths(records, out / "paths.png"),
     }

@@ -330,11 +330,11 @@ def run_mission(
                 raise InputError(f"{stage.key}: ended {result.summary.get('status')}; the mission cannot go on "
                                  f"(see {folder / 'summary.json'})")
         summary = mission_summary(cfg, mission_dir, stages, results)
-        say("writing mission.rrd" + (" and plots/" if cfg.outputs.plots else ""))
+        say("writing mission.rrd" + (" and plots/" if cfg.outputs.mission_pngs else ""))
         records = load_mission_records(mission_dir, summary)  # once for both (the stage MCAPs are cached)
         write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary,
                                 recording_name=f"{cfg.name}/mission", records=records)
-        plots = write_mission_plots(mission_dir, summary, records=records) if cfg.outputs.plots else {}
+        plots = write_mission_plots(mission_dir, summary, records=records) if cfg.outputs.mission_pngs else {}
         summary["files"]["rrd"] = "mission.rrd"
         summary["files"]["plots"] = {k: str(p.relative_to(mission_dir)) for k, p in plots.items()}
         summary["wall_time_s"] = time.perf_counter() - wall

@@ -240,7 +240,13 @@ def _legend_width_in(ax: Axes, renderer: Any) -> float:
     leg = ax.get_legend()
     if leg is None or not getattr(leg, "_oacli_outside", False):
         return 0.0
-    return float(leg.get_window_extent(renderer).width) / float(ax.figure.dpi)
+    return _px(leg.get_window_extent(renderer).width) / float(ax.figure.dpi)
+
+
+def _px(value: float) -> float:
+    """A measured size [px] rounded to 1/1000 px: the measurement depends (in its last bits) on where the legend
+    sat before, so a reused template (:data:`REUSE`) would otherwise be laid out a hair differently."""
+    return round(float(value), 3)
 
 
 def fixed_layout(fig: Figure) -> None:
@@ -281,7 +287,7 @@ def fixed_layout(fig: Figure) -> None:
     top = 0.15 + (0.3 if titled[0] else 0.0) + (0.4 if fig.get_suptitle() else 0.0)
     bottom = 0.15 + (0.5 if xlabels[-1] else 0.0)
     for leg in fig.legends:
-        bottom += float(leg.get_window_extent(renderer).height) / float(fig.dpi) + 0.1
+        bottom += _px(leg.get_window_extent(renderer).height) / float(fig.dpi) + 0.1
     # gaps between rows: the lower row's title and the upper row's x tick labels
     row_gap = 0.15 + (0.3 if any(titled[1:]) else 0.0) + (0.5 if any(xlabels[:-1]) else 0.0)
     col_gap = ylabel_in + max(legend_in[:-1], default=0.0) + 0.1

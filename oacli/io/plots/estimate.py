@@ -6,7 +6,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -70,6 +70,18 @@ def plot_convergence(path: Path, estimates: Sequence[ParameterEstimate], truth: 
     return t, theta, std
 
 
+def estimate_figures(*, estimates: Sequence[ParameterEstimate], truth: np.ndarray | None,
+                     crb_std: np.ndarray | None = None) -> dict[str, Callable[[Path], object]]:
+    """The ``estimate`` stage's figure, name -> function drawing it to a path (shared by the stage and by
+    ``oacli plots``, :mod:`oacli.io.plots.from_run`); parameters as :func:`write_estimate_plots`.
+
+    Returns
+    -------
+    dict of str to callable
+    """
+    return {"convergence": lambda p: plot_convergence(p, estimates, truth, crb_std)}
+
+
 def write_estimate_plots(run: RunFiles, summary: dict[str, Any], *, estimates: Sequence[ParameterEstimate],
                          truth: np.ndarray | None, crb_std: np.ndarray | None = None) -> None:
     """Write ``convergence.png`` into the run folder and register it (failure: a summary warning).
@@ -82,4 +94,4 @@ def write_estimate_plots(run: RunFiles, summary: dict[str, Any], *, estimates: S
     truth : ndarray, shape (4,), optional
     crb_std : ndarray, shape (4,), optional
     """
-    guarded_plots(run, summary, {"convergence": lambda p: plot_convergence(p, estimates, truth, crb_std)})
+    guarded_plots(run, summary, estimate_figures(estimates=estimates, truth=truth, crb_std=crb_std))

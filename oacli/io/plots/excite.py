@@ -8,7 +8,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -85,6 +85,26 @@ def gathered_information(estimates: Sequence[ParameterEstimate], prior_covarianc
     return t, 0.5 * (info + np.transpose(info, (0, 2, 1)))
 
 
+def excite_figures(*, method: str, t_info_s: np.ndarray, information: np.ndarray, t_input_s: np.ndarray,
+                   u: np.ndarray, force_limit_N: np.ndarray, torque_limit_Nm: np.ndarray,
+                   actuator: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Callable[[Path], object]]:
+    """The ``excite`` stage's figures, name -> function drawing it to a path (shared by the stage and by
+    ``oacli plots``, :mod:`oacli.io.plots.from_run`); parameters as :func:`write_excite_plots` (``method`` names the
+    titles).
+
+    Returns
+    -------
+    dict of str to callable
+    """
+    return {
+        "information": lambda p: plot_information(
+            p, t_info_s, information, f"Fisher information per parameter ({method} excitation)"),
+        "inputs": lambda p: plot_inputs(p, t_input_s, u, force_limit_N, torque_limit_Nm,
+                                        f"Inputs against the design limits ({method} excitation)",
+                                        "design limit", actuator),
+    }
+
+
 def write_excite_plots(run: RunFiles, summary: dict[str, Any], *, t_info_s: np.ndarray, information: np.ndarray,
                        t_input_s: np.ndarray, u: np.ndarray, force_limit_N: np.ndarray, torque_limit_Nm: np.ndarray,
                        actuator: tuple[np.ndarray, np.ndarray] | None = None) -> None:
@@ -105,11 +125,6 @@ def write_excite_plots(run: RunFiles, summary: dict[str, Any], *, t_info_s: np.n
     actuator : tuple of ndarray, optional
         Actuator force and torque limits.
     """
-    method = summary.get("method", "")
-    guarded_plots(run, summary, {
-        "information": lambda p: plot_information(
-            p, t_info_s, information, f"Fisher information per parameter ({method} excitation)"),
-        "inputs": lambda p: plot_inputs(p, t_input_s, u, force_limit_N, torque_limit_Nm,
-                                        f"Inputs against the design limits ({method} excitation)",
-                                        "design limit", actuator),
-    })
+    guarded_plots(run, summary, excite_figures(
+        method=str(summary.get("method", "")), t_info_s=t_info_s, information=information, t_input_s=t_input_s,
+        u=u, force_limit_N=force_limit_N, torque_limit_Nm=torque_limit_Nm, actuator=actuator))

@@ -7,7 +7,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +50,34 @@ def plot_view(path: Path, axes: tuple[int, int], title: str, scene: Scene | None
     save_png(fig, path)
 
 
+def path_figures(*, stage: str, scene: Scene | None, robot_radius_m: float, paths: Mapping[str, np.ndarray],
+                 start_m: np.ndarray, goal_m: np.ndarray) -> dict[str, Callable[[Path], object]]:
+    """The ``plan`` / ``smooth`` stage's figures, name -> function drawing it to a path (shared by the stage and by
+    ``oacli plots``, :mod:`oacli.io.plots.from_run`).
+
+    Parameters
+    ----------
+    stage : str
+        ``plan`` or ``smooth`` (in the titles).
+    scene : Scene, optional
+    robot_radius_m : float
+    paths : mapping of str to ndarray, shape (N, 3)
+        Label -> positions [m] (``plan``, ``plan (input)``, ``smoothed`` are styled).
+    start_m, goal_m : ndarray, shape (3,)
+
+    Returns
+    -------
+    dict of str to callable
+    """
+    start, goal = np.asarray(start_m, dtype=float), np.asarray(goal_m, dtype=float)
+    return {
+        "top_view": lambda p: plot_view(p, (0, 1), f"{stage} top view (x-y)", scene, robot_radius_m, paths,
+                                        start, goal),
+        "side_view": lambda p: plot_view(p, (0, 2), f"{stage} side view (x-z)", scene, robot_radius_m, paths,
+                                         start, goal),
+    }
+
+
 def write_path_plots(run: RunFiles, summary: dict[str, Any], *, scene: Scene | None, robot_radius_m: float,
                      paths: Mapping[str, np.ndarray], start_m: np.ndarray, goal_m: np.ndarray) -> None:
     """Write ``top_view.png`` and ``side_view.png`` into the run folder and register them (failures: a summary
@@ -67,11 +95,6 @@ def write_path_plots(run: RunFiles, summary: dict[str, Any], *, scene: Scene | N
         Label -> positions [m] (``plan``, ``plan (input)``, ``smoothed`` are styled).
     start_m, goal_m : ndarray, shape (3,)
     """
-    start, goal = np.asarray(start_m, dtype=float), np.asarray(goal_m, dtype=float)
-    stage = str(summary.get("stage", ""))
-    guarded_plots(run, summary, {
-        "top_view": lambda p: plot_view(p, (0, 1), f"{stage} top view (x-y)", scene, robot_radius_m, paths,
-                                        start, goal),
-        "side_view": lambda p: plot_view(p, (0, 2), f"{stage} side view (x-z)", scene, robot_radius_m, paths,
-                                         start, goal),
-    })
+    guarded_plots(run, summary, path_figures(stage=str(summary.get("stage", "")), scene=scene,
+                                             robot_radius_m=robot_radius_m, paths=paths, start_m=start_m,
+                                             goal_m=goal_m))

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -104,6 +105,32 @@ def plot_top_view(path: Path, scene: Scene | None, robot_radius_m: float, refere
     save_png(fig, path)
 
 
+def track_figures(*, telemetry: Telemetry, reference: Trajectory, limits: MotionLimits, scene: Scene | None,
+                  robot_radius_m: float) -> dict[str, Callable[[Path], object]]:
+    """The ``track`` stage's figures, name -> function drawing it to a path (shared by the stage and by
+    ``oacli plots``, :mod:`oacli.io.plots.from_run`).
+
+    Parameters
+    ----------
+    telemetry : Telemetry
+    reference : Trajectory
+    limits : MotionLimits
+        The robot's limits (inputs panel).
+    scene : Scene, optional
+    robot_radius_m : float
+
+    Returns
+    -------
+    dict of str to callable
+    """
+    return {
+        "tracking_error": lambda p: plot_tracking_error(p, telemetry, reference),
+        "inputs": lambda p: plot_inputs(p, telemetry.t_ctrl, telemetry.u_applied, limits.force_N, limits.torque_Nm,
+                                        "Applied inputs against the robot's limits"),
+        "top_view": lambda p: plot_top_view(p, scene, robot_radius_m, reference, telemetry),
+    }
+
+
 def write_track_plots(run: RunFiles, summary: dict[str, Any], *, telemetry: Telemetry, reference: Trajectory,
                       limits: MotionLimits, scene: Scene | None, robot_radius_m: float) -> None:
     """Write the ``track`` stage's PNGs into its run folder and register them (failures: a summary warning).
@@ -121,9 +148,5 @@ def write_track_plots(run: RunFiles, summary: dict[str, Any], *, telemetry: Tele
     scene : Scene, optional
     robot_radius_m : float
     """
-    guarded_plots(run, summary, {
-        "tracking_error": lambda p: plot_tracking_error(p, telemetry, reference),
-        "inputs": lambda p: plot_inputs(p, telemetry.t_ctrl, telemetry.u_applied, limits.force_N, limits.torque_Nm,
-                                        "Applied inputs against the robot's limits"),
-        "top_view": lambda p: plot_top_view(p, scene, robot_radius_m, reference, telemetry),
-    })
+    guarded_plots(run, summary, track_figures(telemetry=telemetry, reference=reference, limits=limits, scene=scene,
+                                              robot_radius_m=robot_radius_m))
