@@ -25,6 +25,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from oacli.config import load_config  # noqa: E402
+from oacli.config.outputs import PlotSet  # noqa: E402
 from oacli.mission.run import run_mission, start_mission, validate_mission  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def one_mission(config: Path, profile: bool, plots: bool = True) -> tuple[float, dict, str]:
     cfg = load_config(config)
     if not plots:
-        cfg = cfg.model_copy(update={"outputs": cfg.outputs.model_copy(update={"plots": False})})
+        cfg = cfg.model_copy(update={"outputs": cfg.outputs.model_copy(update={"plots": PlotSet.NONE})})
     validate_mission(cfg)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()

@@ -38,6 +38,7 @@ import yaml  # noqa: E402
 
 import oacli.config as config_module  # noqa: E402
 from oacli.config import load_config  # noqa: E402
+from oacli.config.outputs import PlotSet  # noqa: E402
 from oacli.io import mcap_walk  # noqa: E402
 from oacli.io.mcap_read import read_stage  # noqa: E402
 from oacli.io.rerun.mission import write_mission_recording  # noqa: E402
@@ -139,7 +140,7 @@ def main() -> None:
     args = parser.parse_args()
     tmp = tempfile.TemporaryDirectory()
     cfg = load_config(args.config)
-    cfg = cfg.model_copy(update={"outputs": cfg.outputs.model_copy(update={"plots": False})})
+    cfg = cfg.model_copy(update={"outputs": cfg.outputs.model_copy(update={"plots": PlotSet.NONE})})
     mission_dir = args.mission_dir
     if mission_dir is None:
         validate_mission(cfg)
