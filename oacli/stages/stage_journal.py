@@ -71,23 +71,21 @@ class StageJournal:
         """Write what is still buffered before an interrupted journal is kept (nothing here; subclasses)."""
 
     def keep(self, interruption: BaseException) -> None:
-        """Keep an interrupted stage's journal as its MCAP: the last records, a ``/log`` warning naming the
-        interruption, then :meth:`commit`. Never raises: a failure deletes the temporary file and is added to
-        ``interruption``'s notes."""
-        if self._closed or self._writer is None:
+        """Keep an interrupted stage's journal as its MCAP (:func:`keep_interrupted`: the last records, a ``/log``
+        warning naming the interruption, the writer closed under its final name). Never raises."""
+        writer = self._writer
+        if self._closed or writer is None:
             self._closed = True
             return
-        try:
-            writer = self._writer
-            self.on_interrupt(writer)
-            writer.write_log(self.log_time_s(), "warning", f"stage {describe_interruption(interruption)}: the "
-                             "journal of the computation so far is kept as the stage's MCAP")
-            self.commit()
-        except BaseException as err:
-            self._closed = True
-            with contextlib.suppress(BaseException):
-                self._writer.__exit__(type(err), err, err.__traceback__)  # removes the temporary file if still open
-            interruption.add_note(f"(the journal could not be kept: {type(err).__name__}: {err})")
+
+        def write_last() -> None:
+            try:
+                self.on_interrupt(writer)
+            finally:
+                self._closed = True
+
+        keep_interrupted(writer, interruption, write_last=write_last, log_time_s=self.log_time_s,
+                         what="the computation")
 
     def log_time_s(self) -> float:
         """The ``t`` of the journal's closing ``/log`` record (default: the wall time since it was created)."""
@@ -133,3 +131,34 @@ class StageJournal:
         self._closed = True
         if self._writer is not None:
             self._writer.__exit__(None, None, None)
+
+
+def keep_interrupted(writer: StageMcapWriter, interruption: BaseException, *, write_last: Callable[[], None],
+                     log_time_s: Callable[[], float], what: str) -> None:
+    """Close an interrupted stage's journal writer as the stage's MCAP: ``write_last()`` (what is still buffered),
+    one ``/log`` warning at ``log_time_s()`` naming the interruption, then the writer's normal close (final name,
+    summary section, CRCs). Never raises: a failure removes the temporary file and is added to ``interruption``'s
+    notes (the journals of :mod:`oacli.stages.stage_journal` and :mod:`oacli.stages.track_journal`).
+
+    Parameters
+    ----------
+    writer : StageMcapWriter
+        The journal's open writer.
+    interruption : BaseException
+        The :class:`KeyboardInterrupt` (or :class:`oacli.signals.Terminated`) that stopped the stage.
+    write_last : callable
+        Writes the records still buffered.
+    log_time_s : callable
+        The ``t`` of the closing ``/log`` record [s] (read after ``write_last``).
+    what : str
+        What the journal holds, for the warning (``"the computation"``, ``"the simulation"``).
+    """
+    try:
+        write_last()
+        writer.write_log(log_time_s(), "warning", f"stage {describe_interruption(interruption)}: the journal of "
+                         f"{what} so far is kept as the stage's MCAP")
+        writer.__exit__(None, None, None)
+    except BaseException as err:
+        with contextlib.suppress(BaseException):
+            writer.__exit__(type(err), err, err.__traceback__)  # removes the temporary file if still open
+        interruption.add_note(f"(the journal could not be kept: {type(err).__name__}: {err})")

@@ -24,7 +24,6 @@ interruption never finds the buffers half updated.
 
 from __future__ import annotations
 
-import contextlib
 import time
 from typing import Any
 
@@ -32,7 +31,8 @@ import numpy as np
 
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.mcap_write import EncodedRows
-from oacli.signals import atomic, describe_interruption
+from oacli.signals import atomic
+from oacli.stages.stage_journal import keep_interrupted
 from oacli.trajectory import sample_inputs
 from oacli.types import SolveInfo, Trajectory
 
@@ -83,22 +83,20 @@ class TrackJournal:
             self.discard()
 
     def keep(self, interruption: BaseException) -> None:
-        """Keep an interrupted run's journal as its MCAP: the buffered steps, a ``/log`` warning naming the
-        interruption, then close it under its final name. Never raises: a failure deletes the temporary file and is
-        added to ``interruption``'s notes."""
+        """Keep an interrupted run's journal as its MCAP (:func:`oacli.stages.stage_journal.keep_interrupted`: the
+        buffered steps, a ``/log`` warning naming the interruption, the writer closed under its final name). Never
+        raises."""
         if not self._open:
             return
+        keep_interrupted(self._writer, interruption, write_last=self._close_buffers, log_time_s=lambda: self._t_last,
+                         what="the simulation")
+
+    def _close_buffers(self) -> None:
+        """Write every buffered step (the last one's plant samples too), then mark the journal closed."""
         try:
             self.flush(final=True)
-            self._writer.write_log(self._t_last, "warning", f"stage {describe_interruption(interruption)}: the "
-                                   "journal of the simulation so far is kept as the stage's MCAP")
+        finally:
             self._open = False
-            self._writer.__exit__(None, None, None)
-        except BaseException as err:
-            self._open = False
-            with contextlib.suppress(BaseException):
-                self._writer.__exit__(type(err), err, err.__traceback__)  # removes the temporary file if still open
-            interruption.add_note(f"(the journal could not be kept: {type(err).__name__}: {err})")
 
     def _resolve(self, t_now: float | None, u_now: np.ndarray | None) -> None:
         """Give the pending plant samples their applied input: the latest step's, or from ``t_now`` on the new
