@@ -302,7 +302,8 @@ def estimate_findings(summary: dict[str, Any]) -> StatusReport:
     Batch: the last Levenberg-Marquardt round missed its tolerance, no record passed the χ² gate, or the fit's
     χ² is far above its expected value (:data:`CHI2_RATIO_LIMIT`). Sequential: the filter lost the state and
     re-initialised, or its normalised innovations are far above their expected value (:data:`NIS_RATIO_LIMIT`,
-    diverged). Both: too many records rejected (:data:`REJECTED_FRACTION_LIMIT`), a truncated telemetry file.
+    diverged). Both: too many records rejected (:data:`REJECTED_FRACTION_LIMIT`), gaps in the input record (inputs
+    unknown: predicted or cut, :mod:`oacli.estimation.alignment`), a truncated telemetry file.
     """
     report = StatusReport()
     if summary.get("converged") is False:
@@ -325,6 +326,11 @@ def estimate_findings(summary: dict[str, Any]) -> StatusReport:
     if total and summary.get("samples_rejected", 0) > REJECTED_FRACTION_LIMIT * total:
         report.degraded("rejected", f"{summary['samples_rejected']} of {total} records were rejected by the χ² "
                                     "gate or arrived too late")
+    gaps = (summary.get("telemetry_records") or {}).get("gaps", 0)
+    if gaps:
+        report.degraded("input_gaps", f"{gaps} gaps in the input record (controller records lost, no command log to "
+                                      "bridge them): the inputs over them are unknown, predicted from their "
+                                      "neighbours or cut; the estimate's σ includes it")
     cut = summary.get("truncated")
     if cut:
         report.degraded("truncated", f"the telemetry file was cut mid-write: its intact records end at byte "
