@@ -10,6 +10,7 @@ complete record and the result says ``truncated=True``.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,6 +47,11 @@ __all__ = [
     "telemetry_from_record",
 ]
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Telemetry, Trajectory
+
+#: Read sample records written in the writer's template by one pattern over all of a topic's records
+#: (:func:`_template_rows`) instead of one :func:`json.loads` each; ``benchmarks/bench_mission_overhead.py`` switches it
+#: off for the old path.
+FAST_SAMPLES = True
 
 _LOG_LEVEL_NAMES = {0: "unknown", 1: "debug", 2: "info", 3: "warning", 4: "error", 5: "fatal"}
 
@@ -215,6 +221,63 @@ def _json_messages(scan: _Scan, topic: str) -> list[dict]:
     return out
 
 
+#: A JSON number that :func:`json.loads` reads as a float (a fraction or an exponent: ``float(text)`` is then
+#: exactly the value it gives; integers, ``-0`` among them, are left to the JSON path).
+_FLOAT = rb"(-?(?:0|[1-9][0-9]*)(?:\.[0-9]+(?:[eE][-+]?[0-9]+)?|[eE][-+]?[0-9]+))"
+
+
+def _template_pattern(template: str) -> re.Pattern[bytes]:
+    """A whole-line pattern of a writer's record template (:mod:`oacli.io.mcap_schema`): each ``%r`` a float."""
+    parts = [re.escape(part.encode()) for part in template.split("%r")]
+    return re.compile(rb"^" + _FLOAT.join(parts) + rb"$", re.MULTILINE)
+
+
+#: Sample records exactly as :class:`oacli.io.mcap_write.StageMcapWriter` encodes them (fields in template order).
+_SAMPLE_PATTERNS: dict[str, tuple[re.Pattern[bytes], int]] = {
+    ms.TRAJECTORY_SAMPLE: (_template_pattern(ms.TRAJECTORY_SAMPLE_TEMPLATE), 1 + STATE_DIM + INPUT_DIM),
+    ms.WRENCH: (_template_pattern(ms.WRENCH_TEMPLATE), 1 + INPUT_DIM),
+}
+
+
+def _template_rows(payloads: list[bytes], schema_name: str) -> np.ndarray | None:
+    """The rows ``[t, fields in template order]`` of sample records written in the writer's exact template, parsed
+    in one pass over all of them; None when any record differs from the template in any way (whitespace, key order,
+    integers, extra fields, ...): the caller then decodes every record as JSON. Where this succeeds, the values are
+    exactly those :func:`json.loads` gives (each number is read by ``float``, as JSON reads a number with a fraction
+    or an exponent), in the row layout :func:`_trajectory` and :func:`_wrenches` build."""
+    pattern, width = _SAMPLE_PATTERNS[schema_name]
+    if not payloads:
+        return None
+    joined = b"\n".join(payloads)
+    if joined.count(b"\n") != len(payloads) - 1:  # a record holding a line break: not in template form
+        return None
+    fields = pattern.findall(joined)
+    if len(fields) != len(payloads):  # each line matches at most once, so every record matched
+        return None
+    return np.array([[float(v) for v in row] for row in fields], dtype=float).reshape(len(payloads), width)
+
+
+def _trajectory_from_rows(scan: _Scan, topic: str, arr: np.ndarray) -> Trajectory:
+    meta = scan.channel_meta.get(topic, {})
+    try:
+        return Trajectory(
+            t=arr[:, 0],
+            x=arr[:, 1 : 1 + STATE_DIM],
+            u=arr[:, 1 + STATE_DIM :],
+            name=meta.get("name", topic.strip("/")),
+            frame=meta.get("frame", "world"),
+        )
+    except ValueError as exc:
+        raise scan.fail(f"{topic}: not a valid trajectory ({exc})") from None
+
+
+def _wrenches_from_rows(arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t, w = arr[:, 0].copy(), arr[:, 1:].copy()
+    t.setflags(write=False)
+    w.setflags(write=False)
+    return t, w
+
+
 def _trajectory(scan: _Scan, topic: str, records: list[dict]) -> Trajectory:
     try:
         rows = [
@@ -234,17 +297,7 @@ def _trajectory(scan: _Scan, topic: str, records: list[dict]) -> Trajectory:
         raise scan.fail(f"{topic}: malformed {ms.TRAJECTORY_SAMPLE} record ({exc!r})") from None
     if arr.shape[1:] != (1 + STATE_DIM + INPUT_DIM,):
         raise scan.fail(f"{topic}: {ms.TRAJECTORY_SAMPLE} records have the wrong vector lengths")
-    meta = scan.channel_meta.get(topic, {})
-    try:
-        return Trajectory(
-            t=arr[:, 0],
-            x=arr[:, 1 : 1 + STATE_DIM],
-            u=arr[:, 1 + STATE_DIM :],
-            name=meta.get("name", topic.strip("/")),
-            frame=meta.get("frame", "world"),
-        )
-    except ValueError as exc:
-        raise scan.fail(f"{topic}: not a valid trajectory ({exc})") from None
+    return _trajectory_from_rows(scan, topic, arr)
 
 
 def _wrenches(scan: _Scan, topic: str, records: list[dict]) -> tuple[np.ndarray, np.ndarray]:
@@ -252,10 +305,7 @@ def _wrenches(scan: _Scan, topic: str, records: list[dict]) -> tuple[np.ndarray,
         arr = np.array([[r["t"], *r["force"], *r["torque"]] for r in records], dtype=float).reshape(-1, 7)
     except (KeyError, TypeError, ValueError) as exc:
         raise scan.fail(f"{topic}: malformed {ms.WRENCH} record ({exc!r})") from None
-    t, w = arr[:, 0].copy(), arr[:, 1:].copy()
-    t.setflags(write=False)
-    w.setflags(write=False)
-    return t, w
+    return _wrenches_from_rows(arr)
 
 
 def read_stage(path: Path, *, validate_crcs: bool = True, topics: Iterable[str] | None = None) -> StageRecord:
@@ -296,6 +346,14 @@ def read_stage(path: Path, *, validate_crcs: bool = True, topics: Iterable[str] 
                     raise scan.fail(f"undecodable foxglove.Log message on {topic} ({exc})") from None
                 log.append((log_time / 1e9, level, text))
         elif channel_encoding == "json":
+            rows = (_template_rows([data for _, data in scan.messages[topic]], schema_name) if FAST_SAMPLES
+                    and schema_name in _SAMPLE_PATTERNS else None)
+            if rows is not None:
+                if schema_name == ms.TRAJECTORY_SAMPLE:
+                    trajectories[topic] = _trajectory_from_rows(scan, topic, rows)
+                else:
+                    wrenches[topic] = _wrenches_from_rows(rows)
+                continue
             records = _json_messages(scan, topic)
             if schema_name == ms.TRAJECTORY_SAMPLE:
                 if records:
