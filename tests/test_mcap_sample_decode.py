@@ -14,7 +14,6 @@ from mcap.writer import Writer
 import oacli.io.mcap_read as mcap_read
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter, read_stage, read_telemetry
-
 from tests.test_mcap_io import CONFIG, random_trajectory
 
 
