@@ -9,6 +9,7 @@ complete record and the result says ``truncated=True``.
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 from collections.abc import Iterable
@@ -20,6 +21,7 @@ import numpy as np
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
 from oacli.errors import InputError
+from oacli.io import mcap_memo
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_walk import (
     MAGIC,
@@ -209,6 +211,50 @@ class _Scan:
             self.metadata[record.name] = dict(record.metadata)
 
 
+class _WrittenScan(_Scan):
+    """A :class:`_Scan` of a file this process wrote and remembers (:mod:`oacli.io.mcap_memo`): the messages' payloads
+    as written, the topics, schemas, channel metadata and counts from the file's summary section."""
+
+    def __init__(self, path: Path, topics: frozenset[str] | None, written: mcap_memo.Written) -> None:
+        super().__init__(path, True, topics)
+        self.written = written
+
+    def run_from_memory(self) -> bool:
+        """Fill the scan; False (nothing usable) when the file's summary and what was written disagree."""
+        summary = mcap_memo.summary_of(self.path)
+        if summary is None or summary.statistics is None:
+            return False
+        counts = summary.statistics.channel_message_counts
+        written = self.written
+        for channel_id, channel in summary.channels.items():
+            schema = summary.schemas.get(channel.schema_id) if channel.schema_id else None
+            name = schema.name if schema is not None else ""
+            if self.topics.get(channel.topic, name) != name:
+                return False
+            count = counts.get(channel_id, 0)
+            kept = len(written.messages.get(channel.topic, ()))
+            decoded = channel.message_encoding == "json" or name == "foxglove.Log"
+            if decoded and kept != count:  # every message the reader decodes must have been kept
+                return False
+            self.channels[channel_id] = channel
+            self.topics[channel.topic] = name
+            self.channel_meta[channel.topic] = dict(channel.metadata)
+            self.counts[channel.topic] = self.counts.get(channel.topic, 0) + count
+        if set(written.messages) - set(self.topics):
+            return False
+        if ({m.name for m in summary.metadata_indexes} != set(written.metadata)
+                or {a.name for a in summary.attachment_indexes} != set(written.attachments)):
+            return False
+        for topic, messages in written.messages.items():
+            if self.wanted is None or topic in self.wanted:
+                self.messages[topic] = messages
+        self.metadata = {k: dict(v) for k, v in written.metadata.items()}
+        self.attachments = dict(written.attachments)
+        self.truncated = False
+        self.bytes_read = self.bytes_total = self.path.stat().st_size
+        return True
+
+
 def _json_messages(scan: _Scan, topic: str) -> list[dict]:
     out = []
     for i, (_, data) in enumerate(scan.messages.get(topic, [])):
@@ -254,7 +300,7 @@ def _template_rows(payloads: list[bytes], schema_name: str) -> np.ndarray | None
     fields = pattern.findall(joined)
     if len(fields) != len(payloads):  # each line matches at most once, so every record matched
         return None
-    return np.array([[float(v) for v in row] for row in fields], dtype=float).reshape(len(payloads), width)
+    return np.array(list(map(float, itertools.chain.from_iterable(fields))), dtype=float).reshape(len(payloads), width)
 
 
 def _trajectory_from_rows(scan: _Scan, topic: str, arr: np.ndarray) -> Trajectory:
@@ -329,8 +375,15 @@ def read_stage(path: Path, *, validate_crcs: bool = True, topics: Iterable[str] 
     InputError
         The file is missing, unreadable, not an MCAP file, corrupt (a CRC mismatch) or malformed.
     """
-    scan = _Scan(Path(path), validate_crcs, None if topics is None else frozenset(topics))
-    scan.run()
+    wanted = None if topics is None else frozenset(topics)
+    written = mcap_memo.recall(path) if validate_crcs else None
+    scan: _Scan | None = None
+    if written is not None:  # a file this process just wrote (oacli.io.mcap_memo)
+        from_memory = _WrittenScan(Path(path), wanted, written)
+        scan = from_memory if from_memory.run_from_memory() else None
+    if scan is None:
+        scan = _Scan(Path(path), validate_crcs, wanted)
+        scan.run()
     trajectories: dict[str, Trajectory] = {}
     wrenches: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     json_records: dict[str, tuple[dict, ...]] = {}

@@ -59,6 +59,7 @@ from foxglove.messages import (
 
 import oacli
 from oacli.geometry.shapes import Scene
+from oacli.io import mcap_memo
 from oacli.io import mcap_schema as ms
 from oacli.io.atomic import WriteError, atomic_file, describe_os_error
 from oacli.io.jsonsafe import to_json_safe
@@ -269,6 +270,15 @@ class EncodedRows:
         return payloads if np.array_equal(kept, rows) else None
 
 
+def _remember(written: dict[str, list[tuple[int, bytes]]], emit: Any, payload: Any, log_time: int) -> None:
+    """Keep a message just written for :mod:`oacli.io.mcap_memo`: a JSON payload as is, a ``foxglove.Log`` as its
+    protobuf encoding (what the file holds); other Foxglove messages are not decoded by the reader, not kept."""
+    if isinstance(payload, bytes):
+        written.setdefault(emit.topic, []).append((log_time, payload))
+    elif isinstance(payload, Log):
+        written.setdefault(emit.topic, []).append((log_time, payload.encode()))
+
+
 class StageMcapWriter:
     """Context manager writing one stage's MCAP file atomically.
 
@@ -348,6 +358,7 @@ class StageMcapWriter:
         self._queue: list[Iterator[_Pending]] | None = [] if self._ordered else None
         self._kept: EncodedRows | None = None  # payloads of sample records are kept here (keep_encoded)
         self._reuse: EncodedRows | None = None  # payloads taken from here when the rows match (reuse_encoded)
+        self._written: mcap_memo.Written | None = None  # what is written, while oacli.io.mcap_memo is active
 
     # -- context management ------------------------------------------------------------------------------
 
@@ -360,6 +371,7 @@ class StageMcapWriter:
             raise FileNotFoundError(f"folder {self.path.parent} does not exist")
         self._atomic = atomic_file(self.path)
         self._file = _SpoolFile(self._atomic.__enter__())
+        self._written = mcap_memo.Written() if mcap_memo.active() else None
         try:
             self._context = foxglove.Context()
             options = MCAPWriteOptions(
@@ -439,7 +451,11 @@ class StageMcapWriter:
                 error.__cause__ = cause
         if error is None:
             self._atomic.__exit__(None, None, None)
+            if self._written is not None:
+                mcap_memo.store(self.path, self._written)
+            self._written = None
             return
+        self._written = None
         self._atomic.__exit__(type(error), error, error.__traceback__)  # removes the temporary file
         if error is not exc:
             raise error
@@ -476,9 +492,12 @@ class StageMcapWriter:
 
     def _write(self, messages: Iterable[_Pending]) -> None:
         spool = self._file
+        written = None if self._written is None else self._written.messages
         with held():  # Ctrl-C inside the native writer is held, then raised between two messages (oacli.signals)
             for log_time, emit, payload in messages:
                 emit(payload, log_time)
+                if written is not None:
+                    _remember(written, emit, payload, log_time)
                 if spool is not None and spool.pending:  # a chunk was completed: to the file now
                     self._spill()
                 if PENDING:
@@ -545,11 +564,20 @@ class StageMcapWriter:
     @staticmethod
     def _raw_emitter(channel: Any) -> Callable[[Any, int], None]:
         base_log = channel.base.log  # the JSON text is already encoded: skip foxglove.Channel.log's checks
-        return lambda data, log_time: base_log(data, log_time, None)
+
+        def emit(data: Any, log_time: int) -> None:
+            base_log(data, log_time, None)
+
+        emit.topic = channel.topic()  # type: ignore[attr-defined]  # for oacli.io.mcap_memo (_remember)
+        return emit
 
     @staticmethod
     def _typed_emitter(channel: Any) -> Callable[[Any, int], None]:
-        return lambda message, log_time: channel.log(message, log_time=log_time)
+        def emit(message: Any, log_time: int) -> None:
+            channel.log(message, log_time=log_time)
+
+        emit.topic = channel.topic()  # type: ignore[attr-defined]
+        return emit
 
     def keep_encoded(self) -> EncodedRows:
         """Keep the payloads of the sample records written from now on (for :meth:`reuse_encoded` by another
@@ -943,6 +971,8 @@ class StageMcapWriter:
                 log_time=ns[0], create_time=time.time_ns(), name=str(name), media_type=str(media_type),
                 data=bytes(data),
             )
+        if self._written is not None:
+            self._written.attachments[str(name)] = bytes(data)
 
     def write_metadata(self, name: str, data: Mapping[str, object]) -> None:
         """Write a metadata record (string keys and values; values converted with ``str``).
@@ -957,8 +987,11 @@ class StageMcapWriter:
         self._require_open()
         if not data:
             raise ValueError(f"metadata record {name!r} is empty (MCAP writers drop empty records)")
+        entries = {str(k): str(v) for k, v in data.items()}
         with held():
-            self._writer.write_metadata(str(name), {str(k): str(v) for k, v in data.items()})
+            self._writer.write_metadata(str(name), entries)
+        if self._written is not None:
+            self._written.metadata[str(name)] = dict(entries)
 
     def flush(self) -> None:
         """Write the queued messages (merged by time), finish the current chunk and flush it to disk.

@@ -22,6 +22,7 @@ import numpy as np
 
 from oacli.config import OacliConfig, dump_config
 from oacli.errors import InputError, OacliError
+from oacli.io import mcap_memo
 from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
 from oacli.io.rerun.mission import write_mission_recording
@@ -297,7 +298,23 @@ def run_mission(
     OacliError
         A stage of the mission proper failed (its folder and the mission's ``summary.json`` say why). A failing
         baseline is recorded in the comparison instead.
+
+    Notes
+    -----
+    The stage MCAPs this run writes are remembered while it runs (:mod:`oacli.io.mcap_memo`): the hand-offs, the
+    comparison rows, the recording and the plots read them back without walking the files again (same records).
     """
+    with mcap_memo.remembering():
+        return _run_mission(cfg, mission_dir, progress=progress, announce=announce)
+
+
+def _run_mission(
+    cfg: OacliConfig,
+    mission_dir: Path,
+    *,
+    progress: ProgressFactory | None,
+    announce: Callable[[str], None] | None,
+) -> MissionResult:
     wall = time.perf_counter()
     say = announce or (lambda _line: None)
     stages = mission_stages(cfg)
