@@ -16,6 +16,15 @@ file caches cleared before each side (:func:`oacli.mission.records.clear_cache`)
   with (:func:`~oacli.mission.records.remember_config`, new);
 * ``mission.rrd``: :func:`oacli.io.rerun.mission.write_mission_recording` from the records (one side).
 
+``--missions N`` also runs the whole mission N times per side in this process (old paths: the above, the reader's
+per-record ``json.loads`` of sample records (``oacli.io.mcap_read.FAST_SAMPLES`` off) and no stage records kept in
+memory (``oacli.io.mcap_memo.ENABLED`` off), alternating. ``--compare-tree DIR --missions N`` runs the default
+mission (``outputs.plots: mission``, as ``bench_mission.py``) N times in fresh processes of this checkout and of
+the oacli checkout DIR (e.g. ``git -C /work/main archive 1e98b38 | tar -x -C /tmp/base``), alternating which runs
+first, prints each side's "mission outputs and overhead" (wall minus the stages' own wall times), its excite stage,
+wall and CPU, and checks that the two sides' last missions agree: the mission PNGs pixel for pixel, every stage MCAP's
+samples bit for bit and its other records apart from wall-clock fields, the summaries apart from wall times.
+
 Run: ``taskset -c 1 python benchmarks/bench_mission_overhead.py [--repeats 5] [--mission-dir runs/mission-...]``
 """
 
@@ -39,7 +48,12 @@ import yaml  # noqa: E402
 import oacli.config as config_module  # noqa: E402
 from oacli.config import load_config  # noqa: E402
 from oacli.config.outputs import PlotSet  # noqa: E402
-from oacli.io import mcap_walk  # noqa: E402
+from oacli.io import mcap_read, mcap_walk  # noqa: E402
+
+try:  # absent in checkouts before it (--compare-tree runs this script against them)
+    from oacli.io import mcap_memo
+except ImportError:
+    mcap_memo = None
 from oacli.io.mcap_read import read_stage  # noqa: E402
 from oacli.io.rerun.mission import write_mission_recording  # noqa: E402
 from oacli.mission import records  # noqa: E402
@@ -94,6 +108,9 @@ class _OldPaths:
         run_module.stage_config = stage_config_round_trip
         run_module.remember_config = lambda path, cfg: False
         mcap_walk.IN_PLACE_CHUNKS = False
+        mcap_read.FAST_SAMPLES = False
+        if mcap_memo is not None:
+            mcap_memo.ENABLED = False
         self.restore = _python_dumper()
 
     def __exit__(self, *exc: object) -> None:
@@ -101,6 +118,9 @@ class _OldPaths:
 
         run_module.stage_config, run_module.remember_config = self.saved
         mcap_walk.IN_PLACE_CHUNKS = True
+        mcap_read.FAST_SAMPLES = True
+        if mcap_memo is not None:
+            mcap_memo.ENABLED = True
         self.restore()
 
 
@@ -123,6 +143,121 @@ def mission_overhead(cfg, old: bool) -> tuple[float, float]:
         return wall, wall - stages
 
 
+def child_mission(config: Path, out: Path) -> None:
+    """One default mission into ``out`` in this process (``--child-mission``): prints JSON (wall and CPU [s], the
+    overhead row, the stages' wall times)."""
+    import oacli.mission.run as run_module
+
+    cfg = load_config(config)
+    validate_mission(cfg)
+    stage_cpu: dict[str, float] = {}
+    run_stage = run_module.run_stage
+
+    def timed_stage(stage, *args, **kwargs):  # the CPU time of each stage call (the machine may be loaded)
+        cpu0 = time.process_time()
+        try:
+            return run_stage(stage, *args, **kwargs)
+        finally:
+            stage_cpu[stage.key] = time.process_time() - cpu0
+
+    run_module.run_stage = timed_stage
+    start, cpu = time.perf_counter(), time.process_time()
+    mission_dir = start_mission(cfg, out=out, runs_root=out.parent)
+    result = run_mission(cfg, mission_dir)
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    stages = {k: float(v["wall_time_s"]) for k, v in result.summary["stages"].items()}
+    print(json.dumps({"wall": wall, "cpu": cpu, "overhead": wall - sum(stages.values()), "stages": stages,
+                      "overhead_cpu": cpu - sum(stage_cpu.values()), "excite_cpu": stage_cpu["segment-2/excite"]}))
+
+
+_CLOCK_FIELDS = ("time", "_ms", "created_utc", "elapsed", "git_commit", "version")
+
+
+def _without_clock(value: object) -> object:
+    """A JSON record without its wall-clock fields (solve times, creation time), which differ from run to run."""
+    if isinstance(value, dict):
+        return {k: _without_clock(v) for k, v in value.items() if not any(c in k for c in _CLOCK_FIELDS)}
+    if isinstance(value, list | tuple):
+        return [_without_clock(v) for v in value]
+    return value
+
+
+def same_missions(a: Path, b: Path) -> list[str]:
+    """Differences between two finished missions' outputs (module docstring); empty when they agree."""
+    import numpy as np
+    from matplotlib.image import imread
+
+    problems = []
+    for png in sorted((a / "plots").glob("*.png")):
+        other = b / "plots" / png.name
+        if not other.is_file() or not np.array_equal(imread(png), imread(other)):
+            problems.append(f"plots/{png.name} differs")
+    for mcap in sorted(a.glob("segment-*/*/*.mcap")):
+        ra, rb = read_stage(mcap), read_stage(b / mcap.relative_to(a))
+        name = str(mcap.relative_to(a))
+        if ra.trajectories.keys() != rb.trajectories.keys() or ra.wrenches.keys() != rb.wrenches.keys():
+            problems.append(f"{name}: other sample topics")
+            continue
+        for topic, ta in ra.trajectories.items():
+            tb = rb.trajectories[topic]
+            if not all(np.array_equal(getattr(ta, f), getattr(tb, f)) for f in ("t", "x", "u")):
+                problems.append(f"{name} {topic}: samples differ")
+        for topic, (ta, wa) in ra.wrenches.items():
+            if not (np.array_equal(ta, rb.wrenches[topic][0]) and np.array_equal(wa, rb.wrenches[topic][1])):
+                problems.append(f"{name} {topic}: samples differ")
+        for field in ("topics", "message_counts", "attachments"):
+            if getattr(ra, field) != getattr(rb, field):
+                problems.append(f"{name}: {field} differ")
+        if _without_clock(ra.json_records) != _without_clock(rb.json_records):
+            problems.append(f"{name}: JSON records differ (apart from wall-clock fields)")
+        if [m for m in ra.log if "s)" not in m[2]] != [m for m in rb.log if "s)" not in m[2]]:
+            problems.append(f"{name}: log messages differ")
+    sa, sb = (_without_clock(json.loads((m / "summary.json").read_text())) for m in (a, b))
+    if sa != sb:
+        problems.append("summary.json differs (apart from wall times)")
+    return problems
+
+
+def compare_trees(tree: Path, config: Path, missions: int) -> None:
+    """This checkout against ``tree``: the default mission in fresh processes, alternating (module docstring)."""
+    import subprocess
+    import sys
+
+    sides = {"this": ROOT, "other": tree.resolve()}
+    rows: dict[str, list[dict]] = {name: [] for name in sides}
+    out = Path(tempfile.mkdtemp(prefix="bench-overhead-"))
+    print(f"default mission ({config.name}), this checkout vs {tree}, {missions} run(s) each, alternating; "
+          f"fresh process each")
+    print(f"{'run':<4} {'tree':<6} {'wall [s]':>9} {'cpu [s]':>8} {'overhead [s]':>13} {'excite [s]':>11} "
+          f"{'overhead cpu':>13} {'excite cpu':>11}")
+    for k in range(missions):
+        for name in (("this", "other") if k % 2 == 0 else ("other", "this")):
+            folder = out / f"{name}-{k}"
+            env = {**os.environ, "PYTHONPATH": str(sides[name])}
+            side_config = sides[name] / "configs" / config.name
+            done = subprocess.run([sys.executable, __file__, "--child-mission", str(folder), "--config",
+                                   str(side_config)],
+                                  env=env, cwd=sides[name], capture_output=True, text=True, check=True)
+            row = json.loads(done.stdout.strip().splitlines()[-1])
+            rows[name].append(row)
+            print(f"{k + 1:<4} {name:<6} {row['wall']:>9.2f} {row['cpu']:>8.2f} {row['overhead']:>13.3f} "
+                  f"{row['stages']['segment-2/excite']:>11.3f} {row['overhead_cpu']:>13.3f} {row['excite_cpu']:>11.3f}",
+                  flush=True)
+    for key, label in (("overhead", "mission outputs and overhead"), ("excite", "segment-2/excite"),
+                       ("overhead_cpu", "overhead, CPU (outside run_stage)"), ("excite_cpu", "segment-2/excite CPU"),
+                       ("wall", "whole mission wall"), ("cpu", "whole mission CPU")):
+        def value(row: dict, key: str = key) -> float:
+            return row["stages"]["segment-2/excite"] if key == "excite" else row[key]
+        this = statistics.median(value(r) for r in rows["this"])
+        other = statistics.median(value(r) for r in rows["other"])
+        print(f"median {label:30s}: this {this:7.3f} s, other {other:7.3f} s, other - this {other - this:+.3f} s")
+    problems = same_missions(out / f"this-{missions - 1}", out / f"other-{missions - 1}")
+    print("outputs of the last runs: " + ("the same (PNGs pixel for pixel, MCAP samples bit for bit, records and "
+                                          "summaries apart from wall-clock fields)" if not problems
+                                          else "; ".join(problems)))
+    print(f"mission folders kept in {out}")
+
+
 def timed(fn: Callable[[], object]) -> float:
     start = time.perf_counter()
     fn()
@@ -137,7 +272,15 @@ def main() -> None:
     parser.add_argument("--missions", type=int, default=0,
                         help="also run the whole mission this many times per side (old paths / new), alternating, "
                              "and print its overhead: wall time minus the stages' own wall times")
+    parser.add_argument("--compare-tree", type=Path, help="another oacli checkout to compare whole missions with")
+    parser.add_argument("--child-mission", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.child_mission:
+        child_mission(args.config, args.child_mission)
+        return
+    if args.compare_tree:
+        compare_trees(args.compare_tree, args.config, max(args.missions, 1))
+        return
     tmp = tempfile.TemporaryDirectory()
     cfg = load_config(args.config)
     cfg = cfg.model_copy(update={"outputs": cfg.outputs.model_copy(update={"plots": PlotSet.NONE})})

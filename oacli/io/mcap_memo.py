@@ -23,6 +23,9 @@ from typing import Any
 
 #: Most files remembered (a mission writes 12 stage MCAPs).
 MAX_FILES = 32
+#: :func:`remembering` keeps files only while this is on (``benchmarks/bench_mission_overhead.py`` turns it off for
+#: the old path).
+ENABLED = True
 
 _depth = 0
 _FILES: OrderedDict[tuple[str, int, int], Written] = OrderedDict()
@@ -50,7 +53,7 @@ class Written:
 
 def active() -> bool:
     """Whether files written now are remembered."""
-    return _depth > 0
+    return _depth > 0 and ENABLED
 
 
 @contextlib.contextmanager
