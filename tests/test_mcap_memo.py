@@ -125,3 +125,28 @@ def test_a_failed_write_is_not_remembered(tmp_path):
             raise RuntimeError("stage failed")
         assert not path.exists()
         assert mcap_memo._FILES == {}
+
+
+def test_telemetry_streams_of_a_remembered_file_equal_the_files(tmp_path, monkeypatch):
+    from oacli.io.mcap_read import read_telemetry_streams
+
+    rng = np.random.default_rng(9)
+    t = np.arange(30) * 0.2
+    path = tmp_path / "track.mcap"
+    with mcap_memo.remembering():
+        with StageMcapWriter(path, stage="track", config_yaml=CONFIG) as w:
+            w.write_states(ms.TOPIC_STATE_MEASURED, t, rng.normal(size=(30, 13)))
+            w.write_wrenches(ms.TOPIC_CONTROL_APPLIED, t, rng.normal(size=(30, 6)))
+            w.write_wrenches(ms.TOPIC_CONTROL_COMMAND, t, rng.normal(size=(30, 6)))
+        kept = dict(mcap_memo._FILES)
+        mcap_memo._FILES.clear()
+        disk = read_telemetry_streams(path)
+        mcap_memo._FILES.update(kept)
+        with monkeypatch.context() as m:
+            _no_walk(m)
+            memo = read_telemetry_streams(path)
+    for field in ("t_measured", "x_measured", "t_applied", "u_applied", "t_command", "u_command"):
+        np.testing.assert_array_equal(getattr(disk, field), getattr(memo, field))
+    assert (disk.config_yaml, disk.truncated, disk.bytes_read, disk.bytes_total) == (
+        memo.config_yaml, memo.truncated, memo.bytes_read, memo.bytes_total)
+    assert memo.config_yaml == CONFIG

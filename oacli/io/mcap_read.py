@@ -255,6 +255,20 @@ class _WrittenScan(_Scan):
         return True
 
 
+def _scan(path: Path, validate_crcs: bool, wanted: frozenset[str] | None) -> _Scan:
+    """The messages of ``wanted`` topics of a file (all when None) and what else :class:`StageRecord` needs: from
+    what this process wrote into it when it is remembered and unchanged (:mod:`oacli.io.mcap_memo`), else one walk
+    of the file."""
+    written = mcap_memo.recall(path) if validate_crcs else None
+    if written is not None:
+        from_memory = _WrittenScan(path, wanted, written)
+        if from_memory.run_from_memory():
+            return from_memory
+    scan = _Scan(path, validate_crcs, wanted)
+    scan.run()
+    return scan
+
+
 def _json_messages(scan: _Scan, topic: str) -> list[dict]:
     out = []
     for i, (_, data) in enumerate(scan.messages.get(topic, [])):
@@ -375,15 +389,7 @@ def read_stage(path: Path, *, validate_crcs: bool = True, topics: Iterable[str] 
     InputError
         The file is missing, unreadable, not an MCAP file, corrupt (a CRC mismatch) or malformed.
     """
-    wanted = None if topics is None else frozenset(topics)
-    written = mcap_memo.recall(path) if validate_crcs else None
-    scan: _Scan | None = None
-    if written is not None:  # a file this process just wrote (oacli.io.mcap_memo)
-        from_memory = _WrittenScan(Path(path), wanted, written)
-        scan = from_memory if from_memory.run_from_memory() else None
-    if scan is None:
-        scan = _Scan(Path(path), validate_crcs, wanted)
-        scan.run()
+    scan = _scan(Path(path), validate_crcs, None if topics is None else frozenset(topics))
     trajectories: dict[str, Trajectory] = {}
     wrenches: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     json_records: dict[str, tuple[dict, ...]] = {}
@@ -692,8 +698,7 @@ def read_telemetry_streams(path: Path) -> TelemetryStreams:
     """
     wanted = (ms.TOPIC_STATE_MEASURED, ms.TOPIC_CONTROL_APPLIED, ms.TOPIC_CONTROL_COMMAND, ms.TOPIC_LOCALISATION,
               ms.TOPIC_IMU)
-    scan = _Scan(Path(path), True, frozenset(wanted))
-    scan.run()
+    scan = _scan(Path(path), True, frozenset(wanted))
     state_keys = ("position", "velocity", "quaternion", "angular_velocity")
     measured = _raw_series(scan, ms.TOPIC_STATE_MEASURED, state_keys, STATE_DIM)
     applied = _raw_series(scan, ms.TOPIC_CONTROL_APPLIED, ("force", "torque"), INPUT_DIM)
