@@ -288,10 +288,14 @@ def compare_trees(tree: Path, config: Path, missions: int) -> None:
     print(f"mission folders kept in {out}")
 
 
+#: The rows' clock: wall time, or CPU time of this process with ``--cpu`` (steadier on a loaded machine).
+CLOCK = time.perf_counter
+
+
 def timed(fn: Callable[[], object]) -> float:
-    start = time.perf_counter()
+    start = CLOCK()
     fn()
-    return time.perf_counter() - start
+    return CLOCK() - start
 
 
 def main() -> None:
@@ -302,9 +306,13 @@ def main() -> None:
     parser.add_argument("--missions", type=int, default=0,
                         help="also run the whole mission this many times per side (old paths / new), alternating, "
                              "and print its overhead: wall time minus the stages' own wall times")
+    parser.add_argument("--cpu", action="store_true", help="time the rows in CPU time of this process")
     parser.add_argument("--compare-tree", type=Path, help="another oacli checkout to compare whole missions with")
     parser.add_argument("--child-mission", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    global CLOCK
+    if args.cpu:
+        CLOCK = time.process_time
     if args.child_mission:
         child_mission(args.config, args.child_mission)
         return
@@ -379,7 +387,34 @@ def main() -> None:
         load_remembered()
 
     mission_records = records.load_mission_records(mission_dir, summary)
+
+    def old_reads() -> None:  # the file walks and every record through json.loads
+        mcap_read.FAST_SAMPLES = False
+        try:
+            mission_reads(mission_dir, cfg, summary)
+        finally:
+            mcap_read.FAST_SAMPLES = True
+
+    def remembered_reads() -> None:  # the stage files as the writers keep them during a mission
+        with mcap_memo.remembering():
+            for s in stages:
+                mcap_memo.store(s.mcap(mission_dir), kept[s.key])
+            mission_reads(mission_dir, cfg, summary)
+
+    kept = {}
+    if mcap_memo is not None:
+        for s in stages:  # what each writer keeps (tests/test_mcap_memo.py: reads back equal to the file)
+            scan = mcap_read._Scan(s.mcap(mission_dir), True, None)
+            scan.run()
+            kept[s.key] = mcap_memo.Written(
+                messages={t: m for t, m in scan.messages.items()
+                          if scan.topics[t] == "foxglove.Log" or next(
+                              c.message_encoding for c in scan.channels.values() if c.topic == t) == "json"},
+                metadata=scan.metadata, attachments=scan.attachments)
     rows: list[tuple[str, Callable[[], object], Callable[[], object] | None]] = [
+        ("mission reads: files walked, json.loads vs one-pass decode", old_reads,
+         lambda: mission_reads(mission_dir, cfg, summary)),
+        ("mission reads: files walked (json.loads) vs kept in memory", old_reads, remembered_reads),
         ("mission reads (hand-offs, comparison, records)", with_reader(False, lambda: mission_reads(
             mission_dir, cfg, summary)), with_reader(True, lambda: mission_reads(mission_dir, cfg, summary))),
         ("one track.mcap read_stage (all topics)", with_reader(False, lambda: read_stage(track)),

@@ -5,7 +5,10 @@ Each stage runs through the same function its command uses (``run_plan``, ``run_
 files to the next (:func:`handoff_for`). A stage whose folder is complete (:func:`oacli.io.runfolder.is_complete`) is
 kept when resuming; an incomplete one is removed and rerun. Everything a stage needs comes from the earlier stages'
 files, so a resumed mission equals an uninterrupted one with the same seed. The mission folder's ``summary.json`` is
-written last; an interruption or failure leaves one saying so (never a complete-looking mission).
+written last; an interruption or failure leaves one saying so (never a complete-looking mission). While the mission
+runs, the files its stages write are also kept in memory (:mod:`oacli.io.mcap_memo`), so reading one back (the next
+stage's input, the summary, the recording, the plots) decodes what was written without walking the file again: the
+same records as the file's.
 """
 
 from __future__ import annotations
