@@ -320,6 +320,8 @@ def polish_trajectory(
         planes = [keep_out_halfspaces(zone, p0, p1, p2, s.clearance_m) for zone in zones]
         sub.set_reference(x[:, 0:3], radius, *keep_in_bounds(checker, p0, p1, p2),
                           [pl[0] for pl in planes], [pl[1] for pl in planes])
+        if hasattr(sub, "set_working_hint"):
+            sub.set_working_hint(x, ref.u, ref.cost(weights, goal) if cap is not None else 0.0)
         t0 = time.perf_counter()
         status = sub.solve()
         base = dict(index=i, trust_radius_m=radius, status=status, solve_time_s=time.perf_counter() - t0)
