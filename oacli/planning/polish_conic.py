@@ -18,11 +18,11 @@ rows that depend on the reference (keep-in bounds, keep-out half-spaces, trust r
 Working set (active-set style, exact)
 -------------------------------------
 Most force and velocity rows and the cost cap's cone are slack at the optimum, and they make up a third of the
-rows (the cone of the cap is dense over the knots). :meth:`solve` first solves with a *working set* of them: the
-rows whose bound the reference (:meth:`set_working_hint`) or an earlier solution comes within
-:data:`NEAR_FRACTION` of, plus every row added before (the set only grows over the SCP iterations). The solution
-is then checked against every left-out row; the violated ones (and those it comes near) join the set and the
-problem is solved again, until the solution satisfies them all (at the latest when the set is complete). The
+rows (the cone of the cap is dense over the knots). The first SCP subproblem is solved with all of them; each
+later one first with a *working set*: the rows whose bound its reference (:meth:`set_working_hint`; the previous
+solution, corrected) comes within :data:`NEAR_FRACTION` of. The solution is then checked against every left-out
+row; the violated ones (and those it comes within :data:`WIDE_FRACTION` of) join the set and the problem is
+solved again, until the solution satisfies them all (at the latest when the set is complete). The
 relaxed problem's optimum satisfying every left-out constraint is the optimum of the full problem (a relaxation
 whose optimum is feasible for the original is optimal for it), so the result is the full subproblem's: only the
 time changes.
@@ -148,6 +148,7 @@ class PolishConic:
         self._lim_bound = np.concatenate(bounds)
         self._lim_work = np.zeros(self._lim_col.shape[0], dtype=bool)
         self._cap_work = False
+        self._hinted = False
         self.active_set = bool(settings.active_set)
         self.rounds = 0  # solves of the last :meth:`solve` (working-set rounds)
         buf = _Rows()
@@ -299,8 +300,9 @@ class PolishConic:
         return rows.matrix(self.n_var)
 
     def set_working_hint(self, x_ref: np.ndarray, f_ref: np.ndarray, cost_ref: float) -> None:
-        """Add to the working set the limit rows the reference comes near, and the cost cap when its cost does
-        (module docstring). Only the time of :meth:`solve` depends on it, never the optimum.
+        """Start the working set of the next :meth:`solve`: every row at the first call, then the limit rows the
+        reference comes near and the cost cap when its cost does (module docstring). Only the time of
+        :meth:`solve` depends on it, never the optimum.
 
         Parameters
         ----------
@@ -311,6 +313,13 @@ class PolishConic:
         cost_ref : float
             Reference LQR cost ``J``.
         """
+        if not self._hinted:  # the first subproblem: every row (its solution jumps far from the input)
+            self._hinted = True
+            self._lim_work[:] = True
+            self._cap_work = True
+            return
+        self._lim_work[:] = False
+        self._cap_work = False
         values = np.zeros(self.n_var)
         values[self._f.ravel()] = np.asarray(f_ref, dtype=float).ravel()
         values[self._v.ravel()] = np.asarray(x_ref, dtype=float)[:, 3:6].ravel()
@@ -336,16 +345,16 @@ class PolishConic:
         return float(y @ y) / 8.0 > room + _VIOLATION_TOL * max(1.0, abs(float(self.cost_cap)))  # type: ignore[arg-type]
 
     def _assemble(self) -> tuple[sp.csc_matrix, np.ndarray, list]:
-        """The conic data with the current working set."""
-        a_eq, b_eq = self._eq
-        a_b, b_b = self._buffer_rows
-        a_v, b_v = self._variable_rows()
-        a_s, b_s = self._soc
+        """The conic data with the current working set: the blocks' COO triplets stacked, one conversion to CSC."""
         work = self._lim_work if self.active_set else np.ones_like(self._lim_work)
         k = int(work.sum())
-        a_l = sp.coo_matrix((self._lim_sign[work], (np.arange(k), self._lim_col[work])), shape=(k, self.n_var))
-        blocks, rhs = [a_eq, a_l, a_b, a_v, a_s], [b_eq, self._lim_bound[work], b_b, b_v, b_s]
-        cones = [clarabel.ZeroConeT(a_eq.shape[0]), clarabel.NonnegativeConeT(k + a_b.shape[0] + a_v.shape[0])]
+        a_v, b_v = self._variable_rows()
+        blocks = [self._eq[0], sp.coo_matrix((self._lim_sign[work], (np.arange(k), self._lim_col[work])),
+                                             shape=(k, self.n_var)),
+                  self._buffer_rows[0], a_v, self._soc[0]]
+        rhs = [self._eq[1], self._lim_bound[work], self._buffer_rows[1], b_v, self._soc[1]]
+        cones = [clarabel.ZeroConeT(self._eq[0].shape[0]),
+                 clarabel.NonnegativeConeT(k + self._buffer_rows[0].shape[0] + a_v.shape[0])]
         cones += [clarabel.SecondOrderConeT(4)] * self._n_soc
         if self._cap is not None and (self._cap_work or not self.active_set):
             a_cap, b_cap = self._cap
@@ -355,7 +364,12 @@ class PolishConic:
             blocks.append(a_cap)
             rhs.append(b_cap)
             cones.append(clarabel.SecondOrderConeT(a_cap.shape[0]))
-        return sp.vstack(blocks, format="csc"), np.concatenate(rhs), cones
+        offsets = np.cumsum([0] + [blk.shape[0] for blk in blocks])
+        rows = np.concatenate([blk.row + off for blk, off in zip(blocks, offsets, strict=False)])
+        cols = np.concatenate([blk.col for blk in blocks])
+        vals = np.concatenate([blk.data for blk in blocks])
+        a = sp.csc_matrix((vals, (rows, cols)), shape=(int(offsets[-1]), self.n_var))
+        return a, np.concatenate(rhs), cones
 
     def _complete(self) -> bool:
         return bool(self._lim_work.all()) and (self._cap is None or self._cap_work)
