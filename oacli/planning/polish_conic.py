@@ -17,15 +17,17 @@ rows that depend on the reference (keep-in bounds, keep-out half-spaces, trust r
 
 Working set (active-set style, exact)
 -------------------------------------
-Most force and velocity rows and the cost cap's cone are slack at the optimum, and they make up a third of the
-rows (the cone of the cap is dense over the knots). The first SCP subproblem is solved with all of them; each
-later one first with a *working set*: the rows whose bound its reference (:meth:`set_working_hint`; the previous
-solution, corrected) comes within :data:`NEAR_FRACTION` of. The solution is then checked against every left-out
+Most force, velocity and trust-region rows and the cost cap's cone are slack at the optimum, and they make up
+half of the rows (the cone of the cap is dense over the knots). The first SCP subproblem is solved with all of
+them; each later one first with a *working set*: the rows whose bound its reference (:meth:`set_working_hint`;
+the previous solution, corrected) comes within :data:`NEAR_FRACTION` of, and the trust-region rows of the knots
+the last step moved by :data:`NEAR_TRUST_FRACTION` of Δ. The solution is then checked against every left-out
 row; the violated ones (and those it comes within :data:`WIDE_FRACTION` of) join the set and the problem is
 solved again, until the solution satisfies them all (at the latest when the set is complete). The
 relaxed problem's optimum satisfying every left-out constraint is the optimum of the full problem (a relaxation
 whose optimum is feasible for the original is optimal for it), so the result is the full subproblem's: only the
-time changes.
+time changes. (The keep-in and keep-out rows left out as implied by the trust region stay implied: the accepted
+solution satisfies every trust-region row.)
 """
 
 from __future__ import annotations
@@ -44,6 +46,9 @@ _IMPLIED_M = 1e-6
 NEAR_FRACTION = 0.1
 #: ... and, after a solution broke a left-out row, every row that solution used this fraction of.
 WIDE_FRACTION = 0.5
+#: A knot's trust-region rows join the working set when the last step moved it this fraction of the radius Δ (and
+#: when a solution moves it beyond :data:`WIDE_FRACTION` of Δ after breaking one).
+NEAR_TRUST_FRACTION = 0.25
 #: A left-out row counts as violated beyond this [N, m/s; relative for the cost cap] (far below the margin ε F).
 _VIOLATION_TOL = 1e-9
 
@@ -149,6 +154,8 @@ class PolishConic:
         self._lim_work = np.zeros(self._lim_col.shape[0], dtype=bool)
         self._cap_work = False
         self._hinted = False
+        self._tr_work = np.zeros((n + 1, 3), dtype=bool)  # trust-region rows (both signs) in the working set
+        self._r_prev: np.ndarray | None = None
         self.active_set = bool(settings.active_set)
         self.rounds = 0  # solves of the last :meth:`solve` (working-set rounds)
         buf = _Rows()
@@ -261,8 +268,10 @@ class PolishConic:
         rows = _Rows()
         r_ref = np.asarray(self.r_ref, dtype=float)
         rad = float(self.radius)  # type: ignore[arg-type]
-        rows.add([self._r], [1.0], r_ref + rad)
-        rows.add([self._r], [-1.0], rad - r_ref)
+        trust = self._tr_work if self.active_set else np.ones_like(self._tr_work)
+        if np.any(trust):
+            rows.add([self._r[trust]], [1.0], r_ref[trust] + rad)
+            rows.add([self._r[trust]], [-1.0], rad - r_ref[trust])
         s_col = np.repeat(self._s[:, None], 3, axis=1)
         lo, hi = np.asarray(self.box_lower, dtype=float), np.asarray(self.box_upper, dtype=float)
         # Rows implied by the trust region and the velocity limits are left out (the feasible set, hence the
@@ -313,13 +322,17 @@ class PolishConic:
         cost_ref : float
             Reference LQR cost ``J``.
         """
+        r_prev, self._r_prev = self._r_prev, np.asarray(x_ref, dtype=float)[:, 0:3].copy()
         if not self._hinted:  # the first subproblem: every row (its solution jumps far from the input)
             self._hinted = True
             self._lim_work[:] = True
+            self._tr_work[:] = True
             self._cap_work = True
             return
         self._lim_work[:] = False
         self._cap_work = False
+        # Trust-region rows where the last step moved the knot a good part of the radius.
+        self._tr_work[:] = np.abs(self._r_prev - r_prev) >= NEAR_TRUST_FRACTION * float(self.radius)  # type: ignore[arg-type]
         values = np.zeros(self.n_var)
         values[self._f.ravel()] = np.asarray(f_ref, dtype=float).ravel()
         values[self._v.ravel()] = np.asarray(x_ref, dtype=float)[:, 3:6].ravel()
@@ -335,6 +348,16 @@ class PolishConic:
         violated = bool(np.any(out & (value > self._lim_bound + _VIOLATION_TOL)))
         frac = max(fraction, WIDE_FRACTION) if violated else fraction
         self._lim_work |= out & (value >= (1.0 - frac) * self._lim_bound)
+        return violated
+
+    def _add_trust(self, x: np.ndarray) -> bool:
+        """Add the left-out trust-region rows ``x`` breaks (and, then, those it uses WIDE_FRACTION of); True when
+        one is broken."""
+        step = np.abs(x[self._r] - np.asarray(self.r_ref, dtype=float))
+        rad = float(self.radius)  # type: ignore[arg-type]
+        violated = bool(np.any(~self._tr_work & (step > rad + _VIOLATION_TOL)))
+        if violated:
+            self._tr_work |= step >= (1.0 - WIDE_FRACTION) * rad
         return violated
 
     def _cap_violated(self, x: np.ndarray) -> bool:
@@ -372,7 +395,8 @@ class PolishConic:
         return a, np.concatenate(rhs), cones
 
     def _complete(self) -> bool:
-        return bool(self._lim_work.all()) and (self._cap is None or self._cap_work)
+        return (bool(self._lim_work.all()) and bool(self._tr_work.all())
+                and (self._cap is None or self._cap_work))
 
     def solve(self) -> str:
         """Assemble the reference-dependent rows and solve with Clarabel, growing the working set until the solution
@@ -402,11 +426,13 @@ class PolishConic:
                 if complete:
                     return status
                 self._lim_work[:] = True  # decide on the full problem
+                self._tr_work[:] = True
                 self._cap_work = True
                 continue
             x = np.asarray(sol.x)
             if not complete:
                 violated = self._add_near(x)
+                violated |= self._add_trust(x)
                 if self._cap is not None and not self._cap_work and self._cap_violated(x):
                     self._cap_work = violated = True
                 if violated:
