@@ -245,6 +245,51 @@ def test_direct_conic_subproblem_equals_the_cvxpy_formulation(cap, n_zones, robo
     np.testing.assert_allclose(s_b, s_a, atol=1e-6)
 
 
+@pytest.mark.parametrize("seed", [3, 4])
+def test_working_set_solve_equals_the_full_subproblem(seed):
+    """The direct subproblem solved with a working set of the force/velocity rows and the cost cap (grown until the
+    solution satisfies the left-out rows) has the optimum of the full subproblem, also when the limits or the cap
+    bind and the working set starts empty (no hint): the forces reach their bound, the cap is met with equality."""
+    from oacli.planning.polish import PolishConic, keep_in_bounds
+
+    weights = CostWeights([30.0, 10.0, 20.0], [2.0, 1.0, 0.5], [1.0, 2.0, 0.5], 0.1)
+    rng = np.random.default_rng(seed)
+    h = polish_grid(8.0, 0.5, 0.1)
+    ref = TranslationalTrajectory.from_forces(np.zeros(6), rng.uniform(-0.05, 0.05, (h.size, 3)), h, MASS)
+    goal = ref.x[-1].copy()
+    goal[3:6] = 0.0
+    # 1.4 times the bang-bang force of the rest-to-rest move: the least-effort profile (peak 1.5 times) is clipped.
+    f_max = 1.4 * MASS * 4.0 * np.abs(goal[0:3]) / h.sum() ** 2
+    checker = CollisionChecker(Scene(keep_in=(Box([-3, -3, -3], [3, 3, 3]),)))
+    x = ref.x
+    p0, p1, p2 = x[:-1, 0:3], x[:-1, 0:3] + 0.5 * h[:, None] * x[:-1, 3:6], x[1:, 0:3]
+    lo, hi = keep_in_bounds(checker, p0, p1, p2)
+    time_cost = weights.time * h.sum()
+
+    def solve(active: bool, cap: float | None):
+        sub = PolishConic(h, MASS, x[0], goal, f_max, V_MAX, 0, dataclasses.replace(PolishSettings(),
+                          active_set=active), weights, with_cost_cap=cap is not None)
+        if cap is not None:
+            sub.set_cost_cap(cap)
+        sub.set_reference(x[:, 0:3], 0.5, lo, hi, [], [])
+        assert sub.solve() == "optimal"
+        cost = TranslationalTrajectory.from_forces(x[0], sub.f_value, h, MASS).cost(weights, goal)
+        return sub.objective, sub.f_value, sub.rounds, cost
+
+    free = {active: solve(active, None) for active in (False, True)}
+    cap = time_cost + 0.95 * (free[False][3] - time_cost)  # below the uncapped optimum's cost: the cap binds
+    capped = {active: solve(active, cap) for active in (False, True)}
+    for out in (free, capped):
+        (obj_full, f_full, rounds_full, _), (obj_ws, f_ws, rounds_ws, _) = out[False], out[True]
+        assert rounds_full == 1 and rounds_ws >= 2  # the working set started empty and had to grow
+        assert obj_ws == pytest.approx(obj_full, rel=1e-7)
+        # The forces enter the optimum only through the small effort term: equal to the solver tolerance's effect.
+        np.testing.assert_allclose(f_ws, f_full, atol=1e-3 * f_max.max())
+    np.testing.assert_allclose(np.max(np.abs(free[True][1]), axis=0), f_max * (1 - PolishSettings().limit_margin),
+                               rtol=3e-3)  # every axis reaches its bound
+    assert capped[True][3] == pytest.approx(cap, rel=1e-6)
+
+
 # ------------------------------------------------------------------------------------------------------------
 # Closed-form shortest paths
 # ------------------------------------------------------------------------------------------------------------

@@ -21,7 +21,9 @@ Subproblem (built once per trajectory, re-solved with the data of each iteration
 Assembled directly in Clarabel's conic form by :class:`~oacli.planning.polish_conic.PolishConic` (default), or as
 the DPP cvxpy problem :class:`~oacli.planning.polish_subproblem.PolishSubproblem` (``backend='cvxpy'``, the
 reference; the tests check that both have the same optimum). Rows implied by the trust region and the velocity
-limits are left out of the direct form (same feasible set).
+limits are left out of the direct form (same feasible set), and after the first iteration it solves with a working
+set of the force/velocity rows and the cost cap, grown until the solution satisfies the rest (the same optimum;
+:mod:`oacli.planning.polish_conic`).
 ::
 
     minimise    Σ_k ( ‖P1_k − P0_k‖ + ‖P2_k − P1_k‖ )  +  w_e Σ_k h_k ‖f_k‖²  +  λ Σ_k s_k
@@ -217,6 +219,7 @@ from oacli.planning.polish_conic import PolishConic  # noqa: E402
 from oacli.planning.polish_geometry import (  # noqa: E402
     keep_in_bounds,
     keep_out_halfspaces,
+    keep_out_halfspaces_of_zones,
     min_norm_on_triangles,
 )
 from oacli.planning.polish_grid import (  # noqa: E402
@@ -317,9 +320,11 @@ def polish_trajectory(
             break
         x = ref.x
         p0, p1, p2 = x[:-1, 0:3], x[:-1, 0:3] + 0.5 * h[:, None] * x[:-1, 3:6], x[1:, 0:3]
-        planes = [keep_out_halfspaces(zone, p0, p1, p2, s.clearance_m) for zone in zones]
+        planes = keep_out_halfspaces_of_zones(zones, p0, p1, p2, s.clearance_m)
         sub.set_reference(x[:, 0:3], radius, *keep_in_bounds(checker, p0, p1, p2),
                           [pl[0] for pl in planes], [pl[1] for pl in planes])
+        if hasattr(sub, "set_working_hint"):
+            sub.set_working_hint(x, ref.u, ref.cost(weights, goal) if cap is not None else 0.0)
         t0 = time.perf_counter()
         status = sub.solve()
         base = dict(index=i, trust_radius_m=radius, status=status, solve_time_s=time.perf_counter() - t0)

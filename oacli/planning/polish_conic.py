@@ -14,6 +14,20 @@ interval_cost_matrix` (as :func:`~oacli.planning.polish_subproblem.lqr_cost_expr
 
 The constant structure (dynamics, limits, cones, objective) is built once per grid; each :meth:`solve` writes the
 rows that depend on the reference (keep-in bounds, keep-out half-spaces, trust region) and calls Clarabel.
+
+Working set (active-set style, exact)
+-------------------------------------
+Most force, velocity and trust-region rows and the cost cap's cone are slack at the optimum, and they make up
+half of the rows (the cone of the cap is dense over the knots). The first SCP subproblem is solved with all of
+them; each later one first with a *working set*: the rows whose bound its reference (:meth:`set_working_hint`;
+the previous solution, corrected) comes within :data:`NEAR_FRACTION` of, and the trust-region rows of the knots
+the last step moved by :data:`NEAR_TRUST_FRACTION` of Δ. The solution is then checked against every left-out
+row; the violated ones (and those it comes within :data:`WIDE_FRACTION` of) join the set and the problem is
+solved again, until the solution satisfies them all (at the latest when the set is complete). The
+relaxed problem's optimum satisfying every left-out constraint is the optimum of the full problem (a relaxation
+whose optimum is feasible for the original is optimal for it), so the result is the full subproblem's: only the
+time changes. (The keep-in and keep-out rows left out as implied by the trust region stay implied: the accepted
+solution satisfies every trust-region row.)
 """
 
 from __future__ import annotations
@@ -28,6 +42,15 @@ from oacli.solver import CLARABEL_STATUS, solver_error_status
 
 #: A row is left out only when the reachable set satisfies it with at least this margin [m].
 _IMPLIED_M = 1e-6
+#: A limit row (or the cost cap) joins the working set when a reference or solution uses this fraction of its bound.
+NEAR_FRACTION = 0.1
+#: ... and, after a solution broke a left-out row, every row that solution used this fraction of.
+WIDE_FRACTION = 0.5
+#: A knot's trust-region rows join the working set when the last step moved it this fraction of the radius Δ (and
+#: when a solution moves it beyond :data:`WIDE_FRACTION` of Δ after breaking one).
+NEAR_TRUST_FRACTION = 0.25
+#: A left-out row counts as violated beyond this [N, m/s; relative for the cost cap] (far below the margin ε F).
+_VIOLATION_TOL = 1e-9
 
 
 class _Rows:
@@ -115,19 +138,30 @@ class PolishConic:
                np.zeros((n, 3)))
         eq.add([self._v[1:], self._v[:-1], self._f], [1.0, -1.0, -hc / m], np.zeros((n, 3)))
         self._eq = eq.matrix(self.n_var)
-        # Constant inequalities (A x <= b): force, velocity, buffer >= 0.
+        # Limit rows (A x <= b, one entry each): sign * x[col] <= bound, force then velocity; a working subset
+        # of them enters each solve (module docstring). Buffer rows s >= 0 are always in.
         eps = settings.limit_margin
-        f_lim = np.tile((1.0 - eps) * np.asarray(force_limit_N, dtype=float), (n, 1))
-        ineq = _Rows()
-        ineq.add([self._f], [1.0], f_lim)
-        ineq.add([self._f], [-1.0], f_lim)
+        f_lim = np.tile((1.0 - eps) * np.asarray(force_limit_N, dtype=float), (n, 1)).ravel()
+        cols, signs, bounds = [self._f.ravel()] * 2, [np.ones(3 * n), -np.ones(3 * n)], [f_lim, f_lim]
         if n > 1:
-            v_lim = np.tile((1.0 - eps) * np.asarray(velocity_limit_mps, dtype=float), (n - 1, 1))
-            ineq.add([self._v[1:n]], [1.0], v_lim)
-            ineq.add([self._v[1:n]], [-1.0], v_lim)
-        ineq.add([self._s], [-1.0], np.zeros(n))
+            v_lim = np.tile((1.0 - eps) * np.asarray(velocity_limit_mps, dtype=float), (n - 1, 1)).ravel()
+            cols += [self._v[1:n].ravel()] * 2
+            signs += [np.ones(3 * (n - 1)), -np.ones(3 * (n - 1))]
+            bounds += [v_lim, v_lim]
+        self._lim_col = np.concatenate(cols).astype(np.int64)
+        self._lim_sign = np.concatenate(signs)
+        self._lim_bound = np.concatenate(bounds)
+        self._lim_work = np.zeros(self._lim_col.shape[0], dtype=bool)
+        self._cap_work = False
+        self._hinted = False
+        self._tr_work = np.zeros((n + 1, 3), dtype=bool)  # trust-region rows (both signs) in the working set
+        self._r_prev: np.ndarray | None = None
+        self.active_set = bool(settings.active_set)
+        self.rounds = 0  # solves of the last :meth:`solve` (working-set rounds)
+        buf = _Rows()
+        buf.add([self._s], [-1.0], np.zeros(n))
+        self._buffer_rows = buf.matrix(self.n_var)
         self._v_bound = np.maximum((1.0 - eps) * np.asarray(velocity_limit_mps, dtype=float), np.abs(start[3:6]))
-        self._ineq_const = ineq.matrix(self.n_var)
         # Control points as (column, coefficient) lists, per piece and axis: P0 = r_k, P1 = r_k + h/2 v_k,
         # P2 = r_{k+1}.
         self._points = [
@@ -156,9 +190,16 @@ class PolishConic:
         self._soc = soc.matrix(self.n_var)
         self._n_soc = 2 * n
         self._cap = self._cap_rows(h, m, weights, goal) if self.with_cost_cap else None
+        self._cap_gz = None if self._cap is None else (self._cap[0].tocsr()[1:-1], self._cap[1][1:-1])
         self._time_cost = weights.time * float(h.sum())
+        # Clarabel without iterative refinement of its KKT solves: half the time per interior-point iteration on
+        # these problems, same iterations and optimum (to ~1e-10 on S2); a solve that does not end ``Solved`` is
+        # repeated with the refinement (Clarabel's default).
+        self._settings_refined = clarabel.DefaultSettings()
+        self._settings_refined.verbose = False
         self._settings = clarabel.DefaultSettings()
         self._settings.verbose = False
+        self._settings.iterative_refinement_enable = False
 
     def set_reference(self, r_ref: np.ndarray, radius: float, box_lower: np.ndarray, box_upper: np.ndarray,
                       normals: list[np.ndarray], offsets: list[np.ndarray]) -> None:
@@ -227,8 +268,10 @@ class PolishConic:
         rows = _Rows()
         r_ref = np.asarray(self.r_ref, dtype=float)
         rad = float(self.radius)  # type: ignore[arg-type]
-        rows.add([self._r], [1.0], r_ref + rad)
-        rows.add([self._r], [-1.0], rad - r_ref)
+        trust = self._tr_work if self.active_set else np.ones_like(self._tr_work)
+        if np.any(trust):
+            rows.add([self._r[trust]], [1.0], r_ref[trust] + rad)
+            rows.add([self._r[trust]], [-1.0], rad - r_ref[trust])
         s_col = np.repeat(self._s[:, None], 3, axis=1)
         lo, hi = np.asarray(self.box_lower, dtype=float), np.asarray(self.box_upper, dtype=float)
         # Rows implied by the trust region and the velocity limits are left out (the feasible set, hence the
@@ -265,23 +308,78 @@ class PolishConic:
                 rows.count += keep.size
         return rows.matrix(self.n_var)
 
-    def solve(self) -> str:
-        """Assemble the reference-dependent rows and solve with Clarabel.
+    def set_working_hint(self, x_ref: np.ndarray, f_ref: np.ndarray, cost_ref: float) -> None:
+        """Start the working set of the next :meth:`solve`: every row at the first call, then the limit rows the
+        reference comes near and the cost cap when its cost does (module docstring). Only the time of
+        :meth:`solve` depends on it, never the optimum.
 
-        Returns
-        -------
-        str
-            cvxpy-style status (``optimal``, ``optimal_inaccurate``, ``infeasible`` ...), or
-            ``solver_error: ...``.
+        Parameters
+        ----------
+        x_ref : ndarray, shape (N+1, 6)
+            Reference knot states.
+        f_ref : ndarray, shape (N, 3)
+            Reference held forces [N].
+        cost_ref : float
+            Reference LQR cost ``J``.
         """
-        a_eq, b_eq = self._eq
-        a_c, b_c = self._ineq_const
+        r_prev, self._r_prev = self._r_prev, np.asarray(x_ref, dtype=float)[:, 0:3].copy()
+        if not self._hinted:  # the first subproblem: every row (its solution jumps far from the input)
+            self._hinted = True
+            self._lim_work[:] = True
+            self._tr_work[:] = True
+            self._cap_work = True
+            return
+        self._lim_work[:] = False
+        self._cap_work = False
+        # Trust-region rows where the last step moved the knot a good part of the radius.
+        self._tr_work[:] = np.abs(self._r_prev - r_prev) >= NEAR_TRUST_FRACTION * float(self.radius)  # type: ignore[arg-type]
+        values = np.zeros(self.n_var)
+        values[self._f.ravel()] = np.asarray(f_ref, dtype=float).ravel()
+        values[self._v.ravel()] = np.asarray(x_ref, dtype=float)[:, 3:6].ravel()
+        self._add_near(values)
+        if self.cost_cap is not None and cost_ref >= (1.0 - NEAR_FRACTION) * self.cost_cap:
+            self._cap_work = True
+
+    def _add_near(self, x: np.ndarray, fraction: float = NEAR_FRACTION) -> bool:
+        """Add the left-out limit rows that ``x`` violates or comes within ``fraction`` of their bound to; True when
+        one of them is violated (then also those within :data:`WIDE_FRACTION`, as the next solution moves on)."""
+        value = self._lim_sign * x[self._lim_col]
+        out = ~self._lim_work
+        violated = bool(np.any(out & (value > self._lim_bound + _VIOLATION_TOL)))
+        frac = max(fraction, WIDE_FRACTION) if violated else fraction
+        self._lim_work |= out & (value >= (1.0 - frac) * self._lim_bound)
+        return violated
+
+    def _add_trust(self, x: np.ndarray) -> bool:
+        """Add the left-out trust-region rows ``x`` breaks (and, then, those it uses WIDE_FRACTION of); True when
+        one is broken."""
+        step = np.abs(x[self._r] - np.asarray(self.r_ref, dtype=float))
+        rad = float(self.radius)  # type: ignore[arg-type]
+        violated = bool(np.any(~self._tr_work & (step > rad + _VIOLATION_TOL)))
+        if violated:
+            self._tr_work |= step >= (1.0 - WIDE_FRACTION) * rad
+        return violated
+
+    def _cap_violated(self, x: np.ndarray) -> bool:
+        """Whether ``x`` breaks the left-out cost cap (``½ ‖G z‖² <= J_max − w_t Σ h``)."""
+        a_gz, b_gz = self._cap_gz  # type: ignore[misc]
+        y = b_gz - a_gz @ x  # 2 G z
+        room = float(self.cost_cap) - self._time_cost  # type: ignore[arg-type]
+        return float(y @ y) / 8.0 > room + _VIOLATION_TOL * max(1.0, abs(float(self.cost_cap)))  # type: ignore[arg-type]
+
+    def _assemble(self) -> tuple[sp.csc_matrix, np.ndarray, list]:
+        """The conic data with the current working set: the blocks' COO triplets stacked, one conversion to CSC."""
+        work = self._lim_work if self.active_set else np.ones_like(self._lim_work)
+        k = int(work.sum())
         a_v, b_v = self._variable_rows()
-        a_s, b_s = self._soc
-        blocks, rhs = [a_eq, a_c, a_v, a_s], [b_eq, b_c, b_v, b_s]
-        cones = [clarabel.ZeroConeT(a_eq.shape[0]), clarabel.NonnegativeConeT(a_c.shape[0] + a_v.shape[0])]
+        blocks = [self._eq[0], sp.coo_matrix((self._lim_sign[work], (np.arange(k), self._lim_col[work])),
+                                             shape=(k, self.n_var)),
+                  self._buffer_rows[0], a_v, self._soc[0]]
+        rhs = [self._eq[1], self._lim_bound[work], self._buffer_rows[1], b_v, self._soc[1]]
+        cones = [clarabel.ZeroConeT(self._eq[0].shape[0]),
+                 clarabel.NonnegativeConeT(k + self._buffer_rows[0].shape[0] + a_v.shape[0])]
         cones += [clarabel.SecondOrderConeT(4)] * self._n_soc
-        if self._cap is not None:
+        if self._cap is not None and (self._cap_work or not self.active_set):
             a_cap, b_cap = self._cap
             alpha = 2.0 * (float(self.cost_cap) - self._time_cost)  # type: ignore[arg-type]
             b_cap = b_cap.copy()
@@ -289,19 +387,57 @@ class PolishConic:
             blocks.append(a_cap)
             rhs.append(b_cap)
             cones.append(clarabel.SecondOrderConeT(a_cap.shape[0]))
-        a = sp.csc_matrix(sp.vstack(blocks, format="csc"))
-        b = np.concatenate(rhs)
+        offsets = np.cumsum([0] + [blk.shape[0] for blk in blocks])
+        rows = np.concatenate([blk.row + off for blk, off in zip(blocks, offsets, strict=False)])
+        cols = np.concatenate([blk.col for blk in blocks])
+        vals = np.concatenate([blk.data for blk in blocks])
+        a = sp.csc_matrix((vals, (rows, cols)), shape=(int(offsets[-1]), self.n_var))
+        return a, np.concatenate(rhs), cones
+
+    def _complete(self) -> bool:
+        return (bool(self._lim_work.all()) and bool(self._tr_work.all())
+                and (self._cap is None or self._cap_work))
+
+    def solve(self) -> str:
+        """Assemble the reference-dependent rows and solve with Clarabel, growing the working set until the solution
+        satisfies every left-out row (module docstring); ``rounds`` counts the solves.
+
+        Returns
+        -------
+        str
+            cvxpy-style status (``optimal``, ``optimal_inaccurate``, ``infeasible`` ...), or
+            ``solver_error: ...``.
+        """
         self.f_value = self.buffer_value = None
         self.objective = float("nan")
-        try:
-            solver = clarabel.DefaultSolver(self._p, self._q, a, b, cones, self._settings)
-            sol = solver.solve()
-        except Exception as exc:
-            return solver_error_status(exc)
-        status = CLARABEL_STATUS.get(str(sol.status)) or solver_error_status(f"Clarabel status {sol.status}")
-        if status in ("optimal", "optimal_inaccurate"):
+        self.rounds = 0
+        while True:
+            a, b, cones = self._assemble()
+            self.rounds += 1
+            try:
+                sol = clarabel.DefaultSolver(self._p, self._q, a, b, cones, self._settings).solve()
+                if str(sol.status) != "Solved":
+                    sol = clarabel.DefaultSolver(self._p, self._q, a, b, cones, self._settings_refined).solve()
+            except Exception as exc:
+                return solver_error_status(exc)
+            status = CLARABEL_STATUS.get(str(sol.status)) or solver_error_status(f"Clarabel status {sol.status}")
+            complete = not self.active_set or self._complete()
+            if status not in ("optimal", "optimal_inaccurate"):
+                if complete:
+                    return status
+                self._lim_work[:] = True  # decide on the full problem
+                self._tr_work[:] = True
+                self._cap_work = True
+                continue
             x = np.asarray(sol.x)
+            if not complete:
+                violated = self._add_near(x)
+                violated |= self._add_trust(x)
+                if self._cap is not None and not self._cap_work and self._cap_violated(x):
+                    self._cap_work = violated = True
+                if violated:
+                    continue
             self.f_value = x[self._f]
             self.buffer_value = np.maximum(x[self._s], 0.0)
             self.objective = float(sol.obj_val)
-        return status
+            return status

@@ -80,16 +80,42 @@ def keep_out_halfspaces(
     margin : ndarray, shape (K,)
         ``min_P nᵀ P − b`` over the three control points [m]: >= 0 where these pieces satisfy their half-space.
     """
-    lmat, c = zone.metric, zone.center
-    w = [(p - c) @ lmat.T for p in (p0, p1, p2)]
+    return keep_out_halfspaces_of_zones([zone], p0, p1, p2, clearance_m)[0]
+
+
+def keep_out_halfspaces_of_zones(
+    zones: list[KeepOutZone], p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, clearance_m: float
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """:func:`keep_out_halfspaces` for every zone, the least-norm points of all zones in one vectorised call.
+
+    Parameters
+    ----------
+    zones : list of KeepOutZone
+    p0, p1, p2 : ndarray, shape (K, 3)
+        Control points [m] of the K pieces.
+    clearance_m : float
+        Extra clearance [m].
+
+    Returns
+    -------
+    list of (normal, offset, margin)
+        Per zone, as :func:`keep_out_halfspaces` returns them.
+    """
+    if not zones:
+        return []
+    k = p0.shape[0]
+    w = [np.concatenate([(p - z.center) @ z.metric.T for z in zones]) for p in (p0, p1, p2)]  # (J K, 3) each
     w_star = min_norm_on_triangles(*w)
     norm = np.linalg.norm(w_star, axis=1)
     # The hull contains the centre (no direction): point from the centre to the hull's mean instead.
     m = np.where(norm[:, None] > 1e-12, w_star, (w[0] + w[1] + w[2]) / 3.0)
     m = np.where(np.linalg.norm(m, axis=1)[:, None] > 1e-12, m, np.array([1.0, 0.0, 0.0]))
-    n, offset = supporting_halfspaces(zone, m, clearance_m)
-    current = np.minimum.reduce([np.einsum("ki,ki->k", n, p) for p in (p0, p1, p2)])
-    return n, offset, current - offset
+    out = []
+    for j, zone in enumerate(zones):
+        n, offset = supporting_halfspaces(zone, m[j * k:(j + 1) * k], clearance_m)
+        current = np.minimum.reduce([np.einsum("ki,ki->k", n, p) for p in (p0, p1, p2)])
+        out.append((n, offset, current - offset))
+    return out
 
 
 def keep_in_bounds(checker: CollisionChecker, p0: np.ndarray, p1: np.ndarray,

@@ -69,7 +69,8 @@ def terminal_correction(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h:
     """
     h = np.broadcast_to(np.asarray(h, dtype=float), (forces.shape[0],))
     gamma = _final_state_map(h, mass_kg)
-    final = TranslationalTrajectory.from_forces(x0, forces, h, mass_kg).x[-1]
+    x0 = np.asarray(x0, dtype=float)
+    final = np.concatenate([x0[0:3] + h.sum() * x0[3:6] + gamma[0] @ forces, x0[3:6] + gamma[1] @ forces])
     err = np.asarray(goal, dtype=float) - final
     lam = np.linalg.solve(gamma @ gamma.T, np.stack([err[0:3], err[3:6]]))  # (2, 3)
     return forces + gamma.T @ lam
@@ -88,11 +89,36 @@ def exact_trajectory(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h: np
     -------
     TranslationalTrajectory
     """
-    forces = terminal_correction(x0, np.asarray(forces, dtype=float), goal, h, mass_kg)
-    traj = TranslationalTrajectory.from_forces(x0, forces, h, mass_kg)
-    x = traj.x.copy()
+    h = np.asarray(h, dtype=float)
+    forces = terminal_correction(x0, np.asarray(forces, dtype=float).reshape(-1, 3), goal, h, mass_kg)
+    x = propagate(x0, forces, h, mass_kg)
     x[-1] = goal  # equal up to rounding after the correction
-    return TranslationalTrajectory(traj.t, x, traj.u, mass_kg)
+    return TranslationalTrajectory.trusted(np.concatenate([[0.0], np.cumsum(h)]), x, forces, mass_kg)
+
+
+def propagate(x0: np.ndarray, forces: np.ndarray, h: np.ndarray, mass_kg: float) -> np.ndarray:
+    """Knot states (N+1, 6) of the exact double integrator under held ``forces`` (N, 3) for durations ``h``:
+    :meth:`~oacli.planning.translational.TranslationalTrajectory.from_forces` as running sums (the same sums,
+    rounded in another order).
+
+    Parameters
+    ----------
+    x0 : ndarray, shape (6,)
+    forces : ndarray, shape (N, 3)
+    h : ndarray, shape (N,)
+    mass_kg : float
+
+    Returns
+    -------
+    ndarray, shape (N+1, 6)
+    """
+    x0 = np.asarray(x0, dtype=float)
+    hc = np.asarray(h, dtype=float)[:, None]
+    dv = forces * (hc / mass_kg)
+    x = np.empty((forces.shape[0] + 1, 6))
+    x[:, 3:6] = np.cumsum(np.vstack([x0[None, 3:6], dv]), axis=0)
+    x[:, 0:3] = np.cumsum(np.vstack([x0[None, 0:3], x[:-1, 3:6] * hc + 0.5 * dv * hc]), axis=0)
+    return x
 
 
 def trim_rest(traj: TranslationalTrajectory, goal: np.ndarray, tolerance: float) -> TranslationalTrajectory:

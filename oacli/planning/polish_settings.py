@@ -39,6 +39,10 @@ class PolishSettings:
         ``direct``: the subproblem assembled directly for Clarabel (:mod:`oacli.planning.polish_conic`, no
         canonicalisation); ``cvxpy``: the DPP cvxpy formulation (:mod:`oacli.planning.polish_subproblem`), the
         reference the tests compare with.
+    active_set : bool
+        ``direct`` only: solve with a working set of the force/velocity rows and the cost cap, grown until the
+        solution satisfies the rest (:mod:`oacli.planning.polish_conic`; the same optimum, less time); False: every
+        row in every solve.
     """
 
     iterations: int = 30
@@ -54,3 +58,4 @@ class PolishSettings:
     stall_iterations: int = 2
     rest_tolerance: float = 1e-7
     backend: str = "direct"
+    active_set: bool = True
