@@ -65,9 +65,11 @@ def test_single_interval_propagation_equals_the_general_rk4(rng):
 
 def test_default_filter_equals_the_original_path():
     """The default filter (single-interval propagation, float manifold operations, the prediction's linearisation
-    reused) against SequentialEstimator(reference=True) on a run with localisation jumps: the same record
-    statuses, the same estimates along the run to the iterated update's own tolerance (Δφ < 1e-8), and the same
-    final θ̂ (1e-8) and covariance (1e-7)."""
+    reused, the last Gauss-Newton step taken without re-linearising, warm-started bootstrap solves) against
+    SequentialEstimator(reference=True) on a run with localisation jumps: the same record statuses, the same
+    estimates along the run (1e-7), and the same final θ̂ and covariance (1e-7: the bootstrap's batch solve is
+    converged to a cost tolerance of 1e-10, which leaves θ̂ ~1e-8 relative apart from a differently started
+    solve)."""
     tel = simulate_open_loop(50, seed=4)
     x_jumped, _ = inject_localisation_jumps(tel.x_measured, 0.08, np.random.default_rng(2))
     recs = [Measurement(r.t, xj, r.u_applied) for r, xj in zip(records(tel), x_jumped, strict=True)]
@@ -82,7 +84,7 @@ def test_default_filter_equals_the_original_path():
     assert fast.bootstrap_records <= 12 and fast.samples_rejected >= 2  # the filter itself ran and gated
     for a, b in zip(fast.history, slow.history, strict=True):
         assert np.max(np.abs(a.estimate.theta / b.estimate.theta - 1)) < 1e-7
-    assert np.max(np.abs(new.theta / old.theta - 1)) < 1e-8
+    assert np.max(np.abs(new.theta / old.theta - 1)) < 1e-7
     # The update inverts JᵀJ of a nearly rigid step (condition ~1e9): the covariance is good to ~1e-8 either way.
     assert np.max(np.abs(new.covariance - old.covariance)) < 1e-7 * np.max(np.abs(old.covariance))
 

@@ -180,7 +180,7 @@ def run_estimation(
         used = batch.inliers
         t = batch.t
     elif method == "sequential":
-        est = SequentialEstimator(settings, prior)
+        est = SequentialEstimator(settings, prior, intermediate_estimates=False)  # only the final one is kept
         set_phase(progress, f"sequential EKF ({len(records)} records)")
         for i, rec in enumerate(records):
             est.update(rec)
