@@ -276,8 +276,7 @@ class SequentialEstimator:
         self._next_check = self.bootstrap_check_every
         self._boot: list[Measurement] | None = [] if bootstrap_relative_std is not None else None
         self._boot_estimate: ParameterEstimate | None = None
-        self._boot_result: BatchResult | None = None
-        self._boot_quick: BatchResult | None = None
+        self._boot_last: BatchResult | None = None  # the last bootstrap solve, full or one iteration
         self.intermediate_estimates = bool(intermediate_estimates)
         self._quick_settings = replace(settings, max_iterations=1, max_gating_rounds=1)
         self.bootstrap_records = 0
@@ -289,6 +288,11 @@ class SequentialEstimator:
         self._r_accel = 1.0 / settings.measurement.acceleration_weights[self._accel_rows]
         self._w_state = 1.0 / np.sqrt(self._r_state)
         self._att_in_rows = np.flatnonzero((self._state_rows >= 6) & (self._state_rows < 9))
+        att = self._att_in_rows  # the measured attitude rows: their J_r⁻¹ blocks (rows of it, all 3 columns)
+        self._att_sel = self._state_rows[att] - 6
+        self._w_att = self._w_state[att, None]
+        self._ix_innovation_att = np.ix_(att, _ATT)
+        self._ix_step_att = np.ix_(2 * TANGENT_DIM + par.N_PARAMS + att, _N + _ATT)
         self._q_cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._buffer = ReorderBuffer(settings.reorder_window)
         self._x: np.ndarray | None = None
@@ -447,7 +451,7 @@ class SequentialEstimator:
         h[np.arange(m), rows] = 1.0
         att = self._att_in_rows  # positions of the measured attitude rows 6:9 among ``rows``
         if att.size:
-            h[np.ix_(att, _ATT)] = self._jr(-e[6:9])[rows[att] - 6]
+            h[self._ix_innovation_att] = self._jr(-e[6:9])[self._att_sel]
         nu, r = e[rows], self._r_state
         if acc_rows.size:
             pred, jx, jphi = self._accel_model(self._x, rec.u_applied, par.theta_from_phi(self._phi),
@@ -511,7 +515,7 @@ class SequentialEstimator:
         jac[o + np.arange(m), kb + rows] = self._w_state
         att = self._att_in_rows
         if att.size:
-            jac[np.ix_(o + att, kb + _ATT)] = self._w_state[att, None] * self._jr(e_meas[6:9])[rows[att] - 6]
+            jac[self._ix_step_att] = self._w_att * self._jr(e_meas[6:9])[self._att_sel]
         if acc_rows.size:
             w_acc = 1.0 / np.sqrt(r_acc)
             pred, jx, jphi = self._accel_model(xb, rec.u_applied, theta, dtheta)
@@ -580,17 +584,17 @@ class SequentialEstimator:
         if not (force or self.intermediate_estimates or n >= self.bootstrap_max_records or self._near_handover()):
             return
         init_phi, init_states = None, None
-        if self._boot_result is not None:  # warm start from the previous bootstrap solve
-            init_phi = self._boot_result.phi
-            init_states = extend_states(self._boot_result.states, self._boot, self._boot_result.estimate.theta,
-                                        self.settings.substep_s)
+        last = self._boot_last
+        if last is not None:  # warm start from the previous bootstrap solve (or the check's iteration just now)
+            init_phi = last.phi
+            init_states = extend_states(last.states, self._boot, last.estimate.theta, self.settings.substep_s)
         warm = init_phi is not None and not self.reference
         result = estimate_batch(self._boot, self.settings, self.prior, initial_phi=init_phi,
                                 initial_states=init_states, warm_start=warm, reference=self.reference)
         if warm and not result.converged:  # the warm start did not pay off: solve as before
             result = estimate_batch(self._boot, self.settings, self.prior, initial_phi=init_phi,
                                     initial_states=init_states)
-        self._boot_result = result
+        self._boot_last = result
         est = result.estimate
         self._boot_estimate = ParameterEstimate(est.t, est.theta, est.covariance, "sequential", est.samples_used,
                                                 est.samples_rejected)
@@ -634,7 +638,7 @@ class SequentialEstimator:
         approximation is off by more than that margin.
         """
         assert self._boot is not None and self.bootstrap_relative_std is not None
-        last = self._boot_quick if self._boot_quick is not None else self._boot_result
+        last = self._boot_last
         init_phi, init_states = None, None
         if last is not None:
             init_phi = last.phi
@@ -644,7 +648,7 @@ class SequentialEstimator:
                                    initial_states=init_states, continuation=False)
         except ValueError:  # e.g. no measured record yet: let the full solve decide
             return True
-        self._boot_quick = quick
+        self._boot_last = quick
         est = quick.estimate
         ratio = est.std / (self.bootstrap_relative_std * np.abs(est.theta))
         return not bool(np.all(np.isfinite(ratio))) or float(np.max(ratio)) <= _HANDOVER_MARGIN
