@@ -36,9 +36,13 @@ is mapped to φ by linearisation. Records go through a :class:`~oacli.estimation
 late. If the state itself is lost (``reinitialise_after`` consecutive rejections, e.g. after starting on a
 localisation jump), the robot state -- never θ -- is re-initialised from the current record and the event is
 recorded. Imperfect telemetry (:mod:`oacli.estimation.alignment`): an input-only record (its localisation message
-was lost) is a prediction without update (status ``"predicted"``); a record that starts a segment (the input before
-it is unknown) re-initialises the robot state from its measurement (status ``"segment"``, counted in ``segments``,
-not a failure), so an input is never held across a gap.
+was lost) is a prediction without update (status ``"predicted"``). A record that starts a segment (the input before
+it is unknown) after a single lost control record is reached as the batch links it
+(:func:`~oacli.estimation.batch.lost_input_prior`, :func:`~oacli.estimation.batch.segment_link_weights`): the
+prediction across the gap uses the mean of the known inputs on either side, and the error of that prediction
+(measured on the records so far) is process noise over the interval (counted in ``gaps_bridged``); after a longer
+gap -- one the batch cuts -- the robot state is re-initialised from the measurement (status ``"segment"``, counted in
+``segments``, not a failure). An input is never held across a gap.
 
 Usage (what an online planner does)::
 
@@ -56,7 +60,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from oacli.estimation import parametrization as par
-from oacli.estimation.batch import BatchResult, estimate_batch, extend_states
+from oacli.estimation.batch import (
+    _BRIDGE_FACTOR,
+    BatchResult,
+    estimate_batch,
+    extend_states,
+    lost_input_prior,
+    unknown_force_directions,
+    unknown_torque_directions,
+)
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.manifold import (
     TANGENT_DIM,
@@ -69,6 +81,7 @@ from oacli.estimation.manifold import (
 from oacli.estimation.models import EstimatorSettings, Measurement, measured_rows
 from oacli.estimation.preprocessing import ReorderBuffer
 from oacli.estimation.propagation import (
+    TIME_TOL_S,
     dynamics_batch,
     dynamics_jacobians_batch,
     propagate_intervals,
@@ -307,6 +320,11 @@ class SequentialEstimator:
         self.segments = 0
         self.history: list[SequentialStep] = []
         self._estimate_cache: ParameterEstimate | None = None
+        self.gaps_bridged = 0
+        self._gap_q: np.ndarray | None = None
+        self._inputs_t: list[float] = []  # every processed record's time, input and segment flag (_bridge_gap)
+        self._inputs_u: list[np.ndarray] = []
+        self._inputs_start: list[bool] = []
 
     # -- public API ------------------------------------------------------------------------------------------------
 
@@ -398,6 +416,10 @@ class SequentialEstimator:
         phi_mat[:TANGENT_DIM, :TANGENT_DIM] = proj @ a @ self._lift(self._x)
         phi_mat[:TANGENT_DIM, TANGENT_DIM:] = proj @ c @ par.theta_jacobian(self._phi)
         self._q, self._w_proc = self._process_noise(t - self._t_last)
+        if self._gap_q is not None:  # across a bridged gap: the predicted input's error (_bridge_gap)
+            self._q = self._q + self._gap_q
+            self._w_proc = np.linalg.inv(np.linalg.cholesky(self._q))
+            self._gap_q = None
         p = phi_mat @ self._p @ phi_mat.T
         p[:TANGENT_DIM, :TANGENT_DIM] += self._q
         self._x = x_new
@@ -577,6 +599,8 @@ class SequentialEstimator:
         if len(self._boot) < 2:
             if force:  # a single record: start the filter from it
                 recs, self._boot = self._boot, None
+                for history in (self._inputs_t, self._inputs_u, self._inputs_start):
+                    del history[len(history) - len(recs):]  # processed again below
                 for rec in recs:
                     self._process(rec)
             return
@@ -677,8 +701,51 @@ class SequentialEstimator:
         self.samples_used += 1
         return "accepted", d2, dof
 
+    def _bridge_gap(self, rec: Measurement) -> bool:
+        """Prepare the prediction across a gap in the input record ending at ``rec`` (``rec.starts_segment``), as the
+        batch links it (:func:`~oacli.estimation.batch.lost_input_prior`,
+        :func:`~oacli.estimation.batch.segment_link_weights`); False when it cannot be bridged.
+
+        One lost control instant: the previous record is the lost instant's input-only record (reached through a
+        known input), and the unknown interval is as long as the one before it and at most ``_BRIDGE_FACTOR``
+        typical record spacings. Its input is predicted as the mean of the known inputs on either side,
+        ``(u_{k-1} + u_{k+1}) / 2``, and the prediction's error variance, measured on the records so far (every
+        triple of consecutive known inputs, as the batch measures it on the whole run), enters as process noise
+        ``D Σ_u Dᵀ`` over the interval (``D``: the force and torque directions of the end state). Anything else
+        (several lost instants, uneven stamps, fewer triples than the batch needs) is a gap the filter does not
+        bridge: it re-initialises the robot state there (``segments``). Online the input after the gap must be
+        taken as known (the batch also checks the interval after it).
+        """
+        t = np.array(self._inputs_t)
+        k1 = t.size - 1  # rec
+        k = k1 - 1  # the lost instant
+        if k < 1 or self._inputs_start[k] or rec.t != t[k1]:
+            return False
+        dt_gap, dt_prev = t[k1] - t[k], t[k] - t[k - 1]
+        if abs(dt_gap - dt_prev) > TIME_TOL_S + 1e-6 * abs(dt_gap):
+            return False
+        starts = np.array(self._inputs_start, dtype=bool)
+        links = ~starts[1:]
+        dt = np.diff(t)
+        if dt_gap > _BRIDGE_FACTOR * float(np.median(dt[links])) + TIME_TOL_S:
+            return False
+        u = np.array(self._inputs_u)
+        _, _, variance = lost_input_prior(t, u, links)
+        if not np.all(np.isfinite(variance)):
+            return False
+        theta = self.prior.theta
+        d = np.concatenate([unknown_force_directions(np.array([dt_gap]))[0] / theta[0],
+                            unknown_torque_directions(np.array([dt_gap]), theta[1:4])[0]], axis=1)
+        self._gap_q = (d * variance) @ d.T
+        self._u_last = 0.5 * (u[k - 1] + u[k1])
+        self.gaps_bridged += 1
+        return True
+
     def _process(self, rec: Measurement) -> None:
         self._estimate_cache = None
+        self._inputs_t.append(rec.t)
+        self._inputs_u.append(np.asarray(rec.u_applied, dtype=float))
+        self._inputs_start.append(bool(rec.starts_segment))
         if self._boot is not None:
             self._boot.append(rec)
             n = len(self._boot)
@@ -691,12 +758,12 @@ class SequentialEstimator:
         d2 = float("nan")
         dof = 0
         if not rec.state_measured:
-            if self._x is not None and not rec.starts_segment:
+            if self._x is not None and (not rec.starts_segment or self._bridge_gap(rec)):
                 self._predict(rec.t)
             else:
                 self._x = None  # no state to propagate across the gap: wait for the next measurement
             status = "predicted"
-        elif self._x is not None and rec.starts_segment:
+        elif self._x is not None and rec.starts_segment and not self._bridge_gap(rec):
             self._initialise(rec)
             self.segments += 1
             status = "segment"
