@@ -96,6 +96,35 @@ def test_default_filter_equals_the_original_path():
     assert np.max(np.abs(new.covariance - old.covariance)) < 1e-7 * np.max(np.abs(old.covariance))
 
 
+@pytest.mark.parametrize("seed", [3, 4])
+def test_offline_bootstrap_checks_hand_over_where_solving_every_check_does(monkeypatch, seed):
+    """intermediate_estimates=False (the estimate stage) solves only the bootstrap checks whose covariance at the
+    previous solution is near the hand-over: the same hand-over record, the same statuses and the same final
+    estimate (1e-7) as solving every check, with fewer batch solves; before the hand-over its estimate is the
+    prior."""
+    import oacli.estimation.sequential as sequential
+
+    tel = simulate_open_loop(60, seed=seed)
+    recs = records(tel)
+    runs, solves = [], []
+    solve = sequential.estimate_batch
+    monkeypatch.setattr(sequential, "estimate_batch", lambda *a, **k: solves.append(1) or solve(*a, **k))
+    for online in (True, False):
+        est = SequentialEstimator(settings(), RATTLE_PRIOR, intermediate_estimates=online)
+        solves.clear()
+        seen = [est.update(rec) for rec in recs]
+        runs.append((est.flush(), est, seen, len(solves)))
+    (a, online, seen_online, n_online), (b, offline, seen_offline, n_offline) = runs
+    assert n_offline < n_online
+    assert 5 < offline.bootstrap_records == online.bootstrap_records < len(recs)
+    assert [s.status for s in offline.history] == [s.status for s in online.history]
+    assert np.max(np.abs(b.theta / a.theta - 1)) < 1e-7
+    assert np.max(np.abs(b.covariance - a.covariance)) < 1e-7 * np.max(np.abs(a.covariance))
+    first = offline.bootstrap_records - 1  # update() returns the prior until the hand-over (offline) ...
+    assert all(e is RATTLE_PRIOR for e in seen_offline[:first])
+    assert any(e is not RATTLE_PRIOR for e in seen_online[:first])  # ... and each check's solve online
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Gating and reordering building blocks
 # ---------------------------------------------------------------------------------------------------------------
