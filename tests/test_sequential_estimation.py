@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from scipy.stats import chi2
 
 from oacli.estimation import parametrization as par
+from oacli.estimation.alignment import align_records
 from oacli.estimation.batch import estimate_batch
 from oacli.estimation.bounds import cramer_rao_bound
 from oacli.estimation.gating import chi2_threshold, normalised_innovation_squared, passes_gate
@@ -20,12 +21,18 @@ from oacli.estimation.preprocessing import ReorderBuffer, order_by_time, shuffle
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.model import rigid_body as rb
 from oacli.sim.faults import inject_localisation_jumps
-from oacli.sim.sensors import SensorNoise
+from oacli.sim.sensors import Disturbance, SensorNoise
+from oacli.sim.simulator import simulate
+from oacli.types import ControlStep, InertialParams, SolveInfo
 from tests.estimation_helpers import (
+    CONTROL_PERIOD_S,
     MODEL,
     PLANT_PERIOD_S,
     RATTLE_PRIOR,
+    SENSORS,
     THETA_TRUE,
+    exciting_inputs,
+    initial_state,
     records,
     settings,
     simulate_open_loop,
@@ -65,9 +72,11 @@ def test_single_interval_propagation_equals_the_general_rk4(rng):
 
 def test_default_filter_equals_the_original_path():
     """The default filter (single-interval propagation, float manifold operations, the prediction's linearisation
-    reused) against SequentialEstimator(reference=True) on a run with localisation jumps: the same record
-    statuses, the same estimates along the run to the iterated update's own tolerance (Δφ < 1e-8), and the same
-    final θ̂ (1e-8) and covariance (1e-7)."""
+    reused, the last Gauss-Newton step taken without re-linearising, warm-started bootstrap solves) against
+    SequentialEstimator(reference=True) on a run with localisation jumps: the same record statuses, the same
+    estimates along the run (1e-7), and the same final θ̂ and covariance (1e-7: the bootstrap's batch solve is
+    converged to a cost tolerance of 1e-10, which leaves θ̂ ~1e-8 relative apart from a differently started
+    solve)."""
     tel = simulate_open_loop(50, seed=4)
     x_jumped, _ = inject_localisation_jumps(tel.x_measured, 0.08, np.random.default_rng(2))
     recs = [Measurement(r.t, xj, r.u_applied) for r, xj in zip(records(tel), x_jumped, strict=True)]
@@ -82,9 +91,38 @@ def test_default_filter_equals_the_original_path():
     assert fast.bootstrap_records <= 12 and fast.samples_rejected >= 2  # the filter itself ran and gated
     for a, b in zip(fast.history, slow.history, strict=True):
         assert np.max(np.abs(a.estimate.theta / b.estimate.theta - 1)) < 1e-7
-    assert np.max(np.abs(new.theta / old.theta - 1)) < 1e-8
+    assert np.max(np.abs(new.theta / old.theta - 1)) < 1e-7
     # The update inverts JᵀJ of a nearly rigid step (condition ~1e9): the covariance is good to ~1e-8 either way.
     assert np.max(np.abs(new.covariance - old.covariance)) < 1e-7 * np.max(np.abs(old.covariance))
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_offline_bootstrap_checks_hand_over_where_solving_every_check_does(monkeypatch, seed):
+    """intermediate_estimates=False (the estimate stage) solves only the bootstrap checks whose covariance at the
+    previous solution is near the hand-over: the same hand-over record, the same statuses and the same final
+    estimate (1e-7) as solving every check, with fewer batch solves; before the hand-over its estimate is the
+    prior."""
+    import oacli.estimation.sequential as sequential
+
+    tel = simulate_open_loop(60, seed=seed)
+    recs = records(tel)
+    runs, solves = [], []
+    solve = sequential.estimate_batch
+    monkeypatch.setattr(sequential, "estimate_batch", lambda *a, **k: solves.append(1) or solve(*a, **k))
+    for online in (True, False):
+        est = SequentialEstimator(settings(), RATTLE_PRIOR, intermediate_estimates=online)
+        solves.clear()
+        seen = [est.update(rec) for rec in recs]
+        runs.append((est.flush(), est, seen, len(solves)))
+    (a, online, seen_online, n_online), (b, offline, seen_offline, n_offline) = runs
+    assert n_offline < n_online
+    assert 5 < offline.bootstrap_records == online.bootstrap_records < len(recs)
+    assert [s.status for s in offline.history] == [s.status for s in online.history]
+    assert np.max(np.abs(b.theta / a.theta - 1)) < 1e-7
+    assert np.max(np.abs(b.covariance - a.covariance)) < 1e-7 * np.max(np.abs(a.covariance))
+    first = offline.bootstrap_records - 1  # update() returns the prior until the hand-over (offline) ...
+    assert all(e is RATTLE_PRIOR for e in seen_offline[:first])
+    assert any(e is not RATTLE_PRIOR for e in seen_online[:first])  # ... and each check's solve online
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -310,3 +348,69 @@ def test_settings_are_checked():
         ProcessNoise(0.0, 1e-6)
     with pytest.raises(ValueError):
         SequentialEstimator(settings(), RATTLE_PRIOR, reinitialise_after=0)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Gaps in the input record (whole controller records lost, issue 10)
+# ---------------------------------------------------------------------------------------------------------------
+
+
+class _Feedback:
+    """Closed loop: a multisine feed-forward plus a PD law on the *measured* state (the input depends on the
+    measurement noise, as the MPC's does)."""
+
+    def __init__(self, u: np.ndarray, x0: np.ndarray) -> None:
+        self.u, self.x0, self.k = u, x0, 0
+
+    def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
+        u = self.u[min(self.k, len(self.u) - 1)].copy()
+        u[:3] -= 2.0 * (x_measured[0:3] - self.x0[0:3]) + 4.0 * x_measured[3:6]
+        u[3:] -= 0.2 * x_measured[10:13]
+        self.k += 1
+        return ControlStep(u=u, info=SolveInfo("feedback", True), x_reference=x_measured)
+
+
+def test_single_lost_controller_records_are_bridged_not_restarted():
+    """A closed-loop run with 15 single controller records lost (every stream): the filter predicts each lost
+    wrench from its neighbours with the prediction's error as process noise over the gap (as the batch does) and
+    never re-initialises at a single-record gap; its estimate stays within 2σ of the clean run's on every
+    parameter. A gap of two lost records (the batch cuts it) still re-initialises and is counted."""
+    n = 150
+    x0 = initial_state()
+    tel = simulate(
+        _Feedback(exciting_inputs(n, 7), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
+        duration_s=n * CONTROL_PERIOD_S, control_period_s=CONTROL_PERIOD_S, plant_period_s=PLANT_PERIOD_S,
+        input_limits=np.full(6, 10.0), sensors=SENSORS, disturbance=Disturbance.none(),
+        rng=np.random.default_rng(0),
+    )
+    def run(recs):  # hand over from the bootstrap early: most gaps are then the filter's own
+        est = SequentialEstimator(settings(), RATTLE_PRIOR, bootstrap_max_records=40)
+        for rec in recs:
+            est.update(rec)
+        est.flush()
+        return est
+
+    clean = run(records(tel))
+    assert clean.segments == 0 and clean.gaps_bridged == 0
+    keep = np.ones(len(tel.t_ctrl), dtype=bool)
+    lost = 3 * np.random.default_rng(100).choice(np.arange(1, len(keep) // 3 - 1), 15, replace=False)
+    keep[lost] = False  # never two in a row: every gap is one lost control instant
+    recs, rep = align_records(tel.t_ctrl[keep], tel.x_measured[keep], tel.t_ctrl[keep], tel.u_applied[keep],
+                              reorder_window=0)
+    assert rep.gaps == 15 and rep.lost_instants == 15
+    gapped = run(recs)
+    after_bootstrap = [r.t for r in recs[gapped.bootstrap_records:] if r.starts_segment]
+    assert len(after_bootstrap) >= 10  # the rest are in the bootstrap's batch
+    assert gapped.segments == 0 and gapped.reinitialisations == 0
+    assert gapped.gaps_bridged == len(after_bootstrap)
+    status = {s.t: s.status for s in gapped.history}
+    assert all(status[t] in ("accepted", "rejected") for t in after_bootstrap)
+    diff = gapped.estimate.theta - clean.estimate.theta
+    assert np.all(np.abs(diff) <= 2.0 * gapped.estimate.std), (diff, gapped.estimate.std)
+    # Two records lost in a row: an unknown interval of two control periods, which the batch cuts.
+    keep2 = np.ones(len(tel.t_ctrl), dtype=bool)
+    keep2[[100, 101]] = False
+    recs2, rep2 = align_records(tel.t_ctrl[keep2], tel.x_measured[keep2], tel.t_ctrl[keep2],
+                                tel.u_applied[keep2], reorder_window=0)
+    cut = run(recs2)
+    assert rep2.gaps == 1 and cut.segments == 1 and cut.gaps_bridged == 0

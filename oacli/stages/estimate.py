@@ -91,6 +91,11 @@ class EstimationRun:
     solve_time_s : float
     segments : int
         Segments linked by the process model (gaps in the input record split them).
+    gaps_bridged : int
+        Sequential: gaps in the input record the filter predicted across (one lost control record: the wrench
+        predicted from its neighbours, its error as process noise), after the bootstrap.
+    segment_restarts : int
+        Sequential: gaps it could not bridge (the batch cuts them), where it re-initialised the robot state.
     nis_ratio : float
         Sequential: mean normalised innovation squared of the filter's own updates over its expected value (its
         dimension); about 1 for a consistent filter, NaN when the filter made no update of its own.
@@ -113,6 +118,8 @@ class EstimationRun:
     solve_time_s: float
     segments: int = 1
     nis_ratio: float = float("nan")
+    gaps_bridged: int = 0
+    segment_restarts: int = 0
 
 
 def truth_from_config_yaml(text: str | None) -> np.ndarray | None:
@@ -159,6 +166,7 @@ def run_estimation(
     reinitialisations = 0
     segments = 1 + sum(r.starts_segment for r in records)
     nis_ratio = float("nan")
+    gaps_bridged = segment_restarts = 0
     if method == "batch":
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
         set_phase(progress, f"batch window 1/{len(ends)}")
@@ -180,7 +188,7 @@ def run_estimation(
         used = batch.inliers
         t = batch.t
     elif method == "sequential":
-        est = SequentialEstimator(settings, prior)
+        est = SequentialEstimator(settings, prior, intermediate_estimates=False)  # only the final one is kept
         set_phase(progress, f"sequential EKF ({len(records)} records)")
         for i, rec in enumerate(records):
             est.update(rec)
@@ -198,6 +206,7 @@ def run_estimation(
         used = np.array([s.status in ("accepted", "initialised", "segment") for s in steps])
         t = np.array([s.t for s in steps])
         reinitialisations = est.reinitialisations
+        gaps_bridged, segment_restarts = est.gaps_bridged, est.segments
         own = [s for s in steps[est.bootstrap_records:] if s.status in ("accepted", "rejected") and s.dof > 0]
         if own:
             nis_ratio = float(np.mean([s.d2 / s.dof for s in own]))
@@ -215,7 +224,7 @@ def run_estimation(
         method=method, final=final, history=history, t_records=t, states=states, inputs=u,
         measured=y, status=status, d2=d2, dof=dof, gate_threshold=threshold, bound=bound, batch=batch,
         reinitialisations=reinitialisations, solve_time_s=time.perf_counter() - start, segments=segments,
-        nis_ratio=nis_ratio,
+        nis_ratio=nis_ratio, gaps_bridged=gaps_bridged, segment_restarts=segment_restarts,
     )
 
 
@@ -279,6 +288,8 @@ def _estimate_summary(
         summary["gate_emptied"] = bool(run.batch.gate_emptied)
     else:
         summary["state_reinitialisations"] = int(run.reinitialisations)
+        summary["gaps_bridged"] = int(run.gaps_bridged)
+        summary["segment_restarts"] = int(run.segment_restarts)
         summary["nis_ratio"] = run.nis_ratio if np.isfinite(run.nis_ratio) else None
     estimate_findings(summary).apply(summary)
     return summary
