@@ -120,6 +120,11 @@ class CompiledQP:
         )
         if not self._solver.is_data_update_allowed():
             raise ValueError("Clarabel does not allow data updates with these settings (presolve/chordal)")
+        # T_q, T_b (and T_A) stacked: one sparse product per solve (each row's sum is the same as in its own
+        # matrix: CSR rows are kept with their entries in order).
+        parts = [self._t_q, self._t_b] + ([] if self._t_a is None else [self._t_a])
+        self._t_all = sp.csr_array(sp.vstack(parts, format="csr"))
+        self._split = (n, n + m)
         self._x: np.ndarray | None = None
         self._a_last: np.ndarray | None = None  # A's values at the last update (None: the set-up values)
 
@@ -171,11 +176,13 @@ class CompiledQP:
         start = time.perf_counter()
         # The data go to Clarabel as lists: its binding reads a list of floats about twice as fast as an array
         # (the same values).
-        q, b = (self._t_q @ theta).tolist(), (self._t_b @ theta).tolist()
+        stacked = self._t_all @ theta
+        n_q, n_qb = self._split
+        q, b = stacked[:n_q].tolist(), stacked[n_q:n_qb].tolist()
         if self._t_a is None:
             self._solver.update(q=q, b=b)
         else:
-            a_values = self._t_a @ theta
+            a_values = stacked[n_qb:]
             if self._a_last is not None and np.array_equal(a_values, self._a_last):
                 # A unchanged (e.g. keep-out rows inactive from step to step): Clarabel keeps its scaled copy.
                 self._solver.update(q=q, b=b)
