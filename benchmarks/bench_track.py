@@ -91,7 +91,7 @@ def main() -> None:
     parser.add_argument("--compare", type=Path)
     parser.add_argument("--against", type=Path, help="another source tree, measured alternately with this one")
     parser.add_argument("--fingerprint", type=Path, help="write the stages' output fingerprint (JSON)")
-    parser.add_argument("--check-fingerprint", type=Path, help="compare with a saved fingerprint; exit 1 on a difference")
+    parser.add_argument("--check-fingerprint", type=Path, help="compare with a saved fingerprint (exit 1 if different)")
     parser.add_argument("--totals-json", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.against is not None:

@@ -100,7 +100,7 @@ class CompiledQP:
                 if pid in prog.id_to_param and pid not in known:
                     raise ValueError("cvxpy replaced a parameter (attributes): use plain cp.Parameter objects")
                 continue
-            self._param_slices.append((known[pid], col, prog.param_id_to_size[pid]))
+            self._param_slices.append((known[pid], col, prog.param_id_to_size[pid], pid))
         self._const_col = prog.param_id_to_col[-1] if -1 in prog.param_id_to_col else self._n_params
         self._var_cols = {v.id: prog.var_id_to_col[v.id] for v in problem.variables() if v.id in prog.var_id_to_col}
         self.n_variables, self.n_constraints = n, m
@@ -146,13 +146,16 @@ class CompiledQP:
         ndarray, shape (n_params + 1,)
         """
         theta = np.zeros(self._n_params + 1)
-        for param, col, size in self._param_slices:
-            value = param.value if values is None or param.id not in values else values[param.id]
+        for param, col, size, pid in self._param_slices:
+            value = values[pid] if values is not None and pid in values else param.value
             if value is None:
                 if missing_as_zero:
                     continue
                 raise ValueError(f"parameter {param.name()} has no value")
-            theta[col : col + size] = np.asarray(value, dtype=float).ravel(order="F")
+            try:  # column-major, through a Fortran-ordered view of θ's slice (no intermediate copy)
+                theta[col : col + size].reshape(param.shape, order="F")[...] = value
+            except ValueError:  # another shape of the same size
+                theta[col : col + size] = np.asarray(value, dtype=float).ravel(order="F")
         theta[self._const_col] = 1.0
         return theta
 
