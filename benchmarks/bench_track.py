@@ -60,8 +60,9 @@ def _fingerprint(run_dir: Path) -> dict[str, object]:
 COLUMNS = ("loop wall", "loop CPU", "stage wall", "stage CPU")
 
 
-def _one_run(src: Path, mission_dir: Path) -> list[float]:
-    """Totals (loop wall, loop CPU, stage wall, stage CPU) [s] of one run of this benchmark on the tree ``src``."""
+def _one_run(src: Path, mission_dir: Path) -> dict[str, list[float]]:
+    """Per stage and ``"total"``: (loop wall, loop CPU, stage wall, stage CPU) [s] of one run of this benchmark on
+    the tree ``src``."""
     env = {**os.environ, "PYTHONPATH": str(src)}
     out = subprocess.run([sys.executable, __file__, str(mission_dir), "--totals-json"], env=env, check=True,
                          capture_output=True, text=True).stdout
@@ -69,18 +70,27 @@ def _one_run(src: Path, mission_dir: Path) -> list[float]:
 
 
 def against(other: Path, mission_dir: Path, repeats: int) -> None:
-    """Alternate runs of the tree ``other`` and of this file's tree; print both sides' medians and the ratio."""
-    sides: dict[str, list[list[float]]] = {"other": [], "this": []}
+    """Alternate runs of the tree ``other`` and of this file's tree; print both sides' medians (per stage and in
+    total) and their ratio."""
+    sides: dict[str, list[dict[str, list[float]]]] = {"other": [], "this": []}
     for rep in range(repeats):
         for side, src in (("other", other), ("this", ROOT)):
             sides[side].append(_one_run(src, mission_dir))
             print(f"repeat {rep + 1} {side:<5} " + "  ".join(f"{c} {v:.3f}" for c, v in
-                                                           zip(COLUMNS, sides[side][-1], strict=True)), flush=True)
-    med = {side: np.median(np.array(rows), axis=0) for side, rows in sides.items()}
+                                                           zip(COLUMNS, sides[side][-1]["total"], strict=True)),
+                  flush=True)
+    names = list(sides["this"][0])
+    med = {side: {name: np.median(np.array([run[name] for run in runs]), axis=0) for name in names}
+           for side, runs in sides.items()}
     print(f"medians over {repeats} alternating repeats [s]: other = {other}, this = {ROOT}")
     for i, col in enumerate(COLUMNS):
-        print(f"  {col:<11} other {med['other'][i]:7.3f}   this {med['this'][i]:7.3f}   this/other "
-              f"{med['this'][i] / med['other'][i]:.3f}")
+        print(f"  {col:<11} other {med['other']['total'][i]:7.3f}   this {med['this']['total'][i]:7.3f}   "
+              f"this/other {med['this']['total'][i] / med['other']['total'][i]:.3f}")
+    print("per stage, stage CPU and stage wall [s] (other -> this, ratio):")
+    for name in names:
+        o, t = med["other"][name], med["this"][name]
+        print(f"  {name:<30} CPU {o[3]:6.3f} -> {t[3]:6.3f} ({t[3] / o[3]:.3f})   wall {o[2]:6.3f} -> {t[2]:6.3f} "
+              f"({t[2] / o[2]:.3f})")
 
 
 def main() -> None:
@@ -152,9 +162,10 @@ def main() -> None:
               f"{'identical' if not diffs else f'{len(diffs)} differences'}")
         if diffs:
             raise SystemExit(1)
-    if args.totals_json:
-        totals_json = np.sum([np.median(np.array(rows), axis=0) for rows in table.values()], axis=0)
-        print(json.dumps([float(totals_json[0]), float(totals_json[2]), float(totals_json[1]), float(totals_json[3])]))
+    if args.totals_json:  # loop wall, loop CPU, stage wall, stage CPU per stage (medians) and their sum
+        per_stage = {name: np.median(np.array(rows), axis=0)[[0, 2, 1, 3]] for name, rows in table.items()}
+        per_stage["total"] = np.sum(list(per_stage.values()), axis=0)
+        print(json.dumps({name: [float(v) for v in values] for name, values in per_stage.items()}))
         return
     print("wall and process CPU time [s] (CPU time is less sensitive to other load on the machine)")
     print(f"{'stage':<28} {'steps':>6} {'sim [s]':>8} {'loop wall':>10} {'loop CPU':>9} {'stage wall':>11} "
