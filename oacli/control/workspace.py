@@ -186,7 +186,7 @@ class WorkspaceRows:
         lin[1:]`` with this instance's shrunk pieces (the same differences and minima, in one array)."""
         points = np.stack([ref[:-1], ref[1:], lin[:-1], lin[1:]])[:, None]  # (4, 1, K-1, 3)
         slack = np.minimum(points - self._piece_lo, self._piece_hi - points)  # (4, B, K-1, 3)
-        return np.argmax(slack.min(axis=(0, 3)), axis=0)
+        return np.asarray(np.argmax(slack.min(axis=(0, 3)), axis=0))
 
     def rows(self, reference_m: np.ndarray, linearisation_m: np.ndarray | None = None) -> PositionRows:
         """Rows for the predicted positions of one solve.
