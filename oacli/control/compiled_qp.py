@@ -100,7 +100,7 @@ class CompiledQP:
                 if pid in prog.id_to_param and pid not in known:
                     raise ValueError("cvxpy replaced a parameter (attributes): use plain cp.Parameter objects")
                 continue
-            self._param_slices.append((known[pid], col, prog.param_id_to_size[pid]))
+            self._param_slices.append((known[pid], col, prog.param_id_to_size[pid], pid))
         self._const_col = prog.param_id_to_col[-1] if -1 in prog.param_id_to_col else self._n_params
         self._var_cols = {v.id: prog.var_id_to_col[v.id] for v in problem.variables() if v.id in prog.var_id_to_col}
         self.n_variables, self.n_constraints = n, m
@@ -120,6 +120,11 @@ class CompiledQP:
         )
         if not self._solver.is_data_update_allowed():
             raise ValueError("Clarabel does not allow data updates with these settings (presolve/chordal)")
+        # T_q, T_b (and T_A) stacked: one sparse product per solve (each row's sum is the same as in its own
+        # matrix: CSR rows are kept with their entries in order).
+        parts = [self._t_q, self._t_b] + ([] if self._t_a is None else [self._t_a])
+        self._t_all = sp.csr_array(sp.vstack(parts, format="csr"))
+        self._split = (n, n + m)
         self._x: np.ndarray | None = None
         self._a_last: np.ndarray | None = None  # A's values at the last update (None: the set-up values)
 
@@ -141,13 +146,16 @@ class CompiledQP:
         ndarray, shape (n_params + 1,)
         """
         theta = np.zeros(self._n_params + 1)
-        for param, col, size in self._param_slices:
-            value = param.value if values is None or param.id not in values else values[param.id]
+        for param, col, size, pid in self._param_slices:
+            value = values[pid] if values is not None and pid in values else param.value
             if value is None:
                 if missing_as_zero:
                     continue
                 raise ValueError(f"parameter {param.name()} has no value")
-            theta[col : col + size] = np.asarray(value, dtype=float).ravel(order="F")
+            try:  # column-major, through a Fortran-ordered view of θ's slice (no intermediate copy)
+                theta[col : col + size].reshape(param.shape, order="F")[...] = value
+            except ValueError:  # another shape of the same size
+                theta[col : col + size] = np.asarray(value, dtype=float).ravel(order="F")
         theta[self._const_col] = 1.0
         return theta
 
@@ -171,11 +179,13 @@ class CompiledQP:
         start = time.perf_counter()
         # The data go to Clarabel as lists: its binding reads a list of floats about twice as fast as an array
         # (the same values).
-        q, b = (self._t_q @ theta).tolist(), (self._t_b @ theta).tolist()
+        stacked = self._t_all @ theta
+        n_q, n_qb = self._split
+        q, b = stacked[:n_q].tolist(), stacked[n_q:n_qb].tolist()
         if self._t_a is None:
             self._solver.update(q=q, b=b)
         else:
-            a_values = self._t_a @ theta
+            a_values = stacked[n_qb:]
             if self._a_last is not None and np.array_equal(a_values, self._a_last):
                 # A unchanged (e.g. keep-out rows inactive from step to step): Clarabel keeps its scaled copy.
                 self._solver.update(q=q, b=b)

@@ -34,6 +34,8 @@ class ReferenceSampler:
             self._dt = self.t[1:] - self.t[:-1]
             q = self.x[:, 6:10]
             self._delta = quat.log(quat.multiply(quat.conjugate(q[:-1]), q[1:]))
+            # One row per segment [t_i, dt_i, x_i (13), dx_i (13), δ_i (3)]: a step gathers its segments once.
+            self._table = np.column_stack([self.t[:-1], self._dt, self.x[:-1], self._dx, self._delta])
 
     def states(self, times: np.ndarray) -> np.ndarray:
         """States at ``times`` [s], shape (k, 13): linear in position, velocity and rate, slerp in attitude; the
@@ -56,28 +58,32 @@ class ReferenceSampler:
             out[after, 3:6] = 0.0
             out[after, 10:13] = 0.0
             return out
-        idx = np.clip(np.searchsorted(t, times, side="right") - 1, 0, t.size - 2)
-        s = np.clip((times - t[idx]) / self._dt[idx], 0.0, 1.0)
-        x0 = self.x[idx]
-        out[:] = x0 + s[:, None] * self._dx[idx]
-        # exp(s δ) (quat.exp), then q0 ⊗ e (quat.multiply), then quat.normalize.
-        phi = s[:, None] * self._delta[idx]
-        angle = np.linalg.norm(phi, axis=-1, keepdims=True)
+        idx = np.searchsorted(t, times, side="right") - 1
+        np.clip(idx, 0, t.size - 2, out=idx)
+        seg = self._table[idx]  # [t_i, dt_i, x_i, dx_i, δ_i] per sample
+        s = (times - seg[:, 0]) / seg[:, 1]
+        np.clip(s, 0.0, 1.0, out=s)
+        s_col = s[:, None]
+        x0 = seg[:, 2:15]
+        np.add(x0, s_col * seg[:, 15:28], out=out)
+        # exp(s δ) (quat.exp), then q0 ⊗ e (quat.multiply), then quat.normalize; the norms are
+        # np.linalg.norm's own sqrt(add.reduce(v * v)) (the same operations without its wrapper).
+        phi = s_col * seg[:, 28:31]
+        angle = np.sqrt(np.add.reduce(phi * phi, axis=-1, keepdims=True))
         half = 0.5 * angle
         small = angle < 1e-6
-        safe = np.where(small, 1.0, angle)
-        k = np.where(small, 0.5 - angle**2 / 48.0, np.sin(half) / safe)
+        if small.any():
+            safe = np.where(small, 1.0, angle)
+            k = np.where(small, 0.5 - angle**2 / 48.0, np.sin(half) / safe)
+        else:  # the same values as the np.where form when no angle is small
+            k = np.sin(half) / angle
         ev = k * phi
         ew = np.cos(half)
         pv, pw = x0[:, 6:9], x0[:, 9:10]
-        cross = np.empty_like(pv)
-        cross[:, 0] = pv[:, 1] * ev[:, 2] - pv[:, 2] * ev[:, 1]
-        cross[:, 1] = pv[:, 2] * ev[:, 0] - pv[:, 0] * ev[:, 2]
-        cross[:, 2] = pv[:, 0] * ev[:, 1] - pv[:, 1] * ev[:, 0]
         q = np.empty((times.size, 4))
-        q[:, 0:3] = pw * ev + ew * pv + cross
-        q[:, 3:4] = pw * ew - np.sum(pv * ev, axis=-1, keepdims=True)
-        q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+        q[:, 0:3] = pw * ev + ew * pv + _cross(pv, ev)
+        q[:, 3:4] = pw * ew - np.add.reduce(pv * ev, axis=-1, keepdims=True)
+        q /= np.sqrt(np.add.reduce(q * q, axis=-1, keepdims=True))
         out[:, 6:10] = np.where(q[:, 3:4] < 0.0, -q, q)
         after = times > t[-1]
         out[after, 3:6] = 0.0
@@ -116,15 +122,18 @@ def attitude_errors(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
     shape = np.broadcast_shapes(p.shape, q.shape)
     r = np.empty(shape)
     r[..., :3] = pw * qv + qw * pv + _cross(pv, qv)
-    r[..., 3:4] = pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)
-    # log (normalise, w >= 0, 2 atan2(|v|, w) v/|v|).
-    r = r / np.linalg.norm(r, axis=-1, keepdims=True)
+    r[..., 3:4] = pw * qw - np.add.reduce(pv * qv, axis=-1, keepdims=True)
+    # log (normalise, w >= 0, 2 atan2(|v|, w) v/|v|); the norms are np.linalg.norm's sqrt(add.reduce(v * v)).
+    r /= np.sqrt(np.add.reduce(r * r, axis=-1, keepdims=True))
     r = np.where(r[..., 3:4] < 0.0, -r, r)
     v, w = r[..., :3], r[..., 3:4]
-    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    s = np.sqrt(np.add.reduce(v * v, axis=-1, keepdims=True))
     angle = 2.0 * np.arctan2(s, w)
     small = s < 1e-9
-    k = np.where(small, 2.0 / np.where(small, w, 1.0), angle / np.where(small, 1.0, s))
+    if small.any():
+        k = np.where(small, 2.0 / np.where(small, w, 1.0), angle / np.where(small, 1.0, s))
+    else:  # the same values as the np.where form when no rotation is small
+        k = angle / s
     return np.asarray(k * v)
 
 

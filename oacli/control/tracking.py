@@ -207,8 +207,9 @@ class TrackingMPC:
         u_ref = feedforward(x_ref_full, self.dt_s, self.params.mass_kg, self._inertia)
         origin = x_ref_full[0, 0:3]
         anchor = x_ref_full[0, 6:10]
-        e0 = to_error_state(x, origin, anchor)
-        e_ref = to_error_state(x_ref_full, origin, anchor)
+        # The measured state and the references in one call (row by row the same values).
+        errors = to_error_state(np.vstack([x_ref_full, x]), origin, anchor)
+        e0, e_ref = errors[-1], errors[:-1]
         rows = None
         if self.workspace is not None:
             lin = None

@@ -27,7 +27,7 @@ factor is reported.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Any
 
@@ -453,28 +453,41 @@ def _axis_from_parts(
 
     The result depends on the inputs only (numbers, no randomness), so it is memoised within the process by their
     exact values (:data:`_AXIS_CACHE`): the mission's tube stages and their summaries' flight-settings baselines
-    often design the same axis twice. The returned :class:`AxisTube` is immutable; its cached figures
-    (``minimal_support``, ``baseline``) are shared with every later caller of the same inputs.
+    often design the same axis twice, and the three axes of an isotropic robot are the same design under three
+    names (the name is the only field that differs: the other axes copy the first one's, with its ``minimal_support``
+    when computed). The returned :class:`AxisTube` is immutable; its cached figures (``minimal_support``,
+    ``baseline``) are shared with every later caller of the same inputs.
     """
-    key = (name, *(np.ascontiguousarray(m, dtype=float).tobytes() for m in (a, b, gain, dist.w.a, dist.w.b,
-                                                                         dist.mass_term, dist.force_term,
-                                                                         dist.box_term, dist.noise_bound)),
-           a.shape, dist.w.a.shape, float(dist.scale), float(force_limit_N), float(velocity_limit_mps),
-           float(epsilon), epsilon_mode, int(max_terms), float(facet_growth))
-    cached = _AXIS_CACHE.get(key)
+    values = (*(np.ascontiguousarray(m, dtype=float).tobytes() for m in (a, b, gain, dist.w.a, dist.w.b,
+                                                                      dist.mass_term, dist.force_term,
+                                                                      dist.box_term, dist.noise_bound)),
+              a.shape, dist.w.a.shape, float(dist.scale), float(force_limit_N), float(velocity_limit_mps),
+              float(epsilon), epsilon_mode, int(max_terms), float(facet_growth))
+    named = _AXIS_CACHE.get(values)
+    if named is None:
+        named = {}
+        if len(_AXIS_CACHE) >= _AXIS_CACHE_SIZE:
+            _AXIS_CACHE.pop(next(iter(_AXIS_CACHE)))
+        _AXIS_CACHE[values] = named
+    cached = named.get(name)
     if cached is not None:
         return cached
-    axis = _design_axis_from_parts(name, a, b, gain, dist, force_limit_N=force_limit_N,
-                                   velocity_limit_mps=velocity_limit_mps, epsilon=epsilon,
-                                   epsilon_mode=epsilon_mode, max_terms=max_terms, facet_growth=facet_growth)
-    if len(_AXIS_CACHE) >= _AXIS_CACHE_SIZE:
-        _AXIS_CACHE.pop(next(iter(_AXIS_CACHE)))
-    _AXIS_CACHE[key] = axis
+    if named:  # the same design under another name
+        other = next(iter(named.values()))
+        axis = replace(other, name=name)
+        if "minimal_support" in other.__dict__:
+            axis.__dict__["minimal_support"] = other.__dict__["minimal_support"]
+    else:
+        axis = _design_axis_from_parts(name, a, b, gain, dist, force_limit_N=force_limit_N,
+                                       velocity_limit_mps=velocity_limit_mps, epsilon=epsilon,
+                                       epsilon_mode=epsilon_mode, max_terms=max_terms, facet_growth=facet_growth)
+    named[name] = axis
     return axis
 
 
-#: Memo of :func:`_axis_from_parts` by the exact input values (oldest entry dropped beyond the size).
-_AXIS_CACHE: dict[tuple[Any, ...], AxisTube] = {}
+#: Memo of :func:`_axis_from_parts` by the exact input values, then by axis name (oldest inputs dropped beyond the
+#: size).
+_AXIS_CACHE: dict[tuple[Any, ...], dict[str, AxisTube]] = {}
 _AXIS_CACHE_SIZE = 64
 
 

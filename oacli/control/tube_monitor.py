@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -38,7 +38,7 @@ import numpy as np
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_mpc import TubeHistory, TubeMPC
 from oacli.errors import InfeasibleError
-from oacli.types import ControlStep
+from oacli.types import ControlStep, SolveInfo
 
 RESPONSES = ("redesign", "hold", "ignore")
 
@@ -345,7 +345,9 @@ class TubeMonitor:
         self._prev = (t, x_t.copy(), np.clip(np.asarray(step.u[0:3], dtype=float), -self.force_limit,
                                               self.force_limit))
         # The step's wall time includes the check and any redesign done for it.
-        info = replace(step.info, step_time_s=step.info.step_time_s + (before_step - start))
+        inner = step.info
+        info = SolveInfo(inner.status, inner.success, inner.objective, inner.iterations, inner.solve_time_s,
+                         inner.step_time_s + (before_step - start))
         return ControlStep(step.u, info, step.x_reference)
 
     # -- records -----------------------------------------------------------------------------------------------

@@ -319,8 +319,10 @@ class TubeMPC:
             # so the solver's absolute tolerances are small against Z).
             origin = np.concatenate([x[0:3], np.zeros(3)])
             ref_t = x_ref_full[:, 0:6] - origin
-            ref_r = np.column_stack([attitude_errors(anchor, x_ref_full[:, 6:10]), x_ref_full[:, 10:13]])
-            x_r = np.concatenate([attitude_errors(anchor, x[6:10]), x[10:13]])
+            # The reference attitudes and the measured one in one call (row by row the same values).
+            phi = attitude_errors(anchor, np.vstack([x_ref_full[:, 6:10], x[6:10]]))
+            ref_r = np.column_stack([phi[:-1], x_ref_full[:, 10:13]])
+            x_r = np.concatenate([phi[-1], x[10:13]])
             self.qp.set_parameters("translation", x_t - origin, ref_t, u_ref[:, 0:3])
             self.qp.set_parameters("attitude", x_r, ref_r, u_ref[:, 3:6])
             if self.workspace is not None:

@@ -383,7 +383,7 @@ class NominalQP:
         pairs += list(zip(bv.out_offsets, rows.offsets, strict=True))
         for param, value in pairs:
             arr = np.asarray(value, dtype=float)
-            if arr.shape != param.shape or not np.all(np.isfinite(arr)):
+            if arr.shape != param.shape or not np.isfinite(arr).all():
                 raise ValueError(f"{param.name()}: expected finite values of shape {param.shape}, got {arr.shape}")
             self._values[param.id] = arr
 
@@ -407,7 +407,7 @@ class NominalQP:
         bv = self._vars[name]
         for param, value in ((bv.x, x), (bv.x_ref, x_ref), (bv.u_ref, u_ref)):
             arr = np.asarray(value, dtype=float)
-            if arr.shape != param.shape or not np.all(np.isfinite(arr)):
+            if arr.shape != param.shape or not np.isfinite(arr).all():
                 raise ValueError(f"{param.name()}: expected finite values of shape {param.shape}, got {arr.shape}")
             self._values[param.id] = arr
 

@@ -149,6 +149,10 @@ class WorkspaceRows:
         self._shrink_lower = self.keep_in_margin_m + ext[:, 0] + self.clearance_m
         self._shrink_upper = self.keep_in_margin_m + ext[:, 1] + self.clearance_m
         self._lower, self._upper = keep_in_pieces(scene)
+        # best_piece's shrunk pieces, (B, 1, 3) each: the same every step.
+        margin = 0.5 * (self._shrink_lower + self._shrink_upper)
+        self._piece_lo = self._lower[:, None, :] + margin
+        self._piece_hi = self._upper[:, None, :] - margin
 
     @property
     def has_keep_in(self) -> bool:
@@ -177,6 +181,13 @@ class WorkspaceRows:
         ext = self.extent_m
         return np.asarray(np.maximum(n, 0.0) @ ext[:, 0] + np.maximum(-n, 0.0) @ ext[:, 1] + self.clearance_m)
 
+    def _best_segment_pieces(self, ref: np.ndarray, lin: np.ndarray) -> np.ndarray:
+        """:func:`oacli.geometry.halfspaces.best_piece` of the segments' ends ``ref[:-1], ref[1:], lin[:-1],
+        lin[1:]`` with this instance's shrunk pieces (the same differences and minima, in one array)."""
+        points = np.stack([ref[:-1], ref[1:], lin[:-1], lin[1:]])[:, None]  # (4, 1, K-1, 3)
+        slack = np.minimum(points - self._piece_lo, self._piece_hi - points)  # (4, B, K-1, 3)
+        return np.asarray(np.argmax(slack.min(axis=(0, 3)), axis=0))
+
     def rows(self, reference_m: np.ndarray, linearisation_m: np.ndarray | None = None) -> PositionRows:
         """Rows for the predicted positions of one solve.
 
@@ -202,7 +213,7 @@ class WorkspaceRows:
                 idx = best_piece(self._lower, self._upper, ref, margin=margin)
                 lower, upper = self._lower[idx], self._upper[idx]
             else:  # the piece of each reference segment; a step is in those of both its segments
-                idx = best_piece(self._lower, self._upper, ref[:-1], ref[1:], lin[:-1], lin[1:], margin=margin)
+                idx = self._best_segment_pieces(ref, lin)
                 seg_lo, seg_hi = self._lower[idx], self._upper[idx]
                 lower = np.vstack([seg_lo[:1], np.maximum(seg_lo[:-1], seg_lo[1:]), seg_lo[-1:]])
                 upper = np.vstack([seg_hi[:1], np.minimum(seg_hi[:-1], seg_hi[1:]), seg_hi[-1:]])

@@ -336,11 +336,15 @@ def write_tube_topics(writer: StageMcapWriter, tel: Telemetry, monitor: TubeMoni
         writer.write_json(ms.TOPIC_TUBE_DESIGN, ms.TUBE_DESIGN, ms.TUBE_DESIGN_SCHEMA, t_design,
                           {"dt_s": design.dt_s, "design": index, "axes": axes})
     rec = monitor.disturbance_record()
-    for i in range(len(rec.t)):
-        writer.write_json(ms.TOPIC_TUBE_DISTURBANCE, ms.TUBE_DISTURBANCE, ms.TUBE_DISTURBANCE_SCHEMA, float(rec.t[i]), {
-            "w_position_m": rec.w[i, :, 0], "w_velocity_mps": rec.w[i, :, 1],
-            "w_half_position_m": rec.w_half_widths[i, :, 0], "w_half_velocity_mps": rec.w_half_widths[i, :, 1],
-            "margin": rec.margin[i], "violation": bool(rec.violated[i]), "design": int(rec.design_index[i]),
+    # Plain Python values, converted once for the whole record (write_json would convert each step's arrays).
+    w_pos, w_vel = rec.w[:, :, 0].tolist(), rec.w[:, :, 1].tolist()
+    half_pos, half_vel = rec.w_half_widths[:, :, 0].tolist(), rec.w_half_widths[:, :, 1].tolist()
+    margin, violated, design_index = rec.margin.tolist(), rec.violated.tolist(), rec.design_index.tolist()
+    for i, t_i in enumerate(rec.t.tolist()):
+        writer.write_json(ms.TOPIC_TUBE_DISTURBANCE, ms.TUBE_DISTURBANCE, ms.TUBE_DISTURBANCE_SCHEMA, t_i, {
+            "w_position_m": w_pos[i], "w_velocity_mps": w_vel[i], "w_half_position_m": half_pos[i],
+            "w_half_velocity_mps": half_vel[i], "margin": margin[i], "violation": bool(violated[i]),
+            "design": int(design_index[i]),
         })
 
 
