@@ -254,8 +254,15 @@ def test_the_bound_of_a_split_run_is_the_sum_of_its_segments_information():
     starts = np.zeros(20, dtype=bool)
     starts[8] = True
     whole = cramer_rao_bound(t, x, u, theta0, model, 0.05)
-    split = cramer_rao_bound(t, x, u, theta0, model, 0.05, segment_starts=starts)
+    split = cramer_rao_bound(t, x, u, theta0, model, 0.05, segment_starts=starts, lost_inputs="cut")
     first = cramer_rao_bound(t[:8], x[:8], u[:8], theta0, model, 0.05)
     second = cramer_rao_bound(t[8:], x[8:], u[8:], theta0, model, 0.05)
     np.testing.assert_allclose(split.information, first.information + second.information, rtol=1e-12)
     assert np.all(split.std >= whole.std)
+    # The estimator's models of the lost wrench between the cut and the known input: free (nuisance) keeps the
+    # continuity of the state, its prior (the neighbours' prediction) adds its information.
+    nuisance = cramer_rao_bound(t, x, u, theta0, model, 0.05, segment_starts=starts, lost_inputs="nuisance")
+    prior = cramer_rao_bound(t, x, u, theta0, model, 0.05, segment_starts=starts)
+    for a, b in ((whole, prior), (prior, nuisance), (nuisance, split)):
+        assert np.all(np.linalg.eigvalsh(a.information - b.information) >= -1e-9 * np.abs(a.information).max())
+    assert np.all(prior.std < split.std)
