@@ -172,6 +172,7 @@ def gapped_imu_records(records: list[Measurement], tel, cfg, seed: int) -> list[
     t_inputs = np.array([r.t for r in records if r.state_measured])  # every stream lost at the same steps
     period = float(np.median(np.diff(tel.t_ctrl)))
     fit = fit_accelerometer_bias(records, stream, t_inputs, period)
+    assert fit is not None
     out, _ = attach_accelerations(records, stream, fit.bias_mps2, t_inputs, period)
     return out
 

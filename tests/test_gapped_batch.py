@@ -248,9 +248,12 @@ def test_the_prediction_corrected_for_the_feedback_on_the_neighbours_noise():
     # The model takes it only where asked, and only on bridged intervals.
     u_plain, bridged, v_plain, _ = lost_input_model(t, u, links, 15.0)
     u_corr, _, v_corr, _ = lost_input_model(t, u, links, 15.0, noise=noise)
+    assert np.flatnonzero(bridged).tolist() == lost.tolist()
     np.testing.assert_allclose(u_corr[lost] - u_plain[lost], correction[lost])
     np.testing.assert_array_equal(u_corr[~np.r_[~links, False]], u_plain[~np.r_[~links, False]])
     np.testing.assert_allclose(v_corr[lost, 3:], np.broadcast_to(var[3:], (lost.size, 3)))
+    np.testing.assert_allclose(v_plain[lost, 0:3] * 15.0**2, np.broadcast_to(plain[0:3], (lost.size, 3)))
+    assert np.all(np.isnan(v_corr[~bridged]))
 
 
 def test_the_bound_with_the_estimators_prior_on_the_lost_wrench_matches_its_covariance():
@@ -294,12 +297,12 @@ def test_the_accelerometer_bridges_a_lost_force():
     for r in lost_recs:
         inside = (imu.t >= r.t - 1e-9) & (imu.t < r.t + CONTROL_PERIOD_S - 1e-9)
         assert r.acceleration_readings == inside.sum() >= 12
-        k = int(round(r.t / CONTROL_PERIOD_S))
+        k = round(r.t / CONTROL_PERIOD_S)
         # To the attitude's interpolation across the gap (1e-5 m/s², 1/60 of one period's mean at the RATTLE level).
         np.testing.assert_allclose(r.linear_acceleration_mps2, tel.u_applied[k, 0:3] / THETA_TRUE[0], atol=2e-5)
     imu_settings = settings(measurement=replace(settings().measurement, linear_acceleration_std_mps2=2e-3))
     acc, var = bridge_accelerations(bridged, imu_settings.measurement)
-    assert np.isfinite(var).sum() == len(lost)
+    assert np.isfinite(var).sum() == len(lost) and np.isfinite(acc).all(axis=1).sum() == len(lost)
     start = THETA_TRUE * np.array([1.1, 0.9, 1.1, 0.9])
     with_imu = estimate_batch(bridged, imu_settings, WIDE_PRIOR, initial_theta=start)
     without = estimate_batch(recs, imu_settings, WIDE_PRIOR, initial_theta=start)

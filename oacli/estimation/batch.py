@@ -690,7 +690,7 @@ class _Problem:
         first solve) corrects the prediction for the controller's reaction to the neighbours' measurement noise;
         ``theta`` (that solve's θ̂) replaces the prior as the point where the lost wrench's directions and the
         force's ``1/m`` are evaluated (a prior 30 % off in inertia mis-weights the torque's error by as much)."""
-        if not self.has_gaps:
+        if not self.has_gaps or self._q_proc is None:
             return
         weights_theta = self._weights_theta if theta is None else np.asarray(theta, dtype=float)
         m_w = float(weights_theta[0])

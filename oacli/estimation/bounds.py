@@ -153,7 +153,7 @@ def cramer_rao_bound(
     starts = np.flatnonzero(starts_mask)
     pieces = [
         _segment_information(t[a:b], states[a:b], u[a:b], theta, model, substep_s, used[a:b], accelerations_measured,
-                             {i - a: v for i, v in bridges.items() if a <= i < b - 1})
+                             {int(i - a): v for i, v in bridges.items() if a <= i < b - 1})
         for a, b in zip(starts, [*starts[1:], k], strict=True) if np.any(used[a:b])
     ]
     f_eff: np.ndarray = np.sum([p[0] for p in pieces], axis=0)
