@@ -231,19 +231,22 @@ def lost_input_prior(t: np.ndarray, u: np.ndarray, links: np.ndarray, min_sample
 def noise_corrected_prediction(
     t: np.ndarray, u: np.ndarray, links: np.ndarray, noise: np.ndarray, min_samples: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Correct the neighbours' mean (:func:`lost_input_prior`) for the controller's reaction to measurement noise.
+    """A lost input predicted by regression on its neighbours' mean and their measurement residuals.
 
-    The controller acts on the measured state, so ``u_j = g_j − K n_j`` (``n_j`` the measurement noise, ``g_j``
-    smooth in time) and the mean of the neighbours misses ``u_k`` by ``d_k = −K (n_k − (n_{k−1} + n_{k+1}) / 2)``
-    plus the curvature of ``g``: on the benchmark's runs the measurement noise at k−1, k, k+1 explains over 98 % of
-    the variance of ``d`` (``benchmarks/bench_estimation.py``). Two thirds of it come from ``n_{k±1}``, which the data
-    keep (the measurement residuals of a first solve, ``noise``), and the model that ignores it is wrong twice:
-    its variance is too large, and the error it treats as independent is correlated with the neighbours'
-    measurement residuals. The reaction is measured on the same run by least squares over every triple of known
-    inputs with measured neighbours: ``d_j ≈ G z_j``, ``z_j = n_j − (n_{j−1} + n_{j+1}) / 2`` (force on the
-    position and velocity residuals, torque on the attitude and angular-velocity ones); a lost input is predicted
-    as the neighbours' mean plus ``−G (n_{k−1} + n_{k+1}) / 2`` (``n_k`` is lost with the record: its part stays
-    an error), with the error variance of that predictor over the same triples (degrees of freedom counted).
+    The controller acts on the measured state, so ``u_j = g_j − K n_j`` (``n_j`` the measurement noise, ``g_j`` a
+    function of the true state and the reference). The neighbours' mean ``p_k = (u_{k−1} + u_{k+1}) / 2``
+    (:func:`lost_input_prior`) misses ``u_k`` by ``−K (n_k − (n_{k−1} + n_{k+1}) / 2)`` plus the curvature of
+    ``g``: on the benchmark's runs the measurement noise at k−1, k, k+1 explains over 98 % of the variance of
+    that miss, two thirds of it from ``n_{k±1}``, which the data keep (the residuals ``ỹ ⊟ x̂`` of a first solve,
+    ``noise``). The midpoint's error is also correlated with the midpoint itself (an axis the controller moves
+    fast is under-predicted at its peaks: slope +0.25 on the ISS run's x torque; an axis dominated by the noise
+    reaction is over-predicted), and the estimator, which uses the prediction as the input, reads that
+    correlation as a change of θ (the ``−0.6σ`` Ixx bias of the ``gapped`` and ``clean split`` rows). So each
+    axis is regressed, by least squares over every triple of known inputs with measured neighbours, on
+    ``[1, p_k, (n_{k−1} + n_{k+1}) / 2]`` (the force on the position and velocity residuals, the torque on the
+    attitude and angular-velocity ones; ``n_k`` is lost with the record: its part stays an error): the
+    prediction's error is then orthogonal to what it is built from, and its variance over the same triples
+    (degrees of freedom counted) is the prior's.
 
     Parameters
     ----------
@@ -254,16 +257,16 @@ def noise_corrected_prediction(
     noise : ndarray, shape (K, 12)
         Measurement residuals ``ỹ ⊟ x̂`` (NaN where a record has none).
     min_samples : int, optional
-        Triples needed (default: 4 × the regressors, 24).
+        Triples needed (default: 4 × the regressors, 32).
 
     Returns
     -------
     correction : ndarray, shape (K - 1, 6)
         To add to the neighbours' mean on each interval (0 where not ``ok``).
     variance : ndarray, shape (6,)
-        The corrected predictor's error variance per axis [N², (N·m)²] (``inf`` without enough triples).
+        The regression's error variance per axis [N², (N·m)²] (``inf`` without enough triples).
     ok : ndarray of bool, shape (K - 1,)
-        Intervals whose neighbours have a residual (and enough triples were found).
+        Intervals with an unknown input between known ones whose neighbours have a residual (and enough triples).
     """
     t = np.asarray(t, dtype=float)
     k = t.size
@@ -280,26 +283,25 @@ def noise_corrected_prediction(
     even = np.abs(dt[1:] - dt[:-1]) <= TIME_TOL_S + 1e-6 * np.abs(dt[1:])
     seen = np.all(np.isfinite(noise), axis=1)
     sides = seen[mid - 1] & seen[mid + 1]
-    triples = mid[known[mid - 1] & known[mid] & known[mid + 1] & even & sides & seen[mid]]
-    groups = ((slice(0, 3), slice(0, 6)), (slice(3, 6), slice(6, 12)))  # (input axes, residual components)
-    regressors = 6
+    triples = mid[known[mid - 1] & known[mid] & known[mid + 1] & even & sides]
+    regressors = 8  # 1, p, six residual components
     min_samples = 4 * regressors if min_samples is None else min_samples
     if triples.size < max(min_samples, regressors + 1):
         return correction, variance, ok
     u = np.asarray(u, dtype=float)
-    d = u[triples] - 0.5 * (u[triples - 1] + u[triples + 1])
-    side = 0.5 * (noise[triples - 1] + noise[triples + 1])
-    z = noise[triples] - side
-    gains = []
-    for axes, comps in groups:
-        g, *_ = np.linalg.lstsq(z[:, comps], d[:, axes], rcond=None)
-        gains.append(g)
-        err = d[:, axes] + side[:, comps] @ g  # the corrected predictor's error on the triples
-        variance[axes] = np.sum(err * err, axis=0) / (triples.size - regressors)
     cand = mid[~known[mid] & known[mid - 1] & known[mid + 1] & even & sides]
-    side_c = 0.5 * (noise[cand - 1] + noise[cand + 1])
-    for (axes, comps), g in zip(groups, gains, strict=True):
-        correction[cand, axes] = -side_c[:, comps] @ g
+    p_fit = 0.5 * (u[triples - 1] + u[triples + 1])
+    p_new = 0.5 * (u[cand - 1] + u[cand + 1])
+    side_fit = 0.5 * (noise[triples - 1] + noise[triples + 1])
+    side_new = 0.5 * (noise[cand - 1] + noise[cand + 1])
+    for axis in range(6):
+        comps = slice(0, 6) if axis < 3 else slice(6, 12)  # force: r, v; torque: attitude, ω
+        x_fit = np.column_stack([np.ones(triples.size), p_fit[:, axis], side_fit[:, comps]])
+        coef, *_ = np.linalg.lstsq(x_fit, u[triples, axis], rcond=None)
+        err = u[triples, axis] - x_fit @ coef
+        variance[axis] = float(err @ err) / (triples.size - regressors)
+        x_new = np.column_stack([np.ones(cand.size), p_new[:, axis], side_new[:, comps]])
+        correction[cand, axis] = x_new @ coef - p_new[:, axis]
     ok[cand] = True
     return correction, variance, ok
 
