@@ -53,9 +53,15 @@ Choices the paper leaves open, and what is done here:
   and is never an inlier. A record that ``starts_segment`` (the input over the interval before it is unknown) is
   never reached by holding an input over the gap (:func:`segment_link_weights`): the unknown wrench is predicted
   from its neighbours with the prediction's error (measured on the run, :func:`lost_input_prior`) as extra process
-  noise over that interval; without a prediction its force is profiled out (position continuity kept) and the
-  rotational state after the gap is estimated afresh; a longer gap is cut (the segment's first state free, with
-  its own gauge tie). Cutting every gap biases θ in closed loop (see :func:`segment_link_weights`).
+  noise over that interval; after the first solve the prediction is redone by regression on the neighbours' mean
+  and their measurement residuals (:func:`noise_corrected_prediction`: the controller's reaction to measurement
+  noise is most of the miss, and a prediction whose error correlates with it biased Ixx) and solved again, the
+  directions weighted at that solve's θ̂. Where the records carry the accelerometer's mean over a lost period
+  (:func:`oacli.estimation.imu.attach_accelerations`), the force is not predicted: the specific force *is*
+  ``f/m``, so the translation across the gap takes the measured acceleration (:func:`lost_input_model`). Without
+  a prediction the force is profiled out (position continuity kept) and the rotational state after the gap is
+  estimated afresh; a longer gap is cut (the segment's first state free, with its own gauge tie). Cutting every
+  gap biases θ in closed loop (see :func:`segment_link_weights`).
 * **Goodness of fit.** At the solution the cost ``‖b‖²`` of a correct model is χ²-distributed with
   ``m − n`` degrees of freedom (residuals minus unknowns); :attr:`BatchResult.chi2` and ``chi2_dof`` report both,
   so a fit far outside its expected range (a wrong input record, an unmodelled effect) is visible.
