@@ -20,6 +20,10 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
   predicts the lost wrench from its neighbours, with the prediction's error variance measured on the run as extra
   process noise over that interval (:func:`oacli.estimation.batch.segment_link_weights`). Cutting every gap link
   instead biased the mass low in closed loop (fixed effects with predetermined regressors, see there);
+* ``gapped+IMU`` -- ``gapped`` with the IMU kept (``/imu`` is a stream of its own: the lost controller records
+  do not take its readings with them; RATTLE level as in ``IMU``): accelerations at the measured records, and on
+  each lost instant's record the mean of the readings over its control period, which bridges the lost force
+  (:func:`oacli.estimation.imu.attach_accelerations`, :func:`oacli.estimation.batch.lost_input_model`);
 * ``gapped+command`` -- the same steps lost from the measurement and applied-input streams but ``/control/command``
   kept: the inputs are bridged from the command history (batch only);
 * ``clean split`` -- every clean record kept, but a segment started where ``gapped`` starts one (batch only): what
@@ -29,11 +33,12 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
 * ``N % jumps`` (only with ``--jumps N/100 > 0``) -- N % of the records replaced by localisation jumps
   (0.1-0.3 m, 0.05-0.2 rad).
 
-Each row's Cramér-Rao bound is evaluated along its own estimate over the records it used (segments included;
-initial state unknown, as for the estimators). For rows with segments that bound treats every segment as cut off
-from its neighbours (:func:`oacli.estimation.bounds.cramer_rao_bound`), which the batch no longer does; their batch
-spread is therefore also printed against the batch's own reported σ (``[(AᵀA)⁻¹]_θθ`` of its model, the lost
-input's prediction error included).
+Each row's Cramér-Rao bound is evaluated along its own estimate over the records it used (initial state unknown,
+as for the estimators). Across a gap the lost wrench is a nuisance parameter with the prior the batch estimator
+gives it (:func:`oacli.estimation.bounds.cramer_rao_bound`, ``lost_inputs="prior"``: the neighbours' regression, or
+the accelerometer); the rows with gaps also print the bound without that prior (``nuisance``) and with every gap cut
+(``cut``, this column before), and the batch's spread against its own reported σ (``[(AᵀA)⁻¹]_θθ``), which the
+prior bound matches to ~1 %.
 
 Printed per method × data over the seeds: the median absolute error per parameter [%] against the flight figures
 ([ReSWARM2023] RATTLE table: 0.39 / 0.91 / 1.35 / 6.92 %), the median bound [%], the median number of segments,
