@@ -22,7 +22,7 @@ per gap) that moves the state after the gap along the estimator's directions, wi
 -- a hybrid bound (``w`` random, θ and the initial state fixed) that the batch's covariance estimates; ``w`` without a
 prior (``lost_inputs="nuisance"``) and every gap cut (``"cut"``, the bound this module gave before) are available for
 comparison. On the benchmark's gapped ISS runs (10 % of the controller records lost, ``benchmarks/bench_estimation.py``)
-the mass bound is 0.89 % with the prior, 1.9 % without it and 2.0 % with every gap cut, against 0.154 % clean; even
+the mass bound is 0.88 % with the prior, 1.9 % without it and 2.0 % with every gap cut, against 0.154 % clean; even
 an oracle that knew the controller and the true states (only the lost record's own measurement noise unpredictable,
 ~36 mN per axis) would be bounded at 0.87-0.97 % on three seeds, so the median error of an efficient estimator
 (0.674 σ) cannot reach the flight figure of 0.39 % without another measurement of the lost force (the command log,

@@ -27,7 +27,7 @@ command of one control step) leaves its readings in the log. Over the lost contr
 measures the unknown force as ``f/m``; :func:`attach_accelerations` gives the lost instant's input-only record the
 mean of those readings and their number, and the batch estimator bridges the gap with it
 (:func:`oacli.estimation.batch.lost_input_model`): on the benchmark's gapped ISS runs the mass bound drops from
-0.89 % (force predicted from the neighbouring inputs) to 0.52 %.
+0.88 % (force predicted from the neighbouring inputs) to 0.52 %.
 """
 
 from __future__ import annotations
