@@ -20,6 +20,10 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
   predicts the lost wrench from its neighbours, with the prediction's error variance measured on the run as extra
   process noise over that interval (:func:`oacli.estimation.batch.segment_link_weights`). Cutting every gap link
   instead biased the mass low in closed loop (fixed effects with predetermined regressors, see there);
+* ``gapped+IMU`` -- ``gapped`` with the IMU kept (``/imu`` is a stream of its own: the lost controller records
+  do not take its readings with them; RATTLE level as in ``IMU``): accelerations at the measured records, and on
+  each lost instant's record the mean of the readings over its control period, which bridges the lost force
+  (:func:`oacli.estimation.imu.attach_accelerations`, :func:`oacli.estimation.batch.lost_input_model`);
 * ``gapped+command`` -- the same steps lost from the measurement and applied-input streams but ``/control/command``
   kept: the inputs are bridged from the command history (batch only);
 * ``clean split`` -- every clean record kept, but a segment started where ``gapped`` starts one (batch only): what
@@ -29,11 +33,12 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
 * ``N % jumps`` (only with ``--jumps N/100 > 0``) -- N % of the records replaced by localisation jumps
   (0.1-0.3 m, 0.05-0.2 rad).
 
-Each row's Cramér-Rao bound is evaluated along its own estimate over the records it used (segments included;
-initial state unknown, as for the estimators). For rows with segments that bound treats every segment as cut off
-from its neighbours (:func:`oacli.estimation.bounds.cramer_rao_bound`), which the batch no longer does; their batch
-spread is therefore also printed against the batch's own reported σ (``[(AᵀA)⁻¹]_θθ`` of its model, the lost
-input's prediction error included).
+Each row's Cramér-Rao bound is evaluated along its own estimate over the records it used (initial state unknown,
+as for the estimators). Across a gap the lost wrench is a nuisance parameter with the prior the batch estimator
+gives it (:func:`oacli.estimation.bounds.cramer_rao_bound`, ``lost_inputs="prior"``: the neighbours' regression, or
+the accelerometer); the rows with gaps also print the bound without that prior (``nuisance``) and with every gap cut
+(``cut``, this column before), and the batch's spread against its own reported σ (``[(AᵀA)⁻¹]_θθ``), which the
+prior bound matches to ~1 %.
 
 Printed per method × data over the seeds: the median absolute error per parameter [%] against the flight figures
 ([ReSWARM2023] RATTLE table: 0.39 / 0.91 / 1.35 / 6.92 %), the median bound [%], the median number of segments,
@@ -69,6 +74,8 @@ from scipy.stats import chi2
 
 from oacli.config import load_config
 from oacli.estimation.alignment import align_records
+from oacli.estimation.batch import bridge_accelerations
+from oacli.estimation.bounds import cramer_rao_bound
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
 from oacli.estimation.models import EstimatorSettings, Measurement, MeasurementModel, ProcessNoise
 from oacli.estimation.preprocessing import measurements_from_telemetry
@@ -94,6 +101,7 @@ SPREAD_TARGET = 1.2
 NAMES = ("m", "Ixx", "Iyy", "Izz")
 METHODS = ("batch", "sequential")
 GAPPED_CMD = "gapped+command"
+GAPPED_IMU = "gapped+IMU"
 SPLIT = "clean split"
 
 _SETUP: dict = {}  # filled by _setup() before the worker processes fork
@@ -156,6 +164,24 @@ def imu_records(tel, cfg, seed: int) -> list[Measurement]:
     return records
 
 
+def gapped_imu_records(records: list[Measurement], tel, cfg, seed: int) -> list[Measurement]:
+    """The ``gapped`` records with the IMU kept (a separate stream: the lost controller records do not take its
+    readings with them). Accelerations at the measured records as in ``IMU``, and the mean of the readings over
+    each lost control period on its input-only record: the accelerometer bridges the lost force
+    (:func:`oacli.estimation.imu.attach_accelerations`, :func:`oacli.estimation.batch.lost_input_model`)."""
+    delivered = DeliveredInput.from_telemetry(tel, np.asarray(cfg.truth.actuator_scale))
+    model = ImuModel(accelerometer_noise_std_mps2=ACCEL_STD_MPS2, accelerometer_bias_std_mps2=1e-3)
+    imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), TRUTH[0], model,
+                       sensor_rng(seed, "imu"))
+    stream = ImuStream(imu.t, imu.specific_force_mps2, imu.angular_rate_radps)
+    t_inputs = np.array([r.t for r in records if r.state_measured])  # every stream lost at the same steps
+    period = float(np.median(np.diff(tel.t_ctrl)))
+    fit = fit_accelerometer_bias(records, stream, t_inputs, period)
+    assert fit is not None
+    out, _ = attach_accelerations(records, stream, fit.bias_mps2, t_inputs, period)
+    return out
+
+
 def _same_records(a: list[Measurement], b: list[Measurement]) -> bool:
     return len(a) == len(b) and all(
         r.t == s.t and np.array_equal(r.x_measured, s.x_measured) and np.array_equal(r.u_applied, s.u_applied)
@@ -163,8 +189,21 @@ def _same_records(a: list[Measurement], b: list[Measurement]) -> bool:
         for r, s in zip(a, b, strict=True))
 
 
-def _result(run) -> dict:
+def _result(run, records: list[Measurement], settings: EstimatorSettings) -> dict:
+    other = {}
+    if run.segments > 1 and run.batch is not None:  # the gaps' other models, for the record (module docstring)
+        recs = {r.t: r for r in records}
+        ordered = [recs[t] for t in run.t_records]
+        starts = np.array([r.starts_segment for r in ordered])
+        acc, var = bridge_accelerations(ordered, settings.measurement)
+        has_acc = all(np.any(np.isfinite(r.accelerations())) for r in ordered if r.state_measured)
+        for mode in ("nuisance", "cut"):
+            other[mode] = cramer_rao_bound(
+                run.t_records, run.states, run.inputs, run.final.theta, settings.measurement, settings.substep_s,
+                used=run.batch.inliers, accelerations_measured=has_acc, segment_starts=starts, lost_inputs=mode,
+                bridge_acceleration=acc, bridge_acceleration_variance=var, measured=run.measured).std
     return {"err": run.final.theta - TRUTH, "crb": np.asarray(run.bound.std, float),
+            "crb_other": other,
             "sd": np.sqrt(np.diag(np.asarray(run.final.covariance, float))),
             "time": float(run.solve_time_s), "segments": int(run.segments),
             "rejected": int(run.final.samples_rejected),
@@ -195,10 +234,12 @@ def one_seed(seed: int, jumps: float) -> dict:
                  METHODS))
     data.append(("gapped", tampered_records(tel, "gapped", np.random.default_rng(20_000 + seed)), settings,
                  METHODS))
-    gap_starts = {r.t for r in data[-1][1] if r.starts_segment}
+    gapped = data[-1][1]
+    gap_starts = {r.t for r in gapped if r.starts_segment}
     data.append((SPLIT, [replace(r, starts_segment=r.t in gap_starts) for r in clean], settings, ("batch",)))
     data.append((GAPPED_CMD, tampered_records(tel, "gapped_cmd", np.random.default_rng(20_000 + seed), limits),
                  settings, ("batch",)))
+    data.append((GAPPED_IMU, gapped_imu_records(gapped, tel, cfg, seed), _SETUP["imu_settings"], METHODS))
     data.append(("IMU", imu_records(tel, cfg, seed), _SETUP["imu_settings"], METHODS))
     if jumps > 0:
         jumped_x, _ = inject_localisation_jumps(tel.x_measured, jumps, np.random.default_rng(10_000 + seed))
@@ -212,7 +253,8 @@ def one_seed(seed: int, jumps: float) -> dict:
         for method in methods:
             if method not in _SETUP["methods"]:
                 continue
-            out["rows"][(method, name)] = _result(run_estimation(records, sets, PRIOR, method, window_s=1e6))
+            out["rows"][(method, name)] = _result(run_estimation(records, sets, PRIOR, method, window_s=1e6),
+                                                  records, sets)
     if "swapped_reuses_clean" in out and (not _SETUP["rows"] or "swapped" in _SETUP["rows"]):
         for method in _SETUP["methods"]:
             out["rows"][(method, "swapped")] = dict(out["rows"][(method, "clean")])
@@ -296,7 +338,7 @@ def main() -> None:
     results.sort(key=lambda r: r["seed"])
 
     keys = list(results[0]["rows"])
-    order = ["clean", "swapped", "dropped", "gapped", SPLIT, GAPPED_CMD, "IMU"]
+    order = ["clean", "swapped", "dropped", "gapped", GAPPED_IMU, SPLIT, GAPPED_CMD, "IMU"]
     keys.sort(key=lambda k: (order.index(k[1]) if k[1] in order else len(order), METHODS.index(k[0])))
     n = len(results)
     print()
@@ -344,6 +386,21 @@ def main() -> None:
                               for p, v, lo, hi in zip(NAMES, ratio, low, high, strict=True))
             sd_pct = 100 * np.median(sd / TRUTH, axis=0)
             print(f"{key[0]:<10} {key[1]:<16} | {cells} | median σ % " + " / ".join(f"{v:.3f}" for v in sd_pct))
+    other_keys = [k for k in keys if results[0]["rows"][k]["crb_other"]]
+    if other_keys:
+        print()
+        print("Rows with gaps: the Cramér-Rao bound (median %) under each model of the lost wrench -- 'prior' (the "
+              "bound above: the estimator's prior on it), 'nuisance' (unknown, no prior), 'cut' (every gap cuts the "
+              "run) -- and the median |error| an efficient unbiased estimator would reach, 0.674 σ_prior:")
+        for key in other_keys:
+            rows = [r["rows"][key] for r in results]
+            cells = []
+            for mode in ("prior", "nuisance", "cut"):
+                b = np.array([r["crb"] if mode == "prior" else r["crb_other"][mode] for r in rows])
+                cells.append(f"{mode} " + " / ".join(f"{v:.3f}" for v in 100 * np.median(b / TRUTH, axis=0)))
+            eff = 0.674 * 100 * np.median(np.array([r["crb"] for r in rows]) / TRUTH, axis=0)
+            print(f"{key[0]:<10} {key[1]:<16} | " + " | ".join(cells) + " | 0.674 σ: "
+                  + " / ".join(f"{v:.3f}" for v in eff))
     print()
     print(f"Bias: mean((θ̂ − θ) / CRB) over {n} seeds (standard error {1 / math.sqrt(n):.2f} if unbiased):")
     for (method, name), *_ in spreads:

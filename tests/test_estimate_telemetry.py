@@ -254,8 +254,72 @@ def test_the_bound_of_a_split_run_is_the_sum_of_its_segments_information():
     starts = np.zeros(20, dtype=bool)
     starts[8] = True
     whole = cramer_rao_bound(t, x, u, theta0, model, 0.05)
-    split = cramer_rao_bound(t, x, u, theta0, model, 0.05, segment_starts=starts)
+    split = cramer_rao_bound(t, x, u, theta0, model, 0.05, segment_starts=starts, lost_inputs="cut")
     first = cramer_rao_bound(t[:8], x[:8], u[:8], theta0, model, 0.05)
     second = cramer_rao_bound(t[8:], x[8:], u[8:], theta0, model, 0.05)
     np.testing.assert_allclose(split.information, first.information + second.information, rtol=1e-12)
     assert np.all(split.std >= whole.std)
+    # The estimator's models of the lost wrench between the cut and the known input: free (nuisance) keeps the
+    # continuity of the state, its prior (the neighbours' prediction) adds its information. (The known input is
+    # the prediction here, so that all four linearise along the same inputs.)
+    u[7] = 0.5 * (u[6] + u[8])
+    whole = cramer_rao_bound(t, x, u, theta0, model, 0.05)
+    split = cramer_rao_bound(t, x, u, theta0, model, 0.05, segment_starts=starts, lost_inputs="cut")
+    nuisance = cramer_rao_bound(t, x, u, theta0, model, 0.05, segment_starts=starts, lost_inputs="nuisance")
+    prior = cramer_rao_bound(t, x, u, theta0, model, 0.05, segment_starts=starts)
+    for a, b in ((whole, prior), (prior, nuisance), (nuisance, split)):
+        assert np.all(np.linalg.eigvalsh(a.information - b.information) >= -1e-9 * np.abs(a.information).max())
+    assert np.all(prior.std < split.std)
+
+
+@pytest.fixture(scope="module")
+def imu_clean(tmp_path_factory) -> tuple[Path, Path, dict]:
+    """The clean payload run flown with the IMU on (``/imu``, a stream of its own at 62.5 Hz), estimated with it."""
+    root = tmp_path_factory.mktemp("telemetry_imu")
+    cfg = payload_config(root / "payload.yaml", estimation__window_s=1000.0)
+    data = yaml.safe_load(cfg.read_text())
+    data["sensors"]["imu"]["enabled"] = True
+    noise = data["sensors"]["imu"]["accelerometer_noise_std_mps2"]
+    data["estimation"]["measurement_noise"]["linear_acceleration_std_mps2"] = noise
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    result = run_cli("track", cfg, "--out", root / "track", "--quiet")
+    assert result.exit_code == 0, result.output
+    telemetry = root / "track" / "track.mcap"
+    summary = estimate(cfg, telemetry, root / "clean")
+    assert summary["status"] == "ok", summary["status_reasons"]
+    return cfg, telemetry, summary
+
+
+@pytest.mark.slow  # a track run of its own and three estimates (~35 s); the fast variant is in test_gapped_batch.py
+def test_dropped_control_steps_with_the_imu_kept_are_bridged_by_the_accelerometer(imu_clean, tmp_path):
+    """Whole controller records lost, ``/imu`` kept (it is not a controller topic): every lost instant's record
+    carries the accelerometer's mean over its control period, the lost force is bridged with it, and the mass is
+    better determined than with the same file estimated without the accelerometer (the force predicted from the
+    neighbouring inputs); the estimate stays within 2σ of the clean one and the bound follows the estimator's
+    model (σ within 10 % of the bound)."""
+    cfg, telemetry, ref = imu_clean
+    transform, dropped = drop_control_steps(0.1, np.random.default_rng(4))
+    tampered = rewrite(telemetry, tmp_path / "tampered.mcap", transform)
+    s = estimate(cfg, tampered, tmp_path / "est")
+    counts = s["telemetry_records"]
+    assert counts["lost_instants"] > 0 and counts["gaps"] > 0
+    measured = s["samples_total"]
+    assert s["imu"]["records_with_acceleration"] == measured + counts["lost_instants"] - _long_gaps(s, dropped)
+    assert s["status"] == "degraded" and [r["kind"] for r in s["status_reasons"]] == ["input_gaps"]
+    assert_within_two_sigma(s, ref)
+    crb = np.array([s["crb_std"][n] for n in NAMES])
+    np.testing.assert_allclose(std(s), crb, rtol=0.1)
+    data = yaml.safe_load(Path(cfg).read_text())
+    data["estimation"]["measurement_noise"]["linear_acceleration_std_mps2"] = None
+    plain_cfg = tmp_path / "plain.yaml"
+    plain_cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    plain = estimate(plain_cfg, tampered, tmp_path / "plain")
+    assert std(s)[0] < 0.8 * std(plain)[0], (std(s), std(plain))
+
+
+def _long_gaps(summary: dict, dropped: list[float]) -> int:
+    """Lost instants not bridged: the first of two or more consecutive lost control steps (the gap is cut)."""
+    period = summary["telemetry_records"]["control_period_s"]
+    steps = np.round(np.array(dropped) / period).astype(int)
+    runs = np.split(steps, np.flatnonzero(np.diff(steps) > 1) + 1)
+    return sum(len(r) > 1 for r in runs)

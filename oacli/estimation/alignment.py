@@ -23,9 +23,10 @@ topics, so records are built by **time stamp**, never by position in the file:
   in the stamps after a known input gets an input-only record at the first lost control instant (``lost_instants``;
   its own input is unknown, a zero placeholder), so the last known input is held for exactly its control period;
   after a single lost instant the unknown interval spans one control period, over which the controller held one
-  (unknown) wrench. The batch estimator predicts that wrench's force from its neighbours, with the prediction's
-  error measured on the run, and keeps the translational process residual across the gap; the rotational state
-  after a gap is estimated afresh (:func:`oacli.estimation.batch.segment_link_weights`). The sequential filter
+  (unknown) wrench. The batch estimator predicts that wrench from its neighbours, with the prediction's error
+  measured on the run (or takes its force from the accelerometer when ``/imu`` survived), as process noise over
+  the gap (:func:`oacli.estimation.batch.lost_input_model`,
+  :func:`~oacli.estimation.batch.segment_link_weights`). The sequential filter
   re-initialises the robot state. An input is never held silently across a gap.
 
 The control period is the median spacing of the input stamps (robust to dropped records).

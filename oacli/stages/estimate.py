@@ -38,7 +38,7 @@ import yaml
 from oacli.config import OacliConfig
 from oacli.errors import InfeasibleError, InputError
 from oacli.estimation.alignment import AlignmentReport, align_records
-from oacli.estimation.batch import BatchResult, estimate_batch_windows
+from oacli.estimation.batch import BatchResult, bridge_accelerations, estimate_batch_windows
 from oacli.estimation.bounds import CramerRaoBound, cramer_rao_bound, describe_unobservable, unobservable_parameters
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
@@ -218,8 +218,10 @@ def run_estimation(
     u = np.array([r.u_applied for r in recs]).reshape(-1, 6)
     y = np.array([r.x_measured for r in recs]).reshape(-1, 13)
     starts = np.array([r.starts_segment for r in recs], dtype=bool)
+    bridge_acc, bridge_var = bridge_accelerations(recs, settings.measurement)
     bound = cramer_rao_bound(t, states, u, final.theta, settings.measurement, settings.substep_s,
-                             used=used, accelerations_measured=has_acc, segment_starts=starts)
+                             used=used, accelerations_measured=has_acc, segment_starts=starts,
+                             bridge_acceleration=bridge_acc, bridge_acceleration_variance=bridge_var, measured=y)
     return EstimationRun(
         method=method, final=final, history=history, t_records=t, states=states, inputs=u,
         measured=y, status=status, d2=d2, dof=dof, gate_threshold=threshold, bound=bound, batch=batch,
