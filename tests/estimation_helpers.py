@@ -79,3 +79,18 @@ def simulate_open_loop(
 
 def records(tel: Telemetry, **kwargs) -> list[Measurement]:
     return measurements_from_telemetry(tel, **kwargs)
+
+
+class FeedbackPD:
+    """Closed loop for the gap tests: a multisine feed-forward plus a PD law on the *measured* state (so the input
+    depends on the measurement noise, as the MPC's does)."""
+
+    def __init__(self, u: np.ndarray, x0: np.ndarray) -> None:
+        self.u, self.x0, self.k = u, x0, 0
+
+    def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
+        u = self.u[min(self.k, len(self.u) - 1)].copy()
+        u[:3] -= 2.0 * (x_measured[0:3] - self.x0[0:3]) + 4.0 * x_measured[3:6]
+        u[3:] -= 0.2 * x_measured[10:13]
+        self.k += 1
+        return ControlStep(u=u, info=SolveInfo("feedback", True), x_reference=x_measured)

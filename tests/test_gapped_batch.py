@@ -19,6 +19,7 @@ from estimation_helpers import (
     PLANT_PERIOD_S,
     SENSORS,
     THETA_TRUE,
+    FeedbackPD,
     exciting_inputs,
     initial_state,
     records,
@@ -48,7 +49,7 @@ from oacli.sim.delivered import DeliveredInput
 from oacli.sim.imu import ImuModel, simulate_imu
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
-from oacli.types import ControlStep, InertialParams, ParameterEstimate, SolveInfo
+from oacli.types import InertialParams, ParameterEstimate
 
 CUTS = (9, 17, 26, 34, 47)
 WIDE_PRIOR = ParameterEstimate(0.0, [15.0, 0.1, 0.1, 0.1], np.diag([15.0, 0.005, 0.005, 0.005]) * 1e8, "prior")
@@ -174,25 +175,10 @@ def test_a_lost_control_record_keeps_the_last_input_for_one_period_only():
     assert est.segments == 2
 
 
-class _Feedback:
-    """Closed loop: a multisine feed-forward plus a PD law on the *measured* state (so the input depends on the
-    measurement noise, as the MPC's does)."""
-
-    def __init__(self, u: np.ndarray, x0: np.ndarray) -> None:
-        self.u, self.x0, self.k = u, x0, 0
-
-    def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        u = self.u[min(self.k, len(self.u) - 1)].copy()
-        u[:3] -= 2.0 * (x_measured[0:3] - self.x0[0:3]) + 4.0 * x_measured[3:6]
-        u[3:] -= 0.2 * x_measured[10:13]
-        self.k += 1
-        return ControlStep(u=u, info=SolveInfo("feedback", True), x_reference=x_measured)
-
-
 def _closed_loop(seed: int, n: int):
     x0 = initial_state()
     return simulate(
-        _Feedback(exciting_inputs(n, 7 + seed), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
+        FeedbackPD(exciting_inputs(n, 7 + seed), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
         duration_s=n * CONTROL_PERIOD_S, control_period_s=CONTROL_PERIOD_S, plant_period_s=PLANT_PERIOD_S,
         input_limits=np.full(6, 10.0), sensors=SENSORS, disturbance=Disturbance.none(),
         rng=np.random.default_rng(seed),

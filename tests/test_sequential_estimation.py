@@ -23,7 +23,7 @@ from oacli.model import rigid_body as rb
 from oacli.sim.faults import inject_localisation_jumps
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
-from oacli.types import ControlStep, InertialParams, SolveInfo
+from oacli.types import InertialParams
 from tests.estimation_helpers import (
     CONTROL_PERIOD_S,
     MODEL,
@@ -31,6 +31,7 @@ from tests.estimation_helpers import (
     RATTLE_PRIOR,
     SENSORS,
     THETA_TRUE,
+    FeedbackPD,
     exciting_inputs,
     initial_state,
     records,
@@ -355,21 +356,6 @@ def test_settings_are_checked():
 # ---------------------------------------------------------------------------------------------------------------
 
 
-class _Feedback:
-    """Closed loop: a multisine feed-forward plus a PD law on the *measured* state (the input depends on the
-    measurement noise, as the MPC's does)."""
-
-    def __init__(self, u: np.ndarray, x0: np.ndarray) -> None:
-        self.u, self.x0, self.k = u, x0, 0
-
-    def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
-        u = self.u[min(self.k, len(self.u) - 1)].copy()
-        u[:3] -= 2.0 * (x_measured[0:3] - self.x0[0:3]) + 4.0 * x_measured[3:6]
-        u[3:] -= 0.2 * x_measured[10:13]
-        self.k += 1
-        return ControlStep(u=u, info=SolveInfo("feedback", True), x_reference=x_measured)
-
-
 def test_single_lost_controller_records_are_bridged_not_restarted():
     """A closed-loop run with 15 single controller records lost (every stream): the filter predicts each lost
     wrench from its neighbours with the prediction's error as process noise over the gap (as the batch does) and
@@ -378,7 +364,7 @@ def test_single_lost_controller_records_are_bridged_not_restarted():
     n = 150
     x0 = initial_state()
     tel = simulate(
-        _Feedback(exciting_inputs(n, 7), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
+        FeedbackPD(exciting_inputs(n, 7), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
         duration_s=n * CONTROL_PERIOD_S, control_period_s=CONTROL_PERIOD_S, plant_period_s=PLANT_PERIOD_S,
         input_limits=np.full(6, 10.0), sensors=SENSORS, disturbance=Disturbance.none(),
         rng=np.random.default_rng(0),
