@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,11 +17,14 @@ from oacli.estimation.alignment import align_records
 from oacli.estimation.batch import estimate_batch
 from oacli.estimation.bounds import cramer_rao_bound
 from oacli.estimation.gating import chi2_threshold, normalised_innovation_squared, passes_gate
+from oacli.estimation.imu import ImuStream, attach_accelerations
 from oacli.estimation.models import Measurement, MeasurementModel, ProcessNoise
 from oacli.estimation.preprocessing import ReorderBuffer, order_by_time, shuffle_locally
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.model import rigid_body as rb
+from oacli.sim.delivered import DeliveredInput
 from oacli.sim.faults import inject_localisation_jumps
+from oacli.sim.imu import ImuModel, simulate_imu
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.types import InertialParams
@@ -400,3 +404,52 @@ def test_single_lost_controller_records_are_bridged_not_restarted():
                                 tel.u_applied[keep2], reorder_window=0)
     cut = run(recs2)
     assert rep2.gaps == 1 and cut.segments == 1 and cut.gaps_bridged == 0
+
+
+def test_the_accelerometer_bridges_a_lost_force_in_the_filter_too():
+    """Lost control records with ``/imu`` kept: the lost instant's record carries the accelerometer's mean over its
+    period (:func:`oacli.estimation.imu.attach_accelerations`); the filter takes the lost force from it (``f/m``
+    to ``σ_a/√n``, as the batch's :func:`~oacli.estimation.batch.lost_input_model`) instead of predicting it from
+    the neighbours. Every gap after the bootstrap is bridged by the IMU, none restarts, the mass is better
+    determined than with the prediction, and the estimate stays within 2σ of the clean run's."""
+    n = 150
+    x0 = initial_state()
+    tel = simulate(
+        FeedbackPD(exciting_inputs(n, 7), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
+        duration_s=n * CONTROL_PERIOD_S, control_period_s=CONTROL_PERIOD_S, plant_period_s=PLANT_PERIOD_S,
+        input_limits=np.full(6, 10.0), sensors=SENSORS, disturbance=Disturbance.none(),
+        rng=np.random.default_rng(0),
+    )
+    sigma_a = math.sqrt(5e-6)
+    imu = simulate_imu(tel.t_true, tel.x_true, DeliveredInput.from_telemetry(tel).force_world(tel.t_true),
+                       THETA_TRUE[0], ImuModel(accelerometer_noise_std_mps2=sigma_a, accelerometer_bias_std_mps2=0.0),
+                       np.random.default_rng(0))
+    keep = np.ones(len(tel.t_ctrl), dtype=bool)
+    keep[3 * np.random.default_rng(100).choice(np.arange(1, len(keep) // 3 - 1), 15, replace=False)] = False
+    recs, rep = align_records(tel.t_ctrl[keep], tel.x_measured[keep], tel.t_ctrl[keep], tel.u_applied[keep],
+                              reorder_window=0)
+    assert rep.lost_instants == 15
+    t_inputs = np.array([r.t for r in recs if r.state_measured])
+    bridged, missing = attach_accelerations(recs, ImuStream(imu.t, imu.specific_force_mps2, imu.angular_rate_radps),
+                                            np.zeros(3), t_inputs, CONTROL_PERIOD_S)
+    assert missing == 0
+    imu_settings = settings(measurement=replace(settings().measurement, linear_acceleration_std_mps2=sigma_a))
+
+    def run(recs, s):
+        est = SequentialEstimator(s, RATTLE_PRIOR, bootstrap_max_records=40)
+        for rec in recs:
+            est.update(rec)
+        est.flush()
+        return est
+
+    clean = run(records(tel), settings())
+    with_imu = run(bridged, imu_settings)
+    without = run(recs, settings())
+    after_bootstrap = [r for r in bridged[with_imu.bootstrap_records:] if r.starts_segment]
+    assert len(after_bootstrap) >= 10
+    assert with_imu.gaps_bridged == with_imu.gaps_bridged_imu == len(after_bootstrap)
+    assert without.gaps_bridged == len(after_bootstrap) and without.gaps_bridged_imu == 0
+    assert with_imu.segments == 0 and with_imu.reinitialisations == 0
+    assert with_imu.estimate.std[0] < 0.97 * without.estimate.std[0]
+    diff = with_imu.estimate.theta - clean.estimate.theta
+    assert np.all(np.abs(diff) <= 2.0 * with_imu.estimate.std), (diff, with_imu.estimate.std)

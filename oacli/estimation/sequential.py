@@ -40,7 +40,11 @@ was lost) is a prediction without update (status ``"predicted"``). A record that
 it is unknown) after a single lost control record is reached as the batch links it
 (:func:`~oacli.estimation.batch.lost_input_prior`, :func:`~oacli.estimation.batch.segment_link_weights`): the
 prediction across the gap uses the mean of the known inputs on either side, and the error of that prediction
-(measured on the records so far) is process noise over the interval (counted in ``gaps_bridged``); after a longer
+(measured on the records so far) is process noise over the interval (counted in ``gaps_bridged``); when the lost
+instant's record carries the accelerometer's mean over its period (``/imu`` survived,
+:func:`oacli.estimation.imu.attach_accelerations`) the lost force is taken from it instead, as the batch does
+(:func:`~oacli.estimation.batch.lost_input_model`: ``f/m`` measured to ``σ_a²/n``, no mass sensitivity over that
+interval; counted in ``gaps_bridged_imu``); after a longer
 gap -- one the batch cuts -- the robot state is re-initialised from the measurement (status ``"segment"``, counted in
 ``segments``, not a failure). An input is never held across a gap.
 
@@ -325,7 +329,13 @@ class SequentialEstimator:
         self.history: list[SequentialStep] = []
         self._estimate_cache: ParameterEstimate | None = None
         self.gaps_bridged = 0
+        self.gaps_bridged_imu = 0
         self._gap_q: np.ndarray | None = None
+        # Across an accelerometer-bridged gap: the measured mean specific force [m/s²] (world) and the interval [s];
+        # _propagate adds its exact effect on position and velocity (the held force is 0 there).
+        self._gap_acc: tuple[np.ndarray, float] | None = None
+        # The previous record when it is a lost instant with the accelerometer's mean: (f/m [m/s²], readings).
+        self._lost_acc: tuple[np.ndarray, int] | None = None
         self._inputs_t: list[float] = []  # every processed record's time, input and segment flag (_bridge_gap)
         self._inputs_u: list[np.ndarray] = []
         self._inputs_start: list[bool] = []
@@ -448,8 +458,15 @@ class SequentialEstimator:
         assert self._u_last is not None
         if self.reference:
             x_new, a, c = propagate_intervals(x[None], self._u_last[None], theta, durations)
-            return x_new[0], a[0], c[0]
-        return propagate_one(x, self._u_last, theta, durations)
+            x_new, a, c = x_new[0], a[0], c[0]
+        else:
+            x_new, a, c = propagate_one(x, self._u_last, theta, durations)
+        if self._gap_acc is not None:  # the measured f/m over a bridged gap (constant, world frame): exact
+            acc, dt_s = self._gap_acc
+            x_new = x_new.copy()
+            x_new[0:3] += (0.5 * dt_s**2) * acc
+            x_new[3:6] += dt_s * acc
+        return x_new, a, c
 
     def _accel_selection(self, rec: Measurement) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The record's measured accelerations (6,), the rows of them it has (indices into ``[linear, angular]``)
@@ -741,10 +758,20 @@ class SequentialEstimator:
         if not np.all(np.isfinite(variance)):
             return False
         theta = self.prior.theta
-        d = np.concatenate([unknown_force_directions(np.array([dt_gap]))[0] / theta[0],
-                            unknown_torque_directions(np.array([dt_gap]), theta[1:4])[0]], axis=1)
-        self._gap_q = (d * variance) @ d.T
         self._u_last = 0.5 * (u[k - 1] + u[k1])
+        d_force = unknown_force_directions(np.array([dt_gap]))[0]
+        sigma_a = self.settings.measurement.linear_acceleration_std_mps2
+        if self._lost_acc is not None and sigma_a is not None and np.isfinite(sigma_a) and sigma_a > 0:
+            # The accelerometer measured the lost force as f/m (lost_input_model): no prediction, no mass.
+            acc, readings = self._lost_acc
+            variance = np.concatenate([np.full(3, float(sigma_a) ** 2 / max(readings, 1)), variance[3:6]])
+            self._u_last[0:3] = 0.0
+            self._gap_acc = (acc, float(dt_gap))
+            self.gaps_bridged_imu += 1
+        else:
+            d_force = d_force / theta[0]
+        d = np.concatenate([d_force, unknown_torque_directions(np.array([dt_gap]), theta[1:4])[0]], axis=1)
+        self._gap_q = (d * variance) @ d.T
         self.gaps_bridged += 1
         return True
 
@@ -801,5 +828,9 @@ class SequentialEstimator:
                 status = "reinitialised"
         self._t_last = rec.t
         self._u_last = np.array(rec.u_applied, dtype=float)
+        self._gap_acc = None
+        acc_lost = rec.linear_acceleration_mps2
+        self._lost_acc = (None if rec.state_measured or acc_lost is None or not np.all(np.isfinite(acc_lost))
+                          else (np.asarray(acc_lost, dtype=float), int(rec.acceleration_readings)))
         state = self._x.copy() if self._x is not None else np.full(13, np.nan)
         self.history.append(SequentialStep(rec.t, status, d2, dof, self.estimate, state))

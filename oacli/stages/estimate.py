@@ -94,6 +94,8 @@ class EstimationRun:
     gaps_bridged : int
         Sequential: gaps in the input record the filter predicted across (one lost control record: the wrench
         predicted from its neighbours, its error as process noise), after the bootstrap.
+    gaps_bridged_imu : int
+        Sequential: of those, the gaps whose lost force the accelerometer measured (``/imu`` kept).
     segment_restarts : int
         Sequential: gaps it could not bridge (the batch cuts them), where it re-initialised the robot state.
     nis_ratio : float
@@ -119,6 +121,7 @@ class EstimationRun:
     segments: int = 1
     nis_ratio: float = float("nan")
     gaps_bridged: int = 0
+    gaps_bridged_imu: int = 0
     segment_restarts: int = 0
 
 
@@ -166,7 +169,7 @@ def run_estimation(
     reinitialisations = 0
     segments = 1 + sum(r.starts_segment for r in records)
     nis_ratio = float("nan")
-    gaps_bridged = segment_restarts = 0
+    gaps_bridged = gaps_bridged_imu = segment_restarts = 0
     if method == "batch":
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
         set_phase(progress, f"batch window 1/{len(ends)}")
@@ -206,7 +209,7 @@ def run_estimation(
         used = np.array([s.status in ("accepted", "initialised", "segment") for s in steps])
         t = np.array([s.t for s in steps])
         reinitialisations = est.reinitialisations
-        gaps_bridged, segment_restarts = est.gaps_bridged, est.segments
+        gaps_bridged, gaps_bridged_imu, segment_restarts = est.gaps_bridged, est.gaps_bridged_imu, est.segments
         own = [s for s in steps[est.bootstrap_records:] if s.status in ("accepted", "rejected") and s.dof > 0]
         if own:
             nis_ratio = float(np.mean([s.d2 / s.dof for s in own]))
@@ -226,7 +229,8 @@ def run_estimation(
         method=method, final=final, history=history, t_records=t, states=states, inputs=u,
         measured=y, status=status, d2=d2, dof=dof, gate_threshold=threshold, bound=bound, batch=batch,
         reinitialisations=reinitialisations, solve_time_s=time.perf_counter() - start, segments=segments,
-        nis_ratio=nis_ratio, gaps_bridged=gaps_bridged, segment_restarts=segment_restarts,
+        nis_ratio=nis_ratio, gaps_bridged=gaps_bridged, gaps_bridged_imu=gaps_bridged_imu,
+        segment_restarts=segment_restarts,
     )
 
 
@@ -291,6 +295,7 @@ def _estimate_summary(
     else:
         summary["state_reinitialisations"] = int(run.reinitialisations)
         summary["gaps_bridged"] = int(run.gaps_bridged)
+        summary["gaps_bridged_imu"] = int(run.gaps_bridged_imu)
         summary["segment_restarts"] = int(run.segment_restarts)
         summary["nis_ratio"] = run.nis_ratio if np.isfinite(run.nis_ratio) else None
     estimate_findings(summary).apply(summary)
