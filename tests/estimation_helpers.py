@@ -94,3 +94,15 @@ class FeedbackPD:
         u[3:] -= 0.2 * x_measured[10:13]
         self.k += 1
         return ControlStep(u=u, info=SolveInfo("feedback", True), x_reference=x_measured)
+
+
+def closed_loop_pd(seed: int, n: int) -> Telemetry:
+    """``n`` control periods of :class:`FeedbackPD` around :func:`exciting_inputs` (its seed ``7 + seed``) flown by
+    the simulator with the RATTLE-level sensors of :data:`SENSORS`, the noise drawn from ``seed``."""
+    x0 = initial_state()
+    return simulate(
+        FeedbackPD(exciting_inputs(n, 7 + seed), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
+        duration_s=n * CONTROL_PERIOD_S, control_period_s=CONTROL_PERIOD_S, plant_period_s=PLANT_PERIOD_S,
+        input_limits=np.full(6, 10.0), sensors=SENSORS, disturbance=Disturbance.none(),
+        rng=np.random.default_rng(seed),
+    )

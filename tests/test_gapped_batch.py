@@ -17,11 +17,8 @@ import pytest
 from estimation_helpers import (
     CONTROL_PERIOD_S,
     PLANT_PERIOD_S,
-    SENSORS,
     THETA_TRUE,
-    FeedbackPD,
-    exciting_inputs,
-    initial_state,
+    closed_loop_pd,
     records,
     settings,
     simulate_open_loop,
@@ -47,9 +44,8 @@ from oacli.estimation.models import ProcessNoise
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.sim.delivered import DeliveredInput
 from oacli.sim.imu import ImuModel, simulate_imu
-from oacli.sim.sensors import Disturbance, SensorNoise
-from oacli.sim.simulator import simulate
-from oacli.types import InertialParams, ParameterEstimate
+from oacli.sim.sensors import SensorNoise
+from oacli.types import ParameterEstimate
 
 CUTS = (9, 17, 26, 34, 47)
 WIDE_PRIOR = ParameterEstimate(0.0, [15.0, 0.1, 0.1, 0.1], np.diag([15.0, 0.005, 0.005, 0.005]) * 1e8, "prior")
@@ -175,19 +171,9 @@ def test_a_lost_control_record_keeps_the_last_input_for_one_period_only():
     assert est.segments == 2
 
 
-def _closed_loop(seed: int, n: int):
-    x0 = initial_state()
-    return simulate(
-        FeedbackPD(exciting_inputs(n, 7 + seed), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
-        duration_s=n * CONTROL_PERIOD_S, control_period_s=CONTROL_PERIOD_S, plant_period_s=PLANT_PERIOD_S,
-        input_limits=np.full(6, 10.0), sensors=SENSORS, disturbance=Disturbance.none(),
-        rng=np.random.default_rng(seed),
-    )
-
-
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_gapped_closed_loop_run_stays_within_two_sigma_of_the_clean_one(seed):
-    tel = _closed_loop(seed, 150)
+    tel = closed_loop_pd(seed, 150)
     clean = estimate_batch(records(tel), settings(), WIDE_PRIOR)
     keep = np.ones(len(tel.t_ctrl), dtype=bool)
     keep[np.random.default_rng(100 + seed).choice(np.arange(1, len(keep) - 1), 15, replace=False)] = False
@@ -215,7 +201,7 @@ def test_the_prediction_corrected_for_the_feedback_on_the_neighbours_noise():
     """The closed loop's PD law reacts to the measurement noise: the regression on the neighbours' mean and their
     measurement residuals predicts the lost inputs to the reaction to the lost record's own noise (which no
     predictor can know), better than the neighbours' mean, and its error variance says so."""
-    tel = _closed_loop(0, 300)
+    tel = closed_loop_pd(0, 300)
     t, u = tel.t_ctrl, tel.u_applied
     x_true = tel.x_true[np.searchsorted(tel.t_true, t - 1e-9)]
     noise = boxminus(tel.x_measured, x_true)  # the true measurement noise ỹ ⊟ x
@@ -252,7 +238,7 @@ def test_the_bound_with_the_estimators_prior_on_the_lost_wrench_matches_its_cova
     wrench's prior (the estimator's model, the noise-corrected prediction included) agree along the estimate
     to a few percent (the bound assumes exact dynamics; the process noise is small); the bound that cuts every
     gap (what the benchmark's column used to show) is far wider in mass."""
-    tel = _closed_loop(1, 150)
+    tel = closed_loop_pd(1, 150)
     recs = _gapped(tel, [20, 41, 60, 77, 95, 118, 130])
     fit = estimate_batch(recs, settings(), WIDE_PRIOR)
     assert fit.converged
@@ -273,7 +259,7 @@ def test_the_accelerometer_bridges_a_lost_force():
     each lost instant carries the mean of the readings over its control period, which measures the lost force as
     ``f/m`` to ``σ_a / √n``; bridged with it, the mass is better determined than with the force predicted from
     the neighbouring inputs, and the estimate stays within 2σ of the clean one."""
-    tel = _closed_loop(0, 150)
+    tel = closed_loop_pd(0, 150)
     sigma_a = math.sqrt(5e-6)
     delivered = DeliveredInput.from_telemetry(tel)
     model = ImuModel(accelerometer_noise_std_mps2=sigma_a, accelerometer_bias_std_mps2=0.0)

@@ -25,19 +25,14 @@ from oacli.model import rigid_body as rb
 from oacli.sim.delivered import DeliveredInput
 from oacli.sim.faults import inject_localisation_jumps
 from oacli.sim.imu import ImuModel, simulate_imu
-from oacli.sim.sensors import Disturbance, SensorNoise
-from oacli.sim.simulator import simulate
-from oacli.types import InertialParams
+from oacli.sim.sensors import SensorNoise
 from tests.estimation_helpers import (
     CONTROL_PERIOD_S,
     MODEL,
     PLANT_PERIOD_S,
     RATTLE_PRIOR,
-    SENSORS,
     THETA_TRUE,
-    FeedbackPD,
-    exciting_inputs,
-    initial_state,
+    closed_loop_pd,
     records,
     settings,
     simulate_open_loop,
@@ -365,14 +360,7 @@ def test_single_lost_controller_records_are_bridged_not_restarted():
     wrench from its neighbours with the prediction's error as process noise over the gap (as the batch does) and
     never re-initialises at a single-record gap; its estimate stays within 2σ of the clean run's on every
     parameter. A gap of two lost records (the batch cuts it) still re-initialises and is counted."""
-    n = 150
-    x0 = initial_state()
-    tel = simulate(
-        FeedbackPD(exciting_inputs(n, 7), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
-        duration_s=n * CONTROL_PERIOD_S, control_period_s=CONTROL_PERIOD_S, plant_period_s=PLANT_PERIOD_S,
-        input_limits=np.full(6, 10.0), sensors=SENSORS, disturbance=Disturbance.none(),
-        rng=np.random.default_rng(0),
-    )
+    tel = closed_loop_pd(0, 150)
     def run(recs):  # hand over from the bootstrap early: most gaps are then the filter's own
         est = SequentialEstimator(settings(), RATTLE_PRIOR, bootstrap_max_records=40)
         for rec in recs:
@@ -412,14 +400,7 @@ def test_the_accelerometer_bridges_a_lost_force_in_the_filter_too():
     to ``σ_a/√n``, as the batch's :func:`~oacli.estimation.batch.lost_input_model`) instead of predicting it from
     the neighbours. Every gap after the bootstrap is bridged by the IMU, none restarts, the mass is better
     determined than with the prediction, and the estimate stays within 2σ of the clean run's."""
-    n = 150
-    x0 = initial_state()
-    tel = simulate(
-        FeedbackPD(exciting_inputs(n, 7), x0), x0, InertialParams(THETA_TRUE[0], THETA_TRUE[1:4]),
-        duration_s=n * CONTROL_PERIOD_S, control_period_s=CONTROL_PERIOD_S, plant_period_s=PLANT_PERIOD_S,
-        input_limits=np.full(6, 10.0), sensors=SENSORS, disturbance=Disturbance.none(),
-        rng=np.random.default_rng(0),
-    )
+    tel = closed_loop_pd(0, 150)
     sigma_a = math.sqrt(5e-6)
     imu = simulate_imu(tel.t_true, tel.x_true, DeliveredInput.from_telemetry(tel).force_world(tel.t_true),
                        THETA_TRUE[0], ImuModel(accelerometer_noise_std_mps2=sigma_a, accelerometer_bias_std_mps2=0.0),
