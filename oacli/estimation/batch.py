@@ -27,7 +27,7 @@ Choices the paper leaves open, and what is done here:
   Its covariance comes from the augmented system ``[[I, A], [Aᵀ, 0]]`` (sparse LU), not from ``AᵀA``: see below.
 * **Covariance.** ``cov(θ̂) = [(AᵀA)⁻¹]_θθ`` at the solution (Doerr: "extracted from (AᵀA)⁻¹"), mapped from φ
   to θ through ``dθ/dφ``. It is computed from a block QR factorisation of ``A`` (a square-root information
-  smoother, :meth:`BatchProblem.last_covariance_qr`), not from ``AᵀA``: with a nearly rigid process model
+  smoother, :meth:`_Problem.last_covariance_qr`), not from ``AᵀA``: with a nearly rigid process model
   ``cond(AᵀA)`` reaches 10¹³, so any solve of the normal equations is good to ~10⁻⁵ relative only (the
   original path's LU of ``AᵀA`` differed from a dense QR of ``A`` by 8.6e-6 on the 60 s ISS run), while the QR is
   good to ``cond(A)·ε`` (3.6e-10 there). The reference path therefore solves the augmented system
@@ -102,8 +102,7 @@ from oacli.estimation.propagation import (
 )
 from oacli.types import ParameterEstimate
 
-__all__ = ["BRIDGE_FACTOR", "BatchProblem", "BatchResult", "bridge_accelerations", "estimate_batch",
-           "estimate_batch_windows", "lost_input_model", "marginal_covariances"]
+__all__ = ["BatchResult", "bridge_accelerations", "estimate_batch", "estimate_batch_windows", "lost_input_model"]
 
 _ACCEL_ROWS = np.r_[3:6, 10:13]  # v̇ and ω̇ rows of the continuous dynamics
 _LAMBDA_INIT = 1e-6
@@ -126,7 +125,7 @@ gap converged to a different inlier set than a cold solve); with the full contin
 (16 instead of 21 iterations per window on the default mission, 10 with this one stage)."""
 _CONTINUATION_TOLERANCE = 1e-6
 
-BRIDGE_FACTOR = 1.5
+_BRIDGE_FACTOR = 1.5
 """A gap link is bridged (translational residual kept) when it spans at most this many typical record spacings."""
 _MIN_PREDICTION_SAMPLES = 10
 """Triples of known inputs needed to measure the error of a lost input's prediction (else it is profiled out)."""
@@ -319,11 +318,11 @@ def lost_input_model(
     bridge_acceleration: np.ndarray | None = None, bridge_acceleration_variance: np.ndarray | None = None,
     noise: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """What the estimator assumes over each interval with an unknown input (one model for :class:`BatchProblem` and
+    """What the estimator assumes over each interval with an unknown input (one model for :class:`_Problem` and
     :func:`oacli.estimation.bounds.cramer_rao_bound`).
 
     A bridged interval (one lost control instant between known inputs, :func:`lost_input_prior`, at most
-    ``BRIDGE_FACTOR`` typical spacings) has an unknown constant wrench ``[f, τ]``, written as a nuisance
+    ``_BRIDGE_FACTOR`` typical spacings) has an unknown constant wrench ``[f, τ]``, written as a nuisance
     ``w = [f/m, τ]`` with a Gaussian prior:
 
     * ``τ`` -- predicted from its neighbours, with their measured error variance;
@@ -373,7 +372,7 @@ def lost_input_model(
     if k < 2 or np.all(links):
         return u_model, bridged, variance, offset
     typical = float(np.median(dt[links])) if np.any(links) else float(np.median(dt))
-    bridged = ~links & predicted & (dt <= BRIDGE_FACTOR * typical + TIME_TOL_S)
+    bridged = ~links & predicted & (dt <= _BRIDGE_FACTOR * typical + TIME_TOL_S)
     variance[bridged, 0:3] = input_var[0:3] / mass_kg**2
     variance[bridged, 3:6] = input_var[3:6]
     if noise is not None:
@@ -409,7 +408,7 @@ def segment_link_weights(
       complement of ``W_t D`` (the cost minimised over the force in closed form; exact, the directions depend on
       neither the state nor θ), which leaves position continuity (three residuals); the rotational residuals are
       dropped (the attitude and angular velocity after the gap are estimated afresh).
-    * A gap longer than ``BRIDGE_FACTOR`` typical record spacings (several unknown inputs) is cut.
+    * A gap longer than ``_BRIDGE_FACTOR`` typical record spacings (several unknown inputs) is cut.
 
     Cutting every gap link (each segment's initial state free) is consistent but, in closed loop, biased: the
     controller's input depends on the noisy measurement that also fixes the segment's initial state, and a short
@@ -449,7 +448,7 @@ def segment_link_weights(
     if gaps.size == 0:
         return out, rows
     typical = float(np.median(dt[links])) if np.any(links) else float(np.median(dt))
-    gaps = gaps[dt[gaps] <= BRIDGE_FACTOR * typical + TIME_TOL_S]
+    gaps = gaps[dt[gaps] <= _BRIDGE_FACTOR * typical + TIME_TOL_S]
     with_prior = gaps[np.asarray(predicted, dtype=bool)[gaps]]
     profiled = np.setdiff1d(gaps, with_prior)
     if with_prior.size:
@@ -649,7 +648,7 @@ def bridge_accelerations(records: Sequence[Measurement], model: MeasurementModel
     return (acc, var) if np.any(np.isfinite(var)) else (None, None)
 
 
-class BatchProblem:
+class _Problem:
     """Residuals ``b(ϑ)`` and the sparse Jacobian ``A`` of the batch problem for fixed data."""
 
     def __init__(
@@ -1039,7 +1038,7 @@ class _ReferenceSystem:
 
 
 def _linearise(
-    problem: BatchProblem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool
 ) -> tuple[np.ndarray, _Normal | _ReferenceSystem]:
     """Residuals and the normal equations at (x, φ): block form (default) or the sparse reference path."""
     if reference:
@@ -1050,7 +1049,7 @@ def _linearise(
 
 
 def _levenberg_marquardt(
-    problem: BatchProblem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, settings: EstimatorSettings,
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, settings: EstimatorSettings,
     history: list[float], reference: bool = False, lambda_init: float = _LAMBDA_INIT,
 ) -> tuple[np.ndarray, np.ndarray, int, bool]:
     """Minimise ‖b‖² from (x, φ) starting with damping ``lambda_init``; returns the solution, the iterations done
@@ -1101,8 +1100,8 @@ def _levenberg_marquardt(
     return x, phi, settings.max_iterations, False
 
 
-def marginal_covariances(
-    problem: BatchProblem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool = False
+def _marginal_covariances(
+    problem: _Problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """``[(AᵀA)⁻¹]_θθ`` mapped from φ to θ, and the covariance of ``[δx_K, δφ]`` (last state and φ, 16×16).
 
@@ -1187,7 +1186,7 @@ def estimate_batch(
         initial_theta = prior.theta
     phi = par.phi_from_theta(initial_theta) if initial_phi is None else np.array(initial_phi, dtype=float)  # type: ignore[arg-type]
     theta_w = prior.theta if prior is not None else par.theta_from_phi(phi)
-    problem = BatchProblem(recs, settings, prior, theta_w)
+    problem = _Problem(recs, settings, prior, theta_w)
     x = problem.y.copy() if initial_states is None else np.array(initial_states, dtype=float)
     threshold = chi2_threshold(problem.dof, settings.gate_probability) if settings.gate_probability else np.inf
     inliers = problem.has_state.copy()
@@ -1226,7 +1225,7 @@ def estimate_batch(
             break
         inliers = new_inliers
     d2 = problem.d2(x, phi)
-    cov, cov_last = marginal_covariances(problem, x, phi, inliers, reference)
+    cov, cov_last = _marginal_covariances(problem, x, phi, inliers, reference)
     estimate = ParameterEstimate(
         t=float(problem.t[-1]),
         theta=par.theta_from_phi(phi),
