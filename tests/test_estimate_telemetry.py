@@ -35,17 +35,23 @@ from tests.test_cli_estimate import payload_config, run_cli
 NAMES = ("mass_kg", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2")
 
 
-@pytest.fixture(scope="module")
-def clean(tmp_path_factory) -> tuple[Path, Path, dict]:
-    """A short clean payload run, its config (one batch window: fast) and its clean batch estimate."""
-    root = tmp_path_factory.mktemp("telemetry")
-    cfg = payload_config(root / "payload.yaml", estimation__window_s=1000.0)
+def _fly_and_estimate(cfg: Path, root: Path) -> tuple[Path, Path, dict]:
+    """Fly ``cfg`` with ``oacli track`` into ``root/track`` and estimate from its telemetry into ``root/clean``
+    (status ok: the run is clean)."""
     result = run_cli("track", cfg, "--out", root / "track", "--quiet")
     assert result.exit_code == 0, result.output
     telemetry = root / "track" / "track.mcap"
     summary = estimate(cfg, telemetry, root / "clean")
     assert summary["status"] == "ok", summary["status_reasons"]
     return cfg, telemetry, summary
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory) -> tuple[Path, Path, dict]:
+    """A short clean payload run, its config (one batch window: fast) and its clean batch estimate."""
+    root = tmp_path_factory.mktemp("telemetry")
+    cfg = payload_config(root / "payload.yaml", estimation__window_s=1000.0)
+    return _fly_and_estimate(cfg, root)
 
 
 def estimate(cfg: Path, telemetry: Path, out: Path, *args) -> dict:
@@ -282,12 +288,7 @@ def imu_clean(tmp_path_factory) -> tuple[Path, Path, dict]:
     noise = data["sensors"]["imu"]["accelerometer_noise_std_mps2"]
     data["estimation"]["measurement_noise"]["linear_acceleration_std_mps2"] = noise
     cfg.write_text(yaml.safe_dump(data, sort_keys=False))
-    result = run_cli("track", cfg, "--out", root / "track", "--quiet")
-    assert result.exit_code == 0, result.output
-    telemetry = root / "track" / "track.mcap"
-    summary = estimate(cfg, telemetry, root / "clean")
-    assert summary["status"] == "ok", summary["status_reasons"]
-    return cfg, telemetry, summary
+    return _fly_and_estimate(cfg, root)
 
 
 @pytest.mark.slow  # a track run of its own and three estimates (~35 s); the fast variant is in test_gapped_batch.py

@@ -347,8 +347,9 @@ def estimate_findings(summary: dict[str, Any]) -> StatusReport:
     gaps = (summary.get("telemetry_records") or {}).get("gaps", 0)
     if gaps:
         report.degraded("input_gaps", f"{gaps} gaps in the input record (controller records lost, no command log to "
-                                      "bridge them): the inputs over them are unknown, predicted from their "
-                                      "neighbours or cut; the estimate's σ includes it")
+                                      "bridge them): the inputs over them are unknown, measured by the "
+                                      "accelerometer, predicted from their neighbours or cut; the estimate's σ "
+                                      "includes it")
     cut = summary.get("truncated")
     if cut:
         report.degraded("truncated", f"the telemetry file was cut mid-write: its intact records end at byte "
