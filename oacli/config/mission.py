@@ -41,12 +41,18 @@ def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str
     Returns
     -------
     dict
-        A new mapping (the inputs are not modified).
+        A new mapping (the inputs are not modified: ``base`` is copied once, each replacing value of ``override``
+        once).
     """
-    out = copy.deepcopy(dict(base))
+    return _merge_into(copy.deepcopy(dict(base)), override)
+
+
+def _merge_into(out: dict[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """Merge ``override`` into ``out`` (already a private copy) in place and return it."""
     for key, value in override.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = deep_merge(out[key], value)
+        current = out.get(key)
+        if isinstance(value, Mapping) and isinstance(current, Mapping):
+            out[key] = _merge_into(current if isinstance(current, dict) else dict(current), value)
         else:
             out[key] = copy.deepcopy(value)
     return out
