@@ -4,7 +4,7 @@ The contract (topics, schemas, units, metadata, attachments) is documented in ``
 and JSON schemas live in :mod:`oacli.io.mcap_schema`.
 
 Writing uses the Foxglove SDK's MCAP writer (``foxglove.open_mcap``) with one ``foxglove.Context`` per file, so
-channels of one file never leak into another. It writes zstd-compressed chunks of at most
+channels of one file never leak into another. It writes zstd-compressed chunks (level :data:`ZSTD_LEVEL`) of at most
 :data:`DEFAULT_CHUNK_SIZE` bytes (uncompressed), chunk CRCs, the data-section CRC, the summary CRC and attachment
 CRCs. The file is written under a temporary name and renamed into place only when the ``with`` block ends
 without an exception (:func:`oacli.io.atomic.atomic_file`: an exclusive temporary file, never a
@@ -77,8 +77,9 @@ _NS_PER_S = 1_000_000_000
 #: The JSON encoder of :meth:`StageMcapWriter.write_json` (``json.dumps(..., allow_nan=False)`` builds one per call).
 _JSON = json.JSONEncoder(allow_nan=False)
 
-#: Chunk compression of the MCAP writer (experiment hook).
-_COMPRESSION_OPTIONS: dict[str, Any] = {"compression": MCAPCompression.Zstd}
+#: zstd level of the chunks: 1, the fastest standard level (about half the CPU time of the writer's default and no
+#: larger files on oacli's JSON records: ``benchmarks/bench_mission_overhead.py --mcap``).
+ZSTD_LEVEL = 1
 
 #: One queued message: ``(log_time [ns], emit, payload)``; ``emit(payload, log_time)`` writes it.
 _Pending = tuple[int, Callable[[Any, int], None], Any]
@@ -415,7 +416,9 @@ class StageMcapWriter:
         try:
             self._context = foxglove.Context()
             options = MCAPWriteOptions(
-                **_COMPRESSION_OPTIONS,
+                compression=MCAPCompression.Zstd,
+                compression_level=ZSTD_LEVEL,
+                compression_threads=0,  # compressed in this thread (no pool of one thread per CPU)
                 chunk_size=self._chunk_size,
                 calculate_chunk_crcs=True,
                 calculate_data_section_crc=True,
