@@ -137,7 +137,7 @@ def _time_ns(what: str, t: Any) -> tuple[float, int]:
             raise ValueError(f"{what}: times contain NaN or infinite values")
         if t_s < 0.0:
             raise ValueError(f"{what}: times must be >= 0 s (mission time), got {t_s!r}")
-        return t_s, int(round(t_s * 1e9))
+        return t_s, round(t_s * 1e9)
     times, ns = _times_ns(what, t)
     if times.shape != (1,):
         raise ValueError(f"{what}: write_json takes one time, got shape {times.shape}")
