@@ -25,6 +25,12 @@ first, prints each side's "mission outputs and overhead" (wall minus the stages'
 wall and CPU, and checks that the two sides' last missions agree: the mission PNGs pixel for pixel, every stage MCAP's
 samples bit for bit and its other records apart from wall-clock fields, the summaries apart from wall times.
 
+``--mcap-writer DIR --repeats N`` times the stage MCAP writing alone: the default mission is run once capturing every
+stage's ``write_*_topics`` call (as ``bench_outputs.py`` does), then the calls are replayed N times into
+:class:`~oacli.io.mcap_write.StageMcapWriter` of this checkout and into the one of the oacli checkout DIR (its
+``mcap_write.py`` and ``jsonsafe.py`` loaded from there), alternating, CPU time of this process; every message of
+the two sides' files (topic, channel metadata, schema, log and publish time, sequence, payload bytes) must be equal.
+
 Run: ``taskset -c 1 python benchmarks/bench_mission_overhead.py [--repeats 5] [--mission-dir runs/mission-...]``
 """
 
@@ -248,6 +254,76 @@ def same_missions(a: Path, b: Path) -> list[str]:
     return problems
 
 
+def _old_writer_module(tree: Path):
+    """``oacli/io/mcap_write.py`` of the checkout ``tree`` as a module (with that checkout's ``jsonsafe``; the rest
+    of oacli from this one)."""
+    import importlib.util
+    import sys
+
+    def load(name: str, path: Path):
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+        return module
+
+    jsonsafe = load("_other_jsonsafe", tree / "oacli" / "io" / "jsonsafe.py")
+    writer = load("_other_mcap_write", tree / "oacli" / "io" / "mcap_write.py")
+    writer.to_json_safe = jsonsafe.to_json_safe
+    return writer
+
+
+def _file_messages(path: Path) -> list[tuple]:
+    """Every message of an MCAP in file order with its channel and schema (the payload as bytes)."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        return [(ch.topic, ch.message_encoding, dict(ch.metadata), schema.name if schema else None,
+                 bytes(schema.data) if schema else None, msg.log_time, msg.publish_time, msg.sequence,
+                 bytes(msg.data)) for schema, ch, msg in make_reader(f).iter_messages(log_time_order=False)]
+
+
+def compare_mcap_writers(tree: Path, config: Path, repeats: int) -> None:
+    """The stage MCAP writing of this checkout against ``tree`` on the same captured calls (module docstring)."""
+    import bench_outputs
+
+    from oacli.io import mcap_write
+
+    other = _old_writer_module(tree.resolve())
+    captured = [c for c in bench_outputs.CAPTURED if c[2] == "mcap"]
+    saved, bench_outputs.CAPTURED[:] = list(bench_outputs.CAPTURED), captured
+    out = Path(tempfile.mkdtemp(prefix="bench-mcap-writer-"))
+    try:
+        calls, _ = bench_outputs.capture_mission(config, out / "mission")
+    finally:
+        bench_outputs.CAPTURED[:] = saved
+    sides = {"this": mcap_write, "other": other}
+    cpu: dict[str, list[float]] = {"this": [], "other": []}
+    for k in range(repeats):
+        for name in (("this", "other") if k % 2 == 0 else ("other", "this")):
+            folder = out / f"{name}-{k}"
+            folder.mkdir()
+            start = time.process_time()
+            for i, (_, func, args, kwargs) in enumerate(calls):
+                with sides[name].StageMcapWriter(folder / f"{i}.mcap", stage="bench", config_yaml="bench: 1\n",
+                                                 time_ordered=True) as w:
+                    func(w, *args[1:], **kwargs)
+            cpu[name].append(time.process_time() - start)
+    differ, messages = [], 0
+    for path in sorted((out / "this-0").glob("*.mcap")):
+        a, b = _file_messages(path), _file_messages(out / "other-0" / path.name)
+        messages += len(a)
+        if a != b:
+            differ.append(path.name)
+    sizes = {n: sum(f.stat().st_size for f in (out / f"{n}-0").glob("*.mcap")) / 1e6 for n in sides}
+    print(f"stage MCAP topics of the default mission ({len(calls)} files, {messages} messages), this checkout vs "
+          f"{tree}, {repeats} replays each, alternating, CPU [s]")
+    for name in sides:
+        print(f"  {name:<6} median {statistics.median(cpu[name]):6.3f}  min {min(cpu[name]):6.3f}  "
+              f"({', '.join(f'{v:.2f}' for v in cpu[name])})  files {sizes[name]:.2f} MB")
+    print("messages: " + ("equal, byte for byte" if not differ else "DIFFER in " + ", ".join(differ)))
+
+
 def compare_trees(tree: Path, config: Path, missions: int) -> None:
     """This checkout against ``tree``: the default mission in fresh processes, alternating (module docstring)."""
     import subprocess
@@ -308,6 +384,8 @@ def main() -> None:
                              "and print its overhead: wall time minus the stages' own wall times")
     parser.add_argument("--cpu", action="store_true", help="time the rows in CPU time of this process")
     parser.add_argument("--compare-tree", type=Path, help="another oacli checkout to compare whole missions with")
+    parser.add_argument("--mcap-writer", type=Path,
+                        help="another oacli checkout: replay the stage MCAP writing into both writers (CPU)")
     parser.add_argument("--child-mission", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     global CLOCK
@@ -315,6 +393,9 @@ def main() -> None:
         CLOCK = time.process_time
     if args.child_mission:
         child_mission(args.config, args.child_mission)
+        return
+    if args.mcap_writer:
+        compare_mcap_writers(args.mcap_writer, args.config, args.repeats)
         return
     if args.compare_tree:
         compare_trees(args.compare_tree, args.config, max(args.missions, 1))

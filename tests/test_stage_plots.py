@@ -8,6 +8,7 @@ import json
 import struct
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -18,7 +19,7 @@ import oacli.io.plots.excite as excite_plots
 import oacli.io.plots.plan as plan_plots
 import oacli.io.plots.track as track_plots
 from oacli.cli import app
-from oacli.io.plots.common import decimate, guarded_plots, plt
+from oacli.io.plots.common import decimate, guarded_plots
 from tests.plot_checks import PNGS
 from tests.test_cli_estimate import payload_config
 from tests.test_cli_excite import small_iss

@@ -4,7 +4,7 @@ The contract (topics, schemas, units, metadata, attachments) is documented in ``
 and JSON schemas live in :mod:`oacli.io.mcap_schema`.
 
 Writing uses the Foxglove SDK's MCAP writer (``foxglove.open_mcap``) with one ``foxglove.Context`` per file, so
-channels of one file never leak into another. It writes zstd-compressed chunks of at most
+channels of one file never leak into another. It writes zstd-compressed chunks (level :data:`ZSTD_LEVEL`) of at most
 :data:`DEFAULT_CHUNK_SIZE` bytes (uncompressed), chunk CRCs, the data-section CRC, the summary CRC and attachment
 CRCs. The file is written under a temporary name and renamed into place only when the ``with`` block ends
 without an exception (:func:`oacli.io.atomic.atomic_file`: an exclusive temporary file, never a
@@ -21,6 +21,7 @@ package's stream reader reads up to the cut.
 from __future__ import annotations
 
 import contextlib
+import functools
 import heapq
 import itertools
 import json
@@ -30,6 +31,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from datetime import UTC, datetime
+from operator import itemgetter
 from pathlib import Path
 from types import TracebackType
 from typing import Any, BinaryIO, cast
@@ -71,6 +73,13 @@ from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
 DEFAULT_CHUNK_SIZE = 256 * 1024
 
 _NS_PER_S = 1_000_000_000
+
+#: The JSON encoder of :meth:`StageMcapWriter.write_json` (``json.dumps(..., allow_nan=False)`` builds one per call).
+_JSON = json.JSONEncoder(allow_nan=False)
+
+#: zstd level of the chunks: 1, the fastest standard level. On a mission's JSON records (10 MB) the writer's default
+#: level cost about 0.13 s of CPU, level 1 about 0.08 s, and its files were no larger (issue 9).
+ZSTD_LEVEL = 1
 
 #: One queued message: ``(log_time [ns], emit, payload)``; ``emit(payload, log_time)`` writes it.
 _Pending = tuple[int, Callable[[Any, int], None], Any]
@@ -118,6 +127,21 @@ def _times_ns(what: str, t: Any) -> tuple[np.ndarray, list[int]]:
     if arr.size and arr.min() < 0.0:
         raise ValueError(f"{what}: times must be >= 0 s (mission time), got {arr.min()!r}")
     return arr, np.rint(arr * 1e9).astype(np.int64).tolist()
+
+
+def _time_ns(what: str, t: Any) -> tuple[float, int]:
+    """One time ``t`` [s] (finite, >= 0) and ``round(t * 1e9)`` [ns], as :func:`_times_ns` gives them."""
+    if type(t) is float or type(t) is int:  # the common case without numpy (same rounding: half to even)
+        t_s = float(t)
+        if not math.isfinite(t_s):
+            raise ValueError(f"{what}: times contain NaN or infinite values")
+        if t_s < 0.0:
+            raise ValueError(f"{what}: times must be >= 0 s (mission time), got {t_s!r}")
+        return t_s, round(t_s * 1e9)
+    times, ns = _times_ns(what, t)
+    if times.shape != (1,):
+        raise ValueError(f"{what}: write_json takes one time, got shape {times.shape}")
+    return float(times[0]), ns[0]
 
 
 def _finite_array(what: str, value: Any, shape: tuple[int, int]) -> np.ndarray:
@@ -206,6 +230,11 @@ class _SpoolFile:
         """Bytes not yet written to the file."""
         return len(self._buffer)
 
+    @property
+    def buffer(self) -> bytearray:
+        """The bytes not yet written to the file (one object for the spool's life: empty once spilled)."""
+        return self._buffer
+
     def spill(self) -> None:
         """Write the collected bytes to the file (an ``OSError`` is kept in ``error`` and raised)."""
         if not self._buffer:
@@ -273,10 +302,21 @@ class EncodedRows:
 def _remember(written: dict[str, list[tuple[int, bytes]]], emit: Any, payload: Any, log_time: int) -> None:
     """Keep a message just written for :mod:`oacli.io.mcap_memo`: a JSON payload as is, a ``foxglove.Log`` as its
     protobuf encoding (what the file holds); other Foxglove messages are not decoded by the reader, not kept."""
-    if isinstance(payload, bytes):
+    if type(payload) is bytes:
         written.setdefault(emit.topic, []).append((log_time, payload))
     elif isinstance(payload, Log):
         written.setdefault(emit.topic, []).append((log_time, payload.encode()))
+
+
+_time_of = itemgetter(0)
+
+
+def _in_time_order(messages: list[_Pending]) -> bool:
+    """Whether the log times of ``messages`` never decrease."""
+    if len(messages) < 2:
+        return True
+    times = list(map(_time_of, messages))
+    return times == sorted(times)
 
 
 class StageMcapWriter:
@@ -359,6 +399,7 @@ class StageMcapWriter:
         self._kept: EncodedRows | None = None  # payloads of sample records are kept here (keep_encoded)
         self._reuse: EncodedRows | None = None  # payloads taken from here when the rows match (reuse_encoded)
         self._written: mcap_memo.Written | None = None  # what is written, while oacli.io.mcap_memo is active
+        self._raw_emitters: dict[int, Any] = {}  # id(channel) -> its emit (_raw_emitter); channels live as long
 
     # -- context management ------------------------------------------------------------------------------
 
@@ -376,6 +417,8 @@ class StageMcapWriter:
             self._context = foxglove.Context()
             options = MCAPWriteOptions(
                 compression=MCAPCompression.Zstd,
+                compression_level=ZSTD_LEVEL,
+                compression_threads=0,  # compressed in this thread (no pool of one thread per CPU)
                 chunk_size=self._chunk_size,
                 calculate_chunk_crcs=True,
                 calculate_data_section_crc=True,
@@ -484,21 +527,32 @@ class StageMcapWriter:
             self._queue = None
 
     def _emit(self, messages: Iterable[_Pending]) -> None:
-        """Write ``messages`` now, or queue them (lazily) while time-ordered."""
+        """Write ``messages`` now, or queue them (a list as is, other iterables lazily) while time-ordered."""
         if self._queue is not None:
-            self._queue.append(iter(messages))
+            self._queue.append(messages if type(messages) is list else iter(messages))
             return
         self._write(messages)
 
     def _write(self, messages: Iterable[_Pending]) -> None:
         spool = self._file
         written = None if self._written is None else self._written.messages
+        pending = spool.buffer if spool is not None else bytearray()  # bytes a completed chunk left in the spool
         with held():  # Ctrl-C inside the native writer is held, then raised between two messages (oacli.signals)
+            if written is None:
+                for log_time, emit, payload in messages:
+                    emit(payload, log_time)
+                    if pending:  # a chunk was completed: to the file now
+                        self._spill()
+                    if PENDING:
+                        interruption_point()
+                return
             for log_time, emit, payload in messages:
                 emit(payload, log_time)
-                if written is not None:
+                if type(payload) is bytes:  # a JSON record, kept for oacli.io.mcap_memo (_remember)
+                    written.setdefault(emit.topic, []).append((log_time, payload))
+                else:
                     _remember(written, emit, payload, log_time)
-                if spool is not None and spool.pending:  # a chunk was completed: to the file now
+                if pending:
                     self._spill()
                 if PENDING:
                     interruption_point()
@@ -510,11 +564,25 @@ class StageMcapWriter:
             raise WriteError(describe_os_error(exc, self.path)) from None
 
     def _drain(self) -> None:
-        """Write every queued message, merged by time (stable for equal times)."""
+        """Write every queued message, merged by time (stable for equal times: in the order of the calls).
+
+        The queued streams are encoded into one list first; when each stream is in time order (as every ``write_*``
+        call checks its times), a stable sort of their concatenation is their merge, done in C (Timsort merges the
+        sorted runs); otherwise :func:`heapq.merge` of the streams (the same order as before).
+        """
         if not self._queue:
             return
         queued, self._queue = self._queue, []
-        self._write(heapq.merge(*queued, key=lambda m: m[0]))
+        if len(queued) == 1:
+            self._write(queued[0])
+            return
+        parts = [stream if type(stream) is list else list(stream) for stream in queued]
+        if all(_in_time_order(part) for part in parts):
+            merged = list(itertools.chain.from_iterable(parts))
+            merged.sort(key=_time_of)
+            self._write(merged)
+        else:
+            self._write(heapq.merge(*parts, key=_time_of))
 
     def _require_open(self) -> None:
         if self._state != "open":
@@ -561,14 +629,14 @@ class StageMcapWriter:
             raise ValueError(f"{topic}: times must continue after the last written time {last!r} s")
         return arr, ns
 
-    @staticmethod
-    def _raw_emitter(channel: Any) -> Callable[[Any, int], None]:
-        base_log = channel.base.log  # the JSON text is already encoded: skip foxglove.Channel.log's checks
-
-        def emit(data: Any, log_time: int) -> None:
-            base_log(data, log_time, None)
-
-        emit.topic = channel.topic()  # type: ignore[attr-defined]  # for oacli.io.mcap_memo (_remember)
+    def _raw_emitter(self, channel: Any) -> Callable[[Any, int], None]:
+        """``emit(payload, log_time)`` of a JSON channel: the native ``log`` of its already encoded text (skips
+        ``foxglove.Channel.log``'s checks; a C-level partial, no Python frame per message), one per channel."""
+        emit = self._raw_emitters.get(id(channel))
+        if emit is None:
+            emit = functools.partial(channel.base.log)
+            emit.topic = channel.topic()  # type: ignore[attr-defined]  # for oacli.io.mcap_memo (_remember)
+            self._raw_emitters[id(channel)] = emit
         return emit
 
     @staticmethod
@@ -607,18 +675,13 @@ class StageMcapWriter:
         emit = self._raw_emitter(channel)
         reused = None if self._reuse is None else self._reuse.payloads(topic, template, rows)
         if reused is not None:
-            self._emit(zip(ns, itertools.repeat(emit, len(ns)), reused, strict=True))
+            self._emit(list(zip(ns, itertools.repeat(emit, len(ns)), reused, strict=True)))
             return
         kept = None if self._kept is None else self._kept.keep(topic, template, rows)
-
-        def messages() -> Iterator[_Pending]:
-            for row, log_time in zip(rows.tolist(), ns, strict=True):
-                payload = (template % tuple(row)).encode()
-                if kept is not None:
-                    kept.append(payload)
-                yield log_time, emit, payload
-
-        self._emit(messages())
+        payloads = [(template % row).encode() for row in map(tuple, rows.tolist())]
+        if kept is not None:
+            kept.extend(payloads)
+        self._emit(list(zip(ns, itertools.repeat(emit, len(ns)), payloads, strict=True)))
 
     # -- oacli records ---------------------------------------------------------------------------------------
 
@@ -745,15 +808,12 @@ class StageMcapWriter:
         record : Mapping
             The record; numpy arrays and scalars are converted, NaN and infinities become ``null``.
         """
-        times, ns = _times_ns(topic, t)
-        if times.shape != (1,):
-            raise ValueError(f"{topic}: write_json takes one time, got shape {times.shape}")
-        t_s = float(times[0])
+        t_s, log_time = _time_ns(topic, t)
         if "t" in record and float(record["t"]) != t_s:
             raise ValueError(f"{topic}: record t={record['t']!r} differs from t={t_s!r}")
         channel = self._json_channel(topic, schema_name, schema, {})
         body = to_json_safe({"t": t_s, **{k: v for k, v in record.items() if k != "t"}})
-        self._emit([(ns[0], self._raw_emitter(channel), json.dumps(body, allow_nan=False).encode())])
+        self._emit([(log_time, self._raw_emitter(channel), _JSON.encode(body).encode())])
 
     # -- Foxglove messages -----------------------------------------------------------------------------------
 
