@@ -424,38 +424,58 @@ def propagate_intervals_structured(
     x_next[:, 3:6] = x[:, 3:6] + total_s[:, None] * acc
     # Rotation: RK4 sub-steps with the Jacobian w.r.t. [z_0, I].
     z = x[:, _ROT].copy()
-    total = np.broadcast_to(_E7, (k, 7, 10)).copy()
+    total = None  # ∂z/∂[z_0, I] after the sub-steps so far (None: the identity _E7)
+    all_active = bool(np.all(durations > 0.0))
     for col in range(durations.shape[1]):
         dt = durations[:, col]
-        active = dt > 0.0
-        if not np.any(active):
+        active = None if all_active else dt > 0.0
+        if active is not None and not np.any(active):
             continue
         h = dt[:, None]
         hj = dt[:, None, None]
         f1, g1 = _rotational_rate(z, tau, inertia, rate_map)
         f2, j2 = _rotational_rate(z + 0.5 * h * f1, tau, inertia, rate_map)
-        g2 = j2 + 0.5 * hj * (j2[:, :, 0:7] @ g1)
+        g2 = j2[:, :, 0:7] @ g1
+        g2 *= 0.5 * hj
+        g2 += j2
         f3, j3 = _rotational_rate(z + 0.5 * h * f2, tau, inertia, rate_map)
-        g3 = j3 + 0.5 * hj * (j3[:, :, 0:7] @ g2)
+        g3 = j3[:, :, 0:7] @ g2
+        g3 *= 0.5 * hj
+        g3 += j3
         f4, j4 = _rotational_rate(z + h * f3, tau, inertia, rate_map)
-        g4 = j4 + hj * (j4[:, :, 0:7] @ g3)
+        g4 = j4[:, :, 0:7] @ g3
+        g4 *= hj
+        g4 += j4
         z_new = z + (h / 6.0) * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
-        step = _E7 + (hj / 6.0) * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
-        # Quaternion renormalisation (sign w >= 0, as the simulator does) and its Jacobian.
+        step = g2
+        step += g3
+        step *= 2.0
+        step += g1
+        step += g4
+        step *= hj / 6.0
+        step += _E7
+        # Quaternion renormalisation (sign w >= 0, as the simulator does) and its Jacobian s (I − q̂ q̂ᵀ) / |q|,
+        # applied to the quaternion rows without forming it.
         q = z_new[:, 0:4]
         norm = np.sqrt(np.einsum("ki,ki->k", q, q))
         sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
         q_hat = q / norm[:, None]
-        jn = sign[:, None, None] * (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
+        rows_q = step[:, 0:4, :]
+        rows_q -= q_hat[:, :, None] * (q_hat[:, None, :] @ rows_q)
+        rows_q *= (sign / norm)[:, None, None]
         z_new[:, 0:4] = sign[:, None] * q_hat
-        step[:, 0:4, :] = jn @ step[:, 0:4, :]
-        chained = step[:, :, 0:7] @ total
-        chained[:, :, 7:] += step[:, :, 7:]
-        if np.all(active):
+        if total is None:
+            chained = step
+        else:
+            chained = step[:, :, 0:7] @ total
+            chained[:, :, 7:] += step[:, :, 7:]
+        if active is None:
             z, total = z_new, chained
         else:
             z = np.where(active[:, None], z_new, z)
-            total = np.where(active[:, None, None], chained, total)
+            total = np.where(active[:, None, None], chained, _E7 if total is None else total)
+    if total is None:
+        total = np.broadcast_to(_E7, (k, 7, 10))
     x_next[:, _ROT] = z
     a = np.zeros((k, STATE_DIM, STATE_DIM))
     a[:, 0:6, 0:6] = np.eye(6)
