@@ -290,7 +290,8 @@ _Q_ROWS = (
 @functools.lru_cache(maxsize=64)
 def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
     """Matrix (25, 74) mapping the features of :func:`_rotational_rate` to ``[jacobian (70), q̇ (4)]``
-    (cached per inertia: a filter asks for the same one many times; read-only)."""
+    (cached per inertia: a filter asks for the same one many times; read-only). Its two non-zero blocks are used
+    apart (:func:`_rate_map_blocks`)."""
     ix, iy, iz = inertia
     out = np.zeros((_N_FEATURES, 74))
     entries = [
@@ -311,13 +312,25 @@ def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
     return out
 
 
+@functools.lru_cache(maxsize=64)
+def _rate_map_blocks(inertia: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The non-zero blocks of :func:`_rate_map`: the first 13 features to the Jacobian (13, 70) and the 12 products
+    ``q_i ω_j`` to ``q̇`` (12, 4) (the other two blocks are zero; two small products instead of one 25×74)."""
+    full = _rate_map(inertia)
+    jac_map = np.ascontiguousarray(full[0:13, 0:70])
+    qdot_map = np.ascontiguousarray(full[13:_N_FEATURES, 70:74])
+    jac_map.setflags(write=False)
+    qdot_map.setflags(write=False)
+    return jac_map, qdot_map
+
+
 def _rotational_rate(
-    z: np.ndarray, tau: np.ndarray, inertia: np.ndarray, rate_map: np.ndarray
+    z: np.ndarray, tau: np.ndarray, inertia: np.ndarray, rate_map: tuple[np.ndarray, np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray]:
     """ż (K, 7) of ``z = [q, ω]`` (Doerr Eqs. 34-35, attitude rows) and ``[∂ż/∂z | ∂ż/∂I]`` (K, 7, 10).
 
     Every entry is linear in a few features of z (ω, q, products of two rates, ω̇, products q_i ω_j), so all of them
-    come from one product with ``rate_map`` (:func:`_rate_map`).
+    come from products with the blocks of ``rate_map`` (:func:`_rate_map_blocks`).
     """
     k = z.shape[0]
     w = z[:, 4:7]
@@ -328,11 +341,11 @@ def _rotational_rate(
     feats[:, 7:10] = prod
     feats[:, 10:13] = (tau - (inertia[[2, 0, 1]] - inertia[[1, 2, 0]]) * prod) / inertia
     feats[:, 13:25] = (z[:, 0:4, None] * w[:, None, :]).reshape(k, 12)
-    out = feats @ rate_map
+    jac_map, qdot_map = rate_map
     f = np.empty((k, 7))
-    f[:, 0:4] = out[:, 70:74]
+    f[:, 0:4] = feats[:, 13:25] @ qdot_map
     f[:, 4:7] = feats[:, 10:13]
-    return f, out[:, 0:70].reshape(k, 7, 10)
+    return f, (feats[:, 0:13] @ jac_map).reshape(k, 7, 10)
 
 
 def _rotation_rates(z: np.ndarray, tau: np.ndarray, inertia: np.ndarray) -> np.ndarray:
@@ -414,7 +427,7 @@ def propagate_intervals_structured(
     k = x.shape[0]
     m = float(theta[0])
     inertia = np.array(theta[1:4], dtype=float)
-    rate_map = _rate_map((float(inertia[0]), float(inertia[1]), float(inertia[2])))
+    rate_map = _rate_map_blocks((float(inertia[0]), float(inertia[1]), float(inertia[2])))
     tau = u[:, 3:6]
     # Translation: closed form over the interval (RK4 is exact for a constant acceleration).
     total_s = durations.sum(axis=1)
@@ -656,7 +669,7 @@ def propagate_one(
     if n == 0:
         a[_ROT, _ROT] = np.eye(7)
         return x_next, a, c
-    rate_map = _rate_map(inertia)
+    rate_map = _rate_map_blocks(inertia)
     _, jac = _rotational_rate(stages.reshape(4 * n, 7), np.broadcast_to(u[3:6], (4 * n, 3)), np.array(inertia),
                               rate_map)
     jac = jac.reshape(n, 4, 7, 10)
@@ -671,11 +684,15 @@ def propagate_one(
     q_hat = q_raw / norm[:, None]
     jn = sign[:, None, None] * (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
     step[:, 0:4, :] = jn @ step[:, 0:4, :]
-    total = step[0].copy()
-    for s in range(1, n):
-        chained = step[s, :, 0:7] @ total
-        chained[:, 7:] += step[s, :, 7:]
-        total = chained
+    # The product of the sub-steps' Jacobians, later ones on the left, by pairs (a few batched products instead
+    # of one per sub-step); the columns on I add the later sub-step's own.
+    while step.shape[0] > 1:
+        pairs = step.shape[0] // 2
+        later = step[1:2 * pairs:2]
+        chained = later[:, :, 0:7] @ step[0:2 * pairs:2]
+        chained[:, :, 7:] += later[:, :, 7:]
+        step = chained if step.shape[0] == 2 * pairs else np.concatenate([chained, step[-1:]])
+    total = step[0]
     a[_ROT, _ROT] = total[:, 0:7]
     c[_ROT, 1:4] = total[:, 7:]
     return x_next, a, c
