@@ -267,6 +267,8 @@ def propagate_intervals(
 
 
 _ROT = slice(6, 13)  # [q (4), ω (3)] within the 13-entry state
+_EYE4 = np.eye(4)
+_EYE13 = np.eye(STATE_DIM)
 _E7 = np.hstack([np.eye(7), np.zeros((7, 3))])  # ∂z/∂[z, I] of the rotational state z = [q, ω]
 
 
@@ -312,16 +314,41 @@ def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
     return out
 
 
+def _constant_rate_blocks() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The parts of :func:`_rate_map` that do not depend on the inertia: its Jacobian block with the q̇ rows'
+    entries (13, 70), its q̇ block (12, 4), and the flat positions in the Jacobian block of the 15 entries that do."""
+    full = _rate_map((1.0, 2.0, 3.0))  # any inertia: its own entries are overwritten
+    jac_map = np.array(full[0:13, 0:70])
+    qdot_map = np.ascontiguousarray(full[13:_N_FEATURES, 70:74])
+    qdot_map.setflags(write=False)
+    positions = np.array([70 * feature + 10 * row + col for row, col, feature in _INERTIA_ENTRIES])
+    jac_map.ravel()[positions] = 0.0
+    jac_map.setflags(write=False)
+    return jac_map, qdot_map, positions
+
+
+_INERTIA_ENTRIES = (  # (row, column, feature) of the entries of _rate_map with inertia-dependent coefficients
+    (4, 5, _WZ), (4, 6, _WY), (5, 4, _WZ), (5, 6, _WX), (6, 4, _WY), (6, 5, _WX),
+    (4, 7, _F4), (4, 8, _P1), (4, 9, _P1), (5, 7, _P2), (5, 8, _F5), (5, 9, _P2), (6, 7, _P3), (6, 8, _P3),
+    (6, 9, _F6),
+)
+
+
 @functools.lru_cache(maxsize=64)
 def _rate_map_blocks(inertia: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
     """The non-zero blocks of :func:`_rate_map`: the first 13 features to the Jacobian (13, 70) and the 12 products
-    ``q_i ω_j`` to ``q̇`` (12, 4) (the other two blocks are zero; two small products instead of one 25×74)."""
-    full = _rate_map(inertia)
-    jac_map = np.ascontiguousarray(full[0:13, 0:70])
-    qdot_map = np.ascontiguousarray(full[13:_N_FEATURES, 70:74])
+    ``q_i ω_j`` to ``q̇`` (12, 4) (the other two blocks are zero; two small products instead of one 25×74). Built
+    from the constant parts and the 15 inertia-dependent coefficients (the filter's θ changes at every record, so
+    this cache rarely hits there); read-only."""
+    ix, iy, iz = inertia
+    jac_map = _CONSTANT_RATE_BLOCKS[0].copy()
+    jac_map.ravel()[_CONSTANT_RATE_BLOCKS[2]] = (
+        -(iz - iy) / ix, -(iz - iy) / ix, -(ix - iz) / iy, -(ix - iz) / iy, -(iy - ix) / iz, -(iy - ix) / iz,
+        -1.0 / ix, 1.0 / ix, -1.0 / ix, -1.0 / iy, -1.0 / iy, 1.0 / iy, 1.0 / iz, -1.0 / iz, -1.0 / iz)
     jac_map.setflags(write=False)
-    qdot_map.setflags(write=False)
-    return jac_map, qdot_map
+    return jac_map, _CONSTANT_RATE_BLOCKS[1]
+
+_CONSTANT_RATE_BLOCKS = _constant_rate_blocks()
 
 
 def _rotational_rate(
@@ -660,18 +687,15 @@ def propagate_one(
     stages = np.array(stage_rows).reshape(n, 4, 7)
     q_raw = np.array(raw_rows).reshape(n, 4)
     x_next[_ROT] = z
-    a = np.zeros((STATE_DIM, STATE_DIM))
-    a[0:6, 0:6] = np.eye(6)
+    a = _EYE13.copy()
     a[0, 3] = a[1, 4] = a[2, 5] = total_s
     c = np.zeros((STATE_DIM, N_PARAMS))
     c[0:3, 0] = -(0.5 * total_s**2) * acc / m
     c[3:6, 0] = -total_s * acc / m
     if n == 0:
-        a[_ROT, _ROT] = np.eye(7)
         return x_next, a, c
     rate_map = _rate_map_blocks(inertia)
-    _, jac = _rotational_rate(stages.reshape(4 * n, 7), np.broadcast_to(u[3:6], (4 * n, 3)), np.array(inertia),
-                              rate_map)
+    _, jac = _rotational_rate(stages.reshape(4 * n, 7), u[3:6], np.array(inertia), rate_map)
     jac = jac.reshape(n, 4, 7, 10)
     hj = np.array(dts)[:, None, None]
     g1 = jac[:, 0]
@@ -682,7 +706,7 @@ def propagate_one(
     norm = np.sqrt(np.einsum("ki,ki->k", q_raw, q_raw))
     sign = np.where(q_raw[:, 3] < 0.0, -1.0, 1.0)
     q_hat = q_raw / norm[:, None]
-    jn = sign[:, None, None] * (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
+    jn = sign[:, None, None] * (_EYE4 - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
     step[:, 0:4, :] = jn @ step[:, 0:4, :]
     # The product of the sub-steps' Jacobians, later ones on the left, by pairs (a few batched products instead
     # of one per sub-step); the columns on I add the later sub-step's own.
