@@ -267,7 +267,6 @@ def propagate_intervals(
 
 
 _ROT = slice(6, 13)  # [q (4), ω (3)] within the 13-entry state
-_EYE4 = np.eye(4)
 _EYE13 = np.eye(STATE_DIM)
 _E7 = np.hstack([np.eye(7), np.zeros((7, 3))])  # ∂z/∂[z, I] of the rotational state z = [q, ω]
 
@@ -494,16 +493,15 @@ def propagate_intervals_structured(
         step += g4
         step *= hj / 6.0
         step += _E7
-        # Quaternion renormalisation (sign w >= 0, as the simulator does) and its Jacobian s (I − q̂ q̂ᵀ) / |q|,
-        # applied to the quaternion rows without forming it.
+        # Quaternion renormalisation (sign w >= 0, as the simulator does). Its Jacobian s (I − q̂ q̂ᵀ) / |q| is
+        # applied as its scale s / |q| here and its projection once after the last sub-step: q̇ is linear in q and
+        # ω̇ does not depend on q, so a sub-step maps the radial direction [q, 0] onto the radial direction of the
+        # next quaternion, and every radial part the projections would remove on the way is removed by the last one.
         q = z_new[:, 0:4]
         norm = np.sqrt(np.einsum("ki,ki->k", q, q))
         sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
-        q_hat = q / norm[:, None]
-        rows_q = step[:, 0:4, :]
-        rows_q -= q_hat[:, :, None] * (q_hat[:, None, :] @ rows_q)
-        rows_q *= (sign / norm)[:, None, None]
-        z_new[:, 0:4] = sign[:, None] * q_hat
+        step[:, 0:4, :] *= (sign / norm)[:, None, None]
+        z_new[:, 0:4] = sign[:, None] * (q / norm[:, None])
         if total is None:
             chained = step
         else:
@@ -516,6 +514,9 @@ def propagate_intervals_structured(
             total = np.where(active[:, None, None], chained, _E7 if total is None else total)
     if total is None:
         total = np.broadcast_to(_E7, (k, 7, 10))
+    else:  # the renormalisations' projection I − q̂ q̂ᵀ at the end quaternion (rows with a sub-step)
+        q_hat = z[:, 0:4] if all_active else np.where(np.any(durations > 0.0, axis=1)[:, None], z[:, 0:4], 0.0)
+        total[:, 0:4, :] -= q_hat[:, :, None] * (q_hat[:, None, :] @ total[:, 0:4, :])
     x_next[:, _ROT] = z
     a = np.zeros((k, STATE_DIM, STATE_DIM))
     a[:, 0:6, 0:6] = np.eye(6)
@@ -703,11 +704,11 @@ def propagate_one(
     g3 = jac[:, 2] + 0.5 * hj * (jac[:, 2, :, 0:7] @ g2)
     g4 = jac[:, 3] + hj * (jac[:, 3, :, 0:7] @ g3)
     step = _E7 + (hj / 6.0) * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
+    # The renormalisations' Jacobians s (I − q̂ q̂ᵀ) / |q|: their scales here, the projection once at the end (see
+    # propagate_intervals_structured).
     norm = np.sqrt(np.einsum("ki,ki->k", q_raw, q_raw))
     sign = np.where(q_raw[:, 3] < 0.0, -1.0, 1.0)
-    q_hat = q_raw / norm[:, None]
-    jn = sign[:, None, None] * (_EYE4 - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
-    step[:, 0:4, :] = jn @ step[:, 0:4, :]
+    step[:, 0:4, :] *= (sign / norm)[:, None, None]
     # The product of the sub-steps' Jacobians, later ones on the left, by pairs (a few batched products instead
     # of one per sub-step); the columns on I add the later sub-step's own.
     while step.shape[0] > 1:
@@ -717,6 +718,8 @@ def propagate_one(
         chained[:, :, 7:] += later[:, :, 7:]
         step = chained if step.shape[0] == 2 * pairs else np.concatenate([chained, step[-1:]])
     total = step[0]
+    q_hat = np.array(z[0:4])
+    total[0:4, :] -= np.outer(q_hat, q_hat @ total[0:4, :])
     a[_ROT, _ROT] = total[:, 0:7]
     c[_ROT, 1:4] = total[:, 7:]
     return x_next, a, c
