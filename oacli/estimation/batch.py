@@ -88,6 +88,7 @@ from oacli.estimation.manifold import (
     project_matrix,
     so3_left_jacobian_inverse,
     so3_right_jacobian_inverse,
+    xi_stack,
 )
 from oacli.estimation.models import EstimatorSettings, Measurement, MeasurementModel, measured_rows
 from oacli.estimation.preprocessing import order_by_time
@@ -617,6 +618,45 @@ _TRIL = np.tril_indices(TANGENT_DIM)
 _FULL = tuple(np.indices((TANGENT_DIM, TANGENT_DIM)).reshape(2, -1))
 
 
+def _process_jacobians(
+    w_proc: np.ndarray, e: np.ndarray, fx: np.ndarray, a: np.ndarray, c: np.ndarray, x_prev: np.ndarray,
+    dtheta: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whitened Jacobians of the process residuals ``W_k (x_{k+1} ⊟ f(x_k, u_k, θ))`` with respect to ``δx_k``,
+    ``δx_{k+1}`` and ``δφ`` (each (K, 12, ·)), from the propagation's ``a = ∂f/∂x`` and ``c = ∂f/∂θ``.
+
+    ``−W Π(f) A Λ(x_k)`` with ``Π = diag(I₆, J_l⁻¹(e_att) 2Ξ(f_q)ᵀ, I₃)`` (:func:`~oacli.estimation.manifold.
+    project_matrix` with the residual's inverse left Jacobian) and ``Λ = diag(I₆, ½Ξ(q_k), I₃)``
+    (:func:`~oacli.estimation.manifold.lift_matrix`), in blocks: ``A`` of the structured propagation has a
+    translational 6×6 block and a rotational 7×7 block only, so the product is formed on those (the same entries as
+    the dense 12×13 · 13×13 · 13×12 product, without its zero blocks); ``W J_r⁻¹`` on the attitude columns for
+    ``δx_{k+1}``.
+    """
+    n, nt = e.shape[0], TANGENT_DIM
+    jr_inv = so3_right_jacobian_inverse(e[:, 6:9])
+    jl_inv = so3_left_jacobian_inverse(e[:, 6:9])
+    proj_rot = np.zeros((n, 6, 7))  # rows [δφ_att, δω] of Π on the columns [q, ω]
+    proj_rot[:, 0:3, 0:4] = jl_inv @ (2.0 * np.swapaxes(xi_stack(fx[:, 6:10]), -1, -2))
+    proj_rot[:, 3:6, 4:7] = np.eye(3)
+    lift_rot = np.zeros((n, 7, 6))  # rows [q, ω] of Λ on the columns [δφ_att, δω]
+    lift_rot[:, 0:4, 0:3] = 0.5 * xi_stack(x_prev[:, 6:10])
+    lift_rot[:, 4:7, 3:6] = np.eye(3)
+    core = np.zeros((n, nt, nt))
+    core[:, 0:6, 0:6] = a[:, 0:6, 0:6]
+    core[:, 6:12, 6:12] = proj_rot @ (a[:, 6:13, 6:13] @ lift_rot)
+    cphi = c @ dtheta
+    core_phi = np.empty((n, nt, dtheta.shape[1]))
+    core_phi[:, 0:6] = cphi[:, 0:6]
+    core_phi[:, 6:12] = proj_rot @ cphi[:, 6:13]
+    j_prev = w_proc @ core
+    np.negative(j_prev, out=j_prev)
+    j_next = w_proc.copy()
+    j_next[:, :, 6:9] = w_proc[:, :, 6:9] @ jr_inv
+    j_phi = w_proc @ core_phi
+    np.negative(j_phi, out=j_phi)
+    return j_prev, j_next, j_phi
+
+
 def bridge_accelerations(records: Sequence[Measurement], model: MeasurementModel
                           ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The accelerometer's mean ``f/m`` over each input-only record's interval and its variance ``σ_a² / n``
@@ -873,16 +913,7 @@ class _Problem:
             res = np.einsum("kij,kj->ki", self.w_proc, e)
             parts.append(res.ravel())
             if jacobian:
-                next_blk = np.zeros((k - 1, nt, nt))
-                next_blk[:, 0:6, 0:6] = np.eye(6)
-                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
-                next_blk[:, 9:12, 9:12] = np.eye(3)
-                pred_blk = next_blk.copy()
-                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e[:, 6:9])
-                proj = pred_blk @ project_matrix(fx)
-                j_prev = -(self.w_proc @ (proj @ (a @ lift_matrix(x[:-1]))))
-                j_next = self.w_proc @ next_blk
-                j_phi = -(self.w_proc @ (proj @ (c @ dtheta)))
+                j_prev, j_next, j_phi = _process_jacobians(self.w_proc, e, fx, a, c, x[:-1], dtheta)
                 groups.append(_Group(res, np.arange(k - 1), j_prev, j_next, j_phi))
 
         if self.gauge_rows.size:

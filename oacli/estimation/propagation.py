@@ -267,6 +267,7 @@ def propagate_intervals(
 
 
 _ROT = slice(6, 13)  # [q (4), ω (3)] within the 13-entry state
+_EYE13 = np.eye(STATE_DIM)
 _E7 = np.hstack([np.eye(7), np.zeros((7, 3))])  # ∂z/∂[z, I] of the rotational state z = [q, ω]
 
 
@@ -290,7 +291,8 @@ _Q_ROWS = (
 @functools.lru_cache(maxsize=64)
 def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
     """Matrix (25, 74) mapping the features of :func:`_rotational_rate` to ``[jacobian (70), q̇ (4)]``
-    (cached per inertia: a filter asks for the same one many times; read-only)."""
+    (cached per inertia: a filter asks for the same one many times; read-only). Its two non-zero blocks are used
+    apart (:func:`_rate_map_blocks`)."""
     ix, iy, iz = inertia
     out = np.zeros((_N_FEATURES, 74))
     entries = [
@@ -311,13 +313,50 @@ def _rate_map(inertia: tuple[float, float, float]) -> np.ndarray:
     return out
 
 
+def _constant_rate_blocks() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The parts of :func:`_rate_map` that do not depend on the inertia: its Jacobian block with the q̇ rows'
+    entries (13, 70), its q̇ block (12, 4), and the flat positions in the Jacobian block of the 15 entries that do."""
+    full = _rate_map((1.0, 2.0, 3.0))  # any inertia: its own entries are overwritten
+    jac_map = np.array(full[0:13, 0:70])
+    qdot_map = np.ascontiguousarray(full[13:_N_FEATURES, 70:74])
+    qdot_map.setflags(write=False)
+    positions = np.array([70 * feature + 10 * row + col for row, col, feature in _INERTIA_ENTRIES])
+    jac_map.ravel()[positions] = 0.0
+    jac_map.setflags(write=False)
+    return jac_map, qdot_map, positions
+
+
+_INERTIA_ENTRIES = (  # (row, column, feature) of the entries of _rate_map with inertia-dependent coefficients
+    (4, 5, _WZ), (4, 6, _WY), (5, 4, _WZ), (5, 6, _WX), (6, 4, _WY), (6, 5, _WX),
+    (4, 7, _F4), (4, 8, _P1), (4, 9, _P1), (5, 7, _P2), (5, 8, _F5), (5, 9, _P2), (6, 7, _P3), (6, 8, _P3),
+    (6, 9, _F6),
+)
+
+
+@functools.lru_cache(maxsize=64)
+def _rate_map_blocks(inertia: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The non-zero blocks of :func:`_rate_map`: the first 13 features to the Jacobian (13, 70) and the 12 products
+    ``q_i ω_j`` to ``q̇`` (12, 4) (the other two blocks are zero; two small products instead of one 25×74). Built
+    from the constant parts and the 15 inertia-dependent coefficients (the filter's θ changes at every record, so
+    this cache rarely hits there); read-only."""
+    ix, iy, iz = inertia
+    jac_map = _CONSTANT_RATE_BLOCKS[0].copy()
+    jac_map.ravel()[_CONSTANT_RATE_BLOCKS[2]] = (
+        -(iz - iy) / ix, -(iz - iy) / ix, -(ix - iz) / iy, -(ix - iz) / iy, -(iy - ix) / iz, -(iy - ix) / iz,
+        -1.0 / ix, 1.0 / ix, -1.0 / ix, -1.0 / iy, -1.0 / iy, 1.0 / iy, 1.0 / iz, -1.0 / iz, -1.0 / iz)
+    jac_map.setflags(write=False)
+    return jac_map, _CONSTANT_RATE_BLOCKS[1]
+
+_CONSTANT_RATE_BLOCKS = _constant_rate_blocks()
+
+
 def _rotational_rate(
-    z: np.ndarray, tau: np.ndarray, inertia: np.ndarray, rate_map: np.ndarray
+    z: np.ndarray, tau: np.ndarray, inertia: np.ndarray, rate_map: tuple[np.ndarray, np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray]:
     """ż (K, 7) of ``z = [q, ω]`` (Doerr Eqs. 34-35, attitude rows) and ``[∂ż/∂z | ∂ż/∂I]`` (K, 7, 10).
 
     Every entry is linear in a few features of z (ω, q, products of two rates, ω̇, products q_i ω_j), so all of them
-    come from one product with ``rate_map`` (:func:`_rate_map`).
+    come from products with the blocks of ``rate_map`` (:func:`_rate_map_blocks`).
     """
     k = z.shape[0]
     w = z[:, 4:7]
@@ -328,11 +367,11 @@ def _rotational_rate(
     feats[:, 7:10] = prod
     feats[:, 10:13] = (tau - (inertia[[2, 0, 1]] - inertia[[1, 2, 0]]) * prod) / inertia
     feats[:, 13:25] = (z[:, 0:4, None] * w[:, None, :]).reshape(k, 12)
-    out = feats @ rate_map
+    jac_map, qdot_map = rate_map
     f = np.empty((k, 7))
-    f[:, 0:4] = out[:, 70:74]
+    f[:, 0:4] = feats[:, 13:25] @ qdot_map
     f[:, 4:7] = feats[:, 10:13]
-    return f, out[:, 0:70].reshape(k, 7, 10)
+    return f, (feats[:, 0:13] @ jac_map).reshape(k, 7, 10)
 
 
 def _rotation_rates(z: np.ndarray, tau: np.ndarray, inertia: np.ndarray) -> np.ndarray:
@@ -414,7 +453,7 @@ def propagate_intervals_structured(
     k = x.shape[0]
     m = float(theta[0])
     inertia = np.array(theta[1:4], dtype=float)
-    rate_map = _rate_map((float(inertia[0]), float(inertia[1]), float(inertia[2])))
+    rate_map = _rate_map_blocks((float(inertia[0]), float(inertia[1]), float(inertia[2])))
     tau = u[:, 3:6]
     # Translation: closed form over the interval (RK4 is exact for a constant acceleration).
     total_s = durations.sum(axis=1)
@@ -424,38 +463,60 @@ def propagate_intervals_structured(
     x_next[:, 3:6] = x[:, 3:6] + total_s[:, None] * acc
     # Rotation: RK4 sub-steps with the Jacobian w.r.t. [z_0, I].
     z = x[:, _ROT].copy()
-    total = np.broadcast_to(_E7, (k, 7, 10)).copy()
+    total = None  # ∂z/∂[z_0, I] after the sub-steps so far (None: the identity _E7)
+    all_active = bool(np.all(durations > 0.0))
     for col in range(durations.shape[1]):
         dt = durations[:, col]
-        active = dt > 0.0
-        if not np.any(active):
+        active = None if all_active else dt > 0.0
+        if active is not None and not np.any(active):
             continue
         h = dt[:, None]
         hj = dt[:, None, None]
         f1, g1 = _rotational_rate(z, tau, inertia, rate_map)
         f2, j2 = _rotational_rate(z + 0.5 * h * f1, tau, inertia, rate_map)
-        g2 = j2 + 0.5 * hj * (j2[:, :, 0:7] @ g1)
+        g2 = j2[:, :, 0:7] @ g1
+        g2 *= 0.5 * hj
+        g2 += j2
         f3, j3 = _rotational_rate(z + 0.5 * h * f2, tau, inertia, rate_map)
-        g3 = j3 + 0.5 * hj * (j3[:, :, 0:7] @ g2)
+        g3 = j3[:, :, 0:7] @ g2
+        g3 *= 0.5 * hj
+        g3 += j3
         f4, j4 = _rotational_rate(z + h * f3, tau, inertia, rate_map)
-        g4 = j4 + hj * (j4[:, :, 0:7] @ g3)
+        g4 = j4[:, :, 0:7] @ g3
+        g4 *= hj
+        g4 += j4
         z_new = z + (h / 6.0) * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
-        step = _E7 + (hj / 6.0) * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
-        # Quaternion renormalisation (sign w >= 0, as the simulator does) and its Jacobian.
+        step = g2
+        step += g3
+        step *= 2.0
+        step += g1
+        step += g4
+        step *= hj / 6.0
+        step += _E7
+        # Quaternion renormalisation (sign w >= 0, as the simulator does). Its Jacobian s (I − q̂ q̂ᵀ) / |q| is
+        # applied as its scale s / |q| here and its projection once after the last sub-step: q̇ is linear in q and
+        # ω̇ does not depend on q, so a sub-step maps the radial direction [q, 0] onto the radial direction of the
+        # next quaternion, and every radial part the projections would remove on the way is removed by the last one.
         q = z_new[:, 0:4]
         norm = np.sqrt(np.einsum("ki,ki->k", q, q))
         sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
-        q_hat = q / norm[:, None]
-        jn = sign[:, None, None] * (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
-        z_new[:, 0:4] = sign[:, None] * q_hat
-        step[:, 0:4, :] = jn @ step[:, 0:4, :]
-        chained = step[:, :, 0:7] @ total
-        chained[:, :, 7:] += step[:, :, 7:]
-        if np.all(active):
+        step[:, 0:4, :] *= (sign / norm)[:, None, None]
+        z_new[:, 0:4] = sign[:, None] * (q / norm[:, None])
+        if total is None:
+            chained = step
+        else:
+            chained = step[:, :, 0:7] @ total
+            chained[:, :, 7:] += step[:, :, 7:]
+        if active is None:
             z, total = z_new, chained
         else:
             z = np.where(active[:, None], z_new, z)
-            total = np.where(active[:, None, None], chained, total)
+            total = np.where(active[:, None, None], chained, _E7 if total is None else total)
+    if total is None:
+        total = np.broadcast_to(_E7, (k, 7, 10))
+    else:  # the renormalisations' projection I − q̂ q̂ᵀ at the end quaternion (rows with a sub-step)
+        q_hat = z[:, 0:4] if all_active else np.where(np.any(durations > 0.0, axis=1)[:, None], z[:, 0:4], 0.0)
+        total[:, 0:4, :] -= q_hat[:, :, None] * (q_hat[:, None, :] @ total[:, 0:4, :])
     x_next[:, _ROT] = z
     a = np.zeros((k, STATE_DIM, STATE_DIM))
     a[:, 0:6, 0:6] = np.eye(6)
@@ -627,18 +688,15 @@ def propagate_one(
     stages = np.array(stage_rows).reshape(n, 4, 7)
     q_raw = np.array(raw_rows).reshape(n, 4)
     x_next[_ROT] = z
-    a = np.zeros((STATE_DIM, STATE_DIM))
-    a[0:6, 0:6] = np.eye(6)
+    a = _EYE13.copy()
     a[0, 3] = a[1, 4] = a[2, 5] = total_s
     c = np.zeros((STATE_DIM, N_PARAMS))
     c[0:3, 0] = -(0.5 * total_s**2) * acc / m
     c[3:6, 0] = -total_s * acc / m
     if n == 0:
-        a[_ROT, _ROT] = np.eye(7)
         return x_next, a, c
-    rate_map = _rate_map(inertia)
-    _, jac = _rotational_rate(stages.reshape(4 * n, 7), np.broadcast_to(u[3:6], (4 * n, 3)), np.array(inertia),
-                              rate_map)
+    rate_map = _rate_map_blocks(inertia)
+    _, jac = _rotational_rate(stages.reshape(4 * n, 7), u[3:6], np.array(inertia), rate_map)
     jac = jac.reshape(n, 4, 7, 10)
     hj = np.array(dts)[:, None, None]
     g1 = jac[:, 0]
@@ -646,16 +704,22 @@ def propagate_one(
     g3 = jac[:, 2] + 0.5 * hj * (jac[:, 2, :, 0:7] @ g2)
     g4 = jac[:, 3] + hj * (jac[:, 3, :, 0:7] @ g3)
     step = _E7 + (hj / 6.0) * (g1 + 2.0 * g2 + 2.0 * g3 + g4)
+    # The renormalisations' Jacobians s (I − q̂ q̂ᵀ) / |q|: their scales here, the projection once at the end (see
+    # propagate_intervals_structured).
     norm = np.sqrt(np.einsum("ki,ki->k", q_raw, q_raw))
     sign = np.where(q_raw[:, 3] < 0.0, -1.0, 1.0)
-    q_hat = q_raw / norm[:, None]
-    jn = sign[:, None, None] * (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) / norm[:, None, None]
-    step[:, 0:4, :] = jn @ step[:, 0:4, :]
-    total = step[0].copy()
-    for s in range(1, n):
-        chained = step[s, :, 0:7] @ total
-        chained[:, 7:] += step[s, :, 7:]
-        total = chained
+    step[:, 0:4, :] *= (sign / norm)[:, None, None]
+    # The product of the sub-steps' Jacobians, later ones on the left, by pairs (a few batched products instead
+    # of one per sub-step); the columns on I add the later sub-step's own.
+    while step.shape[0] > 1:
+        pairs = step.shape[0] // 2
+        later = step[1:2 * pairs:2]
+        chained = later[:, :, 0:7] @ step[0:2 * pairs:2]
+        chained[:, :, 7:] += later[:, :, 7:]
+        step = chained if step.shape[0] == 2 * pairs else np.concatenate([chained, step[-1:]])
+    total = step[0]
+    q_hat = np.array(z[0:4])
+    total[0:4, :] -= np.outer(q_hat, q_hat @ total[0:4, :])
     a[_ROT, _ROT] = total[:, 0:7]
     c[_ROT, 1:4] = total[:, 7:]
     return x_next, a, c

@@ -62,6 +62,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg as sla
 
 from oacli.estimation import parametrization as par
 from oacli.estimation.batch import (
@@ -101,6 +102,7 @@ __all__ = ["SequentialEstimator", "SequentialStep"]
 _ACCEL_ROWS = np.r_[3:6, 10:13]
 _N = TANGENT_DIM + par.N_PARAMS
 _EYE_N = np.eye(_N)
+_EYE_STEP = np.eye(_N + TANGENT_DIM)  # the last step's variables [δx_{k-1}, δφ, δx_k]
 _ATT = np.arange(6, 9)  # attitude rows/columns of the 12-entry error state
 _POSTERIOR_ORDER = np.ix_(*(2 * [np.r_[_N:_N + TANGENT_DIM, TANGENT_DIM:_N]]))
 """Rows and columns of ``[x_k, φ]`` in the last step's ``[δx_{k-1}, δφ, δx_k]``."""
@@ -610,7 +612,10 @@ class SequentialEstimator:
             if size_phi < 1e-8 and float(size[kb:].max()) < 1e-10:
                 break
         _, ph, xb = best
-        cov = np.linalg.inv(best_j.T @ best_j)
+        # (JᵀJ)⁻¹ from the triangular factor of J (R⁻¹R⁻ᵀ): JᵀJ of a nearly rigid step has a condition number of
+        # ~1e9, so its inverse would be good to ~1e-7 only; the factor of J keeps cond(J)·ε (~1e-11).
+        r_inv = sla.solve_triangular(np.linalg.qr(best_j, mode="r"), _EYE_STEP, check_finite=False)
+        cov = r_inv @ r_inv.T
         p = cov[_POSTERIOR_ORDER]  # [x_k, φ]
         self._x, self._phi, self._p = xb, ph, 0.5 * (p + p.T)
 
