@@ -310,6 +310,46 @@ class LqrConnector:
         velocity_ok[:, too_short] = False
         return force_ok, velocity_ok
 
+    def batch(
+        self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray, steps: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Forces and sampled states of C connections at once, each with its own end points and horizon.
+
+        The same linear maps as :meth:`trajectory` (``U = G_N y``, ``x_k = X_{N,k} y``) gathered for every
+        connection and applied in one product, so the limit and sample-point checks of a whole candidate list
+        (choose-parent, goal links, shortcut horizons) cost one call instead of one trajectory each.
+
+        Parameters
+        ----------
+        x_a, x_b : ndarray, shape (6,) or (C, 6)
+            Start and end states ``[r, v]`` (broadcast against each other).
+        goal : ndarray, shape (6,)
+            Goal state of the plan (the cost's ``x_g``).
+        steps : ndarray of int, shape (C,)
+            Horizon ``N_c`` of each connection, ``MIN_STEPS <= N_c <= max_steps``.
+
+        Returns
+        -------
+        forces : ndarray, shape (C, S, 3)
+            Held forces [N], ``S = max(steps)``; zero beyond a connection's horizon.
+        states : ndarray, shape (C, S + 1, 6)
+            Sampled states ``[r, v]`` every ``dt``, the end points exact; zero beyond a connection's horizon.
+        """
+        steps = np.asarray(steps, dtype=np.int64).reshape(-1)
+        if steps.size and (steps.min() < MIN_STEPS or steps.max() > self.max_steps):
+            raise ValueError(f"steps must be in [{MIN_STEPS}, {self.max_steps}]")
+        y = self._y(x_a, x_b, goal)
+        if y.shape[0] == 1 and steps.shape[0] > 1:
+            y = np.broadcast_to(y, (steps.shape[0], 3, 6))
+        c = steps.shape[0]
+        s = int(steps.max()) if c else 0
+        u = np.einsum("icsj,cij->csi", self._g[:, steps, :s], y)
+        xs = np.einsum("icskj,cij->cski", self._x[:, steps, : s + 1], y).reshape(c, s + 1, 6)
+        rows = np.arange(c)
+        xs[:, 0] = np.asarray(x_a, dtype=float).reshape(-1, 6)
+        xs[rows, steps] = np.asarray(x_b, dtype=float).reshape(-1, 6)
+        return u, xs
+
     # -- one connection -------------------------------------------------------------------------------------
 
     def forces(self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray, steps: int) -> np.ndarray:
