@@ -163,6 +163,7 @@ def lqr_shortcut(
     sample_dt_s: float | None = None,
     max_collision_checks: int = 3,
     batch_size: int = 16,
+    gain_order: bool = False,
 ) -> ShortcutResult:
     """Smooth ``traj`` by ``tries`` random LQR shortcuts (module docstring).
 
@@ -215,7 +216,7 @@ def lqr_shortcut(
         # A batch of tries drawn against the current trajectory; their connection costs in one vectorised call.
         # Tries are recorded in order; once one is spliced in, the rest of the batch (drawn on the old
         # trajectory) is dropped unrecorded and a new batch is drawn.
-        k = min(batch, tries - len(attempts))
+        k = batch if gain_order else min(batch, tries - len(attempts))
         a_all = rng.integers(0, n - 2, size=k)
         span = n - 1 - a_all  # log-uniform section length: as many local as global tries
         u = rng.uniform(size=k)
@@ -227,7 +228,12 @@ def lqr_shortcut(
         any_lower = lower_all.any(axis=1).tolist()
         a_list, b_list, old_list = a_all.tolist(), b_all.tolist(), old_all.tolist()
         t_a_list, t_b_list = traj.t[a_all].tolist(), traj.t[b_all].tolist()
-        for j in range(k):
+        seq = range(k)
+        if gain_order:
+            seq = np.argsort(-(old_all - cost_all.min(axis=1)), kind="stable").tolist()
+        for j in seq:
+            if len(attempts) >= tries:
+                break
             i = len(attempts)
             a, b, old = a_list[j], b_list[j], old_list[j]
             if not any_lower[j]:
@@ -241,29 +247,36 @@ def lqr_shortcut(
             # samples (the limit check of the chunk, and the early rejection of a sample that collides); the
             # first ``max_collision_checks`` within the limits are collision-checked in that order.
             outcome, steps, checked = "", -1, 0
-            force_ok_any = False  # some cheaper connection keeps the force limits (names the rejection)
             order = candidates[np.argsort(costs[candidates], kind="stable")]
-            pos = 0
-            while pos < order.shape[0] and checked < max_collision_checks:
-                chunk = order[pos:pos + _CHUNK]
-                pos += chunk.shape[0]
-                u_c, x_c = connector.batch(x_a, x_b, goal, chunk)
-                f_pass = np.all(np.abs(u_c) <= f_lim, axis=(1, 2))
-                force_ok_any |= bool(f_pass.any())
-                ok = np.flatnonzero(f_pass & np.all(np.abs(x_c[:, :, 3:6]) <= v_lim, axis=(1, 2)))
-                ok = ok[: max_collision_checks - checked]
-                if ok.size == 0:
-                    continue
-                rejected = sample_filter.connections_colliding(x_c[ok], chunk[ok]).tolist()
-                for c, reject in zip(ok.tolist(), rejected, strict=True):
-                    n_steps = int(chunk[c])
+            # The first chunk's limits from its batched forces and samples; the rest's (if needed) from one
+            # limit check of all its horizons (most of a long list is beyond the limits), then the samples of
+            # the few within the limits.
+            head, rest = order[:_CHUNK], order[_CHUNK:]
+            u_c, x_c = connector.batch(x_a, x_b, goal, head)
+            f_pass = np.all(np.abs(u_c) <= f_lim, axis=(1, 2))
+            force_ok_any = bool(f_pass.any())
+            ok = np.flatnonzero(f_pass & np.all(np.abs(x_c[:, :, 3:6]) <= v_lim, axis=(1, 2)))
+            horizons, states = head[ok], x_c[ok]
+            if ok.size < max_collision_checks and rest.size:
+                f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps, steps=rest)
+                force_ok_any |= bool(np.any(f_ok))
+                more = rest[f_ok[0] & v_ok[0]][: max_collision_checks - ok.size]
+                if more.size:
+                    horizons = np.concatenate([horizons, more])
+                    states = None
+            horizons = horizons[:max_collision_checks]
+            if horizons.size:
+                if states is None:
+                    _, states = connector.batch(x_a, x_b, goal, horizons)
+                rejected = sample_filter.connections_colliding(states[: horizons.size], horizons).tolist()
+                for n_steps, reject in zip(horizons.tolist(), rejected, strict=True):
                     if checked == 0:
                         outcome, steps = COLLISION, n_steps
                     checked += 1
                     if reject:
                         continue
                     section = connector.trajectory(x_a, x_b, goal, n_steps)
-                    if checker.is_free(section.pieces()):
+                    if checker.check(section.pieces()).free:
                         if sample_dt_s is not None:
                             section = section.refined(sample_dt_s)
                         traj = splice(traj, a, b, section)
@@ -273,8 +286,6 @@ def lqr_shortcut(
                         sections.append((i, section))
                         outcome, steps = ACCEPTED, n_steps
                         break
-                if outcome == ACCEPTED:
-                    break
             if checked == 0:  # no cheaper connection within the limits: name the limit
                 best = int(candidates[np.argmin(costs[candidates])])
                 reason = INPUT_LIMIT if not force_ok_any else VELOCITY_LIMIT

@@ -192,22 +192,21 @@ class LqrConnector:
         self._m_flat = self._m.reshape(3, -1, 6)
         self._v_flat = self._v.reshape(3, -1, 6)
         self._time_cost = weights.time * self.dt_s * np.arange(n_max + 1)
+        self._time_cost_min = self._time_cost.copy()  # + inf below MIN_STEPS
+        self._time_cost_min[:MIN_STEPS] = np.inf
+        self._m_vec = np.ascontiguousarray(self._m.transpose(1, 0, 2, 3).reshape(n_max + 1, -1).T)  # (3·36, N+1)
 
     # -- vectorised over candidate pairs and horizons ----------------------------------------------------------
 
     @staticmethod
     def _y(x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Per-axis end-point vectors ``y (K, 3, 6)`` = ``[r_a, v_a, r_b, v_b, r_g, v_g]`` per axis."""
-        x_a = np.asarray(x_a, dtype=float).reshape(-1, 6)
-        x_b = np.asarray(x_b, dtype=float).reshape(-1, 6)
-        g = np.asarray(goal, dtype=float).reshape(6)
+        x_a = np.asarray(x_a, dtype=float).reshape(-1, 2, 3)
+        x_b = np.asarray(x_b, dtype=float).reshape(-1, 2, 3)
         y = np.empty((max(x_a.shape[0], x_b.shape[0]), 3, 6))
-        y[:, :, 0] = x_a[:, 0:3]
-        y[:, :, 1] = x_a[:, 3:6]
-        y[:, :, 2] = x_b[:, 0:3]
-        y[:, :, 3] = x_b[:, 3:6]
-        y[:, :, 4] = g[0:3]
-        y[:, :, 5] = g[3:6]
+        y[:, :, 0:2] = x_a.transpose(0, 2, 1)
+        y[:, :, 2:4] = x_b.transpose(0, 2, 1)
+        y[:, :, 4:6] = np.asarray(goal, dtype=float).reshape(2, 3).T
         return y
 
     def costs(self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -226,13 +225,10 @@ class LqrConnector:
             Cost per pair and horizon, time term included.
         """
         y = self._y(x_a, x_b, goal)
-        k = y.shape[0]
-        j = np.tile(self._time_cost, (k, 1))
-        for i in range(3):
-            yi = y[:, i, :]  # (K, 6)
-            my = (self._m_flat[i] @ yi.T).reshape(-1, 6, k)  # (N+1, 6, K)
-            j += np.einsum("nak,ka->kn", my, yi)
-        j[:, :MIN_STEPS] = np.inf
+        # J_N = Σ_axes yᵀ M_N y = (y ⊗ y) · vec(M_N): every pair and horizon in one matrix product.
+        yy = (y[:, :, :, None] * y[:, :, None, :]).reshape(y.shape[0], -1)
+        j = yy @ self._m_vec
+        j += self._time_cost_min
         return j
 
     def within_limits(
