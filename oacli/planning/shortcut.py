@@ -16,8 +16,11 @@ outcome, so the smoothing can be audited.
 
 Speed (issue 13): tries are drawn in batches against the current trajectory and their connection costs for every
 horizon computed in one vectorised call (most tries end there: no cheaper connection); the cheaper horizons of a
-try are then taken in cost order, each one's limits checked on the connection itself (which the collision check
-needs anyway; all remaining horizons together after a couple of misses). A try after an accepted one in the same
+try are then taken in cost order: the first few horizons' forces and samples come from one batched product
+(:meth:`~oacli.planning.steering.LqrConnector.batch`: their limit check), the remaining horizons' limits from one
+limit check of them all, and the samples of the first ``max_collision_checks`` within the limits are tested at
+once by :class:`~oacli.planning.sample_filter.SampleFilter` (a sample that certainly collides rejects its
+connection); only the others get the exact continuous check. A try after an accepted one in the same
 batch was drawn on the old trajectory: it is dropped unrecorded and drawn again, so every recorded try saw the
 trajectory as it was at that try, and ``tries`` tries are recorded.
 
@@ -163,7 +166,6 @@ def lqr_shortcut(
     sample_dt_s: float | None = None,
     max_collision_checks: int = 3,
     batch_size: int = 16,
-    gain_order: bool = False,
 ) -> ShortcutResult:
     """Smooth ``traj`` by ``tries`` random LQR shortcuts (module docstring).
 
@@ -216,7 +218,7 @@ def lqr_shortcut(
         # A batch of tries drawn against the current trajectory; their connection costs in one vectorised call.
         # Tries are recorded in order; once one is spliced in, the rest of the batch (drawn on the old
         # trajectory) is dropped unrecorded and a new batch is drawn.
-        k = batch if gain_order else min(batch, tries - len(attempts))
+        k = min(batch, tries - len(attempts))
         a_all = rng.integers(0, n - 2, size=k)
         span = n - 1 - a_all  # log-uniform section length: as many local as global tries
         u = rng.uniform(size=k)
@@ -228,12 +230,7 @@ def lqr_shortcut(
         any_lower = lower_all.any(axis=1).tolist()
         a_list, b_list, old_list = a_all.tolist(), b_all.tolist(), old_all.tolist()
         t_a_list, t_b_list = traj.t[a_all].tolist(), traj.t[b_all].tolist()
-        seq = range(k)
-        if gain_order:
-            seq = np.argsort(-(old_all - cost_all.min(axis=1)), kind="stable").tolist()
-        for j in seq:
-            if len(attempts) >= tries:
-                break
+        for j in range(k):
             i = len(attempts)
             a, b, old = a_list[j], b_list[j], old_list[j]
             if not any_lower[j]:
@@ -243,9 +240,8 @@ def lqr_shortcut(
             costs = cost_all[j]
             x_a, x_b = traj.x[a], traj.x[b]
             candidates = np.flatnonzero(lower_all[j])  # only the cheaper horizons matter
-            # The cheaper horizons in cost order, a chunk at a time: one batched product gives their forces and
-            # samples (the limit check of the chunk, and the early rejection of a sample that collides); the
-            # first ``max_collision_checks`` within the limits are collision-checked in that order.
+            # The cheaper horizons in cost order; the first ``max_collision_checks`` within the limits are
+            # collision-checked in that order, a sample that certainly collides rejecting one at once.
             outcome, steps, checked = "", -1, 0
             order = candidates[np.argsort(costs[candidates], kind="stable")]
             # The first chunk's limits from its batched forces and samples; the rest's (if needed) from one
