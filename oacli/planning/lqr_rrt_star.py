@@ -53,6 +53,8 @@ STATE_DIM = 6
 _IMPROVE_RTOL = 1e-9
 #: Candidate connections batched together in choose-parent and goal links (in cost order).
 _CHUNK = 16
+#: Most improving rewire connections whose limits are checked by one batched product (else all at once).
+_REWIRE_BATCH = 64
 
 
 @dataclass(frozen=True)
@@ -267,7 +269,21 @@ class _Planner:
             return
         xs = tree.states[cands]
         via = tree.cost[new] + self.conn.costs(x_new, xs, self.goal)
-        via[~self.limits_ok(x_new, xs)] = np.inf
+        # Only connections that would lower a node's cost now can rewire it (costs only fall during the loop
+        # below), so only their limits are checked: usually few, from one batched product.
+        current = tree.cost[cands]
+        improving = via < (current - _IMPROVE_RTOL * np.maximum(1.0, np.abs(current)))[:, None]
+        rows, cols = np.nonzero(improving)
+        if rows.size == 0:
+            return
+        if rows.size <= _REWIRE_BATCH:
+            u, states = self.conn.batch(x_new, xs[rows], self.goal, cols)
+            within = np.all(np.abs(u) <= self._f_lim, axis=(1, 2))
+            within &= np.all(np.abs(states[:, :, 3:6]) <= self._v_lim, axis=(1, 2))
+            improving[rows[~within], cols[~within]] = False
+        else:
+            improving &= self.limits_ok(x_new, xs)
+        via[~improving] = np.inf
         for k in np.argsort(via.min(axis=1), kind="stable"):
             node = int(cands[k])
             order = np.argsort(via[k], kind="stable")[:2]
