@@ -432,7 +432,7 @@ class LqrConnector:
         """
         xs, us = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
         m, dt = self.mass_kg, self.dt_s
-        return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us).reshape(-1, 3), m)
+        return TranslationalTrajectory(dt * np.arange(steps + 1), xs, us, m)
 
     def saturated_end(
         self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
@@ -459,7 +459,7 @@ class LqrConnector:
             The rollout's end state.
         """
         xs, _ = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
-        return np.array(xs[-1])
+        return xs[-1].copy()
 
     def _saturated(self, x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps):
         self._check_steps(steps)
@@ -471,28 +471,40 @@ class LqrConnector:
         target = [float(v) for v in np.asarray(x_target, dtype=float).reshape(6)]
         goal = [float(v) for v in np.asarray(goal, dtype=float).reshape(6)]
         g0 = self._first_gain
-        xs = [list(x)]
-        us = []
-        for k in range(steps):
-            left = steps - k
-            u = [0.0, 0.0, 0.0]
-            for i in range(3):
-                r, v = x[i], x[3 + i]
+        xs = np.empty((steps + 1, 6))
+        us = np.empty((steps, 3))
+        for i in range(3):  # the axes are independent: one scalar loop per axis over the steps
+            r, v = x[i], x[3 + i]
+            t_r, t_v, g_r, g_v = target[i], target[3 + i], goal[i], goal[3 + i]
+            f_i, v_i, gains = f_lim[i], v_lim[i], g0[i]
+            col_r, col_v, col_u = [r], [v], []
+            for left in range(steps, 0, -1):
                 if left >= MIN_STEPS:
-                    g = g0[i][left]
-                    ui = (g[0] * r + g[1] * v + g[2] * target[i] + g[3] * target[3 + i] + g[4] * goal[i]
-                          + g[5] * goal[3 + i])
+                    g = gains[left]
+                    ui = g[0] * r + g[1] * v + g[2] * t_r + g[3] * t_v + g[4] * g_r + g[5] * g_v
                 else:
-                    ui = m * (target[3 + i] - v) / dt
-                lo = max(-f_lim[i], m * (-v_lim[i] - v) / dt)
-                hi = max(lo, min(f_lim[i], m * (v_lim[i] - v) / dt))
-                ui = min(max(ui, lo), hi)
+                    ui = m * (t_v - v) / dt
+                lo = m * (-v_i - v) / dt
+                if lo < -f_i:
+                    lo = -f_i
+                hi = m * (v_i - v) / dt
+                if hi > f_i:
+                    hi = f_i
+                if hi < lo:
+                    hi = lo
+                if ui < lo:
+                    ui = lo
+                if ui > hi:
+                    ui = hi
                 acc = ui / m
-                x[i] = r + v * dt + 0.5 * acc * dt * dt
-                x[3 + i] = v + acc * dt
-                u[i] = ui
-            xs.append(list(x))
-            us.append(u)
+                r = r + v * dt + 0.5 * acc * dt * dt
+                v = v + acc * dt
+                col_r.append(r)
+                col_v.append(v)
+                col_u.append(ui)
+            xs[:, i] = col_r
+            xs[:, 3 + i] = col_v
+            us[:, i] = col_u
         return xs, us
 
     def value_function(self, steps: int, x_b: np.ndarray, goal: np.ndarray) -> ValueFunction:
