@@ -11,7 +11,10 @@ One iteration, as in Doerr's list of seven components:
    keeps the velocity within its limits; the new state is where it ends (reachable within the limits).
 4. **Near nodes** with cost-to-go at most ``γ (log n / n)^(1/n_x)``, ``n_x = 6`` (Eq. 11), at most ``max_near``.
 5. **Choose parent**: the near node and horizon of least cost-to-come plus connection cost whose connection is
-   within the limits and **collision-free in continuous time** (checked lazily in cost order).
+   within the limits and **collision-free in continuous time** (checked lazily in cost order: the candidates'
+   forces and samples come a chunk at a time from one batched product, a candidate with a sample that certainly
+   collides is rejected at once (:class:`~oacli.planning.sample_filter.SampleFilter`), the others get the exact
+   continuous check).
 6. **Collision checking** of every edge that enters the tree (:mod:`oacli.geometry.collision`).
 7. **Rewire**: every near node that becomes cheaper through the new node gets it as its parent (over an exact,
    checked LQR connection), and the cost change propagates to all its descendants (:meth:`Tree.rewire`).
