@@ -104,4 +104,4 @@ class SampleFilter:
         """
         hit = self.colliding(states[:, :, 0:3])
         hit &= np.arange(states.shape[1]) <= np.asarray(steps)[:, None]
-        return hit.any(axis=1)
+        return np.asarray(hit.any(axis=1), dtype=bool)

@@ -252,7 +252,8 @@ def lqr_shortcut(
             f_pass = np.all(np.abs(u_c) <= f_lim, axis=(1, 2))
             force_ok_any = bool(f_pass.any())
             ok = np.flatnonzero(f_pass & np.all(np.abs(x_c[:, :, 3:6]) <= v_lim, axis=(1, 2)))
-            horizons, states = head[ok], x_c[ok]
+            horizons = head[ok]
+            states: np.ndarray | None = x_c[ok]
             if ok.size < max_collision_checks and rest.size:
                 f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps, steps=rest)
                 force_ok_any |= bool(np.any(f_ok))
