@@ -123,3 +123,61 @@ def test_box_draw_is_the_draw_of_generator_choice():
         r = ref.uniform(lower[b], upper[b])
         v = ref.uniform(-base.velocity_limit_mps, base.velocity_limit_mps)
         np.testing.assert_array_equal(x, np.concatenate([r, v]))
+
+
+def test_batched_connections_match_each_connection_and_are_zero_beyond_their_horizon():
+    conn = LqrConnector(9.6, 0.5, WEIGHTS, 40)
+    rng = np.random.default_rng(12)
+    for _ in range(10):
+        x_a = np.stack([_pair(rng)[0] for _ in range(9)])
+        x_b, goal = _pair(rng)[1:]
+        steps = rng.integers(2, 41, size=9)
+        for starts in (x_a, x_a[0]):  # one start per connection, or one for all
+            u, states = conn.batch(starts, x_b, goal, steps)
+            s = int(steps.max())
+            assert u.shape == (9, s, 3) and states.shape == (9, s + 1, 6)
+            for c, n in enumerate(steps.tolist()):
+                traj = conn.trajectory(np.broadcast_to(starts, (9, 6))[c], x_b, goal, n)
+                np.testing.assert_allclose(u[c, :n], traj.u, rtol=0, atol=1e-12)
+                np.testing.assert_allclose(states[c, : n + 1], traj.x, rtol=0, atol=1e-12)
+                np.testing.assert_array_equal(states[c, n], x_b)  # the end point exactly
+                assert not np.any(u[c, n:]) and not np.any(states[c, n + 1 :])
+
+
+def test_connection_costs_are_the_exact_costs_of_the_connections():
+    conn = LqrConnector(9.6, 0.5, WEIGHTS, 30)
+    rng = np.random.default_rng(13)
+    x_a = np.stack([_pair(rng)[0] for _ in range(5)])
+    x_b, goal = _pair(rng)[1:]
+    costs = conn.costs(x_a, x_b, goal)
+    assert costs.shape == (5, 31) and np.all(np.isinf(costs[:, :2]))
+    for k in range(5):
+        for n in (2, 7, 30):
+            exact = conn.trajectory(x_a[k], x_b, goal, n).cost(WEIGHTS, goal)  # the integral of Eq. 5, per interval
+            np.testing.assert_allclose(costs[k, n], exact, rtol=1e-9)
+
+
+@pytest.mark.parametrize("body", ["point", "sphere", "ellipsoid"])
+def test_sample_filter_never_rejects_a_free_position_and_catches_deep_collisions(body):
+    from oacli.planning.sample_filter import SampleFilter
+
+    robot = {"point": RobotBody.point(), "sphere": RobotBody.sphere(0.25),
+             "ellipsoid": RobotBody.ellipsoid([0.3, 0.15, 0.2], np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]]))}[body]
+    scene = Scene(keep_in=(Box([-1, -1, -1], [3, 1, 1]), Box([2.5, -0.5, -0.5], [4.0, 0.5, 0.5])),
+                  keep_out=(Ellipsoid.from_semi_axes([1.0, 0.0, 0.0], [0.3, 0.5, 0.2]),
+                            Ellipsoid.from_semi_axes([2.8, 0.2, 0.1], [0.1, 0.1, 0.4])))
+    checker = CollisionChecker(scene, robot)
+    filt = SampleFilter(checker)
+    rng = np.random.default_rng(14)
+    points = rng.uniform([-1.3, -1.3, -1.3], [4.3, 1.3, 1.3], size=(20000, 3))
+    rejected = filt.colliding(points)
+    free = checker.points_free(points)
+    assert not np.any(rejected & free)  # sufficient for a collision: never a free position
+    assert rejected.sum() > 0.5 * (~free).sum()  # and it rejects most colliding ones
+    assert np.all(filt.colliding(checker._centers))  # every zone centre
+    assert filt.colliding(np.array([0.0, 1.0 + 1e-6, 0.0])) and not filt.colliding(np.array([0.0, 1.0, 0.0]))
+    states = np.zeros((2, 4, 6))
+    states[:, :, 0:3] = [-0.5, 0.0, 0.0]  # free
+    states[0, 3, 0:3] = checker._centers[0]  # a colliding sample at the horizon of connection 0 ...
+    states[1, 3, 0:3] = checker._centers[0]  # ... and beyond the horizon of connection 1 (padding)
+    np.testing.assert_array_equal(filt.connections_colliding(states, np.array([3, 2])), [True, False])

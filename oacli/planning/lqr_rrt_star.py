@@ -11,7 +11,10 @@ One iteration, as in Doerr's list of seven components:
    keeps the velocity within its limits; the new state is where it ends (reachable within the limits).
 4. **Near nodes** with cost-to-go at most ``γ (log n / n)^(1/n_x)``, ``n_x = 6`` (Eq. 11), at most ``max_near``.
 5. **Choose parent**: the near node and horizon of least cost-to-come plus connection cost whose connection is
-   within the limits and **collision-free in continuous time** (checked lazily in cost order).
+   within the limits and **collision-free in continuous time** (checked lazily in cost order: the candidates'
+   forces and samples come a chunk at a time from one batched product, a candidate with a sample that certainly
+   collides is rejected at once (:class:`~oacli.planning.sample_filter.SampleFilter`), the others get the exact
+   continuous check).
 6. **Collision checking** of every edge that enters the tree (:mod:`oacli.geometry.collision`).
 7. **Rewire**: every near node that becomes cheaper through the new node gets it as its parent (over an exact,
    checked LQR connection), and the cost change propagates to all its descendants (:meth:`Tree.rewire`).
@@ -42,6 +45,7 @@ from oacli.planning.result import (
     path_trajectory,
     tree_record,
 )
+from oacli.planning.sample_filter import SampleFilter
 from oacli.planning.steering import LIMIT_RTOL, MIN_STEPS, LqrConnector
 from oacli.planning.translational import TranslationalTrajectory
 from oacli.planning.tree import EDGE_LQR, RewireEvent, Tree
@@ -50,8 +54,10 @@ from oacli.planning.tree import EDGE_LQR, RewireEvent, Tree
 STATE_DIM = 6
 #: Relative margin a rewire must improve a cost by.
 _IMPROVE_RTOL = 1e-9
-#: Connections whose limits are checked one by one before the rest are checked together.
-_LAZY_LIMIT_CHECKS = 1
+#: Candidate connections batched together in choose-parent and goal links (in cost order).
+_CHUNK = 16
+#: Most improving rewire connections whose limits are checked by one batched product (else all at once).
+_REWIRE_BATCH = 64
 
 
 @dataclass(frozen=True)
@@ -119,6 +125,7 @@ class _Planner:
         self.t0 = clock()
         self.conn = LqrConnector(problem.mass_kg, settings.dt_s, problem.weights, settings.max_steps)
         self.metric = self.conn.metric(settings.metric_steps)
+        self.filter = SampleFilter(problem.checker)
         self._f_lim = problem.force_limit_N * (1.0 + LIMIT_RTOL)
         self._v_lim = problem.velocity_limit_mps * (1.0 + LIMIT_RTOL)
         self.goal = problem.goal
@@ -187,39 +194,41 @@ class _Planner:
         """Least total cost (cost-to-come + connection) parent and horizon with a free connection to ``x``.
 
         Only connections cheaper than ``bound`` and within the limits are considered; up to ``max_edge_checks`` of
-        them are collision-checked in cost order. The limits are checked lazily on each connection in that order
-        (its trajectory is needed for the collision check anyway), all at once after a few misses.
+        them are collision-checked in cost order. The candidates are taken in cost order a chunk at a time: their
+        forces and samples come from one batched product (:meth:`LqrConnector.batch`), which gives the limit
+        check of the whole chunk and the early rejection of every candidate with a colliding sample
+        (:class:`~oacli.planning.sample_filter.SampleFilter`); only the others get the continuous check.
         """
         tree = self.tree
         xs = tree.states[parents]
         total = tree.cost[parents][:, None] + self.conn.costs(xs, x, self.goal)
         total[total >= bound] = np.inf
         flat = np.argsort(total, axis=None, kind="stable")
-        f_lim = self._f_lim
-        v_lim = self._v_lim
-        ok_mask: np.ndarray | None = None
-        misses = checks = 0
+        n_finite = int(np.count_nonzero(total < math.inf))
         width = total.shape[1]
-        for f in flat.tolist():
-            k, n = divmod(f, width)
-            if not total[k, n] < math.inf:
-                break
-            traj = None
-            if ok_mask is None:
-                traj = self.conn.trajectory(xs[k], x, self.goal, n)
-                if not (np.all(np.abs(traj.u) <= f_lim) and np.all(np.abs(traj.x[:, 3:6]) <= v_lim)):
-                    misses += 1
-                    if misses >= _LAZY_LIMIT_CHECKS:
-                        ok_mask = self.limits_ok(xs, x)
-                    continue
-            elif not ok_mask[k, n]:
+        max_checks = self.settings.max_edge_checks
+        checks = start = 0
+        while start < n_finite and checks < max_checks:
+            chunk = flat[start:min(start + _CHUNK, n_finite)]
+            start += chunk.shape[0]
+            rows, horizons = np.divmod(chunk, width)
+            u, states = self.conn.batch(xs[rows], x, self.goal, horizons)
+            within = np.all(np.abs(u) <= self._f_lim, axis=(1, 2))
+            within &= np.all(np.abs(states[:, :, 3:6]) <= self._v_lim, axis=(1, 2))
+            cand = np.flatnonzero(within)[: max_checks - checks]
+            if cand.size == 0:
                 continue
-            free, _ = self.edge(xs[k], x, n, traj)
-            if free:
-                return int(parents[k]), n, float(total[k, n])
-            checks += 1
-            if checks >= self.settings.max_edge_checks:
-                break
+            rejected = self.filter.connections_colliding(states[cand], horizons[cand]).tolist()
+            for c, reject in zip(cand.tolist(), rejected, strict=True):
+                checks += 1
+                k, n = int(rows[c]), int(horizons[c])
+                if reject:
+                    self.stats["edge_checks"] += 1
+                    self.stats["edge_collisions"] += 1
+                    continue
+                free, _ = self.edge(xs[k], x, n)
+                if free:
+                    return int(parents[k]), n, float(total[k, n])
         return -1, 0, math.inf
 
     # -- steps -----------------------------------------------------------------------------------------------
@@ -263,7 +272,21 @@ class _Planner:
             return
         xs = tree.states[cands]
         via = tree.cost[new] + self.conn.costs(x_new, xs, self.goal)
-        via[~self.limits_ok(x_new, xs)] = np.inf
+        # Only connections that would lower a node's cost now can rewire it (costs only fall during the loop
+        # below), so only their limits are checked: usually few, from one batched product.
+        current = tree.cost[cands]
+        improving = via < (current - _IMPROVE_RTOL * np.maximum(1.0, np.abs(current)))[:, None]
+        rows, cols = np.nonzero(improving)
+        if rows.size == 0:
+            return
+        if rows.size <= _REWIRE_BATCH:
+            u, states = self.conn.batch(x_new, xs[rows], self.goal, cols)
+            within = np.all(np.abs(u) <= self._f_lim, axis=(1, 2))
+            within &= np.all(np.abs(states[:, :, 3:6]) <= self._v_lim, axis=(1, 2))
+            improving[rows[~within], cols[~within]] = False
+        else:
+            improving &= self.limits_ok(x_new, xs)
+        via[~improving] = np.inf
         for k in np.argsort(via.min(axis=1), kind="stable"):
             node = int(cands[k])
             order = np.argsort(via[k], kind="stable")[:2]

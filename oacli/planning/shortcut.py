@@ -16,8 +16,11 @@ outcome, so the smoothing can be audited.
 
 Speed (issue 13): tries are drawn in batches against the current trajectory and their connection costs for every
 horizon computed in one vectorised call (most tries end there: no cheaper connection); the cheaper horizons of a
-try are then taken in cost order, each one's limits checked on the connection itself (which the collision check
-needs anyway; all remaining horizons together after a couple of misses). A try after an accepted one in the same
+try are then taken in cost order: the first few horizons' forces and samples come from one batched product
+(:meth:`~oacli.planning.steering.LqrConnector.batch`: their limit check), the remaining horizons' limits from one
+limit check of them all, and the samples of the first ``max_collision_checks`` within the limits are tested at
+once by :class:`~oacli.planning.sample_filter.SampleFilter` (a sample that certainly collides rejects its
+connection); only the others get the exact continuous check. A try after an accepted one in the same
 batch was drawn on the old trajectory: it is dropped unrecorded and drawn again, so every recorded try saw the
 trajectory as it was at that try, and ``tries`` tries are recorded.
 
@@ -31,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.geometry.collision import CollisionChecker
+from oacli.planning.sample_filter import SampleFilter
 from oacli.planning.steering import LIMIT_RTOL, LqrConnector
 from oacli.planning.translational import TranslationalTrajectory
 
@@ -42,8 +46,8 @@ COLLISION = "collision"
 REJECTIONS = (NOT_LOWER_COST, INPUT_LIMIT, VELOCITY_LIMIT, COLLISION)
 
 _IMPROVE_RTOL = 1e-12
-#: Connections whose limits are checked one by one (on the connection itself) before the rest are checked together.
-_LAZY_LIMIT_CHECKS = 2
+#: Horizons of one try batched together (in cost order) for their limit and sample checks.
+_CHUNK = 8
 
 
 @dataclass(frozen=True)
@@ -204,6 +208,7 @@ def lqr_shortcut(
     batch = max(1, int(batch_size))
     f_lim = np.asarray(force_limit_N, dtype=float) * (1.0 + LIMIT_RTOL)
     v_lim = np.asarray(velocity_limit_mps, dtype=float) * (1.0 + LIMIT_RTOL)
+    sample_filter = SampleFilter(checker)
     while len(attempts) < tries:
         n = len(traj)
         if n < 3:
@@ -235,39 +240,49 @@ def lqr_shortcut(
             costs = cost_all[j]
             x_a, x_b = traj.x[a], traj.x[b]
             candidates = np.flatnonzero(lower_all[j])  # only the cheaper horizons matter
-            # The cheaper horizons in cost order; each one's limits are checked on its connection, which the
-            # collision check needs anyway, until ``max_collision_checks`` within the limits were checked.
+            # The cheaper horizons in cost order; the first ``max_collision_checks`` within the limits are
+            # collision-checked in that order, a sample that certainly collides rejecting one at once.
             outcome, steps, checked = "", -1, 0
-            force_ok_any = False  # some cheaper connection keeps the force limits (names the rejection)
             order = candidates[np.argsort(costs[candidates], kind="stable")]
-            pos = 0
-            while pos < order.shape[0] and checked < max_collision_checks:
-                n_steps = int(order[pos])
-                pos += 1
-                section = connector.trajectory(x_a, x_b, goal, n_steps)
-                f_pass = bool(np.all(np.abs(section.u) <= f_lim))
-                force_ok_any |= f_pass
-                if not (f_pass and np.all(np.abs(section.x[:, 3:6]) <= v_lim)):
-                    if pos == _LAZY_LIMIT_CHECKS and pos < order.shape[0]:
-                        # Many beyond the limits: test the remaining horizons' limits together instead.
-                        f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps,
-                                                             steps=order[pos:])
-                        force_ok_any |= bool(np.any(f_ok))
-                        order = np.concatenate([order[:pos], order[pos:][f_ok[0] & v_ok[0]]])
-                    continue
-                if checked == 0:
-                    outcome, steps = COLLISION, n_steps
-                checked += 1
-                if checker.is_free(section.pieces()):
-                    if sample_dt_s is not None:
-                        section = section.refined(sample_dt_s)
-                    traj = splice(traj, a, b, section)
-                    # The cost is additive over intervals and time-invariant: only the section's are new.
-                    sec_cum = cum[a] + np.cumsum(section.interval_costs(weights, goal))
-                    cum = np.concatenate([cum[: a + 1], sec_cum, cum[b + 1 :] + (sec_cum[-1] - cum[b])])
-                    sections.append((i, section))
-                    outcome, steps = ACCEPTED, n_steps
-                    break
+            # The first chunk's limits from its batched forces and samples; the rest's (if needed) from one
+            # limit check of all its horizons (most of a long list is beyond the limits), then the samples of
+            # the few within the limits.
+            head, rest = order[:_CHUNK], order[_CHUNK:]
+            u_c, x_c = connector.batch(x_a, x_b, goal, head)
+            f_pass = np.all(np.abs(u_c) <= f_lim, axis=(1, 2))
+            force_ok_any = bool(f_pass.any())
+            ok = np.flatnonzero(f_pass & np.all(np.abs(x_c[:, :, 3:6]) <= v_lim, axis=(1, 2)))
+            horizons = head[ok]
+            states: np.ndarray | None = x_c[ok]
+            if ok.size < max_collision_checks and rest.size:
+                f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps, steps=rest)
+                force_ok_any |= bool(np.any(f_ok))
+                more = rest[f_ok[0] & v_ok[0]][: max_collision_checks - ok.size]
+                if more.size:
+                    horizons = np.concatenate([horizons, more])
+                    states = None
+            horizons = horizons[:max_collision_checks]
+            if horizons.size:
+                if states is None:
+                    _, states = connector.batch(x_a, x_b, goal, horizons)
+                rejected = sample_filter.connections_colliding(states[: horizons.size], horizons).tolist()
+                for n_steps, reject in zip(horizons.tolist(), rejected, strict=True):
+                    if checked == 0:
+                        outcome, steps = COLLISION, n_steps
+                    checked += 1
+                    if reject:
+                        continue
+                    section = connector.trajectory(x_a, x_b, goal, n_steps)
+                    if checker.check(section.pieces()).free:
+                        if sample_dt_s is not None:
+                            section = section.refined(sample_dt_s)
+                        traj = splice(traj, a, b, section)
+                        # The cost is additive over intervals and time-invariant: only the section's are new.
+                        sec_cum = cum[a] + np.cumsum(section.interval_costs(weights, goal))
+                        cum = np.concatenate([cum[: a + 1], sec_cum, cum[b + 1 :] + (sec_cum[-1] - cum[b])])
+                        sections.append((i, section))
+                        outcome, steps = ACCEPTED, n_steps
+                        break
             if checked == 0:  # no cheaper connection within the limits: name the limit
                 best = int(candidates[np.argmin(costs[candidates])])
                 reason = INPUT_LIMIT if not force_ok_any else VELOCITY_LIMIT

@@ -192,22 +192,21 @@ class LqrConnector:
         self._m_flat = self._m.reshape(3, -1, 6)
         self._v_flat = self._v.reshape(3, -1, 6)
         self._time_cost = weights.time * self.dt_s * np.arange(n_max + 1)
+        self._time_cost_min = self._time_cost.copy()  # + inf below MIN_STEPS
+        self._time_cost_min[:MIN_STEPS] = np.inf
+        self._m_vec = np.ascontiguousarray(self._m.transpose(1, 0, 2, 3).reshape(n_max + 1, -1).T)  # (3·36, N+1)
 
     # -- vectorised over candidate pairs and horizons ----------------------------------------------------------
 
     @staticmethod
     def _y(x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Per-axis end-point vectors ``y (K, 3, 6)`` = ``[r_a, v_a, r_b, v_b, r_g, v_g]`` per axis."""
-        x_a = np.asarray(x_a, dtype=float).reshape(-1, 6)
-        x_b = np.asarray(x_b, dtype=float).reshape(-1, 6)
-        g = np.asarray(goal, dtype=float).reshape(6)
+        x_a = np.asarray(x_a, dtype=float).reshape(-1, 2, 3)
+        x_b = np.asarray(x_b, dtype=float).reshape(-1, 2, 3)
         y = np.empty((max(x_a.shape[0], x_b.shape[0]), 3, 6))
-        y[:, :, 0] = x_a[:, 0:3]
-        y[:, :, 1] = x_a[:, 3:6]
-        y[:, :, 2] = x_b[:, 0:3]
-        y[:, :, 3] = x_b[:, 3:6]
-        y[:, :, 4] = g[0:3]
-        y[:, :, 5] = g[3:6]
+        y[:, :, 0:2] = x_a.transpose(0, 2, 1)
+        y[:, :, 2:4] = x_b.transpose(0, 2, 1)
+        y[:, :, 4:6] = np.asarray(goal, dtype=float).reshape(2, 3).T
         return y
 
     def costs(self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -226,13 +225,10 @@ class LqrConnector:
             Cost per pair and horizon, time term included.
         """
         y = self._y(x_a, x_b, goal)
-        k = y.shape[0]
-        j = np.tile(self._time_cost, (k, 1))
-        for i in range(3):
-            yi = y[:, i, :]  # (K, 6)
-            my = (self._m_flat[i] @ yi.T).reshape(-1, 6, k)  # (N+1, 6, K)
-            j += np.einsum("nak,ka->kn", my, yi)
-        j[:, :MIN_STEPS] = np.inf
+        # J_N = Σ_axes yᵀ M_N y = (y ⊗ y) · vec(M_N): every pair and horizon in one matrix product.
+        yy = (y[:, :, :, None] * y[:, :, None, :]).reshape(y.shape[0], -1)
+        j = yy @ self._m_vec
+        j += self._time_cost_min
         return j
 
     def within_limits(
@@ -309,6 +305,46 @@ class LqrConnector:
         force_ok[:, too_short] = False
         velocity_ok[:, too_short] = False
         return force_ok, velocity_ok
+
+    def batch(
+        self, x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray, steps: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Forces and sampled states of C connections at once, each with its own end points and horizon.
+
+        The same linear maps as :meth:`trajectory` (``U = G_N y``, ``x_k = X_{N,k} y``) gathered for every
+        connection and applied in one product, so the limit and sample-point checks of a whole candidate list
+        (choose-parent, goal links, shortcut horizons) cost one call instead of one trajectory each.
+
+        Parameters
+        ----------
+        x_a, x_b : ndarray, shape (6,) or (C, 6)
+            Start and end states ``[r, v]`` (broadcast against each other).
+        goal : ndarray, shape (6,)
+            Goal state of the plan (the cost's ``x_g``).
+        steps : ndarray of int, shape (C,)
+            Horizon ``N_c`` of each connection, ``MIN_STEPS <= N_c <= max_steps``.
+
+        Returns
+        -------
+        forces : ndarray, shape (C, S, 3)
+            Held forces [N], ``S = max(steps)``; zero beyond a connection's horizon.
+        states : ndarray, shape (C, S + 1, 6)
+            Sampled states ``[r, v]`` every ``dt``, the end points exact; zero beyond a connection's horizon.
+        """
+        steps = np.asarray(steps, dtype=np.int64).reshape(-1)
+        if steps.size and (steps.min() < MIN_STEPS or steps.max() > self.max_steps):
+            raise ValueError(f"steps must be in [{MIN_STEPS}, {self.max_steps}]")
+        y = self._y(x_a, x_b, goal)
+        if y.shape[0] == 1 and steps.shape[0] > 1:
+            y = np.broadcast_to(y, (steps.shape[0], 3, 6))
+        c = steps.shape[0]
+        s = int(steps.max()) if c else 0
+        u = np.einsum("icsj,cij->csi", self._g[:, steps, :s], y)
+        xs = np.einsum("icskj,cij->cski", self._x[:, steps, : s + 1], y).reshape(c, s + 1, 6)
+        rows = np.arange(c)
+        xs[:, 0] = np.asarray(x_a, dtype=float).reshape(-1, 6)
+        xs[rows, steps] = np.asarray(x_b, dtype=float).reshape(-1, 6)
+        return u, xs
 
     # -- one connection -------------------------------------------------------------------------------------
 
@@ -396,7 +432,7 @@ class LqrConnector:
         """
         xs, us = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
         m, dt = self.mass_kg, self.dt_s
-        return TranslationalTrajectory(dt * np.arange(steps + 1), np.array(xs), np.array(us).reshape(-1, 3), m)
+        return TranslationalTrajectory(dt * np.arange(steps + 1), xs, us, m)
 
     def saturated_end(
         self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
@@ -423,7 +459,7 @@ class LqrConnector:
             The rollout's end state.
         """
         xs, _ = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
-        return np.array(xs[-1])
+        return xs[-1].copy()
 
     def _saturated(self, x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps):
         self._check_steps(steps)
@@ -435,28 +471,40 @@ class LqrConnector:
         target = [float(v) for v in np.asarray(x_target, dtype=float).reshape(6)]
         goal = [float(v) for v in np.asarray(goal, dtype=float).reshape(6)]
         g0 = self._first_gain
-        xs = [list(x)]
-        us = []
-        for k in range(steps):
-            left = steps - k
-            u = [0.0, 0.0, 0.0]
-            for i in range(3):
-                r, v = x[i], x[3 + i]
+        xs = np.empty((steps + 1, 6))
+        us = np.empty((steps, 3))
+        for i in range(3):  # the axes are independent: one scalar loop per axis over the steps
+            r, v = x[i], x[3 + i]
+            t_r, t_v, g_r, g_v = target[i], target[3 + i], goal[i], goal[3 + i]
+            f_i, v_i, gains = f_lim[i], v_lim[i], g0[i]
+            col_r, col_v, col_u = [r], [v], []
+            for left in range(steps, 0, -1):
                 if left >= MIN_STEPS:
-                    g = g0[i][left]
-                    ui = (g[0] * r + g[1] * v + g[2] * target[i] + g[3] * target[3 + i] + g[4] * goal[i]
-                          + g[5] * goal[3 + i])
+                    g = gains[left]
+                    ui = g[0] * r + g[1] * v + g[2] * t_r + g[3] * t_v + g[4] * g_r + g[5] * g_v
                 else:
-                    ui = m * (target[3 + i] - v) / dt
-                lo = max(-f_lim[i], m * (-v_lim[i] - v) / dt)
-                hi = max(lo, min(f_lim[i], m * (v_lim[i] - v) / dt))
-                ui = min(max(ui, lo), hi)
+                    ui = m * (t_v - v) / dt
+                lo = m * (-v_i - v) / dt
+                if lo < -f_i:
+                    lo = -f_i
+                hi = m * (v_i - v) / dt
+                if hi > f_i:
+                    hi = f_i
+                if hi < lo:
+                    hi = lo
+                if ui < lo:
+                    ui = lo
+                if ui > hi:
+                    ui = hi
                 acc = ui / m
-                x[i] = r + v * dt + 0.5 * acc * dt * dt
-                x[3 + i] = v + acc * dt
-                u[i] = ui
-            xs.append(list(x))
-            us.append(u)
+                r = r + v * dt + 0.5 * acc * dt * dt
+                v = v + acc * dt
+                col_r.append(r)
+                col_v.append(v)
+                col_u.append(ui)
+            xs[:, i] = col_r
+            xs[:, 3 + i] = col_v
+            us[:, i] = col_u
         return xs, us
 
     def value_function(self, steps: int, x_b: np.ndarray, goal: np.ndarray) -> ValueFunction:
