@@ -36,7 +36,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from oacli.estimation.batch import lost_input_model, unknown_force_directions, unknown_torque_directions
+from oacli.estimation.batch import (
+    GyroBridge,
+    lost_input_model,
+    unknown_force_directions,
+    unknown_torque_directions,
+)
 from oacli.estimation.manifold import TANGENT_DIM, boxminus, lift_matrix, project_matrix
 from oacli.estimation.models import MeasurementModel, measured_rows
 from oacli.estimation.propagation import dynamics_jacobians_batch, propagate_intervals_structured, substep_schedule
@@ -85,6 +90,7 @@ def cramer_rao_bound(
     bridge_acceleration: np.ndarray | None = None,
     bridge_acceleration_variance: np.ndarray | None = None,
     measured: np.ndarray | None = None,
+    gyro: GyroBridge | None = None,
 ) -> CramerRaoBound:
     """Cramér-Rao bounds of θ from measuring ``states`` at times ``t`` (see the module docstring).
 
@@ -129,6 +135,9 @@ def cramer_rao_bound(
         The measured states: the residuals ``ỹ ⊟ x̂`` of the ``used`` records give the lost wrench's prior the
         variance of the estimator's noise-corrected prediction
         (:func:`oacli.estimation.batch.noise_corrected_prediction`), as the batch estimator's last solve uses it.
+    gyro : GyroBridge, optional
+        The gyro's ``ω̇`` over the lost intervals (:func:`oacli.estimation.batch.bridge_angular_accelerations`):
+        where it has one, ``τ`` has the prior ``J² σ_ᾱ²`` ([Doerr2021] Eq. 35b, :func:`lost_input_model`).
 
     Returns
     -------
@@ -155,7 +164,8 @@ def cramer_rao_bound(
             noise[used] = boxminus(np.asarray(measured, dtype=float)[used], states[used])
         u, bridged, variance, _ = lost_input_model(
             t, u, links, float(theta[0]), bridge_acceleration=bridge_acceleration,
-            bridge_acceleration_variance=bridge_acceleration_variance, noise=noise)
+            bridge_acceleration_variance=bridge_acceleration_variance, noise=noise, gyro=gyro,
+            inertia_kgm2=theta[1:4])
         dt = np.diff(t)
         for i in np.flatnonzero(bridged):
             d = np.concatenate([unknown_force_directions(dt[i:i + 1])[0],
