@@ -14,17 +14,28 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from estimation_helpers import CONTROL_PERIOD_S, RATTLE_PRIOR, THETA_TRUE, closed_loop_pd, records, settings
+from estimation_helpers import (
+    CONTROL_PERIOD_S,
+    RATTLE_PRIOR,
+    THETA_TRUE,
+    closed_loop_pd,
+    records,
+    settings,
+    simulate_open_loop,
+)
 
+from oacli.estimation import parametrization as par
 from oacli.estimation.alignment import align_records
 from oacli.estimation.batch import (
+    _Problem,
     bridge_accelerations,
     bridge_angular_accelerations,
     estimate_batch,
     lost_input_model,
 )
 from oacli.estimation.imu import ImuStream, attach_accelerations, gyro_noise_variance
-from oacli.estimation.manifold import boxminus
+from oacli.estimation.manifold import boxminus, boxplus
+from oacli.estimation.models import ProcessNoise
 from oacli.estimation.propagation import propagate_intervals, substep_schedule
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.sim.delivered import DeliveredInput
@@ -67,7 +78,7 @@ def _true_states(tel, delivered, t):
 def test_the_gyro_noise_is_measured_on_the_run():
     """The pooled residual variance of a line over every control period is the simulated gyro noise (to its
     sampling error, ~2 % with ~4000 degrees of freedom; the gyroscopic term's curvature adds µrad/s)."""
-    tel, _, stream, recs, _ = _flight(0, 150)
+    _, _, stream, recs, _ = _flight(0, 150)
     var = gyro_noise_variance(recs, stream, CONTROL_PERIOD_S)
     assert var is not None
     assert abs(math.sqrt(var) / SIGMA_G - 1.0) < 0.05
@@ -137,7 +148,7 @@ def test_both_estimators_take_the_lost_torque_from_the_gyro():
     than with the torque predicted from the neighbours (accelerometer bridge only), and the estimates stay
     within 2σ of the clean run's; the filter bridges every gap after its bootstrap with the gyro, counted once in
     ``gaps_bridged_imu``."""
-    tel, _, _, recs, bridged = _flight(0, 150)
+    tel, _, _, _, bridged = _flight(0, 150)
     no_gyro = [replace(r, angular_acceleration_radps2=None, angular_acceleration_var_rad2ps4=None) for r in bridged]
     imu_settings = settings(measurement=replace(settings().measurement, linear_acceleration_std_mps2=SIGMA_A))
     wide = replace(RATTLE_PRIOR, covariance=RATTLE_PRIOR.covariance * 1e8)
@@ -159,3 +170,34 @@ def test_both_estimators_take_the_lost_torque_from_the_gyro():
     assert filt.segments == 0 and filt.reinitialisations == 0
     assert np.all(filt.estimate.std[1:4] < 0.9 * sd_without[1:4])  # the filter's posterior is the batch's
     assert np.all(np.abs(filt.estimate.theta - clean.estimate.theta) <= 2.0 * filt.estimate.std)
+
+
+def test_the_process_jacobian_with_a_gap_offset_matches_finite_differences():
+    """With a gyro bridge the gap offset reaches the attitude rows (``½T² J⁻¹τ``, ~1e-3 rad); the residual is
+    ``(x_{k+1} ⊟ f) − offset`` with a constant offset, so its Jacobian is that of ``⊟`` at ``⊟``'s own value.
+    Checked against central differences (reference path, :meth:`_Problem.evaluate`) and the blocks of the fast
+    path's ``AᵀA`` and ``Aᵀb`` against the reference's (an offset of 0.02 rad makes the difference visible)."""
+    tel = simulate_open_loop(6, seed=3)
+    problem = _Problem(records(tel), settings(process=ProcessNoise(0.01, 0.001)), RATTLE_PRIOR, THETA_TRUE)
+    rng = np.random.default_rng(5)
+    problem.gap_offset = np.zeros_like(problem.gap_offset)  # (set on a linked interval: every row is whitened)
+    problem.gap_offset[2] = rng.normal(0.0, 0.02, 12)
+    x = boxplus(problem.y, rng.normal(0, 0.05, (6, 12)))
+    phi = par.phi_from_theta(np.array([12.0, 0.12, 0.15, 0.17]))
+    inliers = np.ones(6, dtype=bool)
+    b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+    a_dense = a_mat.toarray()
+    h = 1e-6
+    for col in range(problem.n_var):
+        d = np.zeros(problem.n_var)
+        d[col] = h
+        xp, pp = boxplus(x, d[:72].reshape(6, 12)), phi + d[72:]
+        xm, pm = boxplus(x, -d[:72].reshape(6, 12)), phi - d[72:]
+        fd = (problem.evaluate(xp, pp, inliers, False)[0] - problem.evaluate(xm, pm, inliers, False)[0]) / (2 * h)
+        np.testing.assert_allclose(a_dense[:, col], fd, rtol=2e-5, atol=2e-5 * max(1.0, np.abs(fd).max()))
+    _, normal = problem.normal_equations(x, phi, inliers)
+    ata, atb = a_dense.T @ a_dense, a_dense.T @ b
+    for i in range(6):
+        blk = slice(12 * i, 12 * i + 12)
+        np.testing.assert_allclose(normal.hd[i], ata[blk, blk], rtol=1e-8, atol=1e-8 * np.abs(ata).max())
+        np.testing.assert_allclose(normal.gx[i], atb[blk], rtol=1e-8, atol=1e-8 * np.abs(atb).max())

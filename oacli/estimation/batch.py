@@ -58,7 +58,8 @@ Choices the paper leaves open, and what is done here:
   noise is most of the miss, and a prediction whose error correlates with it biased Ixx) and solved again, the
   directions weighted at that solve's θ̂. Where the records carry the accelerometer's mean over a lost period
   (:func:`oacli.estimation.imu.attach_accelerations`), the force is not predicted: the specific force *is*
-  ``f/m``, so the translation across the gap takes the measured acceleration (:func:`lost_input_model`). Without
+  ``f/m``, so the translation across the gap takes the measured acceleration (:func:`lost_input_model`); where
+  they carry the gyro's slope over it, the rotation takes the measured ``ω̇`` likewise ([Doerr2021] Eq. 35b). Without
   a prediction the force is profiled out (position continuity kept) and the rotational state after the gap is
   estimated afresh; a longer gap is cut (the segment's first state free, with its own gauge tie). Cutting every
   gap biases θ in closed loop (see :func:`segment_link_weights`).
@@ -845,16 +846,17 @@ class _Problem:
         # Process residuals x_{k+1} ⊟ f(x_k, u_k, θ), whitened by Q_k^-½.
         if k > 1:
             fx, a, c = propagate_intervals(x[:-1], self.u[:-1], theta, self.durations)
-            e = boxminus(x[1:], fx) - self.gap_offset
+            e_raw = boxminus(x[1:], fx)  # the Jacobians are those of ⊟, at its value (the gap offset is constant)
+            e = e_raw - self.gap_offset
             res = np.einsum("kij,kj->ki", self.w_proc, e).ravel()
             parts.append(res)
             if jacobian:
                 next_blk = np.zeros((k - 1, TANGENT_DIM, TANGENT_DIM))
                 next_blk[:, 0:6, 0:6] = np.eye(6)
-                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e_raw[:, 6:9])
                 next_blk[:, 9:12, 9:12] = np.eye(3)
                 pred_blk = next_blk.copy()
-                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e[:, 6:9])
+                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e_raw[:, 6:9])
                 proj = pred_blk @ project_matrix(fx)  # (K-1, 12, 13)
                 j_prev = -(self.w_proc @ proj @ a @ lift_matrix(x[:-1]))
                 j_next = self.w_proc @ next_blk
@@ -943,16 +945,17 @@ class _Problem:
                 fx, a, c = self._propagate(x, phi, theta)
             else:  # the end states only (a trial step's cost)
                 fx = propagate_intervals_structured(x[:-1], self.u[:-1], theta, self.durations, jacobians=False)[0]
-            e = boxminus(x[1:], fx) - self.gap_offset
+            e_raw = boxminus(x[1:], fx)  # the Jacobians are those of ⊟, at its value (the gap offset is constant)
+            e = e_raw - self.gap_offset
             res = np.einsum("kij,kj->ki", self.w_proc, e)
             parts.append(res.ravel())
             if jacobian:
                 next_blk = np.zeros((k - 1, nt, nt))
                 next_blk[:, 0:6, 0:6] = np.eye(6)
-                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e_raw[:, 6:9])
                 next_blk[:, 9:12, 9:12] = np.eye(3)
                 pred_blk = next_blk.copy()
-                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e[:, 6:9])
+                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e_raw[:, 6:9])
                 proj = pred_blk @ project_matrix(fx)
                 j_prev = -(self.w_proc @ (proj @ (a @ lift_matrix(x[:-1]))))
                 j_next = self.w_proc @ next_blk

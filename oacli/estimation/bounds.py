@@ -18,7 +18,8 @@ Both bounds assume the dynamics exact (no process noise), i.e. the output-error 
 **Gaps in the input record** (lost controller records, :mod:`oacli.estimation.alignment`). Where the batch estimator
 bridges a gap, the wrench held over it is unknown; the bound carries it as a nuisance parameter ``w = [f/m, τ]`` (6
 per gap) that moves the state after the gap along the estimator's directions, with the prior the estimator gives it
-(its neighbours' regression, or the accelerometer's mean for ``f/m``: :func:`oacli.estimation.batch.lost_input_model`)
+(its neighbours' regression, or the accelerometer's mean for ``f/m`` and the gyro's slope for ``τ``:
+:func:`oacli.estimation.batch.lost_input_model`)
 -- a hybrid bound (``w`` random, θ and the initial state fixed) that the batch's covariance estimates; ``w`` without a
 prior (``lost_inputs="nuisance"``) and every gap cut (``"cut"``, the bound this module gave before) are available for
 comparison. On the benchmark's gapped ISS runs (10 % of the controller records lost, ``benchmarks/bench_estimation.py``)

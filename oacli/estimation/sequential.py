@@ -44,7 +44,9 @@ prediction across the gap uses the mean of the known inputs on either side, and 
 instant's record carries the accelerometer's mean over its period (``/imu`` survived,
 :func:`oacli.estimation.imu.attach_accelerations`) the lost force is taken from it instead, as the batch does
 (:func:`~oacli.estimation.batch.lost_input_model`: ``f/m`` measured to ``σ_a²/n``, no mass sensitivity over that
-interval; counted in ``gaps_bridged_imu``); after a longer
+interval; counted in ``gaps_bridged_imu``), and the lost torque from the gyro's slope over the period when the
+record carries it (``J⁻¹τ = ω̇ + J⁻¹(ω × Jω)``, [Doerr2021] Eq. 35b: no torque and no inertia over that interval;
+counted in ``gaps_bridged_gyro``, and once per gap in ``gaps_bridged_imu``); after a longer
 gap -- one the batch cuts -- the robot state is re-initialised from the measurement (status ``"segment"``, counted in
 ``segments``, not a failure). An input is never held across a gap.
 
