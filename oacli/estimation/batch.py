@@ -58,7 +58,8 @@ Choices the paper leaves open, and what is done here:
   noise is most of the miss, and a prediction whose error correlates with it biased Ixx) and solved again, the
   directions weighted at that solve's θ̂. Where the records carry the accelerometer's mean over a lost period
   (:func:`oacli.estimation.imu.attach_accelerations`), the force is not predicted: the specific force *is*
-  ``f/m``, so the translation across the gap takes the measured acceleration (:func:`lost_input_model`). Without
+  ``f/m``, so the translation across the gap takes the measured acceleration (:func:`lost_input_model`); where
+  they carry the gyro's slope over it, the rotation takes the measured ``ω̇`` likewise ([Doerr2021] Eq. 35b). Without
   a prediction the force is profiled out (position continuity kept) and the rotational state after the gap is
   estimated afresh; a longer gap is cut (the segment's first state free, with its own gauge tie). Cutting every
   gap biases θ in closed loop (see :func:`segment_link_weights`).
@@ -103,7 +104,8 @@ from oacli.estimation.propagation import (
 )
 from oacli.types import ParameterEstimate
 
-__all__ = ["BatchResult", "bridge_accelerations", "estimate_batch", "estimate_batch_windows", "lost_input_model"]
+__all__ = ["BatchResult", "GyroBridge", "bridge_accelerations", "bridge_angular_accelerations", "estimate_batch",
+           "estimate_batch_windows", "lost_input_model"]
 
 _ACCEL_ROWS = np.r_[3:6, 10:13]  # v̇ and ω̇ rows of the continuous dynamics
 _LAMBDA_INIT = 1e-6
@@ -317,7 +319,7 @@ def noise_corrected_prediction(
 def lost_input_model(
     t: np.ndarray, u: np.ndarray, links: np.ndarray, mass_kg: float, *,
     bridge_acceleration: np.ndarray | None = None, bridge_acceleration_variance: np.ndarray | None = None,
-    noise: np.ndarray | None = None,
+    noise: np.ndarray | None = None, gyro: GyroBridge | None = None, inertia_kgm2: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What the estimator assumes over each interval with an unknown input (one model for :class:`_Problem` and
     :func:`oacli.estimation.bounds.cramer_rao_bound`).
@@ -332,6 +334,15 @@ def lost_input_model(
       translation needs neither the force nor the mass: its force is set to 0 in ``u`` and the measured
       ``f/m`` enters the residual as an offset ``D_f ā``, :func:`unknown_force_directions`); otherwise predicted
       from its neighbours like ``τ`` (variance ``σ_f² / m²``).
+    * ``τ`` -- measured by the gyro instead when the record carries the slope of its readings over the interval
+      (``gyro``, :func:`oacli.estimation.imu.attach_accelerations`): by [Doerr2021] Eq. 35b,
+      ``ω̇ = J⁻¹ (τ − ω × J ω)``, and the torque is held, so the slope ``ᾱ`` is the interval's ``ω̇``, gyroscopic
+      term included. The torque is set to 0 in ``u``, and the model then still applies the gyroscopic term
+      ``−J⁻¹ (ω × J ω)``, so what the lost torque added is ``J⁻¹ τ = ᾱ + J⁻¹ (ω × J ω)`` (``ω`` the gyro's rate,
+      ``J`` at ``inertia_kgm2``, the weighting point; its error there moves the offset by ``T ω² ΔJ/J``, µrad/s).
+      It enters the residual as an offset ``[½T², T] J⁻¹ τ`` on the attitude and the angular velocity (the
+      directions of :func:`unknown_torque_directions`), the prior variance of ``τ`` is ``J² σ_ᾱ²``: the interval's
+      rotation needs neither the torque nor ``J``, as the translation needs neither ``f`` nor ``m``.
 
     Parameters
     ----------
@@ -350,17 +361,25 @@ def lost_input_model(
         Measurement residuals ``ỹ_k ⊟ x̂_k`` of a first solve (NaN where a record has none): the prediction is
         corrected for the controller's reaction to the neighbours' measurement noise
         (:func:`noise_corrected_prediction`).
+    gyro : GyroBridge, optional
+        The gyro's ``ω̇`` over each record's outgoing interval (:func:`bridge_angular_accelerations`); used with
+        ``inertia_kgm2``.
+    inertia_kgm2 : ndarray, shape (3,), optional
+        Principal inertias where the gyro-bridged torque's variance and gyroscopic term are evaluated (the
+        weighting point of :func:`segment_link_weights`).
 
     Returns
     -------
     u_model : ndarray, shape (K, 6)
-        Inputs with the predictions in place (force 0 where the accelerometer bridges).
+        Inputs with the predictions in place (force 0 where the accelerometer bridges, torque 0 where the gyro
+        does).
     bridged : ndarray of bool, shape (K - 1,)
         Intervals with an unknown input linked through the nuisance ``w``.
     variance : ndarray, shape (K - 1, 6)
         Prior variance of ``w = [f/m, τ]`` on the bridged intervals (NaN elsewhere).
     offset : ndarray, shape (K - 1, 12)
-        ``D_f ā`` on the accelerometer-bridged intervals (0 elsewhere): subtracted from the process residual.
+        ``D_f ā`` on the accelerometer-bridged intervals, ``[½T², T] J⁻¹ τ`` on the gyro-bridged ones (0
+        elsewhere): subtracted from the process residual.
     """
     t = np.asarray(t, dtype=float)
     k = t.size
@@ -389,6 +408,16 @@ def lost_input_model(
         variance[imu, 0:3] = acc_var[imu, None]
         u_model[:-1][imu, 0:3] = 0.0
         offset[imu] = np.einsum("kij,kj->ki", unknown_force_directions(dt[imu]), acc[imu])
+    if gyro is not None and inertia_kgm2 is not None:
+        inertia = np.asarray(inertia_kgm2, dtype=float)
+        alpha, alpha_var, rate = gyro.angular_acceleration[:-1], gyro.variance[:-1], gyro.rate[:-1]
+        turn = (bridged & np.all(np.isfinite(alpha), axis=1) & np.isfinite(alpha_var) & (alpha_var > 0)
+                & np.all(np.isfinite(rate), axis=1))
+        variance[turn, 3:6] = alpha_var[turn, None] * inertia**2
+        u_model[:-1][turn, 3:6] = 0.0
+        added = alpha[turn] + np.cross(rate[turn], rate[turn] * inertia) / inertia  # J⁻¹τ
+        offset[turn, 6:9] = 0.5 * dt[turn, None] ** 2 * added
+        offset[turn, 9:12] = dt[turn, None] * added
     return u_model, bridged, variance, offset
 
 
@@ -688,6 +717,51 @@ def bridge_accelerations(records: Sequence[Measurement], model: MeasurementModel
     return (acc, var) if np.any(np.isfinite(var)) else (None, None)
 
 
+@dataclass(frozen=True)
+class GyroBridge:
+    """The gyro's measurements over the lost intervals (:func:`bridge_angular_accelerations`).
+
+    Attributes
+    ----------
+    angular_acceleration : ndarray, shape (K, 3)
+        Mean ``ω̇`` over each record's outgoing interval, body frame [rad/s²] (NaN where none).
+    variance : ndarray, shape (K,)
+        Its variance per axis [rad²/s⁴].
+    rate : ndarray, shape (K, 3)
+        The gyro's rate at the record's stamp [rad/s] (for the gyroscopic term).
+    """
+
+    angular_acceleration: np.ndarray
+    variance: np.ndarray
+    rate: np.ndarray
+
+
+def bridge_angular_accelerations(records: Sequence[Measurement]) -> GyroBridge | None:
+    """The gyro's mean ``ω̇`` over each input-only record's interval, its variance and rate
+    (:func:`oacli.estimation.imu.attach_accelerations`; None when no record carries one).
+
+    Parameters
+    ----------
+    records : sequence of Measurement
+        In time order.
+
+    Returns
+    -------
+    GyroBridge or None
+    """
+    k = len(records)
+    alpha = np.full((k, 3), np.nan)
+    var = np.full(k, np.nan)
+    rate = np.full((k, 3), np.nan)
+    for i, r in enumerate(records):
+        v = r.angular_acceleration_var_rad2ps4
+        if not r.state_measured and r.angular_acceleration_radps2 is not None and v is not None:
+            alpha[i] = r.angular_acceleration_radps2
+            var[i] = float(v)
+            rate[i] = r.x_measured[10:13]
+    return GyroBridge(alpha, var, rate) if np.any(np.isfinite(var)) else None
+
+
 class _Problem:
     """Residuals ``b(ϑ)`` and the sparse Jacobian ``A`` of the batch problem for fixed data."""
 
@@ -725,6 +799,7 @@ class _Problem:
         self._q_proc = settings.process.covariance(np.diff(self.t), weights_theta) if self.has_gaps else None
         self._weights_theta = np.asarray(weights_theta, dtype=float)
         self._bridge = bridge_accelerations(records, model) if self.has_gaps else (None, None)
+        self._gyro = bridge_angular_accelerations(records) if self.has_gaps else None
         self.w_proc = self._w_proc_nominal
         self.set_lost_inputs()
         self._propagation_cache: Propagated | None = None
@@ -746,7 +821,7 @@ class _Problem:
         acc, var = self._bridge
         self.u, bridged, variance, self.gap_offset = lost_input_model(
             self.t, self._u_records, self.links, m_w, bridge_acceleration=acc, bridge_acceleration_variance=var,
-            noise=noise)
+            noise=noise, gyro=self._gyro, inertia_kgm2=weights_theta[1:4])
         self._w_proc_nominal, self.link_rows = segment_link_weights(
             self._w_proc_linked, self._q_proc, np.diff(self.t), self.links, bridged,
             variance * np.r_[m_w**2, m_w**2, m_w**2, 1.0, 1.0, 1.0], weights_theta)
@@ -811,16 +886,17 @@ class _Problem:
         # Process residuals x_{k+1} ⊟ f(x_k, u_k, θ), whitened by Q_k^-½.
         if k > 1:
             fx, a, c = propagate_intervals(x[:-1], self.u[:-1], theta, self.durations)
-            e = boxminus(x[1:], fx) - self.gap_offset
+            e_raw = boxminus(x[1:], fx)  # the Jacobians are those of ⊟, at its value (the gap offset is constant)
+            e = e_raw - self.gap_offset
             res = np.einsum("kij,kj->ki", self.w_proc, e).ravel()
             parts.append(res)
             if jacobian:
                 next_blk = np.zeros((k - 1, TANGENT_DIM, TANGENT_DIM))
                 next_blk[:, 0:6, 0:6] = np.eye(6)
-                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e[:, 6:9])
+                next_blk[:, 6:9, 6:9] = so3_right_jacobian_inverse(e_raw[:, 6:9])
                 next_blk[:, 9:12, 9:12] = np.eye(3)
                 pred_blk = next_blk.copy()
-                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e[:, 6:9])
+                pred_blk[:, 6:9, 6:9] = so3_left_jacobian_inverse(e_raw[:, 6:9])
                 proj = pred_blk @ project_matrix(fx)  # (K-1, 12, 13)
                 j_prev = -(self.w_proc @ proj @ a @ lift_matrix(x[:-1]))
                 j_next = self.w_proc @ next_blk
@@ -909,11 +985,12 @@ class _Problem:
                 fx, a, c = self._propagate(x, phi, theta)
             else:  # the end states only (a trial step's cost)
                 fx = propagate_intervals_structured(x[:-1], self.u[:-1], theta, self.durations, jacobians=False)[0]
-            e = boxminus(x[1:], fx) - self.gap_offset
+            e_raw = boxminus(x[1:], fx)  # the Jacobians are those of ⊟, at its value (the gap offset is constant)
+            e = e_raw - self.gap_offset
             res = np.einsum("kij,kj->ki", self.w_proc, e)
             parts.append(res.ravel())
             if jacobian:
-                j_prev, j_next, j_phi = _process_jacobians(self.w_proc, e, fx, a, c, x[:-1], dtheta)
+                j_prev, j_next, j_phi = _process_jacobians(self.w_proc, e_raw, fx, a, c, x[:-1], dtheta)
                 groups.append(_Group(res, np.arange(k - 1), j_prev, j_next, j_phi))
 
         if self.gauge_rows.size:

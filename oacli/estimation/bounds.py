@@ -18,7 +18,8 @@ Both bounds assume the dynamics exact (no process noise), i.e. the output-error 
 **Gaps in the input record** (lost controller records, :mod:`oacli.estimation.alignment`). Where the batch estimator
 bridges a gap, the wrench held over it is unknown; the bound carries it as a nuisance parameter ``w = [f/m, τ]`` (6
 per gap) that moves the state after the gap along the estimator's directions, with the prior the estimator gives it
-(its neighbours' regression, or the accelerometer's mean for ``f/m``: :func:`oacli.estimation.batch.lost_input_model`)
+(its neighbours' regression, or the accelerometer's mean for ``f/m`` and the gyro's slope for ``τ``:
+:func:`oacli.estimation.batch.lost_input_model`)
 -- a hybrid bound (``w`` random, θ and the initial state fixed) that the batch's covariance estimates; ``w`` without a
 prior (``lost_inputs="nuisance"``) and every gap cut (``"cut"``, the bound this module gave before) are available for
 comparison. On the benchmark's gapped ISS runs (10 % of the controller records lost, ``benchmarks/bench_estimation.py``)
@@ -36,7 +37,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from oacli.estimation.batch import lost_input_model, unknown_force_directions, unknown_torque_directions
+from oacli.estimation.batch import (
+    GyroBridge,
+    lost_input_model,
+    unknown_force_directions,
+    unknown_torque_directions,
+)
 from oacli.estimation.manifold import TANGENT_DIM, boxminus, lift_matrix, project_matrix
 from oacli.estimation.models import MeasurementModel, measured_rows
 from oacli.estimation.propagation import dynamics_jacobians_batch, propagate_intervals_structured, substep_schedule
@@ -85,6 +91,7 @@ def cramer_rao_bound(
     bridge_acceleration: np.ndarray | None = None,
     bridge_acceleration_variance: np.ndarray | None = None,
     measured: np.ndarray | None = None,
+    gyro: GyroBridge | None = None,
 ) -> CramerRaoBound:
     """Cramér-Rao bounds of θ from measuring ``states`` at times ``t`` (see the module docstring).
 
@@ -129,6 +136,9 @@ def cramer_rao_bound(
         The measured states: the residuals ``ỹ ⊟ x̂`` of the ``used`` records give the lost wrench's prior the
         variance of the estimator's noise-corrected prediction
         (:func:`oacli.estimation.batch.noise_corrected_prediction`), as the batch estimator's last solve uses it.
+    gyro : GyroBridge, optional
+        The gyro's ``ω̇`` over the lost intervals (:func:`oacli.estimation.batch.bridge_angular_accelerations`):
+        where it has one, ``τ`` has the prior ``J² σ_ᾱ²`` ([Doerr2021] Eq. 35b, :func:`lost_input_model`).
 
     Returns
     -------
@@ -155,7 +165,8 @@ def cramer_rao_bound(
             noise[used] = boxminus(np.asarray(measured, dtype=float)[used], states[used])
         u, bridged, variance, _ = lost_input_model(
             t, u, links, float(theta[0]), bridge_acceleration=bridge_acceleration,
-            bridge_acceleration_variance=bridge_acceleration_variance, noise=noise)
+            bridge_acceleration_variance=bridge_acceleration_variance, noise=noise, gyro=gyro,
+            inertia_kgm2=theta[1:4])
         dt = np.diff(t)
         for i in np.flatnonzero(bridged):
             d = np.concatenate([unknown_force_directions(dt[i:i + 1])[0],

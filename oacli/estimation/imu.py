@@ -19,8 +19,8 @@ and subtracted from the reading used at each record. The records use one reading
 σ_a = 2.2e-3 m/s², the RATTLE level), is about ``1/√12`` of one record's noise averaged over the same records and
 is left out of the Cramér-Rao bound; ``bias_std_mps2`` in the summary reports it. A random-walk bias is not
 constant: what drifts over the run (``σ_rw √T``) stays in the residuals, bounded by the summary's
-``residual_rms_mps2``. The gyro is not used: the localisation's angular rate (Astrobee's EKF output, its gyro
-bias already removed) is the rate measurement.
+``residual_rms_mps2``. At the measured records the gyro is not used: the localisation's angular rate (Astrobee's
+EKF output, its gyro bias already removed) is the rate measurement.
 
 **Lost controller records.** The IMU is a stream of its own: a lost controller record (measurement, input and
 command of one control step) leaves its readings in the log. Over the lost control period the accelerometer
@@ -28,6 +28,19 @@ measures the unknown force as ``f/m``; :func:`attach_accelerations` gives the lo
 mean of those readings and their number, and the batch estimator bridges the gap with it
 (:func:`oacli.estimation.batch.lost_input_model`): on the benchmark's gapped ISS runs the mass bound drops from
 0.88 % (force predicted from the neighbouring inputs) to 0.52 %.
+
+**The gyro bridges a lost torque.** The lost torque ``τ`` is constant over its control period (zero-order hold), so
+by [Doerr2021] Eq. 35b, ``J ω̇ = τ − ω × J ω``, the body rate is a straight line over the period to within the
+change of the gyroscopic term (``~ω̇ ω ΔJ/J``: a few µrad/s over 0.2 s on the ISS runs). The slope of a line fitted
+to the gyro's readings over ``[t_k, t_{k+1}]`` (both ends included: the rate is continuous) measures the mean
+``ω̇`` the lost torque produced, gyroscopic term included, with variance ``σ_g² / Σ(t_i − t̄)²``; a constant gyro
+bias cancels in the slope, so it needs no estimate. ``σ_g²`` is not configured: it is the pooled variance of the
+residuals of the same line fit over every control period of the run (the torque is constant over each, whether
+its record was lost or not; :func:`gyro_noise_variance`). The lost record gets that slope
+(``angular_acceleration_radps2``), its variance (``angular_acceleration_var_rad2ps4``) and the line's rate at its
+stamp in ``x_measured[10:13]`` (the point where the estimators evaluate the gyroscopic term); the estimators
+integrate the measured ``ω̇`` across the gap instead of the torque (:func:`oacli.estimation.batch.lost_input_model`).
+Like the accelerometer's ``f/m``, it carries no inertia: the interval's rotation needs neither the torque nor ``J``.
 """
 
 from __future__ import annotations
@@ -39,7 +52,7 @@ import numpy as np
 from oacli.estimation.models import Measurement
 from oacli.model import quaternion as quat
 
-__all__ = ["AccelerometerFit", "ImuStream", "attach_accelerations", "fit_accelerometer_bias"]
+__all__ = ["AccelerometerFit", "ImuStream", "attach_accelerations", "fit_accelerometer_bias", "gyro_noise_variance"]
 
 
 @dataclass(frozen=True)
@@ -168,8 +181,86 @@ def _gap_bridge(records: list[Measurement], j: int, imu: ImuStream, bias_mps2: n
     return f_world.mean(axis=0), int(inside.size)
 
 
+def _line_sums(s: np.ndarray, w: np.ndarray, group: np.ndarray, groups: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per group: readings ``n``, ``S_ss = Σ(s − s̄)²``, slope ``S_sw / S_ss`` (3), line value at ``s = 0`` (3)
+    and residual sum of squares (3) of the least-squares line ``w ≈ a + b s``."""
+    n = np.bincount(group, minlength=groups).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s_mean = np.bincount(group, s, minlength=groups) / n
+        w_mean = np.stack([np.bincount(group, w[:, i], minlength=groups) for i in range(3)], axis=1) / n[:, None]
+        ds = s - s_mean[group]
+        dw = w - w_mean[group]
+        s_ss = np.bincount(group, ds * ds, minlength=groups)
+        s_sw = np.stack([np.bincount(group, ds * dw[:, i], minlength=groups) for i in range(3)], axis=1)
+        s_ww = np.stack([np.bincount(group, dw[:, i] ** 2, minlength=groups) for i in range(3)], axis=1)
+        slope = s_sw / s_ss[:, None]
+        at_zero = w_mean - slope * s_mean[:, None]
+        rss = s_ww - slope * s_sw
+    return n, s_ss, slope, at_zero, rss
+
+
+def gyro_noise_variance(records: list[Measurement], imu: ImuStream, period_s: float) -> float | None:
+    """The gyro's white-noise variance per axis [rad²/s²], from the data: the pooled residual variance of a line
+    fitted to its readings over every control period between consecutive records (module docstring; the torque is
+    held over each, [Doerr2021] Eq. 35b makes the rate a line to within the gyroscopic term's change).
+
+    Parameters
+    ----------
+    records : list of Measurement
+        Aligned records (strictly increasing stamps), measured or input-only.
+    imu : ImuStream
+    period_s : float
+        Control period [s]: longer intervals (several lost instants) are left out.
+
+    Returns
+    -------
+    float or None
+        None with fewer than 10 degrees of freedom.
+    """
+    t_rec = np.array([r.t for r in records])
+    t = np.asarray(imu.t, float)
+    if t_rec.size < 2 or t.size < 3:
+        return None
+    k = np.searchsorted(t_rec, t + 1e-9, side="right") - 1
+    ok = (k >= 0) & (k < t_rec.size - 1)
+    k, t = k[ok], t[ok]
+    w = np.asarray(imu.angular_rate_radps, float)[ok]
+    short = np.diff(t_rec) <= 1.5 * period_s + 1e-9
+    keep = short[k]
+    k, t, w = k[keep], t[keep], w[keep]
+    if k.size < 3:
+        return None
+    n, _, _, _, rss = _line_sums(t - t_rec[k], w, k, t_rec.size - 1)
+    fit = n >= 3
+    dof = 3.0 * float(np.sum(n[fit] - 2.0))
+    if dof < 10:
+        return None
+    return float(np.sum(rss[fit])) / dof
+
+
+def _gyro_bridge(records: list[Measurement], j: int, imu: ImuStream, variance: float, period_s: float
+                 ) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """The gyro's mean ``ω̇`` (body frame) over the lost interval after input-only record ``j``, its variance per
+    axis and the fitted rate at ``t_j`` (module docstring); None with fewer than 3 readings or a longer gap."""
+    t0, t1 = records[j].t, records[j + 1].t
+    if t1 - t0 > 1.5 * period_s + 1e-9:
+        return None
+    tol = 1e-9
+    t = np.asarray(imu.t, float)
+    inside = np.flatnonzero((t >= t0 - tol) & (t <= t1 + tol))
+    if inside.size < 3:
+        return None
+    _, s_ss, slope, at_zero, _ = _line_sums(t[inside] - t0, np.asarray(imu.angular_rate_radps, float)[inside],
+                                            np.zeros(inside.size, dtype=int), 1)
+    if not s_ss[0] > 0:
+        return None
+    return slope[0], float(variance) / float(s_ss[0]), at_zero[0]
+
+
 def attach_accelerations(
-    records: list[Measurement], imu: ImuStream, bias_mps2: np.ndarray, t_inputs: np.ndarray, period_s: float
+    records: list[Measurement], imu: ImuStream, bias_mps2: np.ndarray, t_inputs: np.ndarray, period_s: float,
+    *, gyro: bool = True,
 ) -> tuple[list[Measurement], int]:
     """Give each measured record the first reading at or after its stamp under the same input, bias removed and
     rotated into the world frame by the record's measured attitude.
@@ -180,7 +271,9 @@ def attach_accelerations(
     (``Measurement.acceleration_readings``): the accelerometer measures the lost force as ``f/m``, so the batch
     estimator bridges the gap with it instead of predicting the force from the neighbouring inputs
     (:func:`oacli.estimation.batch.lost_input_model`). The IMU is a separate stream: losing a controller record
-    does not lose its readings.
+    does not lose its readings. With ``gyro``, the same record also gets the gyro's mean ``ω̇`` over the interval
+    (the slope of its readings), its variance and the rate at its stamp: the gyro bridges the lost torque (module
+    docstring, [Doerr2021] Eq. 35b).
 
     Parameters
     ----------
@@ -192,6 +285,8 @@ def attach_accelerations(
         Stamps of the logged inputs (applied or commanded) [s].
     period_s : float
         Control period [s].
+    gyro : bool
+        Bridge the lost torques with the gyro too (its noise measured on the run, :func:`gyro_noise_variance`).
 
     Returns
     -------
@@ -208,12 +303,25 @@ def attach_accelerations(
             first[int(j)] = i
     out: list[Measurement] = []
     missing = 0
+    lost = [j for j, rec in enumerate(records)
+            if not rec.state_measured and j + 1 < len(records) and records[j + 1].starts_segment]
+    gyro_var = gyro_noise_variance(records, imu, period_s) if lost and gyro else None
     for j, rec in enumerate(records):
         found = first.get(j)
-        if not rec.state_measured and j + 1 < len(records) and records[j + 1].starts_segment:
+        if lost and j == lost[0]:
+            lost.pop(0)
             bridge = _gap_bridge(records, j, imu, np.asarray(bias_mps2, float), period_s)
+            turn = None if gyro_var is None else _gyro_bridge(records, j, imu, max(gyro_var, 1e-16), period_s)
+            changes: dict = {}
             if bridge is not None:
-                out.append(replace(rec, linear_acceleration_mps2=bridge[0], acceleration_readings=bridge[1]))
+                changes.update(linear_acceleration_mps2=bridge[0], acceleration_readings=bridge[1])
+            if turn is not None:
+                x_seed = np.array(rec.x_measured, dtype=float)
+                x_seed[10:13] = turn[2]
+                changes.update(angular_acceleration_radps2=turn[0], angular_acceleration_var_rad2ps4=turn[1],
+                               x_measured=x_seed)
+            if changes:
+                out.append(replace(rec, **changes))
                 continue
         if found is None:
             missing += rec.state_measured

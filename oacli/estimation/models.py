@@ -72,6 +72,11 @@ class Measurement:
         Accelerometer readings averaged into ``linear_acceleration_mps2`` (1: a single reading). An input-only record
         whose input is unknown (the next record ``starts_segment``) may carry the mean of the readings over its
         interval: the IMU bridges the lost force there (:func:`oacli.estimation.imu.attach_accelerations`).
+    angular_acceleration_var_rad2ps4 : float or None
+        On such an input-only record only: the variance per axis of ``angular_acceleration_radps2`` [rad²/s⁴],
+        which is then the gyro's mean ``ω̇`` over the lost interval (the slope of its readings; ``x_measured[10:13]``
+        holds the gyro's rate at ``t``): the gyro bridges the lost torque
+        (:func:`oacli.estimation.imu.attach_accelerations`). None otherwise.
     """
 
     t: float
@@ -82,6 +87,7 @@ class Measurement:
     state_measured: bool = True
     starts_segment: bool = False
     acceleration_readings: int = 1
+    angular_acceleration_var_rad2ps4: float | None = None
 
     def __post_init__(self) -> None:
         t = float(self.t)

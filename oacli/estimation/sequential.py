@@ -44,7 +44,9 @@ prediction across the gap uses the mean of the known inputs on either side, and 
 instant's record carries the accelerometer's mean over its period (``/imu`` survived,
 :func:`oacli.estimation.imu.attach_accelerations`) the lost force is taken from it instead, as the batch does
 (:func:`~oacli.estimation.batch.lost_input_model`: ``f/m`` measured to ``σ_a²/n``, no mass sensitivity over that
-interval; counted in ``gaps_bridged_imu``); after a longer
+interval; counted in ``gaps_bridged_imu``), and the lost torque from the gyro's slope over the period when the
+record carries it (``J⁻¹τ = ω̇ + J⁻¹(ω × Jω)``, [Doerr2021] Eq. 35b: no torque and no inertia over that interval;
+counted in ``gaps_bridged_gyro``, and once per gap in ``gaps_bridged_imu``); after a longer
 gap -- one the batch cuts -- the robot state is re-initialised from the measurement (status ``"segment"``, counted in
 ``segments``, not a failure). An input is never held across a gap.
 
@@ -332,12 +334,17 @@ class SequentialEstimator:
         self._estimate_cache: ParameterEstimate | None = None
         self.gaps_bridged = 0
         self.gaps_bridged_imu = 0
+        self.gaps_bridged_gyro = 0
         self._gap_q: np.ndarray | None = None
         # Across an accelerometer-bridged gap: the measured mean specific force [m/s²] (world) and the interval [s];
         # _propagate adds its exact effect on position and velocity (the held force is 0 there).
         self._gap_acc: tuple[np.ndarray, float] | None = None
         # The previous record when it is a lost instant with the accelerometer's mean: (f/m [m/s²], readings).
         self._lost_acc: tuple[np.ndarray, int] | None = None
+        # Likewise with the gyro's mean ω̇ over the lost interval: (ω̇ [rad/s²], its variance, the rate at t [rad/s]);
+        # across a gyro-bridged gap, the ω̇ the lost torque added (J⁻¹τ) and the interval [s] (_propagate).
+        self._lost_gyro: tuple[np.ndarray, float, np.ndarray] | None = None
+        self._gap_gyro: tuple[np.ndarray, float] | None = None
         self._inputs_t: list[float] = []  # every processed record's time, input and segment flag (_bridge_gap)
         self._inputs_u: list[np.ndarray] = []
         self._inputs_start: list[bool] = []
@@ -468,6 +475,12 @@ class SequentialEstimator:
             x_new = x_new.copy()
             x_new[0:3] += (0.5 * dt_s**2) * acc
             x_new[3:6] += dt_s * acc
+        if self._gap_gyro is not None:  # the ω̇ the lost torque added (gyro, [Doerr2021] Eq. 35b): body frame
+            added, dt_s = self._gap_gyro
+            offset = np.zeros(TANGENT_DIM)
+            offset[6:9] = (0.5 * dt_s**2) * added
+            offset[9:12] = dt_s * added
+            x_new = self._bp(x_new, offset)
         return x_new, a, c
 
     def _accel_selection(self, rec: Measurement) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -775,7 +788,19 @@ class SequentialEstimator:
             self.gaps_bridged_imu += 1
         else:
             d_force = d_force / theta[0]
-        d = np.concatenate([d_force, unknown_torque_directions(np.array([dt_gap]), theta[1:4])[0]], axis=1)
+        d_torque = unknown_torque_directions(np.array([dt_gap]), theta[1:4])[0]
+        if self._lost_gyro is not None:
+            self.gaps_bridged_imu += self._gap_acc is None  # counted once per gap, either sensor
+            # The gyro measured the lost torque's ω̇ (lost_input_model): J⁻¹τ = ω̇ + J⁻¹(ω × Jω) with the model's
+            # torque 0 (its gyroscopic term stays), at the current θ̂; its variance directly on [½T², T].
+            alpha, alpha_var, rate = self._lost_gyro
+            inertia = par.theta_from_phi(self._phi)[1:4]
+            self._gap_gyro = (alpha + np.cross(rate, rate * inertia) / inertia, float(dt_gap))
+            self._u_last[3:6] = 0.0
+            variance = np.concatenate([variance[0:3], np.full(3, alpha_var)])
+            d_torque = d_torque * theta[1:4]  # per unit ω̇
+            self.gaps_bridged_gyro += 1
+        d = np.concatenate([d_force, d_torque], axis=1)
         self._gap_q = (d * variance) @ d.T
         self.gaps_bridged += 1
         return True
@@ -834,8 +859,14 @@ class SequentialEstimator:
         self._t_last = rec.t
         self._u_last = np.array(rec.u_applied, dtype=float)
         self._gap_acc = None
+        self._gap_gyro = None
         acc_lost = rec.linear_acceleration_mps2
         self._lost_acc = (None if rec.state_measured or acc_lost is None or not np.all(np.isfinite(acc_lost))
                           else (np.asarray(acc_lost, dtype=float), int(rec.acceleration_readings)))
+        alpha, alpha_var = rec.angular_acceleration_radps2, rec.angular_acceleration_var_rad2ps4
+        self._lost_gyro = (None if rec.state_measured or alpha is None or alpha_var is None
+                           or not (np.all(np.isfinite(alpha)) and np.isfinite(alpha_var) and alpha_var > 0)
+                           else (np.asarray(alpha, dtype=float), float(alpha_var),
+                                 np.asarray(rec.x_measured[10:13], dtype=float)))
         state = self._x.copy() if self._x is not None else np.full(13, np.nan)
         self.history.append(SequentialStep(rec.t, status, d2, dof, self.estimate, state))

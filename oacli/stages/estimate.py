@@ -38,7 +38,12 @@ import yaml
 from oacli.config import OacliConfig
 from oacli.errors import InfeasibleError, InputError
 from oacli.estimation.alignment import AlignmentReport, align_records
-from oacli.estimation.batch import BatchResult, bridge_accelerations, estimate_batch_windows
+from oacli.estimation.batch import (
+    BatchResult,
+    bridge_accelerations,
+    bridge_angular_accelerations,
+    estimate_batch_windows,
+)
 from oacli.estimation.bounds import CramerRaoBound, cramer_rao_bound, describe_unobservable, unobservable_parameters
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
@@ -224,7 +229,8 @@ def run_estimation(
     bridge_acc, bridge_var = bridge_accelerations(recs, settings.measurement)
     bound = cramer_rao_bound(t, states, u, final.theta, settings.measurement, settings.substep_s,
                              used=used, accelerations_measured=has_acc, segment_starts=starts,
-                             bridge_acceleration=bridge_acc, bridge_acceleration_variance=bridge_var, measured=y)
+                             bridge_acceleration=bridge_acc, bridge_acceleration_variance=bridge_var, measured=y,
+                             gyro=bridge_angular_accelerations(recs))
     return EstimationRun(
         method=method, final=final, history=history, t_records=t, states=states, inputs=u,
         measured=y, status=status, d2=d2, dof=dof, gate_threshold=threshold, bound=bound, batch=batch,
