@@ -990,6 +990,7 @@ class _Problem:
             res = np.einsum("kij,kj->ki", self.w_proc, e)
             parts.append(res.ravel())
             if jacobian:
+                assert a is not None and c is not None  # the Jacobian branch propagated with Jacobians
                 j_prev, j_next, j_phi = _process_jacobians(self.w_proc, e_raw, fx, a, c, x[:-1], dtheta)
                 groups.append(_Group(res, np.arange(k - 1), j_prev, j_next, j_phi))
 

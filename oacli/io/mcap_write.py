@@ -395,7 +395,7 @@ class StageMcapWriter:
         self._channels: dict[str, tuple[Any, str, dict[str, str]]] = {}
         self._last_t: dict[str, float] = {}
         self._ordered = bool(time_ordered)
-        self._queue: list[Iterator[_Pending]] | None = [] if self._ordered else None
+        self._queue: list[Iterator[_Pending] | list[_Pending]] | None = [] if self._ordered else None
         self._kept: EncodedRows | None = None  # payloads of sample records are kept here (keep_encoded)
         self._reuse: EncodedRows | None = None  # payloads taken from here when the rows match (reuse_encoded)
         self._written: mcap_memo.Written | None = None  # what is written, while oacli.io.mcap_memo is active
@@ -549,7 +549,7 @@ class StageMcapWriter:
             for log_time, emit, payload in messages:
                 emit(payload, log_time)
                 if type(payload) is bytes:  # a JSON record, kept for oacli.io.mcap_memo (_remember)
-                    written.setdefault(emit.topic, []).append((log_time, payload))
+                    written.setdefault(emit.topic, []).append((log_time, payload))  # type: ignore[attr-defined]
                 else:
                     _remember(written, emit, payload, log_time)
                 if pending:
