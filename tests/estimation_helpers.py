@@ -106,3 +106,26 @@ def closed_loop_pd(seed: int, n: int) -> Telemetry:
         input_limits=np.full(6, 10.0), sensors=SENSORS, disturbance=Disturbance.none(),
         rng=np.random.default_rng(seed),
     )
+
+
+def dense_jacobian_matching_central_differences(problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray,
+                                                step: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Assert that the batch problem's Jacobian ``A = ∂b/∂δϑ`` (``_Problem.evaluate``) equals central differences
+    of its residuals ``b`` in every column (states through ``⊞``, then the parameters φ); return ``(b, A)`` dense.
+
+    ``x`` is (K, 13) states, ``phi`` the parameter vector, ``inliers`` a (K,) mask.
+    """
+    from oacli.estimation.manifold import boxplus
+
+    b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+    a_dense = a_mat.toarray()
+    n_states = 12 * x.shape[0]
+    for col in range(problem.n_var):
+        d = np.zeros(problem.n_var)
+        d[col] = step
+        xp, pp = boxplus(x, d[:n_states].reshape(-1, 12)), phi + d[n_states:]
+        xm, pm = boxplus(x, -d[:n_states].reshape(-1, 12)), phi - d[n_states:]
+        fd = (problem.evaluate(xp, pp, inliers, False)[0] - problem.evaluate(xm, pm, inliers, False)[0]) / (2 * step)
+        np.testing.assert_allclose(a_dense[:, col], fd, rtol=2e-5, atol=2e-5 * max(1.0, np.abs(fd).max()))
+    assert b.shape[0] == a_dense.shape[0]
+    return b, a_dense

@@ -19,6 +19,7 @@ from estimation_helpers import (
     RATTLE_PRIOR,
     THETA_TRUE,
     closed_loop_pd,
+    dense_jacobian_matching_central_differences,
     records,
     settings,
     simulate_open_loop,
@@ -185,16 +186,7 @@ def test_the_process_jacobian_with_a_gap_offset_matches_finite_differences():
     x = boxplus(problem.y, rng.normal(0, 0.05, (6, 12)))
     phi = par.phi_from_theta(np.array([12.0, 0.12, 0.15, 0.17]))
     inliers = np.ones(6, dtype=bool)
-    b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
-    a_dense = a_mat.toarray()
-    h = 1e-6
-    for col in range(problem.n_var):
-        d = np.zeros(problem.n_var)
-        d[col] = h
-        xp, pp = boxplus(x, d[:72].reshape(6, 12)), phi + d[72:]
-        xm, pm = boxplus(x, -d[:72].reshape(6, 12)), phi - d[72:]
-        fd = (problem.evaluate(xp, pp, inliers, False)[0] - problem.evaluate(xm, pm, inliers, False)[0]) / (2 * h)
-        np.testing.assert_allclose(a_dense[:, col], fd, rtol=2e-5, atol=2e-5 * max(1.0, np.abs(fd).max()))
+    b, a_dense = dense_jacobian_matching_central_differences(problem, x, phi, inliers)
     _, normal = problem.normal_equations(x, phi, inliers)
     ata, atb = a_dense.T @ a_dense, a_dense.T @ b
     for i in range(6):
