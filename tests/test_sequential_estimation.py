@@ -92,7 +92,7 @@ def test_default_filter_equals_the_original_path():
     for a, b in zip(fast.history, slow.history, strict=True):
         assert np.max(np.abs(a.estimate.theta / b.estimate.theta - 1)) < 1e-7
     assert np.max(np.abs(new.theta / old.theta - 1)) < 1e-7
-    # The update inverts JᵀJ of a nearly rigid step (condition ~1e9): the covariance is good to ~1e-8 either way.
+    # The update takes its covariance from a QR factor of J of a nearly rigid step (JᵀJ has condition ~1e9).
     assert np.max(np.abs(new.covariance - old.covariance)) < 1e-7 * np.max(np.abs(old.covariance))
 
 
