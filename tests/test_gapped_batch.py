@@ -64,7 +64,7 @@ def test_a_noise_free_split_run_gives_the_unsplit_estimate(monkeypatch, mode):
     start = THETA_TRUE * np.array([1.1, 0.9, 1.1, 0.9])
     whole = estimate_batch(recs, settings(), WIDE_PRIOR, initial_theta=start)
     if mode == "cut":
-        monkeypatch.setattr(batch, "_BRIDGE_FACTOR", 0.0)
+        monkeypatch.setattr(batch, "BRIDGE_FACTOR", 0.0)
     else:
         monkeypatch.setattr(batch, "_MIN_PREDICTION_SAMPLES", 10**6)
     split = estimate_batch(_split(recs), settings(), WIDE_PRIOR, initial_theta=start)
@@ -82,7 +82,7 @@ def test_the_profiled_bridge_keeps_more_mass_information_than_the_cut(monkeypatc
     recs = _split(records(tel))
     monkeypatch.setattr(batch, "_MIN_PREDICTION_SAMPLES", 10**6)
     bridged = estimate_batch(recs, settings(), WIDE_PRIOR)
-    monkeypatch.setattr(batch, "_BRIDGE_FACTOR", 0.0)
+    monkeypatch.setattr(batch, "BRIDGE_FACTOR", 0.0)
     cut = estimate_batch(recs, settings(), WIDE_PRIOR)
     sd = [np.sqrt(np.diag(r.estimate.covariance)) for r in (bridged, cut)]
     assert sd[0][0] < sd[1][0]

@@ -104,8 +104,8 @@ from oacli.estimation.propagation import (
 )
 from oacli.types import ParameterEstimate
 
-__all__ = ["BatchResult", "GyroBridge", "bridge_accelerations", "bridge_angular_accelerations", "estimate_batch",
-           "estimate_batch_windows", "lost_input_model"]
+__all__ = ["BRIDGE_FACTOR", "BatchResult", "GyroBridge", "bridge_accelerations", "bridge_angular_accelerations",
+           "covariance_at", "estimate_batch", "estimate_batch_windows", "lost_input_model"]
 
 _ACCEL_ROWS = np.r_[3:6, 10:13]  # v̇ and ω̇ rows of the continuous dynamics
 _LAMBDA_INIT = 1e-6
@@ -128,7 +128,7 @@ gap converged to a different inlier set than a cold solve); with the full contin
 (16 instead of 21 iterations per window on the default mission, 10 with this one stage)."""
 _CONTINUATION_TOLERANCE = 1e-6
 
-_BRIDGE_FACTOR = 1.5
+BRIDGE_FACTOR = 1.5
 """A gap link is bridged (translational residual kept) when it spans at most this many typical record spacings."""
 _MIN_PREDICTION_SAMPLES = 10
 """Triples of known inputs needed to measure the error of a lost input's prediction (else it is profiled out)."""
@@ -325,7 +325,7 @@ def lost_input_model(
     :func:`oacli.estimation.bounds.cramer_rao_bound`).
 
     A bridged interval (one lost control instant between known inputs, :func:`lost_input_prior`, at most
-    ``_BRIDGE_FACTOR`` typical spacings) has an unknown constant wrench ``[f, τ]``, written as a nuisance
+    ``BRIDGE_FACTOR`` typical spacings) has an unknown constant wrench ``[f, τ]``, written as a nuisance
     ``w = [f/m, τ]`` with a Gaussian prior:
 
     * ``τ`` -- predicted from its neighbours, with their measured error variance;
@@ -392,7 +392,7 @@ def lost_input_model(
     if k < 2 or np.all(links):
         return u_model, bridged, variance, offset
     typical = float(np.median(dt[links])) if np.any(links) else float(np.median(dt))
-    bridged = ~links & predicted & (dt <= _BRIDGE_FACTOR * typical + TIME_TOL_S)
+    bridged = ~links & predicted & (dt <= BRIDGE_FACTOR * typical + TIME_TOL_S)
     variance[bridged, 0:3] = input_var[0:3] / mass_kg**2
     variance[bridged, 3:6] = input_var[3:6]
     if noise is not None:
@@ -438,7 +438,7 @@ def segment_link_weights(
       complement of ``W_t D`` (the cost minimised over the force in closed form; exact, the directions depend on
       neither the state nor θ), which leaves position continuity (three residuals); the rotational residuals are
       dropped (the attitude and angular velocity after the gap are estimated afresh).
-    * A gap longer than ``_BRIDGE_FACTOR`` typical record spacings (several unknown inputs) is cut.
+    * A gap longer than ``BRIDGE_FACTOR`` typical record spacings (several unknown inputs) is cut.
 
     Cutting every gap link (each segment's initial state free) is consistent but, in closed loop, biased: the
     controller's input depends on the noisy measurement that also fixes the segment's initial state, and a short
@@ -478,7 +478,7 @@ def segment_link_weights(
     if gaps.size == 0:
         return out, rows
     typical = float(np.median(dt[links])) if np.any(links) else float(np.median(dt))
-    gaps = gaps[dt[gaps] <= _BRIDGE_FACTOR * typical + TIME_TOL_S]
+    gaps = gaps[dt[gaps] <= BRIDGE_FACTOR * typical + TIME_TOL_S]
     with_prior = gaps[np.asarray(predicted, dtype=bool)[gaps]]
     profiled = np.setdiff1d(gaps, with_prior)
     if with_prior.size:
@@ -1236,6 +1236,40 @@ def _marginal_covariances(
     jac = par.theta_jacobian(phi)
     cov = jac @ cov_last[TANGENT_DIM:, TANGENT_DIM:] @ jac.T
     return 0.5 * (cov + cov.T), cov_last
+
+
+def covariance_at(
+    records: Sequence[Measurement], settings: EstimatorSettings, prior: ParameterEstimate | None,
+    states: np.ndarray, phi: np.ndarray, weights_theta: np.ndarray,
+) -> np.ndarray:
+    """The batch problem's parameter covariance ``[(AᵀA)⁻¹]_θθ`` at a given point, without iterating.
+
+    The covariance of the maximum-likelihood problem ([Doerr2021] Eqs. 31-32: ``cov(θ̂)`` "extracted from
+    ``(AᵀA)⁻¹``", module docstring) evaluated at ``(states, φ)``: what a solve converged there would report.
+    The sequential filter uses it to skip bootstrap checks that cannot hand over yet.
+
+    Parameters
+    ----------
+    records : sequence of Measurement
+        Time-ordered records.
+    settings : EstimatorSettings
+    prior : ParameterEstimate or None
+        Prior on θ (its information is added when given).
+    states : ndarray, shape (K, 13)
+        States of the records at the point.
+    phi : ndarray, shape (4,)
+        Parameters at the point in the solver's parametrisation (:mod:`oacli.estimation.parametrization`).
+    weights_theta : ndarray, shape (4,)
+        θ ``[m kg, Ixx, Iyy, Izz kg·m²]`` at which the lost inputs' model is weighted.
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+        Covariance of ``θ`` (``inf`` diagonal when ``AᵀA`` is singular).
+    """
+    problem = _Problem(records, settings, prior, weights_theta)
+    cov, _ = _marginal_covariances(problem, states, phi, problem.has_state.copy())
+    return cov
 
 
 def estimate_batch(

@@ -68,10 +68,9 @@ import scipy.linalg as sla
 
 from oacli.estimation import parametrization as par
 from oacli.estimation.batch import (
-    _BRIDGE_FACTOR,
+    BRIDGE_FACTOR,
     BatchResult,
-    _marginal_covariances,
-    _Problem,
+    covariance_at,
     estimate_batch,
     extend_states,
     lost_input_prior,
@@ -692,8 +691,8 @@ class SequentialEstimator:
     def _near_handover(self) -> bool:
         """Whether the covariance of the records so far may be within reach of the hand-over (offline checks).
 
-        The batch covariance at a point it does not move (:func:`~oacli.estimation.batch._marginal_covariances` of
-        the batch problem, no iteration): the last full solve's states and φ, the new records' states propagated by
+        The batch covariance at a point it does not move (:func:`~oacli.estimation.batch.covariance_at`, no
+        iteration): the last full solve's states and φ, the new records' states propagated by
         :func:`~oacli.estimation.batch.extend_states`; the prior mean and the measured states before the first full
         solve. Its largest ``std/|θ|`` is within 8 % of the converged solve's (default mission, two test runs), for
         about a tenth of its cost. A check whose largest ``std/|θ|`` exceeds :data:`_HANDOVER_MARGIN` times
@@ -712,8 +711,7 @@ class SequentialEstimator:
             else:
                 phi = par.phi_from_theta(self.prior.theta)
                 states = np.array([r.x_measured for r in recs])
-            problem = _Problem(recs, self.settings, self.prior, self.prior.theta)
-            cov, _ = _marginal_covariances(problem, states, phi, problem.has_state.copy())
+            cov = covariance_at(recs, self.settings, self.prior, states, phi, self.prior.theta)
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):  # e.g. no measured record yet
             return True
         ratio = np.sqrt(np.diag(cov)) / (self.bootstrap_relative_std * np.abs(par.theta_from_phi(phi)))
@@ -749,7 +747,7 @@ class SequentialEstimator:
         :func:`~oacli.estimation.batch.segment_link_weights`); False when it cannot be bridged.
 
         One lost control instant: the previous record is the lost instant's input-only record (reached through a
-        known input), and the unknown interval is as long as the one before it and at most ``_BRIDGE_FACTOR``
+        known input), and the unknown interval is as long as the one before it and at most ``BRIDGE_FACTOR``
         typical record spacings. Its input is predicted as the mean of the known inputs on either side,
         ``(u_{k-1} + u_{k+1}) / 2``, and the prediction's error variance, measured on the records so far (every
         triple of consecutive known inputs, as the batch measures it on the whole run), enters as process noise
@@ -769,7 +767,7 @@ class SequentialEstimator:
         starts = np.array(self._inputs_start, dtype=bool)
         links = ~starts[1:]
         dt = np.diff(t)
-        if dt_gap > _BRIDGE_FACTOR * float(np.median(dt[links])) + TIME_TOL_S:
+        if dt_gap > BRIDGE_FACTOR * float(np.median(dt[links])) + TIME_TOL_S:
             return False
         u = np.array(self._inputs_u)
         _, _, variance = lost_input_prior(t, u, links)
