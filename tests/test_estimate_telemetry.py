@@ -305,7 +305,9 @@ def test_dropped_control_steps_with_the_imu_kept_are_bridged_by_the_acceleromete
     counts = s["telemetry_records"]
     assert counts["lost_instants"] > 0 and counts["gaps"] > 0
     measured = s["samples_total"]
-    assert s["imu"]["records_with_acceleration"] == measured + counts["lost_instants"] - _long_gaps(s, dropped)
+    bridged = counts["lost_instants"] - _long_gaps(s, dropped)
+    assert s["imu"]["records_with_acceleration"] == measured + bridged
+    assert s["imu"]["gaps_bridged_gyro"] == bridged  # the gyro's slope over every single lost period
     assert s["status"] == "degraded" and [r["kind"] for r in s["status_reasons"]] == ["input_gaps"]
     assert_within_two_sigma(s, ref)
     crb = np.array([s["crb_std"][n] for n in NAMES])

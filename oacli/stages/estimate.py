@@ -100,7 +100,8 @@ class EstimationRun:
         Sequential: gaps in the input record the filter predicted across (one lost control record: the wrench
         predicted from its neighbours, its error as process noise), after the bootstrap.
     gaps_bridged_imu : int
-        Sequential: of those, the gaps whose lost force the accelerometer measured (``/imu`` kept).
+        Sequential: of those, the gaps bridged with the IMU (``/imu`` kept: the accelerometer's lost force, the
+        gyro's lost torque, or both; the summary's ``imu.gaps_bridged_gyro`` counts the gyro's).
     segment_restarts : int
         Sequential: gaps it could not bridge (the batch cuts them), where it re-initialised the robot state.
     nis_ratio : float
@@ -465,7 +466,8 @@ def run_estimate(
         summary["imu"] = imu_summary
         log.insert(1, (0.0, "info", "accelerometer: bias " + str(np.round(imu_summary["bias_mps2"], 6).tolist())
                        + f" m/s² from {imu_summary['samples_fitted']} readings, "
-                       f"{imu_summary['records_with_acceleration']} records with an acceleration"))
+                       f"{imu_summary['records_with_acceleration']} records with an acceleration, "
+                       f"{imu_summary['gaps_bridged_gyro']} lost torques bridged by the gyro"))
     log.extend(status_log(summary, float(run.t_records[-1])))  # estimate findings are never unsafe
 
     with open_run("estimate", cfg, out=out, runs_root=runs_root, started=wall_start) as run_folder:
@@ -513,6 +515,7 @@ def _with_imu(cfg: OacliConfig, records: list[Measurement], streams: TelemetrySt
         "inverse_mass_per_kg": fit.inverse_mass_per_kg, "samples_fitted": fit.samples,
         "residual_rms_mps2": fit.residual_rms_mps2,
         "records_with_acceleration": sum(r.linear_acceleration_mps2 is not None for r in out),
+        "gaps_bridged_gyro": sum(r.angular_acceleration_var_rad2ps4 is not None for r in out),
         "trailing_records_dropped": trailing,
     }
 
