@@ -31,13 +31,24 @@ from oacli.mission.run import run_mission, start_mission, validate_mission  # no
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def one_mission(config: Path, profile: bool, plots: bool = True) -> tuple[float, dict, str]:
+def steal_s() -> float | None:
+    """Time the hypervisor ran other guests instead of this VM's CPUs [s], summed over CPUs (Linux ``/proc/stat``
+    ``steal`` column; None elsewhere). A rise during a run explains a wall time its CPU time does not."""
+    try:
+        with open("/proc/stat", encoding="ascii") as fh:
+            fields = fh.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def one_mission(config: Path, profile: bool, plots: bool = True) -> tuple[float, dict, str, float]:
     cfg = load_config(config)
     if not plots:
         cfg = cfg.model_copy(update={"outputs": cfg.outputs.model_copy(update={"plots": PlotSet.NONE})})
     validate_mission(cfg)
     with tempfile.TemporaryDirectory() as tmp:
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         profiler = cProfile.Profile() if profile else None
         if profiler:
             profiler.enable()
@@ -45,13 +56,13 @@ def one_mission(config: Path, profile: bool, plots: bool = True) -> tuple[float,
         result = run_mission(cfg, mission_dir)
         if profiler:
             profiler.disable()
-        wall = time.perf_counter() - start
+        wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
         text = ""
         if profiler:
             buf = io.StringIO()
             pstats.Stats(profiler, stream=buf).sort_stats("cumulative").print_stats(25)
             text = buf.getvalue()
-        return wall, result.summary, text
+        return wall, result.summary, text, cpu
 
 
 def main() -> None:
@@ -62,24 +73,32 @@ def main() -> None:
     parser.add_argument("--no-plots", action="store_true",
                         help="also time the mission with outputs.plots false (no PNGs), alternating with the default")
     args = parser.parse_args()
-    walls, per_stage, walls_no_plots = [], {}, []
+    walls, cpus, per_stage, walls_no_plots = [], [], {}, []
+    steal_before = steal_s()
     summary, profile_text = {}, ""
     for k in range(args.repeats):
         if args.no_plots and k % 2 == 1:      # alternate which variant runs first
             walls_no_plots.append(one_mission(args.config, False, plots=False)[0])
-        wall, summary, text = one_mission(args.config, args.profile and k == args.repeats - 1)
+        wall, summary, text, cpu = one_mission(args.config, args.profile and k == args.repeats - 1)
         if args.no_plots and k % 2 == 0:
             walls_no_plots.append(one_mission(args.config, False, plots=False)[0])
         walls.append(wall)
+        cpus.append(cpu)
         profile_text = text or profile_text
         for key, entry in summary["stages"].items():
             per_stage.setdefault(key, []).append(entry["wall_time_s"])
     mission_s = summary["mission_time_s"]
     flown = mission_s + sum(row["duration_s"] for key, row in summary["comparison"].items() if "baseline" in key)
     wall = statistics.median(walls)
+    steal_after = steal_s()
     print(f"config {args.config.name}: status {summary['status']}, {args.repeats} repeat(s), BLAS threads 1")
     print(f"wall time (median)            {wall:8.1f} s")
     print(f"mission time (3 segments)     {mission_s:8.1f} s   -> {mission_s / wall:5.2f}x real time (target >= 10x)")
+    cpu = statistics.median(cpus)
+    print(f"CPU time of this process      {cpu:8.1f} s   -> {mission_s / cpu:5.2f}x (wall above CPU: waits, load)")
+    if steal_before is not None and steal_after is not None:
+        print(f"hypervisor steal, all CPUs    {steal_after - steal_before:8.1f} s   over the whole benchmark "
+              "(/proc/stat: time this VM's CPUs waited for the host)")
     print(f"all simulated tracking        {flown:8.1f} s   -> {flown / wall:5.2f}x real time (with the baselines)")
     if walls_no_plots:
         bare = statistics.median(walls_no_plots)
