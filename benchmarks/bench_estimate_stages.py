@@ -35,6 +35,9 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))  # run as a script: the benchmarks package from this checkout
+from benchmarks.bench_sequential_estimation import ensure_base, ensure_mission  # noqa: E402
+
 BASE_COMMIT = "d98dee9"
 
 _WORKER = r"""
@@ -93,26 +96,6 @@ for method, folder in (("batch", "estimate"), ("sequential", "estimate-sequentia
         out["s_boot"] = est.bootstrap_records
 np.savez(out_npz, **out)
 """
-
-
-def ensure_base(base: Path, commit: str) -> None:
-    """Export ``commit``'s tree to ``base`` when it is not there yet."""
-    if (base / "oacli" / "__init__.py").exists():
-        return
-    base.mkdir(parents=True, exist_ok=True)
-    archive = subprocess.run(["git", "-C", str(REPO), "archive", commit], check=True, capture_output=True)
-    subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
-
-
-def ensure_mission(mission: Path | None, scratch: Path) -> Path:
-    """A finished default mission folder (flown here when not given)."""
-    if mission is not None:
-        return mission
-    out = scratch / "mission"
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    subprocess.run([sys.executable, "-m", "oacli", "mission", str(REPO / "configs" / "mission_iss.yaml"),
-                    "--out", str(out), "--quiet"], check=True, env=env, stdout=subprocess.DEVNULL)
-    return out
 
 
 def run_side(tree: Path, mission: Path, out_npz: Path, cpu: int | None) -> dict:

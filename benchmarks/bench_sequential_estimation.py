@@ -81,12 +81,12 @@ np.savez(out_npz, theta=run.final.theta, cov=run.final.covariance, t_est=t_est, 
 """
 
 
-def ensure_base(base: Path) -> None:
-    """Export the base commit's tree to ``base`` when it is not there yet."""
+def ensure_base(base: Path, commit: str = BASE_COMMIT) -> None:
+    """Export ``commit``'s tree to ``base`` when it is not there yet."""
     if (base / "oacli" / "__init__.py").exists():
         return
     base.mkdir(parents=True, exist_ok=True)
-    archive = subprocess.run(["git", "-C", str(REPO), "archive", BASE_COMMIT], check=True, capture_output=True)
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", commit], check=True, capture_output=True)
     subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
 
 
@@ -97,7 +97,7 @@ def ensure_mission(mission: Path | None, scratch: Path) -> Path:
     out = scratch / "mission"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     subprocess.run([sys.executable, "-m", "oacli", "mission", str(REPO / "configs" / "mission_iss.yaml"),
-                    "--out", str(out)], check=True, env=env, stdout=subprocess.DEVNULL)
+                    "--out", str(out), "--quiet"], check=True, env=env, stdout=subprocess.DEVNULL)
     return out
 
 
