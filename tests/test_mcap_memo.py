@@ -3,7 +3,9 @@ writer kept, equal to reading the file; a changed file, or a summary that disagr
 
 from __future__ import annotations
 
+import contextvars
 import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -54,12 +56,8 @@ def _assert_equal(a, b) -> None:
 
 
 def _from_disk(path: Path, topics=None):
-    kept = dict(mcap_memo._FILES)
-    mcap_memo._FILES.clear()
-    try:
-        return read_stage(path, topics=topics)
-    finally:
-        mcap_memo._FILES.update(kept)
+    """Read ``path`` in a fresh context (no remembering block active there: a new thread's view)."""
+    return contextvars.Context().run(read_stage, path, topics=topics)
 
 
 def _no_walk(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -82,7 +80,7 @@ def test_a_remembered_file_reads_back_equal_to_the_file(tmp_path, monkeypatch, t
     assert memo.log == disk.log and ((topics is not None and "/log" not in topics) or len(memo.log) == 2)
     assert memo.json_records.get(ms.TOPIC_ESTIMATE_PARAMS, ({},))[0].get("bad", None) is None
     assert memo.message_counts["/robot/pose"] == 120  # counted, as in the file, though not kept
-    assert mcap_memo._FILES == {}  # forgotten when the block ends
+    assert not mcap_memo.active() and mcap_memo.recall(path) is None  # forgotten when the block ends
 
 
 def test_nothing_is_remembered_outside_the_block(tmp_path):
@@ -124,7 +122,7 @@ def test_a_failed_write_is_not_remembered(tmp_path):
             w.write_log(0.0, "info", "x")
             raise RuntimeError("stage failed")
         assert not path.exists()
-        assert mcap_memo._FILES == {}
+        assert mcap_memo.active() and mcap_memo._FILES.get() == {}
 
 
 def test_telemetry_streams_of_a_remembered_file_equal_the_files(tmp_path, monkeypatch):
@@ -138,10 +136,7 @@ def test_telemetry_streams_of_a_remembered_file_equal_the_files(tmp_path, monkey
             w.write_states(ms.TOPIC_STATE_MEASURED, t, rng.normal(size=(30, 13)))
             w.write_wrenches(ms.TOPIC_CONTROL_APPLIED, t, rng.normal(size=(30, 6)))
             w.write_wrenches(ms.TOPIC_CONTROL_COMMAND, t, rng.normal(size=(30, 6)))
-        kept = dict(mcap_memo._FILES)
-        mcap_memo._FILES.clear()
-        disk = read_telemetry_streams(path)
-        mcap_memo._FILES.update(kept)
+        disk = contextvars.Context().run(read_telemetry_streams, path)
         with monkeypatch.context() as m:
             _no_walk(m)
             memo = read_telemetry_streams(path)
@@ -150,3 +145,32 @@ def test_telemetry_streams_of_a_remembered_file_equal_the_files(tmp_path, monkey
     assert (disk.config_yaml, disk.truncated, disk.bytes_read, disk.bytes_total) == (
         memo.config_yaml, memo.truncated, memo.bytes_read, memo.bytes_total)
     assert memo.config_yaml == CONFIG
+
+
+def test_each_thread_remembers_only_its_own_files(tmp_path):
+    """Two missions in threads of one process (a campaign on Dask's threads): each remembering block sees only the
+    files its own thread wrote, and the main thread's block is not visible from a thread started inside it."""
+    barrier = threading.Barrier(2, timeout=30)
+    seen: dict[str, tuple[bool, bool]] = {}
+
+    def mission(name: str, other: str) -> None:
+        with mcap_memo.remembering():
+            _write(tmp_path / f"{name}.mcap", seed=len(name))
+            barrier.wait()  # both files are complete (and each stored) before either looks
+            seen[name] = (mcap_memo.recall(tmp_path / f"{name}.mcap") is not None,
+                          mcap_memo.recall(tmp_path / f"{other}.mcap") is not None)
+            barrier.wait()
+
+    with mcap_memo.remembering():
+        _write(tmp_path / "main.mcap")
+        threads = [threading.Thread(target=mission, args=pair) for pair in (("a", "bb"), ("bb", "a"))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        with mcap_memo.remembering():  # a nested block shares the outer block's files
+            assert mcap_memo.recall(tmp_path / "main.mcap") is not None
+        assert mcap_memo.recall(tmp_path / "main.mcap") is not None  # the nested block's end forgets nothing
+        assert mcap_memo.recall(tmp_path / "a.mcap") is None  # a thread's files stay in that thread
+    assert seen == {"a": (True, False), "bb": (True, False)}
+    assert mcap_memo.recall(tmp_path / "main.mcap") is None

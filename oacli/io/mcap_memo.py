@@ -10,11 +10,17 @@ decodes the file's (so the record is the same, value for value), takes the topic
 message counts from the file's own summary section, and falls back to reading the whole file when the summary
 and what was remembered disagree in any count or name. The MCAP is still written and stays the record of truth: a
 file changed on disk (another modification time or size) is read from disk.
+
+The remembered files live in a :class:`contextvars.ContextVar`, not in module globals: each thread (a new thread
+starts with an empty context) and each ``contextvars.copy_context()`` run sees only the files of its own
+:func:`remembering` block, so two missions run in threads of one process (a campaign on Dask's threads) never see
+each other's files, and a block that ends forgets exactly its own.
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 from collections import OrderedDict
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -27,8 +33,9 @@ MAX_FILES = 32
 #: the old path).
 ENABLED = True
 
-_depth = 0
-_FILES: OrderedDict[tuple[str, int, int], Written] = OrderedDict()
+_Registry = OrderedDict[tuple[str, int, int], "Written"]
+#: The files of the innermost active :func:`remembering` block of this context (None outside any).
+_FILES: contextvars.ContextVar[_Registry | None] = contextvars.ContextVar("oacli_mcap_memo_files", default=None)
 
 
 @dataclass
@@ -53,21 +60,19 @@ class Written:
 
 def active() -> bool:
     """Whether files written now are remembered."""
-    return _depth > 0 and ENABLED
+    return _FILES.get() is not None and ENABLED
 
 
 @contextlib.contextmanager
 def remembering() -> Iterator[None]:
-    """Within the block, remember every stage MCAP written (module docstring); forget them all when the outermost
-    block ends."""
-    global _depth
-    _depth += 1
+    """Within the block, remember every stage MCAP written in this context (module docstring); forget them when
+    the outermost block of this context ends (a nested block shares the outer block's files)."""
+    outer = _FILES.get()
+    token = _FILES.set(OrderedDict() if outer is None else outer)
     try:
         yield
     finally:
-        _depth -= 1
-        if _depth == 0:
-            _FILES.clear()
+        _FILES.reset(token)
 
 
 def _key(path: Path) -> tuple[str, int, int] | None:
@@ -88,14 +93,15 @@ def store(path: Path, written: Written) -> None:
     written : Written
         What its writer wrote.
     """
-    if not active():
+    files = _FILES.get()
+    if files is None or not ENABLED:
         return
     key = _key(path)
     if key is None:
         return
-    _FILES[key] = written
-    while len(_FILES) > MAX_FILES:
-        _FILES.popitem(last=False)
+    files[key] = written
+    while len(files) > MAX_FILES:
+        files.popitem(last=False)
 
 
 def recall(path: Path) -> Written | None:
@@ -110,10 +116,11 @@ def recall(path: Path) -> Written | None:
     -------
     Written or None
     """
-    if not _FILES:
+    files = _FILES.get()
+    if not files:
         return None
     key = _key(path)
-    return None if key is None else _FILES.get(key)
+    return None if key is None else files.get(key)
 
 
 def summary_of(path: Path) -> Any | None:
