@@ -245,6 +245,21 @@ def _legend_width_in(ax: Axes, renderer: Any) -> float:
     return _px(leg.get_window_extent(renderer).width) / float(ax.figure.dpi)
 
 
+def _title_height_in(ax: Axes) -> float:
+    """Height [in] the axes' titles take above it (their font's line height and the title pad), 0 without one."""
+    if not any(ax.get_title(loc) for loc in ("left", "center", "right")):
+        return 0.0
+    return (1.3 * float(ax.title.get_fontsize()) + float(matplotlib.rcParams["axes.titlepad"])) / 72.0
+
+
+def _xaxis_height_in(ax: Axes, renderer: Any) -> float:
+    """Height [in] of the x axis's tick labels and label below the axes (measured), 0 when nothing is shown."""
+    box = ax.xaxis.get_tightbbox(renderer)
+    if box is None or box.height <= 0:
+        return 0.0
+    return _px(box.height) / float(ax.figure.dpi) + 0.05
+
+
 def _px(value: float) -> float:
     """A measured size [px] rounded to 1/1000 px: the measurement depends (in its last bits) on where the legend
     sat before, so a reused template (:data:`REUSE`) would otherwise be laid out a hair differently."""
@@ -274,24 +289,23 @@ def fixed_layout(fig: Figure) -> None:
     renderer = canvas.get_renderer()
     width_in, height_in = (float(v) for v in fig.get_size_inches())
     legend_in = [0.0] * ncols
-    titled = [False] * nrows
-    xlabels = [False] * nrows
+    title_in = [0.0] * nrows  # above each row: its axes titles
+    xaxis_in = [0.0] * nrows  # below each row: its x tick labels and x label (measured)
     for a, spec in specs:
         col, row = spec.colspan.stop - 1, spec.rowspan.start
         legend_in[col] = max(legend_in[col], _legend_width_in(a, renderer))
-        titled[row] = titled[row] or any(a.get_title(loc) for loc in ("left", "center", "right"))
+        title_in[row] = max(title_in[row], _title_height_in(a))
         last = spec.rowspan.stop - 1
-        shown = bool(a.xaxis.get_tick_params().get("labelbottom", True)) or bool(a.get_xlabel())
-        xlabels[last] = xlabels[last] or shown
+        xaxis_in[last] = max(xaxis_in[last], _xaxis_height_in(a, renderer))
     ylabel_in = 0.95
     left = ylabel_in
     right = max(legend_in[-1] + 0.2, 0.3)
-    top = 0.15 + (0.3 if titled[0] else 0.0) + (0.4 if fig.get_suptitle() else 0.0)
-    bottom = 0.15 + (0.5 if xlabels[-1] else 0.0)
+    top = 0.15 + title_in[0] + (0.4 if fig.get_suptitle() else 0.0)
+    bottom = 0.15 + xaxis_in[-1]
     for leg in fig.legends:
         bottom += _px(leg.get_window_extent(renderer).height) / float(fig.dpi) + 0.1
     # gaps between rows: the lower row's title and the upper row's x tick labels
-    row_gap = 0.15 + (0.3 if any(titled[1:]) else 0.0) + (0.5 if any(xlabels[:-1]) else 0.0)
+    row_gap = 0.2 + max(title_in[1:], default=0.0) + max(xaxis_in[:-1], default=0.0)
     col_gap = ylabel_in + max(legend_in[:-1], default=0.0) + 0.1
     avail_h = max(height_in - top - bottom - (nrows - 1) * row_gap, 0.5 * height_in)
     avail_w = max(width_in - left - right - (ncols - 1) * col_gap, 0.4 * width_in)
