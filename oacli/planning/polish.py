@@ -97,8 +97,9 @@ ahead of it). A look-ahead step therefore counts only when it is certified, acce
 least ``stall_gain``; otherwise the next step linearises at its reference again (at the look-ahead's result when it
 was accepted); a look-ahead step that did not pay counts for neither the stall nor the convergence test.
 ``prediction = 0`` never looks ahead. The iteration is a different one, so it can end in a different local optimum
-of the non-convex problem: on the benchmark's S2 seeds 0-59 it solves 25 % fewer subproblems, the median path
-comes out 4e-5 shorter (relative) and none more than 2.1e-6 longer (``benchmarks/bench_planners.py``).
+of the non-convex problem: on the benchmark's S2 plans of seeds 0-59 (``benchmarks/bench_planners.py``) it solves
+24 % fewer subproblems; the median path comes out 3e-5 shorter (relative; 37 of 60 shorter, by up to 2.4e-3) and
+one longer (by 2.1e-6); on the ISS segments the subproblems change by -6 % and +4 %, and no path is longer.
 
 Cost semantics
 --------------

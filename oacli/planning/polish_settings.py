@@ -68,7 +68,7 @@ class PolishSettings:
     stall_iterations: int = 2
     stall_gain: float = 3e-6
     prediction: float = 1.5
-    prediction_min_cos: float = 0.9
+    prediction_min_cos: float = 0.97
     rest_tolerance: float = 1e-7
     backend: str = "direct"
     active_set: bool = True
