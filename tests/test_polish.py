@@ -33,6 +33,7 @@ from oacli.planning.polish import (
     ACCEPTED,
     COLLISION,
     IMPROVED,
+    MIN_GAIN,
     NOT_IMPROVED,
     SKIPPED,
     STEP_OUTCOMES,
@@ -395,6 +396,66 @@ def test_polish_on_the_slalom_keeps_every_guarantee(plan_seed, iterations, step,
         assert res.cost_after <= res.cost_before * (1 + 1e-9)
     assert_valid_plan(res.trajectory, problem)
     assert problem.checker.check(res.trajectory.pieces()).free
+
+
+def _record(it) -> tuple:
+    """An iteration record without its wall time (the only field that changes from run to run)."""
+    return dataclasses.astuple(dataclasses.replace(it, solve_time_s=0.0))
+
+
+def test_the_stall_rule_only_cuts_the_iteration_short():
+    # The stall rule stops the SCP once two certified steps in a row shorten the best by less than stall_gain each;
+    # it never changes a step: the early stop is a prefix of the run that goes on, its result that run's result
+    # at that point. On this plan the old rule (not shorter at all: MIN_GAIN) runs 19 subproblems to convergence.
+    problem, traj = s2_shortcut(2)
+    cap = traj.cost(problem.weights, problem.goal)
+    full = polish(problem, traj, cost_cap=cap, settings=PolishSettings(prediction=0.0, stall_gain=MIN_GAIN))
+    early = polish(problem, traj, cost_cap=cap, settings=PolishSettings(prediction=0.0, stall_gain=1e-4))
+    k = len(early.iterations)
+    assert full.reason == "converged" and early.reason == "stalled" and k < len(full.iterations)
+    assert [_record(it) for it in early.iterations] == [_record(it) for it in full.iterations[:k]]
+    last = max(j for j, (i, _) in enumerate(full.accepted_trajectories) if i < k)
+    np.testing.assert_array_equal(early.trajectory.x, full.accepted_trajectories[last][1].x)
+    # The two last steps were certified and each gained less than stall_gain on the best before it.
+    best = [early.length_before_m]
+    for it in early.iterations:
+        best.append(it.length_m if it.outcome == ACCEPTED else best[-1])
+    for j in (k - 2, k - 1):
+        assert early.iterations[j].buffer_m <= 1e-7
+        assert best[j + 1] >= best[j] * (1 - 1e-4)
+    assert early.length_after_m >= full.length_after_m  # the price of stopping early: never a shorter path
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_look_ahead_steps_keep_every_guarantee_and_are_reproducible(seed):
+    problem, traj = s2_shortcut(seed)
+    cap = traj.cost(problem.weights, problem.goal)
+    res = polish(problem, traj, cost_cap=cap)
+    its = res.iterations
+    assert PolishSettings().prediction > 0 and any(it.predicted for it in its)
+    # A look-ahead only follows a certified accepted step; a stop is never decided on a look-ahead that did not pay.
+    for prev, it in itertools.pairwise(its):
+        if it.predicted:
+            assert prev.outcome == ACCEPTED and prev.buffer_m <= 1e-7
+    if res.reason in ("stalled", "converged"):
+        assert not its[-1].predicted or its[-1].outcome == ACCEPTED
+    # Never a longer path: every accepted candidate shorter than the one before; limits, cost cap, collision-free.
+    lengths = [it.length_m for it in its if it.outcome == ACCEPTED]
+    assert np.all(np.diff([res.length_before_m, *lengths]) < 0)
+    assert res.length_after_m == pytest.approx(lengths[-1], rel=1e-12)
+    assert res.cost_after <= cap * (1 + 1e-9)
+    assert_valid_plan(res.trajectory, problem)
+    assert problem.checker.check(res.trajectory.pieces()).free
+    # On these plans no longer than without the look-ahead (seed 2: 11 subproblems instead of 19, 0.46 mm shorter).
+    plain = polish(problem, traj, cost_cap=cap, settings=PolishSettings(prediction=0.0))
+    assert res.length_after_m <= plain.length_after_m
+    if seed == 2:
+        assert len(its) < len(plain.iterations) and res.length_after_m < plain.length_after_m - 4e-4
+    # Same input, same numbers.
+    again = polish(problem, traj, cost_cap=cap)
+    np.testing.assert_array_equal(again.trajectory.x, res.trajectory.x)
+    np.testing.assert_array_equal(again.trajectory.u, res.trajectory.u)
+    assert [_record(it) for it in again.iterations] == [_record(it) for it in its]
 
 
 def test_a_step_that_fails_the_exact_check_is_never_accepted():

@@ -220,6 +220,8 @@ POLISH_ITERATION_SCHEMA: dict[str, Any] = {
         "solve_time_s": {"type": "number", "description": "solve wall time [s]"},
         "outcome": {"type": "string", "description": "accepted, not_shorter, collision, limits, cost or "
                                                      "solver_failed"},
+        "predicted": {"type": "boolean", "description": "keep-out half-spaces taken ahead of the reference "
+                                                        "(look-ahead step)"},
     },
     "required": ["t", "iteration", "status", "outcome"],
 }

@@ -30,9 +30,19 @@ class PolishSettings:
     tolerance : float
         Stop when a certified step lowers the subproblem objective by less than this fraction.
     stall_iterations : int
-        Stop after this many certified steps in a row whose exact path length is not shorter than the best so far
-        (the objective may still creep down through its effort term while the length no longer improves);
-        0 never stops for that.
+        Stop after this many certified steps in a row that shorten the best exact path length by less than
+        ``stall_gain`` each (the objective may still creep down through its effort term while the length no longer
+        improves); 0 never stops for that.
+    stall_gain : float
+        [-]: the relative shortening below which a certified step counts towards ``stall_iterations``
+        (3e-6: 17 µm on S2's 5.6 m path; at least :data:`~oacli.planning.polish.MIN_GAIN`).
+    prediction : float
+        [-], >= 0: look-ahead of the keep-out linearisation. After a certified accepted step in the direction of
+        the one before (cosine of the knot position changes at least ``prediction_min_cos``), the next
+        subproblem's half-spaces are taken at the reference moved on by ``prediction`` times that step
+        (:mod:`oacli.planning.polish`, "Look-ahead"); 0: always at the reference.
+    prediction_min_cos : float
+        [-]: the least cosine between two successive steps for a look-ahead.
     rest_tolerance : float
         A trailing piece within this distance [m] and speed [m/s] of the goal at rest counts as arrived.
     backend : str
@@ -56,6 +66,9 @@ class PolishSettings:
     limit_margin: float = 1e-6
     tolerance: float = 1e-5
     stall_iterations: int = 2
+    stall_gain: float = 3e-6
+    prediction: float = 1.5
+    prediction_min_cos: float = 0.97
     rest_tolerance: float = 1e-7
     backend: str = "direct"
     active_set: bool = True

@@ -159,7 +159,7 @@ def write_smooth_topics(writer: StageMcapWriter, scene: Scene, source: Path, tra
             "iteration": it.index, "trust_radius_m": it.trust_radius_m, "status": it.status,
             "objective": it.objective, "buffer_m": it.buffer_m, "length_m": it.length_m,
             "duration_s": it.duration_s, "cost": it.cost, "solve_time_s": it.solve_time_s,
-            "outcome": it.outcome,
+            "outcome": it.outcome, "predicted": it.predicted,
         })
     for t, level, message in log:
         writer.write_log(t, level, message)
