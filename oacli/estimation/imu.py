@@ -311,7 +311,8 @@ def attach_accelerations(
     estimator bridges the gap with it instead of predicting the force from the neighbouring inputs
     (:func:`oacli.estimation.batch.lost_input_model`). The IMU is a separate stream: losing a controller record
     does not lose its readings. With ``gyro``, the same record also gets the gyro's mean ``ω̇`` over the interval
-    (the slope of its readings), its variance and the rate at its stamp: the gyro bridges the lost torque (module
+    (a continuous piecewise-linear fit of its readings over it and its neighbouring periods), its variance and the
+    rate at its stamp: the gyro bridges the lost torque (module
     docstring, [Doerr2021] Eq. 35b).
 
     Parameters
