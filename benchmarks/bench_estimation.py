@@ -23,8 +23,9 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
 * ``gapped+IMU`` -- ``gapped`` with the IMU kept (``/imu`` is a stream of its own: the lost controller records
   do not take its readings with them; RATTLE level as in ``IMU``, and the gyro at the flight-like preset's
   1e-3 rad/s with a 5e-4 rad/s bias): accelerations at the measured records, and on each lost instant's record the
-  mean of the accelerometer's readings over its control period, which bridges the lost force, and the slope of the
-  gyro's, which bridges the lost torque ([Doerr2021] Eq. 35b; :func:`oacli.estimation.imu.attach_accelerations`,
+  mean of the accelerometer's readings over its control period, which bridges the lost force, and the gyro's mean
+  ``ω̇`` over it (a continuous piecewise-linear fit of its readings over the period and its neighbours), which
+  bridges the lost torque ([Doerr2021] Eq. 35b; :func:`oacli.estimation.imu.attach_accelerations`,
   :func:`oacli.estimation.batch.lost_input_model`);
 * ``gapped+command`` -- the same steps lost from the measurement and applied-input streams but ``/control/command``
   kept: the inputs are bridged from the command history (batch only);

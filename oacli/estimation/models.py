@@ -74,8 +74,8 @@ class Measurement:
         interval: the IMU bridges the lost force there (:func:`oacli.estimation.imu.attach_accelerations`).
     angular_acceleration_var_rad2ps4 : float or None
         On such an input-only record only: the variance per axis of ``angular_acceleration_radps2`` [rad²/s⁴],
-        which is then the gyro's mean ``ω̇`` over the lost interval (the slope of its readings; ``x_measured[10:13]``
-        holds the gyro's rate at ``t``): the gyro bridges the lost torque
+        which is then the gyro's mean ``ω̇`` over the lost interval (fitted to its readings; ``x_measured[10:13]``
+        holds the fitted rate at ``t``): the gyro bridges the lost torque
         (:func:`oacli.estimation.imu.attach_accelerations`). None otherwise.
     """
 

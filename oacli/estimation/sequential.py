@@ -341,9 +341,9 @@ class SequentialEstimator:
         # The previous record when it is a lost instant with the accelerometer's mean: (f/m [m/s²], readings).
         self._lost_acc: tuple[np.ndarray, int] | None = None
         # Likewise with the gyro's mean ω̇ over the lost interval: (ω̇ [rad/s²], its variance, the rate at t [rad/s]);
-        # across a gyro-bridged gap, the ω̇ the lost torque added (J⁻¹τ) and the interval [s] (_propagate).
+        # across a gyro-bridged gap, the ω̇ the lost torque added (J⁻¹τ), that rate and the interval [s] (_propagate).
         self._lost_gyro: tuple[np.ndarray, float, np.ndarray] | None = None
-        self._gap_gyro: tuple[np.ndarray, float] | None = None
+        self._gap_gyro: tuple[np.ndarray, np.ndarray, float] | None = None
         self._inputs_t: list[float] = []  # every processed record's time, input and segment flag (_bridge_gap)
         self._inputs_u: list[np.ndarray] = []
         self._inputs_start: list[bool] = []
@@ -475,9 +475,9 @@ class SequentialEstimator:
             x_new[0:3] += (0.5 * dt_s**2) * acc
             x_new[3:6] += dt_s * acc
         if self._gap_gyro is not None:  # the ω̇ the lost torque added (gyro, [Doerr2021] Eq. 35b): body frame
-            added, dt_s = self._gap_gyro
+            added, rate, dt_s = self._gap_gyro
             offset = np.zeros(TANGENT_DIM)
-            offset[6:9] = (0.5 * dt_s**2) * added
+            offset[6:9] = (0.5 * dt_s**2) * added - dt_s**3 / 6.0 * np.cross(rate, added)  # as lost_input_model
             offset[9:12] = dt_s * added
             x_new = self._bp(x_new, offset)
         return x_new, a, c
@@ -793,7 +793,7 @@ class SequentialEstimator:
             # torque 0 (its gyroscopic term stays), at the current θ̂; its variance directly on [½T², T].
             alpha, alpha_var, rate = self._lost_gyro
             inertia = par.theta_from_phi(self._phi)[1:4]
-            self._gap_gyro = (alpha + np.cross(rate, rate * inertia) / inertia, float(dt_gap))
+            self._gap_gyro = (alpha + np.cross(rate, rate * inertia) / inertia, rate, float(dt_gap))
             self._u_last[3:6] = 0.0
             variance = np.concatenate([variance[0:3], np.full(3, alpha_var)])
             d_torque = d_torque * theta[1:4]  # per unit ω̇
