@@ -105,7 +105,7 @@ from oacli.estimation.propagation import (
 from oacli.types import ParameterEstimate
 
 __all__ = ["BRIDGE_FACTOR", "BatchResult", "GyroBridge", "bridge_accelerations", "bridge_angular_accelerations",
-           "covariance_at", "estimate_batch", "estimate_batch_windows", "lost_input_model"]
+           "covariance_at", "estimate_batch", "estimate_batch_windows", "gyro_bridge_offset", "lost_input_model"]
 
 _ACCEL_ROWS = np.r_[3:6, 10:13]  # v̇ and ω̇ rows of the continuous dynamics
 _LAMBDA_INIT = 1e-6
@@ -132,6 +132,34 @@ BRIDGE_FACTOR = 1.5
 """A gap link is bridged (translational residual kept) when it spans at most this many typical record spacings."""
 _MIN_PREDICTION_SAMPLES = 10
 """Triples of known inputs needed to measure the error of a lost input's prediction (else it is profiled out)."""
+
+
+def gyro_bridge_offset(added_radps2: np.ndarray, rate_radps: np.ndarray, dt_s: np.ndarray | float) -> np.ndarray:
+    """The attitude and angular-velocity change ``(..., 6)`` a lost torque adds over its interval, in the end
+    state's body frame, from the gyro's measure of it (:func:`lost_input_model`; [Doerr2021] Eq. 35b).
+
+    ``[½T² a − (T³/6) ω × a,  T a]`` with ``a = J⁻¹τ`` held over ``T``: the ``T³`` term is the body frame's turn at
+    ``ω`` meanwhile (``∫ (I − (T − t)[ω]×) t a dt``). The batch (:func:`lost_input_model`) and the sequential filter
+    both add it across a gyro-bridged gap.
+
+    Parameters
+    ----------
+    added_radps2 : ndarray, shape (..., 3)
+        ``J⁻¹τ`` [rad/s²], the angular acceleration the lost torque added.
+    rate_radps : ndarray, shape (..., 3)
+        The body rate at the interval's start [rad/s].
+    dt_s : ndarray, shape (..., 1), or float
+        Interval length(s) [s].
+
+    Returns
+    -------
+    ndarray, shape (..., 6)
+        Attitude [rad] then angular velocity [rad/s] offsets.
+    """
+    out = np.empty((*np.broadcast_shapes(np.shape(added_radps2), np.shape(rate_radps))[:-1], 6))
+    out[..., 0:3] = 0.5 * dt_s**2 * added_radps2 - dt_s**3 / 6.0 * np.cross(rate_radps, added_radps2)
+    out[..., 3:6] = dt_s * added_radps2
+    return out
 
 
 def unknown_torque_directions(dt_s: np.ndarray, inertia_kgm2: np.ndarray) -> np.ndarray:
@@ -418,9 +446,7 @@ def lost_input_model(
         variance[turn, 3:6] = alpha_var[turn, None] * inertia**2
         u_model[:-1][turn, 3:6] = 0.0
         added = alpha[turn] + np.cross(rate[turn], rate[turn] * inertia) / inertia  # J⁻¹τ
-        # The attitude part in the end state's body frame: ∫ (I − (T − t)[ω]×) t ᾱ' dt (the body turns at ω meanwhile).
-        offset[turn, 6:9] = 0.5 * dt[turn, None] ** 2 * added - dt[turn, None] ** 3 / 6.0 * np.cross(rate[turn], added)
-        offset[turn, 9:12] = dt[turn, None] * added
+        offset[turn, 6:12] = gyro_bridge_offset(added, rate[turn], dt[turn, None])
     return u_model, bridged, variance, offset
 
 

@@ -73,6 +73,7 @@ from oacli.estimation.batch import (
     covariance_at,
     estimate_batch,
     extend_states,
+    gyro_bridge_offset,
     lost_input_prior,
     unknown_force_directions,
     unknown_torque_directions,
@@ -477,8 +478,7 @@ class SequentialEstimator:
         if self._gap_gyro is not None:  # the ω̇ the lost torque added (gyro, [Doerr2021] Eq. 35b): body frame
             added, rate, dt_s = self._gap_gyro
             offset = np.zeros(TANGENT_DIM)
-            offset[6:9] = (0.5 * dt_s**2) * added - dt_s**3 / 6.0 * np.cross(rate, added)  # as lost_input_model
-            offset[9:12] = dt_s * added
+            offset[6:12] = gyro_bridge_offset(added, rate, dt_s)
             x_new = self._bp(x_new, offset)
         return x_new, a, c
 
