@@ -173,13 +173,12 @@ def test_baseline_comparison_present_and_consistent(mission):
 
 
 def test_a_stage_reruns_alone_from_its_folder(mission, tmp_path):
+    """Its config.yaml alone (no --input/--telemetry/--method) names the stage's input file and method."""
     run, _, _ = mission
-    for key, extra in (("segment-3/track", []),
-                       ("segment-2/estimate", ["--telemetry", str(run / "segment-2/track/track.mcap"),
-                                               "--method", "batch"])):
-        command = key.split("/")[1] if key.endswith("estimate") else "track"
+    for key, command in (("segment-3/track", "track"), ("segment-1/smooth", "smooth"),
+                         ("segment-2/estimate", "estimate"), ("segment-2/estimate-sequential", "estimate")):
         out = tmp_path / key.replace("/", "-")
-        result = RUNNER.invoke(app, [command, str(run / key / "config.yaml"), "--out", str(out), "--quiet", *extra])
+        result = RUNNER.invoke(app, [command, str(run / key / "config.yaml"), "--out", str(out), "--quiet"])
         assert result.exit_code == 0, result.output
         again = json.loads((out / "summary.json").read_text())
         original = json.loads((run / key / "summary.json").read_text())

@@ -184,6 +184,14 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         sets["controller"]["type"] = "mpc" if stage.name == "baseline-mpc-prior" else "tube"
     if stage.command == "track" and handoff.reference is not None:
         sets["reference"] = {"source": "file", "file": str(handoff.reference)}
+    # The stage's input file and method in its config, as its command records them: the folder's config.yaml alone
+    # reruns it (``oacli smooth RUN/segment-1/smooth/config.yaml``, ``oacli estimate .../estimate/config.yaml``).
+    if stage.command == "smooth" and handoff.plan is not None:
+        sets["inputs"] = {"smooth_input": str(handoff.plan)}
+    if stage.command == "estimate":
+        if handoff.telemetry is not None:
+            sets["inputs"] = {"estimate_telemetry": str(handoff.telemetry)}
+        sets["estimation"] = {"method": "sequential" if stage.name == "estimate-sequential" else "batch"}
     data = deep_merge(data, sets)
     try:
         return config_from_dict(data, source=f"{source} ({stage.key})")

@@ -202,8 +202,8 @@ def run_stage(stage: MissionStage, stage_cfg: OacliConfig, handoff: Handoff, fol
         return run_track(stage_cfg, out=folder, progress=progress)
     from oacli.stages.estimate import run_estimate
     assert handoff.telemetry is not None
-    method = "sequential" if stage.name == "estimate-sequential" else "batch"
-    return run_estimate(stage_cfg, telemetry=handoff.telemetry, method=method, out=folder, progress=progress)
+    # The method is the stage config's (stage_config sets it per stage), so its config.yaml reruns the same one.
+    return run_estimate(stage_cfg, telemetry=handoff.telemetry, out=folder, progress=progress)
 
 
 def _read_summary(folder: Path) -> dict[str, Any]:
