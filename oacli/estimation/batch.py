@@ -104,8 +104,9 @@ from oacli.estimation.propagation import (
 )
 from oacli.types import ParameterEstimate
 
-__all__ = ["BRIDGE_FACTOR", "BatchResult", "GyroBridge", "bridge_accelerations", "bridge_angular_accelerations",
-           "covariance_at", "estimate_batch", "estimate_batch_windows", "gyro_bridge_offset", "lost_input_model"]
+__all__ = ["BRIDGE_FACTOR", "UNIDENTIFIED_VARIANCE", "BatchResult", "GyroBridge", "bridge_accelerations",
+           "bridge_angular_accelerations", "covariance_at", "estimate_batch", "estimate_batch_windows",
+           "gyro_bridge_offset", "lost_input_model"]
 
 _ACCEL_ROWS = np.r_[3:6, 10:13]  # v̇ and ω̇ rows of the continuous dynamics
 _LAMBDA_INIT = 1e-6
@@ -127,6 +128,11 @@ new records' open-loop states can lead the first gating round elsewhere (a windo
 gap converged to a different inlier set than a cold solve); with the full continuation the warm start saves little
 (16 instead of 21 iterations per window on the default mission, 10 with this one stage)."""
 _CONTINUATION_TOLERANCE = 1e-6
+
+UNIDENTIFIED_VARIANCE = 1e300
+"""The variance reported for every parameter when ``AᵀA`` is singular at the solution (θ not identified by the
+records that passed the gate): finite, so the estimate stays a valid Gaussian, but no σ (the estimate stage reports
+none and ends ``degraded``)."""
 
 BRIDGE_FACTOR = 1.5
 """A gap link is bridged (translational residual kept) when it spans at most this many typical record spacings."""
@@ -1401,7 +1407,7 @@ def estimate_batch(
     estimate = ParameterEstimate(
         t=float(problem.t[-1]),
         theta=par.theta_from_phi(phi),
-        covariance=cov if np.all(np.isfinite(cov)) else np.diag(np.full(4, 1e300)),
+        covariance=cov if np.all(np.isfinite(cov)) else np.diag(np.full(4, UNIDENTIFIED_VARIANCE)),
         method="batch",
         samples_used=int(inliers.sum()),
         samples_rejected=int((~inliers & problem.has_state).sum()) + len(ordered.duplicates),

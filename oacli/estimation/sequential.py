@@ -305,6 +305,9 @@ class SequentialEstimator:
         self._boot_last: BatchResult | None = None  # the last full bootstrap solve
         self.intermediate_estimates = bool(intermediate_estimates)
         self.bootstrap_records = 0
+        self.bootstrap_unidentified = False
+        """The bootstrap's hand-over solve had no usable covariance (θ not identified by its records, e.g. no record
+        passed its χ² gate): the filter went on from the prior instead (the estimate stage reports it)."""
         self._phi = par.phi_from_theta(prior.theta)
         jac_inv = np.linalg.inv(par.theta_jacobian(self._phi))
         self._p_phi0 = jac_inv @ prior.covariance @ jac_inv.T
@@ -674,6 +677,7 @@ class SequentialEstimator:
         self.samples_rejected += est.samples_rejected
         self.bootstrap_records = len(self._boot)
         if not usable:  # θ not identified so far: continue as a plain filter from the prior
+            self.bootstrap_unidentified = True
             self._x = result.states[-1].copy()
             self._initialise(self._boot[-1])
             self._t_last = self._boot[-1].t

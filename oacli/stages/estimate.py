@@ -39,6 +39,7 @@ from oacli.config import OacliConfig
 from oacli.errors import InfeasibleError, InputError
 from oacli.estimation.alignment import AlignmentReport, align_records
 from oacli.estimation.batch import (
+    UNIDENTIFIED_VARIANCE,
     BatchResult,
     bridge_accelerations,
     bridge_angular_accelerations,
@@ -107,6 +108,12 @@ class EstimationRun:
     nis_ratio : float
         Sequential: mean normalised innovation squared of the filter's own updates over its expected value (its
         dimension); about 1 for a consistent filter, NaN when the filter made no update of its own.
+    bootstrap_unidentified : bool
+        Sequential: the batch bootstrap handed over without a usable covariance and the filter went on from the
+        prior (:attr:`oacli.estimation.sequential.SequentialEstimator.bootstrap_unidentified`).
+    nis_dof : int
+        Sequential: the degrees of freedom of those innovations summed (the expected value of their summed NIS: a
+        consistent filter's innovations are white, Bar-Shalom et al. 2001 §5.4, so the sum is χ² with this many).
     """
 
     method: str
@@ -126,6 +133,8 @@ class EstimationRun:
     solve_time_s: float
     segments: int = 1
     nis_ratio: float = float("nan")
+    nis_dof: int = 0
+    bootstrap_unidentified: bool = False
     gaps_bridged: int = 0
     gaps_bridged_imu: int = 0
     segment_restarts: int = 0
@@ -175,6 +184,8 @@ def run_estimation(
     reinitialisations = 0
     segments = 1 + sum(r.starts_segment for r in records)
     nis_ratio = float("nan")
+    nis_dof = 0
+    bootstrap_unidentified = False
     gaps_bridged = gaps_bridged_imu = segment_restarts = 0
     if method == "batch":
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
@@ -215,10 +226,12 @@ def run_estimation(
         used = np.array([s.status in ("accepted", "initialised", "segment") for s in steps])
         t = np.array([s.t for s in steps])
         reinitialisations = est.reinitialisations
+        bootstrap_unidentified = est.bootstrap_unidentified
         gaps_bridged, gaps_bridged_imu, segment_restarts = est.gaps_bridged, est.gaps_bridged_imu, est.segments
         own = [s for s in steps[est.bootstrap_records:] if s.status in ("accepted", "rejected") and s.dof > 0]
         if own:
             nis_ratio = float(np.mean([s.d2 / s.dof for s in own]))
+            nis_dof = int(sum(s.dof for s in own))
         lost = ~np.all(np.isfinite(states), axis=1)  # input-only records after a gap: no state to report
         states[lost] = np.array([by_t[ti].x_measured for ti in t[lost]]).reshape(-1, 13)
     else:
@@ -236,7 +249,8 @@ def run_estimation(
         method=method, final=final, history=history, t_records=t, states=states, inputs=u,
         measured=y, status=status, d2=d2, dof=dof, gate_threshold=threshold, bound=bound, batch=batch,
         reinitialisations=reinitialisations, solve_time_s=time.perf_counter() - start, segments=segments,
-        nis_ratio=nis_ratio, gaps_bridged=gaps_bridged, gaps_bridged_imu=gaps_bridged_imu,
+        nis_ratio=nis_ratio, nis_dof=nis_dof, bootstrap_unidentified=bootstrap_unidentified,
+        gaps_bridged=gaps_bridged, gaps_bridged_imu=gaps_bridged_imu,
         segment_restarts=segment_restarts,
     )
 
@@ -250,7 +264,8 @@ def _estimate_summary(
     alignment: AlignmentReport | None = None, streams: TelemetryStreams | None = None,
 ) -> dict[str, Any]:
     final = run.final
-    std = final.std
+    identified = bool(np.all(np.diag(final.covariance) < UNIDENTIFIED_VARIANCE))
+    std = final.std if identified else np.full(final.theta.size, np.nan)  # no σ: null in summary.json
     summary: dict[str, Any] = {
         "stage": "estimate",
         "status": "ok",  # set by estimate_findings
@@ -264,7 +279,8 @@ def _estimate_summary(
         "std_over_crb": _by_name(std / run.bound.std),
         "prior_theta": [float(v) for v in prior.theta],
         "prior_std": _by_name(prior.std),
-        "cov_reduction_pct": _by_name(100.0 * (1.0 - np.diag(final.covariance) / np.diag(prior.covariance))),
+        "cov_reduction_pct": _by_name(100.0 * (1.0 - std**2 / np.diag(prior.covariance))),
+        "covariance_identified": identified,
         "samples_used": int(final.samples_used),
         "samples_rejected": int(final.samples_rejected),
         "samples_total": sum(s != "predicted" for s in run.status),
@@ -305,14 +321,30 @@ def _estimate_summary(
         summary["gaps_bridged_imu"] = int(run.gaps_bridged_imu)
         summary["segment_restarts"] = int(run.segment_restarts)
         summary["nis_ratio"] = run.nis_ratio if np.isfinite(run.nis_ratio) else None
+        summary["nis_expected"] = int(run.nis_dof)
+        summary["bootstrap_unidentified"] = bool(run.bootstrap_unidentified)
+    notes = estimate_warnings(summary)
+    if notes:
+        summary.setdefault("warnings", []).extend(notes)
     estimate_findings(summary).apply(summary)
     return summary
 
 
-CHI2_RATIO_LIMIT = 3.0
-"""A batch fit whose cost exceeds this multiple of its expected value (and its expected spread by 5 standard
-deviations) is ``degraded``: the data do not fit the model (a wrong input record, an unmodelled effect, noise
-levels set too low)."""
+CHI2_RATIO_LIMIT = 1.1
+"""A batch fit whose cost exceeds this multiple of its expected value *and* its expected spread by
+:data:`CHI2_SIGNIFICANCE` standard deviations is ``degraded``: the data do not fit the model (a wrong input record,
+an unmodelled effect such as a thrust scale error or a centre-of-mass offset, noise levels set too low), so the
+reported σ, which covers the modelled noise only, understates the error. At a ratio r a noise-like misfit
+understates σ by √r (5 % at 1.1); a systematic one (a bias) by more: on the default flight-like mission the fit's
+χ² is 1.19 times its expected value, 8 of its standard deviations above it, and Izz ends 5.3 reported σ from the
+truth. The significance test keeps a short record (few degrees of freedom) from being flagged by chance."""
+CHI2_SIGNIFICANCE = 5.0
+"""Standard deviations ``√(2 dof)`` of a χ²-distributed cost by which the fit must miss its expected value ``dof``
+to count (both ways: :func:`estimate_findings` degrades above, :func:`estimate_warnings` notes below)."""
+CHI2_LOW_RATIO = 0.5
+"""A batch fit whose cost is below this fraction of its expected value (and significantly so) is noted in
+``warnings`` (the status is kept): the configured measurement or process noise is far above the telemetry's, so the
+reported σ is conservative (e.g. noise-free simulated sensors against the estimator's noise model)."""
 NIS_RATIO_LIMIT = 3.0
 """A sequential filter whose mean normalised innovation squared exceeds this multiple of its expected value
 diverged (its covariance no longer describes its errors)."""
@@ -321,32 +353,70 @@ REJECTED_FRACTION_LIMIT = 0.2
 outliers, it discards the data."""
 
 
+def _chi2_spreads(ratio: float, dof: int) -> float:
+    """How many standard deviations ``√(2 dof)`` a cost of ``ratio · dof`` lies from its expected value ``dof``
+    (positive above it)."""
+    return float((ratio - 1.0) * dof / np.sqrt(2.0 * dof))
+
+
+def estimate_warnings(summary: dict[str, Any]) -> list[str]:
+    """Notes on an estimate that do not change its status: a batch fit whose χ² is far *below* its expected value
+    (:data:`CHI2_LOW_RATIO`), i.e. the noise model overstates the telemetry's noise and the reported σ is
+    conservative."""
+    ratio, dof = summary.get("chi2_ratio"), summary.get("chi2_expected") or 0
+    if ratio is None or dof <= 0 or ratio >= CHI2_LOW_RATIO or -_chi2_spreads(ratio, dof) <= CHI2_SIGNIFICANCE:
+        return []
+    return [f"the batch fit's χ² is {ratio:.3g} times its expected value {dof}: the configured noise "
+            "(estimation.measurement_noise, estimation.process_noise) is far above the telemetry's, so the reported "
+            "σ is conservative (larger than the estimate's real error)"]
+
+
 def estimate_findings(summary: dict[str, Any]) -> StatusReport:
     """Findings that make an estimate ``degraded`` (:mod:`oacli.status`), each with one sentence saying why.
 
     Batch: the last Levenberg-Marquardt round missed its tolerance, no record passed the χ² gate, or the fit's
-    χ² is far above its expected value (:data:`CHI2_RATIO_LIMIT`). Sequential: the filter lost the state and
-    re-initialised, or its normalised innovations are far above their expected value (:data:`NIS_RATIO_LIMIT`,
-    diverged). Both: too many records rejected (:data:`REJECTED_FRACTION_LIMIT`), gaps in the input record (inputs
-    unknown: predicted or cut, :mod:`oacli.estimation.alignment`), a truncated telemetry file.
+    χ² is significantly above its expected value (:data:`CHI2_RATIO_LIMIT`, :data:`CHI2_SIGNIFICANCE`).
+    Sequential: the batch bootstrap never identified θ, the filter lost the state and re-initialised, its
+    normalised innovations are far above their expected value (:data:`NIS_RATIO_LIMIT`, diverged) or significantly
+    above it (the batch's χ² rule on their sum: inconsistent). Both: no covariance (θ not identified), too many
+    records rejected (:data:`REJECTED_FRACTION_LIMIT`), gaps in the input record (inputs unknown: predicted or cut,
+    :mod:`oacli.estimation.alignment`), a truncated telemetry file.
     """
     report = StatusReport()
+    if summary.get("covariance_identified") is False:
+        report.degraded("no_covariance", "the estimate has no covariance: the information matrix is singular at the "
+                                         "solution (θ not identified by the records used), so it reports no σ")
     if summary.get("converged") is False:
         report.degraded("not_converged", f"the batch estimate did not converge within {summary['iterations']} "
                                          "iterations (estimation.max_iterations)")
     if summary.get("gate_emptied"):
         report.degraded("gate_empty", "no record passed the χ² gate: the estimate uses records the gate rejected")
     ratio, dof = summary.get("chi2_ratio"), summary.get("chi2_expected") or 0
-    if ratio is not None and dof > 0 and ratio > CHI2_RATIO_LIMIT and (ratio - 1.0) * dof > 5.0 * np.sqrt(2.0 * dof):
-        report.degraded("fit_chi2", f"the batch fit's χ² is {ratio:.3g} times its expected value {dof}: the "
-                                    "telemetry does not fit the model (inputs, noise levels or unmodelled effects)")
+    if ratio is not None and dof > 0 and ratio > CHI2_RATIO_LIMIT and _chi2_spreads(ratio, dof) > CHI2_SIGNIFICANCE:
+        report.degraded("fit_chi2", f"the batch fit's χ² is {ratio:.3g} times its expected value {dof} "
+                                    f"({_chi2_spreads(ratio, dof):.1f} of its standard deviations above it): the "
+                                    "telemetry does not fit the model (inputs, noise levels or unmodelled effects "
+                                    "such as thrust errors or a centre-of-mass offset), and the reported σ covers "
+                                    "the modelled noise only")
+    if summary.get("bootstrap_unidentified"):
+        report.degraded("not_identified", "the sequential filter's batch bootstrap could not identify θ from its "
+                                          "records (no usable covariance: e.g. no record passed its χ² gate); the "
+                                          "filter went on from the prior, so the estimate may be the prior itself")
     if summary.get("state_reinitialisations"):
         report.degraded("reinitialised", f"the sequential filter lost the state and re-initialised "
                                          f"{summary['state_reinitialisations']} times")
-    nis = summary.get("nis_ratio")
+    nis, nis_dof = summary.get("nis_ratio"), summary.get("nis_expected") or 0
     if nis is not None and nis > NIS_RATIO_LIMIT:
         report.degraded("diverged", f"the sequential filter diverged: its innovations are {nis:.3g} times their "
                                     "expected size")
+    elif (nis is not None and nis_dof > 0 and nis > CHI2_RATIO_LIMIT
+          and _chi2_spreads(nis, nis_dof) > CHI2_SIGNIFICANCE):
+        report.degraded("nis_inconsistent", f"the sequential filter's normalised innovations are {nis:.3g} times "
+                                            f"their expected value ({_chi2_spreads(nis, nis_dof):.1f} standard "
+                                            "deviations of their sum above it): the telemetry does not fit the "
+                                            "model (inputs, noise levels or unmodelled effects such as thrust errors "
+                                            "or a centre-of-mass offset), and the reported σ covers the modelled "
+                                            "noise only")
     total = summary.get("samples_total") or 0
     if total and summary.get("samples_rejected", 0) > REJECTED_FRACTION_LIMIT * total:
         report.degraded("rejected", f"{summary['samples_rejected']} of {total} records were rejected by the χ² "
