@@ -14,7 +14,7 @@ file caches cleared before each side (:func:`oacli.mission.records.clear_cache`)
 * ``dump_config``: a stage config's YAML text, pure-Python emitter vs libyaml's (same text);
 * ``load_config_cached x stages``: parsing each stage's ``config.yaml`` (old) vs remembering the config the stage ran
   with (:func:`~oacli.mission.records.remember_config`, new);
-* ``mission.rrd``: :func:`oacli.io.rerun.mission.write_mission_recording` from the records (one side).
+* ``mission.rrd``: :func:`oacli.mission.recording.write_mission_recording` from the records (one side).
 
 ``--missions N`` also runs the whole mission N times per side in this process (old paths: the above, the reader's
 per-record ``json.loads`` of sample records (``oacli.io.mcap_read.FAST_SAMPLES`` off) and no stage records kept in
@@ -62,11 +62,11 @@ try:  # absent in checkouts before it (--compare-tree runs this script against t
 except ImportError:
     mcap_memo = None
 from oacli.io.mcap_read import read_stage  # noqa: E402
-from oacli.io.rerun.mission import write_mission_recording  # noqa: E402
 from oacli.mission import records  # noqa: E402
 from oacli.mission.compare import comparison_row  # noqa: E402
 from oacli.mission.configs import Handoff, stage_config  # noqa: E402
 from oacli.mission.layout import stage_by_key  # noqa: E402
+from oacli.mission.recording import write_mission_recording  # noqa: E402
 from oacli.mission.run import (  # noqa: E402
     _final_position,
     estimate_model,

@@ -55,14 +55,14 @@ import oacli.stages.track as st_track  # noqa: E402
 from oacli.config import load_config  # noqa: E402
 from oacli.config.outputs import PlotSet  # noqa: E402
 from oacli.io.mcap_write import StageMcapWriter  # noqa: E402
-from oacli.io.plots.from_run import stage_figures  # noqa: E402
-from oacli.io.rerun.mission import write_mission_recording  # noqa: E402
 from oacli.io.runfolder import is_complete  # noqa: E402
 from oacli.mission.compare import comparison_row  # noqa: E402
 from oacli.mission.configs import stage_config  # noqa: E402
 from oacli.mission.layout import MISSION_STAGES, stage_by_key  # noqa: E402
 from oacli.mission.plots import write_mission_plots  # noqa: E402
+from oacli.mission.recording import write_mission_recording  # noqa: E402
 from oacli.mission.run import handoff_for, mission_stages, run_mission, start_mission, validate_mission  # noqa: E402
+from oacli.stages.replot import stage_figures  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

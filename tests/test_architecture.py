@@ -179,6 +179,23 @@ def test_core_imports_no_cli_recorder_or_io_even_indirectly():
     assert not problems, "the core reaches the CLI, a recorder or the run-folder I/O:\n" + "\n".join(problems)
 
 
+LAYERS = ("oacli.io", "oacli.stages", "oacli.mission", "oacli.campaign", "oacli.commands", "oacli.cli")
+"""The I/O and orchestration layers, lowest first: each may import the ones before it (and the core), never one
+after it (``oacli plots`` redraws from a run folder through the stages' config readers, so it is a stage module,
+:mod:`oacli.stages.replot`; the mission's recording is the mission's, :mod:`oacli.mission.recording`)."""
+
+
+def _layer(module: str) -> int | None:
+    return next((i for i, p in enumerate(LAYERS) if module == p or module.startswith(p + ".")), None)
+
+
+def test_io_and_orchestration_layers_import_only_downwards():
+    internal, _ = import_graph(ROOT / "oacli")
+    upward = sorted(f"{m} -> {d}" for m, deps in internal.items() for d in deps
+                    if _layer(m) is not None and _layer(d) is not None and _layer(d) > _layer(m))
+    assert not upward, "imports that run up the layers " + " < ".join(LAYERS) + ":\n" + "\n".join(upward)
+
+
 def test_controllers_do_not_import_the_simulator():
     """The simulator runs controllers (the protocol and its step type live in oacli.types), not the reverse."""
     internal, _ = import_graph(ROOT / "oacli")

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from oacli.io.mcap_io import read_stage, read_telemetry
-from oacli.io.rerun.mission import APPLICATION_ID
 from oacli.io.rerun.read import (
     read_blueprint_views,
     read_recording_component,
@@ -20,6 +19,7 @@ from oacli.io.rerun.read import (
 )
 from oacli.metrics import true_states_at
 from oacli.mission.layout import BASELINES, stage_by_key
+from oacli.mission.recording import APPLICATION_ID
 
 PARAMS = ("mass_kg", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2")
 
@@ -141,8 +141,7 @@ def test_mission_plots_are_laid_out_within_the_figure_without_overlaps(mission, 
     real_save = mission_plots.save_png
 
     def check(fig, path):
-        fig.set_dpi(plot_common.DPI)
-        plot_common.fixed_layout(fig)
+        plot_common.lay_out(fig)  # as save_png lays it out
         fig.canvas.draw()
         problems[Path(path).name] = layout_problems(fig)
         return real_save(fig, path)

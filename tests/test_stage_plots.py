@@ -59,8 +59,7 @@ def stage_runs(tmp_path_factory) -> dict[str, Path]:
         return check_layout(fig, path)
 
     def check_layout(fig, path):
-        fig.set_dpi(plot_common.DPI)
-        plot_common.fixed_layout(fig)  # as save_png does (it closes the figure: measure first)
+        plot_common.lay_out(fig)  # as save_png does, in its order (it closes the figure: measure first)
         fig.canvas.draw()
         layouts[f"{Path(path).parent.name}/{Path(path).name}"] = layout_problems(fig)
         return real_save(fig, path)

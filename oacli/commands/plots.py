@@ -1,4 +1,4 @@
-"""``oacli plots RUN_DIR``: draw a finished run's PNGs afterwards from its MCAPs (:mod:`oacli.io.plots.from_run`).
+"""``oacli plots RUN_DIR``: draw a finished run's PNGs afterwards from its MCAPs (:mod:`oacli.stages.replot`).
 
 A stage folder gets the PNGs its stage draws with ``outputs.plots: all``; a mission folder gets every complete
 stage folder's PNGs and the mission's ``plots/`` (``--stage`` picks some: a stage key such as
@@ -21,10 +21,10 @@ MISSION_PLOTS = "mission"
 
 def _draw_mission(run_dir: Path, summary: dict, keys: list[str] | None, out: Path | None) -> dict[str, dict]:
     from oacli.errors import InputError
-    from oacli.io.plots.from_run import draw_stage
     from oacli.io.runfolder import is_complete
     from oacli.mission.layout import MISSION_STAGES
     from oacli.mission.plots import write_mission_plots
+    from oacli.stages.replot import draw_stage
 
     known = [s.key for s in MISSION_STAGES] + [MISSION_PLOTS]
     for key in keys or ():
@@ -69,7 +69,7 @@ def plots(
 
     def action() -> dict[str, dict]:
         from oacli.errors import InputError
-        from oacli.io.plots.from_run import draw_stage, read_summary
+        from oacli.stages.replot import draw_stage, read_summary
 
         if not run_dir.is_dir():
             raise InputError(f"{run_dir}: not a folder")

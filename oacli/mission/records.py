@@ -1,6 +1,6 @@
 """A finished mission's records on one ``mission_time`` axis, read back from its stage folders.
 
-The mission recording (:mod:`oacli.io.rerun.mission`) and the mission plots (:mod:`oacli.mission.plots`) show the
+The mission recording (:mod:`oacli.mission.recording`) and the mission plots (:mod:`oacli.mission.plots`) show the
 same data; this module reads it once from the stage MCAPs (the record of truth, :mod:`oacli.io.mcap_read`) and
 shifts every stage's own time (0 at the start of the stage) by its segment's ``start_time_s`` from the mission
 summary (the mission contract: segment-1 from 0, segment-2 from segment-1's end, the three segment-3 flights all

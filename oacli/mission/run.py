@@ -28,12 +28,12 @@ from oacli.errors import InputError, OacliError
 from oacli.io import mcap_memo
 from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
-from oacli.io.rerun.mission import write_mission_recording
 from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
 from oacli.mission.compare import comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
 from oacli.mission.layout import MISSION_STAGES, SEGMENTS, MissionStage, stage_by_key
 from oacli.mission.plots import write_mission_plots
+from oacli.mission.recording import write_mission_recording
 from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
 from oacli.model.robot_model import RobotModel
 from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED, OK, StatusReport

@@ -412,6 +412,21 @@ def fixed_xlabels(fig: Figure) -> None:
         axis.set_label_coords(0.5, 0.0, transform=offset_copy(ax.transAxes, fig=fig, y=-offset_pt, units="points"))
 
 
+def lay_out(fig: Figure) -> None:
+    """What :func:`save_png` does to a figure before drawing it: the PNG resolution, :func:`few_ticks`,
+    :func:`fixed_xlabels`, :func:`fixed_layout` (in this order: the tick choice moves the decorations that the layout
+    measures).
+
+    Parameters
+    ----------
+    fig : Figure
+    """
+    fig.set_dpi(DPI)
+    few_ticks(fig)
+    fixed_xlabels(fig)
+    fixed_layout(fig)
+
+
 def save_png(fig: Figure, path: Path) -> Path:
     """Lay ``fig`` out (:func:`few_ticks`, :func:`fixed_layout`), render it to PNG in memory, write the bytes to
     ``path`` atomically and close the figure, or, for a template of :func:`subplots`, blank it for the next PNG of its
@@ -423,10 +438,7 @@ def save_png(fig: Figure, path: Path) -> Path:
         if LEGACY:
             fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
         else:
-            fig.set_dpi(DPI)
-            few_ticks(fig)
-            fixed_xlabels(fig)
-            fixed_layout(fig)
+            lay_out(fig)
             canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
             canvas.draw()
             buf.write(png_bytes(np.asarray(canvas.buffer_rgba())))

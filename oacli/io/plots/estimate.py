@@ -73,7 +73,7 @@ def plot_convergence(path: Path, estimates: Sequence[ParameterEstimate], truth: 
 def estimate_figures(*, estimates: Sequence[ParameterEstimate], truth: np.ndarray | None,
                      crb_std: np.ndarray | None = None) -> dict[str, Callable[[Path], object]]:
     """The ``estimate`` stage's figure, name -> function drawing it to a path (shared by the stage and by
-    ``oacli plots``, :mod:`oacli.io.plots.from_run`); parameters as :func:`write_estimate_plots`.
+    ``oacli plots``, :mod:`oacli.stages.replot`); parameters as :func:`write_estimate_plots`.
 
     Returns
     -------

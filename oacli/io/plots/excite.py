@@ -89,7 +89,7 @@ def excite_figures(*, method: str, t_info_s: np.ndarray, information: np.ndarray
                    u: np.ndarray, force_limit_N: np.ndarray, torque_limit_Nm: np.ndarray,
                    actuator: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Callable[[Path], object]]:
     """The ``excite`` stage's figures, name -> function drawing it to a path (shared by the stage and by
-    ``oacli plots``, :mod:`oacli.io.plots.from_run`); parameters as :func:`write_excite_plots` (``method`` names the
+    ``oacli plots``, :mod:`oacli.stages.replot`); parameters as :func:`write_excite_plots` (``method`` names the
     titles).
 
     Returns

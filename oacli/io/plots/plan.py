@@ -53,7 +53,7 @@ def plot_view(path: Path, axes: tuple[int, int], title: str, scene: Scene | None
 def path_figures(*, stage: str, scene: Scene | None, robot_radius_m: float, paths: Mapping[str, np.ndarray],
                  start_m: np.ndarray, goal_m: np.ndarray) -> dict[str, Callable[[Path], object]]:
     """The ``plan`` / ``smooth`` stage's figures, name -> function drawing it to a path (shared by the stage and by
-    ``oacli plots``, :mod:`oacli.io.plots.from_run`).
+    ``oacli plots``, :mod:`oacli.stages.replot`).
 
     Parameters
     ----------

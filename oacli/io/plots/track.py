@@ -108,7 +108,7 @@ def plot_top_view(path: Path, scene: Scene | None, robot_radius_m: float, refere
 def track_figures(*, telemetry: Telemetry, reference: Trajectory, limits: MotionLimits, scene: Scene | None,
                   robot_radius_m: float) -> dict[str, Callable[[Path], object]]:
     """The ``track`` stage's figures, name -> function drawing it to a path (shared by the stage and by
-    ``oacli plots``, :mod:`oacli.io.plots.from_run`).
+    ``oacli plots``, :mod:`oacli.stages.replot`).
 
     Parameters
     ----------
