@@ -327,12 +327,13 @@ def _quadratic_form_coeffs(
     ma = np.einsum("kij,kj->ki", m, alpha)
     mb = np.einsum("kij,kj->ki", m, beta)
     mg = np.einsum("kij,kj->ki", m, gamma)
-    c0 = np.einsum("ki,ki->k", alpha, ma) - 1.0
-    c1 = 2.0 * np.einsum("ki,ki->k", alpha, mb)
-    c2 = np.einsum("ki,ki->k", beta, mb) + 2.0 * np.einsum("ki,ki->k", alpha, mg)
-    c3 = 2.0 * np.einsum("ki,ki->k", beta, mg)
-    c4 = np.einsum("ki,ki->k", gamma, mg)
-    return np.stack([c0, c1, c2, c3, c4], axis=1)
+    out = np.empty((alpha.shape[0], 5))
+    out[:, 0] = np.einsum("ki,ki->k", alpha, ma) - 1.0
+    out[:, 1] = 2.0 * np.einsum("ki,ki->k", alpha, mb)
+    out[:, 2] = np.einsum("ki,ki->k", beta, mb) + 2.0 * np.einsum("ki,ki->k", alpha, mg)
+    out[:, 3] = 2.0 * np.einsum("ki,ki->k", beta, mg)
+    out[:, 4] = np.einsum("ki,ki->k", gamma, mg)
+    return out
 
 
 class CollisionChecker:
@@ -373,6 +374,14 @@ class CollisionChecker:
             radii[j] = e.principal_axes()[0].max()
         self._broad_radius = radii + self.robot.bounding_radius_m
         self._point_robot = self.robot.is_point
+        # One outer ellipsoid E_s of each zone grown by the robot (the zone itself for a point robot), at the s
+        # that is optimal for the mean generalised eigenvalue: a piece outside it is free (is_free's pre-pass).
+        if self._point_robot:
+            self._outer = self._shapes
+        else:
+            s0 = 1.0 / (1.0 + np.sqrt(np.maximum(self._lam, 1e-300).mean(axis=1)))[:, None]  # (n, 1)
+            d0 = s0 * (1.0 - s0) / (s0 + self._lam * (1.0 - s0))
+            self._outer = np.einsum("nai,na,naj->nij", self._transform, d0, self._transform)
         self._lower = np.array([b.lower for b in scene.keep_in], dtype=float).reshape(-1, 3)
         self._upper = np.array([b.upper for b in scene.keep_in], dtype=float).reshape(-1, 3)
 
@@ -476,8 +485,11 @@ class CollisionChecker:
     def is_free(self, pieces: Pieces) -> bool:
         """True when every piece is collision-free (continuous time).
 
-        Same verdict as ``check(pieces).free``, faster when a sample point already collides: the start and end
-        positions are tested first (an exact reject), the continuous check runs only when they are all free.
+        The same verdict as ``check(pieces).free`` (up to rounding at an exact contact), with less work: no
+        per-piece report, the keep-in test first, and the keep-out pairs left by the broad phase first tested
+        against one outer ellipsoid ``E_s`` of each zone grown by the robot (the zone itself for a point robot,
+        :mod:`oacli.geometry.overlap`): the quartic of a piece outside it has non-negative Bernstein coefficients
+        and the piece is free; only the other pairs get the exact test of :meth:`check`.
 
         Parameters
         ----------
@@ -490,10 +502,40 @@ class CollisionChecker:
         """
         if len(pieces) == 0:
             return True
-        ends = np.concatenate([pieces.p0, pieces.position(pieces.h)[-1:]])
-        if not np.all(self.points_free(ends)):
+        if self._lower.shape[0] and not self._all_in_keep_in(pieces):
             return False
-        return self.check(pieces).free
+        if not self._centers.shape[0]:
+            return True
+        piece_idx, zone_idx = self._near_pairs(pieces)
+        if piece_idx.shape[0] == 0:
+            return True
+        dur = pieces.h[piece_idx].astype(float)
+        alpha = pieces.p0[piece_idx] - self._centers[zone_idx]
+        beta = pieces.v0[piece_idx] * dur[:, None]
+        gamma = 0.5 * pieces.acc[piece_idx] * (dur * dur)[:, None]
+        coeffs = _quadratic_form_coeffs(alpha, beta, gamma, self._outer[zone_idx])
+        bern = coeffs @ _BERNSTEIN.T
+        certified = bern.min(axis=1) >= 0.0
+        if certified.all():
+            return True
+        if self._point_robot:  # the outer ellipsoid is the zone: the test of check() itself
+            if np.any(np.minimum(bern[:, 0], bern[:, 4]) < 0.0):
+                return False
+            value, _ = quartic_minimum(coeffs[~certified])
+            return bool(np.all(value >= 0.0))
+        rest = ~certified
+        free = self._keep_out_pairs(pieces, piece_idx[rest], zone_idx[rest])[2]
+        return bool(np.all(free))
+
+    def _all_in_keep_in(self, pc: Pieces) -> bool:
+        """Whether every piece stays in the union of the keep-in boxes (as :meth:`_keep_in_ok`, one verdict)."""
+        lo, hi = self._axis_extremes(pc)
+        tol = KEEP_IN_TOLERANCE_M
+        if self._lower.shape[0] == 1:
+            return bool(np.all(lo >= self._lower[0] - tol) and np.all(hi <= self._upper[0] + tol))
+        inside_box = np.all((lo[:, None, :] >= self._lower - tol) & (hi[:, None, :] <= self._upper + tol), axis=-1)
+        ok = np.any(inside_box, axis=1)
+        return all(self._inside_union(pc.p0[i], pc.v0[i], pc.acc[i], float(pc.h[i])) for i in np.flatnonzero(~ok))
 
     def pieces_free(self, pieces: Pieces) -> np.ndarray:
         """Per piece: True when the whole piece (continuous time) is collision-free, shape (M,).
@@ -570,8 +612,8 @@ class CollisionChecker:
         h = pc.h[:, None]
         start = pc.p0
         end = pc.p0 + pc.v0 * h + 0.5 * pc.acc * h * h
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tv = np.where(pc.acc != 0.0, -pc.v0 / pc.acc, -1.0)
+        tv = np.full(pc.v0.shape, -1.0)
+        np.divide(-pc.v0, pc.acc, out=tv, where=pc.acc != 0.0)
         interior = (tv > 0.0) & (tv < h)
         tv = np.where(interior, tv, 0.0)
         vertex = np.where(interior, pc.p0 + pc.v0 * tv + 0.5 * pc.acc * tv * tv, start)
@@ -600,18 +642,29 @@ class CollisionChecker:
 
     # -- keep-out ------------------------------------------------------------------------------------------
 
+    def _near_pairs(self, pc: Pieces) -> tuple[np.ndarray, np.ndarray]:
+        """Broad phase: the (piece, zone) pairs whose bounding spheres meet, ``(piece_idx, zone_idx)``."""
+        h = pc.h
+        mid_t = 0.5 * h
+        mid = pc.position(mid_t)
+        # np.linalg.norm's own arithmetic (sqrt of the sum of squares), without its overhead.
+        reach = np.sqrt((pc.v0 * pc.v0).sum(axis=1)) * mid_t + 0.375 * np.sqrt((pc.acc * pc.acc).sum(axis=1)) * h * h
+        delta = mid[:, None, :] - self._centers
+        dist = np.sqrt((delta * delta).sum(axis=-1))
+        near = dist <= reach[:, None] + self._broad_radius * (1.0 + 1e-9) + 1e-12
+        return np.nonzero(near)
+
     def _keep_out(self, pc: Pieces):
         """Continuous keep-out test of every (piece, zone) pair surviving the broad phase.
 
         Returns ``(piece, zone, free, witness_tau, undecided)`` arrays over the tested pairs.
         """
+        piece_idx, zone_idx = self._near_pairs(pc)
+        return self._keep_out_pairs(pc, piece_idx, zone_idx)
+
+    def _keep_out_pairs(self, pc: Pieces, piece_idx: np.ndarray, zone_idx: np.ndarray):
+        """The continuous keep-out test of the given (piece, zone) pairs (:meth:`_keep_out`)."""
         h = pc.h
-        mid_t = 0.5 * h
-        mid = pc.position(mid_t)
-        reach = np.linalg.norm(pc.v0, axis=1) * mid_t + 0.375 * np.linalg.norm(pc.acc, axis=1) * h * h
-        dist = np.linalg.norm(mid[:, None, :] - self._centers, axis=-1)
-        near = dist <= reach[:, None] + self._broad_radius * (1.0 + 1e-9) + 1e-12
-        piece_idx, zone_idx = np.nonzero(near)
         n_pairs = piece_idx.shape[0]
         free = np.ones(n_pairs, dtype=bool)
         witness = np.full(n_pairs, np.nan)
@@ -660,7 +713,7 @@ class CollisionChecker:
         alpha = p0 - self._centers[zone]
         beta = v0 * dur[:, None]
         gamma = 0.5 * acc * (dur * dur)[:, None]
-        if self.robot.is_point:
+        if self._point_robot:
             ok, _, smin = quartic_minimum_at_least_zero(_quadratic_form_coeffs(alpha, beta, gamma,
                                                                                self._shapes[zone]))
             return ok, ~ok, smin * dur

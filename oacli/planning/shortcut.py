@@ -273,7 +273,7 @@ def lqr_shortcut(
                     if reject:
                         continue
                     section = connector.trajectory(x_a, x_b, goal, n_steps)
-                    if checker.check(section.pieces()).free:
+                    if checker.is_free(section.pieces()):
                         if sample_dt_s is not None:
                             section = section.refined(sample_dt_s)
                         traj = splice(traj, a, b, section)
