@@ -652,7 +652,8 @@ class CollisionChecker:
         delta = mid[:, None, :] - self._centers
         dist = np.sqrt((delta * delta).sum(axis=-1))
         near = dist <= reach[:, None] + self._broad_radius * (1.0 + 1e-9) + 1e-12
-        return np.nonzero(near)
+        piece_idx, zone_idx = np.nonzero(near)
+        return piece_idx, zone_idx
 
     def _keep_out(self, pc: Pieces):
         """Continuous keep-out test of every (piece, zone) pair surviving the broad phase.
