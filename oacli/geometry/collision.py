@@ -384,6 +384,14 @@ class CollisionChecker:
             self._outer = np.einsum("nai,na,naj->nij", self._transform, d0, self._transform)
         self._lower = np.array([b.lower for b in scene.keep_in], dtype=float).reshape(-1, 3)
         self._upper = np.array([b.upper for b in scene.keep_in], dtype=float).reshape(-1, 3)
+        # The same numbers as plain floats for the one-position test of a point robot (_point_free_scalar).
+        lo_tol, hi_tol = self._lower - KEEP_IN_TOLERANCE_M, self._upper + KEEP_IN_TOLERANCE_M
+        self._scalar_boxes: list[tuple[float, ...]] = [tuple(float(v) for v in (*lo, *hi))
+                                                       for lo, hi in zip(lo_tol, hi_tol, strict=True)]
+        self._scalar_zones: list[tuple[float, float, float, tuple[float, ...]]] = []
+        for j in range(n):
+            cx, cy, cz = (float(v) for v in self._centers[j])
+            self._scalar_zones.append((cx, cy, cz, tuple(float(v) for v in self._transform[j].ravel())))
 
     # -- points --------------------------------------------------------------------------------------------
 
@@ -440,6 +448,8 @@ class CollisionChecker:
         ndarray of bool, shape (...)
         """
         p = np.asarray(points, dtype=float)
+        if p.shape == (3,) and self._point_robot:  # one position (the planners' samples): plain floats
+            return np.array(self._point_free_scalar(float(p[0]), float(p[1]), float(p[2])))
         ok = self.in_keep_in(p)
         if self._centers.shape[0]:
             if self._point_robot:
@@ -451,12 +461,37 @@ class CollisionChecker:
             dist = np.linalg.norm(flat[:, None, :] - self._centers, axis=-1)  # (K, n_obstacles)
             near = dist <= self._broad_radius * (1.0 + 1e-9) + 1e-12
             if np.any(near):
-                rows = np.flatnonzero(near.any(axis=1))
-                g = self.clearance_sq(flat[rows])
-                clear = np.ones(flat.shape[0], dtype=bool)
-                clear[rows] = np.all((g >= 1.0) | ~near[rows], axis=-1)
-                ok &= clear.reshape(ok.shape)
+                rows, zones = np.nonzero(near)
+                # Pre-pass: outside the outer ellipsoid E_s0 of the zone grown by the robot (g(s0) >= 1, so
+                # g* >= 1) a point is clear; the overlap test (a Newton search) runs only for the others.
+                delta = flat[rows] - self._centers[zones]
+                inside = np.einsum("ki,ki->k", np.einsum("kij,kj->ki", self._outer[zones], delta), delta) < 1.0
+                if np.any(inside):
+                    r_in, z_in = rows[inside], zones[inside]
+                    w2 = np.einsum("kij,kj->ki", self._transform[z_in], flat[r_in] - self._centers[z_in]) ** 2
+                    g, _ = max_clearance_sq(w2, self._lam[z_in])
+                    clear = np.ones(flat.shape[0], dtype=bool)
+                    clear[r_in[g < 1.0]] = False
+                    ok &= clear.reshape(ok.shape)
         return ok
+
+    def _point_free_scalar(self, x: float, y: float, z: float) -> bool:
+        """:meth:`points_free` of one position of a point robot in Python floats (the same sums, in the same
+        order: keep-in bounds with the tolerance, ``g = Σ_i (T_i · (p − c))²`` per zone, ``g >= 1``)."""
+        if self._scalar_boxes:
+            for lx, ly, lz, ux, uy, uz in self._scalar_boxes:
+                if lx <= x <= ux and ly <= y <= uy and lz <= z <= uz:
+                    break
+            else:
+                return False
+        for cx, cy, cz, t in self._scalar_zones:
+            dx, dy, dz = x - cx, y - cy, z - cz
+            w0 = t[0] * dx + t[1] * dy + t[2] * dz
+            w1 = t[3] * dx + t[4] * dy + t[5] * dz
+            w2 = t[6] * dx + t[7] * dy + t[8] * dz
+            if w0 * w0 + w1 * w1 + w2 * w2 < 1.0:
+                return False
+        return True
 
     def point_violations(self, point: np.ndarray) -> list[tuple[str, int]]:
         """Every violated constraint of one position: ``("keep_in", -1)`` and/or ``("keep_out", j)``.
