@@ -249,7 +249,7 @@ def lqr_shortcut(
             # the samples of those are tested by the sample filter.
             pos, chunk, force_ok_any = 0, _CHUNK, False
             passing: list[np.ndarray] = []
-            rejected_parts: list[list[bool]] = []
+            sampled: list[np.ndarray] = []
             found = 0
             while found < max_collision_checks and pos < order.size:
                 part = order[pos:pos + chunk]
@@ -262,11 +262,19 @@ def lqr_shortcut(
                 ok = ok[: max_collision_checks - found]
                 if ok.size:
                     passing.append(part[ok])
-                    rejected_parts.append(sample_filter.connections_colliding(x_c[ok], part[ok]).tolist())
+                    sampled.append(x_c[ok])
                     found += ok.size
             if found:
-                horizons = np.concatenate(passing) if len(passing) > 1 else passing[0]
-                rejected = [r for part_r in rejected_parts for r in part_r]
+                if len(passing) == 1:
+                    horizons, states = passing[0], sampled[0]
+                else:  # one sample-filter call: the parts' samples zero-padded to the longest (masked by steps)
+                    horizons = np.concatenate(passing)
+                    states = np.zeros((found, max(x.shape[1] for x in sampled), 6))
+                    row = 0
+                    for x in sampled:
+                        states[row:row + x.shape[0], : x.shape[1]] = x
+                        row += x.shape[0]
+                rejected = sample_filter.connections_colliding(states, horizons).tolist()
                 for n_steps, reject in zip(horizons.tolist(), rejected, strict=True):
                     if checked == 0:
                         outcome, steps = COLLISION, n_steps

@@ -342,9 +342,11 @@ class LqrConnector:
         if c and (s > self.max_steps or int(steps.min()) < MIN_STEPS):
             raise ValueError(f"steps must be in [{MIN_STEPS}, {self.max_steps}]")
         y = self._y(x_a, x_b, goal)
-        if y.shape[0] == 1:  # one pair of end points for every horizon
-            u = np.einsum("icsj,ij->csi", self._g[:, steps, :s], y[0])
-            xs = np.einsum("icskj,ij->cski", self._x[:, steps, : s + 1], y[0]).reshape(c, s + 1, 6)
+        if y.shape[0] == 1:  # one pair of end points for every horizon: per axis one matrix-vector product
+            y0 = y[0][:, :, None]  # (3, 6, 1)
+            u = (self._g[:, steps, :s].reshape(3, -1, 6) @ y0).reshape(3, c, s).transpose(1, 2, 0)
+            xs = ((self._x[:, steps, : s + 1].reshape(3, -1, 6) @ y0).reshape(3, c, s + 1, 2)
+                  .transpose(1, 2, 3, 0).reshape(c, s + 1, 6))
         else:
             u = np.einsum("icsj,cij->csi", self._g[:, steps, :s], y)
             xs = np.einsum("icskj,cij->cski", self._x[:, steps, : s + 1], y).reshape(c, s + 1, 6)
