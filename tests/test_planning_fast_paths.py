@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from oacli.geometry import Box, Ellipsoid, Scene
-from oacli.geometry.collision import CollisionChecker, RobotBody
+from oacli.geometry.collision import CollisionChecker, Pieces, RobotBody
 from oacli.planning.steering import LqrConnector
 from oacli.planning.translational import CostWeights, TranslationalTrajectory
 from tests.plan_checks import scene_problem
@@ -181,3 +181,34 @@ def test_sample_filter_never_rejects_a_free_position_and_catches_deep_collisions
     states[0, 3, 0:3] = checker._centers[0]  # a colliding sample at the horizon of connection 0 ...
     states[1, 3, 0:3] = checker._centers[0]  # ... and beyond the horizon of connection 1 (padding)
     np.testing.assert_array_equal(filt.connections_colliding(states, np.array([3, 2])), [True, False])
+
+
+@pytest.mark.parametrize("radius_m", [0.0, 0.25])
+def test_is_free_gives_the_verdict_of_check_on_random_pieces(radius_m):
+    """is_free's outer-ellipsoid pre-pass and keep-in shortcut agree with the full check, both verdicts seen."""
+    scene = Scene(keep_in=(Box(np.array([0.0, -1.0, -1.0]), np.array([6.0, 1.0, 1.0])),),
+                  keep_out=(Ellipsoid(np.array([1.5, 0.35, 0.0]), np.diag(1.0 / np.array([0.35, 0.9, 1.2]) ** 2)),
+                            Ellipsoid(np.array([3.0, -0.35, 0.0]), np.diag(1.0 / np.array([0.35, 0.9, 1.2]) ** 2))))
+    checker = CollisionChecker(scene, RobotBody.sphere(radius_m))
+    rng = np.random.default_rng(11)
+    verdicts = []
+    for _ in range(300):
+        m = int(rng.integers(1, 12))
+        p0 = rng.uniform([0.0, -1.0, -1.0], [6.0, 1.0, 1.0], size=(m, 3))
+        pieces = Pieces(p0, rng.normal(size=(m, 3)) * 0.2, rng.normal(size=(m, 3)) * 0.05, np.full(m, 0.5))
+        full = checker.check(pieces).free
+        assert checker.is_free(pieces) == full
+        verdicts.append(full)
+    assert any(verdicts) and not all(verdicts)
+
+
+def test_points_free_of_one_position_matches_the_vectorised_test():
+    """The plain-float test of one position equals the vectorised one (point robot), for free and colliding points."""
+    scene = Scene(keep_in=(Box(np.array([0.0, -1.0, -1.0]), np.array([6.0, 1.0, 1.0])),),
+                  keep_out=(Ellipsoid(np.array([1.5, 0.35, 0.0]), np.diag(1.0 / np.array([0.35, 0.9, 1.2]) ** 2)),))
+    checker = CollisionChecker(scene)
+    pts = np.random.default_rng(5).uniform([-0.2, -1.2, -1.2], [6.2, 1.2, 1.2], size=(3000, 3))
+    many = checker.points_free(pts)
+    one = np.array([bool(checker.points_free(p)) for p in pts])
+    np.testing.assert_array_equal(one, many)
+    assert many.any() and not many.all()

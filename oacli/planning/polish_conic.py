@@ -162,6 +162,8 @@ class PolishConic:
         buf.add([self._s], [-1.0], np.zeros(n))
         self._buffer_rows = buf.matrix(self.n_var)
         self._v_bound = np.maximum((1.0 - eps) * np.asarray(velocity_limit_mps, dtype=float), np.abs(start[3:6]))
+        self._half_h3 = 0.5 * hc  # (N, 3): P1's coefficient of v_k
+        self._half_h_v = 0.5 * self.h[:, None] * self._v_bound  # (N, 3): P1's reach beyond Δ
         # Control points as (column, coefficient) lists, per piece and axis: P0 = r_k, P1 = r_k + h/2 v_k,
         # P2 = r_{k+1}.
         self._points = [
@@ -262,51 +264,73 @@ class PolishConic:
                           shape=(count + 1, self.n_var))
         return a, np.concatenate([[0.0], *b, [0.0]])
 
-    def _variable_rows(self) -> tuple[sp.coo_matrix, np.ndarray]:
-        """Trust region, keep-in and keep-out rows for the current reference (A x <= b)."""
+    def _variable_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Trust region, keep-in and keep-out rows for the current reference (A x <= b) as COO triplets
+        ``(rows, cols, vals, b)``, every block vectorised (rows in the order: trust region +, −; keep-in per control
+        point P0, P1, P2 and sign +, −; keep-out per zone and control point, pieces ascending)."""
         n = self.n
-        rows = _Rows()
         r_ref = np.asarray(self.r_ref, dtype=float)
         rad = float(self.radius)  # type: ignore[arg-type]
+        rows: list[np.ndarray] = []
+        cols: list[np.ndarray] = []
+        vals: list[np.ndarray] = []
+        bs: list[np.ndarray] = []
+        count = 0
         trust = self._tr_work if self.active_set else np.ones_like(self._tr_work)
-        if np.any(trust):
-            rows.add([self._r[trust]], [1.0], r_ref[trust] + rad)
-            rows.add([self._r[trust]], [-1.0], rad - r_ref[trust])
-        s_col = np.repeat(self._s[:, None], 3, axis=1)
+        tr_cols = self._r[trust]
+        if tr_cols.size:
+            t = tr_cols.size
+            r_t = r_ref[trust]
+            rows.append(np.arange(2 * t))
+            cols.append(np.concatenate([tr_cols, tr_cols]))
+            vals.append(np.concatenate([np.ones(t), -np.ones(t)]))
+            bs += [r_t + rad, rad - r_t]
+            count = 2 * t
         lo, hi = np.asarray(self.box_lower, dtype=float), np.asarray(self.box_upper, dtype=float)
         # Rows implied by the trust region and the velocity limits are left out (the feasible set, hence the
         # optimum, is the same; Clarabel's KKT system gets smaller): every control point stays in the interval
         # r̄ ± Δ (P0, P2) or r̄ ± (Δ + h/2 V̄) (P1) around the reference, V̄ = max(velocity limit, |start velocity|).
-        reach = [np.full((n, 3), rad), rad + 0.5 * self.h[:, None] * self._v_bound, np.full((n, 3), rad)]
-        centre = [r_ref[:-1], r_ref[:-1], r_ref[1:]]
-        for (cols, vals), c_p, d_p in zip(self._points, centre, reach, strict=True):
-            p_lo, p_hi = c_p - d_p, c_p + d_p
-            for sign, bound, extreme in ((1.0, hi, p_hi), (-1.0, -lo, -p_lo)):  # ±P − s <= ±bound
-                keep = extreme > bound - _IMPLIED_M
-                if np.any(keep):
-                    rows.add([c[keep] for c in cols] + [s_col[keep]],
-                             [sign * np.broadcast_to(v, (n, 3))[keep] for v in vals] + [-1.0],
-                             bound[keep])
-        for nrm, off in zip(self.normals, self.offsets, strict=True):
-            nrm, off = np.asarray(nrm, dtype=float), np.asarray(off, dtype=float)
-            for (cols, vals), c_p, d_p in zip(self._points, centre, reach, strict=True):
-                # −nᵀP − s <= −b, kept unless min over the reachable interval of nᵀP is at least b.
-                least = np.einsum("ki,ki->k", nrm, c_p) - np.einsum("ki,ki->k", np.abs(nrm), d_p)
-                keep = np.flatnonzero(least < off + _IMPLIED_M)
-                if keep.size == 0:
-                    continue
-                r_idx = rows.count + np.arange(keep.size)
-                for c, v in zip(cols, vals, strict=True):
-                    for i in range(3):
-                        rows.rows.append(r_idx)
-                        rows.cols.append(np.asarray(c, dtype=np.int64)[keep, i])
-                        rows.vals.append(-nrm[keep, i] * np.broadcast_to(v, (n, 3))[keep, i])
-                rows.rows.append(r_idx)
-                rows.cols.append(self._s[keep])
-                rows.vals.append(-np.ones(keep.size))
-                rows.b.append(-off[keep])
-                rows.count += keep.size
-        return rows.matrix(self.n_var)
+        reach1 = rad + self._half_h_v
+        centre = (r_ref[:-1], r_ref[:-1], r_ref[1:])
+        reach = (rad, reach1, rad)
+        # Keep-in: per control point and sign, ±P − s <= ±bound unless the reachable interval satisfies it.
+        keep_in = np.stack([m for c_p, d_p in zip(centre, reach, strict=True)
+                            for m in (c_p + d_p > hi - _IMPLIED_M, -(c_p - d_p) > -lo - _IMPLIED_M)])  # (6, N, 3)
+        combo, k, i = np.nonzero(keep_in)
+        if combo.size:
+            m_in = combo.size
+            sign = np.where(combo % 2 == 0, 1.0, -1.0)
+            point = combo // 2
+            r_row = count + np.arange(m_in)
+            mid = np.flatnonzero(point == 1)
+            rows += [r_row, r_row[mid], r_row]
+            cols += [self._r[k + (point == 2), i], self._v[k[mid], i[mid]], self._s[k]]
+            vals += [sign, sign[mid] * self._half_h3[k[mid], i[mid]], -np.ones(m_in)]
+            bs.append(np.where(sign > 0, hi[k, i], -lo[k, i]))
+            count += m_in
+        if self.normals:
+            # Keep-out: −nᵀP − s <= −b, kept unless min over the reachable interval of nᵀP is at least b.
+            nrm = np.stack([np.asarray(v, dtype=float) for v in self.normals])  # (J, N, 3)
+            off = np.stack([np.asarray(v, dtype=float) for v in self.offsets])  # (J, N)
+            abs_n = np.abs(nrm)
+            least = np.stack([np.einsum("jki,ki->jk", nrm, c_p)
+                              - np.einsum("jki,ki->jk", abs_n, np.broadcast_to(d_p, (n, 3)))
+                              for c_p, d_p in zip(centre, reach, strict=True)], axis=1)  # (J, 3, N)
+            zone, point, k = np.nonzero(least < off[:, None, :] + _IMPLIED_M)
+            if zone.size:
+                m_out = zone.size
+                r_row = count + np.arange(m_out)
+                n_sel = -nrm[zone, k]  # (M, 3)
+                r_cols = self._r[k + (point == 2)]  # (M, 3)
+                mid = np.flatnonzero(point == 1)
+                rows += [np.repeat(r_row, 3), np.repeat(r_row[mid], 3), r_row]
+                cols += [r_cols.ravel(), self._v[k[mid]].ravel(), self._s[k]]
+                vals += [n_sel.ravel(), (n_sel[mid] * self._half_h3[k[mid]]).ravel(), -np.ones(m_out)]
+                bs.append(-off[zone, k])
+                count += m_out
+        if not rows:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
+        return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), np.concatenate([b.ravel() for b in bs])
 
     def set_working_hint(self, x_ref: np.ndarray, f_ref: np.ndarray, cost_ref: float) -> None:
         """Start the working set of the next :meth:`solve`: every row at the first call, then the limit rows the
@@ -371,27 +395,31 @@ class PolishConic:
         """The conic data with the current working set: the blocks' COO triplets stacked, one conversion to CSC."""
         work = self._lim_work if self.active_set else np.ones_like(self._lim_work)
         k = int(work.sum())
-        a_v, b_v = self._variable_rows()
-        blocks = [self._eq[0], sp.coo_matrix((self._lim_sign[work], (np.arange(k), self._lim_col[work])),
-                                             shape=(k, self.n_var)),
-                  self._buffer_rows[0], a_v, self._soc[0]]
+        r_v, c_v, d_v, b_v = self._variable_rows()
+        n_v = b_v.shape[0]
+        eq, buf, soc = self._eq[0], self._buffer_rows[0], self._soc[0]
+        n_eq, n_buf = eq.shape[0], buf.shape[0]
+        base = n_eq + k + n_buf + n_v  # first row of the cones
+        rows = [eq.row, n_eq + np.arange(k), (n_eq + k) + buf.row, (n_eq + k + n_buf) + r_v, base + soc.row]
+        cols = [eq.col, self._lim_col[work], buf.col, c_v, soc.col]
+        vals = [eq.data, self._lim_sign[work], buf.data, d_v, soc.data]
         rhs = [self._eq[1], self._lim_bound[work], self._buffer_rows[1], b_v, self._soc[1]]
-        cones = [clarabel.ZeroConeT(self._eq[0].shape[0]),
-                 clarabel.NonnegativeConeT(k + self._buffer_rows[0].shape[0] + a_v.shape[0])]
+        cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(k + n_buf + n_v)]
         cones += [clarabel.SecondOrderConeT(4)] * self._n_soc
+        n_rows = base + soc.shape[0]
         if self._cap is not None and (self._cap_work or not self.active_set):
             a_cap, b_cap = self._cap
             alpha = 2.0 * (float(self.cost_cap) - self._time_cost)  # type: ignore[arg-type]
             b_cap = b_cap.copy()
             b_cap[0], b_cap[-1] = alpha + 1.0, alpha - 1.0
-            blocks.append(a_cap)
+            rows.append(n_rows + a_cap.row)
+            cols.append(a_cap.col)
+            vals.append(a_cap.data)
             rhs.append(b_cap)
             cones.append(clarabel.SecondOrderConeT(a_cap.shape[0]))
-        offsets = np.cumsum([0] + [blk.shape[0] for blk in blocks])
-        rows = np.concatenate([blk.row + off for blk, off in zip(blocks, offsets, strict=False)])
-        cols = np.concatenate([blk.col for blk in blocks])
-        vals = np.concatenate([blk.data for blk in blocks])
-        a = sp.csc_matrix((vals, (rows, cols)), shape=(int(offsets[-1]), self.n_var))
+            n_rows += a_cap.shape[0]
+        a = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(n_rows, self.n_var))
         return a, np.concatenate(rhs), cones
 
     def _complete(self) -> bool:

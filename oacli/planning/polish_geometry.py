@@ -16,10 +16,19 @@ def _closest_on_segments(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Point of least norm on each segment ``a[i] → b[i]``, shape (K, 3)."""
     d = b - a
     dd = np.einsum("ki,ki->k", d, d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(dd > 1e-300, -np.einsum("ki,ki->k", a, d) / dd, 0.0)
-    t = np.clip(np.nan_to_num(t), 0.0, 1.0)
+    t = np.zeros(dd.shape)
+    np.divide(-np.einsum("ki,ki->k", a, d), dd, out=t, where=dd > 1e-300)
+    np.clip(t, 0.0, 1.0, out=t)  # also maps an overflow to ±inf onto the segment's ends
     return a + t[:, None] * d
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (K, 3) arrays, in the arithmetic of ``np.cross`` without its overhead."""
+    out = np.empty(u.shape)
+    out[:, 0] = u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1]
+    out[:, 1] = u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2]
+    out[:, 2] = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    return out
 
 
 def min_norm_on_triangles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -38,7 +47,7 @@ def min_norm_on_triangles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.nda
     ndarray, shape (K, 3)
     """
     cands = [_closest_on_segments(a, b), _closest_on_segments(b, c), _closest_on_segments(a, c)]
-    nrm = np.cross(b - a, c - a)
+    nrm = _cross(b - a, c - a)
     n2 = np.einsum("ki,ki->k", nrm, nrm)
     scale = np.maximum.reduce([np.einsum("ki,ki->k", e, e) for e in (b - a, c - a, c - b)]) + 1e-300
     face = n2 > 1e-12 * scale * scale
@@ -46,16 +55,16 @@ def min_norm_on_triangles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.nda
         af, bf, cf, nf = a[face], b[face], c[face], nrm[face]
         p = nf * (np.einsum("ki,ki->k", af, nf) / n2[face])[:, None]
         # Barycentric signs: p inside iff it is on the inner side of the three edges.
-        s1 = np.einsum("ki,ki->k", np.cross(bf - af, p - af), nf)
-        s2 = np.einsum("ki,ki->k", np.cross(cf - bf, p - bf), nf)
-        s3 = np.einsum("ki,ki->k", np.cross(af - cf, p - cf), nf)
+        s1 = np.einsum("ki,ki->k", _cross(bf - af, p - af), nf)
+        s2 = np.einsum("ki,ki->k", _cross(cf - bf, p - bf), nf)
+        s3 = np.einsum("ki,ki->k", _cross(af - cf, p - cf), nf)
         inside = (s1 >= 0) & (s2 >= 0) & (s3 >= 0)
         proj = np.full_like(a, np.inf)
         idx = np.flatnonzero(face)[inside]
         proj[idx] = p[inside]
         cands.append(proj)
     stack = np.stack(cands, axis=1)  # (K, C, 3)
-    norms = np.linalg.norm(stack, axis=2)
+    norms = np.sqrt((stack * stack).sum(axis=2))  # np.linalg.norm's arithmetic
     return stack[np.arange(a.shape[0]), np.argmin(norms, axis=1)]
 
 
@@ -106,10 +115,10 @@ def keep_out_halfspaces_of_zones(
     k = p0.shape[0]
     w = [np.concatenate([(p - z.center) @ z.metric.T for z in zones]) for p in (p0, p1, p2)]  # (J K, 3) each
     w_star = min_norm_on_triangles(*w)
-    norm = np.linalg.norm(w_star, axis=1)
+    norm = np.sqrt((w_star * w_star).sum(axis=1))  # np.linalg.norm's arithmetic
     # The hull contains the centre (no direction): point from the centre to the hull's mean instead.
     m = np.where(norm[:, None] > 1e-12, w_star, (w[0] + w[1] + w[2]) / 3.0)
-    m = np.where(np.linalg.norm(m, axis=1)[:, None] > 1e-12, m, np.array([1.0, 0.0, 0.0]))
+    m = np.where(np.sqrt((m * m).sum(axis=1))[:, None] > 1e-12, m, np.array([1.0, 0.0, 0.0]))
     out = []
     for j, zone in enumerate(zones):
         n, offset = supporting_halfspaces(zone, m[j * k:(j + 1) * k], clearance_m)

@@ -47,6 +47,9 @@ class PlanningProblem:
     weights: CostWeights
     #: Cumulative volume fractions of the sampling boxes (set in ``__post_init__``; picks a box by one draw).
     _box_cdf: np.ndarray = field(init=False, repr=False, compare=False)
+    #: Per sampling box, the low corner and extent of the sampled state ``[r, v]`` (set in ``__post_init__``).
+    _sample_low: np.ndarray = field(init=False, repr=False, compare=False)
+    _sample_span: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name, shape in (("start", (6,)), ("goal", (6,)), ("force_limit_N", (3,)), ("velocity_limit_mps", (3,))):
@@ -62,6 +65,10 @@ class PlanningProblem:
         volumes = np.prod(hi - lo, axis=1)
         cdf = np.cumsum(volumes / volumes.sum())
         object.__setattr__(self, "_box_cdf", cdf / cdf[-1])
+        v_lo = -np.asarray(self.velocity_limit_mps, dtype=float)
+        v_span = np.asarray(self.velocity_limit_mps, dtype=float) - v_lo
+        object.__setattr__(self, "_sample_low", np.hstack([lo, np.tile(v_lo, (lo.shape[0], 1))]))
+        object.__setattr__(self, "_sample_span", np.hstack([hi - lo, np.tile(v_span, (lo.shape[0], 1))]))
         if np.any(self.force_limit_N <= 0) or np.any(self.velocity_limit_mps <= 0):
             raise ValueError("force and velocity limits must be > 0")
 
@@ -80,9 +87,10 @@ class PlanningProblem:
         # rng.choice(len(cdf), p=volumes / volumes.sum()) without its per-call checks: one uniform draw
         # looked up in the cumulative distribution, as Generator.choice does.
         b = 0 if cdf.shape[0] == 1 else int(cdf.searchsorted(rng.random(), side="right"))
-        r = rng.uniform(self.sample_lower[b], self.sample_upper[b])
-        v = rng.uniform(-self.velocity_limit_mps, self.velocity_limit_mps)
-        return np.concatenate([r, v])
+        # rng.uniform(low, high) for the position box, then for the velocity box, is low + (high - low) U with
+        # U = rng.random() drawn element by element: the same six numbers from one draw of six.
+        low, span = self._sample_low[b], self._sample_span[b]
+        return low + span * rng.random(6)
 
     def sample_free_state(self, rng: np.random.Generator, attempts: int = 100) -> np.ndarray | None:
         """A sampled state whose position is collision-free (None after ``attempts`` rejections).

@@ -244,28 +244,37 @@ def lqr_shortcut(
             # collision-checked in that order, a sample that certainly collides rejecting one at once.
             outcome, steps, checked = "", -1, 0
             order = candidates[np.argsort(costs[candidates], kind="stable")]
-            # The first chunk's limits from its batched forces and samples; the rest's (if needed) from one
-            # limit check of all its horizons (most of a long list is beyond the limits), then the samples of
-            # the few within the limits.
-            head, rest = order[:_CHUNK], order[_CHUNK:]
-            u_c, x_c = connector.batch(x_a, x_b, goal, head)
-            f_pass = np.all(np.abs(u_c) <= f_lim, axis=(1, 2))
-            force_ok_any = bool(f_pass.any())
-            ok = np.flatnonzero(f_pass & np.all(np.abs(x_c[:, :, 3:6]) <= v_lim, axis=(1, 2)))
-            horizons = head[ok]
-            states: np.ndarray | None = x_c[ok]
-            if ok.size < max_collision_checks and rest.size:
-                f_ok, v_ok = connector.within_limits(x_a, x_b, goal, force_limit_N, velocity_limit_mps, steps=rest)
-                force_ok_any |= bool(np.any(f_ok))
-                more = rest[f_ok[0] & v_ok[0]][: max_collision_checks - ok.size]
-                if more.size:
-                    horizons = np.concatenate([horizons, more])
-                    states = None
-            horizons = horizons[:max_collision_checks]
-            if horizons.size:
-                if states is None:
-                    _, states = connector.batch(x_a, x_b, goal, horizons)
-                rejected = sample_filter.connections_colliding(states[: horizons.size], horizons).tolist()
+            # The limits of the horizons in cost order from their batched forces and samples, in chunks (8, then
+            # doubling: most of a long list is beyond the limits) until ``max_collision_checks`` are within them;
+            # the samples of those are tested by the sample filter.
+            pos, chunk, force_ok_any = 0, _CHUNK, False
+            passing: list[np.ndarray] = []
+            sampled: list[np.ndarray] = []
+            found = 0
+            while found < max_collision_checks and pos < order.size:
+                part = order[pos:pos + chunk]
+                pos += part.size
+                chunk *= 2
+                u_c, x_c = connector.batch(x_a, x_b, goal, part)
+                f_pass = np.all(np.abs(u_c) <= f_lim, axis=(1, 2))
+                force_ok_any |= bool(f_pass.any())
+                ok = np.flatnonzero(f_pass & np.all(np.abs(x_c[:, :, 3:6]) <= v_lim, axis=(1, 2)))
+                ok = ok[: max_collision_checks - found]
+                if ok.size:
+                    passing.append(part[ok])
+                    sampled.append(x_c[ok])
+                    found += ok.size
+            if found:
+                if len(passing) == 1:
+                    horizons, states = passing[0], sampled[0]
+                else:  # one sample-filter call: the parts' samples zero-padded to the longest (masked by steps)
+                    horizons = np.concatenate(passing)
+                    states = np.zeros((found, max(x.shape[1] for x in sampled), 6))
+                    row = 0
+                    for x in sampled:
+                        states[row:row + x.shape[0], : x.shape[1]] = x
+                        row += x.shape[0]
+                rejected = sample_filter.connections_colliding(states, horizons).tolist()
                 for n_steps, reject in zip(horizons.tolist(), rejected, strict=True):
                     if checked == 0:
                         outcome, steps = COLLISION, n_steps
@@ -273,7 +282,7 @@ def lqr_shortcut(
                     if reject:
                         continue
                     section = connector.trajectory(x_a, x_b, goal, n_steps)
-                    if checker.check(section.pieces()).free:
+                    if checker.is_free(section.pieces()):
                         if sample_dt_s is not None:
                             section = section.refined(sample_dt_s)
                         traj = splice(traj, a, b, section)

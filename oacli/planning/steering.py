@@ -201,8 +201,13 @@ class LqrConnector:
     @staticmethod
     def _y(x_a: np.ndarray, x_b: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Per-axis end-point vectors ``y (K, 3, 6)`` = ``[r_a, v_a, r_b, v_b, r_g, v_g]`` per axis."""
-        x_a = np.asarray(x_a, dtype=float).reshape(-1, 2, 3)
-        x_b = np.asarray(x_b, dtype=float).reshape(-1, 2, 3)
+        x_a = np.asarray(x_a, dtype=float)
+        x_b = np.asarray(x_b, dtype=float)
+        if x_a.ndim == 1 and x_b.ndim == 1 and x_a.size == 6 and x_b.size == 6:  # one pair: one concatenation
+            stacked = np.concatenate([x_a, x_b, np.asarray(goal, dtype=float).reshape(6)])
+            return np.ascontiguousarray(stacked.reshape(1, 6, 3).transpose(0, 2, 1))
+        x_a = x_a.reshape(-1, 2, 3)
+        x_b = x_b.reshape(-1, 2, 3)
         y = np.empty((max(x_a.shape[0], x_b.shape[0]), 3, 6))
         y[:, :, 0:2] = x_a.transpose(0, 2, 1)
         y[:, :, 2:4] = x_b.transpose(0, 2, 1)
@@ -332,18 +337,21 @@ class LqrConnector:
             Sampled states ``[r, v]`` every ``dt``, the end points exact; zero beyond a connection's horizon.
         """
         steps = np.asarray(steps, dtype=np.int64).reshape(-1)
-        if steps.size and (steps.min() < MIN_STEPS or steps.max() > self.max_steps):
-            raise ValueError(f"steps must be in [{MIN_STEPS}, {self.max_steps}]")
-        y = self._y(x_a, x_b, goal)
-        if y.shape[0] == 1 and steps.shape[0] > 1:
-            y = np.broadcast_to(y, (steps.shape[0], 3, 6))
         c = steps.shape[0]
         s = int(steps.max()) if c else 0
-        u = np.einsum("icsj,cij->csi", self._g[:, steps, :s], y)
-        xs = np.einsum("icskj,cij->cski", self._x[:, steps, : s + 1], y).reshape(c, s + 1, 6)
-        rows = np.arange(c)
+        if c and (s > self.max_steps or int(steps.min()) < MIN_STEPS):
+            raise ValueError(f"steps must be in [{MIN_STEPS}, {self.max_steps}]")
+        y = self._y(x_a, x_b, goal)
+        if y.shape[0] == 1:  # one pair of end points for every horizon: per axis one matrix-vector product
+            y0 = y[0][:, :, None]  # (3, 6, 1)
+            u = (self._g[:, steps, :s].reshape(3, -1, 6) @ y0).reshape(3, c, s).transpose(1, 2, 0)
+            xs = ((self._x[:, steps, : s + 1].reshape(3, -1, 6) @ y0).reshape(3, c, s + 1, 2)
+                  .transpose(1, 2, 3, 0).reshape(c, s + 1, 6))
+        else:
+            u = np.einsum("icsj,cij->csi", self._g[:, steps, :s], y)
+            xs = np.einsum("icskj,cij->cski", self._x[:, steps, : s + 1], y).reshape(c, s + 1, 6)
         xs[:, 0] = np.asarray(x_a, dtype=float).reshape(-1, 6)
-        xs[rows, steps] = np.asarray(x_b, dtype=float).reshape(-1, 6)
+        xs[np.arange(c), steps] = np.asarray(x_b, dtype=float).reshape(-1, 6)
         return u, xs
 
     # -- one connection -------------------------------------------------------------------------------------
