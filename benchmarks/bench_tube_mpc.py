@@ -24,14 +24,24 @@ machine load. Medians over all steps of all seeds; the ratio is with / without.
 Third table — the lower limit (issue 13 item 4): the same tube MPC problem condensed (equalities eliminated, a
 dense QP in the inputs, the free initial nominal state and the slacks; :mod:`oacli.control.condensed_qp`) and
 solved by DAQP (dual active-set, the fastest dense QP solver on PyPI for small MPC problems), against our full
-controller step (compiled direct-Clarabel path), at N = 5 and N = 40. A first pass records each step's parameter
-values; the timed pass replays the states, the controller step and the DAQP solve of the same instance alternating
-which goes first. The limit is the wall time of the condensing (matrix-vector products) plus the DAQP call; the
-last column is the largest difference of the first nominal force between the two. A second line gives the process
-CPU times (less sensitive to other load on a shared machine than the wall times). Needs ``pip install daqp``
-(the ``bench`` extra); skipped without it.
+controller step (compiled direct-Clarabel path), at N = 5 and N = 40. The limit is DAQP at its fastest honest
+set-up: the condensing maps formed once (one matrix-vector product per solve), ``daqp.Model`` set up once (its
+factorisation of H), and a hot start from the previous step's working set, as an active-set MPC runs. Two more
+lines give DAQP without the hot start (cached set-up, empty working set) and DAQP as this table measured it before
+(``daqp.solve`` per call, which sets up and factorises every call). A first pass records each step's parameter
+values; the timed pass replays the states, stepping the controller and solving the same instance with each of the
+three DAQP set-ups, the four in an order that rotates from step to step. The limit's time is the wall time of the
+data update (condensing) and the DAQP solve; DAQP's set-up and the first instance are left out, as our first step
+is. The last column is the largest difference of the first nominal force between the limit and our solution. A
+second line gives the process CPU times (less sensitive to other load on a shared machine than the wall times).
+Needs ``pip install daqp`` (the ``bench`` extra); skipped without it.
 
-Run: ``python benchmarks/bench_tube_mpc.py [--steps 200] [--seeds 5] [--only-workspace | --only-limit]``
+``--against SRC`` times our step (N = 5 and 40, the same replay) on another source tree (e.g. a worktree of main)
+and on this one, each run in its own subprocess with ``PYTHONPATH`` set, alternating for ``--repeats`` repeats, and
+prints both sides' medians of the wall and process CPU times and their ratio.
+
+Run: ``python benchmarks/bench_tube_mpc.py [--steps 200] [--seeds 5] [--only-workspace | --only-limit]
+[--against SRC [--repeats 5]]``
 """
 
 from __future__ import annotations
