@@ -24,14 +24,24 @@ machine load. Medians over all steps of all seeds; the ratio is with / without.
 Third table — the lower limit (issue 13 item 4): the same tube MPC problem condensed (equalities eliminated, a
 dense QP in the inputs, the free initial nominal state and the slacks; :mod:`oacli.control.condensed_qp`) and
 solved by DAQP (dual active-set, the fastest dense QP solver on PyPI for small MPC problems), against our full
-controller step (compiled direct-Clarabel path), at N = 5 and N = 40. A first pass records each step's parameter
-values; the timed pass replays the states, the controller step and the DAQP solve of the same instance alternating
-which goes first. The limit is the wall time of the condensing (matrix-vector products) plus the DAQP call; the
-last column is the largest difference of the first nominal force between the two. A second line gives the process
-CPU times (less sensitive to other load on a shared machine than the wall times). Needs ``pip install daqp``
-(the ``bench`` extra); skipped without it.
+controller step (compiled direct-Clarabel path), at N = 5 and N = 40. The limit is DAQP at its fastest honest
+set-up: the condensing maps formed once (one matrix-vector product per solve), ``daqp.Model`` set up once (its
+factorisation of H), and a hot start from the previous step's working set, as an active-set MPC runs. Two more
+lines give DAQP without the hot start (cached set-up, empty working set) and DAQP as this table measured it before
+(``daqp.solve`` per call, which sets up and factorises every call). A first pass records each step's parameter
+values; the timed pass replays the states, stepping the controller and solving the same instance with each of the
+three DAQP set-ups, the four in an order that rotates from step to step. The limit's time is the wall time of the
+data update (condensing) and the DAQP solve; DAQP's set-up and the first instance are left out, as our first step
+is. The last column is the largest difference of the first nominal force between the limit and our solution. A
+second line gives the process CPU times (less sensitive to other load on a shared machine than the wall times).
+Needs ``pip install daqp`` (the ``bench`` extra); skipped without it.
 
-Run: ``python benchmarks/bench_tube_mpc.py [--steps 200] [--seeds 5] [--only-workspace | --only-limit]``
+``--against SRC`` times our step (N = 5 and 40, the same replay) on another source tree (e.g. a worktree of main)
+and on this one, each run in its own subprocess with ``PYTHONPATH`` set, alternating for ``--repeats`` repeats, and
+prints both sides' medians of the wall and process CPU times and their ratio.
+
+Run: ``python benchmarks/bench_tube_mpc.py [--steps 200] [--seeds 5] [--only-workspace | --only-limit]
+[--against SRC [--repeats 5]]``
 """
 
 from __future__ import annotations
@@ -149,13 +159,14 @@ def _terminal(cfg):
 def daqp_limit(cfg, reference, design, limits, weights, times, states) -> None:
     """Third table of the module docstring."""
     try:
-        import daqp  # noqa: F401
+        import daqp
 
         from oacli.control.condensed_qp import CondensedQP
     except ImportError:
         print("\nlower limit: skipped (pip install daqp)")
         return
-    print(f"\nlower limit: condensed QP + DAQP vs our controller step, {len(times) - 1} steps (medians; alternating)")
+    print(f"\nlower limit: condensed QP + DAQP vs our controller step, {len(times) - 1} steps (medians; the four "
+          "alternate in a rotating order)")
     print(f"{'N':>3} {'unknowns':>9} {'rows':>5} {'our step [ms]':>14} {'our solver [ms]':>16} {'DAQP limit [ms]':>16} "
           f"{'step/limit':>11} {'DAQP iter':>10} {'max |dv0| [N]':>14}")
     for horizon in (5, 40):
@@ -168,32 +179,99 @@ def daqp_limit(cfg, reference, design, limits, weights, times, states) -> None:
         for t, x in zip(times, states, strict=True):
             recorder.step(float(t), x)
             instances.append({ids[names[k]]: np.array(v) for k, v in recorder.qp._values.items()})
-        limit = CondensedQP(ctrl.qp.compiled)
+        hot = CondensedQP(ctrl.qp.compiled)  # the limit: hot start from the previous step's working set
+        cold = CondensedQP(ctrl.qp.compiled, warm_start=False)
         v = ctrl.qp._vars["translation"].v
-        ours, solver, lim, iters, dv, ours_cpu, lim_cpu = [], [], [], [], [], [], []
+        wall = {k: [] for k in ("ours", "solver", "hot", "cold", "per_call")}
+        cpu = {k: [] for k in ("ours", "hot", "cold", "per_call")}
+        iters = {k: [] for k in ("hot", "cold", "per_call")}
+        dv = []
         ctrl.step(float(times[0]), states[0])  # first step builds caches: left out
+        for limit in (hot, cold):  # DAQP's set-up (factorisation, once) on the first instance: left out too
+            limit.solve(instances[0])
+
+        def per_call(values, qp=hot):
+            """DAQP as the table had it before: ``daqp.solve`` (set-up and factorisation at every call)."""
+            theta = qp.compiled.parameter_vector(values)
+            start = time.perf_counter()
+            f, upper, a_in_z = qp._data(theta)
+            _y, _f, flag, info = daqp.solve(qp._h, f, qp._a_in_z if a_in_z is None else a_in_z, upper, qp._lower,
+                                            qp._sense)
+            return flag == 1, int(info["iterations"]), time.perf_counter() - start
+
+        contenders = ("ours", "hot", "cold", "per_call")
+        solved = False
         for j in range(1, len(times)):
-            order = (0, 1) if j % 2 else (1, 0)
-            for who in order:
-                cpu = time.process_time()
-                if who == 0:
+            k = j % len(contenders)
+            for who in contenders[k:] + contenders[:k]:  # rotate who goes first
+                start_cpu = time.process_time()
+                if who == "ours":
                     out = ctrl.step(float(times[j]), states[j])
-                    ours_cpu.append(time.process_time() - cpu)
-                else:
-                    ok, it, wall = limit.solve(instances[j])
-                    lim_cpu.append(time.process_time() - cpu)
-            ours.append(out.info.step_time_s)
-            solver.append(out.info.solve_time_s)
-            lim.append(wall)
-            iters.append(it)
-            if ok and out.info.success and ctrl.qp.compiled._x is not None:
-                dv.append(float(np.max(np.abs(limit.value(v)[0] - ctrl.qp.compiled.value(v)[0]))))
-        step_ms, lim_ms = 1e3 * np.median(ours), 1e3 * np.median(lim)
-        step_cpu, lim_cpu_ms = 1e3 * np.median(ours_cpu), 1e3 * np.median(lim_cpu)
-        print(f"{horizon:>3} {limit.n_unknowns:>9} {limit.n_rows:>5} {step_ms:>14.3f} {1e3 * np.median(solver):>16.3f} "
-              f"{lim_ms:>16.3f} {step_ms / lim_ms:>11.2f} {np.median(iters):>10.0f} {max(dv, default=np.nan):>14.1e}")
-        print(f"{'':>3} process CPU time: our step {step_cpu:.3f} ms, DAQP limit {lim_cpu_ms:.3f} ms, "
-              f"step/limit {step_cpu / lim_cpu_ms:.2f}")
+                    cpu[who].append(time.process_time() - start_cpu)
+                    wall["ours"].append(out.info.step_time_s)
+                    wall["solver"].append(out.info.solve_time_s)
+                    continue
+                ok, it, w = per_call(instances[j]) if who == "per_call" else (hot if who == "hot" else
+                                                                               cold).solve(instances[j])
+                cpu[who].append(time.process_time() - start_cpu)
+                wall[who].append(w)
+                iters[who].append(it)
+                solved = ok if who == "hot" else solved
+            if solved and out.info.success and ctrl.qp.compiled.solution is not None:  # this step's solutions
+                dv.append(float(np.max(np.abs(hot.value(v)[0] - ctrl.qp.compiled.value(v)[0]))))
+        ms = {k: 1e3 * np.median(val) for k, val in wall.items()}
+        ms_cpu = {k: 1e3 * np.median(val) for k, val in cpu.items()}
+        print(f"{horizon:>3} {hot.n_unknowns:>9} {hot.n_rows:>5} {ms['ours']:>14.3f} {ms['solver']:>16.3f} "
+              f"{ms['hot']:>16.3f} {ms['ours'] / ms['hot']:>11.2f} {np.median(iters['hot']):>10.0f} "
+              f"{max(dv, default=np.nan):>14.1e}")
+        print(f"{'':>3} process CPU time: our step {ms_cpu['ours']:.3f} ms, DAQP limit {ms_cpu['hot']:.3f} ms, "
+              f"step/limit {ms_cpu['ours'] / ms_cpu['hot']:.2f}")
+        for key, text in (("cold", "DAQP without the hot start (cached set-up, empty working set)"),
+                          ("per_call", "DAQP as measured before (daqp.solve: set-up and factorisation every call)")):
+            print(f"{'':>3} {text}: {ms[key]:.3f} ms (CPU {ms_cpu[key]:.3f} ms), {np.median(iters[key]):.0f} iter, "
+                  f"our step / it {ms['ours'] / ms[key]:.2f} (CPU {ms_cpu['ours'] / ms_cpu[key]:.2f})")
+
+
+def step_times(cfg, reference, design, limits, weights, times, states, horizons=(5, 40)) -> dict[str, list[float]]:
+    """Median wall and process CPU time [s] of our controller step per horizon, replaying ``states``."""
+    out = {}
+    for horizon in horizons:
+        ctrl = tube_controller_from_config(with_controller(cfg, horizon=horizon), reference, design, weights, limits)
+        ctrl.step(float(times[0]), states[0])  # first step builds caches: left out
+        wall, cpu = [], []
+        for t, x in zip(times[1:], states[1:], strict=True):
+            start = time.process_time()
+            wall.append(ctrl.step(float(t), x).info.step_time_s)
+            cpu.append(time.process_time() - start)
+        out[str(horizon)] = [float(np.median(wall)), float(np.median(cpu))]
+    return out
+
+
+def against(other: Path, repeats: int, steps: int) -> None:
+    """Our step on the tree ``other`` (e.g. a worktree of main) and on this file's tree, alternating per repeat
+    (one subprocess each, the same recorded states), so the machine's load weighs on both alike."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    sides: dict[str, list[dict[str, list[float]]]] = {"other": [], "this": []}
+    root = Path(__file__).resolve().parents[1]
+    for rep in range(repeats):
+        for side, src in (("other", other), ("this", root)):
+            env = {**os.environ, "PYTHONPATH": str(src)}
+            text = subprocess.run([sys.executable, __file__, "--steps", str(steps), "--step-json"], env=env,
+                                  check=True, capture_output=True, text=True).stdout
+            sides[side].append(json.loads(text.strip().splitlines()[-1]))
+            print(f"repeat {rep + 1} {side:<5} " + "  ".join(
+                f"N={n}: step {1e3 * w:.3f} ms (CPU {1e3 * c:.3f} ms)" for n, (w, c) in sides[side][-1].items()),
+                flush=True)
+    print(f"medians over {repeats} alternating repeats: other = {other}, this = {root}")
+    for n in sides["this"][0]:
+        o = np.median(np.array([run[n] for run in sides["other"]]), axis=0)
+        t = np.median(np.array([run[n] for run in sides["this"]]), axis=0)
+        print(f"  N = {n:>2}: step other {1e3 * o[0]:.3f} ms -> this {1e3 * t[0]:.3f} ms ({t[0] / o[0]:.3f}); "
+              f"CPU other {1e3 * o[1]:.3f} ms -> this {1e3 * t[1]:.3f} ms ({t[1] / o[1]:.3f})")
 
 
 def main() -> None:
@@ -202,7 +280,13 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5, help="closed loops replayed for the workspace table")
     parser.add_argument("--only-workspace", action="store_true", help="print the workspace table only")
     parser.add_argument("--only-limit", action="store_true", help="print the DAQP lower-limit table only")
+    parser.add_argument("--against", type=Path, help="another source tree: our step there and here, alternating")
+    parser.add_argument("--repeats", type=int, default=5, help="alternating repeats of --against")
+    parser.add_argument("--step-json", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.against is not None:
+        against(args.against, args.repeats, args.steps)
+        return
     cfg = load_config(PRESET)
     reference = reference_from_config(cfg)
     limits, weights = limits_and_weights(cfg)
@@ -214,6 +298,11 @@ def main() -> None:
         return
     times, states = record_states(cfg, reference, design, limits, weights)
     times, states = times[: args.steps], states[: args.steps]
+    if args.step_json:
+        import json
+
+        print(json.dumps(step_times(cfg, reference, design, limits, weights, times, states)))
+        return
     if args.only_limit:
         daqp_limit(cfg, reference, design, limits, weights, times, states)
         return

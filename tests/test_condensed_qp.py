@@ -56,3 +56,44 @@ def test_condensed_tracking_qp_with_a_keep_out_row_gives_the_same_first_input(rn
     np.testing.assert_allclose(limit.value(mpc._u)[0], sol.u[0], atol=1e-6)
     assert sol.x[-1, 1] == pytest.approx(-0.01, abs=1e-6)  # active
     assert limit.value(mpc._z_n)[1] >= -0.01 - 1e-7  # the keep-out row holds in the condensed solution
+
+
+def _previous_condensed_data(limit: CondensedQP, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """f and the upper bounds as the condensing computed them before it was formed once (per-solve products)."""
+    comp = limit.compiled
+    b = comp._t_b @ theta
+    x_p = np.linalg.pinv(comp._a.toarray()[: limit.n_eq]) @ b[: limit.n_eq]
+    p = comp._p.toarray()
+    p = np.triu(p) + np.triu(p, 1).T
+    return (p @ limit._z).T @ x_p + limit._z.T @ (comp._t_q @ theta), b[limit.n_eq :] - limit._a_in @ x_p
+
+
+def test_hot_started_cached_daqp_is_the_per_call_solution(rng):
+    """The limit's fastest honest set-up (condensing formed once, DAQP's Model set up once, hot start from the
+    previous working set) solves the same QPs as daqp.solve per call from the empty working set: the same optimum
+    over a sequence of nearby instances (as a controller's steps), with far fewer iterations."""
+    import daqp
+
+    qp = two_block_qp(5, reswarm_design())
+    hot, cold = CondensedQP(qp.compiled), CondensedQP(qp.compiled, warm_start=False)
+    base = random_parameters(qp, rng, scale=0.5)
+    iterations = {"hot": [], "cold": [], "per_call": []}
+    for k in range(12):
+        for name, (x, ref, u_ref) in base.items():  # a slowly moving instance
+            qp.set_parameters(name, x * (1 + 0.02 * k), ref + 0.001 * k, u_ref)
+        theta = qp.compiled.parameter_vector(qp._values)
+        f, upper, _ = hot._data(theta)
+        f_prev, upper_prev = _previous_condensed_data(hot, theta)
+        np.testing.assert_allclose(f, f_prev, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(upper, upper_prev, rtol=1e-9, atol=1e-12)
+        y, _, flag, info = daqp.solve(hot._h, f, hot._a_in_z, upper, hot._lower, hot._sense)
+        assert flag == 1
+        iterations["per_call"].append(info["iterations"])
+        for key, limit in (("hot", hot), ("cold", cold)):
+            ok, it, _ = limit.solve(qp._values)
+            assert ok
+            iterations[key].append(it)
+            np.testing.assert_allclose(limit._y, y, atol=1e-9)
+    # From the empty working set the cached model takes the per-call path (up to rounding in its factors).
+    assert np.median(iterations["cold"]) == pytest.approx(np.median(iterations["per_call"]), rel=0.1)
+    assert sum(iterations["hot"][1:]) < sum(iterations["cold"][1:]) / 3

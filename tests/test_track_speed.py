@@ -183,3 +183,114 @@ def test_an_isotropic_robot_designs_its_axis_once(axis):
     assert alone.minimal_support == shared.minimal_support
     td._AXIS_CACHE.clear()
     assert _isotropic_design().summary() == summary
+
+
+# -- the tube MPC step's speed pass (issue 13 item 4) ---------------------------------------------------------------
+
+
+def _old_rows(rows: WorkspaceRows, ref: np.ndarray, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """WorkspaceRows.rows' keep-in bounds before the speed pass (vstack of the segment pieces' intersections)."""
+    idx = best_piece(rows._lower, rows._upper, ref[:-1], ref[1:], lin[:-1], lin[1:],
+                     margin=0.5 * (rows._shrink_lower + rows._shrink_upper))
+    seg_lo, seg_hi = rows._lower[idx], rows._upper[idx]
+    lower = np.vstack([seg_lo[:1], np.maximum(seg_lo[:-1], seg_lo[1:]), seg_lo[-1:]])
+    upper = np.vstack([seg_hi[:1], np.minimum(seg_hi[:-1], seg_hi[1:]), seg_hi[-1:]])
+    return lower + rows._shrink_lower, upper - rows._shrink_upper
+
+
+def test_keep_in_rows_are_the_previous_values_exactly(rng):
+    scene = Scene(keep_in=(Box(np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])),
+                           Box(np.array([0.5, -0.5, -0.5]), np.array([3.0, 0.5, 0.5]))))
+    rows = WorkspaceRows(scene, keep_in_margin_m=0.05, extent_m=np.array([[0.01, 0.02]] * 3), clearance_m=0.01)
+    for k in (2, 3, 11, 41):
+        for _ in range(50):
+            ref = rng.uniform(-1.5, 3.5, size=(k, 3))
+            lin = ref + rng.normal(scale=0.2, size=ref.shape)
+            got = rows.rows(ref, lin)
+            lower, upper = _old_rows(rows, ref, lin)
+            np.testing.assert_array_equal(got.lower, lower)
+            np.testing.assert_array_equal(got.upper, upper)
+            origin = rng.normal(size=3)
+            shifted = got.shifted(origin)
+            np.testing.assert_array_equal(shifted.lower, lower - origin)
+            np.testing.assert_array_equal(shifted.offsets, got.offsets - got.normals @ origin)
+
+
+def _tube_qp_with_rows(fast: bool = True):
+    """A tube block with keep-in, braking and one keep-out zone (a Parameter in A) and a standard block."""
+    from oacli.control.tube_qp import LinearConstraint, NominalQP, PositionRowsSpec, QPBlock
+    from oacli.model.double_integrator import double_integrator
+
+    a1, b1 = double_integrator(1.0, 1 / 9.5)
+    a = np.kron(a1, np.eye(3))
+    b = np.kron(b1, np.eye(3))
+    box = LinearConstraint.box(np.r_[np.full(3, np.inf), np.full(3, 0.2)])
+    lasso = LinearConstraint.box(np.r_[np.full(3, 0.01), np.full(3, 0.005)])
+    spec = PositionRowsSpec(keep_in=True, keep_out_zones=1, braking_mps2=np.full(3, 0.01),
+                            braking_speed_mps=np.full(3, 0.2))
+    trans = QPBlock("translation", a, b, np.r_[np.full(3, 50.0), np.full(3, 5.0)], np.full(3, 0.1),
+                    np.diag(np.r_[np.full(3, 100.0), np.full(3, 10.0)]), state=box,
+                    input=LinearConstraint.box(np.full(3, 0.14)), lasso=lasso, positions=spec)
+    rot = QPBlock("attitude", a, b, np.r_[np.full(3, 10.0), np.ones(3)], np.full(3, 100.0), np.eye(6),
+                  state=LinearConstraint.box(np.r_[np.full(3, np.inf), np.full(3, 0.17)]),
+                  input=LinearConstraint.box(np.full(3, 0.02)))
+    return NominalQP([trans, rot], 5, fast=fast)
+
+
+def _random_instance(qp, rng):
+    from oacli.control.workspace import PositionRows
+
+    n = qp.horizon
+    for name in ("translation", "attitude"):
+        qp.set_parameters(name, rng.normal(size=6) * 0.01, np.cumsum(rng.normal(size=(n + 1, 6)) * 0.02, axis=0),
+                          rng.normal(size=(n, 3)) * 0.01)
+    normal = rng.normal(size=(n + 1, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    active = rng.random() < 0.5  # inactive rows (zero normals) as the workspace gives far from a zone
+    rows = PositionRows(np.full((n + 1, 3), -1.0), np.full((n + 1, 3), 1.0),
+                        (normal if active else np.zeros_like(normal))[None],
+                        np.full((1, n + 1), -0.3 if active else -1.0))
+    qp.set_rows("translation", rows)
+
+
+def test_nominal_qp_solution_is_the_previous_path_exactly(rng):
+    """θ written in place and the solution gathered from x at once give the bytes (and layouts) of the previous
+    path: θ from the values dict, CompiledQP.solve, cvxpy-shaped values stacked and copied, np.sum."""
+    qp = _tube_qp_with_rows()
+    compiled = qp.compiled
+    for _ in range(20):
+        _random_instance(qp, rng)
+        theta = compiled.parameter_vector(qp._values)
+        np.testing.assert_array_equal(qp._theta, theta)
+        new = qp.solve()
+        assert new.info.success
+        old = compiled.solve(qp._values)  # the same data: Clarabel repeats its iterates
+        constant = 0.0
+        for name, bv in qp._vars.items():
+            q_w, r_w, p_n = qp._weights[name]
+            x_ref, u_ref = qp._values[bv.x_ref.id], qp._values[bv.u_ref.id]
+            constant += float(np.sum(q_w * x_ref[:-1] ** 2) + np.sum(r_w * u_ref**2) + x_ref[-1] @ p_n @ x_ref[-1])
+            z = np.vstack([compiled.value(bv.z), compiled.value(bv.z_n)[None, :]])
+            v = np.array(compiled.value(bv.v))
+            got = new.blocks[name]
+            for mine, want in ((got.z, z), (got.v, v)):
+                np.testing.assert_array_equal(mine, want)
+                assert (mine.flags.c_contiguous, mine.flags.f_contiguous) == (want.flags.c_contiguous,
+                                                                              want.flags.f_contiguous)
+            slack = 0.0 if bv.slack is None else float(np.max(compiled.value(bv.slack), initial=0.0))
+            assert got.max_slack == max(slack, 0.0)
+        assert new.info.objective == old.objective + constant
+        assert new.info.iterations == old.iterations
+
+
+def test_a_parameter_that_is_not_finite_is_refused_by_name(rng):
+    for fast in (True, False):
+        qp = _tube_qp_with_rows(fast=fast)
+        _random_instance(qp, rng)
+        x = np.zeros(6)
+        x[2] = np.nan
+        qp.set_parameters("attitude", x, np.zeros((6, 6)), np.zeros((5, 3)))
+        with pytest.raises(ValueError, match="attitude_x: expected finite values"):
+            qp.solve()
+        with pytest.raises(ValueError, match="translation_x: expected finite values of shape"):
+            qp.set_parameters("translation", np.zeros(5), np.zeros((6, 6)), np.zeros((5, 3)))

@@ -159,6 +159,30 @@ class CompiledQP:
         theta[self._const_col] = 1.0
         return theta
 
+    def parameter_views(self, theta: np.ndarray) -> dict[int, np.ndarray]:
+        """Views of ``theta``'s slices in each parameter's shape (column-major), by parameter id.
+
+        Writing a parameter's value into its view sets θ exactly as :meth:`parameter_vector` does (the same
+        Fortran-ordered view of the slice), so a caller can keep one θ and update it in place.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_params + 1,)
+            A parameter vector (e.g. ``parameter_vector(missing_as_zero=True)``), written through the views.
+
+        Returns
+        -------
+        dict
+            Parameter id -> view of ``theta`` in the parameter's shape.
+        """
+        views = {}
+        for param, col, size, pid in self._param_slices:
+            view = theta[col : col + size].reshape(param.shape, order="F")
+            if not np.shares_memory(view, theta):  # reshape of a 1-D slice is always a view; kept as a guard
+                raise RuntimeError("a parameter slice of θ is not a view")
+            views[pid] = view
+        return views
+
     def solve(self, values: dict[Any, Any] | None = None) -> SolveInfo:
         """Solve with the parameters' values; variables are then read with :meth:`value`.
 
@@ -175,7 +199,21 @@ class CompiledQP:
             Clarabel's iterations and the wall time of the data update and the solve [s] (Clarabel's own
             ``solve_time`` reads higher than the wall time around the call, so it is not used); ``step_time_s`` NaN.
         """
-        theta = self.parameter_vector(values)
+        return self.solve_vector(self.parameter_vector(values))
+
+    def solve_vector(self, theta: np.ndarray) -> SolveInfo:
+        """:meth:`solve` with the parameter vector θ given (:meth:`parameter_vector`'s layout, constant included).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_params + 1,)
+            Parameter values, column-major, with the constant 1 at its column.
+
+        Returns
+        -------
+        SolveInfo
+            As :meth:`solve`.
+        """
         start = time.perf_counter()
         # The data go to Clarabel as lists: its binding reads a list of floats about twice as fast as an array
         # (the same values).
@@ -198,6 +236,12 @@ class CompiledQP:
         self._x = np.asarray(sol.x) if status in SUCCESS_STATUSES else None
         objective = float(sol.obj_val + self._t_d @ theta) if self._x is not None else float("nan")
         return SolveInfo(status, self._x is not None, objective, int(sol.iterations), wall)
+
+    @property
+    def solution(self) -> np.ndarray | None:
+        """Clarabel's ``x`` of the last successful solve (cvxpy's variable columns), None after a failure or before
+        any solve."""
+        return self._x
 
     def value(self, variable: cp.Variable) -> np.ndarray:
         """Value of ``variable`` in the last successful solve (shape of the variable).

@@ -30,6 +30,7 @@ class ReferenceSampler:
         self.t = np.asarray(reference.t, dtype=float)
         self.x = np.asarray(reference.x, dtype=float)
         if self.t.size > 1:
+            self._inner_t = np.ascontiguousarray(self.t[1:-1])  # the knots strictly inside (segment search)
             self._dx = self.x[1:] - self.x[:-1]
             self._dt = self.t[1:] - self.t[:-1]
             q = self.x[:, 6:10]
@@ -58,8 +59,9 @@ class ReferenceSampler:
             out[after, 3:6] = 0.0
             out[after, 10:13] = 0.0
             return out
-        idx = np.searchsorted(t, times, side="right") - 1
-        np.clip(idx, 0, t.size - 2, out=idx)
+        # clip(searchsorted(t, times, "right") − 1, 0, K − 2) in one call: the count of t_1..t_{K−2} ≤ time
+        # (t is non-decreasing: before t_0 none, from t_{K−1} on all K − 2 of them; NaN sorts last either way).
+        idx = np.searchsorted(self._inner_t, times, side="right")
         seg = self._table[idx]  # [t_i, dt_i, x_i, dx_i, δ_i] per sample
         s = (times - seg[:, 0]) / seg[:, 1]
         np.clip(s, 0.0, 1.0, out=s)
@@ -72,7 +74,7 @@ class ReferenceSampler:
         angle = np.sqrt(np.add.reduce(phi * phi, axis=-1, keepdims=True))
         half = 0.5 * angle
         small = angle < 1e-6
-        if small.any():
+        if np.logical_or.reduce(small, axis=None):  # small.any()
             safe = np.where(small, 1.0, angle)
             k = np.where(small, 0.5 - angle**2 / 48.0, np.sin(half) / safe)
         else:  # the same values as the np.where form when no angle is small
@@ -91,13 +93,15 @@ class ReferenceSampler:
         return out
 
 
+#: Component orders of the cross product: ``(a × b)_i = a_{P_i} b_{R_i} − a_{R_i} b_{P_i}``.
+_P = np.array([1, 2, 0])
+_R = np.array([2, 0, 1])
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.cross`` of (k, 3) rows, written out (the same products and differences)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
+    """``np.cross`` of (..., 3) rows (broadcast), written out: per component the same products and difference
+    (``a_1 b_2 − a_2 b_1``, ``a_2 b_0 − a_0 b_2``, ``a_0 b_1 − a_1 b_0``), all three components per call."""
+    return np.asarray(a[..., _P] * b[..., _R] - a[..., _R] * b[..., _P])
 
 
 def attitude_errors(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -119,9 +123,9 @@ def attitude_errors(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     pv, pw = -p[..., :3], p[..., 3:4]  # the conjugate
     qv, qw = q[..., :3], q[..., 3:4]
-    shape = np.broadcast_shapes(p.shape, q.shape)
-    r = np.empty(shape)
-    r[..., :3] = pw * qv + qw * pv + _cross(pv, qv)
+    vec = pw * qv + qw * pv + _cross(pv, qv)  # shape (..., 3): the broadcast of p's and q's
+    r = np.empty((*vec.shape[:-1], 4))
+    r[..., :3] = vec
     r[..., 3:4] = pw * qw - np.add.reduce(pv * qv, axis=-1, keepdims=True)
     # log (normalise, w >= 0, 2 atan2(|v|, w) v/|v|); the norms are np.linalg.norm's sqrt(add.reduce(v * v)).
     r /= np.sqrt(np.add.reduce(r * r, axis=-1, keepdims=True))
@@ -130,7 +134,7 @@ def attitude_errors(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
     s = np.sqrt(np.add.reduce(v * v, axis=-1, keepdims=True))
     angle = 2.0 * np.arctan2(s, w)
     small = s < 1e-9
-    if small.any():
+    if np.logical_or.reduce(small, axis=None):  # small.any()
         k = np.where(small, 2.0 / np.where(small, w, 1.0), angle / np.where(small, 1.0, s))
     else:  # the same values as the np.where form when no rotation is small
         k = angle / s

@@ -298,7 +298,8 @@ class TubeDesign:
         float
         """
         lasso = self.lasso
-        return float(np.min(lasso.h_vector - lasso.h_matrix @ np.asarray(e, dtype=float)))
+        # np.min's own reduction (np.minimum.reduce), without its wrapper: the same value.
+        return float(np.minimum.reduce(lasso.h_vector - lasso.h_matrix @ np.asarray(e, dtype=float), axis=None))
 
     def position_extent(self) -> np.ndarray:
         """Half-extents of Z's projection on position ``(3, 2)``: ``[−min, max]`` per axis [m].

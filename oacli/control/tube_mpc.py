@@ -317,12 +317,21 @@ class TubeMPC:
             anchor = x_ref_full[0, 6:10]
             # Translation is exactly linear: the QP works relative to the measured position (small numbers,
             # so the solver's absolute tolerances are small against Z).
-            origin = np.concatenate([x[0:3], np.zeros(3)])
+            origin = np.zeros(6)
+            origin[0:3] = x[0:3]
             ref_t = x_ref_full[:, 0:6] - origin
             # The reference attitudes and the measured one in one call (row by row the same values).
-            phi = attitude_errors(anchor, np.vstack([x_ref_full[:, 6:10], x[6:10]]))
-            ref_r = np.column_stack([phi[:-1], x_ref_full[:, 10:13]])
-            x_r = np.concatenate([phi[-1], x[10:13]])
+            n_ref = x_ref_full.shape[0]
+            quats = np.empty((n_ref + 1, 4))
+            quats[:n_ref] = x_ref_full[:, 6:10]
+            quats[n_ref] = x[6:10]
+            phi = attitude_errors(anchor, quats)
+            ref_r = np.empty((n_ref, 6))
+            ref_r[:, 0:3] = phi[:-1]
+            ref_r[:, 3:6] = x_ref_full[:, 10:13]
+            x_r = np.empty(6)
+            x_r[0:3] = phi[-1]
+            x_r[3:6] = x[10:13]
             self.qp.set_parameters("translation", x_t - origin, ref_t, u_ref[:, 0:3])
             self.qp.set_parameters("attitude", x_r, ref_r, u_ref[:, 3:6])
             if self.workspace is not None:
@@ -356,7 +365,9 @@ class TubeMPC:
             v = self._brake(z) if planned is None else planned[0]  # with rows: finish the certified plan first
             tau = self._hold_torque(x)
         anc = self._gain @ (x_t - z)
-        u = np.concatenate([v + anc, tau])
+        u = np.empty(6)
+        np.add(v, anc, out=u[0:3])
+        u[3:6] = tau
         self._z_pred = self._a_c @ z + self._b_c @ v
         status = info.status if mode == "mpc" else f"{mode} ({info.status})"
         step_info = SolveInfo(status, mode == "mpc", info.objective, info.iterations, info.solve_time_s,

@@ -197,6 +197,33 @@ class BlockSolution:
 
 
 @dataclass(frozen=True)
+class _Gathers:
+    """Where a block's solution lies in the compiled problem's ``x``: index arrays (z: (N+1, n); v transposed:
+    (m, N), so that ``x[v_t].T`` is column-major like cvxpy's value) and the slacks' slices."""
+
+    z: np.ndarray
+    v_t: np.ndarray
+    slack: slice | None
+    slack_shape: tuple[int, ...]
+    position_slack: slice | None
+
+
+def _gathers(compiled: CompiledQP, bv: _BlockVars) -> _Gathers:
+    """The :class:`_Gathers` of block variables ``bv`` in ``compiled`` (columns: cvxpy's, column-major)."""
+    cols = compiled._var_cols
+
+    def index(var: cp.Variable) -> np.ndarray:
+        return np.asarray(cols[var.id] + np.arange(var.size).reshape(var.shape, order="F"))
+
+    def span(var: cp.Variable | None) -> slice | None:
+        return None if var is None else slice(cols[var.id], cols[var.id] + var.size)
+
+    z = np.vstack([index(bv.z), index(bv.z_n)[None, :]])
+    return _Gathers(z, np.ascontiguousarray(index(bv.v).T), span(bv.slack),
+                    () if bv.slack is None else bv.slack.shape, span(bv.position_slack))
+
+
+@dataclass(frozen=True)
 class QPSolution:
     """One solve of :class:`NominalQP`: per-block solutions (by name) and the solve record."""
 
@@ -303,6 +330,15 @@ class NominalQP:
         for key, value in self.clarabel_options.items():
             setattr(settings, key, value)
         self.compiled = CompiledQP(self.problem, settings) if fast else None
+        self._n_parameters = len(self.problem.parameters())
+        # The fast path keeps θ and writes each value into its slice (CompiledQP.parameter_views) as it is set.
+        self._theta: np.ndarray | None = None
+        self._views: dict[int, np.ndarray] = {}
+        self._gathers: dict[str, _Gathers] = {}
+        if self.compiled is not None:
+            self._theta = self.compiled.parameter_vector(missing_as_zero=True)
+            self._views = self.compiled.parameter_views(self._theta)
+            self._gathers = {name: _gathers(self.compiled, bv) for name, bv in self._vars.items()}
 
     def _position_rows(self, blk: QPBlock, spec: PositionRowsSpec, bv: _BlockVars, constraints: list[Any],
                        cost: Any) -> Any:
@@ -379,19 +415,17 @@ class NominalQP:
             pairs += [(bv.box_lower, rows.lower), (bv.box_upper, rows.upper)]
         if len(bv.out_normals) != rows.normals.shape[0]:
             raise ValueError(f"{name}: {len(bv.out_normals)} keep-out zones expected, got {rows.normals.shape[0]}")
-        pairs += list(zip(bv.out_normals, rows.normals, strict=True))
-        pairs += list(zip(bv.out_offsets, rows.offsets, strict=True))
-        for param, value in pairs:
-            arr = np.asarray(value, dtype=float)
-            if arr.shape != param.shape or not np.isfinite(arr).all():
-                raise ValueError(f"{param.name()}: expected finite values of shape {param.shape}, got {arr.shape}")
-            self._values[param.id] = arr
+        if bv.out_normals:
+            pairs += list(zip(bv.out_normals, rows.normals, strict=True))
+            pairs += list(zip(bv.out_offsets, rows.offsets, strict=True))
+        self._set(pairs)
 
     def set_parameters(self, name: str, x: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> None:
         """Set block ``name``'s measured state ``x (n,)``, references ``x_ref (N+1, n)`` and ``u_ref (N, m)``.
 
-        The values are checked here and handed to the solve path (cvxpy's Parameters receive them only for the
-        ``problem.solve()`` path, where their own validation runs).
+        The shapes are checked here, the values handed to the solve path (written into θ for the fast path;
+        cvxpy's Parameters receive them only for the ``problem.solve()`` path, where their own validation runs) and
+        checked to be finite when solving (:meth:`solve` raises ValueError naming the parameter).
 
         Parameters
         ----------
@@ -405,11 +439,26 @@ class NominalQP:
             Reference inputs.
         """
         bv = self._vars[name]
-        for param, value in ((bv.x, x), (bv.x_ref, x_ref), (bv.u_ref, u_ref)):
+        self._set(((bv.x, x), (bv.x_ref, x_ref), (bv.u_ref, u_ref)))
+
+    def _set(self, pairs: Any) -> None:
+        """Store ``(parameter, value)`` pairs (shape checked) for both solve paths and write them into θ."""
+        views, values = self._views, self._values
+        for param, value in pairs:
             arr = np.asarray(value, dtype=float)
-            if arr.shape != param.shape or not np.isfinite(arr).all():
+            if arr.shape != param.shape:
                 raise ValueError(f"{param.name()}: expected finite values of shape {param.shape}, got {arr.shape}")
-            self._values[param.id] = arr
+            values[param.id] = arr
+            view = views.get(param.id)
+            if view is not None:
+                view[...] = arr
+
+    def _check_finite(self) -> None:
+        """Raise ValueError naming the first parameter whose value is not finite."""
+        for param in self.problem.parameters():
+            arr = self._values.get(param.id)
+            if arr is not None and not np.isfinite(arr).all():
+                raise ValueError(f"{param.name()}: expected finite values of shape {param.shape}, got {arr.shape}")
 
     def _reference_constant(self) -> float:
         """``Σ w r²`` over every block: the part of the tracking cost that does not depend on the variables."""
@@ -417,7 +466,9 @@ class NominalQP:
         for name, bv in self._vars.items():
             q_w, r_w, p_n = self._weights[name]
             x_ref, u_ref = self._values[bv.x_ref.id], self._values[bv.u_ref.id]
-            total += float(np.sum(q_w * x_ref[:-1] ** 2) + np.sum(r_w * u_ref**2) + x_ref[-1] @ p_n @ x_ref[-1])
+            # np.sum's own reduction (np.add.reduce over every axis) without its wrapper: the same sums.
+            total += float(np.add.reduce(q_w * x_ref[:-1] ** 2, axis=None) + np.add.reduce(r_w * u_ref**2, axis=None)
+                           + x_ref[-1] @ p_n @ x_ref[-1])
         return total
 
     def solve(self, *, fast: bool | None = None) -> QPSolution:
@@ -439,10 +490,16 @@ class NominalQP:
             raise ValueError("the fast path was not compiled (fast=False at construction)")
         start = time.perf_counter()
         value: Callable[[cp.Variable], np.ndarray] | None
-        if use_fast and compiled is not None:
-            out = compiled.solve(self._values)
+        theta = self._theta
+        if use_fast and compiled is not None and theta is not None:  # theta is set whenever compiled is
+            if len(self._values) < self._n_parameters:  # some set on the cvxpy Parameters only (or missing: raises)
+                theta = compiled.parameter_vector(self._values)
+            if not np.logical_and.reduce(np.isfinite(theta)):
+                self._check_finite()
+            out = compiled.solve_vector(theta)
             value = compiled.value if out.success else None
         else:
+            self._check_finite()
             for param in self.problem.parameters():
                 param.value = self._values[param.id]
             out = solve_clarabel(self.problem, **self.clarabel_options)  # solve_time_s: wall of solve()
@@ -452,10 +509,18 @@ class NominalQP:
         if value is not None:
             objective += self._reference_constant()
         blocks = {}
+        x_sol = compiled.solution if use_fast and compiled is not None else None
         for name, bv in self._vars.items():
             if value is None:
                 nan_z = np.full((self.horizon + 1, bv.z_n.size), np.nan)
                 blocks[name] = BlockSolution(nan_z, np.full(bv.v.shape, np.nan), np.nan)
+            elif x_sol is not None:  # the same values and layouts as the branch below, gathered from x at once
+                g = self._gathers[name]
+                slack = 0.0 if g.slack is None else float(np.maximum.reduce(x_sol[g.slack].reshape(
+                    g.slack_shape, order="F"), axis=None, initial=0.0))
+                pos_slack = 0.0 if g.position_slack is None else float(np.maximum.reduce(
+                    x_sol[g.position_slack], axis=None, initial=0.0))
+                blocks[name] = BlockSolution(x_sol[g.z], x_sol[g.v_t].T, max(slack, 0.0), max(pos_slack, 0.0))
             else:
                 slack = 0.0 if bv.slack is None else float(np.max(value(bv.slack), initial=0.0))
                 pos_slack = 0.0 if bv.position_slack is None else float(np.max(value(bv.position_slack),

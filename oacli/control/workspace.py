@@ -91,7 +91,7 @@ class PositionRows:
         o = np.asarray(origin_m, dtype=float)
         return PositionRows(self.lower - o if self.lower.size else self.lower,
                             self.upper - o if self.upper.size else self.upper,
-                            self.normals, self.offsets - self.normals @ o)
+                            self.normals, self.offsets - self.normals @ o if self.offsets.size else self.offsets)
 
     def violation_m(self, positions: np.ndarray) -> np.ndarray:
         """Largest violation of any row at each step [m] (0 when every row holds).
@@ -183,10 +183,15 @@ class WorkspaceRows:
 
     def _best_segment_pieces(self, ref: np.ndarray, lin: np.ndarray) -> np.ndarray:
         """:func:`oacli.geometry.halfspaces.best_piece` of the segments' ends ``ref[:-1], ref[1:], lin[:-1],
-        lin[1:]`` with this instance's shrunk pieces (the same differences and minima, in one array)."""
-        points = np.stack([ref[:-1], ref[1:], lin[:-1], lin[1:]])[:, None]  # (4, 1, K-1, 3)
-        slack = np.minimum(points - self._piece_lo, self._piece_hi - points)  # (4, B, K-1, 3)
-        return np.asarray(np.argmax(slack.min(axis=(0, 3)), axis=0))
+        lin[1:]`` with this instance's shrunk pieces: the same differences, each point's once (it ends two
+        segments), and the minimum over the same values per segment (a minimum does not depend on the grouping)."""
+        points = np.empty((2, 1, *ref.shape))
+        points[0, 0] = ref
+        points[1, 0] = lin
+        slack = np.minimum(points - self._piece_lo, self._piece_hi - points)  # (2, B, K, 3)
+        per_point = np.minimum.reduce(slack, axis=3)  # (2, B, K)
+        per_segment = np.minimum(per_point[..., :-1], per_point[..., 1:])  # both ends
+        return np.asarray(np.minimum(per_segment[0], per_segment[1]).argmax(axis=0))  # reference and plan
 
     def rows(self, reference_m: np.ndarray, linearisation_m: np.ndarray | None = None) -> PositionRows:
         """Rows for the predicted positions of one solve.
@@ -208,17 +213,22 @@ class WorkspaceRows:
         lin = ref if linearisation_m is None else np.asarray(linearisation_m, dtype=float)
         k = ref.shape[0]
         if self.has_keep_in:
-            margin = 0.5 * (self._shrink_lower + self._shrink_upper)
             if k == 1:
+                margin = 0.5 * (self._shrink_lower + self._shrink_upper)
                 idx = best_piece(self._lower, self._upper, ref, margin=margin)
                 lower, upper = self._lower[idx], self._upper[idx]
+                lower = lower + self._shrink_lower
+                upper = upper - self._shrink_upper
             else:  # the piece of each reference segment; a step is in those of both its segments
                 idx = self._best_segment_pieces(ref, lin)
                 seg_lo, seg_hi = self._lower[idx], self._upper[idx]
-                lower = np.vstack([seg_lo[:1], np.maximum(seg_lo[:-1], seg_lo[1:]), seg_lo[-1:]])
-                upper = np.vstack([seg_hi[:1], np.minimum(seg_hi[:-1], seg_hi[1:]), seg_hi[-1:]])
-            lower = lower + self._shrink_lower
-            upper = upper - self._shrink_upper
+                lower, upper = np.empty((k, 3)), np.empty((k, 3))
+                lower[0], lower[-1] = seg_lo[0], seg_lo[-1]
+                upper[0], upper[-1] = seg_hi[0], seg_hi[-1]
+                np.maximum(seg_lo[:-1], seg_lo[1:], out=lower[1:-1])
+                np.minimum(seg_hi[:-1], seg_hi[1:], out=upper[1:-1])
+                lower += self._shrink_lower
+                upper -= self._shrink_upper
         else:
             lower = upper = np.zeros((k, 0))
         normals = np.zeros((self.n_zones, k, 3))
