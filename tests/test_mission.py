@@ -308,3 +308,25 @@ def test_ideal_doerr2021_mission_is_ok_and_learns_table_1(tmp_path):
     assert summary["status"] == "ok", summary.get("status_reasons")
     assert summary["estimate"]["truth_theta"] == pytest.approx([15.0, 0.1464, 0.1376, 0.1604])
     assert max(summary["estimate"]["error_pct"].values()) < 0.01
+
+
+def test_each_estimate_stage_config_holds_the_missions_prior_its_method_and_its_telemetry():
+    """The estimate stages' config.yaml reruns them alone: the mission's prior (here 12 ± 2 kg, not the preset's
+    estimation.prior), the stage's method and the track it estimates from. Setting the method once replaced the
+    whole estimation section and dropped the prior (the 12 kg mission's estimate used 14.5 kg)."""
+    from oacli.config import config_from_dict
+    from oacli.config.overrides import apply_overrides
+    from oacli.mission.configs import Handoff, stage_config
+    from oacli.mission.layout import stage_by_key
+
+    data = apply_overrides(yaml.safe_load((ROOT / "configs" / "mission_iss.yaml").read_text()),
+                           ["mission.prior.mass_kg=12", "mission.prior.mass_std_kg=2"])
+    cfg = config_from_dict(data, source="test")
+    telemetry = Path("/runs/m/segment-2/track/track.mcap")
+    for key, method in (("segment-2/estimate", "batch"), ("segment-2/estimate-sequential", "sequential")):
+        stage_cfg = stage_config(cfg, stage_by_key(key), Handoff(telemetry=telemetry))
+        assert stage_cfg.estimation.method == method
+        assert stage_cfg.estimation.prior.mass_kg == pytest.approx(12.0)
+        assert stage_cfg.estimation.prior.mass_variance_kg2 == pytest.approx(4.0)
+        assert stage_cfg.inputs.estimate_telemetry == str(telemetry)
+    assert stage_config(cfg, stage_by_key("segment-2/excite"), Handoff()).excitation.prior.mass_kg == pytest.approx(12)

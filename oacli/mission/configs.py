@@ -191,7 +191,8 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
     if stage.command == "estimate":
         if handoff.telemetry is not None:
             sets["inputs"] = {"estimate_telemetry": str(handoff.telemetry)}
-        sets["estimation"] = {"method": "sequential" if stage.name == "estimate-sequential" else "batch"}
+        method = "sequential" if stage.name == "estimate-sequential" else "batch"
+        sets = deep_merge(sets, {"estimation": {"method": method}})  # merged: the section holds the prior
     data = deep_merge(data, sets)
     try:
         return config_from_dict(data, source=f"{source} ({stage.key})")
