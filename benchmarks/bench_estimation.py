@@ -34,8 +34,8 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
 * ``gapped open-loop`` (only when named in ``--rows``) -- a diagnostic for ``gapped``: the run's own true
   trajectory and applied inputs, measured afresh (new noise, same levels) and lost at the same steps
   (:func:`open_loop_telemetry`). The inputs are the closed-loop run's, but they no longer react to the noise in the
-  records, so the row isolates the closed-loop effect on the gapped estimate (``gapped``'s Ixx spread 1.25 against
-  0.93 here on 80 seeds, see "The gapped row" below);
+  records, so the row isolates the closed-loop effect on the gapped estimate (batch: ``gapped``'s Ixx spread 1.25
+  against 0.93 here on 80 seeds, see "The gapped row" below);
 * ``IMU`` -- RATTLE-level noise plus the accelerometer at 62.5 Hz, σ = sqrt(5e-6) m/s² and a constant bias of
   1e-3 m/s² per axis, fitted and removed (:mod:`oacli.estimation.imu`);
 * ``N % jumps`` (only with ``--jumps N/100 > 0``) -- N % of the records replaced by localisation jumps
