@@ -31,6 +31,11 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
   kept: the inputs are bridged from the command history (batch only);
 * ``clean split`` -- every clean record kept, but a segment started where ``gapped`` starts one (batch only): what
   the segmentation alone does, without lost data (with the gap links cut it reproduced ``gapped``'s mass bias);
+* ``gapped open-loop`` (only when named in ``--rows``) -- a diagnostic for ``gapped``: the run's own true
+  trajectory and applied inputs, measured afresh (new noise, same levels) and lost at the same steps
+  (:func:`open_loop_telemetry`). The inputs are the closed-loop run's, but they no longer react to the noise in the
+  records, so the row isolates the closed-loop effect on the gapped estimate (batch: ``gapped``'s Ixx spread 1.25
+  against 0.93 here on 80 seeds, see "The gapped row" below);
 * ``IMU`` -- RATTLE-level noise plus the accelerometer at 62.5 Hz, σ = sqrt(5e-6) m/s² and a constant bias of
   1e-3 m/s² per axis, fitted and removed (:mod:`oacli.estimation.imu`);
 * ``N % jumps`` (only with ``--jumps N/100 > 0``) -- N % of the records replaced by localisation jumps
@@ -43,12 +48,31 @@ the accelerometer); the rows with gaps also print the bound without that prior (
 (``cut``, this column before), and the batch's spread against its own reported σ (``[(AᵀA)⁻¹]_θθ``), which the
 prior bound matches to ~1 %.
 
+**The gapped row.** Its Ixx spread (1.25 over 80 seeds, 95 % interval [1.08, 1.48], both estimators) is not the
+lost input's prediction: measured by replacing it (``benchmarks/bench_gapped_diagnosis.py``, 80 seeds, batch), with
+the exact lost input as the prediction's mean the spread is 1.31 (per-seed Ixx z-scores correlate 0.99 with the
+row's), with the exact input plus a Gaussian error of exactly the modelled variance (a correctly specified prior)
+1.25 (sequential filter: 1.27), and with that prior 20 times tighter than the neighbours' regression achieves (below
+even the lost record's own noise feedback, which no prediction can know) still 1.19. The torque prior is too loose to
+matter for Ixx (0.7 × its variance moves the Ixx bound by 1 %): across each gap the rotation is in effect
+re-estimated from the records after it. The same gaps in an open-loop replay (``gapped open-loop``: same
+trajectory and inputs, fresh noise) give 0.93. So the excess is a closed-loop effect: after a gap the
+controller's inputs react to the measurement noise that also determines the re-estimated rotation, the
+predetermined-regressor correlation of :func:`oacli.estimation.batch.segment_link_weights` (Nickell 1981); the
+Ixx errors are heavy-tailed (kurtosis 4.0), the largest from a few gaps in bang-bang torque (one gap of seed 68 moves
+Ixx by 3.2 times the standard deviation a correctly specified linear model allows). The marginal likelihood's Laplace
+correction of the joint estimate (the states' log-determinant) moves it by < 0.1 σ: not that either. Whether the
+``prior`` bound is attainable in closed loop is open; the row is reported as missed.
+
 Printed per method × data over the seeds: the median absolute error per parameter [%] against the flight figures
 ([ReSWARM2023] RATTLE table: 0.39 / 0.91 / 1.35 / 6.92 %), the median bound [%], the median number of segments,
 the median time per estimate (estimator and bound) [s], the batch solves that did not converge; then the spread
 against the bound, ``sqrt(mean_seeds((θ̂ − θ)² / CRB²))`` per parameter, with its 95 % interval: if the errors are
 ``N(0, (c·CRB)²)``, ``n · ratio² / c² ~ χ²_n`` over n seeds, so ``c ∈ ratio · [sqrt(n / χ²_n(0.975)),
 sqrt(n / χ²_n(0.025))]`` ([0.77, 1.44] × ratio for n = 20). Targets: median error ≤ the flight figures, spread ≤ 1.2.
+A parameter whose median error misses its flight figure is marked ``bound-limited`` when the bound itself implies
+a median above that figure (``0.674 × median CRB`` > flight: no efficient unbiased estimator meets it on this row),
+otherwise ``missed``.
 
 ``--jobs 2`` runs the seeds in two processes, each pinned to its own core of those the benchmark may use
 (``taskset -c 0,1``); the wall time and the summed per-seed times are printed.
@@ -80,8 +104,10 @@ from oacli.estimation.alignment import align_records
 from oacli.estimation.batch import bridge_accelerations, bridge_angular_accelerations
 from oacli.estimation.bounds import cramer_rao_bound
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
+from oacli.estimation.manifold import boxplus
 from oacli.estimation.models import EstimatorSettings, Measurement, MeasurementModel, ProcessNoise
 from oacli.estimation.preprocessing import measurements_from_telemetry
+from oacli.estimation.propagation import propagate_state_one
 from oacli.io.mcap_io import read_telemetry
 from oacli.io.reference_files import load_reference
 from oacli.sim.delivered import DeliveredInput
@@ -107,6 +133,7 @@ METHODS = ("batch", "sequential")
 GAPPED_CMD = "gapped+command"
 GAPPED_IMU = "gapped+IMU"
 SPLIT = "clean split"
+OPEN_LOOP = "gapped open-loop"
 
 _SETUP: dict = {}  # filled by _setup() before the worker processes fork
 
@@ -188,6 +215,32 @@ def gapped_imu_records(records: list[Measurement], tel, cfg, seed: int) -> list[
     return out
 
 
+def control_instant_states(tel, theta: np.ndarray) -> np.ndarray:
+    """True state ``(K, 13)`` at each control instant: the plant sample at or before it propagated over the rest of
+    the plant step with the input held since the previous instant (the estimators' process model, which is the
+    plant's integrator: residual ~1e-15 on the bench's runs; no disturbance)."""
+    out = np.empty((tel.t_ctrl.size, 13))
+    for k, t in enumerate(tel.t_ctrl):
+        j = int(np.searchsorted(tel.t_true, t + 1e-9)) - 1
+        dt = float(t - tel.t_true[j])
+        out[k] = tel.x_true[j] if dt < 1e-9 else propagate_state_one(
+            tel.x_true[j], tel.u_applied[max(k - 1, 0)], theta, np.array([dt]))
+    return out
+
+
+def open_loop_telemetry(tel, seed: int):
+    """The run's telemetry with the measurements drawn afresh (same noise levels, ``NOISE``) about its true states at
+    the control instants: the inputs are unchanged, so they no longer react to the records' noise (row
+    ``gapped open-loop``)."""
+    if tel.disturbance is not None and np.any(tel.disturbance):
+        raise ValueError("open-loop replay assumes no plant disturbance")
+    std = np.repeat([NOISE["position_std_m"], NOISE["velocity_std_mps"], NOISE["attitude_std_rad"],
+                     NOISE["angular_velocity_std_radps"]], 3)
+    x_ctrl = control_instant_states(tel, TRUTH)
+    noise = std * np.random.default_rng([777, seed]).standard_normal((x_ctrl.shape[0], 12))
+    return replace(tel, x_measured=boxplus(x_ctrl, noise))
+
+
 def _same_records(a: list[Measurement], b: list[Measurement]) -> bool:
     return len(a) == len(b) and all(
         r.t == s.t and np.array_equal(r.x_measured, s.x_measured) and np.array_equal(r.u_applied, s.u_applied)
@@ -248,6 +301,9 @@ def one_seed(seed: int, jumps: float) -> dict:
                  settings, ("batch",)))
     data.append((GAPPED_IMU, gapped_imu_records(gapped, tel, cfg, seed), _SETUP["imu_settings"], METHODS))
     data.append(("IMU", imu_records(tel, cfg, seed), _SETUP["imu_settings"], METHODS))
+    if OPEN_LOOP in _SETUP["rows"]:  # diagnostic, only when asked for
+        data.append((OPEN_LOOP, tampered_records(open_loop_telemetry(tel, seed), "gapped",
+                                                 np.random.default_rng(20_000 + seed)), settings, METHODS))
     if jumps > 0:
         jumped_x, _ = inject_localisation_jumps(tel.x_measured, jumps, np.random.default_rng(10_000 + seed))
         data.append((f"{100 * jumps:.0f} % jumps",
@@ -279,6 +335,32 @@ def _pin(counter, cpus: list[int]) -> None:
 
 def _one_seed_star(arg: tuple[int, float]) -> dict:
     return one_seed(*arg)
+
+
+def median_verdict(median_pct: np.ndarray, median_crb_pct: np.ndarray) -> str:
+    """The median-error verdict against the flight figures (``FLIGHT_ERROR_PCT``, module docstring).
+
+    ``met`` when every median is within its flight figure; otherwise each missed parameter is ``bound-limited`` if
+    ``0.674 × median CRB`` (the median |error| of an efficient unbiased estimator, errors ``N(0, CRB²)``) exceeds its
+    flight figure, else ``missed``.
+
+    Parameters
+    ----------
+    median_pct, median_crb_pct : ndarray, shape (4,)
+        Median |error| and median Cramér-Rao bound per parameter [% of the truth].
+
+    Returns
+    -------
+    str
+        E.g. ``"met"``, ``"missed Ixx"``, ``"bound-limited m"``, ``"bound-limited m; missed Izz"``.
+    """
+    limited = [p for p, v, c, f in zip(NAMES, median_pct, median_crb_pct, FLIGHT_ERROR_PCT, strict=True)
+               if v > f and 0.674 * c > f]
+    missed = [p for p, v, c, f in zip(NAMES, median_pct, median_crb_pct, FLIGHT_ERROR_PCT, strict=True)
+              if v > f and not 0.674 * c > f]
+    parts = ([f"bound-limited {','.join(limited)}"] if limited else []) + ([f"missed {','.join(missed)}"] if missed
+                                                                          else [])
+    return "; ".join(parts) if parts else "met"
 
 
 def spread_ratio(err: np.ndarray, crb: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -345,13 +427,13 @@ def main() -> None:
     results.sort(key=lambda r: r["seed"])
 
     keys = list(results[0]["rows"])
-    order = ["clean", "swapped", "dropped", "gapped", GAPPED_IMU, SPLIT, GAPPED_CMD, "IMU"]
+    order = ["clean", "swapped", "dropped", "gapped", OPEN_LOOP, GAPPED_IMU, SPLIT, GAPPED_CMD, "IMU"]
     keys.sort(key=lambda k: (order.index(k[1]) if k[1] in order else len(order), METHODS.index(k[0])))
     n = len(results)
     print()
     print(f"Accuracy and time over {n} seeds (median |error| %, flight figures "
           + " / ".join(f"{v:.2f}" for v in FLIGHT_ERROR_PCT) + " %):")
-    head = (f"{'method':<10} {'data':<16} | {'median |error| %  m / Ixx / Iyy / Izz':^37} | {'vs flight':<14} | "
+    head = (f"{'method':<10} {'data':<16} | {'median |error| %  m / Ixx / Iyy / Izz':^37} | {'vs flight':<28} | "
             f"{'median CRB %  m / Ixx / Iyy / Izz':^35} | {'0.674 CRB % (bound-implied median)':^35} | "
             f"{'segs':>4} | {'time s':>6} | {'not conv.':>9}")
     print(head)
@@ -363,11 +445,10 @@ def main() -> None:
         err = np.array([r["err"] for r in rows])
         crb = np.array([r["crb"] for r in rows])
         med = 100 * np.median(np.abs(err) / TRUTH, axis=0)
-        missed = [p for p, v, f in zip(NAMES, med, FLIGHT_ERROR_PCT, strict=True) if v > f]
-        verdict = "met" if not missed else "missed " + ",".join(missed)
         crb_pct = 100 * np.median(crb / TRUTH, axis=0)
+        verdict = median_verdict(med, crb_pct)
         conv = [r["converged"] for r in rows if r["converged"] is not None]
-        print(f"{method:<10} {name:<16} | {' / '.join(f'{v:6.3f}' for v in med):^37} | {verdict:<14} | "
+        print(f"{method:<10} {name:<16} | {' / '.join(f'{v:6.3f}' for v in med):^37} | {verdict:<28} | "
               f"{' / '.join(f'{v:6.3f}' for v in crb_pct):^35} | "
               f"{' / '.join(f'{0.674 * v:6.3f}' for v in crb_pct):^35} | "
               f"{np.median([r['segments'] for r in rows]):4.0f} | "
