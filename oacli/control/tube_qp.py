@@ -199,12 +199,12 @@ class BlockSolution:
 @dataclass(frozen=True)
 class _Gathers:
     """Where a block's solution lies in the compiled problem's ``x``: index arrays (z: (N+1, n); v transposed:
-    (m, N), so that ``x[v_t].T`` is column-major like cvxpy's value) and the slacks' slices."""
+    (m, N), so that ``x[v_t].T`` is column-major like cvxpy's value) and the slacks' slices (only their maximum is
+    read, so their shapes do not matter)."""
 
     z: np.ndarray
     v_t: np.ndarray
     slack: slice | None
-    slack_shape: tuple[int, ...]
     position_slack: slice | None
 
 
@@ -219,8 +219,7 @@ def _gathers(compiled: CompiledQP, bv: _BlockVars) -> _Gathers:
         return None if var is None else slice(cols[var.id], cols[var.id] + var.size)
 
     z = np.vstack([index(bv.z), index(bv.z_n)[None, :]])
-    return _Gathers(z, np.ascontiguousarray(index(bv.v).T), span(bv.slack),
-                    () if bv.slack is None else bv.slack.shape, span(bv.position_slack))
+    return _Gathers(z, np.ascontiguousarray(index(bv.v).T), span(bv.slack), span(bv.position_slack))
 
 
 @dataclass(frozen=True)
@@ -516,8 +515,7 @@ class NominalQP:
                 blocks[name] = BlockSolution(nan_z, np.full(bv.v.shape, np.nan), np.nan)
             elif x_sol is not None:  # the same values and layouts as the branch below, gathered from x at once
                 g = self._gathers[name]
-                slack = 0.0 if g.slack is None else float(np.maximum.reduce(x_sol[g.slack].reshape(
-                    g.slack_shape, order="F"), axis=None, initial=0.0))
+                slack = 0.0 if g.slack is None else float(np.maximum.reduce(x_sol[g.slack], axis=None, initial=0.0))
                 pos_slack = 0.0 if g.position_slack is None else float(np.maximum.reduce(
                     x_sol[g.position_slack], axis=None, initial=0.0))
                 blocks[name] = BlockSolution(x_sol[g.z], x_sol[g.v_t].T, max(slack, 0.0), max(pos_slack, 0.0))
