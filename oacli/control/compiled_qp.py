@@ -175,13 +175,9 @@ class CompiledQP:
         dict
             Parameter id -> view of ``theta`` in the parameter's shape.
         """
-        views = {}
-        for param, col, size, pid in self._param_slices:
-            view = theta[col : col + size].reshape(param.shape, order="F")
-            if not np.shares_memory(view, theta):  # reshape of a 1-D slice is always a view; kept as a guard
-                raise RuntimeError("a parameter slice of θ is not a view")
-            views[pid] = view
-        return views
+        # A contiguous 1-D slice reshapes to any shape, in either order, as a view of θ.
+        return {pid: theta[col : col + size].reshape(param.shape, order="F")
+                for param, col, size, pid in self._param_slices}
 
     def solve(self, values: dict[Any, Any] | None = None) -> SolveInfo:
         """Solve with the parameters' values; variables are then read with :meth:`value`.

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from oacli.geometry.vectors import cross_rows
 from oacli.model import quaternion as quat
 from oacli.types import Trajectory
 
@@ -83,7 +84,7 @@ class ReferenceSampler:
         ew = np.cos(half)
         pv, pw = x0[:, 6:9], x0[:, 9:10]
         q = np.empty((times.size, 4))
-        q[:, 0:3] = pw * ev + ew * pv + _cross(pv, ev)
+        q[:, 0:3] = pw * ev + ew * pv + cross_rows(pv, ev)
         q[:, 3:4] = pw * ew - np.add.reduce(pv * ev, axis=-1, keepdims=True)
         q /= np.sqrt(np.add.reduce(q * q, axis=-1, keepdims=True))
         out[:, 6:10] = np.where(q[:, 3:4] < 0.0, -q, q)
@@ -91,17 +92,6 @@ class ReferenceSampler:
         out[after, 3:6] = 0.0
         out[after, 10:13] = 0.0
         return out
-
-
-#: Component orders of the cross product: ``(a × b)_i = a_{P_i} b_{R_i} − a_{R_i} b_{P_i}``.
-_P = np.array([1, 2, 0])
-_R = np.array([2, 0, 1])
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.cross`` of (..., 3) rows (broadcast), written out: per component the same products and difference
-    (``a_1 b_2 − a_2 b_1``, ``a_2 b_0 − a_0 b_2``, ``a_0 b_1 − a_1 b_0``), all three components per call."""
-    return np.asarray(a[..., _P] * b[..., _R] - a[..., _R] * b[..., _P])
 
 
 def attitude_errors(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -123,7 +113,7 @@ def attitude_errors(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     pv, pw = -p[..., :3], p[..., 3:4]  # the conjugate
     qv, qw = q[..., :3], q[..., 3:4]
-    vec = pw * qv + qw * pv + _cross(pv, qv)  # shape (..., 3): the broadcast of p's and q's
+    vec = pw * qv + qw * pv + cross_rows(pv, qv)  # shape (..., 3): the broadcast of p's and q's
     r = np.empty((*vec.shape[:-1], 4))
     r[..., :3] = vec
     r[..., 3:4] = pw * qw - np.add.reduce(pv * qv, axis=-1, keepdims=True)
@@ -161,5 +151,5 @@ def feedforward(x_ref: np.ndarray, dt: float, mass_kg: float, inertia_kgm2: np.n
     out = np.empty((x_ref.shape[0] - 1, 6))
     out[:, 0:3] = mass_kg * ((x_ref[1:, 3:6] - x_ref[:-1, 3:6]) / dt)
     w = x_ref[:-1, 10:13]
-    out[:, 3:6] = inertia_kgm2 * ((x_ref[1:, 10:13] - x_ref[:-1, 10:13]) / dt) + _cross(w, inertia_kgm2 * w)
+    out[:, 3:6] = inertia_kgm2 * ((x_ref[1:, 10:13] - x_ref[:-1, 10:13]) / dt) + cross_rows(w, inertia_kgm2 * w)
     return out

@@ -518,7 +518,7 @@ class NominalQP:
                 slack = 0.0 if g.slack is None else float(np.maximum.reduce(x_sol[g.slack], axis=None, initial=0.0))
                 pos_slack = 0.0 if g.position_slack is None else float(np.maximum.reduce(
                     x_sol[g.position_slack], axis=None, initial=0.0))
-                blocks[name] = BlockSolution(x_sol[g.z], x_sol[g.v_t].T, max(slack, 0.0), max(pos_slack, 0.0))
+                blocks[name] = BlockSolution(x_sol[g.z], x_sol[g.v_t].T, slack, pos_slack)  # initial 0: >= 0
             else:
                 slack = 0.0 if bv.slack is None else float(np.max(value(bv.slack), initial=0.0))
                 pos_slack = 0.0 if bv.position_slack is None else float(np.max(value(bv.position_slack),

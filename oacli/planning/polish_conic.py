@@ -164,13 +164,7 @@ class PolishConic:
         self._v_bound = np.maximum((1.0 - eps) * np.asarray(velocity_limit_mps, dtype=float), np.abs(start[3:6]))
         self._half_h3 = 0.5 * hc  # (N, 3): P1's coefficient of v_k
         self._half_h_v = 0.5 * self.h[:, None] * self._v_bound  # (N, 3): P1's reach beyond Δ
-        # Control points as (column, coefficient) lists, per piece and axis: P0 = r_k, P1 = r_k + h/2 v_k,
-        # P2 = r_{k+1}.
-        self._points = [
-            ([self._r[:-1]], [np.ones((n, 3))]),
-            ([self._r[:-1], self._v[:-1]], [np.ones((n, 3)), 0.5 * hc]),
-            ([self._r[1:]], [np.ones((n, 3))]),
-        ]
+        # Control points per piece and axis (the variable rows): P0 = r_k, P1 = r_k + h/2 v_k, P2 = r_{k+1}.
         # Second-order cones of the length terms: s = b − A x = (t, d), d = P1 − P0 or P2 − P1.
         soc = _Rows()
         cone_rows = np.empty((2, n, 4), dtype=np.int64)

@@ -7,6 +7,7 @@ import numpy as np
 
 from oacli.geometry.collision import CollisionChecker
 from oacli.geometry.halfspaces import KeepOutZone, supporting_halfspaces
+from oacli.geometry.vectors import cross_rows
 
 #: Stand-in for an unbounded keep-in coordinate [m] (a scene without keep-in boxes).
 _FAR_M = 1e6
@@ -20,15 +21,6 @@ def _closest_on_segments(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     np.divide(-np.einsum("ki,ki->k", a, d), dd, out=t, where=dd > 1e-300)
     np.clip(t, 0.0, 1.0, out=t)  # also maps an overflow to ±inf onto the segment's ends
     return a + t[:, None] * d
-
-
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (K, 3) arrays, in the arithmetic of ``np.cross`` without its overhead."""
-    out = np.empty(u.shape)
-    out[:, 0] = u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1]
-    out[:, 1] = u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2]
-    out[:, 2] = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
-    return out
 
 
 def min_norm_on_triangles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -47,7 +39,7 @@ def min_norm_on_triangles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.nda
     ndarray, shape (K, 3)
     """
     cands = [_closest_on_segments(a, b), _closest_on_segments(b, c), _closest_on_segments(a, c)]
-    nrm = _cross(b - a, c - a)
+    nrm = cross_rows(b - a, c - a)
     n2 = np.einsum("ki,ki->k", nrm, nrm)
     scale = np.maximum.reduce([np.einsum("ki,ki->k", e, e) for e in (b - a, c - a, c - b)]) + 1e-300
     face = n2 > 1e-12 * scale * scale
@@ -55,9 +47,9 @@ def min_norm_on_triangles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.nda
         af, bf, cf, nf = a[face], b[face], c[face], nrm[face]
         p = nf * (np.einsum("ki,ki->k", af, nf) / n2[face])[:, None]
         # Barycentric signs: p inside iff it is on the inner side of the three edges.
-        s1 = np.einsum("ki,ki->k", _cross(bf - af, p - af), nf)
-        s2 = np.einsum("ki,ki->k", _cross(cf - bf, p - bf), nf)
-        s3 = np.einsum("ki,ki->k", _cross(af - cf, p - cf), nf)
+        s1 = np.einsum("ki,ki->k", cross_rows(bf - af, p - af), nf)
+        s2 = np.einsum("ki,ki->k", cross_rows(cf - bf, p - bf), nf)
+        s3 = np.einsum("ki,ki->k", cross_rows(af - cf, p - cf), nf)
         inside = (s1 >= 0) & (s2 >= 0) & (s3 >= 0)
         proj = np.full_like(a, np.inf)
         idx = np.flatnonzero(face)[inside]
