@@ -42,7 +42,8 @@ import scipy.sparse.linalg as spla  # noqa: E402
 
 from oacli.config import load_config  # noqa: E402
 from oacli.estimation.alignment import align_records  # noqa: E402
-from oacli.estimation.batch import _Problem, estimate_batch, estimate_batch_windows, extend_states  # noqa: E402
+from oacli.estimation.batch import estimate_batch, estimate_batch_windows, extend_states  # noqa: E402
+from oacli.estimation.batch_problem import BatchProblem  # noqa: E402
 from oacli.estimation.preprocessing import order_by_time  # noqa: E402
 from oacli.io.mcap_read import read_telemetry_streams  # noqa: E402
 from oacli.io.reference_files import load_reference  # noqa: E402
@@ -172,7 +173,7 @@ def main() -> None:
     print(f"  inliers equal     {bool(np.array_equal(new.inliers, old.inliers))}")
 
     # The covariance's own numerical accuracy at the reference's solution: dense QR of the same A.
-    problem = _Problem(order_by_time(records).records, settings, prior, prior.theta)
+    problem = BatchProblem(order_by_time(records).records, settings, prior, prior.theta)
     _, a_mat = problem.evaluate(old.states, old.phi, old.inliers, jacobian=True)
     a_dense = a_mat.toarray()  # type: ignore[union-attr]
     m = old.last_covariance.shape[0]

@@ -18,7 +18,7 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
   input over each lost step is unknown, so each loss starts a new segment (~30 segments of ~2 s). The alignment
   keeps the lost instant as an input-only record (the last known input held for one control period only); the batch
   predicts the lost wrench from its neighbours, with the prediction's error variance measured on the run as extra
-  process noise over that interval (:func:`oacli.estimation.batch.segment_link_weights`). Cutting every gap link
+  process noise over that interval (:func:`oacli.estimation.lost_inputs.segment_link_weights`). Cutting every gap link
   instead biased the mass low in closed loop (fixed effects with predetermined regressors, see there);
 * ``gapped+IMU`` -- ``gapped`` with the IMU kept (``/imu`` is a stream of its own: the lost controller records
   do not take its readings with them; RATTLE level as in ``IMU``, and the gyro at the flight-like preset's
@@ -26,7 +26,7 @@ and by the sequential filter (:func:`oacli.stages.estimate.run_estimation`, one 
   mean of the accelerometer's readings over its control period, which bridges the lost force, and the gyro's mean
   ``ω̇`` over it (a continuous piecewise-linear fit of its readings over the period and its neighbours), which
   bridges the lost torque ([Doerr2021] Eq. 35b; :func:`oacli.estimation.imu.attach_accelerations`,
-  :func:`oacli.estimation.batch.lost_input_model`);
+  :func:`oacli.estimation.lost_inputs.lost_input_model`);
 * ``gapped+command`` -- the same steps lost from the measurement and applied-input streams but ``/control/command``
   kept: the inputs are bridged from the command history (batch only);
 * ``clean split`` -- every clean record kept, but a segment started where ``gapped`` starts one (batch only): what
@@ -61,7 +61,7 @@ correctly specified prior 1.25, sequential 1.27; with that prior 20 times tighte
 likelihood's Laplace correction moves the estimate by < 0.1 σ). Segmenting a closed-loop run costs a little
 spread: ``clean split`` (every record kept, the same segments) reads the same Ixx 1.11, the open-loop replay of the
 same gaps (``gapped open-loop``) 0.92 [0.83, 1.04]. The likely mechanism is the predetermined-regressor
-correlation of :func:`oacli.estimation.batch.segment_link_weights` (Nickell 1981): after a gap the controller's
+correlation of :func:`oacli.estimation.lost_inputs.segment_link_weights` (Nickell 1981): after a gap the controller's
 inputs react to the measurement noise that also fixes the re-estimated rotation. The open-loop replay's own batch
 mass spread (1.20, bias −0.64 σ; sequential 1.03, +0.23 σ) is not explained.
 
@@ -103,9 +103,9 @@ from scipy.stats import binom, chi2
 
 from oacli.config import load_config
 from oacli.estimation.alignment import align_records
-from oacli.estimation.batch import bridge_accelerations, bridge_angular_accelerations
 from oacli.estimation.bounds import cramer_rao_bound
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
+from oacli.estimation.lost_inputs import bridge_accelerations, bridge_angular_accelerations
 from oacli.estimation.manifold import boxplus
 from oacli.estimation.models import EstimatorSettings, Measurement, MeasurementModel, ProcessNoise
 from oacli.estimation.preprocessing import measurements_from_telemetry
@@ -202,7 +202,7 @@ def gapped_imu_records(records: list[Measurement], tel, cfg, seed: int) -> list[
     """The ``gapped`` records with the IMU kept (a separate stream: the lost controller records do not take its
     readings with them). Accelerations at the measured records as in ``IMU``, and the mean of the readings over
     each lost control period on its input-only record: the accelerometer bridges the lost force
-    (:func:`oacli.estimation.imu.attach_accelerations`, :func:`oacli.estimation.batch.lost_input_model`)."""
+    (:func:`oacli.estimation.imu.attach_accelerations`, :func:`oacli.estimation.lost_inputs.lost_input_model`)."""
     delivered = DeliveredInput.from_telemetry(tel, np.asarray(cfg.truth.actuator_scale))
     model = ImuModel(accelerometer_noise_std_mps2=ACCEL_STD_MPS2, accelerometer_bias_std_mps2=1e-3,
                      gyro_noise_std_radps=GYRO_STD_RADPS, gyro_bias_std_radps=5e-4)

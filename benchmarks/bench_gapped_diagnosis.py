@@ -3,7 +3,7 @@ the lost input's prediction, and what to the closed loop.
 
 Each seed flies the benchmark's closed-loop run (``bench_estimation.one_seed``'s configuration, the same seeds and
 the same lost steps) and estimates the ``gapped`` records with the lost wrench's model replaced, in the estimator
-*and* in its Cramér-Rao bound (:func:`oacli.estimation.batch.lost_input_model`, patched here only):
+*and* in its Cramér-Rao bound (:func:`oacli.estimation.lost_inputs.lost_input_model`, patched here only):
 
 * ``row`` -- as the benchmark (the neighbours' noise-corrected regression, its error variance measured on the run);
 * ``exact`` -- the prediction replaced by the true lost input, its variance kept (a prior centred on the truth);

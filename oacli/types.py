@@ -62,11 +62,6 @@ class InertialParams:
         if np.any(self.inertia_kgm2 <= 0):
             raise ValueError(f"inertia_kgm2 must be > 0, got {self.inertia_kgm2}")
 
-    @property
-    def inertia_matrix(self) -> np.ndarray:
-        """Inertia tensor diag(Ixx, Iyy, Izz) [kg·m²]."""
-        return np.diag(self.inertia_kgm2)
-
 
 @dataclass(frozen=True)
 class Trajectory:

@@ -110,7 +110,7 @@ def closed_loop_pd(seed: int, n: int) -> Telemetry:
 
 def dense_jacobian_matching_central_differences(problem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray,
                                                 step: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-    """Assert that the batch problem's Jacobian ``A = ∂b/∂δϑ`` (``_Problem.evaluate``) equals central differences
+    """Assert that the batch problem's Jacobian ``A = ∂b/∂δϑ`` (``BatchProblem.evaluate``) equals central differences
     of its residuals ``b`` in every column (states through ``⊞``, then the parameters φ); return ``(b, A)`` dense.
 
     ``x`` is (K, 13) states, ``phi`` the parameter vector, ``inliers`` a (K,) mask.

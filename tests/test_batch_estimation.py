@@ -9,7 +9,8 @@ from hypothesis import settings as hsettings
 from hypothesis import strategies as st
 
 from oacli.estimation import parametrization as par
-from oacli.estimation.batch import _Problem, estimate_batch, estimate_batch_windows
+from oacli.estimation.batch import estimate_batch, estimate_batch_windows
+from oacli.estimation.batch_problem import BatchProblem
 from oacli.estimation.bounds import cramer_rao_bound
 from oacli.estimation.manifold import (
     boxminus,
@@ -185,7 +186,7 @@ def test_residual_jacobian_matches_finite_differences(rng, model):
     tel = simulate_open_loop(6, sensors=SensorNoise(0.01, 0.002, 0.005, 0.01), seed=3)
     acc = rng.normal(0, 0.01, (6, 3))
     recs = records(tel, linear_acceleration_mps2=acc, angular_acceleration_radps2=acc[::-1])
-    problem = _Problem(recs, settings(measurement=model, process=ProcessNoise(0.01, 0.001)), RATTLE_PRIOR,
+    problem = BatchProblem(recs, settings(measurement=model, process=ProcessNoise(0.01, 0.001)), RATTLE_PRIOR,
                        THETA_TRUE)
     x = boxplus(problem.y, rng.normal(0, 0.05, (6, 12)))
     phi = par.phi_from_theta(np.array([12.0, 0.12, 0.15, 0.17]))

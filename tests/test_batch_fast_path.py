@@ -10,7 +10,8 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from oacli.estimation import parametrization as par
-from oacli.estimation.batch import _Problem, estimate_batch, estimate_batch_windows, extend_states
+from oacli.estimation.batch import estimate_batch, estimate_batch_windows, extend_states
+from oacli.estimation.batch_problem import BatchProblem
 from oacli.estimation.manifold import TANGENT_DIM, boxplus
 from oacli.estimation.models import Measurement, ProcessNoise
 from oacli.estimation.preprocessing import order_by_time
@@ -67,7 +68,7 @@ def _small_problem(rng, model):
     recs = records(tel, linear_acceleration_mps2=acc, angular_acceleration_radps2=acc[::-1])
     recs[4] = Measurement(recs[4].t, recs[4].x_measured, recs[4].u_applied, recs[4].linear_acceleration_mps2,
                           recs[4].angular_acceleration_radps2, starts_segment=True)  # a gap: two segments
-    problem = _Problem(recs, settings(measurement=model, process=ProcessNoise(0.01, 0.001)), RATTLE_PRIOR,
+    problem = BatchProblem(recs, settings(measurement=model, process=ProcessNoise(0.01, 0.001)), RATTLE_PRIOR,
                        THETA_TRUE)
     x = boxplus(problem.y, rng.normal(0, 0.05, (7, 12)))
     phi = par.phi_from_theta(np.array([12.0, 0.12, 0.15, 0.17]))
@@ -171,7 +172,7 @@ def test_fast_path_equals_the_original_on_the_iss_excitation_run(tmp_path):
     old = estimate_batch(recs, sets, prior, reference=True)
     assert new.iterations == old.iterations and np.array_equal(new.inliers, old.inliers)
     assert np.max(np.abs(new.estimate.theta / old.estimate.theta - 1)) < 1e-6
-    problem = _Problem(order_by_time(recs).records, sets, prior, prior.theta)
+    problem = BatchProblem(order_by_time(recs).records, sets, prior, prior.theta)
     _, a_mat = problem.evaluate(new.states, new.phi, new.inliers, jacobian=True)
     m = TANGENT_DIM + par.N_PARAMS
     r_last = np.linalg.qr(a_mat.toarray(), mode="r")[-m:, -m:]

@@ -12,8 +12,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from oacli.geometry import Box, Ellipsoid, Scene
-from oacli.geometry.collision import CollisionChecker, Pieces, RobotBody, quartic_minimum
+from oacli.geometry.collision import CollisionChecker, Pieces, RobotBody
 from oacli.geometry.overlap import EllipsoidPair, ellipsoids_overlap
+from oacli.geometry.quartic import quartic_minimum
 from oacli.geometry.verify import dense_check, dense_positions, point_ellipsoid_distance
 
 SPHERE = Scene(keep_out=(Ellipsoid.from_semi_axes([1.0, 0.0, 0.0], [0.3, 0.3, 0.3]),))

@@ -1,6 +1,6 @@
 """Gaps in the input record (whole controller records lost) in the batch estimator (issue 10).
 
-The clean experiment behind the design (:func:`oacli.estimation.batch.segment_link_weights`): on noise-free data a
+The clean experiment behind the design (:func:`oacli.estimation.lost_inputs.segment_link_weights`): on noise-free data a
 split run gives exactly the unsplit estimate, whether the gap links are cut or bridged with the unknown force
 profiled out; the closed-form pieces (force directions, the prediction of a lost input and its error variance) are
 checked against hand computations; with noise, a closed loop whose input feeds back the noisy measurement keeps the
@@ -25,11 +25,13 @@ from estimation_helpers import (
 )
 from scipy.stats import chi2
 
-from oacli.estimation import batch
+from oacli.estimation import lost_inputs
 from oacli.estimation.alignment import align_records
-from oacli.estimation.batch import (
+from oacli.estimation.batch import estimate_batch
+from oacli.estimation.bounds import cramer_rao_bound
+from oacli.estimation.imu import ImuStream, attach_accelerations
+from oacli.estimation.lost_inputs import (
     bridge_accelerations,
-    estimate_batch,
     lost_input_model,
     lost_input_prior,
     noise_corrected_prediction,
@@ -37,8 +39,6 @@ from oacli.estimation.batch import (
     unknown_force_directions,
     unknown_torque_directions,
 )
-from oacli.estimation.bounds import cramer_rao_bound
-from oacli.estimation.imu import ImuStream, attach_accelerations
 from oacli.estimation.manifold import boxminus
 from oacli.estimation.models import ProcessNoise
 from oacli.estimation.sequential import SequentialEstimator
@@ -64,9 +64,9 @@ def test_a_noise_free_split_run_gives_the_unsplit_estimate(monkeypatch, mode):
     start = THETA_TRUE * np.array([1.1, 0.9, 1.1, 0.9])
     whole = estimate_batch(recs, settings(), WIDE_PRIOR, initial_theta=start)
     if mode == "cut":
-        monkeypatch.setattr(batch, "BRIDGE_FACTOR", 0.0)
+        monkeypatch.setattr(lost_inputs, "BRIDGE_FACTOR", 0.0)
     else:
-        monkeypatch.setattr(batch, "_MIN_PREDICTION_SAMPLES", 10**6)
+        monkeypatch.setattr(lost_inputs, "_MIN_PREDICTION_SAMPLES", 10**6)
     split = estimate_batch(_split(recs), settings(), WIDE_PRIOR, initial_theta=start)
     assert split.segments == len(CUTS) + 1 and whole.converged and split.converged
     np.testing.assert_allclose(whole.estimate.theta, THETA_TRUE, rtol=1e-7)
@@ -80,9 +80,9 @@ def test_a_noise_free_split_run_gives_the_unsplit_estimate(monkeypatch, mode):
 def test_the_profiled_bridge_keeps_more_mass_information_than_the_cut(monkeypatch):
     tel = simulate_open_loop(60, sensors=SensorNoise(0.0, 0.0, 0.0, 0.0), seed=0)
     recs = _split(records(tel))
-    monkeypatch.setattr(batch, "_MIN_PREDICTION_SAMPLES", 10**6)
+    monkeypatch.setattr(lost_inputs, "_MIN_PREDICTION_SAMPLES", 10**6)
     bridged = estimate_batch(recs, settings(), WIDE_PRIOR)
-    monkeypatch.setattr(batch, "BRIDGE_FACTOR", 0.0)
+    monkeypatch.setattr(lost_inputs, "BRIDGE_FACTOR", 0.0)
     cut = estimate_batch(recs, settings(), WIDE_PRIOR)
     sd = [np.sqrt(np.diag(r.estimate.covariance)) for r in (bridged, cut)]
     assert sd[0][0] < sd[1][0]

@@ -27,14 +27,10 @@ from estimation_helpers import (
 
 from oacli.estimation import parametrization as par
 from oacli.estimation.alignment import align_records
-from oacli.estimation.batch import (
-    _Problem,
-    bridge_accelerations,
-    bridge_angular_accelerations,
-    estimate_batch,
-    lost_input_model,
-)
+from oacli.estimation.batch import estimate_batch
+from oacli.estimation.batch_problem import BatchProblem
 from oacli.estimation.imu import ImuStream, _gyro_window, attach_accelerations, gyro_noise_variance
+from oacli.estimation.lost_inputs import bridge_accelerations, bridge_angular_accelerations, lost_input_model
 from oacli.estimation.manifold import boxminus, boxplus
 from oacli.estimation.models import ProcessNoise
 from oacli.estimation.propagation import propagate_intervals, substep_schedule
@@ -207,10 +203,10 @@ def test_both_estimators_take_the_lost_torque_from_the_gyro():
 def test_the_process_jacobian_with_a_gap_offset_matches_finite_differences():
     """With a gyro bridge the gap offset reaches the attitude rows (``½T² J⁻¹τ``, ~1e-3 rad); the residual is
     ``(x_{k+1} ⊟ f) − offset`` with a constant offset, so its Jacobian is that of ``⊟`` at ``⊟``'s own value.
-    Checked against central differences (reference path, :meth:`_Problem.evaluate`) and the blocks of the fast
+    Checked against central differences (reference path, :meth:`BatchProblem.evaluate`) and the blocks of the fast
     path's ``AᵀA`` and ``Aᵀb`` against the reference's (an offset of 0.02 rad makes the difference visible)."""
     tel = simulate_open_loop(6, seed=3)
-    problem = _Problem(records(tel), settings(process=ProcessNoise(0.01, 0.001)), RATTLE_PRIOR, THETA_TRUE)
+    problem = BatchProblem(records(tel), settings(process=ProcessNoise(0.01, 0.001)), RATTLE_PRIOR, THETA_TRUE)
     rng = np.random.default_rng(5)
     problem.gap_offset = np.zeros_like(problem.gap_offset)  # (set on a linked interval: every row is whitened)
     problem.gap_offset[2] = rng.normal(0.0, 0.02, 12)

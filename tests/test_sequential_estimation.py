@@ -397,7 +397,7 @@ def test_single_lost_controller_records_are_bridged_not_restarted():
 def test_the_accelerometer_bridges_a_lost_force_in_the_filter_too():
     """Lost control records with ``/imu`` kept: the lost instant's record carries the accelerometer's mean over its
     period (:func:`oacli.estimation.imu.attach_accelerations`); the filter takes the lost force from it (``f/m``
-    to ``σ_a/√n``, as the batch's :func:`~oacli.estimation.batch.lost_input_model`) instead of predicting it from
+    to ``σ_a/√n``, as the batch's :func:`~oacli.estimation.lost_inputs.lost_input_model`) instead of predicting it from
     the neighbours. Every gap after the bootstrap is bridged by the IMU, none restarts, the mass is better
     determined than with the prediction, and the estimate stays within 2σ of the clean run's."""
     tel = closed_loop_pd(0, 150)

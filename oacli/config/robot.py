@@ -56,11 +56,6 @@ class RobotConfig(Section):
         """Input bounds ``[force (3) N, torque (3) N·m]``, shape (6,), read-only; ``|u_i| <= input_limits[i]``."""
         return read_only(self.force_limit_N + self.torque_limit_Nm)
 
-    @property
-    def velocity_limits(self) -> np.ndarray:
-        """``[velocity (3) m/s, angular velocity (3) rad/s]`` bounds, shape (6,), read-only."""
-        return read_only(self.velocity_limit_mps + self.angular_velocity_limit_radps)
-
 
 class DisturbanceConfig(Section):
     """Additive force/torque disturbance on the simulated plant: ``bias + uniform(-random, +random)`` per axis."""

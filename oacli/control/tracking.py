@@ -170,11 +170,6 @@ class TrackingMPC:
         self._hold_q: np.ndarray | None = None
         self._offsets = self.dt_s * np.arange(self.horizon + 1)
 
-    @property
-    def in_safe_hold(self) -> bool:
-        """True once the safe hold is latched."""
-        return self._hold_q is not None
-
     def _hold_input(self, x: np.ndarray, q_hold: np.ndarray) -> np.ndarray:
         """Safe hold: brake the measured velocity as fast as the force limits allow, hold the attitude ``q_hold``."""
         force = np.clip(-self.params.mass_kg * x[3:6] / self.dt_s, -self.limits.force_N, self.limits.force_N)

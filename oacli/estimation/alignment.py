@@ -25,8 +25,8 @@ topics, so records are built by **time stamp**, never by position in the file:
   after a single lost instant the unknown interval spans one control period, over which the controller held one
   (unknown) wrench. The batch estimator predicts that wrench from its neighbours, with the prediction's error
   measured on the run (or takes its force from the accelerometer when ``/imu`` survived), as process noise over
-  the gap (:func:`oacli.estimation.batch.lost_input_model`,
-  :func:`~oacli.estimation.batch.segment_link_weights`). The sequential filter bridges a single lost instant the
+  the gap (:func:`oacli.estimation.lost_inputs.lost_input_model`,
+  :func:`~oacli.estimation.lost_inputs.segment_link_weights`). The sequential filter bridges a single lost instant the
   same way (the neighbours' mean, the error's covariance as process noise; ``gaps_bridged``) and re-initialises the
   robot state only where the batch cuts (``segment_restarts``). An input is never held silently across a gap.
 

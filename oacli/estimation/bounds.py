@@ -19,7 +19,7 @@ Both bounds assume the dynamics exact (no process noise), i.e. the output-error 
 bridges a gap, the wrench held over it is unknown; the bound carries it as a nuisance parameter ``w = [f/m, τ]`` (6
 per gap) that moves the state after the gap along the estimator's directions, with the prior the estimator gives it
 (its neighbours' regression, or the accelerometer's mean for ``f/m`` and the gyro's slope for ``τ``:
-:func:`oacli.estimation.batch.lost_input_model`)
+:func:`oacli.estimation.lost_inputs.lost_input_model`)
 -- a hybrid bound (``w`` random, θ and the initial state fixed) that the batch's covariance estimates; ``w`` without a
 prior (``lost_inputs="nuisance"``) and every gap cut (``"cut"``, the bound this module gave before) are available for
 comparison. On the benchmark's gapped ISS runs (10 % of the controller records lost, ``benchmarks/bench_estimation.py``)
@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from oacli.estimation.batch import (
+from oacli.estimation.lost_inputs import (
     GyroBridge,
     lost_input_model,
     unknown_force_directions,
@@ -118,10 +118,10 @@ def cramer_rao_bound(
         them is unknown. What the bound assumes there is ``lost_inputs``.
     lost_inputs : {"prior", "nuisance", "cut"}
         A gap the batch estimator bridges (one lost control instant between known inputs,
-        :func:`oacli.estimation.batch.lost_input_model`) carries the unknown wrench as a nuisance parameter
+        :func:`oacli.estimation.lost_inputs.lost_input_model`) carries the unknown wrench as a nuisance parameter
         ``w = [f/m, τ]`` (6 per gap) that moves the state after the gap along the estimator's directions
-        (:func:`~oacli.estimation.batch.unknown_force_directions`, exact, and
-        :func:`~oacli.estimation.batch.unknown_torque_directions`, first order). ``"prior"`` (default): ``w``
+        (:func:`~oacli.estimation.lost_inputs.unknown_force_directions`, exact, and
+        :func:`~oacli.estimation.lost_inputs.unknown_torque_directions`, first order). ``"prior"`` (default): ``w``
         has the Gaussian prior the estimator uses (the neighbours' prediction with its error variance measured on
         the run; ``f/m`` from the accelerometer where ``bridge_acceleration`` has it) -- the bound of that model
         (a hybrid bound: ``w`` random, θ and the initial states fixed), which the batch's covariance estimates.
@@ -135,9 +135,9 @@ def cramer_rao_bound(
     measured : ndarray, shape (K, 13), optional
         The measured states: the residuals ``ỹ ⊟ x̂`` of the ``used`` records give the lost wrench's prior the
         variance of the estimator's noise-corrected prediction
-        (:func:`oacli.estimation.batch.noise_corrected_prediction`), as the batch estimator's last solve uses it.
+        (:func:`oacli.estimation.lost_inputs.noise_corrected_prediction`), as the batch estimator's last solve uses it.
     gyro : GyroBridge, optional
-        The gyro's ``ω̇`` over the lost intervals (:func:`oacli.estimation.batch.bridge_angular_accelerations`):
+        The gyro's ``ω̇`` over the lost intervals (:func:`oacli.estimation.lost_inputs.bridge_angular_accelerations`):
         where it has one, ``τ`` has the prior ``J² σ_ᾱ²`` ([Doerr2021] Eq. 35b, :func:`lost_input_model`).
 
     Returns

@@ -26,7 +26,7 @@ EKF output, its gyro bias already removed) is the rate measurement.
 command of one control step) leaves its readings in the log. Over the lost control period the accelerometer
 measures the unknown force as ``f/m``; :func:`attach_accelerations` gives the lost instant's input-only record the
 mean of those readings and their number, and the batch estimator bridges the gap with it
-(:func:`oacli.estimation.batch.lost_input_model`): on the benchmark's gapped ISS runs the mass bound drops from
+(:func:`oacli.estimation.lost_inputs.lost_input_model`): on the benchmark's gapped ISS runs the mass bound drops from
 0.88 % (force predicted from the neighbouring inputs) to 0.52 %.
 
 **The gyro bridges a lost torque.** The lost torque ``τ`` is constant over its control period (zero-order hold), so
@@ -46,7 +46,8 @@ estimators and the bound take them so). ``σ_g²`` is not configured: it is the 
 a line fit over every control period of the run (:func:`gyro_noise_variance`). The lost record gets that mean
 ``ω̇`` (``angular_acceleration_radps2``), its variance (``angular_acceleration_var_rad2ps4``) and the fitted rate at
 its stamp in ``x_measured[10:13]`` (the point where the estimators evaluate the gyroscopic term); the estimators
-integrate the measured ``ω̇`` across the gap instead of the torque (:func:`oacli.estimation.batch.lost_input_model`).
+integrate the measured ``ω̇`` across the gap instead of the torque
+(:func:`oacli.estimation.lost_inputs.lost_input_model`).
 Like the accelerometer's ``f/m``, it carries no inertia: the interval's rotation needs neither the torque nor ``J``.
 """
 
@@ -310,7 +311,7 @@ def attach_accelerations(
     period; attitudes interpolated between the measured records around the gap) and their number
     (``Measurement.acceleration_readings``): the accelerometer measures the lost force as ``f/m``, so the batch
     estimator bridges the gap with it instead of predicting the force from the neighbouring inputs
-    (:func:`oacli.estimation.batch.lost_input_model`). The IMU is a separate stream: losing a controller record
+    (:func:`oacli.estimation.lost_inputs.lost_input_model`). The IMU is a separate stream: losing a controller record
     does not lose its readings. With ``gyro``, the same record also gets the gyro's mean ``ω̇`` over the interval
     (a continuous piecewise-linear fit of its readings over it and its neighbouring periods), its variance and the
     rate at its stamp: the gyro bridges the lost torque (module

@@ -38,12 +38,13 @@ localisation jump), the robot state -- never θ -- is re-initialised from the cu
 recorded. Imperfect telemetry (:mod:`oacli.estimation.alignment`): an input-only record (its localisation message
 was lost) is a prediction without update (status ``"predicted"``). A record that starts a segment (the input before
 it is unknown) after a single lost control record is reached as the batch links it
-(:func:`~oacli.estimation.batch.lost_input_prior`, :func:`~oacli.estimation.batch.segment_link_weights`): the
+(:func:`~oacli.estimation.lost_inputs.lost_input_prior`,
+:func:`~oacli.estimation.lost_inputs.segment_link_weights`): the
 prediction across the gap uses the mean of the known inputs on either side, and the error of that prediction
 (measured on the records so far) is process noise over the interval (counted in ``gaps_bridged``); when the lost
 instant's record carries the accelerometer's mean over its period (``/imu`` survived,
 :func:`oacli.estimation.imu.attach_accelerations`) the lost force is taken from it instead, as the batch does
-(:func:`~oacli.estimation.batch.lost_input_model`: ``f/m`` measured to ``σ_a²/n``, no mass sensitivity over that
+(:func:`~oacli.estimation.lost_inputs.lost_input_model`: ``f/m`` measured to ``σ_a²/n``, no mass sensitivity over that
 interval; counted in ``gaps_bridged_imu``), and the lost torque from the gyro's slope over the period when the
 record carries it (``J⁻¹τ = ω̇ + J⁻¹(ω × Jω)``, [Doerr2021] Eq. 35b: no torque and no inertia over that interval;
 counted in ``gaps_bridged_gyro``, and once per gap in ``gaps_bridged_imu``); after a longer
@@ -67,18 +68,15 @@ import numpy as np
 import scipy.linalg as sla
 
 from oacli.estimation import parametrization as par
-from oacli.estimation.batch import (
+from oacli.estimation.batch import BatchResult, covariance_at, estimate_batch, extend_states
+from oacli.estimation.gating import chi2_threshold
+from oacli.estimation.lost_inputs import (
     BRIDGE_FACTOR,
-    BatchResult,
-    covariance_at,
-    estimate_batch,
-    extend_states,
     gyro_bridge_offset,
     lost_input_prior,
     unknown_force_directions,
     unknown_torque_directions,
 )
-from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.manifold import (
     TANGENT_DIM,
     boxminus,
@@ -86,6 +84,13 @@ from oacli.estimation.manifold import (
     lift_matrix,
     project_matrix,
     so3_right_jacobian_inverse,
+)
+from oacli.estimation.manifold_one import (
+    boxminus_one,
+    boxplus_one,
+    lift_one,
+    project_one,
+    right_jacobian_inverse_one,
 )
 from oacli.estimation.models import EstimatorSettings, Measurement, measured_rows
 from oacli.estimation.preprocessing import ReorderBuffer, order_by_time
@@ -118,102 +123,6 @@ _STEP_TOL_PHI = 1e-6
 """The iterated update has converged when a step moves φ by less than this and (``_STEP_TOL_X``) the states by
 less than that (radians, metres, ...): the next step would be ~1e-10 (quadratic convergence)."""
 _STEP_TOL_X = 1e-6
-
-
-# -- one state at a time: the manifold operations of :mod:`oacli.estimation.manifold` in Python floats ---------------
-# (a filter step handles one state; the stacked numpy versions are mostly per-call overhead there)
-
-
-def _qmul(p: tuple[float, ...], q: tuple[float, ...]) -> tuple[float, float, float, float]:
-    px, py, pz, pw = p
-    qx, qy, qz, qw = q
-    return (pw * qx + qw * px + (py * qz - pz * qy), pw * qy + qw * py + (pz * qx - px * qz),
-            pw * qz + qw * pz + (px * qy - py * qx), pw * qw - (px * qx + py * qy + pz * qz))
-
-
-def _qnormalise(q: tuple[float, ...]) -> tuple[float, float, float, float]:
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    s = -1.0 / n if q[3] / n < 0.0 else 1.0 / n
-    return (q[0] * s, q[1] * s, q[2] * s, q[3] * s)
-
-
-def _qlog(q: tuple[float, ...]) -> tuple[float, float, float]:
-    x, y, z, w = _qnormalise(q)
-    s = math.sqrt(x * x + y * y + z * z)
-    k = 2.0 / w if s < 1e-9 else 2.0 * math.atan2(s, w) / s
-    return (k * x, k * y, k * z)
-
-
-def _qexp(v: np.ndarray) -> tuple[float, float, float, float]:
-    vx, vy, vz = float(v[0]), float(v[1]), float(v[2])
-    angle = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if not math.isfinite(angle):  # a wild trial step: NaN as numpy gives (the step is then rejected)
-        return (math.nan, math.nan, math.nan, math.nan)
-    k = 0.5 - angle**2 / 48.0 if angle < 1e-6 else math.sin(0.5 * angle) / angle
-    return (k * vx, k * vy, k * vz, math.cos(0.5 * angle))
-
-
-def _boxminus1(y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``y ⊟ x`` (12,) of one state (:func:`oacli.estimation.manifold.boxminus`)."""
-    out = np.empty(TANGENT_DIM)
-    out[0:6] = y[0:6] - x[0:6]
-    qx = (-float(x[6]), -float(x[7]), -float(x[8]), float(x[9]))
-    out[6:9] = _qlog(_qmul(qx, (float(y[6]), float(y[7]), float(y[8]), float(y[9]))))
-    out[9:12] = y[10:13] - x[10:13]
-    return out
-
-
-def _boxplus1(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
-    """``x ⊞ δx`` (13,) of one state (:func:`oacli.estimation.manifold.boxplus`)."""
-    out = np.array(x, dtype=float, copy=True)
-    out[0:6] += dx[0:6]
-    out[6:10] = _qnormalise(_qmul((float(x[6]), float(x[7]), float(x[8]), float(x[9])), _qexp(dx[6:9])))
-    out[10:13] += dx[9:12]
-    return out
-
-
-def _jr_inv(phi: np.ndarray) -> np.ndarray:
-    """``J_r⁻¹(φ)`` (3, 3) of one rotation vector (:func:`oacli.estimation.manifold.so3_right_jacobian_inverse`):
-    ``I + ½[φ]× + c [φ]×²`` with ``[φ]×² = φφᵀ − |φ|² I``, entry by entry."""
-    x, y, z = float(phi[0]), float(phi[1]), float(phi[2])
-    sq = x * x + y * y + z * z
-    theta = math.sqrt(sq)
-    if not math.isfinite(theta):
-        return np.full((3, 3), math.nan)
-    if theta < 1e-5:
-        coef = 1.0 / 12.0 + sq / 720.0
-    else:
-        coef = 1.0 / sq - (1.0 + math.cos(theta)) / (2.0 * theta * math.sin(theta))
-    d = 1.0 - coef * sq
-    hx, hy, hz = 0.5 * x, 0.5 * y, 0.5 * z
-    cxy, cxz, cyz = coef * x * y, coef * x * z, coef * y * z
-    return np.array(((d + coef * x * x, cxy - hz, cxz + hy),
-                     (cxy + hz, d + coef * y * y, cyz - hx),
-                     (cxz - hy, cyz + hx, d + coef * z * z)))
-
-
-_LIFT_TEMPLATE = np.zeros((13, TANGENT_DIM))
-_LIFT_TEMPLATE[0:6, 0:6] = np.eye(6)
-_LIFT_TEMPLATE[10:13, 9:12] = np.eye(3)
-_PROJECT_TEMPLATE = np.zeros((TANGENT_DIM, 13))
-_PROJECT_TEMPLATE[0:6, 0:6] = np.eye(6)
-_PROJECT_TEMPLATE[9:12, 10:13] = np.eye(3)
-
-
-def _lift1(x: np.ndarray) -> np.ndarray:
-    """:func:`oacli.estimation.manifold.lift_matrix` of one state, (13, 12)."""
-    qx, qy, qz, qw = (0.5 * float(v) for v in x[6:10])
-    out = _LIFT_TEMPLATE.copy()
-    out[6:10, 6:9] = ((qw, -qz, qy), (qz, qw, -qx), (-qy, qx, qw), (-qx, -qy, -qz))
-    return out
-
-
-def _project1(x: np.ndarray) -> np.ndarray:
-    """:func:`oacli.estimation.manifold.project_matrix` of one state, (12, 13)."""
-    qx, qy, qz, qw = (2.0 * float(v) for v in x[6:10])
-    out = _PROJECT_TEMPLATE.copy()
-    out[6:9, 6:10] = ((qw, qz, -qy, -qx), (-qz, qw, qx, -qy), (qy, -qx, qw, -qz))
-    return out
 
 
 @dataclass(frozen=True)
@@ -294,7 +203,8 @@ class SequentialEstimator:
             self._bm, self._bp, self._jr, self._lift, self._proj = (
                 boxminus, boxplus, so3_right_jacobian_inverse, lift_matrix, project_matrix)
         else:
-            self._bm, self._bp, self._jr, self._lift, self._proj = _boxminus1, _boxplus1, _jr_inv, _lift1, _project1
+            self._bm, self._bp, self._jr, self._lift, self._proj = (
+                boxminus_one, boxplus_one, right_jacobian_inverse_one, lift_one, project_one)
         self.reinitialise_after = int(reinitialise_after)
         self.bootstrap_relative_std = bootstrap_relative_std
         self.bootstrap_check_every = int(bootstrap_check_every)
@@ -747,8 +657,8 @@ class SequentialEstimator:
 
     def _bridge_gap(self, rec: Measurement) -> bool:
         """Prepare the prediction across a gap in the input record ending at ``rec`` (``rec.starts_segment``), as the
-        batch links it (:func:`~oacli.estimation.batch.lost_input_prior`,
-        :func:`~oacli.estimation.batch.segment_link_weights`); False when it cannot be bridged.
+        batch links it (:func:`~oacli.estimation.lost_inputs.lost_input_prior`,
+        :func:`~oacli.estimation.lost_inputs.segment_link_weights`); False when it cannot be bridged.
 
         One lost control instant: the previous record is the lost instant's input-only record (reached through a
         known input), and the unknown interval is as long as the one before it and at most ``BRIDGE_FACTOR``

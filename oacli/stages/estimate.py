@@ -38,16 +38,11 @@ import yaml
 from oacli.config import OacliConfig
 from oacli.errors import InfeasibleError, InputError
 from oacli.estimation.alignment import AlignmentReport, align_records
-from oacli.estimation.batch import (
-    UNIDENTIFIED_VARIANCE,
-    BatchResult,
-    bridge_accelerations,
-    bridge_angular_accelerations,
-    estimate_batch_windows,
-)
+from oacli.estimation.batch import UNIDENTIFIED_VARIANCE, BatchResult, estimate_batch_windows
 from oacli.estimation.bounds import CramerRaoBound, cramer_rao_bound, describe_unobservable, unobservable_parameters
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
+from oacli.estimation.lost_inputs import bridge_accelerations, bridge_angular_accelerations
 from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.information import PARAM_NAMES

@@ -173,21 +173,6 @@ def truth_model(cfg: OacliConfig) -> RobotModel:
     return robot_model(cfg).with_estimate(theta_of(cfg.truth_params()), np.zeros((4, 4)))
 
 
-def tracking_limits(cfg: OacliConfig) -> MotionLimits:
-    """The tracking controllers' limits: the robot's actuators and flight mode (``robot``).
-
-    Parameters
-    ----------
-    cfg : OacliConfig
-        Resolved configuration.
-
-    Returns
-    -------
-    MotionLimits
-    """
-    return robot_model(cfg).limits
-
-
 def tracking_weights(cfg: OacliConfig) -> TrackingWeights:
     """The tracking controllers' weights (``controller.weights``).
 

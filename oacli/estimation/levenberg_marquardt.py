@@ -1,0 +1,84 @@
+"""Gauss-Newton with Levenberg-Marquardt damping for the batch problem ([Doerr2021] Eq. 32).
+
+Each iteration linearises ``b(ϑ)`` about ``ϑ̄`` and solves ``(AᵀA + λD) δϑ = −Aᵀb`` (block normal equations by
+default, the sparse reference path on request); a step that lowers the cost is taken and λ decreased, else λ is
+raised. See :mod:`oacli.estimation.batch` for the continuation and the tolerances.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from oacli.estimation.batch_normal import NormalEquations, ReferenceSystem
+from oacli.estimation.batch_problem import BatchProblem
+from oacli.estimation.manifold import (
+    TANGENT_DIM,
+    boxplus,
+)
+from oacli.estimation.models import EstimatorSettings
+
+LAMBDA_INIT = 1e-6
+LAMBDA_MAX = 1e12
+
+
+def linearise(
+    problem: BatchProblem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool
+) -> tuple[np.ndarray, NormalEquations | ReferenceSystem]:
+    """Residuals and the normal equations at (x, φ): block form (default) or the sparse reference path."""
+    if reference:
+        b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
+        return b, ReferenceSystem(b, a_mat)  # type: ignore[arg-type]
+    b, normal = problem.normal_equations(x, phi, inliers)
+    return b, normal  # type: ignore[return-value]
+
+
+def levenberg_marquardt(
+    problem: BatchProblem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, settings: EstimatorSettings,
+    history: list[float], reference: bool = False, lambda_init: float = LAMBDA_INIT,
+) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """Minimise ‖b‖² from (x, φ) starting with damping ``lambda_init``; returns the solution, the iterations done
+    and whether it converged."""
+    b, system = linearise(problem, x, phi, inliers, reference)
+    cost = float(b @ b)
+    history.append(cost)
+    lam = lambda_init
+    k = problem.k
+    for it in range(1, settings.max_iterations + 1):
+        h_diag = system.diagonal()
+        diag = np.maximum(h_diag, 1e-12 * max(h_diag.max(), 1.0))
+        retried = False
+        while True:
+            step = system.solve(lam * diag)
+            if step is None:
+                lam *= 10.0
+                if lam > LAMBDA_MAX:
+                    return x, phi, it, False
+                continue
+            x_new = boxplus(x, step[: TANGENT_DIM * k].reshape(k, TANGENT_DIM))
+            phi_new = phi + step[TANGENT_DIM * k:]
+            # The first trial of an iteration is linearised at once (it is nearly always taken); after a rejection
+            # the cost comes first, from the end states only, and the Jacobians only for a step that is taken.
+            cheap = retried and not reference
+            with np.errstate(all="ignore"):  # a wild trial step may overflow; it is then rejected below
+                if cheap:
+                    b_new = problem.jacobian_groups(x_new, phi_new, inliers, jacobian=False)[0]
+                else:
+                    b_new, system_new = linearise(problem, x_new, phi_new, inliers, reference)
+                cost_new = float(b_new @ b_new)
+            if np.isfinite(cost_new) and cost_new <= cost:
+                if cheap:
+                    b_new, system_new = linearise(problem, x_new, phi_new, inliers, reference)
+                    cost_new = float(b_new @ b_new)
+                break
+            retried = True
+            lam *= 10.0
+            if lam > LAMBDA_MAX:
+                return x, phi, it, True  # no descent left: at a minimum within rounding
+        decrease = (cost - cost_new) / max(cost, 1e-300)
+        step_size = float(np.max(np.abs(step)))
+        x, phi, b, system, cost = x_new, phi_new, b_new, system_new, cost_new
+        history.append(cost)
+        lam = max(lam / 10.0, 1e-15)
+        if decrease < settings.tolerance or step_size < settings.tolerance:
+            return x, phi, it, True
+    return x, phi, settings.max_iterations, False
