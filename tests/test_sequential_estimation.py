@@ -102,13 +102,13 @@ def test_offline_bootstrap_checks_hand_over_where_solving_every_check_does(monke
     previous solution is near the hand-over: the same hand-over record, the same statuses and the same final
     estimate (1e-7) as solving every check, with fewer batch solves; before the hand-over its estimate is the
     prior."""
-    import oacli.estimation.sequential as sequential
+    import oacli.estimation.bootstrap as bootstrap
 
     tel = simulate_open_loop(60, seed=seed)
     recs = records(tel)
     runs, solves = [], []
-    solve = sequential.estimate_batch
-    monkeypatch.setattr(sequential, "estimate_batch", lambda *a, **k: solves.append(1) or solve(*a, **k))
+    solve = bootstrap.estimate_batch
+    monkeypatch.setattr(bootstrap, "estimate_batch", lambda *a, **k: solves.append(1) or solve(*a, **k))
     for online in (True, False):
         est = SequentialEstimator(settings(), RATTLE_PRIOR, intermediate_estimates=online)
         solves.clear()

@@ -23,12 +23,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.excitation.information import MeasurementModel
+from oacli.types import ParameterEstimate
 
 __all__ = [
     "EstimatorSettings",
     "Measurement",
     "MeasurementModel",
     "ProcessNoise",
+    "SequentialStep",
     "measured_rows",
 ]
 
@@ -249,3 +251,33 @@ class EstimatorSettings:
             raise ValueError("gate_probability must be in (0, 1) or None")
         if self.max_iterations < 1 or self.max_gating_rounds < 1 or self.reorder_window < 0:
             raise ValueError("max_iterations and max_gating_rounds must be >= 1, reorder_window >= 0")
+
+
+@dataclass(frozen=True)
+class SequentialStep:
+    """What the filter did with one record.
+
+    Attributes
+    ----------
+    t : float
+        Record time [s].
+    status : str
+        ``"initialised"``, ``"accepted"``, ``"rejected"`` (χ² gate), ``"late"`` (time stamp before the last
+        processed one), ``"reinitialised"`` (state re-initialised after repeated rejections), ``"predicted"``
+        (input-only record: no measurement) or ``"segment"`` (state re-initialised after a gap in the inputs).
+    d2 : float
+        Normalised innovation squared ``νᵀ S⁻¹ ν`` (NaN when not computed).
+    dof : int
+        Innovation dimension.
+    estimate : ParameterEstimate
+        The parameter estimate after this record.
+    state : ndarray, shape (13,)
+        Filtered robot state after this record (NaN for a late record).
+    """
+
+    t: float
+    status: str
+    d2: float
+    dof: int
+    estimate: ParameterEstimate
+    state: np.ndarray

@@ -62,13 +62,13 @@ Usage (what an online planner does)::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
 
 from oacli.estimation import parametrization as par
-from oacli.estimation.batch import BatchResult, covariance_at, estimate_batch, extend_states
+from oacli.estimation.batch import BatchResult
+from oacli.estimation.bootstrap import handover_in_reach, solve_bootstrap
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.lost_inputs import (
     BRIDGE_FACTOR,
@@ -92,8 +92,8 @@ from oacli.estimation.manifold_one import (
     project_one,
     right_jacobian_inverse_one,
 )
-from oacli.estimation.models import EstimatorSettings, Measurement, measured_rows
-from oacli.estimation.preprocessing import ReorderBuffer, order_by_time
+from oacli.estimation.models import EstimatorSettings, Measurement, SequentialStep, measured_rows
+from oacli.estimation.preprocessing import ReorderBuffer
 from oacli.estimation.propagation import (
     TIME_TOL_S,
     dynamics_batch,
@@ -115,44 +115,10 @@ _POSTERIOR_ORDER = np.ix_(*(2 * [np.r_[_N:_N + TANGENT_DIM, TANGENT_DIM:_N]]))
 """Rows and columns of ``[x_k, φ]`` in the last step's ``[δx_{k-1}, δφ, δx_k]``."""
 _UNMEASURED_VARIANCE = 1.0  # initial variance of state components no sensor measures (gauge, see batch.py)
 _MAX_UPDATE_ITERATIONS = 5
-_HANDOVER_MARGIN = 1.15
-"""Offline bootstrap checks (:meth:`SequentialEstimator._near_handover`) are solved in full only when the covariance
-at the previous solution puts the largest ``std/|θ|`` within this factor of ``bootstrap_relative_std`` (its largest
-``std/|θ|`` was 8 % below to 6.5 % above the converged solve's on the default mission and two 12 s test runs)."""
 _STEP_TOL_PHI = 1e-6
 """The iterated update has converged when a step moves φ by less than this and (``_STEP_TOL_X``) the states by
 less than that (radians, metres, ...): the next step would be ~1e-10 (quadratic convergence)."""
 _STEP_TOL_X = 1e-6
-
-
-@dataclass(frozen=True)
-class SequentialStep:
-    """What the filter did with one record.
-
-    Attributes
-    ----------
-    t : float
-        Record time [s].
-    status : str
-        ``"initialised"``, ``"accepted"``, ``"rejected"`` (χ² gate), ``"late"`` (time stamp before the last
-        processed one), ``"reinitialised"`` (state re-initialised after repeated rejections), ``"predicted"``
-        (input-only record: no measurement) or ``"segment"`` (state re-initialised after a gap in the inputs).
-    d2 : float
-        Normalised innovation squared ``νᵀ S⁻¹ ν`` (NaN when not computed).
-    dof : int
-        Innovation dimension.
-    estimate : ParameterEstimate
-        The parameter estimate after this record.
-    state : ndarray, shape (13,)
-        Filtered robot state after this record (NaN for a late record).
-    """
-
-    t: float
-    status: str
-    d2: float
-    dof: int
-    estimate: ParameterEstimate
-    state: np.ndarray
 
 
 class SequentialEstimator:
@@ -558,17 +524,7 @@ class SequentialEstimator:
         n = len(self._boot)
         if not (force or self.intermediate_estimates or n >= self.bootstrap_max_records or self._near_handover()):
             return
-        init_phi, init_states = None, None
-        last = self._boot_last
-        if last is not None:  # warm start from the previous bootstrap solve
-            init_phi = last.phi
-            init_states = extend_states(last.states, self._boot, last.estimate.theta, self.settings.substep_s)
-        warm = init_phi is not None and not self.reference
-        result = estimate_batch(self._boot, self.settings, self.prior, initial_phi=init_phi,
-                                initial_states=init_states, warm_start=warm, reference=self.reference)
-        if warm and not result.converged:  # the warm start did not pay off: solve as before
-            result = estimate_batch(self._boot, self.settings, self.prior, initial_phi=init_phi,
-                                    initial_states=init_states)
+        result = solve_bootstrap(self._boot, self._boot_last, self.settings, self.prior, self.reference)
         self._boot_last = result
         est = result.estimate
         self._boot_estimate = ParameterEstimate(est.t, est.theta, est.covariance, "sequential", est.samples_used,
@@ -603,33 +559,9 @@ class SequentialEstimator:
         self._boot = None
 
     def _near_handover(self) -> bool:
-        """Whether the covariance of the records so far may be within reach of the hand-over (offline checks).
-
-        The batch covariance at a point it does not move (:func:`~oacli.estimation.batch.covariance_at`, no
-        iteration): the last full solve's states and φ, the new records' states propagated by
-        :func:`~oacli.estimation.batch.extend_states`; the prior mean and the measured states before the first full
-        solve. Its largest ``std/|θ|`` is within 8 % of the converged solve's (default mission, two test runs), for
-        about a tenth of its cost. A check whose largest ``std/|θ|`` exceeds :data:`_HANDOVER_MARGIN` times
-        ``bootstrap_relative_std`` cannot hand over and is not solved; any other is solved in full, so the hand-over
-        record is the one a full solve at every check finds unless the approximation is off by more than that
-        margin (the hand-over then comes a check later). A numerical failure or a singular covariance answers True:
-        the check is solved as before.
-        """
+        """Whether the records so far may be within reach of the hand-over (:func:`handover_in_reach`)."""
         assert self._boot is not None and self.bootstrap_relative_std is not None
-        try:
-            recs = order_by_time(self._boot).records
-            last = self._boot_last
-            if last is not None and last.states.shape[0] <= len(recs):
-                phi = last.phi
-                states = extend_states(last.states, recs, last.estimate.theta, self.settings.substep_s)
-            else:
-                phi = par.phi_from_theta(self.prior.theta)
-                states = np.array([r.x_measured for r in recs])
-            cov = covariance_at(recs, self.settings, self.prior, states, phi, self.prior.theta)
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError):  # e.g. no measured record yet
-            return True
-        ratio = np.sqrt(np.diag(cov)) / (self.bootstrap_relative_std * np.abs(par.theta_from_phi(phi)))
-        return not bool(np.all(np.isfinite(ratio))) or float(np.max(ratio)) <= _HANDOVER_MARGIN
+        return handover_in_reach(self._boot, self._boot_last, self.settings, self.prior, self.bootstrap_relative_std)
 
     def _predict_and_update(self, rec: Measurement) -> tuple[str, float, int]:
         """Predict to ``rec.t``, gate the innovation (χ², Mahalanobis d²) and update; returns (status, d², dof)."""
