@@ -1,4 +1,5 @@
-"""``oacli estimate``: inertial parameters from a tracking run (batch maximum likelihood or sequential EKF)."""
+"""``oacli estimate``: inertial parameters from a tracking run (batch maximum likelihood, sequential EKF, or the
+flight's recursive least squares)."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from oacli.commands.common import (
 )
 
 #: ``estimation.method``'s values (:data:`oacli.config.estimation.EstimationMethod`).
-METHODS = ("batch", "sequential")
+METHODS = ("batch", "sequential", "rls")
 
 ESTIMATE_TABLE = [
     "status", "method", "mass_kg", "inertia_kgm2", "std", "crb_std", "error_pct", "cov_reduction_pct",
@@ -44,8 +45,8 @@ def estimate(
     method: Annotated[
         str | None,
         typer.Option("--method", "-m", metavar=choice_metavar(METHODS), autocompletion=complete_choices(METHODS),
-                     help="batch (maximum likelihood over the run) or sequential (EKF); "
-                     "default: the config's estimation.method."),
+                     help="batch (maximum likelihood over the run), sequential (EKF) or rls (the flight's "
+                     "recursive least squares on accelerations); default: the config's estimation.method."),
     ] = None,
     allow_truncated: Annotated[
         bool,

@@ -17,7 +17,9 @@ from pydantic import Field, model_validator
 from pydantic_core import PydanticCustomError
 
 from oacli.config.fields import (
+    NonNegativeVector4,
     PositiveReal,
+    PositiveVector3,
     Real,
     Section,
     StrictInt,
@@ -25,7 +27,7 @@ from oacli.config.fields import (
 )
 from oacli.config.prior import RATTLE_PRIOR_THETA, RATTLE_PRIOR_VARIANCE, PriorConfig
 
-EstimationMethod = Literal["batch", "sequential"]
+EstimationMethod = Literal["batch", "sequential", "rls"]
 
 
 class MeasurementNoiseConfig(Section):
@@ -63,11 +65,35 @@ class ProcessNoiseConfig(Section):
     )
 
 
+class RlsConfig(Section):
+    """The flight's recursive least squares on accelerations ([ReSWARM2023] §4.4.1, §6.2.1; method ``rls``)."""
+
+    force_scale: PositiveVector3 = Field(
+        default=(1.0, 1.0, 1.0),
+        description="Per-body-axis force scale κ [-] calibrated on a run of the known robot ([ReSWARM2023] Eqs. "
+        "38-39; `oacli estimate --calibrate-force-scale MASS_KG` fits it); the estimator uses κ ⊙ F.",
+    )
+    calibration_mass_kg: PositiveReal | None = Field(
+        default=None,
+        description="Fit κ on the estimated telemetry itself first, with this known mass [kg], as the flight did "
+        "([ReSWARM2023] §6.2.1); null uses force_scale. Circular when the same run's mass is estimated: the mass "
+        "estimate then reflects the calibration mass.",
+    )
+    process_variance: NonNegativeVector4 = Field(
+        default=(0.0, 0.0, 0.0, 0.0),
+        description="Random-walk variance added to P per sample [kg², (kg·m²)² ×3] (RATTLE's Q; 0: constant θ).",
+    )
+
+
 class EstimationConfig(Section):
     """Inertial parameter estimation ([Doerr2021] Eqs. 31-32; [ReSWARM2023] §4.4.1, §6.2.1)."""
 
     method: EstimationMethod = Field(
-        default="batch", description="'batch' (maximum likelihood over the whole run) or 'sequential' (EKF)."
+        default="batch", description="'batch' (maximum likelihood over the whole run), 'sequential' (EKF) or "
+        "'rls' (the flight's recursive least squares on accelerations, [ReSWARM2023] §4.4.1).",
+    )
+    rls: Annotated[RlsConfig, none_to({})] = Field(
+        default_factory=RlsConfig, description="Method 'rls': force scale calibration and process noise."
     )
     prior: Annotated[PriorConfig, none_to({})] = Field(
         default_factory=PriorConfig, description="Prior on θ (also the starting point of the batch solver)."
@@ -138,4 +164,5 @@ __all__ = [
     "MeasurementNoiseConfig",
     "PriorConfig",
     "ProcessNoiseConfig",
+    "RlsConfig",
 ]

@@ -194,6 +194,10 @@ PositiveVector4 = Annotated[
     tuple[PositiveReal, PositiveReal, PositiveReal, PositiveReal], BeforeValidator(sequence_of(4))
 ]
 """Four positive numbers, one per parameter θ = [m, Ixx, Iyy, Izz]."""
+NonNegativeVector4 = Annotated[
+    tuple[NonNegativeReal, NonNegativeReal, NonNegativeReal, NonNegativeReal], BeforeValidator(sequence_of(4))
+]
+"""Four non-negative numbers, one per parameter θ = [m, Ixx, Iyy, Izz]."""
 NonNegativeVector3 = Annotated[
     tuple[NonNegativeReal, NonNegativeReal, NonNegativeReal], BeforeValidator(sequence_of(3))
 ]

@@ -60,7 +60,8 @@ import numpy as np
 from oacli.estimation.models import Measurement
 from oacli.model import quaternion as quat
 
-__all__ = ["AccelerometerFit", "ImuStream", "attach_accelerations", "fit_accelerometer_bias", "gyro_noise_variance"]
+__all__ = ["AccelerometerFit", "ImuStream", "attach_accelerations", "fit_accelerometer_bias", "gyro_noise_variance",
+           "gyro_slopes"]
 
 
 @dataclass(frozen=True)
@@ -245,6 +246,39 @@ def gyro_noise_variance(records: list[Measurement], imu: ImuStream, period_s: fl
     if dof < 10:
         return None
     return float(np.sum(rss[fit])) / dof
+
+
+def gyro_slopes(t_records: np.ndarray, imu: ImuStream) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gyro's least-squares rate slope ``ω̇`` over each interval between consecutive records ([Doerr2021]
+    Eq. 35b: with the torque held the rate is a line to within the gyroscopic term's change); a constant gyro bias
+    cancels in the slope.
+
+    Parameters
+    ----------
+    t_records : ndarray, shape (K,)
+        Strictly increasing record stamps [s].
+    imu : ImuStream
+
+    Returns
+    -------
+    slope : ndarray, shape (K - 1, 3)
+        ``ω̇`` per interval [rad/s²] (NaN with fewer than 3 readings).
+    s_ss : ndarray, shape (K - 1,)
+        ``Σ(t − t̄)²`` of the interval's reading stamps [s²]: the slope's variance is the gyro's noise variance
+        over it.
+    count : ndarray, shape (K - 1,)
+        Readings per interval.
+    """
+    t_rec = np.asarray(t_records, float)
+    t = np.asarray(imu.t, float)
+    groups = max(t_rec.size - 1, 0)
+    k = np.searchsorted(t_rec, t + 1e-9, side="right") - 1
+    ok = (k >= 0) & (k < groups)
+    n, s_ss, slope, _, _ = _line_sums(t[ok] - t_rec[k[ok]], np.asarray(imu.angular_rate_radps, float)[ok], k[ok],
+                                      groups)
+    few = n < 3
+    slope[few] = np.nan
+    return slope, np.where(few, np.nan, s_ss), n
 
 
 def _gyro_window(records: list[Measurement], j: int, lost: set[int], period_s: float) -> list[int]:

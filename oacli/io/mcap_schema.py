@@ -348,7 +348,7 @@ PARAMETER_ESTIMATE_SCHEMA: dict[str, Any] = {
     "type": "object",
     "properties": {
         "t": {**_RECORD_TIME, "description": "time of the last record used [s]"},
-        "method": {"type": "string", "description": "batch or sequential"},
+        "method": {"type": "string", "description": "batch, sequential or rls"},
         "mass_kg": {**_NUM, "description": "mass estimate [kg]"},
         "inertia_kgm2": {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3,
                          "description": "principal inertias Ixx, Iyy, Izz [kg·m²]"},

@@ -36,6 +36,7 @@ import numpy as np
 import yaml
 
 from oacli.config import OacliConfig
+from oacli.config.estimation import RlsConfig
 from oacli.errors import InfeasibleError, InputError
 from oacli.estimation.alignment import AlignmentReport, align_records
 from oacli.estimation.batch import UNIDENTIFIED_VARIANCE, BatchResult, estimate_batch_windows
@@ -54,6 +55,7 @@ from oacli.io.plots.estimate import write_estimate_plots
 from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
 from oacli.phases import set_phase
+from oacli.stages.estimate_rls import run_rls
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
 from oacli.status import StatusReport, status_log
 from oacli.types import ParameterEstimate
@@ -100,6 +102,8 @@ class EstimationRun:
         gyro's lost torque, or both; the summary's ``imu.gaps_bridged_gyro`` counts the gyro's).
     segment_restarts : int
         Sequential: gaps it could not bridge (the batch cuts them), where it re-initialised the robot state.
+    extras : dict or None
+        The method's own summary entries (``rls``: force scale and its calibration, infeasible updates).
     nis_ratio : float
         Sequential: mean normalised innovation squared of the filter's own updates over its expected value (its
         dimension); about 1 for a consistent filter, NaN when the filter made no update of its own.
@@ -133,6 +137,7 @@ class EstimationRun:
     gaps_bridged: int = 0
     gaps_bridged_imu: int = 0
     segment_restarts: int = 0
+    extras: dict[str, Any] | None = None
 
 
 def truth_from_config_yaml(text: str | None) -> np.ndarray | None:
@@ -151,6 +156,7 @@ def truth_from_config_yaml(text: str | None) -> np.ndarray | None:
 def run_estimation(
     records: list[Measurement], settings: EstimatorSettings, prior: ParameterEstimate, method: str, *,
     use_prior: bool = True, window_s: float = 10.0, progress: Callable[[float], None] | None = None,
+    rls: RlsConfig | None = None, imu: ImuStream | None = None, period_s: float | None = None,
 ) -> EstimationRun:
     """Run one estimator over time-ordered records and evaluate the Cramér-Rao bound along its estimate.
 
@@ -163,13 +169,19 @@ def run_estimation(
         ``N(θ₀, P₀)``: the sequential filter's initial state; the batch's starting point, and its prior when
         ``use_prior``.
     method : str
-        ``"batch"`` or ``"sequential"``.
+        ``"batch"``, ``"sequential"`` or ``"rls"``.
     use_prior : bool
         Batch only: include the prior in the likelihood.
     window_s : float
         Batch only: growing windows every ``window_s`` seconds (for the convergence record), then all records.
     progress : callable, optional
         Called with the completed fraction.
+    rls : RlsConfig, optional
+        Method ``rls``: force scale, calibration mass, process noise (default: :class:`RlsConfig`'s).
+    imu : ImuStream, optional
+        Method ``rls``: the telemetry's IMU (angular accelerations from the gyro).
+    period_s : float, optional
+        Method ``rls``: the control period [s].
     """
     start = time.perf_counter()
     t = np.array([r.t for r in records])
@@ -182,6 +194,7 @@ def run_estimation(
     nis_dof = 0
     bootstrap_unidentified = False
     gaps_bridged = gaps_bridged_imu = segment_restarts = 0
+    extras: dict[str, Any] | None = None
     if method == "batch":
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
         set_phase(progress, f"batch window 1/{len(ends)}")
@@ -229,8 +242,18 @@ def run_estimation(
             nis_dof = int(sum(s.dof for s in own))
         lost = ~np.all(np.isfinite(states), axis=1)  # input-only records after a gap: no state to report
         states[lost] = np.array([by_t[ti].x_measured for ti in t[lost]]).reshape(-1, 13)
+    elif method == "rls":
+        set_phase(progress, f"recursive least squares ({len(records)} records)")
+        flight = run_rls(records, settings, prior, rls or RlsConfig(), imu, period_s)
+        final, history, t, status, d2 = flight.final, flight.history, flight.t, flight.status, flight.d2
+        states = np.array([by_t[ti].x_measured for ti in t]).reshape(-1, 13)  # no state estimate: as measured
+        dof, threshold = 6, flight.gate_threshold
+        used = np.array([s == "accepted" for s in status])
+        nis_ratio, nis_dof, extras = flight.nis_ratio, flight.nis_dof, flight.summary
+        if progress is not None:
+            progress(1.0)
     else:
-        raise ValueError(f"unknown method {method!r} (batch or sequential)")
+        raise ValueError(f"unknown method {method!r} (batch, sequential or rls)")
     recs = [by_t[ti] for ti in t]
     u = np.array([r.u_applied for r in recs]).reshape(-1, 6)
     y = np.array([r.x_measured for r in recs]).reshape(-1, 13)
@@ -246,7 +269,7 @@ def run_estimation(
         reinitialisations=reinitialisations, solve_time_s=time.perf_counter() - start, segments=segments,
         nis_ratio=nis_ratio, nis_dof=nis_dof, bootstrap_unidentified=bootstrap_unidentified,
         gaps_bridged=gaps_bridged, gaps_bridged_imu=gaps_bridged_imu,
-        segment_restarts=segment_restarts,
+        segment_restarts=segment_restarts, extras=extras,
     )
 
 
@@ -318,6 +341,12 @@ def _estimate_summary(
         summary["nis_ratio"] = run.nis_ratio if np.isfinite(run.nis_ratio) else None
         summary["nis_expected"] = int(run.nis_dof)
         summary["bootstrap_unidentified"] = bool(run.bootstrap_unidentified)
+    if run.extras:
+        extras = dict(run.extras)
+        if extras.get("warnings"):
+            summary.setdefault("warnings", []).extend(extras["warnings"])
+        extras.pop("warnings", None)
+        summary.update(extras)
     notes = estimate_warnings(summary)
     if notes:
         summary.setdefault("warnings", []).extend(notes)
@@ -450,7 +479,7 @@ def run_estimate(
     telemetry : Path
         A ``track.mcap``.
     method : str, optional
-        ``"batch"`` or ``"sequential"`` (default: ``cfg.estimation.method``).
+        ``"batch"``, ``"sequential"`` or ``"rls"`` (default: ``cfg.estimation.method``).
     out : Path, optional
         Exact run folder (must not exist or be empty); otherwise ``runs_root/<name>-<UTC stamp>``.
     runs_root : Path
@@ -475,8 +504,8 @@ def run_estimate(
     wall_start = time.perf_counter()
     telemetry = Path(telemetry)
     method = method or cfg.estimation.method
-    if method not in ("batch", "sequential"):
-        raise InputError(f"--method {method}: must be batch or sequential")
+    if method not in ("batch", "sequential", "rls"):
+        raise InputError(f"--method {method}: must be batch, sequential or rls")
     streams = read_telemetry_streams(telemetry)
     if streams.truncated and not allow_truncated:
         raise InputError(f"{telemetry}: the file is truncated (cut at byte {streams.bytes_read} of "
@@ -499,7 +528,8 @@ def run_estimate(
     settings = estimator_settings(cfg)
     prior = estimation_prior(cfg)
     run = run_estimation(records, settings, prior, method, use_prior=cfg.estimation.use_prior,
-                         window_s=cfg.estimation.window_s, progress=progress)
+                         window_s=cfg.estimation.window_s, progress=progress, rls=cfg.estimation.rls,
+                         imu=_imu_stream(streams), period_s=alignment.control_period_s)
     limit = cfg.estimation.max_relative_std
     unobservable = unobservable_parameters(run.bound, run.final.theta, limit)
     if unobservable:
@@ -550,6 +580,13 @@ def run_estimate(
         if cfg.outputs.plots:
             write_estimate_plots(run_folder, summary, estimates=run.history, truth=truth, crb_std=run.bound.std)
         return run_folder.finish(summary)
+
+
+def _imu_stream(streams: TelemetryStreams) -> ImuStream | None:
+    """The telemetry's ``/imu`` readings, or None."""
+    if streams.t_imu is None or streams.imu is None or streams.t_imu.size == 0:
+        return None
+    return ImuStream(streams.t_imu, streams.imu[:, 0:3], streams.imu[:, 3:6])
 
 
 def _with_imu(cfg: OacliConfig, records: list[Measurement], streams: TelemetryStreams, period_s: float,
