@@ -42,7 +42,7 @@ def test_help_names_values_not_python_types(command):
     result = run_cli(*command, "--help")
     assert result.exit_code == 0, result.output
     assert not re.search(r"<(bool|str|int|float)>", result.output), result.output
-    expected = {"plan": "[lqr-rrt-star|kino-rrt]", "excite": "[offline|rattle]", "estimate": "[batch|sequential]"}
+    expected = {"plan": "[lqr-rrt-star|kino-rrt]", "excite": "[offline|rattle]", "estimate": "[batch|sequential|rls]"}
     if command and command[0] in expected:
         assert expected[command[0]] in result.output
 
