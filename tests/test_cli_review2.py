@@ -49,7 +49,7 @@ def test_help_names_values_not_python_types(command):
 
 def test_choices_complete_in_the_shell():
     assert complete_choices(plan_cmd.PLANNERS)("k") == ["kino-rrt"]
-    assert complete_choices(estimate_cmd.METHODS)("") == ["batch", "sequential"]
+    assert complete_choices(estimate_cmd.METHODS)("") == ["batch", "sequential", "rls"]
 
 
 @pytest.mark.parametrize("args,option", [(("plan", DOERR, "--planner", "rrt"), "--planner rrt"),
