@@ -12,9 +12,8 @@ with a recursive least-squares update that "resembles the update step of the Kal
 ``ψ = [1/m, 1/Ixx, 1/Iyy, 1/Izz]``, in which the force and torque are the regressors of the measured accelerations
 (``a = κ ⊙ F ψ₀``, ``α_i = ψ_i (τ_i − (ω × Jω)_i)``): linear but for the small gyroscopic term, whose Jacobian is
 taken at the current estimate. Written in θ instead, ``F/m`` is far from linear over a vague prior (15 kg² on a
-10 kg robot), and an extended update linearised at the prior's mass stays there with an overconfident covariance
-(on a 29 s excitation of a 15 kg payload from a 9.6 kg prior: 9.8 ± 0.9 kg in θ, against the truth within its σ
-in ψ). θ and its covariance are reported through ``θ = 1/ψ`` and ``∂θ/∂ψ = −diag(θ²)``; the prior is mapped the
+10 kg robot: σ is 40 % of the mean), so a first-order update at the prior's mass would be a poor model of it. θ and
+its covariance are reported through ``θ = 1/ψ`` and ``∂θ/∂ψ = −diag(θ²)`` (first order); the prior is mapped the
 same way. The covariance update uses Joseph's form so that ``P`` stays symmetric positive definite. A step whose
 normalised innovation ``d² = νᵀ S⁻¹ ν`` exceeds the χ² quantile with 6 degrees of freedom at the gate probability
 (0.99 in flight) is not applied ([ReSWARM2023] Eqs. 40-42). An update that would leave the physical set (mass ≤ 0,
