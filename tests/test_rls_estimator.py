@@ -208,6 +208,7 @@ def test_cli_rls_with_the_flight_imu_reports_the_rattle_table_columns(tmp_path):
         assert 90.0 < s["cov_reduction_pct"][name] < 100.0, name  # the flight table's column (99/68/49/25 %)
     assert 0.8 < s["nis_ratio"] < 1.25
     assert s["force_scale"] == [1.0, 1.0, 1.0] and s["infeasible_updates"] == 0
+    assert s["flight_rattle_table"]["cov_reduction_pct"] == [99.0, 68.0, 49.0, 25.0]
     params = read_stage(tmp_path / "rls" / "estimate.mcap").json_records["/estimate/params"]
     assert params[-1]["method"] == "rls" and params[-1]["final"]
     assert abs(params[-1]["mass_kg"] - s["mass_kg"]) < 1e-12

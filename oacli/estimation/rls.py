@@ -43,6 +43,8 @@ from oacli.model.quaternion import to_rotation_matrix
 from oacli.types import ParameterEstimate
 
 __all__ = [
+    "RATTLE_TABLE_COV_REDUCTION_PCT",
+    "RATTLE_TABLE_ERROR_PCT",
     "AccelerationSamples",
     "ForceScale",
     "RlsEstimator",
@@ -53,6 +55,11 @@ __all__ = [
 ]
 
 _MEAS_DIM = 6
+
+RATTLE_TABLE_ERROR_PCT: tuple[float, float, float, float] = (0.39, 0.91, 1.35, 6.92)
+"""The flight's estimation errors [%] of m, Ixx, Iyy, Izz ([ReSWARM2023] §6.2, RATTLE table)."""
+RATTLE_TABLE_COV_REDUCTION_PCT: tuple[float, float, float, float] = (99.0, 68.0, 49.0, 25.0)
+"""The flight's covariance reductions from the prior [%] of m, Ixx, Iyy, Izz ([ReSWARM2023] §6.2, RATTLE table)."""
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ matplotlib.use("Agg", force=True)
 
 import numpy as np
 
+from oacli.estimation.rls import RATTLE_TABLE_ERROR_PCT
 from oacli.io.plots.common import (
     AXES,
     decimate,
@@ -41,7 +42,7 @@ from oacli.mission.records import PARAMETERS, MissionRecords, load_mission_recor
 
 #: Relative estimation errors of the ReSWARM flight experiments [%] (issue 9; [ReSWARM2023] §6.3.1): mass, Ixx,
 #: Iyy, Izz.
-FLIGHT_ERROR_PCT: tuple[float, float, float, float] = (0.39, 0.91, 1.35, 6.92)
+FLIGHT_ERROR_PCT = RATTLE_TABLE_ERROR_PCT
 
 #: Matplotlib colours of the flights (segment 3 as [Doerr2021] Fig. 3(d): green, cyan, magenta).
 FLIGHT_COLORS: dict[str, str] = {

@@ -17,7 +17,13 @@ from oacli.errors import InputError
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.imu import ImuStream, gyro_noise_variance
 from oacli.estimation.models import EstimatorSettings, Measurement
-from oacli.estimation.rls import RlsEstimator, acceleration_samples, calibrate_force_scale
+from oacli.estimation.rls import (
+    RATTLE_TABLE_COV_REDUCTION_PCT,
+    RATTLE_TABLE_ERROR_PCT,
+    RlsEstimator,
+    acceleration_samples,
+    calibrate_force_scale,
+)
 from oacli.types import ParameterEstimate
 
 
@@ -117,6 +123,9 @@ def run_rls(records: list[Measurement], settings: EstimatorSettings, prior: Para
                        process_variance=np.array(config.process_variance, dtype=float))
     final = est.run(samples)
     summary["infeasible_updates"] = int(est.infeasible)
+    summary["flight_rattle_table"] = {"source": "[ReSWARM2023] §6.2, RATTLE table",
+                                      "error_pct": list(RATTLE_TABLE_ERROR_PCT),
+                                      "cov_reduction_pct": list(RATTLE_TABLE_COV_REDUCTION_PCT)}
     d2 = np.array([s.d2 for s in est.history])
     gate = settings.gate_probability
     return RlsRun(
