@@ -4,7 +4,9 @@
   ``summary.json``'s ``rms_/max_position_error_m`` (:func:`oacli.metrics.tracking_errors` at the plant samples), with
   the control instants (true state at exactly those times, :func:`oacli.metrics.true_states_at`) as dots;
 * ``inputs.png`` -- the applied force and torque per axis against the robot's limits;
-* ``top_view.png`` -- x-y: keep-in, keep-out (grown by the robot radius), reference and flown path.
+* ``views.png`` -- top, side and front views of the reference and the flown path, zoomed on the flown region, with
+  the keep-in boxes and the keep-out zones projected into each (grown by the robot radius, dashed), and a view that
+  shows the clearance where the axis views cannot (:mod:`oacli.io.plots.track_views`).
 """
 
 from __future__ import annotations
@@ -20,8 +22,6 @@ from oacli.geometry import Scene
 from oacli.io.plots.common import (
     RunFiles,
     decimate,
-    draw_scene,
-    finish_view,
     guarded_plots,
     legend_outside,
     log_scale,
@@ -30,6 +30,7 @@ from oacli.io.plots.common import (
     spans_decades,
     subplots,
 )
+from oacli.io.plots.track_views import plot_views
 from oacli.metrics import tracking_errors
 from oacli.model.limits import MotionLimits
 from oacli.types import Telemetry, Trajectory
@@ -92,19 +93,6 @@ def plot_tracking_error(path: Path, telemetry: Telemetry, reference: Trajectory)
     return series
 
 
-def plot_top_view(path: Path, scene: Scene | None, robot_radius_m: float, reference: Trajectory,
-                  telemetry: Telemetry) -> None:
-    """Draw ``top_view.png`` (module docstring)."""
-    fig, ax = subplots(figsize=(10, 7))
-    draw_scene(ax, scene, robot_radius_m)
-    ax.plot(*decimate(reference.x[:, 0], reference.x[:, 1]), "--", color="0.3", lw=1.2, label="reference")
-    ax.plot(*decimate(telemetry.x_true[:, 0], telemetry.x_true[:, 1]), color="tab:blue", lw=1.6, label="flown (true)")
-    ax.plot(*telemetry.x_true[0, 0:2], "ko", ms=6, label="start")
-    ax.plot(*reference.x[-1, 0:2], "k^", ms=8, label="reference end")
-    finish_view(ax, (0, 1), "Top view (x-y)")
-    save_png(fig, path)
-
-
 def track_figures(*, telemetry: Telemetry, reference: Trajectory, limits: MotionLimits, scene: Scene | None,
                   robot_radius_m: float) -> dict[str, Callable[[Path], object]]:
     """The ``track`` stage's figures, name -> function drawing it to a path (shared by the stage and by
@@ -127,7 +115,7 @@ def track_figures(*, telemetry: Telemetry, reference: Trajectory, limits: Motion
         "tracking_error": lambda p: plot_tracking_error(p, telemetry, reference),
         "inputs": lambda p: plot_inputs(p, telemetry.t_ctrl, telemetry.u_applied, limits.force_N, limits.torque_Nm,
                                         "Applied inputs against the robot's limits"),
-        "top_view": lambda p: plot_top_view(p, scene, robot_radius_m, reference, telemetry),
+        "views": lambda p: plot_views(p, scene, robot_radius_m, reference, telemetry),
     }
 
 
