@@ -150,6 +150,6 @@ def test_far_keep_out_is_left_out_and_clearance_panel_reads_the_distance(monkeyp
     scene = Scene(keep_out=(near, far))
     path = np.column_stack([np.linspace(-1, 1, 201), np.full(201, 0.5), np.zeros(201)])
     panels, drawn = _drawn_panels(monkeypatch, tmp_path, scene, path, robot_radius_m=0.1)
-    assert drawn.zones == [near]
+    assert drawn.zones == [near] and len(panels) == 3  # the path clears in 3-D and in the top view: no 4th view
     # closest approach: the point (0, 0.5, 0), 0.2 m from the sphere's surface, minus the robot radius 0.1 m
     assert drawn.clearance_m is not None and drawn.clearance_m.min() == pytest.approx(0.1, abs=1e-9)

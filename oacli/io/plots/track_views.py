@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.patches import Ellipse, Polygon
 from scipy.spatial import ConvexHull, QhullError
 
@@ -63,7 +64,7 @@ def _limits(view: View, region_m: np.ndarray, zones: list[Ellipsoid], grow_m: fl
     return np.array([lo - pad, hi + pad])
 
 
-def _draw_view(ax: object, view: View, scene: Scene | None, zones: list[Ellipsoid], robot_radius_m: float,
+def _draw_view(ax: Axes, view: View, scene: Scene | None, zones: list[Ellipsoid], robot_radius_m: float,
                reference: Trajectory, flown_m: np.ndarray, region_m: np.ndarray) -> None:
     from oacli.io.plots.views import shadow_ellipse
 
