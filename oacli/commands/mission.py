@@ -122,7 +122,13 @@ def mission(
             if from_stage is not None:
                 copy_stages_before(target, mission_dir, cfg, from_stage)
         say = (lambda line: typer.echo(line, err=True)) if not (quiet or json_out) else None
-        return run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
+        result = run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
+        from oacli.mission.foxglove import write_mission_mcap
+
+        if say:
+            say("writing mission.mcap (every stage on the mission clock, for Foxglove: docs/foxglove/mission.json)")
+        write_mission_mcap(result.run_dir, result.summary)
+        return result
 
     result = run_guarded(action)
     warning = warning_line(result.summary)

@@ -6,7 +6,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 from foxglove.channels import LogChannel, PoseInFrameChannel, SceneUpdateChannel
@@ -64,6 +64,11 @@ ROBOT_BODY_EDGE_M = 0.30
 #: Highest rate of the robot body's ``/scene`` updates [Hz] (a 3D panel needs no more; keeps files small).
 ROBOT_BODY_RATE_HZ = 10.0
 #: Path colours in order (reference blue, actual orange, then green, purple, brown, pink, grey, olive).
+#: Planner tree edges (grey), tube cross-sections (purple wireframe) and the current cross-section (translucent).
+_TREE_COLOR = (0.45, 0.45, 0.45, 0.6)
+_TUBE_COLOR = (0.58, 0.4, 0.74, 0.5)
+_TUBE_NOW_COLOR = (0.58, 0.4, 0.74, 0.25)
+_IDENTITY = (0.0, 0.0, 0.0, 1.0)
 _PATH_PALETTE = (
     (0.12, 0.47, 0.71, 1.0),
     (1.0, 0.5, 0.05, 1.0),
@@ -270,3 +275,97 @@ class SceneWrites(WriterCore):
         msg = Log(timestamp=_timestamp(ns[0]), level=log_level, message=str(message), name=self.stage)
         self._emit([(ns[0], self._typed_emitter(channel), msg)])
 
+
+    def write_plan_tree(self, edges: Sequence[np.ndarray], in_path: Sequence[bool] | np.ndarray, *, t: float = 0.0,
+                        max_points_per_edge: int = 12, topic: str = ms.TOPIC_SCENE) -> None:
+        """Write a planner's final tree on ``/scene`` as entity ``plan/tree``: one ``LINE_LIST`` of every edge's
+        polyline (each node's incoming edge, thinned evenly to at most ``max_points_per_edge`` points), grey, and
+        the edges on the solution path as a second, thicker ``LINE_LIST`` in the path colour.
+
+        Parameters
+        ----------
+        edges : sequence of ndarray, shape (M_i, 3)
+            Each node's incoming edge as positions [m] (the root's is empty or one point).
+        in_path : sequence of bool
+            Per node: its edge is on the solution path.
+        t : float
+            Time of the update [s].
+        max_points_per_edge : int
+            Points kept per edge (>= 2).
+        topic : str
+            Topic name.
+        """
+        _, ns = _times_ns(topic, t)
+        lines = []
+        for on_path, color, thickness in ((False, _TREE_COLOR, 1.0), (True, _PATH_PALETTE[1], 3.0)):
+            points: list[Point3] = []
+            for edge, flag in zip(edges, in_path, strict=True):
+                pts = np.asarray(edge, dtype=float).reshape(-1, 3)
+                if len(pts) < 2 or bool(flag) != on_path or not np.all(np.isfinite(pts)):
+                    continue
+                keep = np.unique(np.linspace(0, len(pts) - 1, max(2, int(max_points_per_edge))).round().astype(int))
+                seg = pts[keep]
+                for a, b in zip(seg[:-1].tolist(), seg[1:].tolist(), strict=True):
+                    points += [Point3(x=a[0], y=a[1], z=a[2]), Point3(x=b[0], y=b[1], z=b[2])]
+            if points:
+                lines.append(LinePrimitive(type=LinePrimitiveLineType.LineList, pose=_pose((0.0, 0.0, 0.0), _IDENTITY),
+                                           thickness=thickness, scale_invariant=True, points=points,
+                                           color=_color(color)))
+        meta = [KeyValuePair(key="kind", value="planner tree (each node's incoming edge)"),
+                KeyValuePair(key="nodes", value=str(len(edges))),
+                KeyValuePair(key="edges_in_path", value=str(int(np.count_nonzero(np.asarray(in_path, dtype=bool)))))]
+        entity = SceneEntity(timestamp=_timestamp(ns[0]), frame_id=self.frame, id="plan/tree", metadata=meta,
+                             lines=lines)
+        channel = self._typed_channel(topic, SceneUpdateChannel, "foxglove.SceneUpdate")
+        self._emit([(ns[0], self._typed_emitter(channel), SceneUpdate(entities=[entity]))])
+
+    def write_tube_sections(self, t: np.ndarray, center_m: np.ndarray, extent_m: np.ndarray, *,
+                            topic: str = ms.TOPIC_SCENE) -> None:
+        """Write the tube MPC's position tube on ``/scene``: entity ``tube/sections`` at ``t[0]``, a ``LINE_LIST``
+        of the 12 edges of every step's cross-section box (the nominal position ``z`` plus Z's position extent), and
+        entity ``tube/now``, the current cross-section as a translucent ``CubePrimitive``, one update per step.
+
+        Parameters
+        ----------
+        t : ndarray, shape (K,)
+            Controller step times [s], strictly increasing.
+        center_m : ndarray, shape (K, 3)
+            Nominal positions ``z`` [m].
+        extent_m : ndarray, shape (K, 3, 2)
+            Z's position extent per axis ``[−min, max]`` [m] in use at each step.
+        topic : str
+            Topic name.
+        """
+        times, ns = _times_ns(topic, t)
+        k = times.shape[0]
+        centre = _finite_array(f"{topic}: tube centre", center_m, (k, 3))
+        ext = np.asarray(extent_m, dtype=float).reshape(k, 3, 2)
+        if k == 0:
+            return
+        lower, upper = centre - ext[:, :, 0], centre + ext[:, :, 1]
+        corners = np.stack([np.where(np.array(bits, dtype=bool), upper, lower)
+                            for bits in np.ndindex(2, 2, 2)], axis=1)  # (K, 8, 3), corner index = 4 bx + 2 by + bz
+        pairs = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]  # the 12 edges
+        segs = corners[:, [p for pair in pairs for p in pair], :].reshape(-1, 3).tolist()
+        section_lines = LinePrimitive(type=LinePrimitiveLineType.LineList, pose=_pose((0.0, 0.0, 0.0), _IDENTITY),
+                                      thickness=1.0, scale_invariant=True, color=_color(_TUBE_COLOR),
+                                      points=[Point3(x=x, y=y, z=z) for x, y, z in segs])
+        meta = [KeyValuePair(key="kind", value="tube cross-sections (z + Z's position extent per step)"),
+                KeyValuePair(key="steps", value=str(k))]
+        stamp = _timestamp(ns[0])
+        sections = SceneEntity(timestamp=stamp, frame_id=self.frame, id="tube/sections", metadata=meta,
+                               lines=[section_lines])
+        channel = self._typed_channel(topic, SceneUpdateChannel, "foxglove.SceneUpdate")
+        emit, frame = self._typed_emitter(channel), self.frame
+        centres, sizes = (0.5 * (lower + upper)).tolist(), (upper - lower).tolist()
+        now_meta = [KeyValuePair(key="kind", value="tube cross-section at this step")]
+
+        def messages() -> Iterator[_Pending]:
+            yield ns[0], emit, SceneUpdate(entities=[sections])
+            for i, log_time in enumerate(ns):
+                cube = CubePrimitive(pose=_pose(centres[i], _IDENTITY), size=_vec3(sizes[i]),
+                                     color=_color(_TUBE_NOW_COLOR))
+                yield log_time, emit, SceneUpdate(entities=[SceneEntity(
+                    timestamp=_timestamp(log_time), frame_id=frame, id="tube/now", metadata=now_meta, cubes=[cube])])
+
+        self._emit(messages())
