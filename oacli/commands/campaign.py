@@ -68,6 +68,9 @@ def campaign(
         _rerun(list(rest or []), out, quiet, json_out)
         return
     say = (lambda line: typer.echo(line, err=True)) if not quiet else None
+    from oacli.commands.progress import CampaignProgress
+
+    bar = CampaignProgress(not quiet, workers=workers)
 
     def action():
         from oacli.campaign.driver import load_campaign, prepare, run_campaign
@@ -100,8 +103,9 @@ def campaign(
         cfg = load_existing(folder).config
         handle = make_executor(executor, workers, memory_limit_mb=cfg.memory_limit_mb)
         try:
-            run_campaign(folder, handle, announce=say)
+            run_campaign(folder, handle, announce=bar.line if say else None, progress=bar)
         finally:
+            bar.close()
             handle.close()
         return folder, finalize(folder, wall_time_s=time.perf_counter() - start, executor=handle.kind)
 
