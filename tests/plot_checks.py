@@ -5,5 +5,5 @@ PNGS = {
     "plan": ("top_view.png", "side_view.png"),
     "smooth": ("top_view.png", "side_view.png"),
     "excite": ("information.png", "inputs.png"),
-    "estimate": ("convergence.png",),
+    "estimate": ("convergence.png", "innovation.png"),
 }

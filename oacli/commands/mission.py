@@ -61,6 +61,42 @@ def print_mission_tables(summary: dict[str, Any]) -> None:
             typer.echo(f"  {row['label']:<{label_w}}  " + "  ".join(cells))
 
 
+#: Width of the mission's final warning lines (wrapped, one finding a line).
+WARNING_WIDTH = 110
+
+
+def warning_lines(summary: dict[str, Any]) -> list[str]:
+    """The mission's final warning on stderr: a headline naming the status and how many findings, then one wrapped
+    line per finding (``- <stage key>: <what happened>``) instead of one line joining them all; [] for ``ok``.
+
+    Parameters
+    ----------
+    summary : dict
+        The mission's summary (``status``, ``status_reasons``).
+
+    Returns
+    -------
+    list of str
+    """
+    import textwrap
+
+    from oacli.status import warning_line
+
+    status = summary.get("status", "ok")
+    reasons = [r.get("message", "") if isinstance(r, dict) else str(r) for r in summary.get("status_reasons", ())]
+    if status == "ok":
+        return []
+    if not reasons:
+        line = warning_line(summary)
+        return [] if line is None else [line]
+    lines = [f"warning: mission status {status}: {len(reasons)} finding{'s' if len(reasons) != 1 else ''} "
+             "(each stage's summary.json has the details):"]
+    for text in reasons:
+        lines += textwrap.wrap(text, WARNING_WIDTH, initial_indent="  - ", subsequent_indent="    ",
+                               break_on_hyphens=False) or ["  -"]
+    return lines
+
+
 def mission(
     target: Annotated[
         Path, typer.Argument(metavar="TARGET", help="A mission config (YAML with a mission section, see "
@@ -84,7 +120,7 @@ def mission(
 ) -> None:
     """Fly the assembly mission A → B → C → A: plan, smooth, track (segment 1); excite, tube MPC, estimate
     (segment 2); plan, smooth, tube MPC with the learned model and the two baselines (segment 3)."""
-    from oacli.status import exit_code, warning_line
+    from oacli.status import exit_code
 
     def action():
         from oacli.config import load_config
@@ -131,9 +167,8 @@ def mission(
         return result
 
     result = run_guarded(action)
-    warning = warning_line(result.summary)
-    if warning is not None:
-        typer.echo(warning, err=True)
+    for line in warning_lines(result.summary):
+        typer.echo(line, err=True)
     if json_out:
         typer.echo(json_text({**result.summary, "run_dir": str(result.run_dir)}))
     elif not quiet:

@@ -79,12 +79,15 @@ def plot_tracking_error(path: Path, telemetry: Telemetry, reference: Trajectory)
     ax.plot(*decimate(dense.t, dense.position_m), color="tab:blue", lw=1.2,
             label=f"plant samples (RMS {1e3 * rms:.3g} mm, max {1e3 * dense.position_m.max():.3g} mm)")
     ax.plot(*decimate(ctrl.t, ctrl.position_m), ".", color="tab:orange", ms=3, label="control instants")
-    ax.set_ylabel("position error [m]")
-    if spans_decades(dense.position_m, 3.0):
+    log = spans_decades(dense.position_m, 3.0)  # both panels on the same kind of axis
+    ax.set_ylabel("position error [m]" + (", log" if log else ""))
+    if log:
         log_scale(ax)
     ax.set_title("‖r − r_ref‖, true state against the reference at equal times", loc="left", fontsize="medium")
     ax_att.plot(*decimate(dense.t, np.degrees(dense.attitude_rad)), color="tab:purple", lw=1.2, label="attitude error")
-    ax_att.set_ylabel("attitude error [deg]")
+    ax_att.set_ylabel("attitude error [deg]" + (", log" if log else ""))
+    if log:
+        log_scale(ax_att)
     ax_att.set_xlabel("time [s]")
     for a in (ax, ax_att):
         a.grid(True, alpha=0.3, which="both")
