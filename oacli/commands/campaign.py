@@ -47,7 +47,7 @@ def _rerun(args: list[str], out: Path | None, quiet: bool, json_out: bool) -> No
 def campaign(
     target: Annotated[str, typer.Argument(metavar="CONFIG|DIR|rerun", help="A campaign config (configs/campaign_"
                                           "*.yaml); a campaign folder with --resume; or 'rerun' DIR K.")],
-    rest: Annotated[list[str] | None, typer.Argument(metavar="[DIR K]", help="With 'rerun': the campaign folder "
+    rest: Annotated[list[str] | None, typer.Argument(metavar="DIR K", help="With 'rerun': the campaign folder "
                                                      "and the run index.")] = None,
     executor: Annotated[str, typer.Option("--executor", metavar="serial|local|dask-local|dask://HOST:PORT",
                                           help="Where runs execute.")] = "local",

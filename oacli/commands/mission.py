@@ -61,6 +61,14 @@ def print_mission_tables(summary: dict[str, Any]) -> None:
             typer.echo(f"  {row['label']:<{label_w}}  " + "  ".join(cells))
 
 
+def complete_stage(incomplete: str) -> list[str]:
+    """Shell completion of ``--from``: the mission's stage keys (``segment-3/track``, ...) starting with what was
+    typed."""
+    from oacli.mission.layout import MISSION_STAGES
+
+    return [s.key for s in MISSION_STAGES if s.key.startswith(incomplete)]
+
+
 #: Width of the mission's final warning lines (wrapped, one finding a line).
 WARNING_WIDTH = 110
 
@@ -114,7 +122,8 @@ def mission(
                            "rerun the rest in place.")
     ] = False,
     from_stage: Annotated[
-        str | None, typer.Option("--from", metavar="STAGE", help="TARGET is a mission folder: rerun from this "
+        str | None, typer.Option("--from", metavar="STAGE", autocompletion=complete_stage,
+                                 help="TARGET is a mission folder: rerun from this "
                                  "stage (e.g. segment-3/track) into a new folder, copying the earlier stages' folders.")
     ] = None,
 ) -> None:
