@@ -43,11 +43,12 @@ from oacli.io.mcap_write_core import (  # noqa: F401  # re-exported: names the s
     _NS_PER_S,
     DEFAULT_CHUNK_SIZE,
     ZSTD_LEVEL,
+    EncodedRows,
     _SpoolFile,
     _time_ns,
     _times_ns,
 )
-from oacli.io.mcap_write_records import EncodedRows, RecordWrites
+from oacli.io.mcap_write_records import RecordWrites
 from oacli.io.mcap_write_scene import ROBOT_BODY_EDGE_M, ROBOT_BODY_RATE_HZ, SceneWrites
 from oacli.signals import held
 

@@ -16,7 +16,7 @@ import os
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from operator import itemgetter
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import foxglove
 import numpy as np
@@ -25,9 +25,6 @@ from foxglove.messages import Color, Log, Pose, Quaternion, Timestamp, Vector3
 from oacli.io import mcap_memo
 from oacli.io.atomic import WriteError, describe_os_error
 from oacli.signals import PENDING, held, interruption_point
-
-if TYPE_CHECKING:
-    from oacli.io.mcap_write_records import EncodedRows
 
 #: Target uncompressed chunk size [bytes]; a hard crash loses at most the chunk being filled.
 DEFAULT_CHUNK_SIZE = 256 * 1024
@@ -194,6 +191,53 @@ def _in_time_order(messages: list[_Pending]) -> bool:
         return True
     times = list(map(_time_of, messages))
     return times == sorted(times)
+
+
+class EncodedRows:
+    """The JSON payloads of a writer's sample records (``write_states``, ``write_wrenches``) kept with their rows,
+    by topic, so that a second file writing the same rows on the same topic takes them instead of encoding again
+    (:meth:`StageMcapWriter.keep_encoded`, :meth:`StageMcapWriter.reuse_encoded`: the ``track`` stage's journal and
+    its complete file, :mod:`oacli.stages.track_journal`).
+
+    A topic's payloads are reused only when the rows written equal, value for value and in order, every row kept
+    for that topic and record template, and every one of them was encoded (a queue dropped by an exception leaves
+    rows without payloads): the bytes written are then exactly those encoding would give.
+    """
+
+    def __init__(self) -> None:
+        # (topic, template) -> (row blocks as written, payloads in the same order)
+        self._parts: dict[tuple[str, str], tuple[list[np.ndarray], list[bytes]]] = {}
+
+    def keep(self, topic: str, template: str, rows: np.ndarray) -> list[bytes]:
+        """Record ``rows`` of ``topic``; returns the list their payloads are to be appended to, in order."""
+        blocks, payloads = self._parts.setdefault((topic, template), ([], []))
+        blocks.append(rows)
+        return payloads
+
+    def payloads(self, topic: str, template: str, rows: np.ndarray) -> list[bytes] | None:
+        """The payloads of ``rows`` on ``topic`` when they are exactly the rows kept (else None).
+
+        Parameters
+        ----------
+        topic : str
+            Topic name.
+        template : str
+            The record template (:data:`oacli.io.mcap_schema.TRAJECTORY_SAMPLE_TEMPLATE`, ...).
+        rows : ndarray, shape (N, k)
+            The rows about to be written.
+
+        Returns
+        -------
+        list of bytes or None
+        """
+        parts = self._parts.get((topic, template))
+        if parts is None:
+            return None
+        blocks, payloads = parts
+        if len(payloads) != rows.shape[0] or sum(b.shape[0] for b in blocks) != rows.shape[0]:
+            return None
+        kept = blocks[0] if len(blocks) == 1 else np.vstack(blocks)
+        return payloads if np.array_equal(kept, rows) else None
 
 
 class WriterCore:

@@ -1,6 +1,6 @@
 """oacli's JSON records of :class:`oacli.io.mcap_write.StageMcapWriter`: sample records (``oacli.TrajectorySample``,
 ``oacli.Wrench``), solver statistics and stage-specific JSON records (``docs/mcap.md``), and the reuse of encoded
-sample payloads by a second file (:class:`EncodedRows`).
+sample payloads by a second file (:class:`oacli.io.mcap_write_core.EncodedRows`).
 """
 
 from __future__ import annotations
@@ -15,58 +15,11 @@ import numpy as np
 
 from oacli.io import mcap_schema as ms
 from oacli.io.jsonsafe import to_json_safe
-from oacli.io.mcap_write_core import WriterCore, _finite_array, _ms_or_none, _Pending, _time_ns
+from oacli.io.mcap_write_core import EncodedRows, WriterCore, _finite_array, _ms_or_none, _Pending, _time_ns
 from oacli.types import INPUT_DIM, STATE_DIM, SolveInfo, Trajectory
 
 #: The JSON encoder of :meth:`StageMcapWriter.write_json` (``json.dumps(..., allow_nan=False)`` builds one per call).
 _JSON = json.JSONEncoder(allow_nan=False)
-
-class EncodedRows:
-    """The JSON payloads of a writer's sample records (``write_states``, ``write_wrenches``) kept with their rows,
-    by topic, so that a second file writing the same rows on the same topic takes them instead of encoding again
-    (:meth:`StageMcapWriter.keep_encoded`, :meth:`StageMcapWriter.reuse_encoded`: the ``track`` stage's journal and
-    its complete file, :mod:`oacli.stages.track_journal`).
-
-    A topic's payloads are reused only when the rows written equal, value for value and in order, every row kept
-    for that topic and record template, and every one of them was encoded (a queue dropped by an exception leaves
-    rows without payloads): the bytes written are then exactly those encoding would give.
-    """
-
-    def __init__(self) -> None:
-        # (topic, template) -> (row blocks as written, payloads in the same order)
-        self._parts: dict[tuple[str, str], tuple[list[np.ndarray], list[bytes]]] = {}
-
-    def keep(self, topic: str, template: str, rows: np.ndarray) -> list[bytes]:
-        """Record ``rows`` of ``topic``; returns the list their payloads are to be appended to, in order."""
-        blocks, payloads = self._parts.setdefault((topic, template), ([], []))
-        blocks.append(rows)
-        return payloads
-
-    def payloads(self, topic: str, template: str, rows: np.ndarray) -> list[bytes] | None:
-        """The payloads of ``rows`` on ``topic`` when they are exactly the rows kept (else None).
-
-        Parameters
-        ----------
-        topic : str
-            Topic name.
-        template : str
-            The record template (:data:`oacli.io.mcap_schema.TRAJECTORY_SAMPLE_TEMPLATE`, ...).
-        rows : ndarray, shape (N, k)
-            The rows about to be written.
-
-        Returns
-        -------
-        list of bytes or None
-        """
-        parts = self._parts.get((topic, template))
-        if parts is None:
-            return None
-        blocks, payloads = parts
-        if len(payloads) != rows.shape[0] or sum(b.shape[0] for b in blocks) != rows.shape[0]:
-            return None
-        kept = blocks[0] if len(blocks) == 1 else np.vstack(blocks)
-        return payloads if np.array_equal(kept, rows) else None
-
 
 class RecordWrites(WriterCore):
     """The oacli record writers of :class:`oacli.io.mcap_write.StageMcapWriter`."""
