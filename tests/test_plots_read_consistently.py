@@ -5,6 +5,7 @@ axis. Each read back from the drawn figure before it is saved."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import matplotlib.colors as mcolors
 import numpy as np
@@ -112,3 +113,13 @@ def test_stage_error_panels_share_one_axis_kind(monkeypatch, tmp_path):
     (fig,) = figures
     assert [ax.get_yscale() for ax in fig.axes] == ["log", "log"]
     assert all(ax.get_ylabel().endswith(", log") for ax in fig.axes)
+    # an attitude error of exactly zero has nothing to show on a log axis: linear, and said so (no "log" label)
+    x_true = x_true.copy()
+    x_true[:, 6], x_true[:, 9] = 0.0, 1.0
+    telemetry = Telemetry(t_true=t, x_true=x_true, t_ctrl=t[k], x_measured=x_true[k], x_reference=x_ref[k],
+                          u_command=u[k], u_applied=u[k], solve_info=(), disturbance=u[k])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        track_plots.plot_tracking_error(tmp_path / "e0.png", telemetry, reference)
+    assert [ax.get_yscale() for ax in figures[-1].axes] == ["log", "linear"]
+    assert not figures[-1].axes[1].get_ylabel().endswith(", log")

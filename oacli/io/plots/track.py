@@ -85,8 +85,10 @@ def plot_tracking_error(path: Path, telemetry: Telemetry, reference: Trajectory)
         log_scale(ax)
     ax.set_title("‖r − r_ref‖, true state against the reference at equal times", loc="left", fontsize="medium")
     ax_att.plot(*decimate(dense.t, np.degrees(dense.attitude_rad)), color="tab:purple", lw=1.2, label="attitude error")
-    ax_att.set_ylabel("attitude error [deg]" + (", log" if log else ""))
-    if log:
+    att = np.degrees(dense.attitude_rad)
+    log_att = log and bool(np.any(np.isfinite(att) & (att > 0)))  # a log axis needs a positive value to show
+    ax_att.set_ylabel("attitude error [deg]" + (", log" if log_att else ""))
+    if log_att:
         log_scale(ax_att)
     ax_att.set_xlabel("time [s]")
     for a in (ax, ax_att):
