@@ -45,6 +45,7 @@ def test_campaign_bar_shows_runs_and_eta_from_the_start(monkeypatch):
     monkeypatch.setattr(progress_module.time, "perf_counter", clock)
     bar = CampaignProgress(True, workers=2)
     bar.tty = True  # the rich bar, as on a terminal
+    clock.now += 50.0  # preparing the run configs: not a run's time
     bar(0, 4)
     fields = bar._bar.tasks[0].fields
     assert fields == {"runs": "0/4 runs", "eta": "estimating…"}  # shown before any run ends

@@ -146,6 +146,8 @@ class CampaignProgress:
         """Runs ``done`` of ``total`` have ended (``done = 0``: the campaign starts)."""
         if not self.enabled:
             return
+        if int(done) == 0 and self.done == 0:  # the runs start now: the ETA's clock (preparing them is not a run)
+            self.start = time.perf_counter()
         self.done, self.total = int(done), int(total)
         if self.tty:
             if self._bar is None:
@@ -154,8 +156,9 @@ class CampaignProgress:
                     TextColumn("ETA {task.fields[eta]}"), console=Console(stderr=True), transient=False,
                     refresh_per_second=2,
                 )
+                self._task = self._bar.add_task("campaign", total=max(self.total, 1),
+                                                runs=f"{self.done}/{self.total} runs", eta=self._eta_text())
                 self._bar.start()
-                self._task = self._bar.add_task("campaign", total=max(self.total, 1), runs="", eta="")
             self._refresh()
             if self.done >= self.total:
                 self.close()
