@@ -31,6 +31,44 @@ from oacli.commands.track import track
 
 hide_flag_types()  # no '<bool>' after flags in --help
 
+
+def plain_help_metavars() -> None:
+    """``--help`` in the usual Unix style (issue 33): a required argument is ``CONFIG`` in the usage line, not
+    ``{CONFIG}``; arguments show their metavar and no ``<path>`` / ``<str>`` tag beside it; an option without a
+    metavar shows its type in capitals (``INT``, ``TEXT``, ``PATH``) instead of ``<int>``, ``<str>``.
+
+    Wraps typer's ``TyperArgument._usage_display_name`` / ``display_type_rich`` and ``TyperOption.display_type_rich``
+    (typer 0.2x); a no-op for what a typer release no longer has.
+    """
+    from typer.core import TyperArgument, TyperOption
+
+    usage = getattr(TyperArgument, "_usage_display_name", None)
+    if usage is not None and not getattr(usage, "_oacli_plain", False):
+        def usage_display_name(self):  # type: ignore[no-untyped-def]
+            name = usage(self)
+            if self.required and name.startswith("{"):
+                name = name[1:].replace("}", "", 1)
+            return name
+
+        usage_display_name._oacli_plain = True  # type: ignore[attr-defined]
+        TyperArgument._usage_display_name = usage_display_name  # type: ignore[method-assign]
+    if hasattr(TyperArgument, "display_type_rich"):
+        TyperArgument.display_type_rich = lambda self, ctx: None  # type: ignore[method-assign]
+    option_type = getattr(TyperOption, "display_type_rich", None)
+    if option_type is not None and not getattr(option_type, "_oacli_plain", False):
+        def display_type_rich(self, ctx):  # type: ignore[no-untyped-def]
+            text = option_type(self, ctx)
+            if isinstance(text, str) and text.startswith("<") and ">" in text:
+                label, rest = text[1:].split(">", 1)
+                return {"str": "TEXT"}.get(label, label.upper()) + rest
+            return text
+
+        display_type_rich._oacli_plain = True  # type: ignore[attr-defined]
+        TyperOption.display_type_rich = display_type_rich  # type: ignore[method-assign]
+
+
+plain_help_metavars()
+
 app = typer.Typer(
     name="oacli",
     help="Plan, control and learn the model of a free-flying space robot (Astrobee) during on-orbit assembly.",

@@ -18,6 +18,7 @@ import oacli.io.plots.estimate as estimate_plots
 import oacli.io.plots.excite as excite_plots
 import oacli.io.plots.plan as plan_plots
 import oacli.io.plots.track as track_plots
+import oacli.io.plots.track_views as track_views
 from oacli.cli import app
 from oacli.io.plots.common import decimate, guarded_plots
 from tests.plot_checks import PNGS
@@ -67,7 +68,7 @@ def stage_runs(tmp_path_factory) -> dict[str, Path]:
     payload = payload_config(tmp / "payload.yaml")
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(track_plots, "save_png", capture)
-        for module in (estimate_plots, excite_plots, plan_plots):
+        for module in (estimate_plots, excite_plots, plan_plots, track_views):
             mp.setattr(module, "save_png", check_layout)
         mp.setattr(plot_common, "save_png", check_layout)  # plot_inputs
         result = run_cli("track", payload, "--out", tmp / "track", "--quiet")

@@ -192,7 +192,8 @@ class _InFlight:
 Announce = Callable[[str], None]
 
 
-def run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | None = None) -> dict[int, dict]:
+def run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | None = None,
+                 progress: Callable[[int, int], None] | None = None) -> dict[int, dict]:
     """Run every run of ``folder`` without a final record in the manifest (all of them the first time; on
     ``--resume`` the missing and failed ones), appending each attempt's outcome to the manifest.
 
@@ -204,6 +205,9 @@ def run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | N
         Where the runs execute.
     announce : callable, optional
         Called with one line per finished attempt.
+    progress : callable, optional
+        Called as ``progress(done, total)`` with the runs to do before any starts (``done = 0``) and after each run
+        that ends (``oacli.commands.progress.CampaignProgress``).
 
     Returns
     -------
@@ -222,12 +226,16 @@ def run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | N
     solo_queue: deque[int] = deque()
     inflight: dict[Future, _InFlight] = {}
     total = len(todo)
+    if progress is not None:
+        progress(0, total)
 
     def finish(k: int, record: dict[str, Any]) -> None:
         record = {"k": k, "executor": handle.kind, "infra_attempts": infra[k], **record}
         manifest.append(folder, record)
         if record["status"] in manifest.FINAL:
             done[k] = record
+            if progress is not None:
+                progress(sum(1 for j in specs if j in done), total)
             say(f"run {k}: {record['status']}" + (f" ({record.get('error')})" if record.get("error") else "")
                 + f" [{sum(1 for j in specs if j in done)}/{total}]")
         else:

@@ -184,7 +184,8 @@ def table_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
     t = summary["tracking"]["rms_position_error_m"]
     rows = [
         ("runs", f"{summary['runs']} ({summary['finished']} finished)"),
-        ("success rate", f"{100 * summary['success_rate']:.1f} %"),
+        ("success rate (success: the run ended ok or degraded, i.e. finished without a safety breach)",
+         f"{100 * summary['success_rate']:.1f} % ({c['ok']} ok + {c['degraded']} degraded of {summary['runs']} runs)"),
         ("ok / degraded / unsafe", f"{c['ok']} / {c['degraded']} / {c['unsafe']}"),
         ("failed / infra_failed", f"{c['failed']} / {c['infra_failed']}"),
         ("keep-in / keep-out / limit violations",
@@ -203,7 +204,8 @@ def table_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
                          f"{a['median_abs_error_pct']:.3g} / {a['p95']:.3g} % ({a['flight_pct']} %): {a['verdict']}; "
                          f"RMS error/σ_CRB {_fmt(crb['rms'])}"))
     for name, f in summary["faults"].items():
-        rows.append((f"fault {name}", f"{f['runs']} runs, success {_fmt(f['success_rate'], 100, ' %')}"))
+        rows.append((f"fault {name}", f"{f['runs']} runs, success (ok or degraded) "
+                                      f"{_fmt(f['success_rate'], 100, ' %')}"))
     return rows
 
 

@@ -47,7 +47,7 @@ def _rerun(args: list[str], out: Path | None, quiet: bool, json_out: bool) -> No
 def campaign(
     target: Annotated[str, typer.Argument(metavar="CONFIG|DIR|rerun", help="A campaign config (configs/campaign_"
                                           "*.yaml); a campaign folder with --resume; or 'rerun' DIR K.")],
-    rest: Annotated[list[str] | None, typer.Argument(metavar="[DIR K]", help="With 'rerun': the campaign folder "
+    rest: Annotated[list[str] | None, typer.Argument(metavar="DIR K", help="With 'rerun': the campaign folder "
                                                      "and the run index.")] = None,
     executor: Annotated[str, typer.Option("--executor", metavar="serial|local|dask-local|dask://HOST:PORT",
                                           help="Where runs execute.")] = "local",
@@ -68,6 +68,9 @@ def campaign(
         _rerun(list(rest or []), out, quiet, json_out)
         return
     say = (lambda line: typer.echo(line, err=True)) if not quiet else None
+    from oacli.commands.progress import CampaignProgress
+
+    bar = CampaignProgress(not quiet, workers=workers)
 
     def action():
         from oacli.campaign.driver import load_campaign, prepare, run_campaign
@@ -100,8 +103,9 @@ def campaign(
         cfg = load_existing(folder).config
         handle = make_executor(executor, workers, memory_limit_mb=cfg.memory_limit_mb)
         try:
-            run_campaign(folder, handle, announce=say)
+            run_campaign(folder, handle, announce=bar.line if say else None, progress=bar)
         finally:
+            bar.close()
             handle.close()
         return folder, finalize(folder, wall_time_s=time.perf_counter() - start, executor=handle.kind)
 

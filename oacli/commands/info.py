@@ -36,10 +36,10 @@ def mcap_info(path: Path) -> dict[str, Any]:
     try:
         with open(path, "rb") as f:
             summary = make_reader(f).get_summary()
-    except Exception as exc:  # the mcap reader raises several types on a bad file
-        raise InputError(f"{path}: not a readable MCAP file ({exc})") from None
+    except Exception:  # the mcap reader raises several types on a bad file
+        summary = None
     if summary is None or summary.statistics is None:
-        raise InputError(f"{path}: the MCAP file has no summary section (cut short?)")
+        raise InputError(_unreadable(path))
     stats = summary.statistics
     schemas = {sid: s.name for sid, s in summary.schemas.items()}
     channels = [
@@ -50,6 +50,31 @@ def mcap_info(path: Path) -> dict[str, Any]:
     start, end = stats.message_start_time * 1e-9, stats.message_end_time * 1e-9
     return {"file": str(path), "bytes": path.stat().st_size, "start_s": start, "end_s": end,
             "duration_s": end - start, "messages": int(stats.message_count), "channels": channels}
+
+
+#: The first bytes of every MCAP file.
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _unreadable(path: Path) -> str:
+    """One line for an MCAP file ``info`` cannot summarise: a cut or damaged one points at ``oacli logs``."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(_MCAP_MAGIC))
+    except OSError as exc:
+        return f"{path}: cannot read it ({exc.strerror or exc})"
+    if head != _MCAP_MAGIC:
+        return f"{path}: not an MCAP file"
+    return (f"{path}: an MCAP file without a readable summary (cut short or damaged): check it with "
+            f"'oacli logs verify {path}'; save its complete chunks with 'oacli logs recover {path} OUT.mcap'")
+
+
+def format_reason(reason: Any) -> str:
+    """A status finding of ``summary.json`` (``{level, kind, message}``) as ``level: message [kind]``."""
+    if isinstance(reason, dict):
+        text = f"{reason.get('level', '?')}: {reason.get('message', '')}"
+        return text + (f" [{reason['kind']}]" if reason.get("kind") else "")
+    return str(reason)
 
 
 def path_info(path: Path) -> dict[str, Any]:
@@ -96,7 +121,7 @@ def info(
     if "run" in data:
         typer.echo(f"run:       {data['run']}\nstage:     {data['stage']}\nstatus:    {data['status']}")
         for reason in data["status_reasons"]:
-            typer.echo(f"           {reason}")
+            typer.echo(f"  - {format_reason(reason)}")
         typer.echo(f"files:     {', '.join(data['files'])}")
         data = data["mcap"]
         if data is None:

@@ -61,6 +61,50 @@ def print_mission_tables(summary: dict[str, Any]) -> None:
             typer.echo(f"  {row['label']:<{label_w}}  " + "  ".join(cells))
 
 
+def complete_stage(incomplete: str) -> list[str]:
+    """Shell completion of ``--from``: the mission's stage keys (``segment-3/track``, ...) starting with what was
+    typed."""
+    from oacli.mission.layout import MISSION_STAGES
+
+    return [s.key for s in MISSION_STAGES if s.key.startswith(incomplete)]
+
+
+#: Width of the mission's final warning lines (wrapped, one finding a line).
+WARNING_WIDTH = 110
+
+
+def warning_lines(summary: dict[str, Any]) -> list[str]:
+    """The mission's final warning on stderr: a headline naming the status and how many findings, then one wrapped
+    line per finding (``- <stage key>: <what happened>``) instead of one line joining them all; [] for ``ok``.
+
+    Parameters
+    ----------
+    summary : dict
+        The mission's summary (``status``, ``status_reasons``).
+
+    Returns
+    -------
+    list of str
+    """
+    import textwrap
+
+    from oacli.status import warning_line
+
+    status = summary.get("status", "ok")
+    reasons = [r.get("message", "") if isinstance(r, dict) else str(r) for r in summary.get("status_reasons", ())]
+    if status == "ok":
+        return []
+    if not reasons:
+        line = warning_line(summary)
+        return [] if line is None else [line]
+    lines = [f"warning: mission status {status}: {len(reasons)} finding{'s' if len(reasons) != 1 else ''} "
+             "(each stage's summary.json has the details):"]
+    for text in reasons:
+        lines += textwrap.wrap(text, WARNING_WIDTH, initial_indent="  - ", subsequent_indent="    ",
+                               break_on_hyphens=False) or ["  -"]
+    return lines
+
+
 def mission(
     target: Annotated[
         Path, typer.Argument(metavar="TARGET", help="A mission config (YAML with a mission section, see "
@@ -78,13 +122,14 @@ def mission(
                            "rerun the rest in place.")
     ] = False,
     from_stage: Annotated[
-        str | None, typer.Option("--from", metavar="STAGE", help="TARGET is a mission folder: rerun from this "
+        str | None, typer.Option("--from", metavar="STAGE", autocompletion=complete_stage,
+                                 help="TARGET is a mission folder: rerun from this "
                                  "stage (e.g. segment-3/track) into a new folder, copying the earlier stages' folders.")
     ] = None,
 ) -> None:
     """Fly the assembly mission A → B → C → A: plan, smooth, track (segment 1); excite, tube MPC, estimate
     (segment 2); plan, smooth, tube MPC with the learned model and the two baselines (segment 3)."""
-    from oacli.status import exit_code, warning_line
+    from oacli.status import exit_code
 
     def action():
         from oacli.config import load_config
@@ -122,12 +167,17 @@ def mission(
             if from_stage is not None:
                 copy_stages_before(target, mission_dir, cfg, from_stage)
         say = (lambda line: typer.echo(line, err=True)) if not (quiet or json_out) else None
-        return run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
+        result = run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
+        from oacli.mission.foxglove import write_mission_mcap
+
+        if say:
+            say("writing mission.mcap (every stage on the mission clock, for Foxglove: docs/foxglove/mission.json)")
+        write_mission_mcap(result.run_dir, result.summary)
+        return result
 
     result = run_guarded(action)
-    warning = warning_line(result.summary)
-    if warning is not None:
-        typer.echo(warning, err=True)
+    for line in warning_lines(result.summary):
+        typer.echo(line, err=True)
     if json_out:
         typer.echo(json_text({**result.summary, "run_dir": str(result.run_dir)}))
     elif not quiet:

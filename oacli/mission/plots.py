@@ -72,6 +72,10 @@ def plot_tracking_error(records: MissionRecords, path: Path) -> Path:
         ``path``.
     """
     fig, axes = subplots(len(SEGMENTS), 1, figsize=(10, 8.5))
+    flown = [f.position_error_m for f in records.flights.values() if f.t_ctrl.size]
+    errors = np.concatenate(flown) if flown else np.zeros(0)
+    log = spans_decades(errors)  # one scale for every panel: a log panel beside a linear one misleads
+    y_lim = error_axis_limits(errors, log)
     for ax, seg in zip(axes, SEGMENTS, strict=True):
         flights = [f for f in records.flights.values() if f.key.startswith(seg + "/") and f.t_ctrl.size]
         for f in flights:
@@ -80,16 +84,36 @@ def plot_tracking_error(records: MissionRecords, path: Path) -> Path:
             ax.plot(*decimate(f.t_ctrl, f.position_error_m), color=FLIGHT_COLORS.get(f.key), lw=1.3, label=label)
         info = records.segments.get(seg, {})
         ax.set_title(f"{seg}: {info.get('from', '?')} → {info.get('to', '?')}", loc="left", fontsize="medium")
-        ax.set_ylabel("position error [m]")
-        ax.grid(True, alpha=0.3)
-        if flights and spans_decades(np.concatenate([f.position_error_m for f in flights])):
+        ax.set_ylabel("position error [m]" + (", log" if log else ""))
+        ax.grid(True, alpha=0.3, which="both")
+        if log:
             log_scale(ax)
+        if y_lim is not None:
+            ax.set_ylim(*y_lim)
         if not flights:
             ax.text(0.5, 0.5, "no flight recorded", transform=ax.transAxes, ha="center", va="center")
         legend_outside(ax)
     axes[-1].set_xlabel("mission time [s]")
     fig.suptitle("Tracking error ‖r − r_ref‖ per segment (segment 3: [Doerr2021] Fig. 3(d) baselines)")
     return save_png(fig, path)
+
+
+#: Lowest decade shown below the largest error on a log error axis (a momentary zero crossing would stretch it).
+LOG_DECADES_SHOWN = 3.0
+
+
+def error_axis_limits(errors_m: np.ndarray, log: bool) -> tuple[float, float] | None:
+    """The y range shared by the error panels [m]: ``[0, 1.05 max]`` linear; on a log axis from the smallest
+    positive error (at most :data:`LOG_DECADES_SHOWN` decades below the largest) to 1.5 × the largest."""
+    e = np.asarray(errors_m, dtype=float)
+    e = e[np.isfinite(e)]
+    if not e.size or e.max() <= 0:
+        return None
+    top = float(e.max())
+    if not log:
+        return 0.0, 1.05 * top
+    low = max(float(e[e > 0].min()), top * 10.0**-LOG_DECADES_SHOWN)
+    return low / 1.5, 1.5 * top
 
 
 def _relative_pct(values: np.ndarray, truth: float) -> np.ndarray:
@@ -200,6 +224,41 @@ def view_axes(points_m: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]]:
     return main, second  # type: ignore[return-value]
 
 
+#: Waypoints nearer each other than this fraction of a view's span are marked once, with their names joined
+#: ("B, C"): their labels would be printed on top of each other.
+LABEL_MERGE_FRACTION = 0.06
+
+
+def waypoint_labels(waypoints_m: dict[str, np.ndarray], axes: tuple[int, int],
+                    merge_m: float) -> list[tuple[list[str], tuple[float, float]]]:
+    """The waypoint marks of one view: waypoints whose projections lie within ``merge_m`` [m] of a group's first
+    one join that group (names in order, drawn at the first one's position).
+
+    Parameters
+    ----------
+    waypoints_m : dict of str to ndarray, shape (3,)
+    axes : tuple of int
+        World axes of the view.
+    merge_m : float
+        Merge distance in the view [m].
+
+    Returns
+    -------
+    list of (names, (x, y))
+    """
+    i, j = axes
+    groups: list[tuple[list[str], tuple[float, float]]] = []
+    for name, pos in waypoints_m.items():
+        x, y = float(pos[i]), float(pos[j])
+        for names, (gx, gy) in groups:
+            if np.hypot(x - gx, y - gy) < merge_m:
+                names.append(name)
+                break
+        else:
+            groups.append(([name], (x, y)))
+    return groups
+
+
 def _path_view(ax: Any, records: MissionRecords, axes: tuple[int, int], lower: np.ndarray, upper: np.ndarray,
                title: str) -> None:
     """One projection of the scene, the paths and the waypoints, limited to the paths' box ``lower``-``upper``."""
@@ -215,9 +274,10 @@ def _path_view(ax: Any, records: MissionRecords, axes: tuple[int, int], lower: n
         label = f"{key.split('/')[0]} flown" if key not in BASELINES else f"segment 3 flown: {BASELINES[key]}"
         width = {"segment-3/track": 3.0, "segment-3/baseline-mpc-prior": 2.0}.get(key, 1.2)  # overlaid: widest under
         ax.plot(*decimate(f.x_true[:, i], f.x_true[:, j]), lw=width, color=FLIGHT_COLORS.get(key), label=label)
-    for name, pos in records.waypoints_m.items():
-        ax.plot(pos[i], pos[j], "k^", ms=9, zorder=5)
-        ax.annotate(name, (pos[i], pos[j]), xytext=(6, 6), textcoords="offset points", fontsize=13,
+    span = float(max(upper[i] - lower[i], upper[j] - lower[j]))
+    for names, (x, y) in waypoint_labels(records.waypoints_m, axes, LABEL_MERGE_FRACTION * span):
+        ax.plot(x, y, "k^", ms=9, zorder=5)
+        ax.annotate(", ".join(names), (x, y), xytext=(6, 6), textcoords="offset points", fontsize=13,
                     fontweight="bold", zorder=6)
     # the view: the paths' box (the keep-in boxes reach far beyond), widened to equal scales by the aspect
     ax.dataLim.set_points(np.array([[lower[i], lower[j]], [upper[i], upper[j]]], dtype=float))

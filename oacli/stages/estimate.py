@@ -578,7 +578,9 @@ def run_estimate(
             records=per_record, log=log, recording_name=f"{cfg.name}/estimate",
         )
         if cfg.outputs.plots:
-            write_estimate_plots(run_folder, summary, estimates=run.history, truth=truth, crb_std=run.bound.std)
+            write_estimate_plots(run_folder, summary, estimates=run.history, truth=truth, crb_std=run.bound.std,
+                                 innovation=(run.t_records, run.d2, run.gate_threshold,
+                                             np.array([s == "rejected" for s in run.status], dtype=bool)))
         return run_folder.finish(summary)
 
 

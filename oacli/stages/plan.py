@@ -246,6 +246,7 @@ def write_plan_topics(writer: StageMcapWriter, scene: Scene, result: PlanResult,
                           | {"cost": summary.get("cost")})
     paths = {"plan": output.x[:, 0:3]} if output is not None else {}
     writer.write_scene(scene, paths)
+    writer.write_plan_tree(tree.edges, in_path)
     if output is not None:
         writer.write_trajectory("/trajectory", output)
         writer.write_poses(output.t, output.x)

@@ -149,7 +149,7 @@ def _excite_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> 
 
 
 def _estimate_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Figures:
-    record = read_stage(folder / "estimate.mcap", topics=[ms.TOPIC_ESTIMATE_PARAMS])
+    record = read_stage(folder / "estimate.mcap", topics=[ms.TOPIC_ESTIMATE_PARAMS, ms.TOPIC_ESTIMATE_SAMPLES])
     params = record.json_records.get(ms.TOPIC_ESTIMATE_PARAMS, ())
     if not params:
         raise InputError(f"{folder / 'estimate.mcap'}: no /estimate/params records")
@@ -160,8 +160,14 @@ def _estimate_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -
     crb = summary.get("crb_std")
     crb_std = None if not isinstance(crb, dict) else np.array(
         [np.nan if crb.get(n) is None else float(crb[n]) for n in PARAM_NAMES])
+    samples = record.json_records.get(ms.TOPIC_ESTIMATE_SAMPLES, ())
+    innovation = None if not samples else (
+        np.array([float(r["t"]) for r in samples]),
+        np.array([np.nan if r["d2"] is None else float(r["d2"]) for r in samples]),
+        next((float(r["gate"]) for r in samples if r.get("gate") is not None), float("inf")),
+        np.array([r["status"] == "rejected" for r in samples], dtype=bool))
     return estimate_figures(estimates=estimates, truth=None if truth is None else np.asarray(truth, dtype=float),
-                            crb_std=crb_std)
+                            crb_std=crb_std, innovation=innovation)
 
 
 _READERS: dict[str, Callable[[Path, dict[str, Any], OacliConfig], Figures]] = {

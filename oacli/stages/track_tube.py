@@ -336,6 +336,8 @@ def write_tube_topics(writer: StageMcapWriter, tel: Telemetry, monitor: TubeMoni
         writer.write_json(ms.TOPIC_TUBE_DESIGN, ms.TUBE_DESIGN, ms.TUBE_DESIGN_SCHEMA, t_design,
                           {"dt_s": design.dt_s, "design": index, "axes": axes})
     rec = monitor.disturbance_record()
+    extent = np.array([d.position_extent() for _, d in monitor.designs])[rec.design_index]  # (K, 3, 2) [m]
+    writer.write_tube_sections(history.t, history.nominal_state[:, 0:3], extent)
     # Plain Python values, converted once for the whole record (write_json would convert each step's arrays).
     w_pos, w_vel = rec.w[:, :, 0].tolist(), rec.w[:, :, 1].tolist()
     half_pos, half_vel = rec.w_half_widths[:, :, 0].tolist(), rec.w_half_widths[:, :, 1].tolist()

@@ -1,7 +1,9 @@
-"""The ``estimate`` stage's PNG plot.
+"""The ``estimate`` stage's PNG plots.
 
 * ``convergence.png`` -- mass and the three principal inertias over time with ± 2σ bands, the Cramér-Rao bound's
-  2σ around the final estimate (dotted) and the truth (dashed) when the telemetry's config knows it.
+  2σ around the final estimate (dotted) and the truth (dashed) when the telemetry's config knows it;
+* ``innovation.png`` -- the normalised residual (batch) or innovation (sequential) squared d² of every record
+  (blue), the χ² gate (black, dashed) and the records the gate rejected (red crosses): three colours, three things.
 """
 
 from __future__ import annotations
@@ -12,7 +14,15 @@ from typing import Any
 
 import numpy as np
 
-from oacli.io.plots.common import RunFiles, guarded_plots, legend_outside, save_png, subplots
+from oacli.io.plots.common import (
+    RunFiles,
+    guarded_plots,
+    legend_outside,
+    log_scale,
+    save_png,
+    spans_decades,
+    subplots,
+)
 from oacli.types import ParameterEstimate
 
 PARAMETERS = (("mass", "kg"), ("Ixx", "kg·m²"), ("Iyy", "kg·m²"), ("Izz", "kg·m²"))
@@ -70,21 +80,69 @@ def plot_convergence(path: Path, estimates: Sequence[ParameterEstimate], truth: 
     return t, theta, std
 
 
+#: Colours of ``innovation.png``: d², the gate, the rejected records (distinct: the gate is not a rejection).
+INNOVATION_COLORS = {"d2": "tab:blue", "gate": "black", "rejected": "tab:red"}
+
+
+def plot_innovation(path: Path, t_s: np.ndarray, d2: np.ndarray, gate: float, rejected: np.ndarray) -> None:
+    """Draw ``innovation.png`` (module docstring).
+
+    Parameters
+    ----------
+    path : Path
+        Output PNG.
+    t_s : ndarray, shape (K,)
+        Record times [s].
+    d2 : ndarray, shape (K,)
+        Normalised residual or innovation squared (NaN where not computed).
+    gate : float
+        χ² threshold (``inf`` or NaN: no gate).
+    rejected : ndarray of bool, shape (K,)
+        Records the gate rejected.
+    """
+    t, d2 = np.asarray(t_s, dtype=float), np.asarray(d2, dtype=float)
+    bad = np.asarray(rejected, dtype=bool) & np.isfinite(d2)
+    fig, ax = subplots(figsize=(11, 4.5))
+    ax.plot(t, d2, ".-", color=INNOVATION_COLORS["d2"], lw=0.8, ms=3, label="d² per record")
+    if np.isfinite(gate):
+        ax.axhline(gate, color=INNOVATION_COLORS["gate"], ls="--", lw=1.2, label=f"χ² gate {gate:.3g}")
+    if np.any(bad):
+        ax.plot(t[bad], d2[bad], "x", color=INNOVATION_COLORS["rejected"], ms=7, mew=1.5,
+                label=f"rejected by the gate ({int(bad.sum())})")
+    shown = d2[np.isfinite(d2)]
+    if spans_decades(np.append(shown, gate if np.isfinite(gate) else np.nan), 2.0):
+        log_scale(ax)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("normalised residual² d² [-]")
+    ax.grid(True, alpha=0.3, which="both")
+    ax.set_title("Normalised residual (innovation) squared against the χ² gate", loc="left", fontsize="medium")
+    legend_outside(ax)
+    save_png(fig, path)
+
+
 def estimate_figures(*, estimates: Sequence[ParameterEstimate], truth: np.ndarray | None,
-                     crb_std: np.ndarray | None = None) -> dict[str, Callable[[Path], object]]:
-    """The ``estimate`` stage's figure, name -> function drawing it to a path (shared by the stage and by
+                     crb_std: np.ndarray | None = None,
+                     innovation: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = None,
+                     ) -> dict[str, Callable[[Path], object]]:
+    """The ``estimate`` stage's figures, name -> function drawing it to a path (shared by the stage and by
     ``oacli plots``, :mod:`oacli.stages.replot`); parameters as :func:`write_estimate_plots`.
 
     Returns
     -------
     dict of str to callable
     """
-    return {"convergence": lambda p: plot_convergence(p, estimates, truth, crb_std)}
+    figures: dict[str, Callable[[Path], object]] = {
+        "convergence": lambda p: plot_convergence(p, estimates, truth, crb_std)}
+    if innovation is not None:
+        figures["innovation"] = lambda p: plot_innovation(p, *innovation)
+    return figures
 
 
 def write_estimate_plots(run: RunFiles, summary: dict[str, Any], *, estimates: Sequence[ParameterEstimate],
-                         truth: np.ndarray | None, crb_std: np.ndarray | None = None) -> None:
-    """Write ``convergence.png`` into the run folder and register it (failure: a summary warning).
+                         truth: np.ndarray | None, crb_std: np.ndarray | None = None,
+                         innovation: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = None) -> None:
+    """Write ``convergence.png`` (and ``innovation.png``) into the run folder and register them (failure: a summary
+    warning).
 
     Parameters
     ----------
@@ -93,5 +151,8 @@ def write_estimate_plots(run: RunFiles, summary: dict[str, Any], *, estimates: S
     estimates : sequence of ParameterEstimate
     truth : ndarray, shape (4,), optional
     crb_std : ndarray, shape (4,), optional
+    innovation : tuple, optional
+        ``(t [s], d², gate, rejected)`` per record (:func:`plot_innovation`).
     """
-    guarded_plots(run, summary, estimate_figures(estimates=estimates, truth=truth, crb_std=crb_std))
+    guarded_plots(run, summary, estimate_figures(estimates=estimates, truth=truth, crb_std=crb_std,
+                                                 innovation=innovation))

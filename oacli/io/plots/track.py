@@ -4,7 +4,9 @@
   ``summary.json``'s ``rms_/max_position_error_m`` (:func:`oacli.metrics.tracking_errors` at the plant samples), with
   the control instants (true state at exactly those times, :func:`oacli.metrics.true_states_at`) as dots;
 * ``inputs.png`` -- the applied force and torque per axis against the robot's limits;
-* ``top_view.png`` -- x-y: keep-in, keep-out (grown by the robot radius), reference and flown path.
+* ``views.png`` -- top, side and front views of the reference and the flown path, zoomed on the flown region, with
+  the keep-in boxes and the keep-out zones projected into each (grown by the robot radius, dashed), and a view that
+  shows the clearance where the axis views cannot (:mod:`oacli.io.plots.track_views`).
 """
 
 from __future__ import annotations
@@ -20,8 +22,6 @@ from oacli.geometry import Scene
 from oacli.io.plots.common import (
     RunFiles,
     decimate,
-    draw_scene,
-    finish_view,
     guarded_plots,
     legend_outside,
     log_scale,
@@ -30,6 +30,7 @@ from oacli.io.plots.common import (
     spans_decades,
     subplots,
 )
+from oacli.io.plots.track_views import plot_views
 from oacli.metrics import tracking_errors
 from oacli.model.limits import MotionLimits
 from oacli.types import Telemetry, Trajectory
@@ -78,31 +79,23 @@ def plot_tracking_error(path: Path, telemetry: Telemetry, reference: Trajectory)
     ax.plot(*decimate(dense.t, dense.position_m), color="tab:blue", lw=1.2,
             label=f"plant samples (RMS {1e3 * rms:.3g} mm, max {1e3 * dense.position_m.max():.3g} mm)")
     ax.plot(*decimate(ctrl.t, ctrl.position_m), ".", color="tab:orange", ms=3, label="control instants")
-    ax.set_ylabel("position error [m]")
-    if spans_decades(dense.position_m, 3.0):
+    log = spans_decades(dense.position_m, 3.0)  # both panels on the same kind of axis
+    ax.set_ylabel("position error [m]" + (", log" if log else ""))
+    if log:
         log_scale(ax)
     ax.set_title("‖r − r_ref‖, true state against the reference at equal times", loc="left", fontsize="medium")
     ax_att.plot(*decimate(dense.t, np.degrees(dense.attitude_rad)), color="tab:purple", lw=1.2, label="attitude error")
-    ax_att.set_ylabel("attitude error [deg]")
+    att = np.degrees(dense.attitude_rad)
+    log_att = log and bool(np.any(np.isfinite(att) & (att > 0)))  # a log axis needs a positive value to show
+    ax_att.set_ylabel("attitude error [deg]" + (", log" if log_att else ""))
+    if log_att:
+        log_scale(ax_att)
     ax_att.set_xlabel("time [s]")
     for a in (ax, ax_att):
         a.grid(True, alpha=0.3, which="both")
         legend_outside(a)
     save_png(fig, path)
     return series
-
-
-def plot_top_view(path: Path, scene: Scene | None, robot_radius_m: float, reference: Trajectory,
-                  telemetry: Telemetry) -> None:
-    """Draw ``top_view.png`` (module docstring)."""
-    fig, ax = subplots(figsize=(10, 7))
-    draw_scene(ax, scene, robot_radius_m)
-    ax.plot(*decimate(reference.x[:, 0], reference.x[:, 1]), "--", color="0.3", lw=1.2, label="reference")
-    ax.plot(*decimate(telemetry.x_true[:, 0], telemetry.x_true[:, 1]), color="tab:blue", lw=1.6, label="flown (true)")
-    ax.plot(*telemetry.x_true[0, 0:2], "ko", ms=6, label="start")
-    ax.plot(*reference.x[-1, 0:2], "k^", ms=8, label="reference end")
-    finish_view(ax, (0, 1), "Top view (x-y)")
-    save_png(fig, path)
 
 
 def track_figures(*, telemetry: Telemetry, reference: Trajectory, limits: MotionLimits, scene: Scene | None,
@@ -127,7 +120,7 @@ def track_figures(*, telemetry: Telemetry, reference: Trajectory, limits: Motion
         "tracking_error": lambda p: plot_tracking_error(p, telemetry, reference),
         "inputs": lambda p: plot_inputs(p, telemetry.t_ctrl, telemetry.u_applied, limits.force_N, limits.torque_Nm,
                                         "Applied inputs against the robot's limits"),
-        "top_view": lambda p: plot_top_view(p, scene, robot_radius_m, reference, telemetry),
+        "views": lambda p: plot_views(p, scene, robot_radius_m, reference, telemetry),
     }
 
 
