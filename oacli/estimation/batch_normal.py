@@ -25,7 +25,24 @@ from oacli.estimation.manifold import (
 
 
 def block_coo(blocks: np.ndarray, row0: np.ndarray, col0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """COO triplets of a stack of dense blocks (n, r, c) placed at row/column offsets (n,)."""
+    """COO triplets of a stack of dense blocks placed at row/column offsets of a sparse matrix.
+
+    Used to assemble the sparse Jacobian ``A`` of the batch problem ([Doerr2021] Eq. 32) on the reference path.
+
+    Parameters
+    ----------
+    blocks : ndarray, shape (n, r, c)
+        The dense blocks (dimensionless entries of the whitened Jacobian).
+    row0, col0 : ndarray of int, shape (n,)
+        Row and column of each block's top-left entry in the assembled matrix.
+
+    Returns
+    -------
+    rows, cols : ndarray of int, shape (n·r·c,)
+        Row and column index of every entry.
+    values : ndarray, shape (n·r·c,)
+        The entries, ``blocks.ravel()`` (block by block, row-major within a block).
+    """
     n, r, c = blocks.shape
     rows = np.broadcast_to(row0[:, None, None] + np.arange(r)[None, :, None], (n, r, c))
     cols = np.broadcast_to(col0[:, None, None] + np.arange(c)[None, None, :], (n, r, c))
@@ -62,7 +79,13 @@ class NormalEquations:
     gp: np.ndarray
 
     def diagonal(self) -> np.ndarray:
-        """Diagonal of ``AᵀA`` in the variable order ``[δx_1 .. δx_K, δφ]``."""
+        """Diagonal of ``AᵀA`` in the variable order ``[δx_1 .. δx_K, δφ]`` (the Levenberg-Marquardt scaling).
+
+        Returns
+        -------
+        ndarray, shape (12 K + 4,)
+            The K states' 12 tangent entries each, then the 4 entries of φ.
+        """
         return np.concatenate([np.einsum("kii->ki", self.hd).ravel(), np.diag(self.hpp)])
 
     def _factor(self, damping: np.ndarray | None) -> np.ndarray | None:
@@ -84,7 +107,23 @@ class NormalEquations:
             return None
 
     def solve(self, damping: np.ndarray) -> np.ndarray | None:
-        """``δ = −(AᵀA + diag(damping))⁻¹ Aᵀb``, or None when the damped system is not positive definite."""
+        """``δ = −(AᵀA + diag(damping))⁻¹ Aᵀb``, or None when the damped system is not positive definite.
+
+        The damped Gauss-Newton step of [Doerr2021] Eq. 32: the states are eliminated by a banded Cholesky
+        factorisation (bandwidth 23) and φ is solved from the 4×4 Schur complement.
+
+        Parameters
+        ----------
+        damping : ndarray, shape (12 K + 4,)
+            Added to the diagonal of ``AᵀA`` (``λ diag(d)``), in the order ``[δx_1 .. δx_K, δφ]``.
+
+        Returns
+        -------
+        ndarray, shape (12 K + 4,) or None
+            The step ``[δx_1 .. δx_K, δφ]`` (state tangent increments [m, m/s, rad, rad/s], then δφ in the log
+            parameters of :mod:`oacli.estimation.parametrization`); None when the factorisation or the Schur solve
+            fails or the step is not finite.
+        """
         n = self.gx.size
         chol = self._factor(damping[:n])
         if chol is None:
@@ -117,6 +156,33 @@ def process_jacobians(
     translational 6×6 block and a rotational 7×7 block only, so the product is formed on those (the same entries as
     the dense 12×13 · 13×13 · 13×12 product, without its zero blocks); ``W J_r⁻¹`` on the attitude columns for
     ``δx_{k+1}``.
+
+    Parameters
+    ----------
+    w_proc : ndarray, shape (K, 12, 12)
+        Square-root information ``W_k = Q_k^-½`` of the process noise of each interval (K = number of intervals).
+    e : ndarray, shape (K, 12)
+        The raw process residuals ``x_{k+1} ⊟ f(x_k, u_k, θ)`` (without the gap offset); the attitude part
+        ``e[:, 6:9]`` [rad] sets the SO(3) Jacobians.
+    fx : ndarray, shape (K, 13)
+        Propagated states ``f(x_k, u_k, θ)`` [r m, v m/s, q (x, y, z, w), ω rad/s].
+    a : ndarray, shape (K, 13, 13)
+        ``∂f/∂x`` of the propagation (translational 6×6 and rotational 7×7 blocks only).
+    c : ndarray, shape (K, 13, 4)
+        ``∂f/∂θ``, θ = [m kg, Ixx, Iyy, Izz kg·m²].
+    x_prev : ndarray, shape (K, 13)
+        The states ``x_k`` at the start of each interval.
+    dtheta : ndarray, shape (4, 4)
+        ``∂θ/∂φ`` (:func:`oacli.estimation.parametrization.theta_jacobian`).
+
+    Returns
+    -------
+    j_prev : ndarray, shape (K, 12, 12)
+        ``∂r_k/∂δx_k``.
+    j_next : ndarray, shape (K, 12, 12)
+        ``∂r_k/∂δx_{k+1}``.
+    j_phi : ndarray, shape (K, 12, 4)
+        ``∂r_k/∂δφ``.
     """
     n, nt = e.shape[0], TANGENT_DIM
     jr_inv = so3_right_jacobian_inverse(e[:, 6:9])
@@ -144,6 +210,20 @@ def process_jacobians(
 
 
 def sparse_solve(h: sp.csc_matrix, g: np.ndarray) -> np.ndarray | None:
+    """Solve ``h z = g`` by sparse LU (the reference path of [Doerr2021] Eq. 32 and its covariance).
+
+    Parameters
+    ----------
+    h : scipy.sparse.csc_matrix, shape (n, n)
+        The (damped normal-equation or augmented) system matrix.
+    g : ndarray, shape (n,) or (n, m)
+        Right-hand side(s).
+
+    Returns
+    -------
+    ndarray, shape like ``g``, or None
+        The solution; None when ``h`` is exactly singular or the solution is not finite.
+    """
     try:
         out = spla.splu(h).solve(g)
     except RuntimeError:  # exactly singular
@@ -159,7 +239,26 @@ class ReferenceSystem:
         self.g = a_mat.T @ b
 
     def diagonal(self) -> np.ndarray:
+        """Diagonal of ``AᵀA`` (as :meth:`NormalEquations.diagonal`).
+
+        Returns
+        -------
+        ndarray, shape (12 K + 4,)
+            In the variable order ``[δx_1 .. δx_K, δφ]``.
+        """
         return self.h.diagonal()
 
     def solve(self, damping: np.ndarray) -> np.ndarray | None:
+        """``δ = −(AᵀA + diag(damping))⁻¹ Aᵀb`` by sparse LU (as :meth:`NormalEquations.solve`).
+
+        Parameters
+        ----------
+        damping : ndarray, shape (12 K + 4,)
+            Added to the diagonal of ``AᵀA``, in the order ``[δx_1 .. δx_K, δφ]``.
+
+        Returns
+        -------
+        ndarray, shape (12 K + 4,) or None
+            The step ``[δx_1 .. δx_K, δφ]``; None when the damped system is singular or the step not finite.
+        """
         return sparse_solve((self.h + sp.diags(damping)).tocsc(), -self.g)

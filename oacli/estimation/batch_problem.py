@@ -98,7 +98,19 @@ class BatchProblem:
         cut (:func:`lost_input_model`, :func:`segment_link_weights`). ``noise`` (the measurement residuals of a
         first solve) corrects the prediction for the controller's reaction to the neighbours' measurement noise;
         ``theta`` (that solve's θ̂) replaces the prior as the point where the lost wrench's directions and the
-        force's ``1/m`` are evaluated (a prior 30 % off in inertia mis-weights the torque's error by as much)."""
+        force's ``1/m`` are evaluated (a prior 30 % off in inertia mis-weights the torque's error by as much).
+
+        Does nothing when the records have no gaps. Updates ``u``, ``gap_offset``, ``w_proc`` and ``link_rows`` and
+        drops the cached propagation.
+
+        Parameters
+        ----------
+        noise : ndarray, shape (K, 12), optional
+            Measurement residuals ``ỹ_k ⊟ x̂_k`` [m, m/s, rad, rad/s] of a first solve, NaN where a record has none
+            (:meth:`measurement_noise`); None: no correction.
+        theta : ndarray, shape (4,), optional
+            θ̂ = [m kg, Ixx, Iyy, Izz kg·m²] of that solve; None: the prior's θ the problem was built with.
+        """
         if not self.has_gaps or self._q_proc is None:
             return
         weights_theta = self._weights_theta if theta is None else np.asarray(theta, dtype=float)
@@ -114,13 +126,33 @@ class BatchProblem:
         self._propagation_cache = None
 
     def measurement_noise(self, x: np.ndarray, inliers: np.ndarray) -> np.ndarray:
-        """``ỹ_k ⊟ x_k`` (K, 12) on the inlier records, NaN elsewhere (the residuals of a solve)."""
+        """``ỹ_k ⊟ x_k`` (K, 12) on the inlier records, NaN elsewhere (the residuals of a solve).
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+            States [r m, v m/s, q (x, y, z, w), ω rad/s].
+        inliers : ndarray of bool, shape (K,)
+            Records whose measurement is used.
+
+        Returns
+        -------
+        ndarray, shape (K, 12)
+            Unweighted tangent residuals [m, m/s, rad, rad/s]; rows of outliers are NaN.
+        """
         out = np.full((self.k, TANGENT_DIM), np.nan)
         out[inliers] = boxminus(self.y[inliers], x[inliers])
         return out
 
     def set_process_noise_scale(self, factor: float) -> None:
-        """Use ``factor`` × the configured process noise standard deviations (continuation, see the module)."""
+        """Use ``factor`` × the configured process noise standard deviations (continuation, see the module).
+
+        Parameters
+        ----------
+        factor : float
+            Scale (> 0) of the process noise standard deviations: ``W_k`` becomes the nominal ``W_k / factor``;
+            1 restores the configured noise.
+        """
         self.w_proc = self._w_proc_nominal / float(factor)
 
     # -- residuals and Jacobian ------------------------------------------------------------------------------------
@@ -128,7 +160,29 @@ class BatchProblem:
     def evaluate(
         self, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, jacobian: bool
     ) -> tuple[np.ndarray, sp.csc_matrix | None]:
-        """``b(ϑ)`` and, if asked, ``A = ∂b/∂δϑ`` (right perturbations of the states, φ additive)."""
+        """``b(ϑ)`` and, if asked, ``A = ∂b/∂δϑ`` (right perturbations of the states, φ additive).
+
+        The whitened residuals of [Doerr2021] Eq. 31 and the Jacobian of the linearised problem Eq. 32, in the row
+        order measurement, acceleration, process, gauge, prior; the sparse reference path.
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+            States [r m, v m/s, q (x, y, z, w), ω rad/s].
+        phi : ndarray, shape (4,)
+            φ = [log m, log A, log B, log C] (:mod:`oacli.estimation.parametrization`).
+        inliers : ndarray of bool, shape (K,)
+            Records whose measurement (and acceleration) rows are used.
+        jacobian : bool
+            Also assemble ``A``.
+
+        Returns
+        -------
+        b : ndarray, shape (N,)
+            Whitened residuals (dimensionless), N rows in total.
+        a_mat : scipy.sparse.csc_matrix, shape (N, 12 K + 4), or None
+            ``∂b/∂δϑ`` with the variables ``[δx_1 .. δx_K, δφ]``; None when ``jacobian`` is false.
+        """
         k = self.k
         theta = par.theta_from_phi(phi)
         dtheta = par.theta_jacobian(phi)
@@ -234,7 +288,29 @@ class BatchProblem:
     ) -> tuple[np.ndarray, list[ResidualGroup]]:
         """``b(ϑ)`` and its Jacobian as groups of per-record blocks (same residuals and Jacobians as
         :meth:`evaluate`, in the same row order); the process model is
-        :func:`oacli.estimation.propagation.propagate_intervals_structured`."""
+        :func:`oacli.estimation.propagation.propagate_intervals_structured`.
+
+        Residuals of [Doerr2021] Eq. 31, Jacobian blocks of Eq. 32.
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+            States [r m, v m/s, q (x, y, z, w), ω rad/s].
+        phi : ndarray, shape (4,)
+            φ = [log m, log A, log B, log C].
+        inliers : ndarray of bool, shape (K,)
+            Records whose measurement (and acceleration) rows are used.
+        jacobian : bool, default True
+            Also form the Jacobian blocks; False propagates the end states only (a trial step's cost).
+
+        Returns
+        -------
+        b : ndarray, shape (N,)
+            Whitened residuals (dimensionless), in the row order of :meth:`evaluate`.
+        groups : list of ResidualGroup
+            One group per residual kind present, with its per-record blocks on the 12-dim state tangents and on φ
+            (4 columns); empty when ``jacobian`` is false.
+        """
         k = self.k
         theta = par.theta_from_phi(phi)
         dtheta = par.theta_jacobian(phi)
@@ -306,7 +382,25 @@ class BatchProblem:
 
         ``A`` is never formed: every residual touches one or two consecutive states and φ, so ``AᵀA`` is block
         tridiagonal in the states (12×12 blocks) with a dense 4-column border in φ, accumulated directly from the
-        per-record Jacobian blocks of :meth:`jacobian_groups`.
+        per-record Jacobian blocks of :meth:`jacobian_groups`. These are the normal equations of the
+        Gauss-Newton step of [Doerr2021] Eq. 32.
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+            States [r m, v m/s, q (x, y, z, w), ω rad/s].
+        phi : ndarray, shape (4,)
+            φ = [log m, log A, log B, log C].
+        inliers : ndarray of bool, shape (K,)
+            Records whose measurement (and acceleration) rows are used.
+
+        Returns
+        -------
+        b : ndarray, shape (N,)
+            Whitened residuals (dimensionless).
+        normal : NormalEquations
+            The blocks ``hd`` (K, 12, 12), ``ho`` (K − 1, 12, 12), ``hxp`` (K, 12, 4), ``hpp`` (4, 4), ``gx``
+            (K, 12) and ``gp`` (4,) of ``AᵀA`` and ``Aᵀb``.
         """
         b, groups = self.jacobian_groups(x, phi, inliers)
         k, nt, npar = self.k, TANGENT_DIM, par.N_PARAMS
@@ -342,6 +436,21 @@ class BatchProblem:
         ``[x_k, x_{k+1}, φ]``; what remains on ``[x_{k+1}, φ]`` is carried on. The normal equations square the
         condition number of ``A`` (10¹²-10¹³ for a nearly rigid process model, so their covariance is good to
         ~10⁻⁴ only); this is accurate to ``cond(A)·ε``. Returns None when ``A`` has not full column rank.
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+            States [r m, v m/s, q (x, y, z, w), ω rad/s] (the solution of [Doerr2021] Eq. 31).
+        phi : ndarray, shape (4,)
+            φ = [log m, log A, log B, log C].
+        inliers : ndarray of bool, shape (K,)
+            Records whose measurement (and acceleration) rows are used.
+
+        Returns
+        -------
+        ndarray, shape (16, 16) or None
+            Covariance of ``[δx_K (12: m, m/s, rad, rad/s), δφ (4)]``; None when ``A`` is rank deficient (too few
+            rows or a negligible pivot of the last block) or the result is not finite.
         """
         _, groups = self.jacobian_groups(x, phi, inliers)
         k, nt, npar = self.k, TANGENT_DIM, par.N_PARAMS
@@ -394,7 +503,23 @@ class BatchProblem:
         return None
 
     def d2(self, x: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """Normalised residual squared ``d²_k`` of every record against the states ``x``."""
+        """Normalised residual squared ``d²_k`` of every record against the states ``x``.
+
+        The whitened measurement rows (and acceleration rows, if used) of record k, squared and summed; compared
+        with a χ² threshold on ``dof`` degrees of freedom by the batch solve's outlier gating.
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+            States [r m, v m/s, q (x, y, z, w), ω rad/s].
+        phi : ndarray, shape (4,)
+            φ = [log m, log A, log B, log C] (for the predicted accelerations).
+
+        Returns
+        -------
+        ndarray, shape (K,)
+            ``d²_k`` (dimensionless); NaN for records without a state measurement.
+        """
         e = boxminus(x, self.y)[:, self.state_rows] * self.w_state
         out = np.sum(e * e, axis=1)
         if self.accel_rows.size:
@@ -405,7 +530,18 @@ class BatchProblem:
         return out
 
     def residual_count(self, inliers: np.ndarray) -> int:
-        """Rows of ``b`` that carry information (measurement, acceleration, linked process, gauge, prior)."""
+        """Rows of ``b`` that carry information (measurement, acceleration, linked process, gauge, prior).
+
+        Parameters
+        ----------
+        inliers : ndarray of bool, shape (K,)
+            Records whose measurement (and acceleration) rows are used.
+
+        Returns
+        -------
+        int
+            The number of informative residual rows (``chi2_dof`` is this minus ``n_var``).
+        """
         n = int(inliers.sum()) * self.dof + int(self.link_rows.sum())
         n += self.gauge_rows.size * self.segment_starts.size
         return n + (par.N_PARAMS if self.prior is not None else 0)
@@ -416,7 +552,30 @@ def marginal_covariances(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``[(AᵀA)⁻¹]_θθ`` mapped from φ to θ, and the covariance of ``[δx_K, δφ]`` (last state and φ, 16×16).
 
-    Singular ``AᵀA`` gives ``inf`` diagonals.
+    Singular ``AᵀA`` gives ``inf`` diagonals. The covariance ``(AᵀA)⁻¹`` of the linearised problem of
+    [Doerr2021] Eq. 32 at the solution, taken from a block QR factorisation of ``A`` (default) or from a sparse LU
+    of the augmented system ``[[I, A], [Aᵀ, 0]]`` (``reference``); neither forms ``AᵀA``.
+
+    Parameters
+    ----------
+    problem : BatchProblem
+        The problem solved.
+    x : ndarray, shape (K, 13)
+        States [r m, v m/s, q (x, y, z, w), ω rad/s] of the solution.
+    phi : ndarray, shape (4,)
+        φ = [log m, log A, log B, log C] of the solution.
+    inliers : ndarray of bool, shape (K,)
+        Records whose measurement (and acceleration) rows are used.
+    reference : bool, default False
+        Use the sparse augmented-system path instead of the block QR.
+
+    Returns
+    -------
+    cov_theta : ndarray, shape (4, 4)
+        ``cov(θ̂)`` of θ = [m kg, Ixx, Iyy, Izz kg·m²] [kg², kg²·m², kg²·m⁴], mapped from φ through ``∂θ/∂φ``;
+        ``diag(inf)`` when singular.
+    cov_last : ndarray, shape (16, 16)
+        Covariance of ``[δx_K, δφ]`` (last state's 12 tangent entries, then φ); ``diag(inf)`` when singular.
     """
     m = TANGENT_DIM + par.N_PARAMS
     if reference:

@@ -24,7 +24,31 @@ LAMBDA_MAX = 1e12
 def linearise(
     problem: BatchProblem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, reference: bool
 ) -> tuple[np.ndarray, NormalEquations | ReferenceSystem]:
-    """Residuals and the normal equations at (x, φ): block form (default) or the sparse reference path."""
+    """Residuals and the normal equations at (x, φ): block form (default) or the sparse reference path.
+
+    The linearisation ``b(ϑ̄) + A δϑ`` of [Doerr2021] Eq. 32 about the current iterate.
+
+    Parameters
+    ----------
+    problem : BatchProblem
+        The batch problem (data, noise models, prior).
+    x : ndarray, shape (K, 13)
+        States [r m, v m/s, q (x, y, z, w), ω rad/s].
+    phi : ndarray, shape (4,)
+        φ = [log m, log A, log B, log C] (:mod:`oacli.estimation.parametrization`).
+    inliers : ndarray of bool, shape (K,)
+        Records whose measurement (and acceleration) rows are used.
+    reference : bool
+        Assemble the sparse ``A`` and factorise ``AᵀA`` by LU (:class:`ReferenceSystem`) instead of the block
+        normal equations (:class:`NormalEquations`).
+
+    Returns
+    -------
+    b : ndarray, shape (N,)
+        Whitened residuals (dimensionless).
+    system : NormalEquations or ReferenceSystem
+        The normal equations ``AᵀA δϑ = −Aᵀb`` at (x, φ).
+    """
     if reference:
         b, a_mat = problem.evaluate(x, phi, inliers, jacobian=True)
         return b, ReferenceSystem(b, a_mat)  # type: ignore[arg-type]
@@ -37,7 +61,45 @@ def levenberg_marquardt(
     history: list[float], reference: bool = False, lambda_init: float = LAMBDA_INIT,
 ) -> tuple[np.ndarray, np.ndarray, int, bool]:
     """Minimise ‖b‖² from (x, φ) starting with damping ``lambda_init``; returns the solution, the iterations done
-    and whether it converged."""
+    and whether it converged.
+
+    Gauss-Newton steps of [Doerr2021] Eq. 32 on the maximum-likelihood problem Eq. 31, damped as
+    ``(AᵀA + λ D) δϑ = −Aᵀb`` with ``D`` the diagonal of ``AᵀA`` (floored at 1e-12 of its largest entry); the states
+    are updated on the manifold (``x ⊞ δx``), φ additively. λ is divided by 10 after a step that does not raise the
+    cost and multiplied by 10 after one that does, up to ``LAMBDA_MAX``.
+
+    Parameters
+    ----------
+    problem : BatchProblem
+        The batch problem (data, noise models, prior).
+    x : ndarray, shape (K, 13)
+        Initial states [r m, v m/s, q (x, y, z, w), ω rad/s].
+    phi : ndarray, shape (4,)
+        Initial φ = [log m, log A, log B, log C].
+    inliers : ndarray of bool, shape (K,)
+        Records whose measurement (and acceleration) rows are used.
+    settings : EstimatorSettings
+        ``max_iterations`` and ``tolerance`` (on the relative cost decrease and on the largest step entry).
+    history : list of float
+        Appended with the cost ‖b‖² at the start and after every accepted step (mutated in place).
+    reference : bool, default False
+        Use the sparse reference path (:func:`linearise`).
+    lambda_init : float, default LAMBDA_INIT
+        Initial damping λ (dimensionless, relative to ``D``).
+
+    Returns
+    -------
+    x : ndarray, shape (K, 13)
+        Final states.
+    phi : ndarray, shape (4,)
+        Final φ.
+    iterations : int
+        Iterations done.
+    converged : bool
+        True when the relative cost decrease or the step fell below ``settings.tolerance``, or no damping up to
+        ``LAMBDA_MAX`` lowers the cost (a minimum within rounding); False after ``max_iterations`` or when the
+        damped system stays singular.
+    """
     b, system = linearise(problem, x, phi, inliers, reference)
     cost = float(b @ b)
     history.append(cost)

@@ -1,4 +1,4 @@
-"""The rotational dynamics ([Doerr2021] Eqs. 34b, 35b) as linear maps of a few features, for fast propagation.
+"""The rotational dynamics ([Doerr2021] Eqs. 35a-35b) as linear maps of a few features, for fast propagation.
 
 The rotational state ``z = [q, ω]`` evolves as ``q̇ = ½ q ⊗ [ω, 0]`` and ``ω̇ = J⁻¹(τ − ω × Jω)``; both rates and
 their Jacobians ``[∂ż/∂z | ∂ż/∂J]`` are linear in the features ``[ω, q, (ωy ωz, ωz ωx, ωx ωy), ω̇, q ⊗ ω]`` with
@@ -80,7 +80,21 @@ def rate_map_blocks(inertia: tuple[float, float, float]) -> tuple[np.ndarray, np
     """The non-zero blocks of :func:`_rate_map`: the first 13 features to the Jacobian (13, 70) and the 12 products
     ``q_i ω_j`` to ``q̇`` (12, 4) (the other two blocks are zero; two small products instead of one 25×74). Built
     from the constant parts and the 15 inertia-dependent coefficients (the filter's θ changes at every record, so
-    this cache rarely hits there); read-only."""
+    this cache rarely hits there); read-only.
+
+    Parameters
+    ----------
+    inertia : tuple of 3 float
+        Principal moments of inertia ``(Ixx, Iyy, Izz)`` [kg·m²] (hashable: the result is cached).
+
+    Returns
+    -------
+    jac_map : ndarray, shape (13, 70), read-only
+        Maps the features ``[ω (3), q (4), (ωy ωz, ωz ωx, ωx ωy) (3), ω̇ (3)]`` to ``[∂ż/∂z | ∂ż/∂I]`` (7×10,
+        row-major) of [Doerr2021] Eqs. 35a-35b.
+    qdot_map : ndarray, shape (12, 4), read-only
+        Maps the products ``q_i ω_j`` (at ``3 i + j``) to ``q̇ = ½ Ξ(q) ω`` ([Doerr2021] Eq. 36).
+    """
     ix, iy, iz = inertia
     jac_map = _CONSTANT_RATE_BLOCKS[0].copy()
     jac_map.ravel()[_CONSTANT_RATE_BLOCKS[2]] = (
@@ -95,10 +109,29 @@ _CONSTANT_RATE_BLOCKS = _constant_rate_blocks()
 def rotational_rate(
     z: np.ndarray, tau: np.ndarray, inertia: np.ndarray, rate_map: tuple[np.ndarray, np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """ż (K, 7) of ``z = [q, ω]`` (Doerr Eqs. 34-35, attitude rows) and ``[∂ż/∂z | ∂ż/∂I]`` (K, 7, 10).
+    """ż (K, 7) of ``z = [q, ω]`` ([Doerr2021] Eqs. 35a-35b) and ``[∂ż/∂z | ∂ż/∂I]`` (K, 7, 10).
 
     Every entry is linear in a few features of z (ω, q, products of two rates, ω̇, products q_i ω_j), so all of them
-    come from products with the blocks of ``rate_map`` (:func:`rate_map_blocks`).
+    come from products with the blocks of ``rate_map`` (:func:`rate_map_blocks`). ``q̇ = ½ Ξ(q) ω`` with Ξ of
+    [Doerr2021] Eq. 36, ``ω̇ = J⁻¹(τ − ω × Jω)`` with ``J = diag(Ixx, Iyy, Izz)``.
+
+    Parameters
+    ----------
+    z : ndarray, shape (K, 7)
+        Rotational states ``[q (x, y, z, w), ω rad/s]``.
+    tau : ndarray, shape (K, 3) or (3,)
+        Body-frame torques [N·m].
+    inertia : ndarray, shape (3,)
+        Principal moments of inertia ``[Ixx, Iyy, Izz]`` [kg·m²].
+    rate_map : tuple of ndarray
+        ``rate_map_blocks(tuple(inertia))``: the (13, 70) and (12, 4) feature maps at the same inertia.
+
+    Returns
+    -------
+    zdot : ndarray, shape (K, 7)
+        ``[q̇ 1/s, ω̇ rad/s²]``.
+    jacobian : ndarray, shape (K, 7, 10)
+        ``∂ż/∂z`` (columns 0-6, on ``[q, ω]``) and ``∂ż/∂[Ixx, Iyy, Izz]`` (columns 7-9, per kg·m²).
     """
     k = z.shape[0]
     w = z[:, 4:7]
@@ -117,7 +150,26 @@ def rotational_rate(
 
 
 def rotation_rates(z: np.ndarray, tau: np.ndarray, inertia: np.ndarray) -> np.ndarray:
-    """ż (K, 7) of the rotational state ``z = [q, ω]`` (Doerr Eqs. 34-35; the operations of :func:`dynamics_batch`)."""
+    """ż (K, 7) of the rotational state ``z = [q, ω]`` ([Doerr2021] Eqs. 35a-35b; the operations of
+    :func:`dynamics_batch`).
+
+    ``q̇ = ½ Ξ(q) ω`` (Ξ of [Doerr2021] Eq. 36) and ``ω̇ = J⁻¹(τ − ω × Jω)``, ``J = diag(Ixx, Iyy, Izz)``; no
+    Jacobians (the end-state-only propagation).
+
+    Parameters
+    ----------
+    z : ndarray, shape (K, 7)
+        Rotational states ``[q (x, y, z, w), ω rad/s]``.
+    tau : ndarray, shape (K, 3)
+        Body-frame torques [N·m].
+    inertia : ndarray, shape (3,)
+        Principal moments of inertia ``[Ixx, Iyy, Izz]`` [kg·m²].
+
+    Returns
+    -------
+    ndarray, shape (K, 7)
+        ``[q̇ 1/s, ω̇ rad/s²]``.
+    """
     qx, qy, qz, qw = z[:, 0], z[:, 1], z[:, 2], z[:, 3]
     wx, wy, wz = z[:, 4], z[:, 5], z[:, 6]
     ix, iy, iz = inertia
@@ -134,7 +186,26 @@ def rotation_rates(z: np.ndarray, tau: np.ndarray, inertia: np.ndarray) -> np.nd
 
 def rotation_substeps(z: np.ndarray, tau: np.ndarray, inertia: np.ndarray, durations: np.ndarray) -> np.ndarray:
     """End states (K, 7) of the RK4 sub-steps of the rotational state of K intervals (the simulator's stages and
-    quaternion normalisation; the translation is in closed form, see :func:`propagate_intervals_structured`)."""
+    quaternion normalisation; the translation is in closed form, see :func:`propagate_intervals_structured`).
+
+    Integrates [Doerr2021] Eqs. 35a-35b (:func:`rotation_rates`) with the torque held over each interval.
+
+    Parameters
+    ----------
+    z : ndarray, shape (K, 7)
+        Rotational states ``[q (x, y, z, w), ω rad/s]`` at the intervals' starts.
+    tau : ndarray, shape (K, 3)
+        Body-frame torques [N·m], constant over each interval.
+    inertia : ndarray, shape (3,)
+        Principal moments of inertia ``[Ixx, Iyy, Izz]`` [kg·m²].
+    durations : ndarray, shape (K, M)
+        Sub-step durations [s] (:func:`oacli.estimation.propagation.substep_schedule`); zeros are skipped.
+
+    Returns
+    -------
+    ndarray, shape (K, 7)
+        Rotational states at the intervals' ends, each quaternion of unit norm with ``w >= 0``.
+    """
     for col in range(durations.shape[1]):
         dt = durations[:, col]
         active = dt > 0.0

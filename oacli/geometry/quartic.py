@@ -122,7 +122,24 @@ def quartic_minimum_at_least_zero(coeffs: np.ndarray) -> tuple[np.ndarray, np.nd
 def quadratic_form_coeffs(
     alpha: np.ndarray, beta: np.ndarray, gamma: np.ndarray, m: np.ndarray
 ) -> np.ndarray:
-    """Coefficients (K, 5) of ``(α + β s + γ s²)ᵀ M (α + β s + γ s²) - 1``."""
+    """Coefficients (K, 5) of ``(α + β s + γ s²)ᵀ M (α + β s + γ s²) - 1``.
+
+    With ``α = p0 − c``, ``β = v0 h`` and ``γ = ½ a h²`` this is the ellipsoid function
+    ``(p(τ) − c)ᵀ P (p(τ) − c) − 1`` of [Doerr2021] Eqs. 12-14 along a constant-acceleration piece of duration ``h``,
+    in the normalised time ``s = τ / h ∈ [0, 1]``; it is >= 0 outside the keep-out ellipsoid.
+
+    Parameters
+    ----------
+    alpha, beta, gamma : ndarray, shape (K, 3)
+        The position offset from the centre and the velocity and acceleration terms of each piece [m].
+    m : ndarray, shape (K, 3, 3)
+        Symmetric shape matrices ``P`` [1/m²] (the cross terms assume ``M = Mᵀ``).
+
+    Returns
+    -------
+    ndarray, shape (K, 5)
+        ``c_0 .. c_4`` (dimensionless) of ``Σ_k c_k s^k``, as :func:`quartic_minimum` takes them.
+    """
     ma = np.einsum("kij,kj->ki", m, alpha)
     mb = np.einsum("kij,kj->ki", m, beta)
     mg = np.einsum("kij,kj->ki", m, gamma)
