@@ -17,7 +17,8 @@ Entities (a fixed contract: tests read them back):
   ``metrics/angular_velocity_radps`` (with ± limits);
 * ``log``: the text log.
 
-Application id ``oacli-excite``.
+Application id ``oacli-excite-offline`` (the offline design) or ``oacli-excite-rattle`` (RATTLE): the two
+kinds have different layouts and open side by side in one viewer (:func:`excite_application_id`).
 """
 
 from __future__ import annotations
@@ -121,6 +122,21 @@ class RattleSteps:
     gamma: np.ndarray
 
 
+def excite_application_id(rattle: bool) -> str:
+    """The application id of an ``excite`` recording: ``oacli-excite-rattle`` or ``oacli-excite-offline``.
+
+    Parameters
+    ----------
+    rattle : bool
+        The excitation was replanned online by RATTLE (else designed offline).
+
+    Returns
+    -------
+    str
+    """
+    return application_id("excite-rattle" if rattle else "excite-offline")
+
+
 def excite_blueprint(limits: AxisLimits | None = None, *, scp: bool = True, rattle: bool = False) -> rrb.Blueprint:
     """Default layout: 3D world and log on the left; information, bounds, inputs and rates over mission time on
     the right, with the criterion per SCP iteration (offline design) or RATTLE's information weights.
@@ -203,7 +219,7 @@ def write_excite_recording(
     """
     t, x, u = trajectory.t, trajectory.x, trajectory.u
     theta = information.theta
-    rec = StageRecording(application_id("excite"), recording_name)
+    rec = StageRecording(excite_application_id(rattle is not None), recording_name)
     rec.log_scene(scene)
     rec.log_trajectory_over_time(ROBOT, t, x, path_entity=EXCITATION, path_color=ACTUAL_COLOR)
     if scp is not None:

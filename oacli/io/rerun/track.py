@@ -50,6 +50,21 @@ SOLVE_TIME = "metrics/solve_time_ms"
 _AXES_NOTE = " x/y/z, ± limits, faded = commanded"
 
 
+def track_application_id(controller: str) -> str:
+    """The application id of a track recording flown with ``controller`` (``oacli-track-mpc``, ``oacli-track-tube``).
+
+    Parameters
+    ----------
+    controller : str
+        ``controller.type`` of the run.
+
+    Returns
+    -------
+    str
+    """
+    return application_id(f"track-{controller}")
+
+
 def track_blueprint(limits: AxisLimits | None = None) -> rrb.Blueprint:
     """Default layout of the ``track`` recording.
 
@@ -102,6 +117,7 @@ def write_track_recording(
     recording_name: str = "track",
     extra: Callable[[StageRecording], None] | None = None,
     blueprint: rrb.Blueprint | None = None,
+    controller: str = "mpc",
 ) -> None:
     """Write the ``track`` stage's recording (entities in the module docstring) with :func:`track_blueprint`.
 
@@ -129,6 +145,10 @@ def write_track_recording(
         controller-specific layers.
     blueprint : rerun.blueprint.Blueprint, optional
         Layout to store instead of :func:`track_blueprint`.
+    controller : str
+        The controller kind (``controller.type``: ``"mpc"`` or ``"tube"``): the application id is
+        ``oacli-track-<controller>`` (:func:`track_application_id`), so a standard-MPC and a tube-MPC flight open
+        side by side in one viewer, each in its own layout (the viewer keeps one blueprint per application id).
 
     Raises
     ------
@@ -150,7 +170,7 @@ def write_track_recording(
             raise ValueError(f"{name}: expected shape {shape}, got {np.shape(arr)}")
     u_command, u_applied = tel.u_command, tel.u_applied
 
-    rec = StageRecording(application_id("track"), recording_name)
+    rec = StageRecording(track_application_id(controller), recording_name)
     rec.log_scene(scene)
     rec.log_path(REFERENCE, reference.x[:, 0:3], color=REFERENCE_COLOR)
     rec.log_positions_over_time(f"{REFERENCE}/target", reference.t, reference.x[:, 0:3], color=REFERENCE_COLOR,
