@@ -18,6 +18,7 @@ import numpy as np
 import rerun.blueprint as rrb
 
 from oacli.geometry import Scene
+from oacli.io.rerun.layout import collapsed_side_panels, world_title, world_view
 from oacli.io.rerun.writer import (
     ACTUAL_COLOR,
     AXIS_COLORS,
@@ -65,7 +66,8 @@ def track_application_id(controller: str) -> str:
     return application_id(f"track-{controller}")
 
 
-def track_blueprint(limits: AxisLimits | None = None) -> rrb.Blueprint:
+def track_blueprint(limits: AxisLimits | None = None, *, frame: str = "world",
+                    focus: np.ndarray | None = None) -> rrb.Blueprint:
     """Default layout of the ``track`` recording.
 
     Left: a 3D view of ``world/`` (keep-in box, keep-out ellipsoids, reference and actual path, the robot body
@@ -77,13 +79,17 @@ def track_blueprint(limits: AxisLimits | None = None) -> rrb.Blueprint:
     ----------
     limits : AxisLimits, optional
         Force and torque bounds: the value axes span 1.15 × them (ticks beyond ``0`` however flat the data).
+    frame : str
+        Name of the world frame (``environment.frame``), in the 3-D view's title.
+    focus : ndarray, shape (N, 3), optional
+        Points [m] the 3-D view's camera frames (reference and flown path), not the whole workspace.
 
     Returns
     -------
     rerun.blueprint.Blueprint
         The blueprint; pass it to :meth:`oacli.io.rerun.writer.StageRecording.save`.
     """
-    world = rrb.Spatial3DView(origin=WORLD, name="World (ISS frame)")
+    world = world_view(WORLD, world_title(frame, "reference (blue), flown (orange)"), focus)
     log = rrb.TextLogView(origin=LOG, name="Log")
     plots = rrb.Vertical(
         time_series_view(POSITION_ERROR, "Position error [m]"),
@@ -102,6 +108,7 @@ def track_blueprint(limits: AxisLimits | None = None) -> rrb.Blueprint:
             column_shares=[1.2, 1.0],
         ),
         rrb.TimePanel(timeline=TIMELINE),
+        *collapsed_side_panels(),
     )
 
 
@@ -144,7 +151,8 @@ def write_track_recording(
         Called with the :class:`~oacli.io.rerun.writer.StageRecording` before it is saved, to log
         controller-specific layers.
     blueprint : rerun.blueprint.Blueprint, optional
-        Layout to store instead of :func:`track_blueprint`.
+        Layout to store instead of the default: :func:`track_blueprint`, or
+        :func:`oacli.io.rerun.tube.tube_track_blueprint` for ``controller="tube"``.
     controller : str
         The controller kind (``controller.type``: ``"mpc"`` or ``"tube"``): the application id is
         ``oacli-track-<controller>`` (:func:`track_application_id`), so a standard-MPC and a tube-MPC flight open
@@ -189,4 +197,12 @@ def write_track_recording(
     rec.log_entries(log)
     if extra is not None:
         extra(rec)
-    rec.save(Path(path), track_blueprint(limits) if blueprint is None else blueprint)
+    if blueprint is None:
+        focus = np.concatenate([reference.x[:, 0:3], tel.x_true[:, 0:3]])
+        if controller == "tube":
+            from oacli.io.rerun.tube import tube_track_blueprint  # tube.py builds on this module's names
+
+            blueprint = tube_track_blueprint(frame=scene.frame, focus=focus)
+        else:
+            blueprint = track_blueprint(limits, frame=scene.frame, focus=focus)
+    rec.save(Path(path), blueprint)
