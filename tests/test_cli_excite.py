@@ -284,7 +284,7 @@ def test_excite_recording_opens_with_every_panel_filled(excite_run):
     rrd = excite_run / "excite.rrd"
     assert_recording_opens_right(rrd, "excite-offline")
     views = {v["origin"].strip("/") for v in read_blueprint_views(rrd)}
-    assert {"metrics/criterion", "metrics/velocity_mps", "metrics/crb_std_log10_pct"} <= views
+    assert {"charts/criterion", "metrics/velocity_mps", "metrics/crb_std_log10_pct"} <= views
     # log10 of the Cramer-Rao std in % of theta, from the summary's final values
     _, log_pct = read_recording_scalars(rrd)["metrics/crb_std_log10_pct"]
     summary = json.loads((excite_run / "summary.json").read_text())
