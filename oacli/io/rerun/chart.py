@@ -79,14 +79,16 @@ def log_line_chart(stream: rr.RecordingStream, entity: str, x: np.ndarray, y: np
                rr.LineStrips2D([[[left, -1.08 * HEIGHT], [left, below], [1.02 * WIDTH, below]]], colors=[AXIS_COLOR],
                                radii=[-1.0]),
                static=True, strict=True)
-    # y max and min left of the y axis, the x ends below the x axis (labels are drawn centred under their point)
-    ticks = np.array([[-0.16 * WIDTH, -HEIGHT], [-0.16 * WIDTH, 0.0], [0.0, below], [WIDTH, below]])
+    # y max and min left of the y axis, the x ends below the x axis (labels are drawn centred under their point);
+    # a single value or abscissa gets one tick
+    ticks = [((-0.16 * WIDTH, -HEIGHT), f"{y_name} {_fmt(hi)}")] if hi > lo else []
+    ticks.append(((-0.16 * WIDTH, 0.0 if hi > lo else -0.5 * HEIGHT), f"{y_name} {_fmt(lo)}"))
+    ticks += [((0.0, below), f"{x_name} {_fmt(x0)}")] if x1 > x0 else []
+    ticks.append(((WIDTH if x1 > x0 else 0.5 * WIDTH, below), f"{x_name} {_fmt(x1)}"))
     stream.log(f"{entity}/ticks",
-               rr.Points2D(ticks, colors=[AXIS_COLOR], radii=[-1.0],
-                           labels=[f"{y_name} {_fmt(hi)}", f"{y_name} {_fmt(lo)}", f"{x_name} {_fmt(x0)}",
-                                   f"{x_name} {_fmt(x1)}"], show_labels=True),
+               rr.Points2D([t[0] for t in ticks], colors=[AXIS_COLOR], radii=[-1.0], labels=[t[1] for t in ticks],
+                           show_labels=True),
                static=True, strict=True)
-
 
 def line_chart_view(entity: str, name: str) -> rrb.Spatial2DView:
     """The 2-D view of a chart logged by :func:`log_line_chart`, bounded on the chart's plane and its labels.
