@@ -25,6 +25,7 @@ from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.plots.track import write_track_plots
 from oacli.io.reference_files import load_reference
 from oacli.io.rerun.track import write_track_recording
+from oacli.io.rerun.tube import tube_track_blueprint
 from oacli.io.runfolder import StageResult
 from oacli.metrics import TrackingErrors, percentiles_ms, rms, tracking_errors
 from oacli.model.limits import MotionLimits
@@ -309,7 +310,7 @@ def run_track(
                 run.file("rrd", "track.rrd"), scene=scene, reference=reference, telemetry=tel, errors=ctrl_errors,
                 limits=limits, log=log, recording_name=f"{cfg.name}/track",
                 extra=None if monitor is None or history is None else tube_layers(monitor, history),
-                controller=cfg.controller.type,
+                blueprint=None if design is None else tube_track_blueprint, controller=cfg.controller.type,
             )
             if cfg.outputs.plots:
                 write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,

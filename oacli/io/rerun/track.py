@@ -123,7 +123,7 @@ def write_track_recording(
     log: Sequence[LogEntry] = (),
     recording_name: str = "track",
     extra: Callable[[StageRecording], None] | None = None,
-    blueprint: rrb.Blueprint | None = None,
+    blueprint: rrb.Blueprint | Callable[..., rrb.Blueprint] | None = None,
     controller: str = "mpc",
 ) -> None:
     """Write the ``track`` stage's recording (entities in the module docstring) with :func:`track_blueprint`.
@@ -150,9 +150,10 @@ def write_track_recording(
     extra : callable, optional
         Called with the :class:`~oacli.io.rerun.writer.StageRecording` before it is saved, to log
         controller-specific layers.
-    blueprint : rerun.blueprint.Blueprint, optional
-        Layout to store instead of the default: :func:`track_blueprint`, or
-        :func:`oacli.io.rerun.tube.tube_track_blueprint` for ``controller="tube"``.
+    blueprint : rerun.blueprint.Blueprint or callable, optional
+        Layout to store instead of :func:`track_blueprint`, or a function that makes it, called with the keywords
+        ``frame`` (the world frame's name) and ``focus`` (the reference and flown positions [m] the 3-D view
+        frames), e.g. :func:`oacli.io.rerun.tube.tube_track_blueprint`.
     controller : str
         The controller kind (``controller.type``: ``"mpc"`` or ``"tube"``): the application id is
         ``oacli-track-<controller>`` (:func:`track_application_id`), so a standard-MPC and a tube-MPC flight open
@@ -197,12 +198,9 @@ def write_track_recording(
     rec.log_entries(log)
     if extra is not None:
         extra(rec)
+    focus = np.concatenate([reference.x[:, 0:3], tel.x_true[:, 0:3]])
     if blueprint is None:
-        focus = np.concatenate([reference.x[:, 0:3], tel.x_true[:, 0:3]])
-        if controller == "tube":
-            from oacli.io.rerun.tube import tube_track_blueprint  # tube.py builds on this module's names
-
-            blueprint = tube_track_blueprint(frame=scene.frame, focus=focus)
-        else:
-            blueprint = track_blueprint(limits, frame=scene.frame, focus=focus)
+        blueprint = track_blueprint(limits, frame=scene.frame, focus=focus)
+    elif callable(blueprint):
+        blueprint = blueprint(frame=scene.frame, focus=focus)
     rec.save(Path(path), blueprint)
