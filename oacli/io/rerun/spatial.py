@@ -36,7 +36,6 @@ class SpatialLogging:
     def _send(self, entity: str, t_s: np.ndarray, columns) -> None:  # pragma: no cover
         raise NotImplementedError
 
-
     def log_scene(
         self,
         scene: Scene,

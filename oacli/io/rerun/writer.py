@@ -215,29 +215,6 @@ class StageRecording(SpatialLogging):
             )
             self._send(path, t_span, rr.Scalars.columns(scalars=np.tile(sign * lim, (2, 1))))
 
-    def log_bar_chart(
-        self, entity: str, x: np.ndarray, values: np.ndarray, *, color: Sequence[int] = (90, 150, 255, 255)
-    ) -> None:
-        """Log a static bar chart (one bar per ``x``), shown on every timeline: per-iteration figures that live on
-        a sequence timeline of their own, so their panel is never empty on the ``mission_time`` timeline.
-
-        Parameters
-        ----------
-        entity : str
-            Entity path (may also hold the same figures as ``Scalars`` on a sequence timeline).
-        x : ndarray, shape (N,)
-            Abscissa (iteration, try ...).
-        values : ndarray, shape (N,)
-            Bar heights; NaN is drawn as 0.
-        color : sequence of int
-            RGB(A) 0-255.
-        """
-        xx = np.asarray(x, dtype=float).reshape(-1)
-        vv = np.nan_to_num(np.asarray(values, dtype=float).reshape(-1))
-        if xx.shape != vv.shape:
-            raise ValueError(f"{entity}: {xx.shape[0]} abscissae but {vv.shape[0]} values")
-        self._log(entity, rr.BarChart(vv, abscissa=xx, color=_rgba(color)), static=True, t=None)
-
     # -- text ----------------------------------------------------------------------------------------------------
 
     def log_text(self, t: float, level: str, message: str) -> None:
