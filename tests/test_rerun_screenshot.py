@@ -122,8 +122,38 @@ def check_screenshot(png: Path) -> None:
         shutil.copy(png, Path(keep) / png.name)
 
 
+def orange(r: np.ndarray, g: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pixels of the flown / planned path's orange (255, 170, 40)."""
+    return (np.abs(r - 255) < 40) & (np.abs(g - 170) < 40) & (np.abs(b - 40) < 40)
+
+
+def cyan_or_blue(r: np.ndarray, g: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pixels of the tube's nominal path (cyan, dimmed by the tube drawn over it) or the reference (blue)."""
+    return (g - r > 40) & (b - r > 40)
+
+
+#: Pixels of the path each kind's 3-D view is framed on.
+PATH_PIXELS = {"oacli-track-mpc": orange, "oacli-track-tube": cyan_or_blue, "oacli-smooth": orange,
+               "oacli-plan": orange}
+
+
+def drawn_extent(png: Path, which) -> float:
+    """How much of an image the pixels ``which(r, g, b)`` span: the larger of their width and height spans, as a
+    fraction of the image's."""
+    import matplotlib.image as mpimg
+
+    pixels = np.asarray(mpimg.imread(png), dtype=float)[..., :3] * 255.0
+    ys, xs = np.nonzero(which(pixels[..., 0], pixels[..., 1], pixels[..., 2]))
+    if xs.size == 0:
+        return 0.0
+    return max(np.ptp(xs) / pixels.shape[1], np.ptp(ys) / pixels.shape[0])
+
+
 def open_together(rrds: dict[str, Path], workdir: Path) -> dict[str, Shown]:
-    """Open ``rrds`` (label → file) in one headless viewer, in that order; what each shows, screenshots taken."""
+    """Open ``rrds`` (label → file) in one headless viewer, in that order; what each shows, screenshots taken.
+
+    The 3-D view of a kind in :data:`PATH_PIXELS` must open framed on the path: it spans at least a fifth of the
+    view (framed on the whole ISS module, a track's path spanned 3-4 %)."""
     by_app = {read_application_id(p): (label, p) for label, p in rrds.items()}
     assert len(by_app) == len(rrds), f"two recordings share an application id: {sorted(by_app)}"
     out: dict[str, Shown] = {}
@@ -141,6 +171,11 @@ def open_together(rrds: dict[str, Path], workdir: Path) -> dict[str, Shown]:
                                                                        - shown.origins())
             assert not ABSENT.get(shown.application_id, set()) & shown.origins(), label
             assert views_without_data(rrd, shown) == [], label
+            if shown.application_id in PATH_PIXELS:
+                (world,) = [v for v in shown.views if v["class"] == "3D"]
+                view_png = viewer.screenshot(workdir / f"{label}_3d.png", view_id=world["view_id"])
+                extent = drawn_extent(view_png, PATH_PIXELS[shown.application_id])
+                assert extent > 0.2, f"{label}: the path spans {extent:.1%} of the 3-D view"
     assert set(out) == set(rrds)
     return out
 
