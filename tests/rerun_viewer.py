@@ -84,8 +84,8 @@ class HeadlessViewer:
         self.env = env
         self.log_path = self.workdir / "viewer.log"
         self._log = self.log_path.open("w")
-        cmd = [rerun_binary(), *map(str, rrds), "--headless", "--window-size", f"{size[0]}x{size[1]}",
-               "--bind", "127.0.0.1", "--port", str(self.port)]
+        cmd = [rerun_binary(), *(str(Path(p).resolve()) for p in rrds), "--headless",
+               "--window-size", f"{size[0]}x{size[1]}", "--bind", "127.0.0.1", "--port", str(self.port)]
         self.viewer = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                        env=env, start_new_session=True, cwd=self.workdir)
         self.mcp: subprocess.Popen[str] | None = None
