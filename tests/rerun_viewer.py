@@ -165,6 +165,8 @@ class HeadlessViewer:
             state = self.state()
             if len(state.get("recordings", [])) >= count and not state.get("loading"):
                 return state
+            if "Failed to load" in self.log_tail(100_000):
+                raise ViewerError(f"the viewer could not load a recording:\n{self.log_tail()}")
             if time.monotonic() > deadline:
                 raise ViewerError(f"{len(state.get('recordings', []))} of {count} recordings loaded after "
                                   f"{self.timeout_s:.0f} s:\n{self.log_tail()}")

@@ -29,7 +29,7 @@ from oacli.io.rerun.read import (
     read_entities_shown_on,
     read_recording_scalars,
 )
-from tests.rerun_viewer import RERUN, HeadlessViewer, Shown
+from tests.rerun_viewer import RERUN, HeadlessViewer, Shown, ViewerError
 from tests.test_cli_excite import small_iss
 from tests.test_stage_plots import stage_runs  # noqa: F401 -- the tiny runs of every stage (fixture)
 
@@ -157,8 +157,20 @@ def open_together(rrds: dict[str, Path], workdir: Path) -> dict[str, Shown]:
     by_app = {read_application_id(p): (label, p) for label, p in rrds.items()}
     assert len(by_app) == len(rrds), f"two recordings share an application id: {sorted(by_app)}"
     out: dict[str, Shown] = {}
-    with HeadlessViewer(list(rrds.values()), workdir) as viewer:
-        state = viewer.wait_loaded(len(rrds))
+    no_adapter = "the Vulkan driver offers no adapter to wgpu (install mesa-vulkan-drivers, WGPU_BACKEND=vulkan)"
+    try:
+        viewer = HeadlessViewer(list(rrds.values()), workdir)
+    except ViewerError as exc:
+        if "No graphics adapter was found" in str(exc):
+            pytest.skip(no_adapter)
+        raise
+    with viewer:
+        try:
+            state = viewer.wait_loaded(len(rrds))
+        except ViewerError as exc:
+            if "No graphics adapter was found" in str(exc):
+                pytest.skip(no_adapter)
+            raise
         for recording in state["recordings"]:
             shown = viewer.show(recording, state)
             label, rrd = by_app[shown.application_id]
