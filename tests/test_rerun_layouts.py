@@ -144,8 +144,9 @@ def test_campaign_recording_shows_points_per_run_status_and_histograms(tmp_path)
 
 def test_histogram_counts_every_finite_value():
     values = np.array([1.0, 2.0, 2.0, np.nan, 7.0, np.inf])
-    centres, counts = histogram(values, bins=3)
-    assert counts.sum() == 4 and centres.shape == (3,)
+    centres, counts, width = histogram(values, bins=3)
+    assert counts.sum() == 4 and centres.shape == (3,) and width == pytest.approx(2.0)
+    np.testing.assert_allclose(np.diff(centres), width)
     assert histogram(np.full(4, 2.5))[1].sum() == 4  # one value: a bin around it
 
 

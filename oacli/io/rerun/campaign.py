@@ -44,8 +44,9 @@ def metric_title(key: str) -> str:
     return METRIC_TITLES.get(key, key.replace("_", " "))
 
 
-def histogram(values: np.ndarray, bins: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Runs per bin of the finite ``values``: (bin centres, counts); ``bins`` from the sample size by default.
+def histogram(values: np.ndarray, bins: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Runs per bin of the finite ``values``: (bin centres, counts, bin width); ``bins`` from the sample size by
+    default.
 
     Parameters
     ----------
@@ -57,37 +58,56 @@ def histogram(values: np.ndarray, bins: int | None = None) -> tuple[np.ndarray, 
     Returns
     -------
     centres, counts : ndarray
+    width : float
+        Bin width (the bars' width: Rerun draws bars one abscissa unit wide otherwise).
     """
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
     if v.size == 0:
-        return np.empty(0), np.empty(0)
+        return np.empty(0), np.empty(0), 1.0
     n_bins = int(bins if bins is not None else min(40, max(5, v.size // 2)))
     lo, hi = float(v.min()), float(v.max())
     if hi <= lo:
         lo, hi = lo - 0.5, hi + 0.5
     counts, edges = np.histogram(v, bins=n_bins, range=(lo, hi))
-    return 0.5 * (edges[:-1] + edges[1:]), counts.astype(float)
+    return 0.5 * (edges[:-1] + edges[1:]), counts.astype(float), float(edges[1] - edges[0])
 
 
-def campaign_blueprint(metrics: list[str]) -> rrb.Blueprint:
-    """Layout: per-run status and the run log on the left; each metric per run (points) and its histogram.
+def campaign_blueprint(metrics: list[str], runs: tuple[int, int] | None = None) -> rrb.Blueprint:
+    """Layout: per-run status and the run log on the left; one row per metric: its value per run (points) and its
+    histogram (tracking metrics and estimation errors in two tabs when both are there).
 
     Parameters
     ----------
     metrics : list of str
         The metric keys logged (``campaign/<key>`` and ``histograms/<key>``).
+    runs : (int, int), optional
+        First and last run index: the run axes span them with half a run to spare (no point on the edge).
 
     Returns
     -------
     rerun.blueprint.Blueprint
     """
-    whole = rrb.TimeAxis(view_range=rr.TimeRange(start=rr.TimeRangeBoundary.infinite(),
-                                                 end=rr.TimeRangeBoundary.infinite()))
-    per_run = [rrb.TimeSeriesView(origin=f"campaign/{key}", name=f"{metric_title(key)} per run",
-                                  axis_x=whole, plot_legend=rrb.PlotLegend(visible=False)) for key in metrics]
-    hists = [rrb.BarChartView(origin=f"{HISTOGRAMS}/{key}", name=f"{metric_title(key)}: runs per bin",
-                              plot_legend=rrb.PlotLegend(visible=False)) for key in metrics]
+    if runs is None:
+        span = rr.TimeRange(start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.infinite())
+    else:
+        span = rr.TimeRange(start=rr.TimeRangeBoundary.absolute(seq=int(runs[0]) - 1),
+                            end=rr.TimeRangeBoundary.absolute(seq=int(runs[1]) + 1))
+    whole = rrb.TimeAxis(view_range=span)
+
+    def row(key: str) -> rrb.Horizontal:
+        return rrb.Horizontal(
+            rrb.TimeSeriesView(origin=f"campaign/{key}", name=f"{metric_title(key)} per run", axis_x=whole,
+                               plot_legend=rrb.PlotLegend(visible=False)),
+            rrb.BarChartView(origin=f"{HISTOGRAMS}/{key}", name=f"{metric_title(key)}: runs per bin",
+                             plot_legend=rrb.PlotLegend(visible=False)),
+        )
+
+    tracking = [k for k in metrics if not k.startswith("estimate_error_pct/")]
+    estimation = [k for k in metrics if k.startswith("estimate_error_pct/")]
+    groups = [rrb.Vertical(*(row(k) for k in keys), name=name)
+              for name, keys in (("Tracking", tracking), ("Estimation", estimation)) if keys]
+    right = groups[0] if len(groups) == 1 else rrb.Tabs(*groups, active_tab=0)
     status = rrb.Vertical(
         rrb.StateTimelineView(origin=STATUS, name="Status per run (x: run)", time_view=whole),
         rrb.TextLogView(origin=CAMPAIGN_LOG, name="Runs: status, error"),
@@ -95,8 +115,7 @@ def campaign_blueprint(metrics: list[str]) -> rrb.Blueprint:
         name="Runs",
     )
     return rrb.Blueprint(
-        rrb.Horizontal(status, rrb.Grid(*per_run, name="Per run"), rrb.Grid(*hists, name="Histograms"),
-                       column_shares=[1.0, 1.3, 1.3]),
+        rrb.Horizontal(status, right, column_shares=[1.0, 2.4]),
         rrb.TimePanel(timeline=RUN_TIMELINE),
         *collapsed_side_panels(),
     )
@@ -127,10 +146,10 @@ def write_campaign_recording(path: Path, series: Mapping[str, tuple[np.ndarray, 
                    static=True, strict=True)
         stream.send_columns(entity, indexes=[rr.TimeColumn(RUN_TIMELINE, sequence=np.asarray(ks, dtype=np.int64))],
                             columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)), strict=True)
-        centres, counts = histogram(values)
+        centres, counts, width = histogram(values)
         if counts.size:
-            stream.log(f"{HISTOGRAMS}/{key}", rr.BarChart(counts, abscissa=centres, color=_BAR_COLOR), static=True,
-                       strict=True)
+            stream.log(f"{HISTOGRAMS}/{key}", rr.BarChart(counts, abscissa=centres, widths=np.full(counts.size, width),
+                                                          color=_BAR_COLOR), static=True, strict=True)
     if runs:
         order = sorted(runs)
         index = [rr.TimeColumn(RUN_TIMELINE, sequence=np.array(order, dtype=np.int64))]
@@ -141,4 +160,5 @@ def write_campaign_recording(path: Path, series: Mapping[str, tuple[np.ndarray, 
                             columns=rr.TextLog.columns(text=lines, level=[_LEVELS.get(runs[k][0], "INFO")
                                                                            for k in order]), strict=True)
     shown = [k for k in keys if np.any(np.isfinite(np.asarray(series[k][1], dtype=float)))]
-    rec.save(Path(path), campaign_blueprint(shown))
+    indices = sorted(runs) or [int(k) for key in keys for k in series[key][0]]
+    rec.save(Path(path), campaign_blueprint(shown, (min(indices), max(indices)) if indices else None))
