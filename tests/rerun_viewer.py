@@ -81,6 +81,12 @@ class HeadlessViewer:
         self.port = free_port()
         env = {**os.environ, "HOME": str(home), "XDG_DATA_HOME": str(home / "data"),
                "XDG_CONFIG_HOME": str(home / "config"), "WGPU_BACKEND": os.environ.get("WGPU_BACKEND", "vulkan")}
+        # usage analytics off (what `rerun analytics disable` writes): a test sends nothing anywhere
+        config = home / "config" / "rerun"
+        config.mkdir(parents=True, exist_ok=True)
+        (config / "analytics.json").write_text(json.dumps({
+            "analytics_enabled": False, "analytics_id": "0" * 32, "metadata": {},
+            "config_file_path": str(config / "analytics.json"), "data_dir_path": str(home / "data" / "rerun")}))
         self.env = env
         self.log_path = self.workdir / "viewer.log"
         self._log = self.log_path.open("w")
