@@ -116,7 +116,7 @@ def campaign_blueprint(metrics: list[str], runs: tuple[int, int] | None = None) 
     )
     return rrb.Blueprint(
         rrb.Horizontal(status, right, column_shares=[1.0, 2.4]),
-        rrb.TimePanel(timeline=RUN_TIMELINE),
+        rrb.TimePanel(timeline=RUN_TIMELINE, state="collapsed"),
         *collapsed_side_panels(),
     )
 

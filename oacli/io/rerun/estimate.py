@@ -101,8 +101,8 @@ def estimate_blueprint(*, frame: str = "world", focus: np.ndarray | None = None)
         rrb.TextLogView(origin=LOG, name="Log"),
         row_shares=[1.0, 1.5, 0.7],
     )
-    return rrb.Blueprint(rrb.Horizontal(params, right, column_shares=[1.6, 1.0]), rrb.TimePanel(timeline=TIMELINE),
-                         *collapsed_side_panels())
+    return rrb.Blueprint(rrb.Horizontal(params, right, column_shares=[1.6, 1.0]),
+                         rrb.TimePanel(timeline=TIMELINE, state="collapsed"), *collapsed_side_panels())
 
 
 def _constant(rec: StageRecording, entity: str, t_span: np.ndarray, value: float, name: str, color) -> None:

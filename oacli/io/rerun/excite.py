@@ -188,7 +188,7 @@ def excite_blueprint(limits: AxisLimits | None = None, *, scp: bool = True, ratt
     )
     return rrb.Blueprint(
         rrb.Horizontal(rrb.Vertical(world, log, row_shares=[3.0, 1.0], name="Scene"), plots, column_shares=[1.0, 1.3]),
-        rrb.TimePanel(timeline=TIMELINE),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed"),
         *collapsed_side_panels(),
     )
 

@@ -140,7 +140,7 @@ def motion_blueprint(world_name: str, extra_plots: Sequence[Any], timeline: str,
             plots,
             column_shares=[1.4, 1.0],
         ),
-        rrb.TimePanel(timeline=timeline),
+        rrb.TimePanel(timeline=timeline, state="collapsed"),
         *collapsed_side_panels(),
     )
 

@@ -107,7 +107,7 @@ def track_blueprint(limits: AxisLimits | None = None, *, frame: str = "world",
             plots,
             column_shares=[1.2, 1.0],
         ),
-        rrb.TimePanel(timeline=TIMELINE),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed"),
         *collapsed_side_panels(),
     )
 

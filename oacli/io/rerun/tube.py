@@ -158,6 +158,6 @@ def tube_track_blueprint(*, frame: str = "world", focus: np.ndarray | None = Non
             tube,
             column_shares=[1.2, 1.0, 1.0],
         ),
-        rrb.TimePanel(timeline=TIMELINE),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed"),
         *collapsed_side_panels(),
     )
