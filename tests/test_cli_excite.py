@@ -219,7 +219,7 @@ def test_rattle_method_replans_and_records_the_weights(tmp_path):
     rule = InformationWeighting()
     for r in replans:
         np.testing.assert_allclose(r["gamma"], rule.weights(np.array(r["std"])), rtol=1e-12)
-    assert_recording_opens_right(out / "excite.rrd", "excite")
+    assert_recording_opens_right(out / "excite.rrd", "excite-rattle")
     assert "metrics/gamma" in {v["origin"].strip("/") for v in read_blueprint_views(out / "excite.rrd")}
     traj = read_trajectory(out / "excite.mcap")
     np.testing.assert_allclose(np.diff(traj.t[:-1]), 0.2, atol=1e-9)  # the controller period (5 Hz)
@@ -282,9 +282,9 @@ def assert_recording_opens_right(rrd, stage):
 
 def test_excite_recording_opens_with_every_panel_filled(excite_run):
     rrd = excite_run / "excite.rrd"
-    assert_recording_opens_right(rrd, "excite")
+    assert_recording_opens_right(rrd, "excite-offline")
     views = {v["origin"].strip("/") for v in read_blueprint_views(rrd)}
-    assert {"metrics/criterion", "metrics/velocity_mps", "metrics/crb_std_log10_pct"} <= views
+    assert {"charts/criterion", "metrics/velocity_mps", "metrics/crb_std_log10_pct"} <= views
     # log10 of the Cramer-Rao std in % of theta, from the summary's final values
     _, log_pct = read_recording_scalars(rrd)["metrics/crb_std_log10_pct"]
     summary = json.loads((excite_run / "summary.json").read_text())

@@ -294,7 +294,14 @@ def assert_recording_opens_right(rrd, stage):
 def test_plan_and_smooth_recordings_open_with_every_panel_filled(runs):
     assert_recording_opens_right(runs["plan"] / "plan.rrd", "plan")
     assert_recording_opens_right(runs["smooth"] / "smooth.rrd", "smooth")
-    # the per-iteration figures are bar charts (static, shown on mission_time) beside the iteration-timeline series
-    views = {v["origin"].strip("/"): v["class"] for v in read_blueprint_views(runs["plan"] / "plan.rrd")}
-    assert views["metrics/solution_cost"] == "BarChart"
-    assert "metrics/solution_cost" in read_recording_scalars(runs["plan"] / "plan.rrd", timeline="iteration")
+    # the per-iteration figures are static line charts (shown on mission_time) beside the iteration-timeline series:
+    # the chart's line is the series, x the iteration, y framed on the costs' range (not bars from 0)
+    rrd = runs["plan"] / "plan.rrd"
+    views = {v["origin"].strip("/"): v["class"] for v in read_blueprint_views(rrd)}
+    assert views["charts/solution_cost"] == "2D"
+    its, costs = read_recording_scalars(rrd, timeline="iteration")["metrics/solution_cost"]
+    _, (strips,) = read_recording_component(rrd, "charts/solution_cost/line", "LineStrips2D:strips")
+    (line,) = strips
+    if costs.size > 1:
+        np.testing.assert_allclose(line[:, 0], 3.0 * (its - its[0]) / (its[-1] - its[0]), atol=1e-5)
+        np.testing.assert_allclose(-line[:, 1], (costs - costs.min()) / np.ptp(costs), atol=1e-5)

@@ -159,4 +159,4 @@ def assert_recording_opens_right(rrd, stage):
 
 
 def test_track_recording_opens_with_every_panel_filled(iss_run):
-    assert_recording_opens_right(iss_run / "track.rrd", "track")
+    assert_recording_opens_right(iss_run / "track.rrd", "track-mpc")

@@ -209,4 +209,4 @@ def assert_recording_opens_right(rrd, stage):
 
 
 def test_tube_track_recording_opens_with_every_panel_filled(tube_run):
-    assert_recording_opens_right(tube_run / "track.rrd", "track")
+    assert_recording_opens_right(tube_run / "track.rrd", "track-tube")

@@ -152,7 +152,7 @@ def test_track_entities_exist(track_rrd):
 def test_track_one_recording_with_name_and_mission_time_only(track_rrd):
     reader = RrdReader(track_rrd)
     (store,) = reader.recordings()
-    assert store.application_id == "oacli-track"
+    assert store.application_id == "oacli-track-mpc"
     _, names = read_recording_component(track_rrd, "__properties", "RecordingInfo:name")
     assert names[-1].tolist() == ["track"]
     # No wall-clock timelines: log_time and log_tick are switched off.
@@ -265,7 +265,7 @@ def test_track_text_log(track_rrd, run):
 def test_track_blueprint_is_stored(track_rrd):
     reader = RrdReader(track_rrd)
     (blueprint,) = reader.blueprints()
-    assert blueprint.application_id == "oacli-track"
+    assert blueprint.application_id == "oacli-track-mpc"
     views = read_blueprint_views(track_rrd)
     by_origin = {v["origin"]: v["class"] for v in views}
     assert by_origin["world"] == "3D"

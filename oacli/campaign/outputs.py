@@ -1,8 +1,9 @@
 """The campaign's outputs: PNG histograms and CDFs, the per-run metrics in a Rerun recording and an MCAP, a table.
 
 ``campaign.rrd`` holds one sample per completed run on the sequence timeline ``run`` (run index) under
-``campaign/<metric>``; ``campaign.mcap`` holds one ``/campaign/run`` JSON record per finished run (``t`` = run
-index [s], a placeholder time) and the ``/campaign/summary`` record. Both are derived from ``manifest.jsonl``.
+``campaign/<metric>``, each run's status and histograms (:mod:`oacli.io.rerun.campaign`); ``campaign.mcap`` holds
+one ``/campaign/run`` JSON record per finished run (``t`` = run index [s], a placeholder time) and the
+``/campaign/summary`` record. Both are derived from ``manifest.jsonl``.
 """
 
 from __future__ import annotations
@@ -116,7 +117,8 @@ def write_plots(folder: Path, final: dict[int, dict[str, Any]], summary: dict[st
 
 
 def write_recording(path: Path, final: dict[int, dict[str, Any]], name: str) -> None:
-    """The per-run metrics as Rerun series on the ``run`` timeline (module docstring).
+    """The per-run metrics, statuses and histograms as a Rerun recording with its layout
+    (:mod:`oacli.io.rerun.campaign`).
 
     Parameters
     ----------
@@ -127,15 +129,10 @@ def write_recording(path: Path, final: dict[int, dict[str, Any]], name: str) -> 
     name : str
         Recording name.
     """
-    import rerun as rr
+    from oacli.io.rerun.campaign import write_campaign_recording
 
-    from oacli.io.rerun.writer import StageRecording, application_id
-
-    rec = StageRecording(application_id("campaign"), f"{name}/campaign")
-    for key, (ks, values) in _series(final).items():
-        rec.stream.send_columns(f"campaign/{key}", indexes=[rr.TimeColumn(RUN_TIMELINE, sequence=ks)],
-                                columns=rr.Scalars.columns(scalars=values))
-    rec.save(path)
+    runs = {k: (str(rec["status"]), rec.get("error")) for k, rec in final.items()}
+    write_campaign_recording(path, _series(final), runs, name)
 
 
 def write_mcap(path: Path, final: dict[int, dict[str, Any]], summary: dict[str, Any], config_yaml: str) -> None:

@@ -37,6 +37,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from oacli.io.rerun.layout import collapsed_side_panels, framed_eye, world_title
 from oacli.io.rerun.writer import (
     AXIS_NAMES,
     LIMIT_LOWER,
@@ -88,8 +89,9 @@ def mission_blueprint(records: MissionRecords | None = None) -> rrb.Blueprint:
     """The mission's layout.
 
     Left: a 3D view of the whole mission (tab 1) and one of the three segment-3 flights side by side (tab 2), above
-    the text log. Middle: position error of every flight [m], force and torque of the main flight against the
-    limits, and force / limit of the three segment-3 flights. Right: the four parameters converging with ± 2σ and
+    the text log, their cameras framed on the waypoints and paths (not on the whole workspace). Middle: position
+    error of every flight [m], force and torque of the main flight against the limits, and force / limit of the
+    three segment-3 flights. Right: the four parameters converging with ± 2σ and
     the truth, zoomed on segment 2.
 
     Parameters
@@ -101,8 +103,12 @@ def mission_blueprint(records: MissionRecords | None = None) -> rrb.Blueprint:
     -------
     rerun.blueprint.Blueprint
     """
-    world = rrb.Spatial3DView(origin=WORLD, name="Mission: plans, references, flown paths, tubes")
+    frame = "world" if records is None else records.scene.frame
+    everything, segment3 = _focus(records)
+    world = rrb.Spatial3DView(origin=WORLD, name=world_title(frame, "plans, references, flown paths, tubes"),
+                              eye_controls=None if everything is None else framed_eye(everything))
     seg3 = rrb.Spatial3DView(
+        eye_controls=None if segment3 is None else framed_eye(segment3),
         origin=WORLD,
         contents=["$origin/keep_in", "$origin/keep_out", f"$origin/{WAYPOINTS.split('/', 1)[1]}",
                   "$origin/segment-3/**", "- $origin/segment-3/plan/**"],
@@ -137,8 +143,20 @@ def mission_blueprint(records: MissionRecords | None = None) -> rrb.Blueprint:
     return rrb.Blueprint(
         rrb.Horizontal(scene, metrics, rrb.Vertical(*estimates, name="Estimates"), column_shares=[1.3, 1.0, 1.0]),
         rrb.TimePanel(timeline=TIMELINE, expanded=True),
+        *collapsed_side_panels(),
         collapse_panels=False,
     )
+
+
+def _focus(records: MissionRecords | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Points [m] the 3-D views frame: waypoints and every path and flight; segment 3's flights alone."""
+    if records is None:
+        return None, None
+    pts = [np.asarray(p, dtype=float).reshape(1, 3) for p in records.waypoints_m.values()]
+    pts += [path.positions_m for key, path in records.paths.items() if path.kind != "plan"]
+    pts += [f.x_true[:, 0:3] for f in records.flights.values()]
+    seg3 = [f.x_true[:, 0:3] for key, f in records.flights.items() if key.startswith("segment-3/")]
+    return (np.concatenate(pts) if pts else None), (np.concatenate(seg3) if seg3 else None)
 
 
 def _at(rec: StageRecording, t: float, entity: str, archetype: Any) -> None:

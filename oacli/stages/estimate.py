@@ -575,7 +575,7 @@ def run_estimate(
         )
         write_estimate_recording(
             run_folder.file("rrd", "estimate.rrd"), estimates=run.history, truth=truth, crb_std=run.bound.std,
-            records=per_record, log=log, recording_name=f"{cfg.name}/estimate",
+            records=per_record, log=log, recording_name=f"{cfg.name}/estimate", frame=cfg.environment.frame,
         )
         if cfg.outputs.plots:
             write_estimate_plots(run_folder, summary, estimates=run.history, truth=truth, crb_std=run.bound.std,

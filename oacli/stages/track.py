@@ -310,7 +310,7 @@ def run_track(
                 run.file("rrd", "track.rrd"), scene=scene, reference=reference, telemetry=tel, errors=ctrl_errors,
                 limits=limits, log=log, recording_name=f"{cfg.name}/track",
                 extra=None if monitor is None or history is None else tube_layers(monitor, history),
-                blueprint=None if design is None else tube_track_blueprint(),
+                blueprint=None if design is None else tube_track_blueprint, controller=cfg.controller.type,
             )
             if cfg.outputs.plots:
                 write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,

@@ -22,6 +22,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from oacli.io.rerun.layout import collapsed_side_panels, world_title, world_view
 from oacli.io.rerun.writer import (
     LOG,
     TIMELINE,
@@ -46,6 +47,7 @@ _BAND_COLOR = (40, 120, 230, 110)
 _TRUTH_COLOR = (40, 170, 60, 255)
 _CRB_COLOR = (150, 150, 150, 150)
 _REJECTED_COLOR = (230, 40, 40, 255)
+_GATE_COLOR = (235, 165, 30, 255)  # amber: distinct from the rejected points' red
 
 
 @dataclass(frozen=True)
@@ -74,8 +76,15 @@ class EstimationRecords:
     estimated_positions: np.ndarray
 
 
-def estimate_blueprint() -> rrb.Blueprint:
+def estimate_blueprint(*, frame: str = "world", focus: np.ndarray | None = None) -> rrb.Blueprint:
     """Default layout: the four parameters (estimate, 2σ band, truth) in a grid, d² with the gate, 3D, log.
+
+    Parameters
+    ----------
+    frame : str
+        Name of the world frame (the 3-D view's title).
+    focus : ndarray, shape (N, 3), optional
+        Points [m] the 3-D view frames (measured and estimated positions).
 
     Returns
     -------
@@ -87,12 +96,13 @@ def estimate_blueprint() -> rrb.Blueprint:
         name="Parameters",
     )
     right = rrb.Vertical(
-        time_series_view(D2, "Normalised innovation² (χ² gate; rejected red)"),
-        rrb.Spatial3DView(origin=WORLD, name="Measured (rejected red) and estimated path"),
+        time_series_view(D2, "Normalised innovation² (χ² gate amber, rejected red)"),
+        world_view(WORLD, world_title(frame, "measured (rejected red), estimated path"), focus),
         rrb.TextLogView(origin=LOG, name="Log"),
         row_shares=[1.0, 1.5, 0.7],
     )
-    return rrb.Blueprint(rrb.Horizontal(params, right, column_shares=[1.6, 1.0]), rrb.TimePanel(timeline=TIMELINE))
+    return rrb.Blueprint(rrb.Horizontal(params, right, column_shares=[1.6, 1.0]),
+                         rrb.TimePanel(timeline=TIMELINE, state="collapsed"), *collapsed_side_panels())
 
 
 def _constant(rec: StageRecording, entity: str, t_span: np.ndarray, value: float, name: str, color) -> None:
@@ -108,6 +118,7 @@ def write_estimate_recording(
     records: EstimationRecords,
     log: Sequence[LogEntry] = (),
     recording_name: str = "estimate",
+    frame: str = "world",
 ) -> None:
     """Write the ``estimate`` stage's recording (see the module docstring) with :func:`estimate_blueprint`.
 
@@ -127,6 +138,8 @@ def write_estimate_recording(
         The stage's text log.
     recording_name : str
         Recording name shown in the viewer.
+    frame : str
+        Name of the world frame the positions are in (the 3-D view's title).
     """
     t_est = np.array([e.t for e in estimates], dtype=float)
     theta = np.array([e.theta for e in estimates], dtype=float).reshape(-1, 4)
@@ -154,7 +167,7 @@ def write_estimate_recording(
     if np.any(finite):
         rec.log_series(D2, t_records[finite], d2[finite], ["d²"], colors=[_ESTIMATE_COLOR], width=1.0)
         if np.isfinite(records.gate_threshold):
-            _constant(rec, f"{D2}/gate", span, float(records.gate_threshold), "χ² gate", _REJECTED_COLOR)
+            _constant(rec, f"{D2}/gate", span, float(records.gate_threshold), "χ² gate", _GATE_COLOR)
         bad = rejected & finite
         if np.any(bad):
             rec.stream.log(f"{D2}/rejected", rr.SeriesPoints(colors=[_REJECTED_COLOR], names=["rejected"],
@@ -167,4 +180,6 @@ def write_estimate_recording(
         rec.log_points(REJECTED, measured[rejected], color=_REJECTED_COLOR, radius_m=0.02)
     rec.log_path(ESTIMATED, records.estimated_positions, color=_ESTIMATE_COLOR)
     rec.log_entries(log)
-    rec.save(Path(path), estimate_blueprint())
+    focus = np.concatenate([np.asarray(measured, dtype=float).reshape(-1, 3),
+                            np.asarray(records.estimated_positions, dtype=float).reshape(-1, 3)])
+    rec.save(Path(path), estimate_blueprint(frame=frame, focus=focus))

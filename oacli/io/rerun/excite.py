@@ -8,7 +8,8 @@ Entities (a fixed contract: tests read them back):
 * ``world/robot``: the robot body moving along ``mission_time``;
 * ``metrics/criterion``: the design criterion of the current design after each SCP iteration, and
   ``metrics/criterion/candidate`` that of each trial point, on the ``scp_iteration`` sequence timeline (the
-  design's also as a static bar chart on ``metrics/criterion``, shown on ``mission_time``);
+  design's also as a static line chart ``charts/criterion``, y framed on its range, shown on ``mission_time``:
+  :mod:`oacli.io.rerun.chart`);
 * ``metrics/information``: cumulative Fisher information per parameter, relative (``F_ii θ_i²``, series
   ``m, Ixx, Iyy, Izz``), and ``metrics/crb_std_log10_pct``: log10 of the Cramér-Rao standard deviation in % of
   θ_i, over time (it falls by decades; Rerun's plots have no log axis);
@@ -17,7 +18,8 @@ Entities (a fixed contract: tests read them back):
   ``metrics/angular_velocity_radps`` (with ± limits);
 * ``log``: the text log.
 
-Application id ``oacli-excite``.
+Application id ``oacli-excite-offline`` (the offline design) or ``oacli-excite-rattle`` (RATTLE): the two
+kinds have different layouts and open side by side in one viewer (:func:`excite_application_id`).
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from oacli.geometry import Scene
+from oacli.io.rerun.chart import line_chart_view, log_line_chart
+from oacli.io.rerun.layout import collapsed_side_panels, world_title, world_view
 from oacli.io.rerun.writer import (
     ACTUAL_COLOR,
     AXIS_NAMES,
@@ -53,6 +57,7 @@ INITIAL_GUESS = "world/initial_guess"
 PLANS = "world/plans"
 CRITERION = "metrics/criterion"
 CRITERION_CANDIDATE = "metrics/criterion/candidate"
+CRITERION_CHART = "charts/criterion"
 INFORMATION = "metrics/information"
 CRB_STD_LOG10_PCT = "metrics/crb_std_log10_pct"
 GAMMA = "metrics/gamma"
@@ -121,7 +126,23 @@ class RattleSteps:
     gamma: np.ndarray
 
 
-def excite_blueprint(limits: AxisLimits | None = None, *, scp: bool = True, rattle: bool = False) -> rrb.Blueprint:
+def excite_application_id(rattle: bool) -> str:
+    """The application id of an ``excite`` recording: ``oacli-excite-rattle`` or ``oacli-excite-offline``.
+
+    Parameters
+    ----------
+    rattle : bool
+        The excitation was replanned online by RATTLE (else designed offline).
+
+    Returns
+    -------
+    str
+    """
+    return application_id("excite-rattle" if rattle else "excite-offline")
+
+
+def excite_blueprint(limits: AxisLimits | None = None, *, scp: bool = True, rattle: bool = False,
+                     frame: str = "world", focus: np.ndarray | None = None) -> rrb.Blueprint:
     """Default layout: 3D world and log on the left; information, bounds, inputs and rates over mission time on
     the right, with the criterion per SCP iteration (offline design) or RATTLE's information weights.
 
@@ -133,19 +154,24 @@ def excite_blueprint(limits: AxisLimits | None = None, *, scp: bool = True, ratt
         Show the criterion per SCP iteration (the offline design).
     rattle : bool
         Show RATTLE's information weights.
+    frame : str
+        Name of the world frame (the 3-D view's title).
+    focus : ndarray, shape (N, 3), optional
+        Points [m] the 3-D view frames (the excitation path).
 
     Returns
     -------
     rerun.blueprint.Blueprint
     """
-    world = rrb.Spatial3DView(origin=WORLD, name="World")
+    world = world_view(WORLD, world_title(frame, "RATTLE plans (grey), flown (orange)" if rattle else
+                                          "initial guess (blue), design (orange)"), focus)
     log = rrb.TextLogView(origin=LOG, name="Log")
     def rng(name: str):
         return None if limits is None else limit_range(getattr(limits, name))
 
     extra: list[rrb.View] = []
     if scp:
-        extra.append(rrb.BarChartView(origin=CRITERION, name="Criterion per SCP iteration (x: iteration)"))
+        extra.append(line_chart_view(CRITERION_CHART, "Design criterion per SCP iteration (x: iteration)"))
     if rattle:
         extra.append(time_series_view(GAMMA, "RATTLE information weights γ"))
     plots = rrb.Grid(
@@ -162,7 +188,8 @@ def excite_blueprint(limits: AxisLimits | None = None, *, scp: bool = True, ratt
     )
     return rrb.Blueprint(
         rrb.Horizontal(rrb.Vertical(world, log, row_shares=[3.0, 1.0], name="Scene"), plots, column_shares=[1.0, 1.3]),
-        rrb.TimePanel(timeline=TIMELINE),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed"),
+        *collapsed_side_panels(),
     )
 
 
@@ -203,7 +230,7 @@ def write_excite_recording(
     """
     t, x, u = trajectory.t, trajectory.x, trajectory.u
     theta = information.theta
-    rec = StageRecording(application_id("excite"), recording_name)
+    rec = StageRecording(excite_application_id(rattle is not None), recording_name)
     rec.log_scene(scene)
     rec.log_trajectory_over_time(ROBOT, t, x, path_entity=EXCITATION, path_color=ACTUAL_COLOR)
     if scp is not None:
@@ -235,7 +262,9 @@ def write_excite_recording(
                 indexes=[rr.TimeColumn(ITERATION_TIMELINE, sequence=iterations)],
                 columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)),
             )
-        rec.log_bar_chart(CRITERION, iterations, np.asarray(scp.criterion, dtype=float))
+        log_line_chart(rec.stream, CRITERION_CHART, iterations, np.asarray(scp.criterion, dtype=float),
+                       color=ACTUAL_COLOR, x_name="iteration", y_name="criterion")
     rec.log_entries(log)
     has_scp = scp is not None and len(scp.criterion) > 0
-    rec.save(Path(path), excite_blueprint(limits, scp=has_scp, rattle=rattle is not None))
+    rec.save(Path(path), excite_blueprint(limits, scp=has_scp, rattle=rattle is not None, frame=scene.frame,
+                                          focus=x[:, 0:3]))

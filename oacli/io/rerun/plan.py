@@ -6,9 +6,10 @@ exact curve, static); ``world/plan/growth`` (the tree as straight parent-child s
 ``iteration`` sequence timeline, with the best path at that moment under ``world/plan/growth/path``);
 ``world/plan/path`` (the final trajectory's path, static); ``world/robot`` (the robot's pose on ``mission_time``);
 ``metrics/force_N`` and ``metrics/velocity_mps`` per axis against their ± limits (``mission_time``);
-``metrics/solution_cost`` (the best solution's cost on the ``iteration`` timeline, and the same figures as a static
-bar chart, one bar per improvement at its iteration, so the panel has data on ``mission_time``, the timeline the
-layout opens on); ``log``. Application id ``oacli-plan``.
+``metrics/solution_cost`` (the best solution's cost on the ``iteration`` timeline) and ``charts/solution_cost`` (the
+same figures as a static line chart, x the iteration, y framed on the costs' range: :mod:`oacli.io.rerun.chart`,
+so the panel shows them on ``mission_time``, the timeline the layout opens on); ``log``. Application id
+``oacli-plan``. The 3-D view opens framed on the start, goal and plan (not on the whole workspace).
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from oacli.geometry import Scene
+from oacli.io.rerun.chart import line_chart_view, log_line_chart
+from oacli.io.rerun.layout import collapsed_side_panels, world_title, world_view
 from oacli.io.rerun.writer import (
     AXIS_NAMES,
     LOG,
@@ -51,6 +54,7 @@ PLAN_PATH = "world/plan/path"
 FORCE = "metrics/force_N"
 VELOCITY = "metrics/velocity_mps"
 SOLUTION_COST = "metrics/solution_cost"
+SOLUTION_COST_CHART = "charts/solution_cost"
 
 TREE_COLOR = (150, 150, 150, 110)
 GROWTH_COLOR = (120, 160, 220, 140)
@@ -99,7 +103,8 @@ def log_motion(rec: StageRecording, trajectory: Trajectory, limits: AxisLimits, 
 
 
 def motion_blueprint(world_name: str, extra_plots: Sequence[Any], timeline: str, *,
-                     limits: AxisLimits | None = None, motion: bool = True) -> rrb.Blueprint:
+                     limits: AxisLimits | None = None, motion: bool = True,
+                     focus: np.ndarray | None = None) -> rrb.Blueprint:
     """3D scene and log on the left; force, velocity and ``extra_plots`` on the right (plan and smooth layouts).
 
     Parameters
@@ -114,12 +119,14 @@ def motion_blueprint(world_name: str, extra_plots: Sequence[Any], timeline: str,
         Force and velocity bounds: the value axes span 1.15 × them (ticks beyond ``0`` however flat the data).
     motion : bool
         Include the force and velocity plots (False when there is no trajectory to plot).
+    focus : ndarray, shape (N, 3), optional
+        Points [m] the 3-D view's camera frames (:func:`oacli.io.rerun.layout.framed_eye`).
 
     Returns
     -------
     rerun.blueprint.Blueprint
     """
-    world = rrb.Spatial3DView(origin=WORLD, name=world_name)
+    world = world_view(WORLD, world_name, focus)
     force_range = None if limits is None else limit_range(limits.force_N)
     velocity_range = None if limits is None else limit_range(limits.velocity_mps)
     motion_plots = (
@@ -133,11 +140,13 @@ def motion_blueprint(world_name: str, extra_plots: Sequence[Any], timeline: str,
             plots,
             column_shares=[1.4, 1.0],
         ),
-        rrb.TimePanel(timeline=timeline),
+        rrb.TimePanel(timeline=timeline, state="collapsed"),
+        *collapsed_side_panels(),
     )
 
 
-def plan_blueprint(limits: AxisLimits | None = None, *, solved: bool = True) -> rrb.Blueprint:
+def plan_blueprint(limits: AxisLimits | None = None, *, solved: bool = True, frame: str = "world",
+                   focus: np.ndarray | None = None) -> rrb.Blueprint:
     """Layout of ``plan.rrd``: 3D scene and log on the left, force, velocity and solution cost on the right.
 
     It opens on ``mission_time`` (the plan flown); the tree's growth is on the ``iteration`` timeline.
@@ -148,14 +157,18 @@ def plan_blueprint(limits: AxisLimits | None = None, *, solved: bool = True) -> 
         Force and velocity bounds (fixes the value axes).
     solved : bool
         A solution was found (else the force, velocity and cost panels, which would be empty, are left out).
+    frame : str
+        Name of the world frame (the 3-D view's title).
+    focus : ndarray, shape (N, 3), optional
+        Points [m] the 3-D view frames (start, goal, plan).
 
     Returns
     -------
     rerun.blueprint.Blueprint
     """
-    cost = [rrb.BarChartView(origin=SOLUTION_COST, name="Best cost at each improvement (x: iteration)")]
-    return motion_blueprint("World: tree, plan, obstacles", cost if solved else [], TIMELINE, limits=limits,
-                            motion=solved)
+    cost = [line_chart_view(SOLUTION_COST_CHART, "Best cost at each improvement (x: iteration)")]
+    return motion_blueprint(world_title(frame, "tree, plan, obstacles"), cost if solved else [], TIMELINE,
+                            limits=limits, motion=solved, focus=focus)
 
 
 def write_plan_recording(
@@ -219,9 +232,14 @@ def write_plan_recording(
         rec.stream.log(SOLUTION_COST, rr.SeriesLines(names=["best cost"]), static=True)
         rec.stream.send_columns(SOLUTION_COST, indexes=[rr.TimeColumn(ITERATION, sequence=its)],
                                 columns=rr.Scalars.columns(scalars=costs))
-        rec.log_bar_chart(SOLUTION_COST, its, costs, color=PATH_COLOR)
+        log_line_chart(rec.stream, SOLUTION_COST_CHART, its, costs, color=PATH_COLOR, x_name="iteration",
+                       y_name="cost")
     if trajectory is not None:
         rec.log_path(PLAN_PATH, trajectory.x[:, 0:3], color=PATH_COLOR, radius_m=0.008)
         log_motion(rec, trajectory, limits, start_on_iteration=True)
     rec.log_entries(log)
-    rec.save(Path(path), plan_blueprint(limits, solved=trajectory is not None and bool(result.solutions)))
+    focus = [np.asarray(start, dtype=float).reshape(1, 3), np.asarray(goal, dtype=float).reshape(1, 3)]
+    if trajectory is not None:
+        focus.append(trajectory.x[:, 0:3])
+    rec.save(Path(path), plan_blueprint(limits, solved=trajectory is not None and bool(result.solutions),
+                                        frame=scene.frame, focus=np.concatenate(focus)))

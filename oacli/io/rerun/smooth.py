@@ -7,8 +7,10 @@ Entities of ``smooth.rrd`` (a fixed contract; tests read them back): the scene; 
 ``world/smooth/polish`` (each accepted polish candidate's path, on the ``polish`` sequence timeline);
 ``world/robot`` (output trajectory); ``metrics/force_N``, ``metrics/velocity_mps`` (output, ``mission_time``);
 ``metrics/cost`` (trajectory cost after each try, ``shortcut`` timeline); ``metrics/polish_length_m`` (exact path
-length of each polish candidate, ``polish`` timeline); both also as static bar charts (shown on ``mission_time``,
-the timeline the layout opens on); ``log``. Application id ``oacli-smooth``.
+length of each polish candidate, ``polish`` timeline); both also as static line charts ``charts/cost`` and
+``charts/polish_length_m`` (x the try or candidate, y framed on the values' range: :mod:`oacli.io.rerun.chart`,
+shown on ``mission_time``, the timeline the layout opens on); ``log``. Application id ``oacli-smooth``. The 3-D
+view opens framed on the paths.
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from oacli.geometry import Scene
+from oacli.io.rerun.chart import line_chart_view, log_line_chart
+from oacli.io.rerun.layout import world_title
 from oacli.io.rerun.plan import PATH_COLOR, log_motion, motion_blueprint, set_sequence
 from oacli.io.rerun.writer import (
     ACTUAL_COLOR,
@@ -44,6 +48,8 @@ SMOOTH_SHORTCUT_PATH = "world/smooth/shortcut"
 SMOOTH_POLISH = "world/smooth/polish"
 POLISH_LENGTH = "metrics/polish_length_m"
 COST = "metrics/cost"
+COST_CHART = "charts/cost"
+POLISH_LENGTH_CHART = "charts/polish_length_m"
 
 SHORTCUT_COLOR = (120, 120, 120, 255)
 POLISH_COLOR = (60, 200, 90, 255)
@@ -84,7 +90,8 @@ class PolishSteps:
     lengths_m: np.ndarray
 
 
-def smooth_blueprint(limits: AxisLimits | None = None, *, polished: bool = True) -> rrb.Blueprint:
+def smooth_blueprint(limits: AxisLimits | None = None, *, polished: bool = True, frame: str = "world",
+                     focus: np.ndarray | None = None) -> rrb.Blueprint:
     """Layout of ``smooth.rrd``: 3D scene and log, force, velocity, cost per shortcut try, length per polish step.
 
     Parameters
@@ -93,20 +100,25 @@ def smooth_blueprint(limits: AxisLimits | None = None, *, polished: bool = True)
         Force and velocity bounds (fixes the value axes).
     polished : bool
         The polish ran and solved at least once (else its panel, which would be empty, is left out).
+    frame : str
+        Name of the world frame (the 3-D view's title).
+    focus : ndarray, shape (N, 3), optional
+        Points [m] the 3-D view frames (the paths).
 
     Returns
     -------
     rerun.blueprint.Blueprint
     """
     return motion_blueprint(
-        "World: before (blue), shortcut (grey), after (orange)",
+        world_title(frame, "before (blue), shortcut (grey), after (orange)"),
         [
-            rrb.BarChartView(origin=COST, name="Cost after each shortcut try (x: try)"),
-            *([rrb.BarChartView(origin=POLISH_LENGTH, name="Polish candidate path length [m] (x: candidate)")]
+            line_chart_view(COST_CHART, "Cost after each shortcut try (x: try)"),
+            *([line_chart_view(POLISH_LENGTH_CHART, "Polish candidate path length [m] (x: candidate)")]
               if polished else []),
         ],
         TIMELINE,
         limits=limits,
+        focus=focus,
     )
 
 
@@ -161,7 +173,8 @@ def write_smooth_recording(
             rec.stream.log(POLISH_LENGTH, rr.SeriesLines(names=["path length"]), static=True)
             rec.stream.send_columns(POLISH_LENGTH, indexes=[rr.TimeColumn(POLISH, sequence=solved)],
                                     columns=rr.Scalars.columns(scalars=lengths[solved]))
-            rec.log_bar_chart(POLISH_LENGTH, solved, lengths[solved], color=POLISH_COLOR)
+            log_line_chart(rec.stream, POLISH_LENGTH_CHART, solved, lengths[solved], color=POLISH_COLOR,
+                           x_name="candidate", y_name="length [m]")
     rec.log_path(SMOOTH_AFTER, after.x[:, 0:3], color=ACTUAL_COLOR, radius_m=0.008)
     for index, pts in shortcuts.sections:
         set_sequence(rec, SHORTCUT, index)
@@ -172,8 +185,10 @@ def write_smooth_recording(
     rec.stream.log(COST, rr.SeriesLines(names=["cost"]), static=True)
     rec.stream.send_columns(COST, indexes=[rr.TimeColumn(SHORTCUT, sequence=np.arange(costs.size))],
                             columns=rr.Scalars.columns(scalars=costs))
-    rec.log_bar_chart(COST, np.arange(costs.size), costs, color=SHORTCUT_COLOR)
+    log_line_chart(rec.stream, COST_CHART, np.arange(costs.size), costs, color=PATH_COLOR, x_name="try",
+                   y_name="cost")
     log_motion(rec, after, limits, start_on_iteration=False)
     rec.log_entries(log)
     polished = polish is not None and bool(np.any(np.isfinite(np.asarray(polish.lengths_m, dtype=float))))
-    rec.save(Path(path), smooth_blueprint(limits, polished=polished))
+    focus = np.concatenate([before.x[:, 0:3], after.x[:, 0:3]])
+    rec.save(Path(path), smooth_blueprint(limits, polished=polished, frame=scene.frame, focus=focus))

@@ -18,6 +18,7 @@ import numpy as np
 import rerun.blueprint as rrb
 
 from oacli.geometry import Scene
+from oacli.io.rerun.layout import collapsed_side_panels, world_title, world_view
 from oacli.io.rerun.writer import (
     ACTUAL_COLOR,
     AXIS_COLORS,
@@ -50,7 +51,23 @@ SOLVE_TIME = "metrics/solve_time_ms"
 _AXES_NOTE = " x/y/z, ± limits, faded = commanded"
 
 
-def track_blueprint(limits: AxisLimits | None = None) -> rrb.Blueprint:
+def track_application_id(controller: str) -> str:
+    """The application id of a track recording flown with ``controller`` (``oacli-track-mpc``, ``oacli-track-tube``).
+
+    Parameters
+    ----------
+    controller : str
+        ``controller.type`` of the run.
+
+    Returns
+    -------
+    str
+    """
+    return application_id(f"track-{controller}")
+
+
+def track_blueprint(limits: AxisLimits | None = None, *, frame: str = "world",
+                    focus: np.ndarray | None = None) -> rrb.Blueprint:
     """Default layout of the ``track`` recording.
 
     Left: a 3D view of ``world/`` (keep-in box, keep-out ellipsoids, reference and actual path, the robot body
@@ -62,13 +79,17 @@ def track_blueprint(limits: AxisLimits | None = None) -> rrb.Blueprint:
     ----------
     limits : AxisLimits, optional
         Force and torque bounds: the value axes span 1.15 × them (ticks beyond ``0`` however flat the data).
+    frame : str
+        Name of the world frame (``environment.frame``), in the 3-D view's title.
+    focus : ndarray, shape (N, 3), optional
+        Points [m] the 3-D view's camera frames (reference and flown path), not the whole workspace.
 
     Returns
     -------
     rerun.blueprint.Blueprint
         The blueprint; pass it to :meth:`oacli.io.rerun.writer.StageRecording.save`.
     """
-    world = rrb.Spatial3DView(origin=WORLD, name="World (ISS frame)")
+    world = world_view(WORLD, world_title(frame, "reference (blue), flown (orange)"), focus)
     log = rrb.TextLogView(origin=LOG, name="Log")
     plots = rrb.Vertical(
         time_series_view(POSITION_ERROR, "Position error [m]"),
@@ -86,7 +107,8 @@ def track_blueprint(limits: AxisLimits | None = None) -> rrb.Blueprint:
             plots,
             column_shares=[1.2, 1.0],
         ),
-        rrb.TimePanel(timeline=TIMELINE),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed"),
+        *collapsed_side_panels(),
     )
 
 
@@ -101,7 +123,8 @@ def write_track_recording(
     log: Sequence[LogEntry] = (),
     recording_name: str = "track",
     extra: Callable[[StageRecording], None] | None = None,
-    blueprint: rrb.Blueprint | None = None,
+    blueprint: rrb.Blueprint | Callable[..., rrb.Blueprint] | None = None,
+    controller: str = "mpc",
 ) -> None:
     """Write the ``track`` stage's recording (entities in the module docstring) with :func:`track_blueprint`.
 
@@ -127,8 +150,14 @@ def write_track_recording(
     extra : callable, optional
         Called with the :class:`~oacli.io.rerun.writer.StageRecording` before it is saved, to log
         controller-specific layers.
-    blueprint : rerun.blueprint.Blueprint, optional
-        Layout to store instead of :func:`track_blueprint`.
+    blueprint : rerun.blueprint.Blueprint or callable, optional
+        Layout to store instead of :func:`track_blueprint`, or a function that makes it, called with the keywords
+        ``frame`` (the world frame's name) and ``focus`` (the reference and flown positions [m] the 3-D view
+        frames), e.g. :func:`oacli.io.rerun.tube.tube_track_blueprint`.
+    controller : str
+        The controller kind (``controller.type``: ``"mpc"`` or ``"tube"``): the application id is
+        ``oacli-track-<controller>`` (:func:`track_application_id`), so a standard-MPC and a tube-MPC flight open
+        side by side in one viewer, each in its own layout (the viewer keeps one blueprint per application id).
 
     Raises
     ------
@@ -150,7 +179,7 @@ def write_track_recording(
             raise ValueError(f"{name}: expected shape {shape}, got {np.shape(arr)}")
     u_command, u_applied = tel.u_command, tel.u_applied
 
-    rec = StageRecording(application_id("track"), recording_name)
+    rec = StageRecording(track_application_id(controller), recording_name)
     rec.log_scene(scene)
     rec.log_path(REFERENCE, reference.x[:, 0:3], color=REFERENCE_COLOR)
     rec.log_positions_over_time(f"{REFERENCE}/target", reference.t, reference.x[:, 0:3], color=REFERENCE_COLOR,
@@ -169,4 +198,9 @@ def write_track_recording(
     rec.log_entries(log)
     if extra is not None:
         extra(rec)
-    rec.save(Path(path), track_blueprint(limits) if blueprint is None else blueprint)
+    focus = np.concatenate([reference.x[:, 0:3], tel.x_true[:, 0:3]])
+    if blueprint is None:
+        blueprint = track_blueprint(limits, frame=scene.frame, focus=focus)
+    elif callable(blueprint):
+        blueprint = blueprint(frame=scene.frame, focus=focus)
+    rec.save(Path(path), blueprint)

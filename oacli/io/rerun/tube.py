@@ -26,6 +26,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from oacli.io.rerun.layout import collapsed_side_panels, world_title, world_view
 from oacli.io.rerun.track import ATTITUDE_ERROR, FORCE, POSITION_ERROR, SOLVE_TIME, TORQUE
 from oacli.io.rerun.writer import AXIS_NAMES, LOG, TIMELINE, WORLD, StageRecording, time_series_view
 
@@ -112,15 +113,22 @@ def log_disturbance_layers(rec: StageRecording, record: DisturbanceRecord) -> No
     rec.log_series(W_VIOLATION, t_ctrl, np.asarray(record.violated, dtype=float), ["w outside W"])
 
 
-def tube_track_blueprint() -> rrb.Blueprint:
+def tube_track_blueprint(*, frame: str = "world", focus: np.ndarray | None = None) -> rrb.Blueprint:
     """Layout: the track layout's scene and log, its metrics, and a column of tube metrics.
+
+    Parameters
+    ----------
+    frame : str
+        Name of the world frame (the 3-D view's title).
+    focus : ndarray, shape (N, 3), optional
+        Points [m] the 3-D view frames (reference and flown path).
 
     Returns
     -------
     rerun.blueprint.Blueprint
         Pass it to :func:`oacli.io.rerun.track.write_track_recording` as ``blueprint``.
     """
-    world = rrb.Spatial3DView(origin=WORLD, name="World (ISS frame): reference, flown path, nominal tube")
+    world = world_view(WORLD, world_title(frame, "reference, flown path, nominal tube"), focus)
     log = rrb.TextLogView(origin=LOG, name="Log")
     # View names use glyphs of the viewer's font only (it panics on e.g. U+2295 ⊕ or combining macrons).
     note = " x/y/z"
@@ -150,5 +158,6 @@ def tube_track_blueprint() -> rrb.Blueprint:
             tube,
             column_shares=[1.2, 1.0, 1.0],
         ),
-        rrb.TimePanel(timeline=TIMELINE),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed"),
+        *collapsed_side_panels(),
     )

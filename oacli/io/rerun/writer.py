@@ -1,4 +1,4 @@
-"""The Rerun recording writer: :class:`StageRecording`, the entity names every stage shares, and view helpers.
+"""The Rerun recording writer: :class:`StageRecording` (its 3-D layers in :mod:`oacli.io.rerun.spatial`).
 
 Every stage writes one ``.rrd`` next to its MCAP. A recording is derived data (the MCAP is the record of truth):
 it exists for a human to look at in the Rerun viewer, and tests read its values back (:mod:`oacli.io.rerun.read`).
@@ -30,156 +30,47 @@ import os
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import RrdReader
-from scipy.spatial.transform import Rotation
 
-from oacli.geometry import Scene
 from oacli.io.atomic import atomic_path
-
-#: Timeline every oacli recording uses: simulated mission time since the start of the stage [s].
-TIMELINE = "mission_time"
-
-# Entity paths shared by the stage recordings (a fixed contract: tests and other stages read them).
-WORLD = "world"
-KEEP_IN = "world/keep_in"
-KEEP_OUT = "world/keep_out"
-ROBOT = "world/robot"
-LOG = "log"
-
-#: Child entities that :meth:`StageRecording.log_series` adds for ± limits.
-LIMIT_UPPER = "limit_upper"
-LIMIT_LOWER = "limit_lower"
-
-def application_id(stage: str) -> str:
-    """The Rerun application id of a stage's recording, ``oacli-<stage>`` (``oacli-plan``, ``oacli-track`` ...).
-
-    The viewer keeps one blueprint per application id: distinct ids let several stages' recordings be open at
-    once, each in its own layout.
-
-    Parameters
-    ----------
-    stage : str
-        Stage name.
-
-    Returns
-    -------
-    str
-    """
-    return f"oacli-{stage}"
-
-
-LogEntry = tuple[float, str, str]
-"""A text log line: ``(t [s], level, message)``."""
-
-
-class AxisLimits(Protocol):
-    """Per-axis bounds a recording plots as ± limits (:class:`oacli.reference_limits.LimitSet`,
-    :class:`oacli.model.limits.MotionLimits`)."""
-
-    @property
-    def force_N(self) -> np.ndarray:
-        """Force bound per world axis [N], shape (3,)."""
-        ...
-
-    @property
-    def torque_Nm(self) -> np.ndarray:
-        """Torque bound per body axis [N·m], shape (3,)."""
-        ...
-
-    @property
-    def velocity_mps(self) -> np.ndarray:
-        """Velocity bound per world axis [m/s], shape (3,)."""
-        ...
-
-    @property
-    def angular_velocity_radps(self) -> np.ndarray:
-        """Angular-rate bound per body axis [rad/s], shape (3,)."""
-        ...
-
-
-#: Astrobee is a 30 cm cube.
-ASTROBEE_SIZE_M = 0.30
-
-# RGBA colours (0-255).
-KEEP_IN_COLOR = (80, 200, 120, 60)
-KEEP_OUT_COLOR = (230, 60, 60, 110)
-REFERENCE_COLOR = (90, 150, 255, 255)
-ACTUAL_COLOR = (255, 170, 40, 255)
-ROBOT_COLOR = (240, 220, 90, 140)
-#: Per-axis series colours (x red, y green, z blue).
-AXIS_COLORS = ((230, 60, 60, 255), (60, 180, 75, 255), (60, 110, 230, 255))
-AXIS_NAMES = ("x", "y", "z")
-
-_TEXT_LEVELS = {"WARNING": "WARN", "FATAL": "CRITICAL", "ERR": "ERROR"}
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Small helpers
-# ----------------------------------------------------------------------------------------------------------------
-
-
-def time_column(t_s: np.ndarray) -> rr.TimeColumn:
-    """The ``mission_time`` column of ``send_columns`` from times [s], rounded to the nearest nanosecond.
-
-    Parameters
-    ----------
-    t_s : ndarray, shape (N,)
-        Mission times [s] (Rerun would truncate floats).
-
-    Returns
-    -------
-    rerun.TimeColumn
-    """
-    ns = np.rint(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)
-    return rr.TimeColumn(TIMELINE, duration=ns.astype("timedelta64[ns]"))
-
-
-def _times(name: str, t: np.ndarray) -> np.ndarray:
-    """Check a 1-D array of finite times [s] and return it as float64."""
-    arr = np.asarray(t, dtype=float)
-    if arr.ndim != 1:
-        raise ValueError(f"{name}: expected a 1-D array of times, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: times must be finite")
-    return arr
-
-
-def _points(name: str, p: np.ndarray) -> np.ndarray:
-    """Check an (N, 3) array of finite positions [m]."""
-    arr = np.asarray(p, dtype=float)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (N, 3), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: positions must be finite")
-    return arr
-
-
-def _rgba(color: Sequence[int] | np.ndarray) -> np.ndarray:
-    """An RGB or RGBA colour (0-255) as a uint8 RGBA array of shape (4,)."""
-    c = np.asarray(color, dtype=np.uint8).reshape(-1)
-    if c.shape == (3,):
-        c = np.append(c, np.uint8(255))
-    if c.shape != (4,):
-        raise ValueError(f"a colour needs 3 or 4 channels, got {c.shape}")
-    return c
-
-
-def _level(level: str) -> str:
-    up = str(level).strip().upper()
-    return _TEXT_LEVELS.get(up, up)
-
+from oacli.io.rerun.common import (  # noqa: F401 -- re-exported: the names every stage module imports from here
+    ACTUAL_COLOR,
+    ASTROBEE_SIZE_M,
+    AXIS_COLORS,
+    AXIS_NAMES,
+    KEEP_IN,
+    KEEP_IN_COLOR,
+    KEEP_OUT,
+    KEEP_OUT_COLOR,
+    LIMIT_LOWER,
+    LIMIT_UPPER,
+    LOG,
+    REFERENCE_COLOR,
+    ROBOT,
+    ROBOT_COLOR,
+    TIMELINE,
+    WORLD,
+    AxisLimits,
+    LogEntry,
+    _level,
+    _rgba,
+    _times,
+    time_column,
+)
+from oacli.io.rerun.common import application_id as application_id  # re-exported
+from oacli.io.rerun.layout import limit_range, time_series_view  # noqa: F401 -- re-exported
+from oacli.io.rerun.spatial import SpatialLogging
 
 # ----------------------------------------------------------------------------------------------------------------
 # Writing
 # ----------------------------------------------------------------------------------------------------------------
 
 
-class StageRecording:
+class StageRecording(SpatialLogging):
     """One stage's Rerun recording, buffered in memory until :meth:`save`.
 
     Parameters
@@ -248,273 +139,6 @@ class StageRecording:
         self._rec.send_columns(entity, indexes=[time_column(t_s)], columns=columns, strict=True)
 
     # -- 3D scene ------------------------------------------------------------------------------------------------
-
-    def log_scene(
-        self,
-        scene: Scene,
-        *,
-        keep_in_color: Sequence[int] = KEEP_IN_COLOR,
-        keep_out_color: Sequence[int] = KEEP_OUT_COLOR,
-        view_coordinates: rr.components.ViewCoordinates | None = rr.ViewCoordinates.RIGHT_HAND_Z_DOWN,
-    ) -> None:
-        """Log the workspace statically: keep-in boxes under ``world/keep_in``, keep-out zones under ``world/keep_out``.
-
-        Parameters
-        ----------
-        scene : oacli.geometry.Scene
-            Keep-in boxes [m] and keep-out ellipsoids.
-        keep_in_color, keep_out_color : sequence of int
-            RGBA (0-255); both are drawn as a translucent fill with a wireframe.
-        view_coordinates : rerun.components.ViewCoordinates or None
-            Axis convention logged on ``world``. The default, right-handed with +z down, is the ISS analysis
-            frame Astrobee uses (+x forward, +y starboard, +z deck). ``None`` logs none.
-
-        Notes
-        -----
-        Both entities are logged even when empty, so a reader always finds them. Ellipsoids are drawn with
-        ``half_sizes`` = semi-axes [m] and the rotation of :meth:`oacli.geometry.Ellipsoid.principal_axes`
-        (a quaternion, x, y, z, w).
-        """
-        if view_coordinates is not None:
-            self._log(WORLD, view_coordinates, static=True, t=None)
-        boxes = scene.keep_in
-        self._log(
-            KEEP_IN,
-            rr.Boxes3D(
-                centers=np.array([b.center for b in boxes], dtype=float).reshape(-1, 3),
-                half_sizes=np.array([0.5 * b.size for b in boxes], dtype=float).reshape(-1, 3),
-                colors=np.tile(_rgba(keep_in_color), (len(boxes), 1)),
-                fill_mode=rr.components.FillMode.TransparentFillMajorWireframe,
-                labels=[f"keep-in {i}" for i in range(len(boxes))],
-                show_labels=False,
-            ),
-            static=True,
-            t=None,
-        )
-        axes = [e.principal_axes() for e in scene.keep_out]
-        self._log(
-            KEEP_OUT,
-            rr.Ellipsoids3D(
-                centers=np.array([e.center for e in scene.keep_out], dtype=float).reshape(-1, 3),
-                half_sizes=np.array([a for a, _ in axes], dtype=float).reshape(-1, 3),
-                quaternions=np.array([Rotation.from_matrix(r).as_quat() for _, r in axes]).reshape(-1, 4),
-                colors=np.tile(_rgba(keep_out_color), (len(axes), 1)),
-                fill_mode=rr.components.FillMode.TransparentFillMajorWireframe,
-                labels=[f"keep-out {i}" for i in range(len(axes))],
-                show_labels=False,
-            ),
-            static=True,
-            t=None,
-        )
-
-    def log_path(
-        self,
-        entity: str,
-        positions: np.ndarray,
-        *,
-        color: Sequence[int] = REFERENCE_COLOR,
-        radius_m: float = 0.006,
-        static: bool = True,
-        t: float | None = None,
-    ) -> None:
-        """Log a polyline through ``positions`` as ``LineStrips3D`` (e.g. ``world/reference``, ``world/plan/path``).
-
-        Parameters
-        ----------
-        entity : str
-            Entity path.
-        positions : ndarray, shape (N, 3)
-            Vertices [m] in the world frame.
-        color : sequence of int
-            RGB(A) 0-255.
-        radius_m : float
-            Line radius [m] (drawn in scene units).
-        static : bool
-            Log for all times (default); otherwise at mission time ``t``.
-        t : float, optional
-            Mission time [s] of a non-static path (e.g. the plan an MPC made at ``t``).
-        """
-        p = _points(entity, positions)
-        self._log(entity, rr.LineStrips3D([p], colors=[_rgba(color)], radii=[float(radius_m)]), static=static, t=t)
-
-    def log_segments(
-        self,
-        entity: str,
-        starts: np.ndarray,
-        ends: np.ndarray,
-        *,
-        color: Sequence[int] = (160, 160, 160, 160),
-        radius_m: float = 0.002,
-        static: bool = True,
-        t: float | None = None,
-    ) -> None:
-        """Log many straight segments ``starts[i] -> ends[i]`` as one ``LineStrips3D`` (e.g. a planner's tree).
-
-        Parameters
-        ----------
-        entity : str
-            Entity path, e.g. ``world/plan/tree``.
-        starts, ends : ndarray, shape (M, 3)
-            Segment end points [m].
-        color : sequence of int
-            RGB(A) 0-255, shared by all segments.
-        radius_m : float
-            Line radius [m].
-        static : bool
-            Log for all times (default); otherwise at mission time ``t`` [s].
-        t : float, optional
-            Mission time [s] for a non-static log.
-        """
-        a = _points(f"{entity} starts", starts)
-        b = _points(f"{entity} ends", ends)
-        if a.shape != b.shape:
-            raise ValueError(f"{entity}: starts {a.shape} and ends {b.shape} differ")
-        strips = np.stack([a, b], axis=1)
-        self._log(
-            entity,
-            rr.LineStrips3D(strips, colors=[_rgba(color)], radii=[float(radius_m)]),
-            static=static,
-            t=t,
-        )
-
-    def log_points(
-        self,
-        entity: str,
-        positions: np.ndarray,
-        *,
-        color: Sequence[int] = (200, 200, 200, 255),
-        radius_m: float = 0.02,
-        labels: Sequence[str] | None = None,
-        static: bool = True,
-        t: float | None = None,
-    ) -> None:
-        """Log a set of points (``Points3D``), e.g. waypoints or rejected samples.
-
-        Parameters
-        ----------
-        entity : str
-            Entity path.
-        positions : ndarray, shape (N, 3)
-            Points [m].
-        color : sequence of int
-            RGB(A) 0-255.
-        radius_m : float
-            Point radius [m].
-        labels : sequence of str, optional
-            One label per point.
-        static : bool
-            Log for all times (default); otherwise at mission time ``t`` [s].
-        t : float, optional
-            Mission time [s] for a non-static log.
-        """
-        p = _points(entity, positions)
-        self._log(
-            entity,
-            rr.Points3D(p, colors=[_rgba(color)], radii=[float(radius_m)], labels=labels),
-            static=static,
-            t=t,
-        )
-
-    def log_positions_over_time(
-        self,
-        entity: str,
-        t: np.ndarray,
-        positions: np.ndarray,
-        *,
-        color: Sequence[int] = REFERENCE_COLOR,
-        radius_m: float = 0.03,
-    ) -> None:
-        """Log one moving point: ``positions[i]`` at mission time ``t[i]`` (one ``send_columns`` call).
-
-        Parameters
-        ----------
-        entity : str
-            Entity path, e.g. ``world/reference/target``.
-        t : ndarray, shape (N,)
-            Mission times [s].
-        positions : ndarray, shape (N, 3)
-            Positions [m].
-        color : sequence of int
-            RGB(A) 0-255 (static).
-        radius_m : float
-            Point radius [m] (static).
-        """
-        tt = _times(f"{entity} t", t)
-        p = _points(entity, positions)
-        if p.shape[0] != tt.shape[0]:
-            raise ValueError(f"{entity}: {tt.shape[0]} times but {p.shape[0]} positions")
-        self._log(entity, rr.Points3D.from_fields(colors=[_rgba(color)], radii=[float(radius_m)]), static=True, t=None)
-        self._send(entity, tt, rr.Points3D.columns(positions=p))
-
-    def log_trajectory_over_time(
-        self,
-        entity: str,
-        t: np.ndarray,
-        x: np.ndarray,
-        *,
-        body_size_m: float = ASTROBEE_SIZE_M,
-        body_color: Sequence[int] = ROBOT_COLOR,
-        axes_length_m: float = 0.25,
-        path_entity: str | None = None,
-        path_color: Sequence[int] = ACTUAL_COLOR,
-    ) -> None:
-        """Log a rigid body's pose over time and, optionally, the path it flew.
-
-        ``entity`` gets a ``Transform3D`` (translation ``x[:, 0:3]``, quaternion ``x[:, 6:10]``) per time stamp via
-        one ``send_columns`` call, plus a static ``Boxes3D`` body (a cube of edge ``body_size_m``) and body axes,
-        both drawn in the body frame so they move with the transform.
-
-        Parameters
-        ----------
-        entity : str
-            Entity path of the body, e.g. ``world/robot``.
-        t : ndarray, shape (N,)
-            Mission times [s].
-        x : ndarray, shape (N, 13)
-            States ``[r (3) m, v (3) m/s, q (4) x, y, z, w, omega (3) rad/s]`` (see :mod:`oacli.types`).
-        body_size_m : float
-            Edge length of the drawn cube [m] (Astrobee: 0.30 m).
-        body_color : sequence of int
-            RGBA 0-255 of the body.
-        axes_length_m : float
-            Length of the drawn body axes [m]; 0 draws none.
-        path_entity : str, optional
-            When given, the positions are also logged there as a static polyline (e.g. ``world/actual``).
-        path_color : sequence of int
-            RGB(A) 0-255 of that polyline.
-        """
-        tt = _times(f"{entity} t", t)
-        xx = np.asarray(x, dtype=float)
-        if xx.shape != (tt.shape[0], 13):
-            raise ValueError(f"{entity}: expected x of shape ({tt.shape[0]}, 13), got {xx.shape}")
-        if not np.all(np.isfinite(xx[:, :10])):
-            raise ValueError(f"{entity}: positions and quaternions must be finite")
-        q = xx[:, 6:10]
-        norm = np.linalg.norm(q, axis=1)
-        if np.any(norm < 1e-9):
-            raise ValueError(f"{entity}: zero quaternion in x[:, 6:10]")
-        self._send(
-            entity,
-            tt,
-            rr.Transform3D.columns(translation=xx[:, 0:3], quaternion=q / norm[:, None]),
-        )
-        half = 0.5 * float(body_size_m)
-        self._log(
-            entity,
-            rr.Boxes3D(
-                half_sizes=[[half, half, half]],
-                colors=[_rgba(body_color)],
-                fill_mode=rr.components.FillMode.TransparentFillMajorWireframe,
-            ),
-            static=True,
-            t=None,
-        )
-        if axes_length_m > 0:
-            self._log(entity, rr.TransformAxes3D(float(axes_length_m)), static=True, t=None)
-        if path_entity is not None:
-            self.log_path(path_entity, xx[:, 0:3], color=path_color)
-
-    # -- time series ---------------------------------------------------------------------------------------------
 
     def log_series(
         self,
@@ -590,29 +214,6 @@ class StageRecording:
                 t=None,
             )
             self._send(path, t_span, rr.Scalars.columns(scalars=np.tile(sign * lim, (2, 1))))
-
-    def log_bar_chart(
-        self, entity: str, x: np.ndarray, values: np.ndarray, *, color: Sequence[int] = (90, 150, 255, 255)
-    ) -> None:
-        """Log a static bar chart (one bar per ``x``), shown on every timeline: per-iteration figures that live on
-        a sequence timeline of their own, so their panel is never empty on the ``mission_time`` timeline.
-
-        Parameters
-        ----------
-        entity : str
-            Entity path (may also hold the same figures as ``Scalars`` on a sequence timeline).
-        x : ndarray, shape (N,)
-            Abscissa (iteration, try ...).
-        values : ndarray, shape (N,)
-            Bar heights; NaN is drawn as 0.
-        color : sequence of int
-            RGB(A) 0-255.
-        """
-        xx = np.asarray(x, dtype=float).reshape(-1)
-        vv = np.nan_to_num(np.asarray(values, dtype=float).reshape(-1))
-        if xx.shape != vv.shape:
-            raise ValueError(f"{entity}: {xx.shape[0]} abscissae but {vv.shape[0]} values")
-        self._log(entity, rr.BarChart(vv, abscissa=xx, color=_rgba(color)), static=True, t=None)
 
     # -- text ----------------------------------------------------------------------------------------------------
 
@@ -704,56 +305,3 @@ def _check_complete(path: Path, recording_id: str) -> None:
         raise RuntimeError(f"the Rerun recording {path} was not written completely: {exc}") from exc
     if recording_id not in ids:
         raise RuntimeError(f"the Rerun recording {path} does not hold recording {recording_id} (Rerun disabled?)")
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Layout helpers (each stage's blueprint is in its own module)
-# ----------------------------------------------------------------------------------------------------------------
-
-
-def time_series_view(origin: str, name: str, *, legend: bool = True,
-                     y_range: tuple[float, float] | None = None) -> rrb.TimeSeriesView:
-    """A time series view of ``origin`` and its children whose time axis spans the whole run.
-
-    Parameters
-    ----------
-    origin : str
-        Entity path; every ``Scalars`` series at or below it is plotted.
-    name : str
-        Panel title, short (give the unit, e.g. ``"Position error [m]"``); the series names go in the legend.
-    legend : bool
-        Show the legend (in the top-right corner, where it covers the least of a plot that starts at rest).
-    y_range : (float, float), optional
-        Fixed value axis (e.g. 1.15 × the ± limits, so the axis carries ticks beyond ``0`` however flat the data).
-
-    Returns
-    -------
-    rerun.blueprint.TimeSeriesView
-        The view (Rerun's default would show only a window around the time cursor).
-    """
-    whole_run = rr.TimeRange(start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.infinite())
-    return rrb.TimeSeriesView(
-        origin=origin,
-        name=name,
-        axis_x=rrb.TimeAxis(view_range=whole_run),
-        axis_y=None if y_range is None else rrb.ScalarAxis(range=(float(y_range[0]), float(y_range[1]))),
-        plot_legend=rrb.PlotLegend(visible=False) if not legend else rrb.PlotLegend("RightTop", visible=True),
-    )
-
-
-def limit_range(limits: Sequence[float] | np.ndarray, margin: float = 1.15) -> tuple[float, float]:
-    """A symmetric value range ``± margin · max(limits)`` for a plot of series against their ± limits.
-
-    Parameters
-    ----------
-    limits : array_like
-        The ± limits [unit of the plot].
-    margin : float
-        Headroom beyond the largest limit.
-
-    Returns
-    -------
-    (float, float)
-    """
-    top = margin * float(np.max(np.abs(np.asarray(limits, dtype=float))))
-    return (-top, top)
