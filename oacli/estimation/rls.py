@@ -132,6 +132,11 @@ def acceleration_samples(
         Angular-rate noise std [rad/s].
     linear_acceleration_std_mps2 : float, optional
         Accelerometer noise std [m/s²] (for records that carry a reading).
+    imu : ImuStream, optional
+        The IMU's readings: the angular acceleration is then the gyro's slope over each control interval.
+    gyro_noise_variance_rad2ps2 : float, optional
+        The gyro's white-noise variance per axis [rad²/s²] (:func:`oacli.estimation.imu.gyro_noise_variance`);
+        needed with ``imu``.
 
     Returns
     -------
