@@ -446,11 +446,12 @@ def test_look_ahead_steps_keep_every_guarantee_and_are_reproducible(seed):
     assert res.cost_after <= cap * (1 + 1e-9)
     assert_valid_plan(res.trajectory, problem)
     assert problem.checker.check(res.trajectory.pieces()).free
-    # On these plans no longer than without the look-ahead (seed 2: 11 subproblems instead of 19, 0.46 mm shorter).
+    # On these plans no longer than without the look-ahead (seed 2: 11 subproblems instead of 19 and shorter, by
+    # 0.46 mm on one machine and 0.28 mm on another: the last bits of the linear algebra move the SCP's path).
     plain = polish(problem, traj, cost_cap=cap, settings=PolishSettings(prediction=0.0))
     assert res.length_after_m <= plain.length_after_m
     if seed == 2:
-        assert len(its) < len(plain.iterations) and res.length_after_m < plain.length_after_m - 4e-4
+        assert len(its) < len(plain.iterations) and res.length_after_m < plain.length_after_m - 1e-4
     # Same input, same numbers.
     again = polish(problem, traj, cost_cap=cap)
     np.testing.assert_array_equal(again.trajectory.x, res.trajectory.x)
