@@ -15,11 +15,13 @@ from typing import Annotated, Any, Literal
 from pydantic import Field
 
 from oacli.config.fields import (
+    Fraction,
     NonNegativeReal,
     NonNegativeVector3,
     PositiveReal,
     PositiveVector3,
     Section,
+    StrictBool,
     StrictInt,
     Weight3,
     none_to,
@@ -72,6 +74,29 @@ class TubeDisturbanceConfig(Section):
     )
     min_nominal_fraction: Annotated[PositiveReal, Field(lt=1)] = Field(
         default=0.1, description="With scale_w: fraction of each limit left to the nominal MPC, in (0, 1)."
+    )
+
+
+class ObserverConfig(Section):
+    """Output-feedback tube MPC ([Mayne2006]): a steady-state observer in the loop and its estimation-error set."""
+
+    enabled: StrictBool = Field(
+        default=False,
+        description="Act on an observer's estimate instead of the measured state; the tube then promises "
+        "z ⊕ T for the true state under sensor noise bounded at noise_sigmas σ (oacli.sets.error_set).",
+    )
+    noise_sigmas: PositiveReal = Field(
+        default=3.0,
+        description="Sensor noise bound of the error set, in σ of the sensors section [-], > 0; a sample beyond it "
+        "is counted (summary tube.noise_beyond_bound) against the number the Gaussian tail predicts.",
+    )
+    gain: Annotated[tuple[Fraction, Fraction] | None, none_to(None)] = Field(
+        default=None,
+        description="Diagonal Luenberger gain [position, velocity] in (0, 1] (filter form); default: the "
+        "steady-state Kalman gain for accel_std_mps2 and the sensors' σ.",
+    )
+    accel_std_mps2: PositiveReal = Field(
+        default=0.01, description="σ of the Kalman filter's white process acceleration [m/s²], > 0."
     )
 
 
@@ -131,6 +156,9 @@ class TubeConfig(Section):
         "a measured w (or measured state) counts as outside W (or the tube) only beyond this many σ of the noise "
         "it carries (0: none). The tube guarantee itself does not cover Gaussian noise; the true state's tube "
         "violations are reported apart (tube_violations_true).",
+    )
+    observer: Annotated[ObserverConfig, none_to({})] = Field(
+        default_factory=ObserverConfig, description="Output feedback: observer and estimation-error set."
     )
     solver: Literal["direct", "cvxpy"] = Field(
         default="direct",

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from oacli.control.lqr import dlqr, solve_dare
+from oacli.control.observer import TranslationObserver
 from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
@@ -90,6 +91,9 @@ class TubeHistory:
         The same for ``x̃_k − z_k`` (the constraint of the QP; ≥ 0 up to solver tolerance).
     solver_failed : ndarray of bool, shape (K,)
         A solve was attempted at the step and failed.
+    estimate : ndarray, shape (K, 6)
+        The translational state the controller used: the observer's estimate ``x̂`` (output feedback), else the
+        measured state.
     """
 
     t: np.ndarray
@@ -102,6 +106,7 @@ class TubeHistory:
     tube_margin: np.ndarray
     lasso_margin: np.ndarray
     solver_failed: np.ndarray
+    estimate: np.ndarray
 
     def count(self, mode: str) -> int:
         """Number of steps in ``mode``.
@@ -160,6 +165,9 @@ class TubeMPC:
         Distance the robot's centre keeps from the keep-in walls [m] (keep-in boxes bound the centre).
     braking : bool
         Keep the nominal's braking points in the keep-in box too (module docstring).
+    observer : TranslationObserver, optional
+        Output feedback ([Mayne2006]): the controller acts on the observer's estimate (the design then has the
+        error set; :mod:`oacli.sets.error_set`); shared by the successive controllers of a redesign.
     """
 
     def __init__(
@@ -179,12 +187,14 @@ class TubeMPC:
         robot: RobotBody | None = None,
         keep_in_margin_m: float = 0.0,
         braking: bool = True,
+        observer: TranslationObserver | None = None,
     ) -> None:
         params = InertialParams(design.mass_kg, inertia_kgm2)
         ratio = prediction_step_s / design.dt_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError("prediction_step_s must be an integer multiple of the control period")
         self.reference, self.params, self.design = reference, params, design
+        self.observer = observer
         self._sampler = ReferenceSampler(reference)
         self._inertia = np.asarray(params.inertia_kgm2, dtype=float)
         self.horizon, self.step_s, self.dt_s = int(horizon), float(prediction_step_s), design.dt_s
@@ -238,7 +248,7 @@ class TubeMPC:
         self._failures = 0
         self._hold_q: np.ndarray | None = None
         self._rec: dict[str, list[Any]] = {k: [] for k in (
-            "t", "mode", "z", "v", "anc", "tau", "z_pred", "tube", "lasso", "failed")}
+            "t", "mode", "z", "v", "anc", "tau", "z_pred", "tube", "lasso", "failed", "xhat")}
 
     # -- helpers -----------------------------------------------------------------------------------------------
 
@@ -307,7 +317,8 @@ class TubeMPC:
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
         x_ref_full = self._sampler.states(t + self._offsets)
-        x_t = x[0:6]  # measured translational state [r (world), v]
+        # The translational state [r (world), v] the controller acts on: measured, or the observer's estimate.
+        x_t = x[0:6] if self.observer is None else self.observer.update(t, x[0:6])
         z_pred = self._z_pred  # world coordinates
         tube_margin = np.nan if z_pred is None else self.design.error_margin(x_t - z_pred)
         info: SolveInfo
@@ -369,6 +380,8 @@ class TubeMPC:
         np.add(v, anc, out=u[0:3])
         u[3:6] = tau
         self._z_pred = self._a_c @ z + self._b_c @ v
+        if self.observer is not None:
+            self.observer.applied(u[0:3])
         status = info.status if mode == "mpc" else f"{mode} ({info.status})"
         step_info = SolveInfo(status, mode == "mpc", info.objective, info.iterations, info.solve_time_s,
                               time.perf_counter() - start)
@@ -377,7 +390,7 @@ class TubeMPC:
         for key, value in (("t", t), ("mode", mode), ("z", z), ("v", v), ("anc", anc), ("tau", tau),
                            ("z_pred", z_pred_rec), ("tube", tube_margin),
                            ("lasso", self.design.error_margin(x_t - z)),
-                           ("failed", attempted and not info.success)):
+                           ("failed", attempted and not info.success), ("xhat", x_t)):
             rec[key].append(value)
         return ControlStep(u=u, info=step_info, x_reference=x_ref_full[0])
 
@@ -405,5 +418,6 @@ class TubeMPC:
             tube_margin=np.array(rec["tube"], dtype=float),
             lasso_margin=np.array(rec["lasso"], dtype=float),
             solver_failed=np.array(rec["failed"], dtype=bool),
+            estimate=arr("xhat", 6),
         )
 
