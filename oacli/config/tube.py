@@ -157,6 +157,12 @@ class TubeConfig(Section):
         "it carries (0: none). The tube guarantee itself does not cover Gaussian noise; the true state's tube "
         "violations are reported apart (tube_violations_true).",
     )
+    initial_weight: NonNegativeReal = Field(
+        default=0.0,
+        description="Cost w (x̂ − z_0)ᵀ Q (x̂ − z_0) on the free initial nominal state, Q the translation weights "
+        "[-], >= 0; 0: the cost of Mayne et al. 2005 (the nominal may start anywhere in the lasso). Constraints, "
+        "hence the guarantee, are unchanged.",
+    )
     observer: Annotated[ObserverConfig, none_to({})] = Field(
         default_factory=ObserverConfig, description="Output feedback: observer and estimation-error set."
     )

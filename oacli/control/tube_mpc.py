@@ -188,6 +188,7 @@ class TubeMPC:
         keep_in_margin_m: float = 0.0,
         braking: bool = True,
         observer: TranslationObserver | None = None,
+        initial_weight: float = 0.0,
     ) -> None:
         params = InertialParams(design.mass_kg, inertia_kgm2)
         ratio = prediction_step_s / design.dt_s
@@ -222,7 +223,7 @@ class TubeMPC:
         trans = QPBlock(
             "translation", a_t, b_t, q_t, weights.force, p_t,
             state=design.tightened_state, input=design.tightened_input, lasso=design.lasso_for_solver,
-            positions=spec,
+            positions=spec, initial_weight=initial_weight * np.diag(q_t) if initial_weight > 0 else None,
         )
         rot = QPBlock(
             "attitude", a_r, b_r, q_r, weights.torque, solve_dare(a_r, b_r, np.diag(q_r), np.diag(weights.torque)),

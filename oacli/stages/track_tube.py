@@ -60,7 +60,7 @@ def tube_controller_from_config(
         reference, design, inertia_kgm2=model.inertia_kgm2, horizon=cfg.controller.horizon, prediction_step_s=step,
         weights=weights, limits=limits, terminal=terminal,
         max_consecutive_failures=cfg.controller.max_consecutive_failures, fast=tube.solver == "direct",
-        observer=observer, **workspace_arguments(cfg),
+        observer=observer, initial_weight=tube.initial_weight, **workspace_arguments(cfg),
     )
 
 
