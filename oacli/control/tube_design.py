@@ -108,8 +108,7 @@ class AxisTube:
         The configured ε (relative [-] or absolute [m, m/s], by ``epsilon_mode``).
     epsilon_mode : {"relative", "absolute"}
     output : OutputFeedbackSets or None
-        With an observer ([Mayne2006]): the error set S, the true-state tube T (then ``rpi``/``reduction``) and
-        the lasso ``R = T ⊖ S``; None: state feedback (the lasso is the tube Z).
+        With an observer ([Mayne2006]): S, the tube T (then ``rpi``/``reduction``), the lasso ``R = T ⊖ S``.
     """
 
     name: str
@@ -211,10 +210,8 @@ class AxisTube:
 
     def _observer_parts(self) -> tuple[np.ndarray, np.ndarray] | None:
         """``(L, noise half-widths (2,))`` of the output-feedback design, None for state feedback."""
-        if self.output is None:
-            return None
-        noise = self.output.noise
-        return self.output.observer_gain, np.array([noise.support(_E_POSITION), noise.support(_E_VELOCITY)])
+        out = self.output
+        return None if out is None else (out.observer_gain, np.asarray(out.noise.support(np.eye(2))))
 
 
 @dataclass(frozen=True)
@@ -326,6 +323,7 @@ class TubeDesign:
             JSON-ready values.
         """
         axes = self.axes
+        axes_sets = [ax.output for ax in axes if ax.output is not None]
         baselines = [ax.baseline for ax in axes]
         ideal = [ax.ideal_bounds() for ax in axes]
 
@@ -379,8 +377,7 @@ class TubeDesign:
             "ancillary_force_max_N": [ax.ancillary_force_N for ax in axes],
             "tightened_force_N": [list(ax.force_bounds_N) for ax in axes],
             "tightened_velocity_mps": [list(ax.velocity_bounds_mps) for ax in axes],
-            **({} if axes[0].output is None else {"output_feedback": output_feedback_summary(
-                [ax.output for ax in axes if ax.output is not None])}),
+            **({} if axes[0].output is None else {"output_feedback": output_feedback_summary(axes_sets)}),
         }
 
 
