@@ -120,3 +120,51 @@ def test_error_set_and_true_tube_cover_a_monte_carlo_of_the_observer(noise):
     second = obs.update(DT, np.concatenate([np.full(3, x_next[0]), np.full(3, x_next[1])]))
     pred = a @ first[[0, 3]]
     np.testing.assert_allclose(second[[0, 3]], pred + ell @ (x_next - pred), rtol=1e-12)
+
+
+def test_exits_are_counted_against_the_tube_in_force():
+    """After a redesign beyond W the promise is the new design's tube (issue 31: not ``designs[0]``): an error
+    outside the first tube but inside the second counts only on the steps the first one was in force."""
+    from oacli.stages.track_tube import tube_exits_in_force
+
+    def sf_design(force_n: float):
+        return design_translation_tube(
+            mass_kg=MASS, dt_s=DT, force_limit_N=np.full(3, 0.15), velocity_limit_mps=np.full(3, 0.2),
+            weights=AncillaryWeights(), spec=DisturbanceSpec(mass_kg=MASS, force_N=np.full(3, force_n)), epsilon=0.05)
+
+    small, large = sf_design(0.002), sf_design(0.02)
+    p_small = small.axes[0].promise.support(np.array([1.0, 0.0]))
+    p_large = large.axes[0].promise.support(np.array([1.0, 0.0]))
+    assert p_large > 2 * p_small
+    k = 10
+    predicted = np.zeros((k, 6))
+    states = np.zeros((k, 6))
+    states[:, 0] = 0.5 * (p_small + p_large)  # outside the small tube, inside the large one
+    index = np.array([0] * 4 + [1] * 6)
+    assert tube_exits_in_force([small, large], index, states, predicted) == 4
+    assert tube_exits_in_force([small, large], np.zeros(k, dtype=int), states, predicted) == k
+    # A measured state gets the noise box on top: 0 exits once the box covers the excess.
+    box = np.tile([p_large, 0.0], (3, 1))
+    assert tube_exits_in_force([small, large], index, states, predicted, box) == 0
+
+
+def test_rate_observer_follows_euler_and_attenuates_noise():
+    """The body-rate observer predicts with Euler's equations (a torque-free spin about a principal axis stays
+    put; a torque changes the rate by τ dt / I) and passes white rate noise at about √(l/(2 − l)) of its σ."""
+    from oacli.control.observer import RateObserver
+
+    inertia = np.array([0.15, 0.14, 0.16])
+    obs = RateObserver(inertia, 0.3, DT)
+    w0 = np.array([0.0, 0.0, 0.1])
+    obs.update(0.0, w0)
+    obs.applied(np.array([0.01, 0.0, 0.0]))
+    pred = w0 + DT * (np.array([0.01, 0.0, 0.0]) - np.cross(w0, inertia * w0)) / inertia
+    np.testing.assert_allclose(obs.update(DT, pred), pred, rtol=1e-12)
+    rng = np.random.default_rng(3)
+    obs = RateObserver(inertia, 0.3, DT)
+    sigma, est = 0.0158, []
+    for j in range(4000):
+        obs.applied(np.zeros(3))
+        est.append(obs.update(j * DT, sigma * rng.standard_normal(3)))
+    ratio = np.std(np.array(est)[100:]) / sigma
+    assert ratio == pytest.approx(np.sqrt(0.3 / 1.7), rel=0.08)

@@ -98,6 +98,11 @@ class ObserverConfig(Section):
     accel_std_mps2: PositiveReal = Field(
         default=0.01, description="σ of the Kalman filter's white process acceleration [m/s²], > 0."
     )
+    rate_gain: Annotated[Fraction | None, none_to(None)] = Field(
+        default=None,
+        description="Gain in (0, 1] of a body-rate observer (Euler's equations, oacli.control.observer.RateObserver)"
+        " whose estimate the attitude MPC uses; none: the measured rate. No set is claimed for attitude.",
+    )
 
 
 class TubeConfig(Section):

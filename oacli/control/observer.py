@@ -107,6 +107,60 @@ class TranslationObserver:
         return self._x.copy()
 
 
+class RateObserver:
+    """Steady-state observer of the body angular rate ("attitude the same way where the rates matter").
+
+    Euler's equations predict the rate over one control period under the applied torque,
+    ``ω̂⁻ = ω̂ + dt I⁻¹ (τ − ω̂ × I ω̂)``, and a constant gain corrects it with the measured rate,
+    ``ω̂ = ω̂⁻ + l (ω̃ − ω̂⁻)``: the rate noise reaches the attitude MPC attenuated to about ``√(l / (2 − l))`` of
+    its σ (white noise through the first-order filter). No set is claimed for attitude (it has no tube).
+
+    Parameters
+    ----------
+    inertia_kgm2 : ndarray, shape (3,)
+        Principal inertias of the model [kg·m²].
+    gain : float
+        l in (0, 1].
+    dt_s : float
+        Control period [s]; a measurement after another interval re-initialises the estimate.
+    """
+
+    def __init__(self, inertia_kgm2: np.ndarray, gain: float, dt_s: float) -> None:
+        self.inertia = np.asarray(inertia_kgm2, dtype=float).reshape(3)
+        self.gain, self.dt_s = float(gain), float(dt_s)
+        self._w: np.ndarray | None = None
+        self._t: float | None = None
+        self._torque: np.ndarray | None = None
+
+    def applied(self, torque_Nm: np.ndarray) -> None:
+        """Record the body torque [N·m] (3,) applied until the next measurement."""
+        self._torque = np.array(torque_Nm, dtype=float)
+
+    def update(self, t: float, omega_radps: np.ndarray) -> np.ndarray:
+        """Predict with the recorded torque, correct with the measured rate; return ``ω̂`` [rad/s] (3,).
+
+        Parameters
+        ----------
+        t : float
+            Measurement time [s].
+        omega_radps : ndarray, shape (3,)
+            Measured body rate [rad/s].
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
+        y = np.asarray(omega_radps, dtype=float)
+        w, t_prev, tau = self._w, self._t, self._torque
+        if w is None or t_prev is None or tau is None or abs(t - t_prev - self.dt_s) > 1e-6 * self.dt_s:
+            self._w = y.copy()
+        else:
+            pred = w + self.dt_s * (tau - np.cross(w, self.inertia * w)) / self.inertia
+            self._w = pred + self.gain * (y - pred)
+        self._t = float(t)
+        return self._w.copy()
+
+
 def observer_spec(*, mass_kg: float, dt_s: float, position_std_m: float, velocity_std_mps: float,
                   noise_sigmas: float, gain: tuple[float, float] | None, accel_std_mps2: float) -> ObserverSpec:
     """The observer of an output-feedback tube design: gain L and the noise bound ``noise_sigmas`` σ per axis.

@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from oacli.control.lqr import dlqr, solve_dare
-from oacli.control.observer import TranslationObserver
+from oacli.control.observer import RateObserver, TranslationObserver
 from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
@@ -189,13 +189,14 @@ class TubeMPC:
         braking: bool = True,
         observer: TranslationObserver | None = None,
         initial_weight: float = 0.0,
+        rate_observer: RateObserver | None = None,
     ) -> None:
         params = InertialParams(design.mass_kg, inertia_kgm2)
         ratio = prediction_step_s / design.dt_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError("prediction_step_s must be an integer multiple of the control period")
         self.reference, self.params, self.design = reference, params, design
-        self.observer = observer
+        self.observer, self.rate_observer = observer, rate_observer
         self._sampler = ReferenceSampler(reference)
         self._inertia = np.asarray(params.inertia_kgm2, dtype=float)
         self.horizon, self.step_s, self.dt_s = int(horizon), float(prediction_step_s), design.dt_s
@@ -317,6 +318,9 @@ class TubeMPC:
         """
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
+        if self.rate_observer is not None:
+            x = x.copy()
+            x[10:13] = self.rate_observer.update(t, x[10:13])
         x_ref_full = self._sampler.states(t + self._offsets)
         # The translational state [r (world), v] the controller acts on: measured, or the observer's estimate.
         x_t = x[0:6] if self.observer is None else self.observer.update(t, x[0:6])
@@ -383,6 +387,8 @@ class TubeMPC:
         self._z_pred = self._a_c @ z + self._b_c @ v
         if self.observer is not None:
             self.observer.applied(u[0:3])
+        if self.rate_observer is not None:
+            self.rate_observer.applied(u[3:6])
         status = info.status if mode == "mpc" else f"{mode} ({info.status})"
         step_info = SolveInfo(status, mode == "mpc", info.objective, info.iterations, info.solve_time_s,
                               time.perf_counter() - start)

@@ -14,7 +14,7 @@ import numpy as np
 from scipy import special, stats
 
 from oacli.config import OacliConfig
-from oacli.control.observer import TranslationObserver, observer_for
+from oacli.control.observer import RateObserver, TranslationObserver, observer_for
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_monitor import TubeMonitor, half_widths
@@ -44,6 +44,7 @@ TUBE_TOLERANCE_REL = 1e-6
 def tube_controller_from_config(
     cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: MotionLimits,
     *, model: RobotModel | None = None, observer: TranslationObserver | None = None,
+    rate_observer: RateObserver | None = None,
 ) -> TubeMPC:
     """The :class:`TubeMPC` of ``cfg`` around ``design`` (mass: the design's; inertia: ``model``'s, default
     :func:`~oacli.stages.settings.robot_model`); with an output-feedback design it acts on ``observer``'s estimate
@@ -56,12 +57,21 @@ def tube_controller_from_config(
     step = tube.prediction_step_s if tube.prediction_step_s is not None else cfg.controller.period_s
     if observer is None and design.output_feedback:
         observer = observer_for(design)
+    if rate_observer is None:
+        rate_observer = rate_observer_for(cfg, model)
     return TubeMPC(
         reference, design, inertia_kgm2=model.inertia_kgm2, horizon=cfg.controller.horizon, prediction_step_s=step,
         weights=weights, limits=limits, terminal=terminal,
         max_consecutive_failures=cfg.controller.max_consecutive_failures, fast=tube.solver == "direct",
-        observer=observer, initial_weight=tube.initial_weight, **workspace_arguments(cfg),
+        observer=observer, initial_weight=tube.initial_weight, rate_observer=rate_observer,
+        **workspace_arguments(cfg),
     )
+
+
+def rate_observer_for(cfg: OacliConfig, model: RobotModel) -> RateObserver | None:
+    """The body-rate observer of ``controller.tube.observer.rate_gain`` (None when unset)."""
+    gain = cfg.controller.tube.observer.rate_gain
+    return None if gain is None else RateObserver(np.asarray(model.inertia_kgm2), gain, cfg.controller.period_s)
 
 
 def workspace_arguments(cfg: OacliConfig) -> dict[str, Any]:
@@ -101,9 +111,10 @@ def monitored_tube_controller(
     made with (:func:`~oacli.stages.settings.tube_design_from_config`); a redesign beyond W uses them too.
     """
     model = robot_model(cfg) if model is None else model
-    observer = observer_for(design)  # one estimate across redesigns
+    observer, rates = observer_for(design), rate_observer_for(cfg, model)  # one estimate across redesigns
     return TubeMonitor(
-        lambda d: tube_controller_from_config(cfg, reference, d, weights, limits, model=model, observer=observer),
+        lambda d: tube_controller_from_config(cfg, reference, d, weights, limits, model=model, observer=observer,
+                                              rate_observer=rates),
         design,
         response=cfg.controller.tube.beyond_w, actuator_force_limit_N=np.asarray(model.force_limit_N),
         redesign=lambda extra: tube_design_from_config(cfg, extra_box=extra, max_terms=REDESIGN_MAX_TERMS,
