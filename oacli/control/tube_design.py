@@ -198,20 +198,18 @@ class AxisTube:
     @cached_property
     def baseline(self) -> AxisTube | None:
         """This axis designed with the ReSWARM flight settings (absolute ε = :data:`BASELINE_EPSILON`, facet
-        growth :data:`BASELINE_FACET_GROWTH`), same A, K and W; None when that design needs too many terms."""
+        growth :data:`BASELINE_FACET_GROWTH`), same A, K and W; None when that design needs too many terms, and
+        with an observer (the flight's tube had none)."""
+        if self.output is not None:
+            return None
         try:
             return _axis_from_parts(
                 self.name, self.a, self.b, self.gain, self.disturbance, force_limit_N=self.force_limit_N,
                 velocity_limit_mps=self.velocity_limit_mps, epsilon=BASELINE_EPSILON, epsilon_mode="absolute",
-                max_terms=2000, facet_growth=BASELINE_FACET_GROWTH, observer=self._observer_parts(),
+                max_terms=2000, facet_growth=BASELINE_FACET_GROWTH,
             )
         except (RPITermsError, InfeasibleError):
             return None
-
-    def _observer_parts(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(L, noise half-widths (2,))`` of the output-feedback design, None for state feedback."""
-        out = self.output
-        return None if out is None else (out.observer_gain, np.asarray(out.noise.support(np.eye(2))))
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ from oacli.sets.rpi import EpsilonMode, FacetReduction, RPIApproximation, minima
 
 #: Directions (unit vectors, evenly spaced) of the outer polygon that bounds ``(−B K) S ⊕ W`` (fewer facets for the
 #: RPI series; a superset, so every bound derived from it stays valid).
-_OUTER_DIRECTIONS = 64
+_OUTER_DIRECTIONS = 16
 
 
 @dataclass(frozen=True)
