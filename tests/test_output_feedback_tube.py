@@ -168,3 +168,19 @@ def test_rate_observer_follows_euler_and_attenuates_noise():
         est.append(obs.update(j * DT, sigma * rng.standard_normal(3)))
     ratio = np.std(np.array(est)[100:]) / sigma
     assert ratio == pytest.approx(np.sqrt(0.3 / 1.7), rel=0.08)
+
+
+def test_observer_without_sensor_noise_is_refused_naming_the_field():
+    from pathlib import Path
+
+    from oacli.config import config_from_dict, load_config
+    from oacli.errors import ConfigError
+
+    data = load_config(Path(__file__).resolve().parents[1] / "configs" / "iss_reswarm_tube.yaml").model_dump(
+        mode="json")
+    data["controller"]["tube"]["observer"] = {"enabled": True}
+    data["sensors"] = {"position_std_m": 0.0, "velocity_std_mps": 0.002}
+    with pytest.raises(ConfigError, match=r"controller\.tube\.observer\.enabled.*sensors\.position_std_m > 0"):
+        config_from_dict(data, source="test")
+    data["sensors"]["position_std_m"] = 0.01
+    assert config_from_dict(data, source="test").controller.tube.observer.enabled

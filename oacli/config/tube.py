@@ -179,10 +179,15 @@ class TubeConfig(Section):
 
 
 def tube_problems(tube: TubeConfig, *, period_s: float, robot_mass_kg: float,
-                  robot_force_limit_N: tuple[float, ...]) -> list[tuple[tuple[str | int, ...], Any, str]]:
-    """Cross-field problems of ``controller.tube`` as ``(loc, value, reason)`` (checked when type is ``tube``)."""
+                  robot_force_limit_N: tuple[float, ...],
+                  sensor_std: tuple[float, float] | None = None) -> list[tuple[tuple[str | int, ...], Any, str]]:
+    """Cross-field problems of ``controller.tube`` as ``(loc, value, reason)`` (checked when type is ``tube``);
+    ``sensor_std`` is ``(sensors.position_std_m, sensors.velocity_std_mps)``."""
     problems: list[tuple[tuple[str | int, ...], Any, str]] = []
     base = ("controller", "tube")
+    if tube.observer.enabled and sensor_std is not None and not (sensor_std[0] > 0 and sensor_std[1] > 0):
+        problems.append(((*base, "observer", "enabled"), True,
+                         "the observer's error set needs sensors.position_std_m > 0 and sensors.velocity_std_mps > 0"))
     if tube.prediction_step_s is not None:
         ratio = tube.prediction_step_s / period_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
