@@ -9,6 +9,13 @@ under the held nominal input, so the tube guarantee holds at every control insta
 control step lies in W, ``x̃_{k+1} − ẑ_{k+1} ∈ Z`` with ``ẑ_{k+1} = A z_0 + B v_0`` (Z is robust positively
 invariant), and then ``u ∈ U`` and the true velocity stays within its limit.
 
+Output feedback ([Mayne2006]; ``observer``): the controller acts on the estimate ``x̂`` of
+:class:`oacli.control.observer.TranslationObserver` instead of ``x̃``; the design's lasso is then
+``R = T ⊖ S`` and its promise for the true state ``ẑ ⊕ T`` (:mod:`oacli.sets.error_set`), which holds while every
+noise sample is within the design's bound. An optional cost ``initial_weight`` on ``x̂ − z_0`` keeps the nominal on
+the estimate (it changes no constraint). With a :class:`~oacli.control.observer.RateObserver` the attitude MPC
+uses the estimated body rate.
+
 Attitude: the papers assumed it perfectly tracked (Doerr 2021, Results) and tubed translation only; here it is
 tracked by the standard MPC of Doerr Eq. 26 in the body-frame rotation-vector chart of
 :mod:`oacli.control.tracking`, within the torque limits, in the same QP (one solver call per step). A linear tube
