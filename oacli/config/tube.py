@@ -15,11 +15,13 @@ from typing import Annotated, Any, Literal
 from pydantic import Field
 
 from oacli.config.fields import (
+    Fraction,
     NonNegativeReal,
     NonNegativeVector3,
     PositiveReal,
     PositiveVector3,
     Section,
+    StrictBool,
     StrictInt,
     Weight3,
     none_to,
@@ -72,6 +74,34 @@ class TubeDisturbanceConfig(Section):
     )
     min_nominal_fraction: Annotated[PositiveReal, Field(lt=1)] = Field(
         default=0.1, description="With scale_w: fraction of each limit left to the nominal MPC, in (0, 1)."
+    )
+
+
+class ObserverConfig(Section):
+    """Output-feedback tube MPC ([Mayne2006]): a steady-state observer in the loop and its estimation-error set."""
+
+    enabled: StrictBool = Field(
+        default=False,
+        description="Act on an observer's estimate instead of the measured state; the tube then promises "
+        "z ⊕ T for the true state under sensor noise bounded at noise_sigmas σ (oacli.sets.error_set).",
+    )
+    noise_sigmas: PositiveReal = Field(
+        default=3.0,
+        description="Sensor noise bound of the error set, in σ of the sensors section [-], > 0; a sample beyond it "
+        "is counted (summary tube.noise_beyond_bound) against the number the Gaussian tail predicts.",
+    )
+    gain: Annotated[tuple[Fraction, Fraction] | None, none_to(None)] = Field(
+        default=None,
+        description="Diagonal Luenberger gain [position, velocity] in (0, 1] (filter form); default: the "
+        "steady-state Kalman gain for accel_std_mps2 and the sensors' σ.",
+    )
+    accel_std_mps2: PositiveReal = Field(
+        default=0.01, description="σ of the Kalman filter's white process acceleration [m/s²], > 0."
+    )
+    rate_gain: Annotated[Fraction | None, none_to(None)] = Field(
+        default=None,
+        description="Gain in (0, 1] of a body-rate observer (Euler's equations, oacli.control.observer.RateObserver)"
+        " whose estimate the attitude MPC uses; none: the measured rate. No set is claimed for attitude.",
     )
 
 
@@ -132,6 +162,15 @@ class TubeConfig(Section):
         "it carries (0: none). The tube guarantee itself does not cover Gaussian noise; the true state's tube "
         "violations are reported apart (tube_violations_true).",
     )
+    initial_weight: NonNegativeReal = Field(
+        default=0.0,
+        description="Cost w (x̂ − z_0)ᵀ Q (x̂ − z_0) on the free initial nominal state, Q the translation weights "
+        "[-], >= 0; 0: the cost of Mayne et al. 2005 (the nominal may start anywhere in the lasso). Constraints, "
+        "hence the guarantee, are unchanged.",
+    )
+    observer: Annotated[ObserverConfig, none_to({})] = Field(
+        default_factory=ObserverConfig, description="Output feedback: observer and estimation-error set."
+    )
     solver: Literal["direct", "cvxpy"] = Field(
         default="direct",
         description="'direct': cvxpy canonicalises once, Clarabel is called with updated data; 'cvxpy': "
@@ -140,10 +179,15 @@ class TubeConfig(Section):
 
 
 def tube_problems(tube: TubeConfig, *, period_s: float, robot_mass_kg: float,
-                  robot_force_limit_N: tuple[float, ...]) -> list[tuple[tuple[str | int, ...], Any, str]]:
-    """Cross-field problems of ``controller.tube`` as ``(loc, value, reason)`` (checked when type is ``tube``)."""
+                  robot_force_limit_N: tuple[float, ...],
+                  sensor_std: tuple[float, float] | None = None) -> list[tuple[tuple[str | int, ...], Any, str]]:
+    """Cross-field problems of ``controller.tube`` as ``(loc, value, reason)`` (checked when type is ``tube``);
+    ``sensor_std`` is ``(sensors.position_std_m, sensors.velocity_std_mps)``."""
     problems: list[tuple[tuple[str | int, ...], Any, str]] = []
     base = ("controller", "tube")
+    if tube.observer.enabled and sensor_std is not None and not (sensor_std[0] > 0 and sensor_std[1] > 0):
+        problems.append(((*base, "observer", "enabled"), True,
+                         "the observer's error set needs sensors.position_std_m > 0 and sensors.velocity_std_mps > 0"))
     if tube.prediction_step_s is not None:
         ratio = tube.prediction_step_s / period_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:

@@ -19,10 +19,12 @@ The summary measures Z against the minimal box, the box hull of ``F_∞`` from t
 settings (absolute ε = 0.005, 5 % facet growth; :data:`BASELINE_EPSILON`) and how far they are from the ideal
 ``U ⊖ K F_∞``, ``X ⊖ (F_∞ ⊕ N)``.
 
-If a tightened set loses the origin from its interior (W too large for the actuators, [ReSWARM2023] §4.5), the design
-refuses with W and the actuator margin, unless the explicit policy ``"scale_w"`` is chosen: then W of that axis is
-scaled down to the largest factor that leaves ``min_nominal_fraction`` of each limit to the nominal MPC, and the
-factor is reported.
+With an observer (:class:`ObserverSpec`, [Mayne2006]) Z is replaced by the sets of :mod:`oacli.sets.error_set`:
+the lasso ``R = T ⊖ S``, the promise T, ``Ū = U ⊖ K R`` and ``X̄ = X ⊖ T``.
+
+If a tightened set loses the origin (W too large for the actuators, [ReSWARM2023] §4.5), the design refuses with
+W and the actuator margin, unless the explicit policy ``"scale_w"`` is chosen: then W of that axis is scaled down
+to the largest factor that leaves ``min_nominal_fraction`` of each limit to the nominal MPC (reported).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import numpy as np
 
 from oacli.control.disturbance import AxisDisturbance, DisturbanceSpec
 from oacli.control.lqr import dlqr
+from oacli.control.tube_epsilon import reduction_growth, split_relative_epsilon
 from oacli.control.tube_qp import LinearConstraint
 from oacli.errors import InfeasibleError
 from oacli.model.double_integrator import double_integrator
@@ -48,6 +51,7 @@ from oacli.sets import (
     minimal_rpi_support,
     reduce_facets,
 )
+from oacli.sets.error_set import OutputFeedbackSets, output_feedback_sets, output_feedback_summary
 
 AXIS_NAMES = ("x", "y", "z")
 
@@ -63,53 +67,6 @@ _E_POSITION = np.array([1.0, 0.0])
 _E_VELOCITY = np.array([0.0, 1.0])
 
 
-def split_relative_epsilon(epsilon: float, facet_growth: float) -> tuple[float, float]:
-    """Split a relative bound ``Z ⊆ (1 + ε) F_∞`` between ``F(α, s)`` and the facet reduction.
-
-    ``(1 + ε) = (1 + ε_F)(1 + g)``: the reduction gets ``g = min(facet_growth, √(1 + ε) − 1)`` (at most half of
-    the bound, geometrically) and Raković et al.'s algorithm the rest, ``ε_F = (1 + ε)/(1 + g) − 1``. After
-    ``F(α, s)`` is built, the reduction may use what it left (:func:`reduction_growth`).
-
-    Parameters
-    ----------
-    epsilon : float
-        Relative bound ε > 0 of the set in use.
-    facet_growth : float
-        Largest growth the facet reduction may take, ≥ 0.
-
-    Returns
-    -------
-    epsilon_rpi : float
-        Relative ε of ``F(α, s) ⊆ (1 + ε_F) F_∞``.
-    growth : float
-        Planned facet growth g.
-    """
-    if not (epsilon > 0 and np.isfinite(epsilon)) or not facet_growth >= 0:
-        raise ValueError(f"need epsilon > 0 and facet_growth >= 0, got {epsilon}, {facet_growth}")
-    growth = min(float(facet_growth), float(np.sqrt(1.0 + epsilon) - 1.0))
-    return (1.0 + epsilon) / (1.0 + growth) - 1.0, growth
-
-
-def reduction_growth(epsilon: float, facet_growth: float, alpha: float) -> float:
-    """Facet growth left to the reduction by ``F(α, s) = (1 − α)⁻¹ F_s ⊆ (1 − α)⁻¹ F_∞`` under a relative bound.
-
-    Parameters
-    ----------
-    epsilon : float
-        Relative bound ε of the set in use.
-    facet_growth : float
-        Largest growth the reduction may take.
-    alpha : float
-        ``α`` of ``F(α, s)``, in [0, 1).
-
-    Returns
-    -------
-    float
-        ``min(facet_growth, (1 + ε)(1 − α) − 1)`` (≥ 0), so that ``(1 − α)⁻¹ (1 + g) ≤ 1 + ε``.
-    """
-    return max(0.0, min(float(facet_growth), (1.0 + epsilon) * (1.0 - alpha) - 1.0))
-
-
 @dataclass(frozen=True)
 class AncillaryWeights:
     """LQR weights of the ancillary law per axis: ``Q = diag(position, velocity)``, ``R = force``."""
@@ -117,6 +74,14 @@ class AncillaryWeights:
     position: float = 5.0
     velocity: float = 10.0
     force: float = 2.0
+
+
+@dataclass(frozen=True)
+class ObserverSpec:
+    """Output feedback ([Mayne2006]): observer gain L (2, 2) of every axis, noise bound ``(3, 2)`` [m, m/s]."""
+
+    gain: np.ndarray
+    noise: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -142,6 +107,8 @@ class AxisTube:
     epsilon : float
         The configured ε (relative [-] or absolute [m, m/s], by ``epsilon_mode``).
     epsilon_mode : {"relative", "absolute"}
+    output : OutputFeedbackSets or None
+        With an observer ([Mayne2006]): S, the tube T (then ``rpi``/``reduction``), the lasso ``R = T ⊖ S``.
     """
 
     name: str
@@ -157,11 +124,22 @@ class AxisTube:
     velocity_bounds_mps: tuple[float, float]
     epsilon: float
     epsilon_mode: EpsilonMode
+    output: OutputFeedbackSets | None = None
 
     @property
     def z(self) -> Polytope:
-        """The tube cross-section Z in use."""
+        """The lasso set of the QP: Z (state feedback) or ``R = T ⊖ S`` (output feedback)."""
+        return self.reduction.z if self.output is None else self.output.lasso
+
+    @property
+    def promise(self) -> Polytope:
+        """The tube promised for the true state around the nominal: Z, or T with an observer."""
         return self.reduction.z
+
+    @property
+    def w_promise(self) -> Polytope:
+        """The disturbance of the promised tube's invariance: W, or ``(−B K) S ⊕ W`` with an observer."""
+        return self.disturbance.w if self.output is None else self.output.w_true
 
     @property
     def a_closed(self) -> np.ndarray:
@@ -192,16 +170,16 @@ class AxisTube:
         ``±d``: ``position`` [m], ``velocity`` [m/s] (the minimal box), ``force`` ``max |K e|`` [N]."""
         k = self.gain[0]
         dirs = np.vstack([_E_POSITION, -_E_POSITION, _E_VELOCITY, -_E_VELOCITY, k, -k])
-        h, _ = minimal_rpi_support(self.a_closed, self.disturbance.w, dirs)
+        h, _ = minimal_rpi_support(self.a_closed, self.w_promise, dirs)
         return {"position": float(max(h[0], h[1])), "velocity": float(max(h[2], h[3])),
                 "force": float(max(h[4], h[5]))}
 
     @property
     def ratio_to_minimal_box(self) -> tuple[float, float]:
         """``(position, velocity)``: Z's half-width over the minimal box's, largest over ``±e`` (≥ 1)."""
-        h = self.minimal_support
-        pos = max(self.z.support(_E_POSITION), self.z.support(-_E_POSITION)) / h["position"]
-        vel = max(self.z.support(_E_VELOCITY), self.z.support(-_E_VELOCITY)) / h["velocity"]
+        h, z = self.minimal_support, self.promise
+        pos = max(z.support(_E_POSITION), z.support(-_E_POSITION)) / h["position"]
+        vel = max(z.support(_E_VELOCITY), z.support(-_E_VELOCITY)) / h["velocity"]
         return float(pos), float(vel)
 
     def ideal_bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -220,14 +198,17 @@ class AxisTube:
     @cached_property
     def baseline(self) -> AxisTube | None:
         """This axis designed with the ReSWARM flight settings (absolute ε = :data:`BASELINE_EPSILON`, facet
-        growth :data:`BASELINE_FACET_GROWTH`), same A, K and W; None when that design needs too many terms."""
+        growth :data:`BASELINE_FACET_GROWTH`), same A, K and W; None when that design needs too many terms, and
+        with an observer (the flight's tube had none)."""
+        if self.output is not None:
+            return None
         try:
             return _axis_from_parts(
                 self.name, self.a, self.b, self.gain, self.disturbance, force_limit_N=self.force_limit_N,
                 velocity_limit_mps=self.velocity_limit_mps, epsilon=BASELINE_EPSILON, epsilon_mode="absolute",
                 max_terms=2000, facet_growth=BASELINE_FACET_GROWTH,
             )
-        except RPITermsError:
+        except (RPITermsError, InfeasibleError):
             return None
 
 
@@ -257,6 +238,19 @@ class TubeDesign:
         """Z of the 6-D translational error as ``H e ≤ h`` (block diagonal over the axes)."""
         h_mat = np.vstack([self._embed(i, ax.z.a) for i, ax in enumerate(self.axes)])
         return LinearConstraint(h_mat, np.concatenate([ax.z.b for ax in self.axes]))
+
+    @cached_property
+    def promise(self) -> LinearConstraint:
+        """The tube promised for the true state (Z, or T with an observer) as ``H e ≤ h`` (block diagonal)."""
+        if all(ax.output is None for ax in self.axes):
+            return self.lasso
+        h_mat = np.vstack([self._embed(i, ax.promise.a) for i, ax in enumerate(self.axes)])
+        return LinearConstraint(h_mat, np.concatenate([ax.promise.b for ax in self.axes]))
+
+    @property
+    def output_feedback(self) -> bool:
+        """True when the design has an observer ([Mayne2006])."""
+        return self.axes[0].output is not None
 
     @cached_property
     def lasso_for_solver(self) -> LinearConstraint:
@@ -302,13 +296,14 @@ class TubeDesign:
         return float(np.minimum.reduce(lasso.h_vector - lasso.h_matrix @ np.asarray(e, dtype=float), axis=None))
 
     def position_extent(self) -> np.ndarray:
-        """Half-extents of Z's projection on position ``(3, 2)``: ``[−min, max]`` per axis [m].
+        """Half-extents ``[−min, max]`` per axis of the promised tube's (Z's or T's) projection on position [m].
 
         Returns
         -------
         ndarray, shape (3, 2)
         """
-        return np.array([[ax.z.support(np.array([-1.0, 0.0])), ax.z.support(np.array([1.0, 0.0]))] for ax in self.axes])
+        return np.array([[ax.promise.support(np.array([-1.0, 0.0])), ax.promise.support(np.array([1.0, 0.0]))]
+                         for ax in self.axes])
 
     def summary(self) -> dict[str, Any]:
         """Figures a reviewer wants: RPI size and cost, W, gains, tightened bounds (lists over x, y, z).
@@ -326,6 +321,7 @@ class TubeDesign:
             JSON-ready values.
         """
         axes = self.axes
+        axes_sets = [ax.output for ax in axes if ax.output is not None]
         baselines = [ax.baseline for ax in axes]
         ideal = [ax.ideal_bounds() for ax in axes]
 
@@ -379,6 +375,7 @@ class TubeDesign:
             "ancillary_force_max_N": [ax.ancillary_force_N for ax in axes],
             "tightened_force_N": [list(ax.force_bounds_N) for ax in axes],
             "tightened_velocity_mps": [list(ax.velocity_bounds_mps) for ax in axes],
+            **({} if axes[0].output is None else {"output_feedback": output_feedback_summary(axes_sets)}),
         }
 
 
@@ -401,6 +398,7 @@ def design_axis(
     max_terms: int = 1000,
     facet_growth: float = DEFAULT_FACET_GROWTH,
     w_scale: float = 1.0,
+    observer: ObserverSpec | None = None,
 ) -> AxisTube:
     """Design the tube of one axis (no feasibility decision: see :attr:`AxisTube.feasible`).
 
@@ -414,6 +412,8 @@ def design_axis(
         U and X of this axis.
     w_scale : float, optional
         Factor applied to W (1: none).
+    observer : ObserverSpec, optional
+        Output feedback (:mod:`oacli.sets.error_set`); None: state feedback.
 
     Returns
     -------
@@ -422,10 +422,11 @@ def design_axis(
     a, b = double_integrator(dt_s, 1.0 / mass_kg)
     gain, _ = dlqr(a, b, np.diag([weights.position, weights.velocity]), np.array([[weights.force]]))
     dist = spec.axis(axis, force_limit_N, dt_s, w_scale)
+    parts = None if observer is None else (np.asarray(observer.gain, dtype=float), np.asarray(observer.noise)[axis])
     try:
         return _axis_from_parts(AXIS_NAMES[axis], a, b, gain, dist, force_limit_N=force_limit_N,
                                 velocity_limit_mps=velocity_limit_mps, epsilon=epsilon, epsilon_mode=epsilon_mode,
-                                max_terms=max_terms, facet_growth=facet_growth)
+                                max_terms=max_terms, facet_growth=facet_growth, observer=parts)
     except RPITermsError as exc:
         needed = f"{exc.needed} terms" if exc.needed is not None else f"more than {20 * exc.max_terms} terms"
         raise InfeasibleError(
@@ -449,6 +450,7 @@ def _axis_from_parts(
     epsilon_mode: EpsilonMode,
     max_terms: int,
     facet_growth: float,
+    observer: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> AxisTube:
     """Z (Raković et al. 2005 + facet reduction) and the tightened bounds of one axis from A, B, K and W.
 
@@ -463,7 +465,8 @@ def _axis_from_parts(
                                                                       dist.mass_term, dist.force_term,
                                                                       dist.box_term, dist.noise_bound)),
               a.shape, dist.w.a.shape, float(dist.scale), float(force_limit_N), float(velocity_limit_mps),
-              float(epsilon), epsilon_mode, int(max_terms), float(facet_growth))
+              float(epsilon), epsilon_mode, int(max_terms), float(facet_growth),
+              None if observer is None else tuple(np.ascontiguousarray(m, dtype=float).tobytes() for m in observer))
     named = _AXIS_CACHE.get(values)
     if named is None:
         named = {}
@@ -481,7 +484,8 @@ def _axis_from_parts(
     else:
         axis = _design_axis_from_parts(name, a, b, gain, dist, force_limit_N=force_limit_N,
                                        velocity_limit_mps=velocity_limit_mps, epsilon=epsilon,
-                                       epsilon_mode=epsilon_mode, max_terms=max_terms, facet_growth=facet_growth)
+                                       epsilon_mode=epsilon_mode, max_terms=max_terms, facet_growth=facet_growth,
+                                       observer=observer)
     named[name] = axis
     return axis
 
@@ -505,9 +509,15 @@ def _design_axis_from_parts(
     epsilon_mode: EpsilonMode,
     max_terms: int,
     facet_growth: float,
+    observer: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> AxisTube:
     """The uncached body of :func:`_axis_from_parts`."""
     a_k = a + b @ gain
+    if observer is not None:
+        return _output_feedback_axis(name, a, b, gain, dist, force_limit_N=force_limit_N,
+                                     velocity_limit_mps=velocity_limit_mps, epsilon=epsilon,
+                                     epsilon_mode=epsilon_mode, max_terms=max_terms, facet_growth=facet_growth,
+                                     observer=observer)
     if epsilon_mode == "relative":
         epsilon_rpi, _ = split_relative_epsilon(epsilon, facet_growth)
         rpi = minimal_rpi_outer(a_k, dist.w, epsilon_rpi, mode="relative", max_terms=max_terms)
@@ -543,6 +553,37 @@ def _design_axis_from_parts(
     )
 
 
+def _output_feedback_axis(
+    name: str,
+    a: np.ndarray,
+    b: np.ndarray,
+    gain: np.ndarray,
+    dist: AxisDisturbance,
+    *,
+    force_limit_N: float,
+    velocity_limit_mps: float,
+    epsilon: float,
+    epsilon_mode: EpsilonMode,
+    max_terms: int,
+    facet_growth: float,
+    observer: tuple[np.ndarray, np.ndarray],
+) -> AxisTube:
+    """One axis with an observer ([Mayne2006]; :mod:`oacli.sets.error_set`): ``Ū = U ⊖ K R``, ``X̄ = X ⊖ T``."""
+    eps, growth = (split_relative_epsilon(epsilon, facet_growth) if epsilon_mode == "relative"
+                   else (epsilon, facet_growth))
+    ell, noise = observer
+    sets = output_feedback_sets(a, b, gain, ell, dist.w, Polytope.symmetric_box(noise), epsilon=eps,
+                                epsilon_mode=epsilon_mode, max_terms=max_terms, facet_growth=growth)
+    u_bar = Polytope.symmetric_box([force_limit_N]).pontryagin_difference(sets.lasso.linear_map(gain))
+    x_set = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), np.array([velocity_limit_mps, velocity_limit_mps]))
+    x_bar = x_set.pontryagin_difference(sets.t)
+    vel_hi, vel_neg_lo = x_bar.b
+    return AxisTube(name=name, a=a, b=b, gain=gain, disturbance=dist, rpi=sets.true_rpi, reduction=sets.true,
+                    force_limit_N=float(force_limit_N), velocity_limit_mps=float(velocity_limit_mps),
+                    force_bounds_N=_interval(u_bar), velocity_bounds_mps=(-float(vel_neg_lo), float(vel_hi)),
+                    epsilon=float(epsilon), epsilon_mode=epsilon_mode, output=sets)
+
+
 def _describe_infeasible(ax: AxisTube, dt_s: float) -> str:
     wp, wv = ax.disturbance.half_widths
     d = ax.disturbance
@@ -573,6 +614,7 @@ def design_translation_tube(
     facet_growth: float = DEFAULT_FACET_GROWTH,
     on_empty: str = "error",
     min_nominal_fraction: float = 0.1,
+    observer: ObserverSpec | None = None,
 ) -> TubeDesign:
     """Design the three axis tubes (see the module docstring).
 
@@ -600,6 +642,8 @@ def design_translation_tube(
         What to do when a tightened set loses the origin: refuse, or scale W of that axis down (explicit).
     min_nominal_fraction : float
         With ``"scale_w"``: fraction of each limit the nominal MPC keeps.
+    observer : ObserverSpec, optional
+        Output feedback ([Mayne2006], :mod:`oacli.sets.error_set`): the lasso is ``R = T ⊖ S``, the promise T.
 
     Returns
     -------
@@ -615,7 +659,8 @@ def design_translation_tube(
     if on_empty not in ("error", "scale_w"):
         raise ValueError(f"on_empty must be 'error' or 'scale_w', got {on_empty!r}")
     common = {"mass_kg": mass_kg, "dt_s": dt_s, "weights": weights, "spec": spec, "epsilon": epsilon,
-              "epsilon_mode": epsilon_mode, "max_terms": max_terms, "facet_growth": facet_growth}
+              "epsilon_mode": epsilon_mode, "max_terms": max_terms, "facet_growth": facet_growth,
+              "observer": observer}
     axes = []
     for i in range(3):
         limits = {"force_limit_N": float(force_limit_N[i]), "velocity_limit_mps": float(velocity_limit_mps[i])}

@@ -9,6 +9,13 @@ under the held nominal input, so the tube guarantee holds at every control insta
 control step lies in W, ``x̃_{k+1} − ẑ_{k+1} ∈ Z`` with ``ẑ_{k+1} = A z_0 + B v_0`` (Z is robust positively
 invariant), and then ``u ∈ U`` and the true velocity stays within its limit.
 
+Output feedback ([Mayne2006]; ``observer``): the controller acts on the estimate ``x̂`` of
+:class:`oacli.control.observer.TranslationObserver` instead of ``x̃``; the design's lasso is then
+``R = T ⊖ S`` and its promise for the true state ``ẑ ⊕ T`` (:mod:`oacli.sets.error_set`), which holds while every
+noise sample is within the design's bound. An optional cost ``initial_weight`` on ``x̂ − z_0`` keeps the nominal on
+the estimate (it changes no constraint). With a :class:`~oacli.control.observer.RateObserver` the attitude MPC
+uses the estimated body rate.
+
 Attitude: the papers assumed it perfectly tracked (Doerr 2021, Results) and tubed translation only; here it is
 tracked by the standard MPC of Doerr Eq. 26 in the body-frame rotation-vector chart of
 :mod:`oacli.control.tracking`, within the torque limits, in the same QP (one solver call per step). A linear tube
@@ -51,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from oacli.control.lqr import dlqr, solve_dare
+from oacli.control.observer import RateObserver, TranslationObserver
 from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
@@ -90,6 +98,9 @@ class TubeHistory:
         The same for ``x̃_k − z_k`` (the constraint of the QP; ≥ 0 up to solver tolerance).
     solver_failed : ndarray of bool, shape (K,)
         A solve was attempted at the step and failed.
+    estimate : ndarray, shape (K, 6)
+        The translational state the controller used: the observer's estimate ``x̂`` (output feedback), else the
+        measured state.
     """
 
     t: np.ndarray
@@ -102,6 +113,7 @@ class TubeHistory:
     tube_margin: np.ndarray
     lasso_margin: np.ndarray
     solver_failed: np.ndarray
+    estimate: np.ndarray
 
     def count(self, mode: str) -> int:
         """Number of steps in ``mode``.
@@ -160,6 +172,9 @@ class TubeMPC:
         Distance the robot's centre keeps from the keep-in walls [m] (keep-in boxes bound the centre).
     braking : bool
         Keep the nominal's braking points in the keep-in box too (module docstring).
+    observer : TranslationObserver, optional
+        Output feedback ([Mayne2006]): the controller acts on the observer's estimate (the design then has the
+        error set; :mod:`oacli.sets.error_set`); shared by the successive controllers of a redesign.
     """
 
     def __init__(
@@ -179,12 +194,16 @@ class TubeMPC:
         robot: RobotBody | None = None,
         keep_in_margin_m: float = 0.0,
         braking: bool = True,
+        observer: TranslationObserver | None = None,
+        initial_weight: float = 0.0,
+        rate_observer: RateObserver | None = None,
     ) -> None:
         params = InertialParams(design.mass_kg, inertia_kgm2)
         ratio = prediction_step_s / design.dt_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError("prediction_step_s must be an integer multiple of the control period")
         self.reference, self.params, self.design = reference, params, design
+        self.observer, self.rate_observer = observer, rate_observer
         self._sampler = ReferenceSampler(reference)
         self._inertia = np.asarray(params.inertia_kgm2, dtype=float)
         self.horizon, self.step_s, self.dt_s = int(horizon), float(prediction_step_s), design.dt_s
@@ -212,7 +231,7 @@ class TubeMPC:
         trans = QPBlock(
             "translation", a_t, b_t, q_t, weights.force, p_t,
             state=design.tightened_state, input=design.tightened_input, lasso=design.lasso_for_solver,
-            positions=spec,
+            positions=spec, initial_weight=initial_weight * np.diag(q_t) if initial_weight > 0 else None,
         )
         rot = QPBlock(
             "attitude", a_r, b_r, q_r, weights.torque, solve_dare(a_r, b_r, np.diag(q_r), np.diag(weights.torque)),
@@ -238,7 +257,7 @@ class TubeMPC:
         self._failures = 0
         self._hold_q: np.ndarray | None = None
         self._rec: dict[str, list[Any]] = {k: [] for k in (
-            "t", "mode", "z", "v", "anc", "tau", "z_pred", "tube", "lasso", "failed")}
+            "t", "mode", "z", "v", "anc", "tau", "z_pred", "tube", "lasso", "failed", "xhat")}
 
     # -- helpers -----------------------------------------------------------------------------------------------
 
@@ -306,8 +325,12 @@ class TubeMPC:
         """
         start = time.perf_counter()
         x = np.asarray(x_measured, dtype=float)
+        if self.rate_observer is not None:
+            x = x.copy()
+            x[10:13] = self.rate_observer.update(t, x[10:13])
         x_ref_full = self._sampler.states(t + self._offsets)
-        x_t = x[0:6]  # measured translational state [r (world), v]
+        # The translational state [r (world), v] the controller acts on: measured, or the observer's estimate.
+        x_t = x[0:6] if self.observer is None else self.observer.update(t, x[0:6])
         z_pred = self._z_pred  # world coordinates
         tube_margin = np.nan if z_pred is None else self.design.error_margin(x_t - z_pred)
         info: SolveInfo
@@ -369,6 +392,10 @@ class TubeMPC:
         np.add(v, anc, out=u[0:3])
         u[3:6] = tau
         self._z_pred = self._a_c @ z + self._b_c @ v
+        if self.observer is not None:
+            self.observer.applied(u[0:3])
+        if self.rate_observer is not None:
+            self.rate_observer.applied(u[3:6])
         status = info.status if mode == "mpc" else f"{mode} ({info.status})"
         step_info = SolveInfo(status, mode == "mpc", info.objective, info.iterations, info.solve_time_s,
                               time.perf_counter() - start)
@@ -377,7 +404,7 @@ class TubeMPC:
         for key, value in (("t", t), ("mode", mode), ("z", z), ("v", v), ("anc", anc), ("tau", tau),
                            ("z_pred", z_pred_rec), ("tube", tube_margin),
                            ("lasso", self.design.error_margin(x_t - z)),
-                           ("failed", attempted and not info.success)):
+                           ("failed", attempted and not info.success), ("xhat", x_t)):
             rec[key].append(value)
         return ControlStep(u=u, info=step_info, x_reference=x_ref_full[0])
 
@@ -405,5 +432,6 @@ class TubeMPC:
             tube_margin=np.array(rec["tube"], dtype=float),
             lasso_margin=np.array(rec["lasso"], dtype=float),
             solver_failed=np.array(rec["failed"], dtype=bool),
+            estimate=arr("xhat", 6),
         )
 

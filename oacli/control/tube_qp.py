@@ -145,6 +145,9 @@ class QPBlock:
         ℓ1 weight of the soft state-limit slack (standard block).
     positions : PositionRowsSpec, optional
         Workspace rows on the predicted positions.
+    initial_weight : ndarray, shape (n, n), optional
+        Tube block: cost ``(z_0 − x)ᵀ P₀ (z_0 − x)`` on the free initial nominal state (symmetric PSD; none: the
+        cost of [Mayne2005], which leaves ``z_0`` anywhere in the lasso).
     """
 
     name: str
@@ -158,6 +161,7 @@ class QPBlock:
     lasso: LinearConstraint | None = None
     soft_penalty: float = 1e4
     positions: PositionRowsSpec | None = None
+    initial_weight: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -303,6 +307,10 @@ class NominalQP:
                 hz = blk.lasso
                 # x − z_0 ∈ Z  ⇔  H z_0 ≥ H x − h
                 constraints.append(hz.h_matrix @ bv.z[0] >= hz.h_matrix @ bv.x - hz.h_vector)
+                if blk.initial_weight is not None:  # (z_0 − x)ᵀ P₀ (z_0 − x) without its constant xᵀ P₀ x
+                    p0 = np.asarray(blk.initial_weight, dtype=float)
+                    p0 = 0.5 * (p0 + p0.T)
+                    cost = cost + cp.quad_form(bv.z[0], p0, assume_PSD=True) - 2 * (bv.x @ p0) @ bv.z[0]
                 if blk.state is not None:
                     hx = blk.state
                     constraints += [

@@ -44,6 +44,7 @@ from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
 from oacli.config.models import RobotConfig
 from oacli.config.prior import PriorConfig
 from oacli.control.disturbance import DisturbanceSpec
+from oacli.control.observer import observer_spec
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import AncillaryWeights, TubeDesign, design_translation_tube
 from oacli.errors import ConfigError
@@ -766,6 +767,11 @@ def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = 
                        box_velocity_mps=spec.box_velocity_mps + extra[:, 1])
         on_empty = "error"
     anc = tube.ancillary
+    obs = tube.observer
+    observer = None if not obs.enabled else observer_spec(
+        mass_kg=model.mass_kg, dt_s=cfg.controller.period_s, position_std_m=cfg.sensors.position_std_m,
+        velocity_std_mps=cfg.sensors.velocity_std_mps, noise_sigmas=obs.noise_sigmas, gain=obs.gain,
+        accel_std_mps2=obs.accel_std_mps2)
     return design_translation_tube(
         mass_kg=model.mass_kg, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
         velocity_limit_mps=model.velocity_limit_mps,
@@ -773,4 +779,5 @@ def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = 
         epsilon_mode=tube.rpi_epsilon_mode,
         max_terms=tube.rpi_max_terms if max_terms is None else min(max_terms, tube.rpi_max_terms),
         facet_growth=tube.lasso_facet_growth, on_empty=on_empty, min_nominal_fraction=dist.min_nominal_fraction,
+        observer=observer,
     )

@@ -11,8 +11,10 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from scipy import special, stats
 
 from oacli.config import OacliConfig
+from oacli.control.observer import RateObserver, TranslationObserver, observer_for
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_monitor import TubeMonitor, half_widths
@@ -41,22 +43,35 @@ TUBE_TOLERANCE_REL = 1e-6
 
 def tube_controller_from_config(
     cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: MotionLimits,
-    *, model: RobotModel | None = None,
+    *, model: RobotModel | None = None, observer: TranslationObserver | None = None,
+    rate_observer: RateObserver | None = None,
 ) -> TubeMPC:
     """The :class:`TubeMPC` of ``cfg`` around ``design`` (mass: the design's; inertia: ``model``'s, default
-    :func:`~oacli.stages.settings.robot_model`)."""
+    :func:`~oacli.stages.settings.robot_model`); with an output-feedback design it acts on ``observer``'s estimate
+    (a new one when omitted)."""
     model = robot_model(cfg) if model is None else model
     tube = cfg.controller.tube
     terminal = None
     if tube.terminal is not None:
         terminal = TerminalWeights(np.asarray(tube.terminal.position), np.asarray(tube.terminal.velocity))
     step = tube.prediction_step_s if tube.prediction_step_s is not None else cfg.controller.period_s
+    if observer is None and design.output_feedback:
+        observer = observer_for(design)
+    if rate_observer is None:
+        rate_observer = rate_observer_for(cfg, model)
     return TubeMPC(
         reference, design, inertia_kgm2=model.inertia_kgm2, horizon=cfg.controller.horizon, prediction_step_s=step,
         weights=weights, limits=limits, terminal=terminal,
         max_consecutive_failures=cfg.controller.max_consecutive_failures, fast=tube.solver == "direct",
+        observer=observer, initial_weight=tube.initial_weight, rate_observer=rate_observer,
         **workspace_arguments(cfg),
     )
+
+
+def rate_observer_for(cfg: OacliConfig, model: RobotModel) -> RateObserver | None:
+    """The body-rate observer of ``controller.tube.observer.rate_gain`` (None when unset)."""
+    gain = cfg.controller.tube.observer.rate_gain
+    return None if gain is None else RateObserver(np.asarray(model.inertia_kgm2), gain, cfg.controller.period_s)
 
 
 def workspace_arguments(cfg: OacliConfig) -> dict[str, Any]:
@@ -96,8 +111,11 @@ def monitored_tube_controller(
     made with (:func:`~oacli.stages.settings.tube_design_from_config`); a redesign beyond W uses them too.
     """
     model = robot_model(cfg) if model is None else model
+    observer, rates = observer_for(design), rate_observer_for(cfg, model)  # one estimate across redesigns
     return TubeMonitor(
-        lambda d: tube_controller_from_config(cfg, reference, d, weights, limits, model=model), design,
+        lambda d: tube_controller_from_config(cfg, reference, d, weights, limits, model=model, observer=observer,
+                                              rate_observer=rates),
+        design,
         response=cfg.controller.tube.beyond_w, actuator_force_limit_N=np.asarray(model.force_limit_N),
         redesign=lambda extra: tube_design_from_config(cfg, extra_box=extra, max_terms=REDESIGN_MAX_TERMS,
                                                        model=model, mass_std_kg=mass_std_kg),
@@ -137,7 +155,8 @@ def _true_at_control(tel: Telemetry) -> np.ndarray:
 
 def tube_exits(design: TubeDesign, states: np.ndarray, predicted: np.ndarray, tolerance: float,
                state_box: np.ndarray | None = None) -> int:
-    """Steps whose state left the promised tube ``ẑ_k ⊕ Z`` (grown by ``state_box`` for measurement noise).
+    """Steps whose state left the promised tube ``ẑ_k ⊕ Z`` (``ẑ_k ⊕ T`` with an observer; grown by ``state_box``
+    for measurement noise).
 
     Parameters
     ----------
@@ -156,7 +175,7 @@ def tube_exits(design: TubeDesign, states: np.ndarray, predicted: np.ndarray, to
     -------
     int
     """
-    h_matrix, h_vector = design.lasso.h_matrix, design.lasso.h_vector
+    h_matrix, h_vector = design.promise.h_matrix, design.promise.h_vector
     grow = 0.0 if state_box is None else np.abs(h_matrix) @ np.concatenate([state_box[:, 0], state_box[:, 1]])
     ok_rows = np.all(np.isfinite(predicted), axis=1)
     errors = states[ok_rows] - predicted[ok_rows]
@@ -257,15 +276,23 @@ def tube_summary(monitor: TubeMonitor, history: TubeHistory, tel: Telemetry, cfg
         details["final_design"] = {k: final[k] for k in ("rpi", "w_position_m", "w_velocity_mps",
                                                          "tightened_force_N", "tightened_velocity_mps")}
     beyond = beyond_w_summary(monitor)
+    designs = [d for _, d in monitor.designs]
+    index = monitor.disturbance_record().design_index
     _, state_box = noise_boxes(cfg)
     measured = np.column_stack([tel.x_measured[:, 0:3], tel.x_measured[:, 3:6]])
+    true = _true_at_control(tel)
     k_noise = cfg.controller.tube.monitor_noise_sigmas
+    if design.output_feedback:  # the measured state is x + n: inside ẑ ⊕ T ⊕ N
+        k_noise = cfg.controller.tube.observer.noise_sigmas
+        state_box = np.tile([k_noise * cfg.sensors.position_std_m, k_noise * cfg.sensors.velocity_std_mps], (3, 1))
     exits_measured = (int(np.sum(tube_margin[checked] < -tol)) if k_noise == 0
-                      else tube_exits(design, measured, history.predicted_nominal, tol, state_box))
-    details["monitor_noise_sigmas"] = k_noise
+                      else tube_exits_in_force(designs, index, measured, history.predicted_nominal, state_box))
+    details["monitor_noise_sigmas"] = cfg.controller.tube.monitor_noise_sigmas
+    details["designs_in_force"] = [int(np.sum(index == i)) for i in range(len(designs))]
+    details.update(noise_events(cfg, measured, true, designs, index, history))
     return {
         "tube_violations": exits_measured,
-        "tube_violations_true": tube_exits(design, _true_at_control(tel), history.predicted_nominal, tol),
+        "tube_violations_true": tube_exits_in_force(designs, index, true, history.predicted_nominal),
         "w_violations": beyond["violations"],
         "rpi": {k: details["rpi"][k] for k in ("s", "alpha", "facets")},
         "tightened_force_N": details["tightened_force_N"],
@@ -274,6 +301,66 @@ def tube_summary(monitor: TubeMonitor, history: TubeHistory, tel: Telemetry, cfg
         "beyond_w": beyond,
         "tube": details,
     }
+
+
+def tube_exits_in_force(designs: list[TubeDesign], index: np.ndarray, states: np.ndarray, predicted: np.ndarray,
+                        state_box: np.ndarray | None = None) -> int:
+    """:func:`tube_exits` with, at each step, the promise of the design in force (``index``: per step, into
+    ``designs``; after a redesign beyond W the new tube is the promise).
+
+    Parameters
+    ----------
+    designs : list of TubeDesign
+    index : ndarray of int, shape (K,)
+    states, predicted : ndarray, shape (K, 6)
+    state_box : ndarray, shape (3, 2), optional
+
+    Returns
+    -------
+    int
+    """
+    total = 0
+    for i, design in enumerate(designs):
+        rows = np.asarray(index) == i
+        if rows.any():
+            tol = TUBE_TOLERANCE_REL * float(np.max(design.promise.h_vector))
+            total += tube_exits(design, states[rows], predicted[rows], tol, state_box)
+    return total
+
+
+def noise_events(cfg: OacliConfig, measured: np.ndarray, true: np.ndarray, designs: list[TubeDesign],
+                 index: np.ndarray, history: TubeHistory) -> dict[str, Any]:
+    """The sensor noise against the bound the promise assumes (``k`` σ: ``controller.tube.observer.noise_sigmas``
+    with an observer, else ``monitor_noise_sigmas``), and the estimate against the error set S.
+
+    ``noise_beyond_bound`` counts control steps with a translational noise component beyond ``k σ``;
+    ``noise_beyond_expected`` is what the Gaussian tail predicts, ``K (1 − erf(k/√2)⁶)``, and
+    ``noise_beyond_limit`` its Poisson 99.9 % quantile (more: the sensor is noisier than configured).
+    ``error_set_exits`` counts steps whose estimation error ``x − x̂`` left S (output feedback only).
+    """
+    tube = cfg.controller.tube
+    k = tube.observer.noise_sigmas if tube.observer.enabled else tube.monitor_noise_sigmas
+    out: dict[str, Any] = {"noise_sigmas": k}
+    if k > 0 and cfg.sensors.position_std_m > 0 and cfg.sensors.velocity_std_mps > 0:
+        sigma = np.repeat([cfg.sensors.position_std_m, cfg.sensors.velocity_std_mps], 3)
+        beyond = np.any(np.abs(measured - true) > k * sigma, axis=1)
+        expected = len(beyond) * (1.0 - special.erf(k / np.sqrt(2.0)) ** 6)
+        out.update({"noise_beyond_bound": int(beyond.sum()), "noise_beyond_expected": float(expected),
+                    "noise_beyond_limit": int(stats.poisson.ppf(0.999, expected))})
+    if designs[0].output_feedback:
+        exits = 0
+        for i, design in enumerate(designs):
+            rows = np.asarray(index) == i
+            for j, ax in enumerate(design.axes):
+                if ax.output is not None and rows.any():
+                    err = (true - history.estimate)[rows][:, [j, j + 3]]
+                    s = ax.output.s
+                    tol = TUBE_TOLERANCE_REL * float(np.max(s.b))
+                    exits += int(np.sum(np.min(s.b[None, :] - err @ s.a.T, axis=1) < -tol))
+        out["error_set_exits"] = exits
+        out["rms_estimation_error_m"] = float(np.sqrt(np.mean(np.sum((true - history.estimate)[:, 0:3] ** 2,
+                                                                     axis=1))))
+    return out
 
 
 def add_tube_reasons(report: StatusReport, summary: dict[str, Any]) -> None:
@@ -290,6 +377,11 @@ def add_tube_reasons(report: StatusReport, summary: dict[str, Any]) -> None:
         report.degraded("beyond_w", f"the realised disturbance left W on {beyond['violations']} of "
                                     f"{beyond['checked_steps']} steps (first at t = {beyond['first_violation_s']:.2f} "
                                     f"s, up to {beyond['max_over_w']:.3g} × W); response: {what}{new_w}")
+    tube = summary["tube"]
+    if tube.get("noise_beyond_bound", 0) > tube.get("noise_beyond_limit", np.inf):
+        report.degraded("noise", f"the sensor noise exceeded {tube['noise_sigmas']:g} σ on {tube['noise_beyond_bound']}"
+                                 f" steps, more than the Gaussian tail allows ({tube['noise_beyond_expected']:.2g} "
+                                 "expected): the sensor is noisier than the tube's promise assumes")
     if summary["tube_violations"]:
         report.degraded("tube", f"the measured state left the promised tube on {summary['tube_violations']} steps")
     if summary.get("tube_violations_true"):
