@@ -17,7 +17,7 @@ import typer
 from oacli.commands.progress import Progress
 from oacli.config.overrides import apply_overrides
 from oacli.errors import ConfigError, OacliError
-from oacli.signals import exit_code_for, interruption_message, terminate_like_interrupt
+from oacli.signals import exit_code_for, interruption_message, recorded_message, terminate_like_interrupt
 
 __all__ = ["Progress", "apply_overrides"]  # re-exported: the commands import them from here
 
@@ -101,7 +101,7 @@ def fail(exc: BaseException) -> typer.Exit:
             typer.echo(f"error: {line}", err=True)
         return typer.Exit(exc.exit_code)
     if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, or SIGTERM/SIGHUP (oacli.signals): exit 130 / 143
-        typer.echo(f"error: {interruption_message(exc)}", err=True)
+        typer.echo(f"error: {recorded_message(exc) or interruption_message(exc)}", err=True)
         for note in getattr(exc, "__notes__", ()):  # e.g. what could not be kept or written while stopping
             typer.echo(f"warning: {note.strip('()')}", err=True)
         if os.environ.get("OACLI_DEBUG"):

@@ -28,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Self
 
 from oacli.io.mcap_write import StageMcapWriter
@@ -134,11 +135,13 @@ class StageJournal:
 
 
 def keep_interrupted(writer: StageMcapWriter, interruption: BaseException, *, write_last: Callable[[], None],
-                     log_time_s: Callable[[], float], what: str) -> None:
+                     log_time_s: Callable[[], float], what: str) -> Path | None:
     """Close an interrupted stage's journal writer as the stage's MCAP: ``write_last()`` (what is still buffered),
     one ``/log`` warning at ``log_time_s()`` naming the interruption, then the writer's normal close (final name,
-    summary section, CRCs). Never raises: a failure removes the temporary file and is added to ``interruption``'s
-    notes (the journals of :mod:`oacli.stages.stage_journal` and :mod:`oacli.stages.track_journal`).
+    summary section, CRCs). Never raises: should the close fail, the journal's temporary file is left in place (every
+    chunk flushed so far; ``oacli logs recover`` makes a valid file of it) and the failure is added to
+    ``interruption``'s notes (the journals of :mod:`oacli.stages.stage_journal` and
+    :mod:`oacli.stages.track_journal`).
 
     Parameters
     ----------
@@ -152,13 +155,33 @@ def keep_interrupted(writer: StageMcapWriter, interruption: BaseException, *, wr
         The ``t`` of the closing ``/log`` record [s] (read after ``write_last``).
     what : str
         What the journal holds, for the warning (``"the computation"``, ``"the simulation"``).
+
+    Returns
+    -------
+    Path or None
+        None when the journal was kept under the stage's final name; else the temporary file left in place.
     """
+    partial = journal_partial(writer)
     try:
         write_last()
         writer.write_log(log_time_s(), "warning", f"stage {describe_interruption(interruption)}: the journal of "
                          f"{what} so far is kept as the stage's MCAP")
         writer.__exit__(None, None, None)
+        return None
     except BaseException as err:
+        target = getattr(writer, "_atomic", None)
+        if target is not None and hasattr(target, "keep_on_error"):
+            target.keep_on_error = True  # the chunks flushed so far stay readable (oacli logs recover)
         with contextlib.suppress(BaseException):
-            writer.__exit__(type(err), err, err.__traceback__)  # removes the temporary file if still open
-        interruption.add_note(f"(the journal could not be kept: {type(err).__name__}: {err})")
+            writer.__exit__(type(err), err, err.__traceback__)
+        left = partial if partial is not None and partial.exists() else None
+        where = f"; its chunks so far are in {left} (oacli logs recover)" if left else ""
+        interruption.add_note(f"(the journal could not be closed: {type(err).__name__}: {err}{where})")
+        return left
+
+
+def journal_partial(writer: StageMcapWriter) -> Path | None:
+    """The temporary file an open journal writer writes (``.<stage>.mcap.<random>.partial``), or None."""
+    target = getattr(writer, "_atomic", None)
+    path = getattr(target, "temporary", None)
+    return Path(path) if path is not None else None

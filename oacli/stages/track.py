@@ -258,8 +258,8 @@ def run_track(
 
     with open_run("track", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
         # The per-step topics go to the MCAP while the simulation runs (a killed run leaves a readable file);
-        # the complete file is written at the end and replaces the journal (oacli.stages.track_journal).
-        with TrackJournal(run.open_mcap(), reference) as journal:
+        # the complete file is written at the end and then replaces the journal (oacli.stages.track_journal).
+        with TrackJournal(run.open_mcap(), reference, run=run) as journal:
             rng = np.random.default_rng(cfg.seed)
             set_phase(progress, "closed-loop simulation")
             tel = simulate(
@@ -299,11 +299,9 @@ def run_track(
                         f"{summary['solver_failures']} solver failures, "
                         f"{summary['constraint_violations']} constraint violations; status {summary['status']}"))
             log.extend(status_log(summary, float(tel.t_true[-1])))
-            # The journal goes before the complete file is written, so the disk never holds both (a full disk
-            # fails where it did without the journal); a crash while writing leaves the complete file's
-            # temporary, every topic in time order up to its last chunk.
-            journal.discard()
-            with run.open_mcap() as writer:
+            # The journal stays the record until the complete file is in place (TrackJournal.replaced_by): a
+            # signal at any moment leaves one or the other, and the interrupted summary says which.
+            with journal.replaced_by(run.open_mcap()) as writer:
                 writer.reuse_encoded(journal.encoded)  # the rows the journal wrote are encoded once
                 write_track_topics(writer, reference, tel, scene, log, monitor, history, flown)
             write_track_recording(
