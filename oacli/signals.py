@@ -22,8 +22,8 @@ import os
 import signal
 import sys
 import threading
-from pathlib import Path
 from collections.abc import Iterator
+from pathlib import Path
 from types import FrameType
 
 #: Signals turned into :class:`Terminated` (SIGINT keeps Python's own KeyboardInterrupt).

@@ -150,7 +150,7 @@ def _sweep(monkeypatch, baseline, tmp_path, signums, count):
         signum = signums[k % len(signums)]
         offset = after_s * (k + 0.5) / count
         out = tmp_path / f"run-{k}"
-        result, _, late = _run(monkeypatch, cfg, out, signum, offset)
+        result, _, _late = _run(monkeypatch, cfg, out, signum, offset)
         monkeypatch.undo()
         kind = _check(out, base, last_true_ns, result, tmp_path, signal.Signals(signum).name)
         seen[kind] = seen.get(kind, 0) + 1

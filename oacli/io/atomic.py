@@ -171,7 +171,7 @@ class _Temporary:
         self.fd = self.dir_fd = -1
 
 
-class atomic_file:  # noqa: N801 - used like the former contextmanager function
+class atomic_file:
     """Context manager yielding a binary file open on a fresh exclusive temporary file beside ``final``; on success
     flush, fsync and rename it onto ``final`` (never a symlink: module docstring).
 

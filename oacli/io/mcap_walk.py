@@ -25,6 +25,9 @@ at the cut, after every complete record. Kept here is only what it lacks:
 from __future__ import annotations
 
 import io
+import mmap
+import os
+import stat
 import struct
 import zlib
 from collections.abc import Callable, Iterable
@@ -154,6 +157,8 @@ class _StreamReader(StreamReader):
     data-section CRC."""
 
     def _read_record(self, opcode: int, length: int) -> Any:
+        if opcode == 0:  # no MCAP record has opcode 0x00: zeros (a sparse or zero-filled file) are not skipped 9 bytes
+            raise ValueError("opcode 0x00 is no MCAP record (zero bytes)")  # at a time, the walk stops here
         if opcode in _SKIPPED:
             self._stream.read(length)
             return _Skipped(opcode)
@@ -170,19 +175,118 @@ def opcode_name(opcode: int) -> str:
         return f"unknown opcode {opcode:#04x}"
 
 
-def read_file(path: Path) -> bytes:
-    """The bytes of an MCAP file (InputError naming the file when missing, a folder, unreadable or not MCAP)."""
+def _kind(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
+def open_regular(path: Path, what: str = "an MCAP file") -> int:
+    """A read-only descriptor of ``path`` (symlinks followed), refusing anything but a regular file without
+    blocking: a FIFO, a device (``/dev/zero``), a socket or a folder is an :class:`InputError` naming it (exit 2).
+
+    The file is opened with ``O_NONBLOCK`` (opening a FIFO for reading would wait for a writer) and checked with
+    ``fstat`` on the descriptor (no race between the check and the open); the flag is then cleared.
+    """
     try:
-        data = Path(path).read_bytes()
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except FileNotFoundError:
         raise InputError(f"{path}: file not found") from None
     except IsADirectoryError:
-        raise InputError(f"{path}: is a folder, not an MCAP file") from None
+        raise InputError(f"{path}: is a folder, not {what}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise InputError(f"{path}: is {_kind(mode)}, not {what}; give a regular file")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def read_file(path: Path) -> bytes:
+    """The bytes of an MCAP file (InputError naming the file when missing, not a regular file -- a folder, a FIFO,
+    a device --, unreadable or not MCAP)."""
+    fd = open_regular(path)
+    try:
+        with os.fdopen(fd, "rb") as f:
+            data = f.read()
     except OSError as exc:
         raise InputError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
     if data[: len(MAGIC)] != MAGIC:
         raise InputError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
     return data
+
+
+def map_file(path: Path) -> Any:
+    """The MCAP file mapped read-only (:class:`mmap.mmap`, bytes-like: the walk reads it in place with bounded memory
+    whatever its size, :class:`McapWalk`); the checks and errors of :func:`read_file`."""
+    fd = open_regular(path)
+    try:
+        size = os.fstat(fd).st_size
+        if size < len(MAGIC):
+            raise InputError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+        try:
+            mapped = mmap.mmap(fd, 0, access=mmap.ACCESS_READ)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{path}: cannot read the file ({exc})") from None
+    finally:
+        os.close(fd)
+    if mapped[: len(MAGIC)] != MAGIC:
+        raise InputError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+    return mapped
+
+
+class _ViewReader(io.BufferedIOBase):
+    """A seekable binary stream over a bytes-like object (an :class:`mmap.mmap`) without copying it (``io.BytesIO``
+    copies anything but ``bytes``); not a ``RawIOBase``, which the ``mcap`` reader would wrap in a read-ahead
+    buffer (its position then runs ahead of the records)."""
+
+    def __init__(self, data: Any) -> None:
+        super().__init__()
+        self._data = data
+        self._size = len(data)
+        self._pos = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def read(self, size: int | None = -1) -> bytes:
+        start = self._pos
+        stop = self._size if size is None or size < 0 else min(self._size, start + size)
+        self._pos = max(start, stop)
+        return bytes(self._data[start:stop])
+
+    def readinto(self, buffer: Any) -> int:
+        chunk = self.read(len(buffer))
+        buffer[: len(chunk)] = chunk
+        return len(chunk)
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._size}[whence]
+        self._pos = max(0, base + offset)
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+
+def _stream(data: Any) -> Any:
+    """A binary stream over ``data``: ``io.BytesIO`` for bytes (no copy), :class:`_ViewReader` otherwise."""
+    return io.BytesIO(data) if isinstance(data, bytes) else _ViewReader(data)
 
 
 _MIN_MESSAGE_RECORD = 9 + 22
@@ -276,7 +380,7 @@ class McapWalk:
         """Walk the file; returns the result (its ``problems`` name what is wrong and where)."""
         if self._statistics_too_large() or self._counted_too_large():
             return self.result
-        reader = io.BytesIO(self.data)
+        reader = _stream(self.data)
         stream = _StreamReader(reader, emit_chunks=True, validate_crcs=self.validate, record_size_limit=len(self.data))
         records = stream.records
         start = len(MAGIC)  # offset of the next record
@@ -309,7 +413,7 @@ class McapWalk:
         try:
             from mcap.reader import SeekingReader
 
-            summary = SeekingReader(io.BytesIO(data), validate_crcs=False).get_summary()
+            summary = SeekingReader(_stream(data), validate_crcs=False).get_summary()
         except Exception:
             return False
         if summary is None or summary.statistics is None:
@@ -371,7 +475,7 @@ class McapWalk:
 
     def _top_level(self) -> Any:
         """The top-level records up to the first problem (chunks not opened, no CRC checked)."""
-        stream = _StreamReader(io.BytesIO(self.data), emit_chunks=True, record_size_limit=len(self.data)).records
+        stream = _StreamReader(_stream(self.data), emit_chunks=True, record_size_limit=len(self.data)).records
         while True:
             try:
                 yield next(stream)
@@ -458,12 +562,18 @@ class McapWalk:
             raise _Stop
         try:
             data = decompress_bounded(chunk, declared)
-            if len(data) != declared:
-                raise ValueError(f"it decompresses to {'more than ' if len(data) > declared else ''}"
-                                 f"{min(len(data), declared + 1)} bytes, not the {declared} it declares")
         except Exception as exc:
             self._bad_chunk(start, f"chunk at byte {start} failed its CRC check: its {chunk.compression or 'plain'} "
                                    f"data are corrupt ({exc or type(exc).__name__}), so no CRC can match")
+            return
+        if len(data) > declared:  # a bomb: stopped one byte past what it declares, its CRC never computed
+            self.problem("too_large", start, f"chunk at byte {start} decompresses to more than {declared} bytes, not "
+                                             f"the {declared} it declares: refused as a decompression bomb (stopped "
+                                             f"after {len(data)} bytes; its CRC is not checked)")
+            raise _Stop
+        if len(data) < declared:
+            self._bad_chunk(start, f"chunk at byte {start} decompresses to {len(data)} bytes, not the {declared} it "
+                                   f"declares: its {chunk.compression or 'plain'} data are cut or corrupt")
             return
         self.decompressed += declared
         if self.validate and chunk.uncompressed_crc != 0:
@@ -617,5 +727,7 @@ __all__ = [
     "ScanResult",
     "decompress_bounded",
     "decompressed_budget",
+    "map_file",
+    "open_regular",
     "read_file",
 ]
