@@ -28,6 +28,7 @@ from oacli.errors import InputError, OacliError
 from oacli.io import mcap_memo
 from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
+from oacli.io.folder_lock import folder_lock
 from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
 from oacli.mission.compare import comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
@@ -307,7 +308,7 @@ def run_mission(
     The stage MCAPs this run writes are remembered while it runs (:mod:`oacli.io.mcap_memo`): the hand-offs, the
     comparison rows, the recording and the plots read them back without walking the files again (same records).
     """
-    with mcap_memo.remembering():
+    with folder_lock(mission_dir, "mission"), mcap_memo.remembering():  # one process at a time (exit 2)
         return _run_mission(cfg, mission_dir, progress=progress, announce=announce)
 
 
