@@ -337,6 +337,45 @@ def open_stage_run(
         raise
 
 
+#: Largest ``summary.json`` read [bytes] (a stage writes a few KiB).
+MAX_SUMMARY_BYTES = 16 * 1024 * 1024
+
+
+def read_summary_file(path: Path) -> dict[str, Any]:
+    """A ``summary.json`` as a mapping; anything else (a FIFO, a device, a folder, binary data, invalid JSON, more than
+    :data:`MAX_SUMMARY_BYTES`, not a mapping) is an :class:`InputError` naming the file (exit 2), read without
+    blocking.
+
+    Parameters
+    ----------
+    path : Path
+        The file.
+
+    Returns
+    -------
+    dict
+    """
+    import os
+
+    from oacli.io.mcap_walk import open_regular
+
+    fd = open_regular(path, "a summary.json file")
+    try:
+        with os.fdopen(fd, "rb") as f:
+            data = f.read(MAX_SUMMARY_BYTES + 1)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+    if len(data) > MAX_SUMMARY_BYTES:
+        raise InputError(f"{path}: larger than {MAX_SUMMARY_BYTES} bytes; not a summary.json oacli wrote")
+    try:
+        summary = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise InputError(f"{path}: not a JSON summary ({type(exc).__name__}: {str(exc)[:120]})") from None
+    if not isinstance(summary, dict):
+        raise InputError(f"{path}: not a JSON summary (the top level is not a mapping)")
+    return summary
+
+
 def is_complete(run_dir: Path) -> bool:
     """True when ``run_dir/summary.json`` exists, parses and has a complete status (module docstring)."""
     path = Path(run_dir) / "summary.json"
