@@ -185,7 +185,7 @@ def test_the_budget_is_overridable_and_checked(monkeypatch):
     monkeypatch.setenv("OACLI_MEMORY_BUDGET_MB", "8192")
     assert load_config_with_seed(ISS, None, ["controller.horizon=500"]).controller.horizon == 500
     monkeypatch.setenv("OACLI_DISK_BUDGET_MB", "0.5")  # the default run writes about 1.3 MB
-    with pytest.raises(ConfigError, match="reference.cruise_speed_mps.*MiB of recordings.*OACLI_DISK_BUDGET_MB"):
+    with pytest.raises(ConfigError, match=r"reference\.cruise_speed_mps.*MiB of recordings.*OACLI_DISK_BUDGET_MB"):
         load_config_with_seed(ISS, None, None)
     monkeypatch.setenv("OACLI_DISK_BUDGET_MB", "lots")
     with pytest.raises(ConfigError, match="OACLI_DISK_BUDGET_MB='lots': must be a positive number"):
