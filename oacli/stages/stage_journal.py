@@ -6,8 +6,9 @@ the stage's MCAP path, opened lazily (the first record creates the run folder wh
 under the writer's exclusive temporary name (``.<stage>.mcap.<random>.partial``). :meth:`StageJournal.flush` writes
 what was queued merged by time and finishes a chunk on disk, so a process killed by SIGKILL or a power loss leaves a
 ``.partial`` MCAP that the ``mcap`` package reads up to its last complete chunk (``oacli logs recover`` turns it
-into a valid file). When the stage ends normally the journal is deleted (:meth:`discard`) just before the stage
-writes its complete MCAP.
+into a valid file). When the stage ends normally the complete MCAP is written beside the journal and the journal
+is deleted right after the complete file's rename (:meth:`StageJournal.replaced_by`, :func:`replace_journal`): the
+journal stays the record until the complete file is in place, so a signal at any moment leaves one or the other.
 
 A stage stopped by Ctrl-C or a termination signal (a :class:`KeyboardInterrupt`, :mod:`oacli.signals`) keeps what it
 computed: leaving the ``with`` block, the journal writes its last records (:meth:`StageJournal.on_interrupt`), one
@@ -27,12 +28,12 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Self
 
 from oacli.io.mcap_write import StageMcapWriter
-from oacli.signals import describe_interruption
+from oacli.signals import atomic, describe_interruption
 
 
 class _Discarded(Exception):
@@ -124,6 +125,11 @@ class StageJournal:
         if self._writer is not None:
             self._writer.__exit__(_Discarded, _Discarded("journal discarded"), None)
 
+    def replaced_by(self, writer: StageMcapWriter) -> contextlib.AbstractContextManager[StageMcapWriter]:
+        """Write the complete MCAP with ``writer`` beside the journal, which is deleted once the complete file is in
+        place (:func:`replace_journal`)."""
+        return replace_journal(writer, self.discard)
+
     def commit(self) -> None:
         """Close the journal as the stage's MCAP (its final name), e.g. when the stage fails after the journal
         began and the journal is the only record of what ran."""
@@ -132,6 +138,28 @@ class StageJournal:
         self._closed = True
         if self._writer is not None:
             self._writer.__exit__(None, None, None)
+
+
+@contextlib.contextmanager
+def replace_journal(writer: StageMcapWriter, discard: Callable[[], None]) -> Iterator[StageMcapWriter]:
+    """Write a stage's complete MCAP with ``writer`` (not yet entered, on the journal's final name) while its journal
+    stays the record; when the block ends, finish the complete file, rename it into place and ``discard()`` the
+    journal as one :class:`oacli.signals.atomic` step (a signal in it is raised after both).
+
+    An exception in the block (a signal too) removes the complete file's temporary and leaves the journal open:
+    leaving the journal's ``with`` block then keeps it (an interruption) or deletes it (any other error). While the
+    complete file is written the disk holds both (about twice the MCAP's size).
+    """
+    writer.__enter__()
+    try:
+        yield writer
+        writer.flush()  # the bulk of the file (interruptible between two messages)
+    except BaseException as exc:
+        writer.__exit__(type(exc), exc, exc.__traceback__)
+        raise
+    with atomic():
+        writer.__exit__(None, None, None)  # summary section, fsync, rename (never a symlink)
+        discard()
 
 
 def keep_interrupted(writer: StageMcapWriter, interruption: BaseException, *, write_last: Callable[[], None],

@@ -32,6 +32,7 @@ from oacli.model.limits import MotionLimits
 from oacli.phases import set_phase
 from oacli.reference import waypoint_reference
 from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
+from oacli.signals import held
 from oacli.sim.simulator import simulate
 from oacli.sim.stall import with_stall
 from oacli.stages.faults import fault_arguments
@@ -310,9 +311,10 @@ def run_track(
                 extra=None if monitor is None or history is None else tube_layers(monitor, history),
                 blueprint=None if design is None else tube_track_blueprint(),
             )
-            if cfg.outputs.plots:
-                write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,
-                                  robot_radius_m=float(cfg.robot.radius_m))
+            if cfg.outputs.plots:  # held: matplotlib turns an interruption inside its drawing into an error
+                with held():  # (a lost signal, a missing PNG); it is raised once the figures are written
+                    write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,
+                                      robot_radius_m=float(cfg.robot.radius_m))
             return run.finish(summary)
 
 

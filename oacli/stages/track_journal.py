@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -39,7 +38,7 @@ from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.mcap_write import EncodedRows
 from oacli.io.runfolder import StageRun
 from oacli.signals import atomic
-from oacli.stages.stage_journal import journal_partial, keep_interrupted
+from oacli.stages.stage_journal import journal_partial, keep_interrupted, replace_journal
 from oacli.trajectory import sample_inputs
 from oacli.types import SolveInfo, Trajectory
 
@@ -105,27 +104,17 @@ class TrackJournal:
             if left is not None:
                 self._run.files["journal"] = left
 
-    @contextlib.contextmanager
-    def replaced_by(self, writer: StageMcapWriter) -> Iterator[StageMcapWriter]:
+    def replaced_by(self, writer: StageMcapWriter) -> contextlib.AbstractContextManager[StageMcapWriter]:
         """Write the complete MCAP with ``writer`` (not yet entered, on the same final name) while the journal stays
-        the record; when the block ends, finish the complete file, rename it into place and delete the journal as
-        one :class:`oacli.signals.atomic` step (a signal in it is raised after both).
+        the record; when the block ends, the complete file is renamed into place and the journal deleted as one
+        :class:`oacli.signals.atomic` step (:func:`oacli.stages.stage_journal.replace_journal`)."""
 
-        An exception in the block (a signal too) removes the complete file's temporary and leaves the journal open:
-        leaving the journal's ``with`` block then keeps it (an interruption) or deletes it (any other error).
-        """
-        writer.__enter__()
-        try:
-            yield writer
-            writer.flush()  # the bulk of the file (interruptible between two messages)
-        except BaseException as exc:
-            writer.__exit__(type(exc), exc, exc.__traceback__)
-            raise
-        with atomic():
-            writer.__exit__(None, None, None)  # summary section, fsync, rename (never a symlink)
+        def discard() -> None:
             if self._run is not None:
                 self._run.records["mcap"] = "complete"
             self.discard()
+
+        return replace_journal(writer, discard)
 
     def _close_buffers(self) -> None:
         """Write every buffered step (the last one's plant samples too), then mark the journal closed."""
