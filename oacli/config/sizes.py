@@ -97,7 +97,8 @@ def size_problems(cfg: Any) -> list[Problem]:
     if sim.settle_time_s * rate > MAX_SIMULATION_STEPS:
         problems.append((("simulation", "settle_time_s"), sim.settle_time_s, steps_message(sim.settle_time_s, rate)))
         return problems
-    duration, field = float(sim.settle_time_s), ("simulation", "settle_time_s")
+    duration = float(sim.settle_time_s)
+    field: tuple[str, ...] = ("simulation", "settle_time_s")
     if cfg.reference.source == "waypoints" and len(cfg.reference.waypoints) >= 1:
         try:
             parts = waypoint_duration_parts(cfg)
