@@ -20,7 +20,7 @@ from oacli.cli import app
 from oacli.commands.common import load_config_with_seed
 from oacli.errors import ConfigError
 from oacli.io.atomic import WriteError, atomic_file, atomic_path, write_text_atomic
-from tests.conftest import REPO
+from tests.conftest import REPO, memory_cap
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
 runner = CliRunner()
@@ -104,19 +104,26 @@ def test_a_track_run_whose_temporaries_are_swapped_never_ends_with_symlinks(tmp_
 
 # -- 4: logs verify / recover --------------------------------------------------------------------------------------
 
+def _capped_data() -> None:
+    """A child's data segment capped at 700 MiB (reading /dev/zero whole fails fast instead of filling memory)."""
+    limit = 700 * 2**20
+    resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))
+
+
 def test_logs_refuse_devices_fifos_and_folders_without_blocking(tmp_path):
     fifo = tmp_path / "pipe.mcap"
     os.mkfifo(fifo)
     link = tmp_path / "zero.mcap"
     link.symlink_to("/dev/zero")
-    for args, what in ((["verify", "/dev/zero"], "is a device"), (["verify", str(link)], "is a device"),
-                       (["verify", str(tmp_path)], "is a folder"),
-                       (["recover", str(link), str(tmp_path / "o.mcap")], "is a device")):
-        result = runner.invoke(app, ["logs", *args])
-        assert result.exit_code == 2 and what in result.output, (args, result.output)
-    start = time.monotonic()
-    done = _run_subprocess(["logs", "verify", str(fifo)], timeout_s=60)  # main blocks here forever
-    assert done.returncode == 2 and "FIFO" in done.stderr and time.monotonic() - start < 60
+    result = runner.invoke(app, ["logs", "verify", str(tmp_path)])
+    assert result.exit_code == 2 and "is a folder" in result.output, result.output
+    # In child processes (main reads /dev/zero until memory runs out and blocks on a FIFO forever).
+    for args, what in ((["verify", str(link)], "is a device"), (["verify", str(fifo)], "FIFO"),
+                       (["recover", "/dev/zero", str(tmp_path / "o.mcap")], "is a device")):
+        start = time.monotonic()
+        done = _run_subprocess(["logs", *args], timeout_s=60, preexec_fn=_capped_data)
+        assert done.returncode == 2 and what in done.stderr, (args, done.stderr)
+        assert time.monotonic() - start < 60
     assert not (tmp_path / "o.mcap").exists()
 
 
@@ -126,12 +133,7 @@ def test_logs_verify_reads_a_large_file_with_bounded_memory(tmp_path):
     with open(big, "wb") as f:
         f.write(b"\x89MCAP0\r\n")
         f.truncate(3 * 2**29)
-    limit = 700 * 2**20
-
-    def cap() -> None:
-        resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))
-
-    done = _run_subprocess(["logs", "verify", str(big)], timeout_s=120, preexec_fn=cap)
+    done = _run_subprocess(["logs", "verify", str(big)], timeout_s=120, preexec_fn=_capped_data)
     assert done.returncode == 3, done.stderr
     assert "opcode 0x00" in done.stderr and "Traceback" not in done.stderr
 
@@ -203,7 +205,8 @@ def test_info_on_binary_device_and_fifo_summaries_exits_2(tmp_path):
     os.mkfifo(fifo / "summary.json")
     for folder, what in ((binary, "not a JSON summary"), (device, "is a device"), (fifo, "FIFO")):
         for target in (folder, folder / "summary.json"):
-            result = runner.invoke(app, ["info", str(target)])
+            with memory_cap(1 << 30):  # main reads /dev/zero whole: a MemoryError here, not a full machine
+                result = runner.invoke(app, ["info", str(target)])
             assert result.exit_code == 2 and "internal error" not in result.output, (target, result.output)
         assert what in runner.invoke(app, ["info", str(folder)]).output
 
