@@ -130,7 +130,25 @@ def interruption_message(exc: BaseException) -> str:
     return f"interrupted ({exc})" if isinstance(exc, Terminated) else "interrupted"
 
 
+#: Signals delivered inside the current :func:`terminate_like_interrupt` block (raised or held).
+DELIVERED: list[int] = []
+
+
+def delivered() -> int | None:
+    """The first signal delivered inside the current :func:`terminate_like_interrupt` block, or None: when a command
+    returns normally although one was, the interruption was swallowed on its way (raised inside a weakref callback
+    or a ``__del__``, where Python only prints "Exception ignored"), and the command still ends 130/143."""
+    return DELIVERED[0] if DELIVERED else None
+
+
+def swallowed_message(signum: int) -> str:
+    """The CLI's line for a swallowed interruption (:func:`delivered`) once the run is recorded."""
+    return recorded_message(_interruption(signum)) or \
+        f"{interruption_message(_interruption(signum))} after the run was recorded"
+
+
 def _raise_terminated(signum: int, frame: FrameType | None) -> None:
+    DELIVERED.append(signum)
     if _raised:  # a second signal while the first one's cleanup runs: let the cleanup finish
         return
     _raised.append(signum)
@@ -141,6 +159,7 @@ def _raise_terminated(signum: int, frame: FrameType | None) -> None:
 
 
 def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
+    DELIVERED.append(signum)
     if _held[0]:
         if not PENDING:
             PENDING.append(signum)
@@ -162,6 +181,7 @@ def terminate_like_interrupt() -> Iterator[None]:
     _raised.clear()
     PENDING.clear()
     RECORDED.clear()
+    DELIVERED.clear()
     previous = {}
     for signum in HANDLED:
         previous[signum] = signal.signal(signum, _raise_terminated)

@@ -37,6 +37,7 @@ from oacli.mission.plots import write_mission_plots
 from oacli.mission.recording import write_mission_recording
 from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
 from oacli.model.robot_model import RobotModel
+from oacli.signals import held
 from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED, OK, StatusReport
 
 ProgressFactory = Callable[[str], Callable[[float], None] | None]
@@ -355,7 +356,8 @@ def _run_mission(
         records = load_mission_records(mission_dir, summary)  # once for both (the stage MCAPs are cached)
         write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary,
                                 recording_name=f"{cfg.name}/mission", records=records)
-        plots = write_mission_plots(mission_dir, summary, records=records) if cfg.outputs.mission_pngs else {}
+        with held():  # matplotlib can swallow an interruption raised inside its drawing: raised after the PNGs
+            plots = write_mission_plots(mission_dir, summary, records=records) if cfg.outputs.mission_pngs else {}
         summary["files"]["rrd"] = "mission.rrd"
         summary["files"]["plots"] = {k: str(p.relative_to(mission_dir)) for k, p in plots.items()}
         summary["wall_time_s"] = time.perf_counter() - wall

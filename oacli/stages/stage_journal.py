@@ -176,7 +176,8 @@ def keep_interrupted(writer: StageMcapWriter, interruption: BaseException, *, wr
     writer : StageMcapWriter
         The journal's open writer.
     interruption : BaseException
-        The :class:`KeyboardInterrupt` (or :class:`oacli.signals.Terminated`) that stopped the stage.
+        The :class:`KeyboardInterrupt` (or :class:`oacli.signals.Terminated`) that stopped the stage, or the error
+        that kept the complete file from being written.
     write_last : callable
         Writes the records still buffered.
     log_time_s : callable
@@ -192,8 +193,10 @@ def keep_interrupted(writer: StageMcapWriter, interruption: BaseException, *, wr
     partial = journal_partial(writer)
     try:
         write_last()
-        writer.write_log(log_time_s(), "warning", f"stage {describe_interruption(interruption)}: the journal of "
-                         f"{what} so far is kept as the stage's MCAP")
+        how = describe_interruption(interruption) if isinstance(interruption, KeyboardInterrupt) else \
+            f"failed ({interruption})"
+        writer.write_log(log_time_s(), "warning", f"stage {how}: the journal of {what} so far is kept as the "
+                         "stage's MCAP")
         writer.__exit__(None, None, None)
         return None
     except BaseException as err:

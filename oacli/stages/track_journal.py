@@ -22,18 +22,21 @@ disk holds both (about twice the MCAP's size).
 Ctrl-C or a termination signal (a :class:`KeyboardInterrupt`, :mod:`oacli.signals`) during the simulation keeps the
 journal as ``track.mcap``: the steps still buffered are written, then a ``/log`` warning naming the interruption, and
 the file is closed valid (summary section, CRCs) next to the ``interrupted`` ``summary.json``, as ``plan`` and
-``excite`` do (:mod:`oacli.stages.stage_journal`). Each step is taken whole (:class:`oacli.signals.atomic`), so an
-interruption never finds the buffers half updated.
+``excite`` do (:mod:`oacli.stages.stage_journal`). So does a complete file that cannot be written (a full disk: the
+journal then stays the record, next to the ``failed`` summary). Each step is taken whole
+(:class:`oacli.signals.atomic`), so an interruption never finds the buffers half updated.
 """
 
 from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
+from oacli.io.atomic import WriteError
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.mcap_write import EncodedRows
 from oacli.io.runfolder import StageRun
@@ -68,6 +71,7 @@ class TrackJournal:
     def __init__(self, writer: StageMcapWriter, reference: Trajectory, *, run: StageRun | None = None) -> None:
         self._writer = writer
         self._run = run
+        self._final_failed = False  # the complete file could not be written: the journal stays the record
         self._reference = reference
         #: JSON payloads of the sample records written, for the complete file (``StageMcapWriter.reuse_encoded``).
         self.encoded: EncodedRows = writer.keep_encoded()
@@ -86,8 +90,8 @@ class TrackJournal:
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
-        if isinstance(exc, KeyboardInterrupt):
-            self.keep(exc)
+        if isinstance(exc, KeyboardInterrupt) or (isinstance(exc, WriteError) and self._final_failed):
+            self.keep(exc)  # interrupted, or the complete file could not be written (a full disk): the record
         else:
             self.discard()
 
@@ -114,7 +118,17 @@ class TrackJournal:
                 self._run.records["mcap"] = "complete"
             self.discard()
 
-        return replace_journal(writer, discard)
+        return self._guard_final(replace_journal(writer, discard))
+
+    @contextlib.contextmanager
+    def _guard_final(self, inner: contextlib.AbstractContextManager[StageMcapWriter]) -> Iterator[StageMcapWriter]:
+        """Note a :class:`WriteError` of the complete file (e.g. no space left): the journal is then kept."""
+        try:
+            with inner as writer:
+                yield writer
+        except WriteError:
+            self._final_failed = True
+            raise
 
     def _close_buffers(self) -> None:
         """Write every buffered step (the last one's plant samples too), then mark the journal closed."""
