@@ -31,6 +31,9 @@ import oacli.stages.track as track_stage
 from oacli.cli import app
 from tests.conftest import REPO
 
+# A signal raised inside a weakref callback (matplotlib) is printed as "Exception ignored" and reported by pytest;
+# the command still ends 130/143 (oacli.signals.delivered), which the checks assert.
+pytestmark = pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
 ISS = REPO / "configs" / "iss_reswarm.yaml"
 runner = CliRunner()
 
