@@ -32,7 +32,7 @@ def mcap_info(path: Path) -> dict[str, Any]:
     """
     from mcap.reader import make_reader
 
-    from oacli.io.mcap_walk import open_regular
+    from oacli.io.regular_files import open_regular
 
     fd = open_regular(path)  # a FIFO, a device or a folder: exit 2 without blocking
     try:

@@ -27,7 +27,6 @@ from __future__ import annotations
 import io
 import mmap
 import os
-import stat
 import struct
 import zlib
 from collections.abc import Callable, Iterable
@@ -42,6 +41,7 @@ from mcap.stream_reader import CRCValidationError, StreamReader
 
 from oacli.config.sizes import MAX_MCAP_CHANNELS, MAX_MCAP_MESSAGES, MAX_MESSAGES_PER_TOPIC
 from oacli.errors import InputError
+from oacli.io.regular_files import open_regular, stream_of
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -175,45 +175,6 @@ def opcode_name(opcode: int) -> str:
         return f"unknown opcode {opcode:#04x}"
 
 
-def _kind(mode: int) -> str:
-    if stat.S_ISDIR(mode):
-        return "a folder"
-    if stat.S_ISFIFO(mode):
-        return "a FIFO (named pipe)"
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        return "a device"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
-    return "not a regular file"
-
-
-def open_regular(path: Path, what: str = "an MCAP file") -> int:
-    """A read-only descriptor of ``path`` (symlinks followed), refusing anything but a regular file without
-    blocking: a FIFO, a device (``/dev/zero``), a socket or a folder is an :class:`InputError` naming it (exit 2).
-
-    The file is opened with ``O_NONBLOCK`` (opening a FIFO for reading would wait for a writer) and checked with
-    ``fstat`` on the descriptor (no race between the check and the open); the flag is then cleared.
-    """
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
-    except FileNotFoundError:
-        raise InputError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a folder, not {what}") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
-    try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            raise InputError(f"{path}: is {_kind(mode)}, not {what}; give a regular file")
-        if hasattr(os, "set_blocking"):
-            os.set_blocking(fd, True)
-    except BaseException:
-        os.close(fd)
-        raise
-    return fd
-
-
 def read_file(path: Path) -> bytes:
     """The bytes of an MCAP file (InputError naming the file when missing, not a regular file -- a folder, a FIFO,
     a device --, unreadable or not MCAP)."""
@@ -245,48 +206,6 @@ def map_file(path: Path) -> Any:
     if mapped[: len(MAGIC)] != MAGIC:
         raise InputError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
     return mapped
-
-
-class _ViewReader(io.BufferedIOBase):
-    """A seekable binary stream over a bytes-like object (an :class:`mmap.mmap`) without copying it (``io.BytesIO``
-    copies anything but ``bytes``); not a ``RawIOBase``, which the ``mcap`` reader would wrap in a read-ahead
-    buffer (its position then runs ahead of the records)."""
-
-    def __init__(self, data: Any) -> None:
-        super().__init__()
-        self._data = data
-        self._size = len(data)
-        self._pos = 0
-
-    def readable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return True
-
-    def read(self, size: int | None = -1) -> bytes:
-        start = self._pos
-        stop = self._size if size is None or size < 0 else min(self._size, start + size)
-        self._pos = max(start, stop)
-        return bytes(self._data[start:stop])
-
-    def readinto(self, buffer: Any) -> int:
-        chunk = self.read(len(buffer))
-        buffer[: len(chunk)] = chunk
-        return len(chunk)
-
-    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
-        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._size}[whence]
-        self._pos = max(0, base + offset)
-        return self._pos
-
-    def tell(self) -> int:
-        return self._pos
-
-
-def _stream(data: Any) -> Any:
-    """A binary stream over ``data``: ``io.BytesIO`` for bytes (no copy), :class:`_ViewReader` otherwise."""
-    return io.BytesIO(data) if isinstance(data, bytes) else _ViewReader(data)
 
 
 _MIN_MESSAGE_RECORD = 9 + 22
@@ -380,7 +299,7 @@ class McapWalk:
         """Walk the file; returns the result (its ``problems`` name what is wrong and where)."""
         if self._statistics_too_large() or self._counted_too_large():
             return self.result
-        reader = _stream(self.data)
+        reader = stream_of(self.data)
         stream = _StreamReader(reader, emit_chunks=True, validate_crcs=self.validate, record_size_limit=len(self.data))
         records = stream.records
         start = len(MAGIC)  # offset of the next record
@@ -413,7 +332,7 @@ class McapWalk:
         try:
             from mcap.reader import SeekingReader
 
-            summary = SeekingReader(_stream(data), validate_crcs=False).get_summary()
+            summary = SeekingReader(stream_of(data), validate_crcs=False).get_summary()
         except Exception:
             return False
         if summary is None or summary.statistics is None:
@@ -475,7 +394,7 @@ class McapWalk:
 
     def _top_level(self) -> Any:
         """The top-level records up to the first problem (chunks not opened, no CRC checked)."""
-        stream = _StreamReader(_stream(self.data), emit_chunks=True, record_size_limit=len(self.data)).records
+        stream = _StreamReader(stream_of(self.data), emit_chunks=True, record_size_limit=len(self.data)).records
         while True:
             try:
                 yield next(stream)
@@ -587,9 +506,9 @@ class McapWalk:
         if IN_PLACE_CHUNKS:
             self._chunk_records(data, start)
         else:
-            self._chunk_records_stream(data, start)
+            self._chunk_recordsstream_of(data, start)
 
-    def _chunk_records_stream(self, data: bytes, start: int) -> None:
+    def _chunk_recordsstream_of(self, data: bytes, start: int) -> None:
         """The former chunk parser (a second ``StreamReader`` over the decompressed bytes, a record object per
         record), kept for ``benchmarks/bench_mission_overhead.py`` (:data:`IN_PLACE_CHUNKS` off)."""
         inner = io.BytesIO(data)

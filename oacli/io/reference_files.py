@@ -32,7 +32,7 @@ def _load_table(path: Path, delimiter: str | None = None) -> np.ndarray:
     import io
     import os
 
-    from oacli.io.mcap_walk import open_regular
+    from oacli.io.regular_files import open_regular
 
     fd = open_regular(path, "a reference table")  # a FIFO or a device: exit 2 without blocking
     with os.fdopen(fd, "rb") as f:

@@ -357,7 +357,7 @@ def read_summary_file(path: Path) -> dict[str, Any]:
     """
     import os
 
-    from oacli.io.mcap_walk import open_regular
+    from oacli.io.regular_files import open_regular
 
     fd = open_regular(path, "a summary.json file")
     try:
