@@ -109,7 +109,11 @@ def _root(
 
 
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point (a signal outside a command's own handling prints one line and exits 130/143:
+    :func:`oacli.signals.exit_on_signal`)."""
+    from oacli.signals import exit_on_signal
+
+    exit_on_signal()
     app()
 
 

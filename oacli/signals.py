@@ -8,14 +8,22 @@ turns an exception raised in the callback into its own error: a Ctrl-C arriving 
 ``failed`` with "I/O error from writing" and break the writer. Within :func:`terminate_like_interrupt`, SIGINT,
 SIGTERM and SIGHUP arriving inside a :class:`held` block are therefore held (:data:`PENDING`) and raised when the
 block ends, or earlier by :func:`raise_pending` at a point where native code is not running (between two messages).
+
+Once a run is recorded (its complete ``summary.json`` written) a signal never turns it into ``interrupted``
+(:func:`oacli.io.runfolder.write_summary` keeps it, :func:`note_recorded`), and never kills the process silently:
+the console script installs :func:`exit_on_signal` handlers outside the command's own block, which print one line
+and exit with 130 / 143 (``interrupted (terminated by SIGTERM) after the run was recorded``).
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
+import sys
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 from types import FrameType
 
 #: Signals turned into :class:`Terminated` (SIGINT keeps Python's own KeyboardInterrupt).
@@ -122,7 +130,25 @@ def interruption_message(exc: BaseException) -> str:
     return f"interrupted ({exc})" if isinstance(exc, Terminated) else "interrupted"
 
 
+#: Signals delivered inside the current :func:`terminate_like_interrupt` block (raised or held).
+DELIVERED: list[int] = []
+
+
+def delivered() -> int | None:
+    """The first signal delivered inside the current :func:`terminate_like_interrupt` block, or None: when a command
+    returns normally although one was, the interruption was swallowed on its way (raised inside a weakref callback
+    or a ``__del__``, where Python only prints "Exception ignored"), and the command still ends 130/143."""
+    return DELIVERED[0] if DELIVERED else None
+
+
+def swallowed_message(signum: int) -> str:
+    """The CLI's line for a swallowed interruption (:func:`delivered`) once the run is recorded."""
+    return recorded_message(_interruption(signum)) or \
+        f"{interruption_message(_interruption(signum))} after the run was recorded"
+
+
 def _raise_terminated(signum: int, frame: FrameType | None) -> None:
+    DELIVERED.append(signum)
     if _raised:  # a second signal while the first one's cleanup runs: let the cleanup finish
         return
     _raised.append(signum)
@@ -133,6 +159,7 @@ def _raise_terminated(signum: int, frame: FrameType | None) -> None:
 
 
 def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
+    DELIVERED.append(signum)
     if _held[0]:
         if not PENDING:
             PENDING.append(signum)
@@ -153,13 +180,55 @@ def terminate_like_interrupt() -> Iterator[None]:
         return
     _raised.clear()
     PENDING.clear()
+    RECORDED.clear()
+    DELIVERED.clear()
     previous = {}
     for signum in HANDLED:
         previous[signum] = signal.signal(signum, _raise_terminated)
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    if signal.getsignal(signal.SIGINT) in (signal.default_int_handler, _exit_on_signal):
         previous[signal.SIGINT] = signal.signal(signal.SIGINT, _raise_interrupt)
     try:
         yield
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+
+
+#: The complete ``summary.json`` kept although a signal came after it was written: ``[(path, status)]``.
+RECORDED: list[tuple[Path, str]] = []
+
+
+def note_recorded(path: Path, status: str) -> None:
+    """Note that the complete ``summary.json`` at ``path`` (status ``status``) was kept although the run was then
+    stopped by a signal (:func:`oacli.io.runfolder.write_summary`)."""
+    RECORDED[:] = [(Path(path), str(status))]
+
+
+def recorded_message(exc: BaseException) -> str | None:
+    """The CLI's one line for an interruption that came after the run was recorded, else None."""
+    if not RECORDED:
+        return None
+    path, status = RECORDED[0]
+    return f"{interruption_message(exc)} after the run was recorded ({path}: status {status})"
+
+
+def _exit_on_signal(signum: int, frame: FrameType | None) -> None:
+    exc = _interruption(signum)
+    line = recorded_message(exc) or interruption_message(exc)
+    with contextlib.suppress(Exception):
+        sys.stderr.write(f"error: {line}\n")
+        sys.stderr.flush()
+    raise SystemExit(exit_code_for(exc))
+
+
+def exit_on_signal() -> None:
+    """Install the console script's handlers: outside a command's :func:`terminate_like_interrupt` block (before it
+    starts, and after it, e.g. while the results are printed once ``summary.json`` is written), SIGINT, SIGTERM and
+    SIGHUP print one line and exit with ``128 + signal number`` instead of killing the process silently or printing
+    a traceback. Main thread only; SIGINT only when Python's own handler is installed (not ignored)."""
+    if threading.current_thread() is not threading.main_thread() or os.name != "posix":
+        return
+    for signum in HANDLED:
+        signal.signal(signum, _exit_on_signal)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _exit_on_signal)

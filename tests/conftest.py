@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -68,3 +69,26 @@ def mission_run(tmp_path_factory):
     result = CliRunner().invoke(app, ["mission", str(cfg), "--out", str(folder / "run")])
     assert result.exit_code == 0, result.output
     return folder / "run", cfg, result.output
+
+
+@contextlib.contextmanager
+def memory_cap(extra_bytes: int):
+    """Cap this process's data segment at its current size + ``extra_bytes`` for the block (soft RLIMIT_DATA,
+    restored after): a command that regresses into reading ``/dev/zero`` whole fails with MemoryError instead of
+    filling the machine's memory."""
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_DATA)
+    used = 0
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmData:"):
+                used = int(line.split()[1]) * 1024
+    cap = used + extra_bytes if used else extra_bytes * 4
+    if hard != resource.RLIM_INFINITY:
+        cap = min(cap, hard)
+    resource.setrlimit(resource.RLIMIT_DATA, (cap, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_DATA, (soft, hard))

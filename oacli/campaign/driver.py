@@ -40,6 +40,7 @@ from oacli.config.campaign import CampaignConfig
 from oacli.config.mission import deep_merge
 from oacli.errors import InputError
 from oacli.io.atomic import write_text_atomic
+from oacli.io.folder_lock import folder_lock
 from oacli.io.jsonsafe import to_json_safe
 from oacli.io.runfolder import create_run_dir
 
@@ -213,7 +214,18 @@ def run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | N
     -------
     dict of int to dict
         Each run's final manifest record.
+
+    Raises
+    ------
+    oacli.io.folder_lock.FolderBusy
+        Another oacli process runs or resumes this campaign (exit 2, naming it): the folder's advisory lock
+        (:mod:`oacli.io.folder_lock`) is held while the runs fly, so two resumes never fly a run twice.
     """
+    with folder_lock(Path(folder), "campaign"):
+        return _run_campaign(Path(folder), handle, announce=announce)
+
+
+def _run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | None = None) -> dict[int, dict]:
     campaign = load_existing(folder)
     cfg = campaign.config
     if not (folder / "runs.json").exists():

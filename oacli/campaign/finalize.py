@@ -16,6 +16,7 @@ from oacli.campaign.aggregate import summarize
 from oacli.campaign.driver import load_existing
 from oacli.campaign.outputs import write_mcap, write_plots, write_recording
 from oacli.io.atomic import write_text_atomic
+from oacli.io.folder_lock import folder_lock
 from oacli.io.jsonsafe import to_json_safe
 
 
@@ -35,9 +36,19 @@ def finalize(folder: Path, *, wall_time_s: float | None = None, executor: str | 
     -------
     dict
         The summary.
+
+    Raises
+    ------
+    oacli.io.folder_lock.FolderBusy
+        Another oacli process runs or finalizes this campaign (exit 2).
     """
     start = time.perf_counter()
     folder = Path(folder)
+    with folder_lock(folder, "campaign"):  # one process writes the outputs (a second exits 2, naming it)
+        return _finalize(folder, start, wall_time_s, executor)
+
+
+def _finalize(folder: Path, start: float, wall_time_s: float | None, executor: str | None) -> dict[str, Any]:
     campaign = load_existing(folder)
     final = manifest.final_states(manifest.read(folder))
     index = json.loads((folder / "runs.json").read_text())["index"]

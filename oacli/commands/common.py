@@ -17,7 +17,14 @@ import typer
 from oacli.commands.progress import Progress
 from oacli.config.overrides import apply_overrides
 from oacli.errors import ConfigError, OacliError
-from oacli.signals import exit_code_for, interruption_message, terminate_like_interrupt
+from oacli.signals import (
+    delivered,
+    exit_code_for,
+    interruption_message,
+    recorded_message,
+    swallowed_message,
+    terminate_like_interrupt,
+)
 
 __all__ = ["Progress", "apply_overrides"]  # re-exported: the commands import them from here
 
@@ -101,7 +108,7 @@ def fail(exc: BaseException) -> typer.Exit:
             typer.echo(f"error: {line}", err=True)
         return typer.Exit(exc.exit_code)
     if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, or SIGTERM/SIGHUP (oacli.signals): exit 130 / 143
-        typer.echo(f"error: {interruption_message(exc)}", err=True)
+        typer.echo(f"error: {recorded_message(exc) or interruption_message(exc)}", err=True)
         for note in getattr(exc, "__notes__", ()):  # e.g. what could not be kept or written while stopping
             typer.echo(f"warning: {note.strip('()')}", err=True)
         if os.environ.get("OACLI_DEBUG"):
@@ -164,9 +171,14 @@ def run_guarded(action: Callable[[], Any]) -> Any:
     """Run a command's action, mapping every error to a clear message and an exit code (no traceback)."""
     try:
         with terminate_like_interrupt():
-            return action()
+            result = action()
+            swallowed = delivered()  # an interruption lost on its way (oacli.signals.delivered): still 130/143
     except (OacliError, KeyboardInterrupt, Exception) as exc:  # every error is mapped to an exit code
         raise fail(exc) from None
+    if swallowed is not None:
+        typer.echo(f"error: {swallowed_message(swallowed)}", err=True)
+        raise typer.Exit(128 + swallowed)
+    return result
 
 
 def run_stage_command(action: Callable[[], Any], table: list[str], quiet: bool, json_out: bool = False,

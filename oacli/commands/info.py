@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -33,8 +32,11 @@ def mcap_info(path: Path) -> dict[str, Any]:
     """
     from mcap.reader import make_reader
 
+    from oacli.io.regular_files import open_regular
+
+    fd = open_regular(path)  # a FIFO, a device or a folder: exit 2 without blocking
     try:
-        with open(path, "rb") as f:
+        with open(fd, "rb") as f:
             summary = make_reader(f).get_summary()
     except Exception:  # the mcap reader raises several types on a bad file
         summary = None
@@ -96,10 +98,12 @@ def path_info(path: Path) -> dict[str, Any]:
     """
     if not path.exists():
         raise InputError(f"{path}: not found")
-    if path.is_file():
+    if not path.is_dir():
         return mcap_info(path)
+    from oacli.io.runfolder import read_summary_file
+
     summary_path = path / "summary.json"
-    summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
+    summary = read_summary_file(summary_path) if summary_path.exists() or summary_path.is_symlink() else {}
     mcaps = sorted(path.glob("*.mcap"))
     return {"run": str(path), "stage": summary.get("stage"), "status": summary.get("status", "incomplete"),
             "status_reasons": summary.get("status_reasons", []),

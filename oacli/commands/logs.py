@@ -2,7 +2,9 @@
 
 Exit codes: ``verify`` 0 when the file is complete and every CRC matches, 3 when it is truncated or corrupt (one
 line on stderr naming the problem and its byte offset); ``recover`` 0 when nothing was lost, 3 when data was lost
-(the line says how many messages were saved). Both exit 2 when FILE is missing or not an MCAP file.
+(the line says how many messages were saved). Both exit 2 when FILE is missing, not a regular file (a FIFO, a
+device, a folder: refused without reading) or not an MCAP file, and ``recover`` when OUT exists (unless
+``--force``). Both read with bounded memory (:mod:`oacli.io.mcap_recover`).
 """
 
 from __future__ import annotations
@@ -42,13 +44,14 @@ def logs_verify(
 @logs_app.command("recover")
 def logs_recover(
     file: Annotated[Path, typer.Argument(metavar="FILE", help="The cut-off or damaged .mcap file.")],
-    out: Annotated[Path, typer.Argument(metavar="OUT", help="The valid .mcap file to write.")],
+    out: Annotated[Path, typer.Argument(metavar="OUT", help="The valid .mcap file to write (must not exist).")],
+    force: Annotated[bool, typer.Option("--force", help="Replace OUT if it exists.")] = False,
 ) -> None:
     """Rescan FILE into a valid MCAP OUT with every complete message, schema, channel, metadata record and
     attachment; exit 3 when data was lost."""
     from oacli.io.mcap_recover import recover
 
-    result = run_guarded(lambda: recover(file, out))
+    result = run_guarded(lambda: recover(file, out, force=force))
     scan = result.scan
     for problem in scan.problems:
         typer.echo(f"warning: {problem.message}", err=True)

@@ -45,9 +45,19 @@ def _draw_mission(run_dir: Path, summary: dict, keys: list[str] | None, out: Pat
         if not is_complete(run_dir):
             typer.echo(f"warning: mission plots skipped: the mission did not finish (status {summary.get('status')})",
                        err=True)
+        elif missing := [s.key for s in MISSION_STAGES if s.key in summary.get("stages", {})
+                         and not is_complete(s.folder(run_dir))]:
+            typer.echo(f"warning: mission plots skipped: stage folder {missing[0]} is not complete (emptied or "
+                       f"damaged since the mission ran){f' (and {len(missing) - 1} more)' if len(missing) > 1 else ''}",
+                       err=True)
         else:
             target = None if out is None else out / "plots"
-            pngs = write_mission_plots(run_dir, summary, out_dir=target)
+            try:
+                pngs = write_mission_plots(run_dir, summary, out_dir=target)
+            except OSError as exc:  # a stage's file removed since: the user can fix it (rerun with --from)
+                raise InputError(f"{run_dir}: cannot draw the mission plots: "
+                                 f"{exc.filename or ''} {(exc.strerror or str(exc)).lower()}".replace("  ", " ")
+                                 ) from None
             written[MISSION_PLOTS] = {k: str(p) for k, p in pngs.items()}
     return written
 

@@ -13,7 +13,6 @@ from oacli.config.fields import (
     NonNegativeReal,
     NonNegativeVector3,
     PositiveReal,
-    PositiveVector3,
     PrincipalInertia,
     Real,
     Section,
@@ -26,6 +25,13 @@ from oacli.types import InertialParams
 
 ActuatorScale = Annotated[Real, Field(ge=0.5, le=1.5)]
 
+MAX_LIMIT = 1e6
+"""Largest accepted force [N], torque [N·m], speed [m/s] or rate [rad/s] bound: beyond it the QP solvers read a bound
+as infinite (Clarabel and OSQP at about 1e20; 1e6 is eight orders above Astrobee's)."""
+
+_Limit = Annotated[Real, Field(gt=0, le=MAX_LIMIT)]
+LimitVector3 = Annotated[tuple[_Limit, _Limit, _Limit], BeforeValidator(sequence_of(3))]
+
 
 class RobotConfig(Section):
     """The robot model the planner, controller and estimator use (Doerr et al. 2021, Eqs. 33-36)."""
@@ -35,13 +41,13 @@ class RobotConfig(Section):
         description="Principal moments of inertia (Ixx, Iyy, Izz) [kg·m²] about the body axes through the CoM; "
         "each > 0 and each sum of two >= the third."
     )
-    force_limit_N: PositiveVector3 = Field(description="Force bound per world axis, |f_i| <= limit [N].")
-    torque_limit_Nm: PositiveVector3 = Field(description="Torque bound per body axis, |tau_i| <= limit [N·m].")
-    velocity_limit_mps: PositiveVector3 = Field(
+    force_limit_N: LimitVector3 = Field(description="Force bound per world axis, |f_i| <= limit [N].")
+    torque_limit_Nm: LimitVector3 = Field(description="Torque bound per body axis, |tau_i| <= limit [N·m].")
+    velocity_limit_mps: LimitVector3 = Field(
         default=(0.2, 0.2, 0.2),
         description="Velocity bound per world axis [m/s] (default: Astrobee nominal flight mode).",
     )
-    angular_velocity_limit_radps: PositiveVector3 = Field(
+    angular_velocity_limit_radps: LimitVector3 = Field(
         default=(0.1745, 0.1745, 0.1745),
         description="Angular velocity bound per body axis [rad/s] (default: Astrobee nominal flight mode).",
     )

@@ -84,28 +84,48 @@ def steps_message(duration_s: float, rate_hz: float) -> str:
 
 
 def size_problems(cfg: Any) -> list[Problem]:
-    """The fields of ``cfg`` (an :class:`~oacli.config.models.OacliConfig`) that ask for too large a run."""
+    """The fields of ``cfg`` (an :class:`~oacli.config.models.OacliConfig`) that ask for too large a run: too many
+    steps, then the resource estimate against the budget (:mod:`oacli.config.budget`)."""
+    from oacli.config.budget import budget_problems, excitation_problems
+
     problems: list[Problem] = []
     sim = cfg.simulation
     rate = sim.plant_rate_hz
     if rate > MAX_PLANT_RATE_HZ:
         return [(("simulation", "plant_rate_hz"), rate, f"must be <= {MAX_PLANT_RATE_HZ:g} Hz")]
+    problems += excitation_problems(cfg, MAX_SIMULATION_STEPS, steps_message)
     if sim.settle_time_s * rate > MAX_SIMULATION_STEPS:
         problems.append((("simulation", "settle_time_s"), sim.settle_time_s, steps_message(sim.settle_time_s, rate)))
         return problems
-    if cfg.reference.source != "waypoints" or len(cfg.reference.waypoints) < 1:
-        return problems
-    try:
-        parts = waypoint_duration_parts(cfg)
-    except KeyError:  # an unknown waypoint name: reported by the cross-check
-        return problems
-    total = sum(parts.values()) + sim.settle_time_s
-    if total * rate > MAX_SIMULATION_STEPS:
+    duration = float(sim.settle_time_s)
+    field: tuple[str, ...] = ("simulation", "settle_time_s")
+    if cfg.reference.source == "waypoints" and len(cfg.reference.waypoints) >= 1:
+        try:
+            parts = waypoint_duration_parts(cfg)
+        except KeyError:  # an unknown waypoint name: reported by the cross-check
+            return problems
+        total = sum(parts.values()) + sim.settle_time_s
         loc = max(parts, key=lambda k: parts[k])
-        field = cfg.reference
-        value = getattr(field, loc[1])
-        problems.append((loc, value, steps_message(total, rate)))
-    return problems
+        if total * rate > MAX_SIMULATION_STEPS:
+            value = getattr(cfg.reference, loc[1])
+            if loc == ("reference", "cruise_speed_mps") and _acceleration_dominates(cfg):
+                loc, value = ("reference", "acceleration_mps2"), cfg.reference.acceleration_mps2
+            problems.append((loc, value, steps_message(total, rate)))
+            return problems
+        duration = total
+        if parts[loc] > sim.settle_time_s:
+            field = loc
+    return problems + budget_problems(cfg, duration, field)
+
+
+def _acceleration_dominates(cfg: Any) -> bool:
+    """Whether the translation time of a waypoint reference is mostly the ramps (cruise speed / acceleration, a
+    tiny ``acceleration_mps2``) rather than the cruise (distance / cruise speed, a tiny ``cruise_speed_mps``)."""
+    ref = cfg.reference
+    poses = cfg.reference_poses()
+    cruise = sum(math.dist(a.position, b.position) for a, b in itertools.pairwise(poses)) / ref.cruise_speed_mps
+    ramps = (len(poses) - 1) * ref.cruise_speed_mps / ref.acceleration_mps2
+    return ramps > cruise
 
 
 def check_simulation_length(duration_s: float, rate_hz: float, what: str) -> str | None:

@@ -25,6 +25,8 @@ at the cut, after every complete record. Kept here is only what it lacks:
 from __future__ import annotations
 
 import io
+import mmap
+import os
 import struct
 import zlib
 from collections.abc import Callable, Iterable
@@ -39,6 +41,7 @@ from mcap.stream_reader import CRCValidationError, StreamReader
 
 from oacli.config.sizes import MAX_MCAP_CHANNELS, MAX_MCAP_MESSAGES, MAX_MESSAGES_PER_TOPIC
 from oacli.errors import InputError
+from oacli.io.regular_files import open_regular, stream_of
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -154,6 +157,8 @@ class _StreamReader(StreamReader):
     data-section CRC."""
 
     def _read_record(self, opcode: int, length: int) -> Any:
+        if opcode == 0:  # no MCAP record has opcode 0x00: zeros (a sparse or zero-filled file) are not skipped 9 bytes
+            raise ValueError("opcode 0x00 is no MCAP record (zero bytes)")  # at a time, the walk stops here
         if opcode in _SKIPPED:
             self._stream.read(length)
             return _Skipped(opcode)
@@ -171,18 +176,36 @@ def opcode_name(opcode: int) -> str:
 
 
 def read_file(path: Path) -> bytes:
-    """The bytes of an MCAP file (InputError naming the file when missing, a folder, unreadable or not MCAP)."""
+    """The bytes of an MCAP file (InputError naming the file when missing, not a regular file -- a folder, a FIFO,
+    a device --, unreadable or not MCAP)."""
+    fd = open_regular(path)
     try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a folder, not an MCAP file") from None
+        with os.fdopen(fd, "rb") as f:
+            data = f.read()
     except OSError as exc:
         raise InputError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
     if data[: len(MAGIC)] != MAGIC:
         raise InputError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
     return data
+
+
+def map_file(path: Path) -> Any:
+    """The MCAP file mapped read-only (:class:`mmap.mmap`, bytes-like: the walk reads it in place with bounded memory
+    whatever its size, :class:`McapWalk`); the checks and errors of :func:`read_file`."""
+    fd = open_regular(path)
+    try:
+        size = os.fstat(fd).st_size
+        if size < len(MAGIC):
+            raise InputError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+        try:
+            mapped = mmap.mmap(fd, 0, access=mmap.ACCESS_READ)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{path}: cannot read the file ({exc})") from None
+    finally:
+        os.close(fd)
+    if mapped[: len(MAGIC)] != MAGIC:
+        raise InputError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+    return mapped
 
 
 _MIN_MESSAGE_RECORD = 9 + 22
@@ -276,7 +299,7 @@ class McapWalk:
         """Walk the file; returns the result (its ``problems`` name what is wrong and where)."""
         if self._statistics_too_large() or self._counted_too_large():
             return self.result
-        reader = io.BytesIO(self.data)
+        reader = stream_of(self.data)
         stream = _StreamReader(reader, emit_chunks=True, validate_crcs=self.validate, record_size_limit=len(self.data))
         records = stream.records
         start = len(MAGIC)  # offset of the next record
@@ -309,7 +332,7 @@ class McapWalk:
         try:
             from mcap.reader import SeekingReader
 
-            summary = SeekingReader(io.BytesIO(data), validate_crcs=False).get_summary()
+            summary = SeekingReader(stream_of(data), validate_crcs=False).get_summary()
         except Exception:
             return False
         if summary is None or summary.statistics is None:
@@ -371,7 +394,7 @@ class McapWalk:
 
     def _top_level(self) -> Any:
         """The top-level records up to the first problem (chunks not opened, no CRC checked)."""
-        stream = _StreamReader(io.BytesIO(self.data), emit_chunks=True, record_size_limit=len(self.data)).records
+        stream = _StreamReader(stream_of(self.data), emit_chunks=True, record_size_limit=len(self.data)).records
         while True:
             try:
                 yield next(stream)
@@ -458,12 +481,18 @@ class McapWalk:
             raise _Stop
         try:
             data = decompress_bounded(chunk, declared)
-            if len(data) != declared:
-                raise ValueError(f"it decompresses to {'more than ' if len(data) > declared else ''}"
-                                 f"{min(len(data), declared + 1)} bytes, not the {declared} it declares")
         except Exception as exc:
             self._bad_chunk(start, f"chunk at byte {start} failed its CRC check: its {chunk.compression or 'plain'} "
                                    f"data are corrupt ({exc or type(exc).__name__}), so no CRC can match")
+            return
+        if len(data) > declared:  # a bomb: stopped one byte past what it declares, its CRC never computed
+            self.problem("too_large", start, f"chunk at byte {start} decompresses to more than {declared} bytes, not "
+                                             f"the {declared} it declares: refused as a decompression bomb (stopped "
+                                             f"after {len(data)} bytes; its CRC is not checked)")
+            raise _Stop
+        if len(data) < declared:
+            self._bad_chunk(start, f"chunk at byte {start} decompresses to {len(data)} bytes, not the {declared} it "
+                                   f"declares: its {chunk.compression or 'plain'} data are cut or corrupt")
             return
         self.decompressed += declared
         if self.validate and chunk.uncompressed_crc != 0:
@@ -477,9 +506,9 @@ class McapWalk:
         if IN_PLACE_CHUNKS:
             self._chunk_records(data, start)
         else:
-            self._chunk_records_stream(data, start)
+            self._chunk_recordsstream_of(data, start)
 
-    def _chunk_records_stream(self, data: bytes, start: int) -> None:
+    def _chunk_recordsstream_of(self, data: bytes, start: int) -> None:
         """The former chunk parser (a second ``StreamReader`` over the decompressed bytes, a record object per
         record), kept for ``benchmarks/bench_mission_overhead.py`` (:data:`IN_PLACE_CHUNKS` off)."""
         inner = io.BytesIO(data)
@@ -617,5 +646,7 @@ __all__ = [
     "ScanResult",
     "decompress_bounded",
     "decompressed_budget",
+    "map_file",
+    "open_regular",
     "read_file",
 ]

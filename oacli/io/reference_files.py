@@ -24,9 +24,23 @@ from oacli.types import Trajectory
 _DAT_PARTS = {"pos": 3, "vel": 3, "ori": 4, "ome": 3}
 
 
+#: Largest reference table read [bytes] (RATTLE's files are tens of KiB).
+MAX_TABLE_BYTES = 64 * 1024 * 1024
+
+
 def _load_table(path: Path, delimiter: str | None = None) -> np.ndarray:
+    import io
+    import os
+
+    from oacli.io.regular_files import open_regular
+
+    fd = open_regular(path, "a reference table")  # a FIFO or a device: exit 2 without blocking
+    with os.fdopen(fd, "rb") as f:
+        raw = f.read(MAX_TABLE_BYTES + 1)
+    if len(raw) > MAX_TABLE_BYTES:
+        raise InputError(f"{path}: larger than {MAX_TABLE_BYTES} bytes; not a reference table")
     try:
-        data = np.loadtxt(path, delimiter=delimiter, ndmin=2)
+        data = np.loadtxt(io.StringIO(raw.decode("utf-8")), delimiter=delimiter, ndmin=2)
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot read a numeric table ({exc})") from exc
     if not np.all(np.isfinite(data)):

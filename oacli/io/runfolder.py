@@ -28,7 +28,7 @@ from oacli.errors import InputError, OacliError
 from oacli.io.atomic import write_text_atomic
 from oacli.io.jsonsafe import to_json_safe
 from oacli.io.mcap_write import StageMcapWriter
-from oacli.signals import describe_interruption
+from oacli.signals import describe_interruption, note_recorded
 from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED
 
 
@@ -113,10 +113,30 @@ def git_commit() -> str:
     return commit + ("-dirty" if dirty.returncode == 0 and dirty.stdout.strip() else "")
 
 
+#: ``summary.json`` files this process wrote with a complete status (resolved path -> status): a signal arriving
+#: after one is written never turns it into ``interrupted`` or ``failed`` (:func:`write_summary`).
+_RECORDED: dict[Path, str] = {}
+
+
 def write_summary(run_dir: Path, summary: Mapping[str, Any], filename: str = "summary.json") -> Path:
-    """Write ``summary`` as strict JSON (NaN → null), atomically; returns the path."""
+    """Write ``summary`` as strict JSON (NaN → null), atomically; returns the path.
+
+    A summary with a complete status (:data:`oacli.status.COMPLETE_STATUSES`) is final: should this process then
+    try to replace it by an ``interrupted`` or ``failed`` one (a signal arriving after the run was recorded, while
+    the stage or mission returns), the complete one is kept and :func:`oacli.signals.note_recorded` says so (the
+    CLI's line: ``interrupted after the run was recorded``).
+    """
     path = Path(run_dir) / filename
+    key = path.absolute()
+    status = summary.get("status")
+    if status not in COMPLETE_STATUSES and key in _RECORDED and path.is_file():
+        note_recorded(path, _RECORDED[key])
+        return path
     write_text_atomic(path, json.dumps(to_json_safe(summary), indent=2, allow_nan=False) + "\n")
+    if status in COMPLETE_STATUSES:
+        _RECORDED[key] = str(status)
+    else:
+        _RECORDED.pop(key, None)
     return path
 
 
@@ -188,6 +208,9 @@ class StageRun:
         self.stage = stage
         self.run_dir = run_dir
         self.files: dict[str, Path] = {}
+        #: What each record holds, by role, when the stage is stopped (``complete`` or ``journal``): the
+        #: interrupted summary's ``records`` (e.g. ``{"mcap": "journal"}``: track.mcap is the journal kept).
+        self.records: dict[str, str] = {}
         self.config_yaml = config_yaml
         self.seed = seed
         self.config_name = config_name
@@ -302,12 +325,55 @@ def open_stage_run(
         else:
             status, reason = FAILED, f"{type(exc).__name__}: {exc}"
         try:
-            write_summary(run.run_dir, {"stage": stage, "status": status, "error": reason,
-                                        "wall_time_s": time.perf_counter() - run._start,
-                                        "files": {k: p.name for k, p in run.files.items() if p.exists()}})
+            files = {k: p.name for k, p in run.files.items() if p.exists()}
+            interrupted = {"stage": stage, "status": status, "error": reason,
+                           "wall_time_s": time.perf_counter() - run._start, "files": files}
+            records = {k: v for k, v in run.records.items() if k in files or v.startswith("journal")}
+            if records:
+                interrupted["records"] = records
+            write_summary(run.run_dir, interrupted)
         except (OSError, OacliError) as err:  # e.g. the disk is full: report the first error, not this one
             exc.add_note(f"(the {status} summary.json could not be written either: {err})")
         raise
+
+
+#: Largest ``summary.json`` read [bytes] (a stage writes a few KiB).
+MAX_SUMMARY_BYTES = 16 * 1024 * 1024
+
+
+def read_summary_file(path: Path) -> dict[str, Any]:
+    """A ``summary.json`` as a mapping; anything else (a FIFO, a device, a folder, binary data, invalid JSON, more than
+    :data:`MAX_SUMMARY_BYTES`, not a mapping) is an :class:`InputError` naming the file (exit 2), read without
+    blocking.
+
+    Parameters
+    ----------
+    path : Path
+        The file.
+
+    Returns
+    -------
+    dict
+    """
+    import os
+
+    from oacli.io.regular_files import open_regular
+
+    fd = open_regular(path, "a summary.json file")
+    try:
+        with os.fdopen(fd, "rb") as f:
+            data = f.read(MAX_SUMMARY_BYTES + 1)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+    if len(data) > MAX_SUMMARY_BYTES:
+        raise InputError(f"{path}: larger than {MAX_SUMMARY_BYTES} bytes; not a summary.json oacli wrote")
+    try:
+        summary = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise InputError(f"{path}: not a JSON summary ({type(exc).__name__}: {str(exc)[:120]})") from None
+    if not isinstance(summary, dict):
+        raise InputError(f"{path}: not a JSON summary (the top level is not a mapping)")
+    return summary
 
 
 def is_complete(run_dir: Path) -> bool:

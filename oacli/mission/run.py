@@ -28,6 +28,7 @@ from oacli.errors import InputError, OacliError
 from oacli.io import mcap_memo
 from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
+from oacli.io.folder_lock import folder_lock
 from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
 from oacli.mission.compare import comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
@@ -36,6 +37,7 @@ from oacli.mission.plots import write_mission_plots
 from oacli.mission.recording import write_mission_recording
 from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
 from oacli.model.robot_model import RobotModel
+from oacli.signals import held
 from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED, OK, StatusReport
 
 ProgressFactory = Callable[[str], Callable[[float], None] | None]
@@ -307,7 +309,7 @@ def run_mission(
     The stage MCAPs this run writes are remembered while it runs (:mod:`oacli.io.mcap_memo`): the hand-offs, the
     comparison rows, the recording and the plots read them back without walking the files again (same records).
     """
-    with mcap_memo.remembering():
+    with folder_lock(mission_dir, "mission"), mcap_memo.remembering():  # one process at a time (exit 2)
         return _run_mission(cfg, mission_dir, progress=progress, announce=announce)
 
 
@@ -354,7 +356,8 @@ def _run_mission(
         records = load_mission_records(mission_dir, summary)  # once for both (the stage MCAPs are cached)
         write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary,
                                 recording_name=f"{cfg.name}/mission", records=records)
-        plots = write_mission_plots(mission_dir, summary, records=records) if cfg.outputs.mission_pngs else {}
+        with held():  # matplotlib can swallow an interruption raised inside its drawing: raised after the PNGs
+            plots = write_mission_plots(mission_dir, summary, records=records) if cfg.outputs.mission_pngs else {}
         summary["files"]["rrd"] = "mission.rrd"
         summary["files"]["plots"] = {k: str(p.relative_to(mission_dir)) for k, p in plots.items()}
         summary["wall_time_s"] = time.perf_counter() - wall

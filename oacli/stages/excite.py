@@ -253,13 +253,13 @@ def _run_offline(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             except InfeasibleError:
                 journal.commit()
                 raise
-            journal.discard()
-        return _offline_outputs(cfg, problem, limits, design, stage_run())
+            # The journal stays the record until the complete file is in place (StageJournal.replaced_by).
+            return _offline_outputs(cfg, problem, limits, design, stage_run(), journal)
 
 
 def _offline_outputs(cfg: OacliConfig, problem: ExcitationProblem, limits: DesignLimits, design: ExcitationDesign,
-                     run: StageRun) -> StageResult:
-    """Summary, MCAP, recording and plots of an offline design in its run folder."""
+                     run: StageRun, journal: ExciteJournal | None = None) -> StageResult:
+    """Summary, MCAP, recording and plots of an offline design in its run folder (the MCAP replaces ``journal``)."""
     log: list[LogEntry] = [
         (0.0, "info", f"excitation design: {problem.steps} steps of {problem.dt:.4g} s, criterion {problem.criterion} "
                       f"({problem.scaling}), {len(design.iterations)} SCP iterations ({design.accepted_iterations} "
@@ -300,7 +300,8 @@ def _offline_outputs(cfg: OacliConfig, problem: ExcitationProblem, limits: Desig
     }
     offline_findings(summary, problem).apply(summary)
     log.extend(status_log(summary))
-    with run.open_mcap(method="offline") as writer:
+    mcap = run.open_mcap(method="offline")
+    with mcap if journal is None else journal.replaced_by(mcap) as writer:
         crb = write_offline_topics(writer, problem, design, log, cfg.environment.frame)
     scp = ScpSteps(np.array([it.criterion for it in design.iterations]),
                    np.array([it.candidate_criterion for it in design.iterations]), design.initial.x[:, 0:3])
@@ -406,8 +407,8 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         )
         journal.flush()
         summary, traj, log = _rattle_summary(cfg, problem, design_lim, run, prior_cov, theta_true)
-        journal.discard()  # before the complete file is written: the disk never holds both
-        _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true)
+        # the journal stays the record until the complete file is in place (StageJournal.replaced_by)
+        _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true, journal)
         t_info, info = gathered_information(run.estimates, prior_cov)
         robot_lim = robot_limit_set(cfg.robot)
         if cfg.outputs.plots:
@@ -566,7 +567,8 @@ def rattle_findings(summary: dict[str, Any], problem: ExcitationProblem, run: Ra
 
 
 def _write_rattle_outputs(stage_run: StageRun, cfg: OacliConfig, problem: ExcitationProblem, run: RattleRun,
-                          traj: Trajectory, log: list[LogEntry], prior_cov: np.ndarray, theta_true: np.ndarray) -> None:
+                          traj: Trajectory, log: list[LogEntry], prior_cov: np.ndarray, theta_true: np.ndarray,
+                          journal: RattleJournal | None = None) -> None:
     tel = run.telemetry
     est_t = np.array([0.0] + [e.t for e in run.estimates])
     prior_info = np.linalg.inv(prior_cov)
@@ -575,7 +577,8 @@ def _write_rattle_outputs(stage_run: StageRun, cfg: OacliConfig, problem: Excita
     # The flown trajectory's samples are the control instants (plus the end): information at the same instants.
     idx = np.clip(np.searchsorted(est_t, traj.t + 1e-9) - 1, 0, len(est_t) - 1)
     info_traj = info[idx]
-    with stage_run.open_mcap(method="rattle") as writer:
+    mcap = stage_run.open_mcap(method="rattle")
+    with mcap if journal is None else journal.replaced_by(mcap) as writer:
         plans = {f"plan_{i}": r.plan.trajectory.x[:, 0:3] for i, r in enumerate(run.replans)}
         writer.write_scene(problem.scene, {"flown": tel.x_true[:, 0:3], **plans})
         writer.write_trajectory("/trajectory", traj)

@@ -322,7 +322,7 @@ def run_plan(
 
     log: list[LogEntry] = design_limit_log(limits)
     # The tree's growth goes to the MCAP while the search runs (oacli.stages.plan_journal); the journal is
-    # deleted just before the complete file is written.
+    # deleted once the complete file is in place (StageJournal.replaced_by).
     with (open_run("plan", cfg, out=out, runs_root=runs_root, started=wall_start) as run,
           PlanJournal(run.open_mcap) as journal):
         rng = np.random.default_rng([cfg.seed, PLAN_STREAM])
@@ -371,8 +371,7 @@ def run_plan(
             add_output_trajectory_reasons(report, summary, "plan")
         report.apply(summary)
         log.extend(status_log(summary))
-        journal.discard()
-        with run.open_mcap() as writer:
+        with journal.replaced_by(run.open_mcap()) as writer:  # the journal stays until the complete file is in place
             write_plan_topics(writer, scene, result, output, summary, log)
         write_plan_recording(
             run.file("rrd", "plan.rrd"), scene=scene, start=seg.start[0:3], goal=seg.goal[0:3], result=result,

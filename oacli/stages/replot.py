@@ -22,7 +22,6 @@ the run folder (a mission folder that was moved or copied keeps its stage folder
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -51,13 +50,12 @@ SMOOTH_INPUT_TOPIC = "/trajectory/input"
 
 def read_summary(folder: Path) -> dict[str, Any]:
     """``folder/summary.json``, or an :class:`~oacli.errors.InputError` naming the folder and the reason."""
+    from oacli.io.runfolder import read_summary_file
+
     path = Path(folder) / "summary.json"
-    try:
-        summary = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{folder}: no summary.json: not an oacli run folder") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: unreadable: {exc}") from None
+    if not path.exists() and not path.is_symlink():
+        raise InputError(f"{folder}: no summary.json: not an oacli run folder")
+    summary = read_summary_file(path)  # a FIFO, a device, binary data: exit 2 without blocking
     if not isinstance(summary, dict) or "stage" not in summary:
         raise InputError(f"{path}: no 'stage' entry: not an oacli run summary")
     return summary

@@ -32,6 +32,7 @@ from oacli.model.limits import MotionLimits
 from oacli.phases import set_phase
 from oacli.reference import waypoint_reference
 from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
+from oacli.signals import held
 from oacli.sim.simulator import simulate
 from oacli.sim.stall import with_stall
 from oacli.stages.faults import fault_arguments
@@ -258,8 +259,8 @@ def run_track(
 
     with open_run("track", cfg, out=out, runs_root=runs_root, started=wall_start) as run:
         # The per-step topics go to the MCAP while the simulation runs (a killed run leaves a readable file);
-        # the complete file is written at the end and replaces the journal (oacli.stages.track_journal).
-        with TrackJournal(run.open_mcap(), reference) as journal:
+        # the complete file is written at the end and then replaces the journal (oacli.stages.track_journal).
+        with TrackJournal(run.open_mcap(), reference, run=run) as journal:
             rng = np.random.default_rng(cfg.seed)
             set_phase(progress, "closed-loop simulation")
             tel = simulate(
@@ -299,11 +300,9 @@ def run_track(
                         f"{summary['solver_failures']} solver failures, "
                         f"{summary['constraint_violations']} constraint violations; status {summary['status']}"))
             log.extend(status_log(summary, float(tel.t_true[-1])))
-            # The journal goes before the complete file is written, so the disk never holds both (a full disk
-            # fails where it did without the journal); a crash while writing leaves the complete file's
-            # temporary, every topic in time order up to its last chunk.
-            journal.discard()
-            with run.open_mcap() as writer:
+            # The journal stays the record until the complete file is in place (TrackJournal.replaced_by): a
+            # signal at any moment leaves one or the other, and the interrupted summary says which.
+            with journal.replaced_by(run.open_mcap()) as writer:
                 writer.reuse_encoded(journal.encoded)  # the rows the journal wrote are encoded once
                 write_track_topics(writer, reference, tel, scene, log, monitor, history, flown)
             write_track_recording(
@@ -312,9 +311,10 @@ def run_track(
                 extra=None if monitor is None or history is None else tube_layers(monitor, history),
                 blueprint=None if design is None else tube_track_blueprint, controller=cfg.controller.type,
             )
-            if cfg.outputs.plots:
-                write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,
-                                  robot_radius_m=float(cfg.robot.radius_m))
+            if cfg.outputs.plots:  # held: matplotlib turns an interruption inside its drawing into an error
+                with held():  # (a lost signal, a missing PNG); it is raised once the figures are written
+                    write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,
+                                      robot_radius_m=float(cfg.robot.radius_m))
             return run.finish(summary)
 
 

@@ -9,30 +9,39 @@ the simulation (SIGKILL, power loss) thus leaves a ``.partial`` MCAP that the ``
 complete chunk (``oacli logs recover`` turns it into a valid file).
 
 The complete ``track.mcap`` is still written at the end from the whole run (topics that need it: the scene's flown
-path, the summary-derived log, tube topics, flown sensors), merged by time over the whole file; the journal is
-deleted just before (:meth:`TrackJournal.discard`), so the disk never holds both. The topics both files hold are
-encoded once: the complete file takes the journal's JSON payloads where its rows are exactly the journal's
-(:attr:`TrackJournal.encoded`, :class:`oacli.io.mcap_write.EncodedRows`). A crash during that last write
-leaves the complete file's temporary (every topic in time order up to its last complete chunk).
+path, the summary-derived log, tube topics, flown sensors), merged by time over the whole file, beside the journal
+(:meth:`TrackJournal.replaced_by`): the journal stays the record until the complete file is in place, and is
+deleted right after its rename (the rename and the deletion are one :class:`oacli.signals.atomic` step). So a
+signal at any moment leaves either the complete file or the journal (kept as ``track.mcap``, or, should closing it
+fail, its ``.partial`` that ``oacli logs recover`` reads), and the ``interrupted`` summary says which
+(``"records": {"mcap": "complete" | "journal" | "journal-partial"}``). The topics both files hold are encoded
+once: the complete file takes the journal's JSON payloads where its rows are exactly the journal's
+(:attr:`TrackJournal.encoded`, :class:`oacli.io.mcap_write.EncodedRows`). While the complete file is written the
+disk holds both (about twice the MCAP's size).
 
 Ctrl-C or a termination signal (a :class:`KeyboardInterrupt`, :mod:`oacli.signals`) during the simulation keeps the
 journal as ``track.mcap``: the steps still buffered are written, then a ``/log`` warning naming the interruption, and
 the file is closed valid (summary section, CRCs) next to the ``interrupted`` ``summary.json``, as ``plan`` and
-``excite`` do (:mod:`oacli.stages.stage_journal`). Each step is taken whole (:class:`oacli.signals.atomic`), so an
-interruption never finds the buffers half updated.
+``excite`` do (:mod:`oacli.stages.stage_journal`). So does a complete file that cannot be written (a full disk: the
+journal then stays the record, next to the ``failed`` summary). Each step is taken whole
+(:class:`oacli.signals.atomic`), so an interruption never finds the buffers half updated.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
+from oacli.io.atomic import WriteError
 from oacli.io.mcap_io import StageMcapWriter
 from oacli.io.mcap_write import EncodedRows
+from oacli.io.runfolder import StageRun
 from oacli.signals import atomic
-from oacli.stages.stage_journal import keep_interrupted
+from oacli.stages.stage_journal import journal_partial, keep_interrupted, replace_journal
 from oacli.trajectory import sample_inputs
 from oacli.types import SolveInfo, Trajectory
 
@@ -55,10 +64,14 @@ class TrackJournal:
         A time-ordered writer, not yet entered, on the stage's MCAP path; never committed (see :meth:`discard`).
     reference : Trajectory
         The reference followed (its inputs are written on ``/reference``, as the final file does).
+    run : StageRun, optional
+        The stage's run: told what its MCAP holds when the stage is stopped (:attr:`StageRun.records`).
     """
 
-    def __init__(self, writer: StageMcapWriter, reference: Trajectory) -> None:
+    def __init__(self, writer: StageMcapWriter, reference: Trajectory, *, run: StageRun | None = None) -> None:
         self._writer = writer
+        self._run = run
+        self._final_failed = False  # the complete file could not be written: the journal stays the record
         self._reference = reference
         #: JSON payloads of the sample records written, for the complete file (``StageMcapWriter.reuse_encoded``).
         self.encoded: EncodedRows = writer.keep_encoded()
@@ -77,8 +90,8 @@ class TrackJournal:
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
-        if isinstance(exc, KeyboardInterrupt):
-            self.keep(exc)
+        if isinstance(exc, KeyboardInterrupt) or (isinstance(exc, WriteError) and self._final_failed):
+            self.keep(exc)  # interrupted, or the complete file could not be written (a full disk): the record
         else:
             self.discard()
 
@@ -88,8 +101,34 @@ class TrackJournal:
         raises."""
         if not self._open:
             return
-        keep_interrupted(self._writer, interruption, write_last=self._close_buffers, log_time_s=lambda: self._t_last,
-                         what="the simulation")
+        left = keep_interrupted(self._writer, interruption, write_last=self._close_buffers,
+                                log_time_s=lambda: self._t_last, what="the simulation")
+        if self._run is not None:
+            self._run.records["mcap"] = "journal" if left is None else "journal-partial"
+            if left is not None:
+                self._run.files["journal"] = left
+
+    def replaced_by(self, writer: StageMcapWriter) -> contextlib.AbstractContextManager[StageMcapWriter]:
+        """Write the complete MCAP with ``writer`` (not yet entered, on the same final name) while the journal stays
+        the record; when the block ends, the complete file is renamed into place and the journal deleted as one
+        :class:`oacli.signals.atomic` step (:func:`oacli.stages.stage_journal.replace_journal`)."""
+
+        def discard() -> None:
+            if self._run is not None:
+                self._run.records["mcap"] = "complete"
+            self.discard()
+
+        return self._guard_final(replace_journal(writer, discard))
+
+    @contextlib.contextmanager
+    def _guard_final(self, inner: contextlib.AbstractContextManager[StageMcapWriter]) -> Iterator[StageMcapWriter]:
+        """Note a :class:`WriteError` of the complete file (e.g. no space left): the journal is then kept."""
+        try:
+            with inner as writer:
+                yield writer
+        except WriteError:
+            self._final_failed = True
+            raise
 
     def _close_buffers(self) -> None:
         """Write every buffered step (the last one's plant samples too), then mark the journal closed."""
@@ -154,10 +193,15 @@ class TrackJournal:
         self._last_flush = time.monotonic()
 
     def discard(self) -> None:
-        """Close the journal and delete its file (the complete MCAP replaces it)."""
+        """Close the journal and delete its file (the complete MCAP replaced it, or the stage failed)."""
         if self._open:
             self._open = False
             self._writer.__exit__(_Discarded, _Discarded("journal discarded"), None)
+
+    @property
+    def partial(self) -> Any:
+        """The journal's temporary file while it is open (``.track.mcap.<random>.partial``), else None."""
+        return journal_partial(self._writer) if self._open else None
 
     @property
     def writer(self) -> Any:
