@@ -222,10 +222,11 @@ def run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | N
         (:mod:`oacli.io.folder_lock`) is held while the runs fly, so two resumes never fly a run twice.
     """
     with folder_lock(Path(folder), "campaign"):
-        return _run_campaign(Path(folder), handle, announce=announce)
+        return _run_campaign(Path(folder), handle, announce=announce, progress=progress)
 
 
-def _run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | None = None) -> dict[int, dict]:
+def _run_campaign(folder: Path, handle: ExecutorHandle, *, announce: Announce | None = None,
+                  progress: Callable[[int, int], None] | None = None) -> dict[int, dict]:
     campaign = load_existing(folder)
     cfg = campaign.config
     if not (folder / "runs.json").exists():
