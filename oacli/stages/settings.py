@@ -22,8 +22,9 @@ Eq. 28), :mod:`oacli.reference_limits`:
 
 * ``excite``: the design's model is ``excitation.prior`` (mass default ``robot.mass_kg``), so ``m_prior`` is that
   mass and σ_m the square root of its variance ``excitation.prior.variance[0]``;
-* ``plan`` and ``smooth``: the model is ``robot.mass_kg``; σ_m is the prior standard deviation of the mass the
-  estimator starts from, ``sqrt(estimation.prior.mass_variance_kg2)`` (its mean defaults to the robot's).
+* ``plan`` and ``smooth``: the model is ``robot.mass_kg``, known unless said otherwise: σ_m is
+  ``planner.margin.mass_std_kg``, default 0 (a robot without payload is not derated through another section's
+  default variance; the mission sets it to the σ_m of each segment's model: the prior's, then the estimate's).
 
 ``<section>.margin.mass_std_kg`` overrides σ_m (0 for a model known exactly); ``controller.tube.disturbance.
 mass_std_kg`` is not used: it is the spread of the estimate the tube's disturbance set W is sized for, not a
@@ -347,9 +348,9 @@ def planner_design_limits(cfg: OacliConfig) -> DesignLimits:
     DesignLimits
     """
     p = cfg.planner
-    model = robot_model(cfg)
-    return resolve_design_limits(cfg.robot, p.margin, [("planner.limits", p.limits)], mass_prior_kg=model.mass_kg,
-                                 default_mass_std_kg=model.mass_std_kg, margin_path="planner.margin")
+    return resolve_design_limits(cfg.robot, p.margin, [("planner.limits", p.limits)],
+                                 mass_prior_kg=cfg.robot.mass_kg, default_mass_std_kg=0.0,
+                                 margin_path="planner.margin")
 
 
 def design_limit_log(limits: DesignLimits) -> list[tuple[float, str, str]]:
