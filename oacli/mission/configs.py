@@ -172,6 +172,47 @@ def _prior_sections(prior: RobotModel) -> dict[str, Any]:
     return {"excitation": {"prior": dict(section)}, "estimation": {"prior": dict(section)}}
 
 
+MAX_RATE_MARGIN = 0.8
+"""Most of the angular-rate limit the controllers keep free (``controller.rate_margin`` must stay below 0.9)."""
+
+
+def inertia_margin_sections(model: RobotModel, n_sigma: float, data: dict[str, Any]) -> dict[str, Any]:
+    """Margins for a plant whose inertias lie anywhere in the model's ``n_sigma`` range (``rate_margin_sigmas``).
+
+    With ``k = 1 / (1 + n σ_I / I)`` (the largest relative σ of the three principal inertias), i.e. ``I / I_upper``:
+
+    * ``controller.rate_margin = 1 − k``: the attitude MPC constrains the predicted rate to ``k`` × the limit, the
+      room an under-modelled inertia's overshoot takes;
+    * ``excitation.margin``: the rate share × ``k`` (the reference stays inside the controllers' constraint) and the
+      torque share × ``k`` (a plant with ``I_upper`` needs ``I_upper / I`` times the model's torque for the same
+      angular acceleration: [Doerr2021] Eq. 35b, as Eq. 28 does for the mass and the force).
+
+    Parameters
+    ----------
+    model : RobotModel
+        The controllers' model (mean and covariance).
+    n_sigma : float
+        n_σ; 0: no margin (an empty dict).
+    data : dict
+        The stage's config data (the excitation shares it lowers).
+
+    Returns
+    -------
+    dict
+        Sections to deep-merge.
+    """
+    if n_sigma <= 0:
+        return {}
+    rel = float(np.max(n_sigma * model.std[1:4] / model.inertia_kgm2))
+    margin = min(1.0 - 1.0 / (1.0 + rel), MAX_RATE_MARGIN)
+    keep = 1.0 - margin
+    share = data["excitation"]["margin"]
+    return {"controller": {"rate_margin": margin},
+            "excitation": {"margin": {
+                "reference_angular_velocity_fraction": share["reference_angular_velocity_fraction"] * keep,
+                "reference_torque_fraction": share["reference_torque_fraction"] * keep}}}
+
+
 def _tube_force_cap(data: dict[str, Any]) -> list[float]:
     """Segment 3's planner force cap: :data:`REFERENCE_SHARE` of the tube's nominal force limit (the tube MPC flies
     the plan; a plan asking more than its nominal input can give is followed late, and the flight does not arrive),
@@ -241,6 +282,7 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         sets["controller"]["type"] = "mpc" if stage.name == "baseline-mpc-prior" else "tube"
     if model is not None:
         sets["reference"] = reference_within_model(data["reference"], data["robot"], model, mission.w_sigmas)
+        sets = deep_merge(sets, inertia_margin_sections(model, mission.rate_margin_sigmas, data))
     if stage.segment == "segment-3":
         sets = deep_merge(sets, {"planner": {"limits": {"force_N": _tube_force_cap(data)}}})
     if stage.command == "track" and handoff.reference is not None:

@@ -189,6 +189,28 @@ def tracking_limits(cfg: OacliConfig) -> MotionLimits:
     return robot_model(cfg).limits
 
 
+def controller_limits(cfg: OacliConfig, model: RobotModel) -> MotionLimits:
+    """The limits the tracking controllers constrain: ``model``'s, the angular rate lowered by
+    ``controller.rate_margin`` (room for the overshoot of a plant whose inertia differs from the model's).
+
+    The plant's saturation and the safety check keep the robot's own limits.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+    model : RobotModel
+        The controller's model.
+
+    Returns
+    -------
+    MotionLimits
+    """
+    lim = model.limits
+    keep = 1.0 - cfg.controller.rate_margin
+    return MotionLimits(lim.force_N, lim.torque_Nm, lim.velocity_mps, lim.angular_velocity_radps * keep)
+
+
 def tracking_weights(cfg: OacliConfig) -> TrackingWeights:
     """The tracking controllers' weights (``controller.weights``).
 
