@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from oacli.config import OacliConfig, dump_config
-from oacli.errors import InputError, OacliError
+from oacli.errors import InfeasibleError, InputError, OacliError
 from oacli.io import mcap_memo
 from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
@@ -37,7 +37,7 @@ from oacli.mission.recording import write_mission_recording
 from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
 from oacli.mission.verdict import MissionStageError, stage_verdict, stop_reason
 from oacli.model.robot_model import RobotModel
-from oacli.status import COMPLETE_STATUSES, DEGRADED, FAILED, INTERRUPTED
+from oacli.status import COMPLETE_STATUSES, DEGRADED, FAILED, INTERRUPTED, NO_SOLUTION
 
 ProgressFactory = Callable[[str], Callable[[float], None] | None]
 """Given a stage's key, the progress callback for that stage (or None)."""
@@ -463,8 +463,8 @@ def _run_mission(
         interrupted = isinstance(exc, KeyboardInterrupt)
         reason = "; ".join(exc.problems) if isinstance(exc, OacliError) else f"{type(exc).__name__}: {exc}"
         where = current or "mission outputs"
-        verdict.add(INTERRUPTED if interrupted else FAILED, "interrupted" if interrupted else "failed",
-                    f"{where}: {reason}")
+        level = INTERRUPTED if interrupted else NO_SOLUTION if isinstance(exc, InfeasibleError) else FAILED
+        verdict.add(level, "interrupted" if interrupted else "failed", f"{where}: {reason}")
         failed = verdict.apply({"stage": "mission", "name": cfg.name, "seed": cfg.seed, "error": reason,
                                 "failed_stage": where,
                                 "stages": {k: {"status": v.get("status")} for k, v in results.items()},
