@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.config import load_config
 from oacli.io.mcap_io import read_stage, read_trajectory
-from oacli.stages.settings import excitation_design_limits, planner_design_limits
+from oacli.stages.design_limits import excitation_design_limits, planner_design_limits
 from oacli.trajectory import feedforward_inputs
 from oacli.types import InertialParams
 from tests.conftest import REPO

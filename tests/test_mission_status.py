@@ -104,7 +104,7 @@ def test_unsafe_wins_over_a_later_failure():
 
 def test_a_batch_estimate_that_failed_is_not_handed_on(mission_run, tmp_path):
     """Not converged, no covariance: segment 3 gets the prior (mean and covariance), with a plain message."""
-    run, cfg_path, _ = mission_run
+    run, _, _ = mission_run
     cfg = load_config(run / "config.yaml")
     good = learned_model(cfg, run)
     assert good.source == "estimate" and good.note is None
@@ -164,7 +164,7 @@ def test_rate_margin_from_the_models_inertia_sigma():
 
 def test_a_known_robot_is_not_derated_by_a_default_prior_variance():
     """`oacli plan` on the bare robot: the force design limit is the reference share of the robot's, not 44 %."""
-    from oacli.stages.settings import planner_design_limits
+    from oacli.stages.design_limits import planner_design_limits
 
     cfg = load_config(ROOT / "configs" / "iss_reswarm.yaml")
     lim = planner_design_limits(cfg)
@@ -201,3 +201,47 @@ def test_the_issues_probes_complete_or_stop_safely(name, sets, tmp_path):
         arrived = row["arrival_time_s"] is not None
         assert arrived == (summary["status"] != "failed")
         assert (not arrived) == any(r["kind"] == "not_arrived" for r in summary["status_reasons"])
+
+
+def test_the_envelope_campaign_samples_the_envelope_uniformly(tmp_path):
+    """configs/campaign_payload_envelope.yaml: ≥ 100 runs, each a valid mission config whose grasped payload lies
+    in the envelope of docs/mission.md (10-30 kg, 0.5-4× the bare inertias, physical, CoM within 5 cm per axis of
+    the measured offset, axes turned by at most 0.3 rad), spread over all of it, with the flight's sensor noise."""
+    from scipy.spatial.transform import Rotation
+
+    from oacli.campaign.driver import load_campaign, prepare
+
+    campaign = load_campaign(ROOT / "configs" / "campaign_payload_envelope.yaml", [])
+    assert campaign.config.runs >= 100 and campaign.config.dispersions.distribution == "uniform"
+    n = 80
+    campaign = load_campaign(ROOT / "configs" / "campaign_payload_envelope.yaml", [f"runs={n}"])
+    folder = prepare(campaign, out=tmp_path / "dry", runs_root=tmp_path)
+    bare = np.array([0.153427995, 0.14271405, 0.162302759])
+    base = yaml.safe_load((ROOT / "configs" / "mission_iss.yaml").read_text())
+    com0 = np.array(base["truth"]["com_offset_m"])
+    masses, scales, angles = [], [], []
+    for k in range(n):
+        spec = json.loads((folder / "runs" / f"run-{k:05d}" / "spec.json").read_text())
+        data = spec["config"]
+        cfg = config_from_dict(data, source=f"run {k}")  # valid
+        masses.append(cfg.mission.grasped.mass_kg)
+        tensor = np.array(spec["draws"]["inertia_tensor_kgm2"])
+        principal, axes = np.linalg.eigh(tensor)
+        assert 2 * principal.max() <= principal.sum() + 1e-12  # a physical body
+        scales.append(np.sort(principal) / np.sort(bare))
+        # the rotation that diagonalises the tensor, its smallest angle over the axes' orderings and signs
+        best = np.inf
+        for perm in ([0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]):
+            for signs in np.array(np.meshgrid([1, -1], [1, -1], [1, -1])).T.reshape(-1, 3):
+                r = axes[:, perm] * signs
+                if np.linalg.det(r) > 0:
+                    best = min(best, np.linalg.norm(Rotation.from_matrix(r).as_rotvec()))
+        angles.append(best)
+        assert np.all(np.abs(np.array(cfg.truth.com_offset_m) - com0) <= 0.05 + 1e-12)
+        assert cfg.sensors.angular_velocity_std_radps == base["sensors"]["angular_velocity_std_radps"]
+    masses = np.array(masses)
+    assert masses.min() >= 10.0 - 1e-9 and masses.max() <= 30.0 + 1e-9
+    assert masses.min() < 12.0 and masses.max() > 28.0  # spread over the range (P(miss) < 1e-3 if uniform)
+    ratio = np.array([np.asarray(s) for s in scales])
+    assert ratio.min() > 0.5 * 0.9 and ratio.max() < 4.0 * 1.1 and ratio.max() > 3.0 and ratio.min() < 0.8
+    assert max(angles) <= 0.3 + 1e-6 and max(angles) > 0.2

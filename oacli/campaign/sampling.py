@@ -138,8 +138,8 @@ def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[s
     if d.principal_axes_rad > 0:
         rng_a = substream(s, k, "dispersion/principal_axes")
         if uniform:  # an angle uniform in [0, max] about a uniformly drawn axis
-            axis = rng_a.standard_normal(3)
-            rotvec = d.principal_axes_rad * rng_a.uniform() * axis / np.linalg.norm(axis)
+            direction = rng_a.standard_normal(3)
+            rotvec = d.principal_axes_rad * rng_a.uniform() * direction / np.linalg.norm(direction)
         else:
             rotvec = d.principal_axes_rad * rng_a.standard_normal(3)
         rot = Rotation.from_rotvec(rotvec).as_matrix()

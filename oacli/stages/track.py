@@ -34,13 +34,13 @@ from oacli.reference import waypoint_reference
 from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
 from oacli.sim.simulator import simulate
 from oacli.sim.stall import with_stall
+from oacli.stages.design_limits import robot_limit_set
 from oacli.stages.faults import fault_arguments
 from oacli.stages.flown_sensors import FlownSensors, flown_sensors, write_flown_sensor_topics
 from oacli.stages.settings import (
     controller_limits,
     open_run,
     plant_disturbance,
-    robot_limit_set,
     robot_model,
     sensor_noise,
     tracking_weights,
