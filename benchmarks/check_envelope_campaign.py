@@ -1,6 +1,6 @@
 """Independent check of a payload-envelope campaign (issue 29): every flown track MCAP against the limits.
 
-For each run folder of a finished ``oacli campaign`` (``runs/run-*/mission``), reads every track stage's MCAP
+For each run folder of a finished ``oacli campaign`` (``runs/run-*/attempt-N/mission``, the last attempt), reads every track stage's MCAP
 (the mission's own flights and the baselines, reported apart) and checks the *true* state at every plant sample and
 the applied input at every control step, with its own arithmetic (not oacli's metrics): the robot's centre inside
 the keep-in boxes (the union, shrunk by ``environment.keep_in_margin_m``), the body (radius ``robot.radius_m``)
@@ -97,7 +97,8 @@ def main() -> None:
     args = parser.parse_args()
     rows: list[dict[str, Any]] = []
     for run in sorted((args.campaign / "runs").glob("run-*")):
-        mission = run / "mission"
+        attempts = sorted(run.glob("attempt-*/mission"), key=lambda p: int(p.parent.name.split("-")[1]))
+        mission = attempts[-1] if attempts else run / "mission"
         summary_path = mission / "summary.json"
         row: dict[str, Any] = {"run": run.name}
         if not summary_path.exists():
@@ -130,7 +131,8 @@ def main() -> None:
     print(f"arrived at A within 2 cm: {arrived}/{n} ({100 * arrived / max(n, 1):.0f} %)")
     for r in rows:
         if not r.get("arrived"):
-            print(f"    {r['run']}: {r['status']}, reasons {r.get('reasons')}, final distance {r.get('final_distance_m')}")
+            print(f"    {r['run']}: {r['status']}, reasons {r.get('reasons')}, "
+                  f"final distance {r.get('final_distance_m')}")
     errs = [r["mass_error_pct"] for r in rows if r.get("mass_error_pct") is not None]
     if errs:
         print(f"batch mass error: median {statistics.median(errs):.3g} %, max {max(errs):.3g} % ({len(errs)} runs)")
