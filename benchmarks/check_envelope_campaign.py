@@ -1,7 +1,7 @@
 """Independent check of a payload-envelope campaign (issue 29): every flown track MCAP against the limits.
 
-For each run folder of a finished ``oacli campaign`` (``runs/run-*/attempt-N/mission``, the last attempt), reads every track stage's MCAP
-(the mission's own flights and the baselines, reported apart) and checks the *true* state at every plant sample and
+For each run folder of a finished ``oacli campaign`` (``runs/run-*/attempt-N/mission``, the last attempt), reads
+the mission's own flights' track MCAPs and checks the *true* state at every plant sample and
 the applied input at every control step, with its own arithmetic (not oacli's metrics): the robot's centre inside
 the keep-in boxes (the union, shrunk by ``environment.keep_in_margin_m``), the body (radius ``robot.radius_m``)
 outside every keep-out ellipsoid (exact distance by minimisation where the grown-ellipsoid test flags a sample),
