@@ -116,6 +116,12 @@ def test_a_batch_estimate_that_failed_is_not_handed_on(mission_run, tmp_path):
     assert bad.source == "prior" and bad.model == prior_model(cfg)
     assert "did not converge" in bad.note and "no covariance" in bad.note
     assert "e+" not in bad.note and "inf" not in bad.note  # no sentinel numbers
+    # No estimate at all (the stage refused: θ unobservable from the telemetry): the prior too, and the mission
+    # counts the handled failure as degraded, not failed.
+    none = learned_model(cfg, _copy_until(run, tmp_path / "n", "segment-2/estimate-sequential"))
+    assert none.source == "prior" and "failed" in none.note
+    handled = {"stage": "estimate", "status": "failed", "error": "unobservable", "handled": True}
+    assert stage_verdict({"segment-2/estimate": handled}, ["segment-2/estimate"]).status == "degraded"
     stage_cfg = stage_config(cfg, stage_by_key("segment-3/track"), Handoff(reference=Path("r.mcap"),
                                                                            estimate=bad.model))
     assert stage_cfg.controller.tube.disturbance.mass_std_kg == pytest.approx(prior_model(cfg).mass_std_kg)

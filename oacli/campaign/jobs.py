@@ -254,7 +254,8 @@ def mission_metrics(folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
                              for kind in ("keep_in", "keep_out", "limits")}
     for key in ("tube_violations", "tube_violations_true", "fallback_steps", "solver_failures"):
         metrics[key] = sum(m[key] for m in per_track.values())
-    metrics["estimate"] = estimate_metrics(summary["estimate"]) if summary.get("estimate") else None
+    estimate = summary.get("estimate") or {}
+    metrics["estimate"] = estimate_metrics(estimate) if estimate.get("mass_kg") is not None else None
     metrics["segments"] = per_track
     arrays: list[np.ndarray] = []
     for key in sorted(tracks):

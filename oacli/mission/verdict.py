@@ -54,6 +54,9 @@ class MissionVerdict:
         status = summary.get("status")
         if status == OK:
             return
+        if summary.get("handled"):  # a failure the mission worked around (an estimate not handed on)
+            self.add(DEGRADED, f"{summary.get('stage', 'stage')}_failed", f"{key}: {summary.get('error')}")
+            return
         reasons = summary.get("status_reasons") or [
             {"level": status, "kind": "stage", "message": str(summary.get("error") or f"ended {status}")}]
         for r in reasons:
