@@ -70,15 +70,16 @@ def test_an_unsafe_stage_stops_the_mission_with_exit_4(mission_run, tmp_path):
 
 
 def test_a_failing_stage_is_failed_exit_1_not_2_and_keeps_the_earlier_findings(mission_run, tmp_path):
-    """The telemetry segment 2's estimators read is gone: the mission fails at segment-2/estimate-sequential with
-    exit 1 (its config was valid), and its summary keeps the earlier stages' findings beside the error."""
+    """The estimate's MCAP segment 3 reads its model from is gone: the mission fails at segment-3/plan with exit 1
+    (its config was valid; the stage's InputError would say 2), and its summary keeps the earlier stages'
+    findings beside the error."""
     run, _, _ = mission_run
-    out = _copy_until(run, tmp_path / "m", "segment-2/track")
-    (out / "segment-2" / "track" / "track.mcap").unlink()
+    out = _copy_until(run, tmp_path / "m", "segment-2/estimate")
+    (out / "segment-2" / "estimate" / "estimate.mcap").unlink()
     result = RUNNER.invoke(app, ["mission", str(out), "--resume", "--quiet"])
     assert result.exit_code == 1, result.output
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["status"] == "failed" and summary["failed_stage"] == "segment-2/estimate-sequential"
+    assert summary["status"] == "failed" and summary["failed_stage"] == "segment-3/plan"
     kinds = [r["kind"] for r in summary["status_reasons"]]
     assert kinds[0] == "failed"
     earlier = json.loads((run / "segment-2" / "track" / "summary.json").read_text())
