@@ -213,6 +213,17 @@ def inertia_margin_sections(model: RobotModel, n_sigma: float, data: dict[str, A
                 "reference_torque_fraction": share["reference_torque_fraction"] * keep}}}
 
 
+def _connection_s(data: dict[str, Any], model: RobotModel, n_sigma: float) -> float:
+    """Segment 3's longest LQR-RRT* connection [s]: the file's ``planner.max_connection_s`` (tuned for the
+    ``robot:`` of the file) × ``sqrt(m_upper / m_robot)``, never shorter. A rest-to-rest move of length d at
+    acceleration a takes ``2 sqrt(d / a)``, and a heavier model at the same force accelerates ``m_robot / m_upper``
+    times slower: without it, a 25 kg payload's plan found no connection within the iteration budget."""
+    base, dt = float(data["planner"]["max_connection_s"]), float(data["planner"]["steer_dt_s"])
+    m_upper = model.mass_kg + n_sigma * model.mass_std_kg
+    scaled = base * max(1.0, float(np.sqrt(m_upper / float(data["robot"]["mass_kg"]))))
+    return max(base, dt * float(np.ceil(scaled / dt - 1e-9)))  # a whole number of steering steps
+
+
 def _tube_force_cap(data: dict[str, Any]) -> list[float]:
     """Segment 3's planner force cap: the tube's nominal force limit ``controller.tube.force_limit_N`` (the tube MPC
     flies the plan; a heavy payload's plan asking more than the tube's nominal input can give was followed late and
@@ -285,7 +296,9 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         sets["reference"] = reference_within_model(data["reference"], data["robot"], model, mission.w_sigmas)
         sets = deep_merge(sets, inertia_margin_sections(model, mission.rate_margin_sigmas, data))
     if stage.segment == "segment-3":
-        sets = deep_merge(sets, {"planner": {"limits": {"force_N": _tube_force_cap(data)}}})
+        assert model is not None
+        sets = deep_merge(sets, {"planner": {"limits": {"force_N": _tube_force_cap(data)},
+                                             "max_connection_s": _connection_s(data, model, mission.w_sigmas)}})
     if stage.command == "track" and handoff.reference is not None:
         sets = deep_merge(sets, {"reference": {"source": "file", "file": str(handoff.reference)}})
     # The stage's input file and method in its config, as its command records them: the folder's config.yaml alone
