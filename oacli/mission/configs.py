@@ -225,14 +225,17 @@ def _connection_s(data: dict[str, Any], model: RobotModel, n_sigma: float) -> fl
 
 
 def _tube_force_cap(data: dict[str, Any]) -> list[float]:
-    """Segment 3's planner force cap: the tube's nominal force limit ``controller.tube.force_limit_N`` (the tube MPC
-    flies the plan; a heavy payload's plan asking more than the tube's nominal input can give was followed late and
-    never arrived), never above the file's own ``planner.limits.force_N`` or the robot's limit (the design limit
-    applies where it is lower). Not lower: a tighter cap (0.8 × the tube's)
-    made LQR-RRT* need 4× the iterations and the plan 60 % longer for the default mission."""
+    """Segment 3's planner force cap: :data:`REFERENCE_SHARE` of the tube's nominal force limit
+    ``controller.tube.force_limit_N``, never above the file's own ``planner.limits.force_N`` or the robot's limit.
+
+    The tube MPC flies the plan, and segment 3 starts where segment 2's true state ended (up to 0.58 m from C for a
+    25 kg payload on the 14.5 kg prior): a plan asking the whole nominal force leaves none to catch up, and such a
+    flight overshot A by 0.24 m and never arrived; with 80 % it arrives.
+    """
     tube = data["controller"]["tube"].get("force_limit_N") or data["robot"]["force_limit_N"]
     own = data["planner"].get("limits", {}).get("force_N") or data["robot"]["force_limit_N"]
-    return [float(min(t, o, r)) for t, o, r in zip(tube, own, data["robot"]["force_limit_N"], strict=True)]
+    return [float(min(REFERENCE_SHARE * t, o, r))
+            for t, o, r in zip(tube, own, data["robot"]["force_limit_N"], strict=True)]
 
 
 def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, source: str = "mission") -> OacliConfig:
