@@ -52,8 +52,9 @@ from oacli.excitation.rattle import InformationAwarePlanner, InformationWeightin
 from oacli.io.reference_files import load_csv
 from oacli.mission.configs import Handoff, stage_config
 from oacli.mission.layout import stage_by_key
+from oacli.stages.design_limits import motion_limits
 from oacli.stages.excite import excitation_problem, run_excite
-from oacli.stages.settings import motion_limits, scp_settings
+from oacli.stages.settings import scp_settings
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "rattle-iros-2022" / "info-trajectories"

@@ -28,11 +28,11 @@ from benchmarks.bench_planners import SCENE_NAMES, scene_config  # noqa: E402
 from oacli.planning.lqr_rrt_star import plan_lqr_rrt_star  # noqa: E402
 from oacli.planning.polish import polish_trajectory  # noqa: E402
 from oacli.planning.shortcut import lqr_shortcut  # noqa: E402
+from oacli.stages.design_limits import planner_design_limits  # noqa: E402
 from oacli.stages.plan import PLAN_STREAM, SMOOTH_STREAM, build_problem, resolve_segment  # noqa: E402
 from oacli.stages.settings import (  # noqa: E402
     cost_weights,
     lqr_rrt_star_settings,
-    planner_design_limits,
     polish_settings,
     shortcut_connector,
 )

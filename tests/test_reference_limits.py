@@ -22,7 +22,7 @@ from oacli.reference_limits import (
     mass_upper_bound_kg,
     required_inputs,
 )
-from oacli.stages.settings import excitation_design_limits, planner_design_limits, robot_limit_set
+from oacli.stages.design_limits import excitation_design_limits, planner_design_limits, robot_limit_set
 from oacli.stages.track import check_reference_for_plant
 from oacli.trajectory import feedforward_inputs
 from oacli.types import InertialParams, Trajectory
@@ -94,13 +94,18 @@ def test_iss_preset_excitation_limits_follow_the_excitation_prior():
     np.testing.assert_allclose(rattle.limits.torque_Nm, np.minimum(0.015, 0.8 * ROBOT.torque_Nm))
 
 
-def test_planner_limits_use_the_robot_mass_and_the_estimation_prior_std():
+def test_planner_limits_use_the_robot_mass_and_only_the_planners_own_std():
+    """The robot is known unless planner.margin says otherwise: no derating through the estimator prior's default
+    variance (15 kg², issue 29: a plan with no payload was 50 % slower); a given σ_m derates by Eq. 28's bound."""
     data = iss_dict()
     cfg = config_from_dict(data)
     m = cfg.robot.mass_kg
     lim = planner_design_limits(cfg)
-    np.testing.assert_allclose(lim.limits.force_N, ROBOT.force_N * 0.8 * m / (m + 2.0 * math.sqrt(15.0)))
+    np.testing.assert_allclose(lim.limits.force_N, ROBOT.force_N * 0.8)
     np.testing.assert_allclose(lim.limits.velocity_mps, 0.18)
+    data["planner"]["margin"] = {"mass_std_kg": math.sqrt(15.0)}
+    lim = planner_design_limits(config_from_dict(data))
+    np.testing.assert_allclose(lim.limits.force_N, ROBOT.force_N * 0.8 * m / (m + 2.0 * math.sqrt(15.0)))
     # A model known exactly (σ_m = 0) keeps only the feedback share.
     data["planner"]["margin"] = {"mass_std_kg": 0.0, "reference_force_fraction": 1.0}
     lim = planner_design_limits(config_from_dict(data))

@@ -22,7 +22,7 @@ from oacli.errors import ConfigError
 from oacli.model.limits import MotionLimits
 from oacli.model.robot_model import RobotModel
 from oacli.reference_limits import mass_upper_bound_kg
-from oacli.stages import settings
+from oacli.stages import design_limits, settings
 
 REPO = Path(__file__).resolve().parents[1]
 INERTIA = np.array([0.153427995, 0.14271405, 0.162302759])  # [AstrobeeFSW] iss.config
@@ -160,9 +160,15 @@ def test_robot_and_truth_models_from_the_preset(iss):
     np.testing.assert_array_equal(t.theta, [truth.mass_kg, *truth.inertia_kgm2])
     np.testing.assert_array_equal(t.covariance, np.zeros((4, 4)))
     np.testing.assert_array_equal(t.input_limits, m.input_limits)
-    # the planner's σ_m is the model's (module docstring of oacli.stages.settings)
-    limits = settings.planner_design_limits(iss)
-    assert limits.margin.mass_std_kg == m.mass_std_kg == math.sqrt(est["mass_variance_kg2"])
+    # the planner's robot is known: no derating through the estimator's prior variance (issue 29); a σ_m given in
+    # planner.margin is used (module docstring of oacli.stages.settings)
+    limits = design_limits.planner_design_limits(iss)
+    assert limits.margin.mass_std_kg == 0.0 and limits.margin.mass_ratio == 1.0
+    assert m.mass_std_kg == math.sqrt(est["mass_variance_kg2"]) > 0
+    given = iss.model_copy(update={"planner": iss.planner.model_copy(update={
+        "margin": iss.planner.margin.model_copy(update={"mass_std_kg": 2.0})})})
+    margin = design_limits.planner_design_limits(given).margin
+    assert margin.mass_upper_kg == iss.robot.mass_kg + 2 * 2.0
 
 
 def test_priors_apply_their_section_mean_over_the_robot(iss):

@@ -77,7 +77,7 @@ def summarize(cfg: CampaignConfig, final: dict[int, dict[str, Any]], runs_index:
     """
     counts = dict.fromkeys(STATUSES, 0)
     for rec in final.values():
-        counts[rec["status"]] += 1
+        counts[rec["status"]] = counts.get(rec["status"], 0) + 1  # a mission may end no_solution too
     missing = cfg.runs - len(final)
     completed = [rec for rec in final.values() if rec["status"] in manifest.COMPLETED]
     metrics = [rec["metrics"] for rec in completed if rec.get("metrics")]

@@ -244,15 +244,18 @@ def mission_metrics(folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
 
     summary = json.loads((folder / "summary.json").read_text())
     tracks = {k: json.loads((stage_by_key(k).folder(folder) / "summary.json").read_text())
-              for k in summary["stages"] if k.endswith("/track")}
+              for k, v in summary["stages"].items() if k.endswith("/track") and v.get("status") != "not_run"}
     per_track = {k: track_metrics(v) for k, v in tracks.items()}
-    metrics = dict(per_track["segment-3/track"])
+    metrics = dict(per_track.get("segment-3/track") or {})  # a mission stopped before segment 3 (issue 29)
     metrics["status"] = summary.get("status")
+    if summary.get("stopped"):
+        metrics["stopped"] = summary["stopped"]
     metrics["violations"] = {kind: sum(m["violations"][kind] for m in per_track.values())
                              for kind in ("keep_in", "keep_out", "limits")}
     for key in ("tube_violations", "tube_violations_true", "fallback_steps", "solver_failures"):
         metrics[key] = sum(m[key] for m in per_track.values())
-    metrics["estimate"] = estimate_metrics(summary["estimate"])
+    estimate = summary.get("estimate") or {}
+    metrics["estimate"] = estimate_metrics(estimate) if estimate.get("mass_kg") is not None else None
     metrics["segments"] = per_track
     arrays: list[np.ndarray] = []
     for key in sorted(tracks):

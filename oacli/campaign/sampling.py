@@ -90,6 +90,15 @@ def _tensor_sets(job: str, tensor: np.ndarray) -> dict[str, Any]:
     return {"truth": {"inertia_tensor_kgm2": rows}}
 
 
+MAX_INERTIA_DRAWS = 100
+"""Draws of the principal inertias before giving up on the triangle inequalities (the last draw is kept)."""
+
+
+def _unit(rng: np.random.Generator, shape: tuple[int, ...], uniform: bool) -> Any:
+    """A standard normal draw, or a uniform one on [-1, 1] (the dispersion's value is then the half-width)."""
+    return rng.uniform(-1.0, 1.0, shape) if uniform else rng.standard_normal(shape)
+
+
 def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[str, Any]:
     """Draw run ``k``: its config (plain data, validated later) and a record of every draw.
 
@@ -115,15 +124,24 @@ def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[s
     data["name"] = f"{campaign.name}-run-{k:05d}"[:64]
     mass_keys, inertia_keys = _plant_keys(campaign.job)
 
+    uniform = d.distribution == "uniform"
     mass0 = float(_get(data, mass_keys))
-    mass = mass0 * (1.0 + 0.01 * d.mass_pct * substream(s, k, "dispersion/mass").standard_normal())
+    mass = mass0 * (1.0 + 0.01 * d.mass_pct * _unit(substream(s, k, "dispersion/mass"), (), uniform))
     inertia0 = np.asarray(_get(data, inertia_keys), dtype=float)
-    inertia = inertia0 * (1.0 + 0.01 * np.asarray(d.inertia_pct) * substream(s, k, "dispersion/inertia")
-                          .standard_normal(3))
+    rng_i = substream(s, k, "dispersion/inertia")
+    for _ in range(MAX_INERTIA_DRAWS):
+        inertia = inertia0 * (1.0 + 0.01 * np.asarray(d.inertia_pct) * _unit(rng_i, (3,), uniform))
+        if np.all(inertia > 0) and 2 * np.max(inertia) <= np.sum(inertia):  # the triangle inequalities
+            break
     _set(data, mass_keys, float(mass))
     draws["mass_kg"] = float(mass)
     if d.principal_axes_rad > 0:
-        rotvec = d.principal_axes_rad * substream(s, k, "dispersion/principal_axes").standard_normal(3)
+        rng_a = substream(s, k, "dispersion/principal_axes")
+        if uniform:  # an angle uniform in [0, max] about a uniformly drawn axis
+            direction = rng_a.standard_normal(3)
+            rotvec = d.principal_axes_rad * rng_a.uniform() * direction / np.linalg.norm(direction)
+        else:
+            rotvec = d.principal_axes_rad * rng_a.standard_normal(3)
         rot = Rotation.from_rotvec(rotvec).as_matrix()
         tensor = rot @ np.diag(inertia) @ rot.T
         tensor = 0.5 * (tensor + tensor.T)
@@ -135,7 +153,7 @@ def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[s
 
     truth = data.setdefault("truth", {})
     com0 = np.asarray(truth.get("com_offset_m") or (0.0, 0.0, 0.0), dtype=float)
-    com = com0 + np.asarray(d.com_offset_m) * substream(s, k, "dispersion/com_offset").standard_normal(3)
+    com = com0 + np.asarray(d.com_offset_m) * _unit(substream(s, k, "dispersion/com_offset"), (3,), uniform)
     truth["com_offset_m"] = [float(v) for v in np.clip(com, -0.05, 0.05)]
 
     scale0 = np.asarray(truth.get("actuator_scale") or (1.0,) * 6, dtype=float)

@@ -38,13 +38,17 @@ def print_mission_tables(summary: dict[str, Any]) -> None:
     summary : dict
         The mission's summary.
     """
-    typer.echo(f"mission {summary['name']}: status {summary['status']}, {summary['mission_time_s']:.1f} s of robot "
-               f"time in {summary.get('wall_time_s', 0.0):.1f} s")
+    robot_time = summary.get("mission_time_s")
+    flown = "" if robot_time is None else f", {robot_time:.1f} s of robot time"
+    typer.echo(f"mission {summary['name']}: status {summary['status']}{flown} in "
+               f"{summary.get('wall_time_s', 0.0):.1f} s")
+    if summary.get("stopped"):
+        typer.echo(f"stopped: {summary['stopped']}")
     width = max(len(k) for k in summary["stages"])
     for key, entry in summary["stages"].items():
         wall = entry.get("wall_time_s")
         typer.echo(f"  {key:<{width}}  {entry['status']:<10} {'' if wall is None else f'{wall:7.1f} s'}")
-    est = summary["estimate"]
+    est = summary.get("estimate") or {}
     if est.get("error_pct"):
         typer.echo("estimate (batch) error %: " + format_value(est["error_pct"])
                    + "   (flight, [ReSWARM2023]: mass 0.39, inertias 0.91 / 1.35 / 6.92)")

@@ -53,7 +53,13 @@ def _broadcast6(value: Any) -> Any:
 
 
 class DispersionsConfig(Section):
-    """1σ of the dispersions, relative to the base config's values (0: not dispersed). Every draw is normal."""
+    """1σ of the dispersions, relative to the base config's values (0: not dispersed). Every draw is normal, or,
+    with ``distribution: uniform``, uniform over ± the value (an envelope: docs/mission.md)."""
+
+    distribution: Literal["normal", "uniform"] = Field(
+        default="normal", description="normal: each value is 1σ of a normal draw; uniform: the half-width of a "
+        "uniform draw (principal_axes_rad: the largest rotation angle, about a uniformly drawn axis; inertias "
+        "breaking a triangle inequality are drawn again).")
 
     mass_pct: NonNegativeReal = Field(
         default=0.0, description="Plant mass (robot + payload after the grasp) [% of the base value].")

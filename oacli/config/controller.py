@@ -8,7 +8,16 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
-from oacli.config.fields import PositiveReal, Section, StrictBool, StrictInt, Weight3, none_to, read_only
+from oacli.config.fields import (
+    NonNegativeReal,
+    PositiveReal,
+    Section,
+    StrictBool,
+    StrictInt,
+    Weight3,
+    none_to,
+    read_only,
+)
 from oacli.config.tube import TubeConfig
 
 MAX_HORIZON = 500
@@ -67,6 +76,13 @@ class ControllerConfig(Section):
     )
     tube: Annotated[TubeConfig, none_to({})] = Field(
         default_factory=TubeConfig, description="Robust tube MPC settings (used when type is 'tube')."
+    )
+    rate_margin: Annotated[NonNegativeReal, Field(lt=0.9)] = Field(
+        default=0.0,
+        description="Share of robot.angular_velocity_limit_radps the controller keeps free, in [0, 0.9): its "
+        "attitude MPC constrains the predicted rate to (1 - rate_margin) x the limit, so a plant whose inertia "
+        "differs from the model's overshoots into the margin, not past the limit (the safety check still uses the "
+        "limit itself). The mission sets it from the model's inertia σ (mission.rate_margin_sigmas).",
     )
 
     @property

@@ -39,8 +39,8 @@ class ReferenceMarginConfig(Section):
     mass_std_kg: NonNegativeReal | None = Field(
         default=None,
         description="σ_m: standard deviation of the prior mass [kg], >= 0. Default: the prior the designer's model "
-        "comes from (excitation: sqrt(excitation.prior.variance[0]); planner: "
-        "sqrt(estimation.prior.mass_variance_kg2)); 0 = the model mass is exact.",
+        "comes from (excitation: sqrt(excitation.prior.variance[0]); planner: 0, the robot model known; the mission "
+        "sets it to each segment's model σ_m); 0 = the model mass is exact.",
     )
     mass_sigmas: PositiveReal = Field(
         default=2.0, description="n_σ of m_upper = m_prior + n_σ·σ_m (Doerr 2021 Eq. 28: 2), > 0."

@@ -97,6 +97,12 @@ class MissionConfig(Section):
         default=2.0, description="The tubes' W from this many σ of the model's mass: the prior's in segment 2, the "
         "estimate's in segment 3 ([Doerr2021] Eq. 28 uses 2).",
     )
+    rate_margin_sigmas: NonNegativeReal = Field(
+        default=0.0, description="Rates kept under inertia error: after the grasp, the controllers keep "
+        "1 - 1/(1 + n σ_I/I) of the angular-rate limit free (controller.rate_margin) and the excitation's rate and "
+        "torque shares shrink by I/(I + n σ_I), with this many σ of the model's inertias (the largest relative σ); "
+        "0: no margin.",
+    )
     settle_s: NonNegativeReal = Field(
         default=2.0, description="Tracking time after each reference's end (simulation.settle_time_s) [s]."
     )

@@ -138,6 +138,7 @@ def comparison_row(key: str, summary: dict[str, Any], mission_dir: Path) -> dict
         "control_effort_Ns": effort,
         "time_saturated_s": saturated,
         "arrival_time_s": arrival_time_s(tel.t_true, tel.x_true[:, 0:3], goal, ARRIVAL_TOLERANCE_M),
+        "final_distance_m": float(np.linalg.norm(tel.x_true[-1, 0:3] - goal)),
         "duration_s": float(tel.t_true[-1]),
         "keep_in_violations": int(violations.get("keep_in", 0)),
         "keep_out_violations": int(violations.get("keep_out", 0)),

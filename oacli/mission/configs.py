@@ -110,14 +110,59 @@ def prior_model(cfg: OacliConfig) -> RobotModel:
         np.array([prior.mass_kg, *prior.inertia_kgm2]), np.diag(variance))
 
 
+REFERENCE_SHARE = 0.8
+"""Share of the smallest force (torque) limit the reference section's acceleration (angular acceleration) may ask
+of the heaviest plausible plant (the rest for the feedback, as ``reference_force_fraction``)."""
+
+
 def _model_sections(model: RobotModel, w_sigmas: float) -> dict[str, Any]:
-    """The config entries that make ``model`` the controller's model, with its σ in the estimator prior and W."""
+    """The config entries that make ``model`` (mean *and* covariance) the controller's and the planner's model.
+
+    The tube's W from ``w_sigmas`` σ of its mass ([Doerr2021] Eq. 28); the planner's design limits derated by the
+    same model's σ_m (``planner.margin.mass_std_kg``: the uncertainty of *this* model, not an unrelated section's
+    default); the reference section's accelerations within the limits for the heaviest plausible plant
+    (:func:`reference_within_model`).
+    """
     theta = model.theta
     std = model.std
     return {
         "robot": {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]]},
         "controller": {"tube": {"disturbance": {"mass_std_kg": float(std[0]), "mass_sigmas": float(w_sigmas)}}},
+        "planner": {"margin": {"mass_std_kg": float(std[0])}},
     }
+
+
+def reference_within_model(reference: dict[str, Any], robot: dict[str, Any], model: RobotModel,
+                           n_sigma: float) -> dict[str, Any]:
+    """The reference section's accelerations lowered so the heaviest plausible plant follows them.
+
+    ``acceleration_mps2 ≤ φ · min F / m_upper`` and ``angular_acceleration_radps2 ≤ φ · min τ / max I_upper`` with
+    ``m_upper = m + n_σ σ_m``, ``I_upper = I + n_σ σ_I`` ([Doerr2021] Eq. 28's bound; φ = :data:`REFERENCE_SHARE`):
+    the section then holds for whatever model a segment is handed (a heavy payload no longer makes a valid mission
+    config invalid in segment 3). Never raised above the file's values.
+
+    Parameters
+    ----------
+    reference : dict
+        The stage's ``reference`` section (plain data).
+    robot : dict
+        Its ``robot`` section (the limits).
+    model : RobotModel
+        The segment's model.
+    n_sigma : float
+        n_σ of the bounds.
+
+    Returns
+    -------
+    dict
+        ``{"acceleration_mps2": …, "angular_acceleration_radps2": …}``.
+    """
+    m_upper = model.mass_kg + n_sigma * model.mass_std_kg
+    i_upper = float(np.max(model.inertia_kgm2 + n_sigma * model.std[1:4]))
+    acc = REFERENCE_SHARE * min(robot["force_limit_N"]) / m_upper
+    ang = REFERENCE_SHARE * min(robot["torque_limit_Nm"]) / i_upper
+    return {"acceleration_mps2": min(float(reference["acceleration_mps2"]), acc),
+            "angular_acceleration_radps2": min(float(reference["angular_acceleration_radps2"]), ang)}
 
 
 def _prior_sections(prior: RobotModel) -> dict[str, Any]:
@@ -125,6 +170,72 @@ def _prior_sections(prior: RobotModel) -> dict[str, Any]:
     section = {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
                "mass_variance_kg2": float(var[0]), "inertia_variance_kg2m4": [float(v) for v in var[1:4]]}
     return {"excitation": {"prior": dict(section)}, "estimation": {"prior": dict(section)}}
+
+
+MAX_RATE_MARGIN = 0.8
+"""Most of the angular-rate limit the controllers keep free (``controller.rate_margin`` must stay below 0.9)."""
+
+
+def inertia_margin_sections(model: RobotModel, n_sigma: float, data: dict[str, Any]) -> dict[str, Any]:
+    """Margins for a plant whose inertias lie anywhere in the model's ``n_sigma`` range (``rate_margin_sigmas``).
+
+    With ``k = 1 / (1 + n σ_I / I)`` (the largest relative σ of the three principal inertias), i.e. ``I / I_upper``:
+
+    * ``controller.rate_margin = 1 − k``: the attitude MPC constrains the predicted rate to ``k`` × the limit, the
+      room an under-modelled inertia's overshoot takes;
+    * ``excitation.margin``: the rate share × ``k`` (the reference stays inside the controllers' constraint) and the
+      torque share × ``k`` (a plant with ``I_upper`` needs ``I_upper / I`` times the model's torque for the same
+      angular acceleration: [Doerr2021] Eq. 35b, as Eq. 28 does for the mass and the force).
+
+    Parameters
+    ----------
+    model : RobotModel
+        The controllers' model (mean and covariance).
+    n_sigma : float
+        n_σ; 0: no margin (an empty dict).
+    data : dict
+        The stage's config data (the excitation shares it lowers).
+
+    Returns
+    -------
+    dict
+        Sections to deep-merge.
+    """
+    if n_sigma <= 0:
+        return {}
+    rel = float(np.max(n_sigma * model.std[1:4] / model.inertia_kgm2))
+    margin = min(1.0 - 1.0 / (1.0 + rel), MAX_RATE_MARGIN)
+    keep = 1.0 - margin
+    share = data["excitation"]["margin"]
+    return {"controller": {"rate_margin": margin},
+            "excitation": {"margin": {
+                "reference_angular_velocity_fraction": share["reference_angular_velocity_fraction"] * keep,
+                "reference_torque_fraction": share["reference_torque_fraction"] * keep}}}
+
+
+def _connection_s(data: dict[str, Any], model: RobotModel, n_sigma: float) -> float:
+    """Segment 3's longest LQR-RRT* connection [s]: the file's ``planner.max_connection_s`` (tuned for the
+    ``robot:`` of the file) × ``sqrt(m_upper / m_robot)``, never shorter. A rest-to-rest move of length d at
+    acceleration a takes ``2 sqrt(d / a)``, and a heavier model at the same force accelerates ``m_robot / m_upper``
+    times slower: without it, a 25 kg payload's plan found no connection within the iteration budget."""
+    base, dt = float(data["planner"]["max_connection_s"]), float(data["planner"]["steer_dt_s"])
+    m_upper = model.mass_kg + n_sigma * model.mass_std_kg
+    scaled = base * max(1.0, float(np.sqrt(m_upper / float(data["robot"]["mass_kg"]))))
+    return max(base, dt * float(np.ceil(scaled / dt - 1e-9)))  # a whole number of steering steps
+
+
+def _tube_force_cap(data: dict[str, Any]) -> list[float]:
+    """Segment 3's planner force cap: :data:`REFERENCE_SHARE` of the tube's nominal force limit
+    ``controller.tube.force_limit_N``, never above the file's own ``planner.limits.force_N`` or the robot's limit.
+
+    The tube MPC flies the plan, and segment 3 starts where segment 2's true state ended (up to 0.58 m from C for a
+    25 kg payload on the 14.5 kg prior): a plan asking the whole nominal force leaves none to catch up, and such a
+    flight overshot A by 0.24 m and never arrived; with 80 % it arrives.
+    """
+    tube = data["controller"]["tube"].get("force_limit_N") or data["robot"]["force_limit_N"]
+    own = data["planner"].get("limits", {}).get("force_N") or data["robot"]["force_limit_N"]
+    return [float(min(REFERENCE_SHARE * t, o, r))
+            for t, o, r in zip(tube, own, data["robot"]["force_limit_N"], strict=True)]
 
 
 def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, source: str = "mission") -> OacliConfig:
@@ -171,7 +282,9 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
     else:
         sets["truth"] = grasped
         sets = deep_merge(sets, _prior_sections(prior))
+    model: RobotModel | None = None  # the controller's model after the grasp (None: the robot's, segment 1)
     if stage.segment == "segment-2":
+        model = prior
         sets = deep_merge(sets, _model_sections(prior, mission.w_sigmas))
         sets = deep_merge(sets, {"controller": {"type": "tube"}, "excitation": {"start": b, "goal": c}})
         if mission.excitation_method is not None:
@@ -182,8 +295,15 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         model = prior if stage.name.endswith("-prior") else learned
         sets = deep_merge(sets, _model_sections(model, mission.w_sigmas))
         sets["controller"]["type"] = "mpc" if stage.name == "baseline-mpc-prior" else "tube"
+    if model is not None:
+        sets["reference"] = reference_within_model(data["reference"], data["robot"], model, mission.w_sigmas)
+        sets = deep_merge(sets, inertia_margin_sections(model, mission.rate_margin_sigmas, data))
+    if stage.segment == "segment-3":
+        assert model is not None
+        sets = deep_merge(sets, {"planner": {"limits": {"force_N": _tube_force_cap(data)},
+                                             "max_connection_s": _connection_s(data, model, mission.w_sigmas)}})
     if stage.command == "track" and handoff.reference is not None:
-        sets["reference"] = {"source": "file", "file": str(handoff.reference)}
+        sets = deep_merge(sets, {"reference": {"source": "file", "file": str(handoff.reference)}})
     # The stage's input file and method in its config, as its command records them: the folder's config.yaml alone
     # reruns it (``oacli smooth RUN/segment-1/smooth/config.yaml``, ``oacli estimate .../estimate/config.yaml``).
     if stage.command == "smooth" and handoff.plan is not None:

@@ -24,21 +24,22 @@ from typing import Any
 import numpy as np
 
 from oacli.config import OacliConfig, dump_config
-from oacli.errors import InputError, OacliError
+from oacli.errors import InfeasibleError, InputError, OacliError
 from oacli.io import mcap_memo
 from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
 from oacli.io.folder_lock import folder_lock
 from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
-from oacli.mission.compare import comparison_row
+from oacli.mission.compare import ARRIVAL_TOLERANCE_M, comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
 from oacli.mission.layout import MISSION_STAGES, SEGMENTS, MissionStage, stage_by_key
 from oacli.mission.plots import write_mission_plots
 from oacli.mission.recording import write_mission_recording
 from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
+from oacli.mission.verdict import MissionStageError, stage_verdict, stop_reason
 from oacli.model.robot_model import RobotModel
 from oacli.signals import held
-from oacli.status import COMPLETE_STATUSES, FAILED, INTERRUPTED, OK, StatusReport
+from oacli.status import COMPLETE_STATUSES, DEGRADED, FAILED, INTERRUPTED, NO_SOLUTION
 
 ProgressFactory = Callable[[str], Callable[[float], None] | None]
 """Given a stage's key, the progress callback for that stage (or None)."""
@@ -113,6 +114,92 @@ def estimate_model(cfg: OacliConfig, estimate_mcap: Path) -> RobotModel:
     return prior_model(cfg).with_estimate(theta, np.asarray(final["covariance"], dtype=float))
 
 
+@dataclass(frozen=True)
+class LearnedModel:
+    """What segment 3 is handed: the learned model, or the prior when the estimate failed.
+
+    Attributes
+    ----------
+    model : RobotModel
+        θ and its covariance segment 3 plans, tubes and tracks with.
+    source : str
+        ``estimate`` (the batch estimate) or ``prior`` (the fallback).
+    note : str or None
+        Why the estimate was not handed on (None when it was).
+    """
+
+    model: RobotModel
+    source: str
+    note: str | None = None
+
+    def summary(self) -> dict[str, Any]:
+        """The ``learned_model`` entry of the mission's summary."""
+        m = self.model
+        return {"source": self.source, "mass_kg": m.mass_kg, "mass_std_kg": m.mass_std_kg,
+                "inertia_kgm2": [float(v) for v in m.inertia_kgm2], "inertia_std_kgm2": [float(v) for v in m.std[1:]],
+                "note": self.note}
+
+
+def estimate_failures(estimate: dict[str, Any]) -> list[str]:
+    """Why a batch estimate's summary must not be handed on (empty: it may).
+
+    Parameters
+    ----------
+    estimate : dict
+        ``segment-2/estimate/summary.json``.
+
+    Returns
+    -------
+    list of str
+        ``did not converge``, ``has no covariance (θ not identified)``: plain words, no sentinel numbers.
+    """
+    out = []
+    if estimate.get("converged") is False:
+        out.append(f"did not converge (within {estimate.get('iterations', '?')} iterations)")
+    if estimate.get("covariance_identified") is False:
+        out.append("has no covariance (θ not identified by the telemetry)")
+    std = estimate.get("std") or {}
+    if any(v is None or not np.isfinite(v) for v in std.values()):
+        if not out:
+            out.append("has no finite standard deviation")
+    return out
+
+
+def learned_model(cfg: OacliConfig, mission_dir: Path) -> LearnedModel:
+    """The model segment 3 is handed: the batch estimate (θ and covariance), or the prior when it failed.
+
+    A batch estimate that did not converge, identifies no covariance, or is not physical is not handed on:
+    segment 3 then flies the conservative model, the prior (its mean and covariance, the range W and the design
+    margins of segment 2 were sized for), and the mission says so (``learned_model.note``, status ``degraded``).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        The mission config.
+    mission_dir : Path
+        The mission folder (``segment-2/estimate`` complete in it).
+
+    Returns
+    -------
+    LearnedModel
+    """
+    folder = stage_by_key("segment-2/estimate").folder(Path(mission_dir))
+    if is_complete(folder):
+        problems = estimate_failures(_read_summary(folder))
+    else:  # the stage refused (e.g. θ unobservable from the telemetry): no estimate at all
+        problems = ["failed (no estimate from segment 2's telemetry)"]
+    if not problems:
+        try:
+            return LearnedModel(estimate_model(cfg, stage_by_key("segment-2/estimate").mcap(Path(mission_dir))),
+                                "estimate")
+        except ValueError as exc:
+            problems.append(f"is not physical ({exc})")
+    prior = prior_model(cfg)
+    note = (f"the batch estimate {' and '.join(problems)}: segment 3 flies the prior model instead (mass "
+            f"{prior.mass_kg:.4g} ± {prior.mass_std_kg:.3g} kg, the range segment 2 was sized for)")
+    return LearnedModel(prior, "prior", note)
+
+
 def handoff_for(cfg: OacliConfig, stage: MissionStage, mission_dir: Path) -> Handoff:
     """What the earlier stages' files hand to ``stage`` (module docstring).
 
@@ -131,8 +218,7 @@ def handoff_for(cfg: OacliConfig, stage: MissionStage, mission_dir: Path) -> Han
     """
     _, b, c = mission_section(cfg).route
     d = Path(mission_dir).resolve()
-    learned = (estimate_model(cfg, stage_by_key("segment-2/estimate").mcap(d)) if stage.segment == "segment-3"
-               else None)
+    learned = learned_model(cfg, d).model if stage.segment == "segment-3" else None
     if stage.command == "smooth":
         return Handoff(plan=stage_by_key(f"{stage.segment}/plan").mcap(d), estimate=learned)
     if stage.command == "estimate":
@@ -323,34 +409,52 @@ def _run_mission(
     wall = time.perf_counter()
     say = announce or (lambda _line: None)
     stages = mission_stages(cfg)
+    own = [s.key for s in stages if s.name not in BASELINE_STAGES]
     results: dict[str, dict[str, Any]] = {}
+    current: str | None = None
     try:
+        stopped: str | None = None
         for i, stage in enumerate(stages, start=1):
+            current = stage.key
             folder = stage.folder(mission_dir)
             if is_complete(folder):
                 results[stage.key] = _read_summary(folder)
                 say(f"[{i}/{len(stages)}] {stage.key}: kept ({results[stage.key]['status']})")
-                continue
-            _clear_incomplete(folder, mission_dir)
-            folder.parent.mkdir(parents=True, exist_ok=True)
-            say(f"[{i}/{len(stages)}] {stage.key}: running {stage.command}")
-            try:
-                handoff = handoff_for(cfg, stage, mission_dir)
-                stage_cfg = stage_config(cfg, stage, handoff)
-                result = run_stage(stage, stage_cfg, handoff, folder, progress(stage.key) if progress else None)
-            except OacliError as exc:
-                if stage.name not in BASELINE_STAGES:
-                    raise
-                results[stage.key] = {"stage": stage.command, "status": FAILED, "error": "; ".join(exc.problems)}
-                say(f"[{i}/{len(stages)}] {stage.key}: failed: {'; '.join(exc.problems)}")
-                continue
-            results[stage.key] = result.summary
-            remember_config(folder / "config.yaml", stage_cfg)  # the outputs below need not parse it again
-            say(f"[{i}/{len(stages)}] {stage.key}: {result.summary['status']} "
-                f"({result.summary.get('wall_time_s', 0.0):.1f} s)")
-            if result.summary.get("status") not in COMPLETE_STATUSES or result.summary.get("status") == "no_solution":
-                raise InputError(f"{stage.key}: ended {result.summary.get('status')}; the mission cannot go on "
-                                 f"(see {folder / 'summary.json'})")
+            else:
+                _clear_incomplete(folder, mission_dir)
+                folder.parent.mkdir(parents=True, exist_ok=True)
+                say(f"[{i}/{len(stages)}] {stage.key}: running {stage.command}")
+                try:
+                    handoff = handoff_for(cfg, stage, mission_dir)
+                    stage_cfg = stage_config(cfg, stage, handoff)
+                    result = run_stage(stage, stage_cfg, handoff, folder, progress(stage.key) if progress else None)
+                except OacliError as exc:
+                    # A failing baseline is reported in the comparison; a failing estimate is not handed on
+                    # (segment 3 falls back to the prior: learned_model); any other stage stops the mission.
+                    handled = stage.name in BASELINE_STAGES or stage.command == "estimate"
+                    if not handled:
+                        raise
+                    results[stage.key] = {"stage": stage.command, "status": FAILED, "error": "; ".join(exc.problems),
+                                          "handled": True}
+                    say(f"[{i}/{len(stages)}] {stage.key}: failed: {'; '.join(exc.problems)}")
+                    continue
+                results[stage.key] = result.summary
+                remember_config(folder / "config.yaml", stage_cfg)  # the outputs below need not parse it again
+                say(f"[{i}/{len(stages)}] {stage.key}: {result.summary['status']} "
+                    f"({result.summary.get('wall_time_s', 0.0):.1f} s)")
+                if result.summary.get("status") not in COMPLETE_STATUSES:
+                    raise OacliError(f"{stage.key}: ended {result.summary.get('status')} "
+                                     f"(see {folder / 'summary.json'})")
+            stopped = stop_reason(stage.key, results[stage.key]) if stage.key in own else None
+            if stopped is not None:
+                say(f"[{i}/{len(stages)}] {stopped}")
+                break
+        current = None
+        if stopped is not None:
+            summary = stopped_summary(cfg, stages, results, stopped)
+            summary["wall_time_s"] = time.perf_counter() - wall
+            write_summary(mission_dir, summary)
+            return MissionResult(mission_dir, summary, results)
         summary = mission_summary(cfg, mission_dir, stages, results)
         say("writing mission.rrd" + (" and plots/" if cfg.outputs.mission_pngs else ""))
         records = load_mission_records(mission_dir, summary)  # once for both (the stage MCAPs are cached)
@@ -364,12 +468,64 @@ def _run_mission(
         write_summary(mission_dir, summary)
         return MissionResult(mission_dir, summary, results)
     except BaseException as exc:
-        status = INTERRUPTED if isinstance(exc, KeyboardInterrupt) else FAILED
+        # The worst of the stages that ran stays the mission's status; the failure is reported beside it.
+        verdict = stage_verdict(results, own)
+        interrupted = isinstance(exc, KeyboardInterrupt)
         reason = "; ".join(exc.problems) if isinstance(exc, OacliError) else f"{type(exc).__name__}: {exc}"
-        write_summary(mission_dir, {"stage": "mission", "status": status, "error": reason,
-                                    "stages": {k: {"status": v.get("status")} for k, v in results.items()},
-                                    "resume": f"oacli mission --resume {mission_dir}"})
+        where = current or "mission outputs"
+        level = INTERRUPTED if interrupted else NO_SOLUTION if isinstance(exc, InfeasibleError) else FAILED
+        verdict.add(level, "interrupted" if interrupted else "failed", f"{where}: {reason}")
+        failed = verdict.apply({"stage": "mission", "name": cfg.name, "seed": cfg.seed, "error": reason,
+                                "failed_stage": where,
+                                "stages": {k: {"status": v.get("status")} for k, v in results.items()},
+                                "resume": f"oacli mission --resume {mission_dir}"})
+        write_summary(mission_dir, failed)
+        if isinstance(exc, OacliError) and not isinstance(exc, MissionStageError):
+            # The mission's config was valid (validate_mission ran first): not exit 2, the mission's status's code.
+            raise MissionStageError([f"{where}: {p}" for p in exc.problems], failed["status"]) from exc
         raise
+
+
+def stopped_summary(cfg: OacliConfig, stages: tuple[MissionStage, ...], results: dict[str, dict[str, Any]],
+                    reason: str) -> dict[str, Any]:
+    """The ``summary.json`` of a mission stopped after an ``unsafe`` (or ``no_solution``) stage.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        The mission config.
+    stages : tuple of MissionStage
+        The stages the mission would have run.
+    results : dict
+        The summaries of the stages that ran, by key.
+    reason : str
+        Why it stopped (:func:`oacli.mission.verdict.stop_reason`).
+
+    Returns
+    -------
+    dict
+        Status the worst of the stages that ran, the reason ``stopped``, every stage's status (``not_run`` for the
+        stages after the stop).
+    """
+    own = [s.key for s in stages if s.name not in BASELINE_STAGES]
+    verdict = stage_verdict(results, own)
+    summary: dict[str, Any] = {
+        "stage": "mission", "name": cfg.name, "seed": cfg.seed, "route": list(mission_section(cfg).route),
+        "stopped": reason,
+        "stages": {s.key: ({"status": results[s.key].get("status"), "wall_time_s": results[s.key].get("wall_time_s"),
+                            "folder": f"{s.segment}/{s.name}", "command": s.command} if s.key in results
+                           else {"status": "not_run", "folder": f"{s.segment}/{s.name}", "command": s.command})
+                   for s in stages},
+        "files": {"config": "config.yaml", "summary": "summary.json"},
+    }
+    if "segment-2/estimate" in results:
+        summary["estimate"] = _estimate_entry(results["segment-2/estimate"])
+    return verdict.apply(summary)
+
+
+def _estimate_entry(estimate: dict[str, Any]) -> dict[str, Any]:
+    return {k: estimate.get(k) for k in ("method", "mass_kg", "inertia_kgm2", "std", "crb_std", "truth_theta",
+                                         "error_pct", "error_over_std", "cov_reduction_pct", "status")}
 
 
 def _segment_times(stages_done: dict[str, dict[str, Any]]) -> dict[str, tuple[float, float]]:
@@ -405,20 +561,20 @@ def mission_summary(cfg: OacliConfig, mission_dir: Path, stages: tuple[MissionSt
     a, b, c = mission.route
     times = _segment_times(results)
     ends = {"segment-1": (a, b), "segment-2": (b, c), "segment-3": (c, a)}
-    findings = StatusReport()
-    for s in stages:
-        stage_summary = results[s.key]
-        if s.name in BASELINE_STAGES or stage_summary.get("status") == OK:
-            continue  # a baseline is a counterfactual flight: its status is reported, not the mission's
-        reasons = stage_summary.get("status_reasons") or [{"level": stage_summary.get("status"), "message": "?"}]
-        for r in reasons:
-            add = findings.unsafe if r["level"] == "unsafe" else findings.degraded
-            add(r.get("kind", "stage"), f"{s.key}: {r['message']}")
+    # A baseline is a counterfactual flight: its status is reported in the comparison, not the mission's.
+    verdict = stage_verdict(results, [s.key for s in stages if s.name not in BASELINE_STAGES])
+    learned = learned_model(cfg, mission_dir)
+    if learned.note is not None:
+        verdict.add(DEGRADED, "estimate_fallback", learned.note)
     estimate = results["segment-2/estimate"]
     comparison = {}
     for key in ("segment-3/track", *(f"segment-3/{n}" for n in BASELINE_STAGES)):
         if key in results:
             comparison[key] = comparison_row(key, results[key], mission_dir)
+    final = comparison.get("segment-3/track", {})
+    if final.get("arrival_time_s", 0.0) is None:
+        verdict.add(FAILED, "not_arrived", f"segment-3/track: the robot never stayed within {ARRIVAL_TOLERANCE_M:g} m "
+                    f"of {a} ({final.get('final_distance_m', float('nan')):.3g} m from it at the end)")
     summary: dict[str, Any] = {
         "stage": "mission",
         "name": cfg.name,
@@ -430,12 +586,11 @@ def mission_summary(cfg: OacliConfig, mission_dir: Path, stages: tuple[MissionSt
         "mission_time_s": sum(d for _, d in times.values()),
         "stages": {s.key: {"status": results[s.key].get("status"), "wall_time_s": results[s.key].get("wall_time_s"),
                            "folder": f"{s.segment}/{s.name}", "command": s.command} for s in stages},
-        "estimate": {k: estimate.get(k) for k in ("method", "mass_kg", "inertia_kgm2", "std", "crb_std",
-                                                  "truth_theta", "error_pct", "error_over_std", "cov_reduction_pct",
-                                                  "status")},
+        "estimate": _estimate_entry(estimate),
+        "learned_model": learned.summary(),
         "estimate_sequential": {k: results["segment-2/estimate-sequential"].get(k)
                                 for k in ("mass_kg", "inertia_kgm2", "std", "error_pct", "status")},
         "comparison": comparison,
         "files": {"config": "config.yaml", "summary": "summary.json"},
     }
-    return findings.apply(summary)
+    return verdict.apply(summary)

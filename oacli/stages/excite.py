@@ -16,7 +16,7 @@ Two methods (``excitation.method`` or ``--method``):
 Ctrl-C or a termination signal (SIGTERM, SIGHUP) keeps the journal of either method as ``excite.mcap`` (valid, the
 computation so far) next to an ``interrupted`` ``summary.json`` (exit 130 / 143).
 
-Both design within the limits of :func:`oacli.stages.settings.excitation_design_limits`: the robot's with
+Both design within the limits of :func:`oacli.stages.design_limits.excitation_design_limits`: the robot's with
 ``excitation.margin`` (the force also × m_prior/m_upper, Doerr Eq. 28), capped by ``excitation.limits`` (RATTLE:
 ``excitation.rattle.limits`` over them); a cap above the robot's is refused (exit 2) or clipped with a warning. In
 RATTLE's closed loop the feedback may use the actuator's full limits and a rate governor keeps the body rate within
@@ -57,22 +57,19 @@ from oacli.io.runfolder import StageResult, StageRun
 from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.phases import set_phase
 from oacli.reference_limits import DesignLimits
+from oacli.stages.design_limits import design_limit_log, excitation_design_limits, robot_limit_set, to_motion_limits
 from oacli.stages.excite_journal import ExciteJournal, RattleJournal
 from oacli.stages.settings import (
-    design_limit_log,
     estimator_settings,
-    excitation_design_limits,
     excitation_prior_model,
     information_weighting,
     measurement_model,
     open_run,
     plant_disturbance,
     rattle_planner_weights,
-    robot_limit_set,
     scp_settings,
     sensor_noise,
     terminal_tolerance,
-    to_motion_limits,
     truth_model,
 )
 from oacli.status import StatusReport, add_safety_reasons, status_log
@@ -116,7 +113,7 @@ def check_pose_in_workspace(label: str, position: np.ndarray, scene: Scene) -> N
 
 def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> ExcitationProblem:
     """The offline design problem the config describes (start and goal checked against the workspace), within
-    ``limits`` (default: :func:`~oacli.stages.settings.excitation_design_limits`)."""
+    ``limits`` (default: :func:`~oacli.stages.design_limits.excitation_design_limits`)."""
     exc = cfg.excitation
     if limits is None:
         limits = excitation_design_limits(cfg)

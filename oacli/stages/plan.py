@@ -43,16 +43,9 @@ from oacli.planning.problem import PlanningProblem
 from oacli.planning.result import PlanResult
 from oacli.planning.translational import TranslationalTrajectory
 from oacli.planning.tree import EDGE_LQR, EDGE_PRIMITIVE
+from oacli.stages.design_limits import design_limit_log, planner_design_limits
 from oacli.stages.plan_journal import PlanJournal
-from oacli.stages.settings import (
-    cost_weights,
-    design_limit_log,
-    kino_rrt_settings,
-    lqr_rrt_star_settings,
-    open_run,
-    planner_design_limits,
-    robot_body,
-)
+from oacli.stages.settings import cost_weights, kino_rrt_settings, lqr_rrt_star_settings, open_run, robot_body
 from oacli.status import NO_SOLUTION, OK, StatusReport, add_output_trajectory_reasons, status_log
 from oacli.types import Trajectory
 
@@ -165,7 +158,7 @@ def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChe
                        goal6: np.ndarray) -> dict[str, Any]:
     """Summary numbers of an output trajectory; collisions re-checked exactly and densely (every 5 mm).
 
-    ``within_limits``: within the design limits (:func:`~oacli.stages.settings.planner_design_limits`);
+    ``within_limits``: within the design limits (:func:`~oacli.stages.design_limits.planner_design_limits`);
     ``within_robot_limits``: within the robot's own; ``min_time_lower_bound_s`` under the design limits.
     """
     robot = cfg.robot

@@ -126,7 +126,7 @@ def _track_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> F
 
 
 def _excite_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Figures:
-    from oacli.stages.settings import excitation_design_limits, robot_limit_set, to_motion_limits
+    from oacli.stages.design_limits import excitation_design_limits, robot_limit_set, to_motion_limits
 
     record = read_stage(folder / "excite.mcap", topics=[ms.TOPIC_TRAJECTORY, ms.TOPIC_EXCITATION_INFORMATION])
     traj = record.trajectories[ms.TOPIC_TRAJECTORY]

@@ -12,23 +12,9 @@ variances), :func:`truth_model` the simulated plant (``truth:``, θ known exactl
 with ``excitation.prior`` or ``estimation.prior`` applied (:func:`excitation_prior_model`,
 :func:`estimation_prior_model`).
 
-Sections: the run folder; the robot and the simulated plant; the design limits of ``plan``, ``smooth`` and
-``excite``; the planners and the smoother; the excitation design; the estimators; the robust tube.
-
-Design limits
--------------
-Which prior mass and which σ_m (the "prior mass uncertainty" of ``m_upper = m_prior + n_σ σ_m``, [Doerr2021]
-Eq. 28), :mod:`oacli.reference_limits`:
-
-* ``excite``: the design's model is ``excitation.prior`` (mass default ``robot.mass_kg``), so ``m_prior`` is that
-  mass and σ_m the square root of its variance ``excitation.prior.variance[0]``;
-* ``plan`` and ``smooth``: the model is ``robot.mass_kg``; σ_m is the prior standard deviation of the mass the
-  estimator starts from, ``sqrt(estimation.prior.mass_variance_kg2)`` (its mean defaults to the robot's).
-
-``<section>.margin.mass_std_kg`` overrides σ_m (0 for a model known exactly); ``controller.tube.disturbance.
-mass_std_kg`` is not used: it is the spread of the estimate the tube's disturbance set W is sized for, not a
-prior. Section caps above the robot's limits are refused (:class:`~oacli.errors.ConfigError`, exit 2) or, with
-``margin.on_excess: clip``, clipped with a note that the stage writes to its log and summary.
+Sections: the run folder; the robot and the simulated plant; the planners and the smoother; the excitation
+design; the estimators; the robust tube. The design limits of ``plan``, ``smooth`` and ``excite``:
+:mod:`oacli.stages.design_limits`.
 """
 
 from __future__ import annotations
@@ -40,14 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from oacli.config import OacliConfig, dump_config
-from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
-from oacli.config.models import RobotConfig
 from oacli.config.prior import PriorConfig
 from oacli.control.disturbance import DisturbanceSpec
 from oacli.control.observer import observer_spec
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import AncillaryWeights, TubeDesign, design_translation_tube
-from oacli.errors import ConfigError
 from oacli.estimation.models import EstimatorSettings, ProcessNoise
 from oacli.estimation.models import MeasurementModel as EstimationMeasurementModel
 from oacli.excitation.design import ScpSettings
@@ -65,15 +48,6 @@ from oacli.planning.lqr_rrt_star import LqrRrtStarSettings
 from oacli.planning.polish import PolishSettings
 from oacli.planning.steering import LqrConnector
 from oacli.planning.translational import CostWeights
-from oacli.reference_limits import (
-    QUANTITIES,
-    UNITS,
-    DesignLimits,
-    LimitSet,
-    ReferenceMargin,
-    design_limits,
-    limits_above_robot,
-)
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.types import ParameterEstimate
 
@@ -109,27 +83,6 @@ def open_run(stage: str, cfg: OacliConfig, *, out: Path | None, runs_root: Path,
 # ----------------------------------------------------------------------------------------------------------------
 # The robot and the simulated plant
 # ----------------------------------------------------------------------------------------------------------------
-
-ROBOT_FIELDS = {"force_N": "force_limit_N", "torque_Nm": "torque_limit_Nm", "velocity_mps": "velocity_limit_mps",
-                "angular_velocity_radps": "angular_velocity_limit_radps"}
-"""The ``robot`` field of each limited quantity."""
-
-
-def robot_limit_set(robot: RobotConfig) -> LimitSet:
-    """The robot's actuator and flight-mode limits.
-
-    Parameters
-    ----------
-    robot : RobotConfig
-        The config's ``robot`` section.
-
-    Returns
-    -------
-    LimitSet
-        Force, torque, velocity and angular-rate limits per axis.
-    """
-    return LimitSet(**{q: np.asarray(getattr(robot, ROBOT_FIELDS[q]), dtype=float) for q in QUANTITIES})
-
 
 def robot_model(cfg: OacliConfig) -> RobotModel:
     """The controller's prior model of the robot: ``robot:`` with the covariance of ``estimation.prior``.
@@ -172,6 +125,28 @@ def truth_model(cfg: OacliConfig) -> RobotModel:
     RobotModel
     """
     return robot_model(cfg).with_estimate(theta_of(cfg.truth_params()), np.zeros((4, 4)))
+
+
+def controller_limits(cfg: OacliConfig, model: RobotModel) -> MotionLimits:
+    """The limits the tracking controllers constrain: ``model``'s, the angular rate lowered by
+    ``controller.rate_margin`` (room for the overshoot of a plant whose inertia differs from the model's).
+
+    The plant's saturation and the safety check keep the robot's own limits.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+    model : RobotModel
+        The controller's model.
+
+    Returns
+    -------
+    MotionLimits
+    """
+    lim = model.limits
+    keep = 1.0 - cfg.controller.rate_margin
+    return MotionLimits(lim.force_N, lim.torque_Nm, lim.velocity_mps, lim.angular_velocity_radps * keep)
 
 
 def tracking_weights(cfg: OacliConfig) -> TrackingWeights:
@@ -221,168 +196,6 @@ def plant_disturbance(cfg: OacliConfig) -> Disturbance:
     """
     dist = cfg.truth.disturbance
     return Disturbance(dist.bias, dist.random_bound)
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Design limits (module docstring)
-# ----------------------------------------------------------------------------------------------------------------
-
-
-def resolve_design_limits(
-    robot: RobotConfig,
-    margin: ReferenceMarginConfig,
-    caps: list[tuple[str, LimitsOverride]],
-    *,
-    mass_prior_kg: float,
-    default_mass_std_kg: float,
-    margin_path: str,
-) -> DesignLimits:
-    """Design limits from the robot, a margin section and section caps (later caps win per quantity).
-
-    Parameters
-    ----------
-    robot : RobotConfig
-    margin : ReferenceMarginConfig
-    caps : list of (str, LimitsOverride)
-        Config path of each cap section (``"excitation.limits"``) and its values, in override order.
-    mass_prior_kg : float
-        Mass of the designer's model [kg].
-    default_mass_std_kg : float
-        σ_m used when ``margin.mass_std_kg`` is not given [kg].
-    margin_path : str
-        Config path of the margin section (for messages).
-
-    Returns
-    -------
-    DesignLimits
-        The limits a designer must respect, the robot's, and a note per clipped cap.
-
-    Raises
-    ------
-    ConfigError
-        A cap above the robot's limit with ``on_excess: error``: one line per axis, naming the field, both values.
-    """
-    robot_limits = robot_limit_set(robot)
-    effective: dict[str, tuple[str, np.ndarray]] = {}
-    for path, section in caps:
-        for quantity in QUANTITIES:
-            value = getattr(section, quantity)
-            if value is not None:
-                effective[quantity] = (path, np.asarray(value, dtype=float))
-    excess = limits_above_robot(robot_limits, {q: v for q, (_, v) in effective.items()})
-    notes = []
-    if excess:
-        lines = []
-        for e in excess:
-            unit = UNITS[e.quantity]
-            where = f"{effective[e.quantity][0]}.{e.quantity}.{e.axis}"
-            robot_field = f"robot.{ROBOT_FIELDS[e.quantity]}.{e.axis}"
-            if margin.on_excess == "error":
-                lines.append(f"{where}: {e.requested:g}: above the robot's limit {robot_field} = {e.robot:g} {unit}; "
-                             f"lower or omit it, or set {margin_path}.on_excess: clip")
-            else:
-                notes.append(f"{where} = {e.requested:g} {unit} is above the robot's limit {robot_field} = "
-                             f"{e.robot:g} {unit}: clipped to {e.robot:g} {unit} ({margin_path}.on_excess: clip)")
-        if lines:
-            raise ConfigError(lines)
-    caps_clipped = {q: np.minimum(v, robot_limits.get(q)) for q, (_, v) in effective.items()}
-    std = default_mass_std_kg if margin.mass_std_kg is None else margin.mass_std_kg
-    ref_margin = ReferenceMargin(
-        mass_prior_kg=mass_prior_kg, mass_std_kg=std, mass_sigmas=margin.mass_sigmas,
-        force_fraction=margin.reference_force_fraction, torque_fraction=margin.reference_torque_fraction,
-        velocity_fraction=margin.reference_velocity_fraction,
-        angular_velocity_fraction=margin.reference_angular_velocity_fraction,
-    )
-    return design_limits(robot_limits, ref_margin, caps_clipped, tuple(notes))
-
-
-def excitation_design_limits(cfg: OacliConfig, *, rattle: bool = False) -> DesignLimits:
-    """Design limits of ``oacli excite`` (module docstring).
-
-    Parameters
-    ----------
-    cfg : OacliConfig
-        Resolved configuration.
-    rattle : bool
-        RATTLE (``excitation.rattle.limits`` over ``excitation.limits``) instead of the offline design
-        (``excitation.limits``); both with ``excitation.margin``.
-
-    Returns
-    -------
-    DesignLimits
-    """
-    exc = cfg.excitation
-    caps = [("excitation.limits", exc.limits)]
-    if rattle:
-        caps.append(("excitation.rattle.limits", exc.rattle.limits))
-    prior = excitation_prior_model(cfg)
-    return resolve_design_limits(cfg.robot, exc.margin, caps, mass_prior_kg=prior.mass_kg,
-                                 default_mass_std_kg=prior.mass_std_kg, margin_path="excitation.margin")
-
-
-def planner_design_limits(cfg: OacliConfig) -> DesignLimits:
-    """Design limits of ``oacli plan`` and ``oacli smooth``: ``planner.limits`` with ``planner.margin``.
-
-    Parameters
-    ----------
-    cfg : OacliConfig
-        Resolved configuration.
-
-    Returns
-    -------
-    DesignLimits
-    """
-    p = cfg.planner
-    model = robot_model(cfg)
-    return resolve_design_limits(cfg.robot, p.margin, [("planner.limits", p.limits)], mass_prior_kg=model.mass_kg,
-                                 default_mass_std_kg=model.mass_std_kg, margin_path="planner.margin")
-
-
-def design_limit_log(limits: DesignLimits) -> list[tuple[float, str, str]]:
-    """The log lines a stage writes about its design limits.
-
-    Parameters
-    ----------
-    limits : DesignLimits
-
-    Returns
-    -------
-    list of (float, str, str)
-        ``(0, "info", the limits)`` and a warning per clipped section cap.
-    """
-    return [(0.0, "info", limits.describe()), *((0.0, "warning", note) for note in limits.notes)]
-
-
-def to_motion_limits(limits: DesignLimits) -> MotionLimits:
-    """The design limits as the excitation core's limits.
-
-    Parameters
-    ----------
-    limits : DesignLimits
-
-    Returns
-    -------
-    MotionLimits
-    """
-    lim = limits.limits
-    return MotionLimits(lim.force_N, lim.torque_Nm, lim.velocity_mps, lim.angular_velocity_radps)
-
-
-def motion_limits(cfg: OacliConfig, *, rattle: bool = False) -> MotionLimits:
-    """The limits the offline design (or, with ``rattle``, the RATTLE planner) must respect.
-
-    Parameters
-    ----------
-    cfg : OacliConfig
-        Resolved configuration.
-    rattle : bool
-        The RATTLE planner's (see :func:`excitation_design_limits`).
-
-    Returns
-    -------
-    MotionLimits
-    """
-    return to_motion_limits(excitation_design_limits(cfg, rattle=rattle))
 
 
 # ----------------------------------------------------------------------------------------------------------------

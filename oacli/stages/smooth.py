@@ -42,16 +42,9 @@ from oacli.planning.full_state import minimum_time_lower_bound_s, translational_
 from oacli.planning.polish import SOLVER, STEP_OUTCOMES, PolishResult, polish_trajectory
 from oacli.planning.shortcut import ACCEPTED, ShortcutResult, lqr_shortcut
 from oacli.planning.translational import TranslationalTrajectory
+from oacli.stages.design_limits import design_limit_log, planner_design_limits
 from oacli.stages.plan import SMOOTH_STREAM, describe_body, to_output, trajectory_metrics
-from oacli.stages.settings import (
-    cost_weights,
-    design_limit_log,
-    open_run,
-    planner_design_limits,
-    polish_settings,
-    robot_body,
-    shortcut_connector,
-)
+from oacli.stages.settings import cost_weights, open_run, polish_settings, robot_body, shortcut_connector
 from oacli.status import StatusReport, add_output_trajectory_reasons, status_log
 from oacli.types import Trajectory
 

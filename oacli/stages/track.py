@@ -35,12 +35,13 @@ from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
 from oacli.signals import held
 from oacli.sim.simulator import simulate
 from oacli.sim.stall import with_stall
+from oacli.stages.design_limits import robot_limit_set
 from oacli.stages.faults import fault_arguments
 from oacli.stages.flown_sensors import FlownSensors, flown_sensors, write_flown_sensor_topics
 from oacli.stages.settings import (
+    controller_limits,
     open_run,
     plant_disturbance,
-    robot_limit_set,
     robot_model,
     sensor_noise,
     tracking_weights,
@@ -240,18 +241,19 @@ def run_track(
     log.append((0.0, "info", f"reference {reference.name}: {len(reference)} samples, {reference.duration_s:.1f} s"))
 
     model, plant = robot_model(cfg), truth_model(cfg)
-    limits = model.limits
+    limits = model.limits  # the plant's saturation and the safety check
+    ctrl_limits = controller_limits(cfg, model)  # the controllers': the rate margin (controller.rate_margin)
     weights = tracking_weights(cfg)
     design = tube_design_from_config(cfg, model=model) if cfg.controller.type == "tube" else None
     controller: TrackingMPC | TubeMonitor
     if design is None:
         controller = TrackingMPC(
             reference, model.params, dt_s=cfg.controller.period_s, horizon=cfg.controller.horizon,
-            weights=weights, limits=limits, max_consecutive_failures=cfg.controller.max_consecutive_failures,
+            weights=weights, limits=ctrl_limits, max_consecutive_failures=cfg.controller.max_consecutive_failures,
             **workspace_arguments(cfg),
         )
     else:
-        controller = monitored_tube_controller(cfg, reference, design, weights, limits, model=model)
+        controller = monitored_tube_controller(cfg, reference, design, weights, ctrl_limits, model=model)
         log.extend(describe_tube_design(design))
     x0 = reference.x[0].copy()
     x0[0:3] += np.asarray(cfg.simulation.initial_offset_m)
