@@ -122,7 +122,11 @@ def mission(
             if from_stage is not None:
                 copy_stages_before(target, mission_dir, cfg, from_stage)
         say = (lambda line: typer.echo(line, err=True)) if not (quiet or json_out) else None
-        return run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
+        done = run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
+        if cfg.outputs.report:  # report.html from the finished folder (oacli report; outputs.report: false skips)
+            from oacli.commands.report import report_after_run
+            report_after_run(done.run_dir, say)
+        return done
 
     result = run_guarded(action)
     warning = warning_line(result.summary)

@@ -112,7 +112,7 @@ def cell_intervals(panels: list[dict[str, Any]]) -> bytes:
     for ax, panel in zip(flat, panels, strict=False):
         rows = panel["rows"]
         y = np.arange(len(rows))[::-1]
-        for yi, (label, med, lo, hi, count) in zip(y, rows, strict=True):
+        for yi, (label, med, lo, hi, _n) in zip(y, rows, strict=True):
             if med is None:
                 ax.text(0.02, yi, f"{label}: no data", fontsize=7, va="center", transform=ax.get_yaxis_transform())
                 continue
