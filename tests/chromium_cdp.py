@@ -14,7 +14,9 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
+import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -125,9 +127,10 @@ def open_page(chromium: str, html: Path, expression: str, timeout_s: float = 60.
     -------
     PageResult
     """
-    with tempfile.TemporaryDirectory(prefix="oacli-chromium-") as profile:
+    with tempfile.TemporaryDirectory(prefix="oacli-chromium-", ignore_cleanup_errors=True) as profile:
         proc = subprocess.Popen([chromium, *FLAGS, f"--user-data-dir={profile}", "--window-size=1280,900",
-                                 "about:blank"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                 "about:blank"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                start_new_session=True)  # its own process group: its helpers end with it
         try:
             port_file = Path(profile) / "DevToolsActivePort"
             deadline = time.monotonic() + timeout_s
@@ -139,12 +142,21 @@ def open_page(chromium: str, html: Path, expression: str, timeout_s: float = 60.
             return asyncio.run(_session(f"ws://127.0.0.1:{port}{path}", Path(html).resolve().as_uri(), expression,
                                         timeout_s))
         finally:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            _stop(proc)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """End the Chromium this helper started and its helper processes (its own process group)."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            proc.wait(10)
+            time.sleep(0.2)  # the group's helpers leave with the browser
+        except subprocess.TimeoutExpired:
+            continue
 
 
 PAGE_FACTS = """(() => {

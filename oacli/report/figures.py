@@ -23,6 +23,36 @@ import numpy as np
 from oacli.io.plots.common import decimate, legend_outside, save_png, subplots
 
 
+def constrained(nrows: int, ncols: int, figsize: tuple[float, float], **kwargs: Any) -> tuple[Any, Any]:
+    """A plain Agg figure with matplotlib's constrained layout (long tick labels get their room).
+
+    Parameters
+    ----------
+    nrows, ncols : int
+    figsize : tuple of float
+        [in].
+
+    Returns
+    -------
+    fig, axes
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
+
+
+def constrained_png(fig: Any, dpi: int = 100) -> bytes:
+    """PNG bytes of a :func:`constrained` figure."""
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
 def png_bytes_of(fig: Any) -> bytes:
     """Render ``fig`` the way every oacli PNG is rendered (:func:`oacli.io.plots.common.save_png`) and return the
     bytes.
@@ -106,8 +136,8 @@ def cell_intervals(panels: list[dict[str, Any]]) -> bytes:
     n = max(1, len(panels))
     cols = min(3, n)
     nrows = (n + cols - 1) // cols
-    height = max(2.2, 0.32 * max((len(p["rows"]) for p in panels), default=1) + 1.0)
-    fig, axes = subplots(nrows, cols, figsize=(5.2 * cols, height * nrows), squeeze=False)
+    height = max(2.0, 0.28 * max((len(p["rows"]) for p in panels), default=1) + 1.0)
+    fig, axes = constrained(nrows, cols, figsize=(5.0 * cols, height * nrows), squeeze=False)
     flat = list(np.ravel(axes))
     for ax, panel in zip(flat, panels, strict=False):
         rows = panel["rows"]
@@ -124,13 +154,14 @@ def cell_intervals(panels: list[dict[str, Any]]) -> bytes:
             ax.legend(loc="lower right", fontsize=7)
         ax.set_yticks(y)
         ax.set_yticklabels([f"{r[0]} (n={r[4]})" for r in rows], fontsize=7)
+        ax.set_ylim(-0.6, len(rows) - 0.4)
         ax.set_xlabel(panel["unit"])
         ax.set_title(panel["title"], loc="left", fontsize="small")
         ax.grid(True, axis="x", alpha=0.3)
     for ax in flat[len(panels):]:
         ax.set_visible(False)
     fig.suptitle("Per cell: median and distribution-free 95 % interval")
-    return png_bytes_of(fig)
+    return constrained_png(fig)
 
 
 def cell_cdfs(title: str, unit: str, series: dict[str, np.ndarray]) -> bytes:
@@ -147,7 +178,7 @@ def cell_cdfs(title: str, unit: str, series: dict[str, np.ndarray]) -> bytes:
     bytes
         PNG.
     """
-    fig, ax = subplots(1, 1, figsize=(8, 3.6))
+    fig, ax = constrained(1, 1, figsize=(9, 3.6))
     for name, values in series.items():
         v = np.sort(np.asarray(values, dtype=float)[np.isfinite(values)])
         if v.size:
@@ -158,8 +189,8 @@ def cell_cdfs(title: str, unit: str, series: dict[str, np.ndarray]) -> bytes:
     ax.set_ylabel("fraction of runs ≤")
     ax.set_title(title, loc="left", fontsize="medium")
     ax.grid(True, alpha=0.3)
-    legend_outside(ax)
-    return png_bytes_of(fig)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+    return constrained_png(fig)
 
 
 __all__ = ["cell_cdfs", "cell_intervals", "png_bytes_of", "tracking_bands"]
