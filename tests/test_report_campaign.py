@@ -234,3 +234,34 @@ def test_50_run_report_in_headless_chromium(big_campaign, tmp_path):
         assert img["complete"] and img["w"] > 300 and img["h"] > 200 and img["shown_w"] > 300, img
     (tmp_path / "campaign_report.png").write_bytes(page.screenshot_png)
     assert page.screenshot_png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# -- the study presets --------------------------------------------------------------------------------------------
+
+
+def test_study_presets_load_with_their_cells():
+    from oacli.campaign.cells import campaign_cells
+
+    fig3d = load_campaign(ROOT / "configs" / "study_fig3d.yaml")
+    cells = campaign_cells(fig3d.config)
+    assert len(cells) == 16 and fig3d.config.runs == 50 * len(cells)
+    grasped = fig3d.base["mission"]["grasped"]["mass_kg"]
+    payload = 15.0 - 9.0877  # [Doerr2021] Table 1: Astrobee with the object, Astrobee alone
+    for cell in cells:
+        pct = int(cell.levels["prior_error"].removesuffix("pct"))
+        prior = cell.overrides["mission"]["prior"]
+        assert grasped - prior["mass_kg"] == pytest.approx(pct / 100 * payload, abs=1e-5)
+        assert 2 * prior["mass_std_kg"] >= grasped - prior["mass_kg"] - 1e-6  # 2σ covers the error (Eq. 28)
+        unconstrained = cell.levels["standard_mpc"] == "no_workspace"
+        seg = cell.overrides.get("mission", {}).get("segments", {})
+        assert ("segment-3/baseline-mpc-prior" in seg) == unconstrained
+    rattle = load_campaign(ROOT / "configs" / "study_rattle.yaml")
+    assert campaign_cells(rattle.config) == () and rattle.config.runs >= 50
+    assert rattle.base["mission"]["excitation_method"] == "rattle"
+    assert rattle.base["mission"]["grasped"]["mass_kg"] == rattle.base["robot"]["mass_kg"]  # the bare robot
+    assert rattle.base["mission"]["prior"]["mass_std_kg"] ** 2 == pytest.approx(15.0)  # [RattleCode] P0
+    expset3 = load_campaign(ROOT / "configs" / "study_expset3.yaml")
+    cells = campaign_cells(expset3.config)
+    assert [c.overrides["controller"]["type"] for c in cells] == ["tube", "mpc"]
+    assert expset3.config.runs == 50 * len(cells)
+    assert expset3.base["robot"]["mass_kg"] == expset3.base["truth"]["mass_kg"]  # the correct model
