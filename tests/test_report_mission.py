@@ -154,3 +154,18 @@ def test_the_request_check_can_fail(tmp_path):
                      '<img src="http://127.0.0.1:9/x.png"></body></html>')
     page = open_page(chromium, probe, PAGE_FACTS)
     assert page.network_requests == ["http://127.0.0.1:9/x.png"]
+
+
+def test_an_unfinished_mission_gets_its_status_error_and_resume_command(mission, tmp_path):
+    run_dir, _, _ = mission
+    failed = tmp_path / "failed"
+    failed.mkdir()
+    shutil.copy(run_dir / "config.yaml", failed / "config.yaml")
+    (failed / "summary.json").write_text(json.dumps({
+        "stage": "mission", "status": "interrupted", "error": "KeyboardInterrupt: <stopped>",
+        "stages": {"segment-1/plan": {"status": "ok"}}, "resume": f"oacli mission --resume {failed}"}))
+    result = CliRunner().invoke(app, ["report", str(failed)])
+    assert result.exit_code == 0, result.output
+    text = (failed / "report.html").read_text()
+    assert ">interrupted<" in text and "KeyboardInterrupt: &lt;stopped&gt;" in text  # escaped
+    assert f"oacli mission {failed} --resume" in text and "<img" not in text
