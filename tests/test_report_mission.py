@@ -169,3 +169,16 @@ def test_an_unfinished_mission_gets_its_status_error_and_resume_command(mission,
     text = (failed / "report.html").read_text()
     assert ">interrupted<" in text and "KeyboardInterrupt: &lt;stopped&gt;" in text  # escaped
     assert f"oacli mission {failed} --resume" in text and "<img" not in text
+
+
+def test_without_plots_the_report_draws_the_same_figures_from_the_mcaps(mission, tmp_path):
+    run_dir, summary, _ = mission
+    bare = tmp_path / "bare"
+    shutil.copytree(run_dir, bare, ignore=shutil.ignore_patterns("*.rrd", "report.html", "plots"))
+    result = CliRunner().invoke(app, ["report", str(bare)])
+    assert result.exit_code == 0, result.output
+    text = (bare / "report.html").read_text()
+    pngs = embedded_pngs(text)
+    assert text.count("drawn from the stage MCAPs") == 2
+    for name in ("estimate_convergence", "paths"):  # the mission's own plot functions, byte for byte
+        assert (run_dir / summary["files"]["plots"][name]).read_bytes() in pngs, name
