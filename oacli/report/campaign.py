@@ -26,7 +26,7 @@ HEADLINE = ("seg3_tube_estimate.rms_position_error_m", "seg3_mpc_prior.rms_posit
             "seg3_tube_prior.rms_position_error_m", "seg3_mpc_prior.overshoot_m", "seg3_mpc_prior.time_saturated_s",
             "seg3_tube_prior.arrival_time_s", "seg3_mpc_prior.keep_out_clearance_m",
             "sequential.abs_error_pct.mass", "sequential.abs_error_pct.Izz", "sequential.cov_reduction_pct.mass",
-            "batch.abs_error_pct.mass", "batch.abs_error_pct.Izz", "lag_s", "hold_rms_m", "lag_residual_rms_m",
+            "batch.abs_error_pct.mass", "batch.abs_error_pct.Izz", "hold_rms_m", "lag_s", "hold_max_m",
             "rms_position_error_m")
 """The figures drawn in the per-cell interval plot, in this order, those present (at most :data:`MAX_PANELS`)."""
 MAX_PANELS = 9
