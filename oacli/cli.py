@@ -25,6 +25,7 @@ from oacli.commands.logs import logs_app
 from oacli.commands.mission import mission
 from oacli.commands.plan import plan
 from oacli.commands.plots import plots
+from oacli.commands.report import report
 from oacli.commands.runs import runs_app
 from oacli.commands.smooth import smooth
 from oacli.commands.track import track
@@ -87,6 +88,7 @@ app.command("plan")(plan)
 app.command("smooth")(smooth)
 app.command("track")(track)
 app.command("plots")(plots)
+app.command("report")(report)
 app.command("info")(info)
 app.add_typer(runs_app, name="runs")
 app.add_typer(config_app, name="config")

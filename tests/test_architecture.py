@@ -179,10 +179,12 @@ def test_core_imports_no_cli_recorder_or_io_even_indirectly():
     assert not problems, "the core reaches the CLI, a recorder or the run-folder I/O:\n" + "\n".join(problems)
 
 
-LAYERS = ("oacli.io", "oacli.stages", "oacli.mission", "oacli.campaign", "oacli.commands", "oacli.cli")
+LAYERS = ("oacli.io", "oacli.stages", "oacli.mission", "oacli.campaign", "oacli.report", "oacli.commands",
+          "oacli.cli")
 """The I/O and orchestration layers, lowest first: each may import the ones before it (and the core), never one
 after it (``oacli plots`` redraws from a run folder through the stages' config readers, so it is a stage module,
-:mod:`oacli.stages.replot`; the mission's recording is the mission's, :mod:`oacli.mission.recording`)."""
+:mod:`oacli.stages.replot`; the mission's recording is the mission's, :mod:`oacli.mission.recording`; ``oacli report``
+reads missions and campaigns, so it sits above both, and the commands call it after a run)."""
 
 
 def _layer(module: str) -> int | None:

@@ -32,7 +32,7 @@ from oacli.geometry import Ellipsoid, Scene
 from oacli.types import InertialParams
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
-PRESETS = sorted(p for p in CONFIGS.glob("*.yaml") if not p.name.startswith("campaign_"))  # not stage configs
+PRESETS = sorted(p for p in CONFIGS.glob("*.yaml") if not p.name.startswith(("campaign_", "study_")))  # campaigns
 PRESET_NAMES = ["doerr2021.yaml", "iss_reswarm.yaml", "iss_reswarm_flight_sensors.yaml", "iss_reswarm_tube.yaml",
                 "mission_doerr2021.yaml", "mission_iss.yaml", "mission_unknown_payload.yaml",
                 "rattle_flight_rls.yaml"]

@@ -4,6 +4,11 @@ Success means the job ran to its end without an ``unsafe`` status (``ok`` or ``d
 percentiles over the completed runs. Estimation errors (``job: mission``) are percentiles of the absolute percent
 errors next to the flight figures ([ReSWARM2023] RATTLE table: mass 0.39 %, inertias 0.91 / 1.35 / 6.92 %) and of the
 errors in units of the Cramér-Rao bound's σ ([Doerr2021] Eq. 32): an efficient, unbiased estimator has RMS 1 there.
+
+``cells`` holds, per study cell (:mod:`oacli.campaign.cells`; one cell ``all`` without a grid), every per-run figure
+of :func:`run_figures` as a median with its distribution-free 95 % interval and every yes/no figure of
+:func:`run_events` as a fraction with its Clopper-Pearson interval (:mod:`oacli.campaign.intervals`), over the cell's
+completed runs.
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ from typing import Any
 import numpy as np
 
 from oacli.campaign import manifest
+from oacli.campaign.cells import campaign_cells
+from oacli.campaign.intervals import median_interval, proportion_interval
 from oacli.config.campaign import CampaignConfig
 
 PERCENTILES = (5, 50, 95)
@@ -56,6 +63,140 @@ def _estimation(metrics: list[dict[str, Any]], cfg: CampaignConfig) -> dict[str,
             verdict = "agrees"
         out["agreement"][name] = {"median_abs_error_pct": median, "p5": float(lo), "p95": float(hi),
                                   "flight_pct": float(flight[i]), "verdict": verdict}
+    return out
+
+
+FLIGHT_NAMES = {"segment-3/track": "seg3_tube_estimate", "segment-3/baseline-mpc-prior": "seg3_mpc_prior",
+                "segment-3/baseline-tube-prior": "seg3_tube_prior"}
+"""Short names of segment 3's flights ([Doerr2021] Fig. 3(d)) in the per-run figures; other stage keys (a mission
+with another baseline) keep their key."""
+
+FLIGHT_FIELDS = ("rms_position_error_m", "max_position_error_m", "overshoot_m", "time_saturated_s", "arrival_time_s",
+                 "control_effort_Ns", "keep_out_clearance_m")
+RESPONSE_FIELDS = ("lag_s", "lag_residual_rms_m", "hold_rms_m", "hold_max_m")
+
+
+def _flight_name(key: str) -> str:
+    return FLIGHT_NAMES.get(key, key.replace("/", "_"))
+
+
+def run_figures(m: dict[str, Any]) -> dict[str, float | None]:
+    """One run's scalar figures, flat (the per-cell statistics' inputs).
+
+    Keys: ``rms_position_error_m``, ``max_position_error_m`` (a mission: segment 3's tube flight); per segment-3
+    flight ``<flight>.<field>`` for :data:`FLIGHT_FIELDS` and ``<flight>.violations`` (keep-in + keep-out + limit),
+    a flight that never arrives counting as ``inf``; per estimator (``batch``, ``sequential``) and parameter
+    ``<estimator>.abs_error_pct.<p>`` and ``<estimator>.cov_reduction_pct.<p>``; a track's :data:`RESPONSE_FIELDS`.
+
+    Parameters
+    ----------
+    m : dict
+        The run's manifest metrics.
+
+    Returns
+    -------
+    dict
+    """
+    out: dict[str, float | None] = {"rms_position_error_m": m.get("rms_position_error_m"),
+                                    "max_position_error_m": m.get("max_position_error_m")}
+    for key, row in (m.get("comparison") or {}).items():
+        name = _flight_name(key)
+        if row.get("rms_position_error_m") is None:
+            continue  # a failed flight: counted by its status, not in the figures
+        for field in FLIGHT_FIELDS:
+            value = row.get(field)
+            out[f"{name}.{field}"] = float("inf") if field == "arrival_time_s" and value is None else value
+        out[f"{name}.violations"] = float(sum(int(row.get(k) or 0) for k in
+                                              ("keep_in_violations", "keep_out_violations", "limit_violations")))
+    for label, est in (("batch", m.get("estimate")), ("sequential", m.get("estimate_sequential"))):
+        if not est:
+            continue
+        for i, p in enumerate(PARAMS):
+            err = (est.get("error_pct") or [None] * 4)[i]
+            out[f"{label}.abs_error_pct.{p}"] = None if err is None else abs(float(err))
+            red = (est.get("cov_reduction_pct") or [None] * 4)[i]
+            out[f"{label}.cov_reduction_pct.{p}"] = None if red is None else float(red)
+    for field in RESPONSE_FIELDS:
+        if field in m:
+            out[field] = m[field]
+    return out
+
+
+def run_events(status: str, m: dict[str, Any]) -> dict[str, bool]:
+    """One run's yes/no figures: ``unsafe``, ``any_violation``, per segment-3 flight ``<flight>.keep_out_entered``
+    (its body entered a keep-out zone), ``<flight>.never_arrived`` and ``<flight>.saturated``.
+
+    Parameters
+    ----------
+    status : str
+        The run's final status.
+    m : dict
+        Its manifest metrics.
+
+    Returns
+    -------
+    dict
+    """
+    out = {"unsafe": status == "unsafe",
+           "any_violation": any(int(v) > 0 for v in (m.get("violations") or {}).values())}
+    for key, row in (m.get("comparison") or {}).items():
+        if row.get("rms_position_error_m") is None:
+            continue
+        name = _flight_name(key)
+        out[f"{name}.keep_out_entered"] = int(row.get("keep_out_violations") or 0) > 0
+        out[f"{name}.never_arrived"] = row.get("arrival_time_s") is None
+        out[f"{name}.saturated"] = float(row.get("time_saturated_s") or 0.0) > 0.0
+    return out
+
+
+def cell_statistics(cfg: CampaignConfig, final: dict[int, dict[str, Any]],
+                    runs_index: dict[str, Any]) -> list[dict[str, Any]]:
+    """Per cell: its levels, runs, and every figure's median / fraction with a 95 % interval (module docstring).
+
+    Parameters
+    ----------
+    cfg : CampaignConfig
+    final : dict of int to dict
+        Final manifest records.
+    runs_index : dict
+        ``runs.json``'s index (each run's ``cell`` with a grid).
+
+    Returns
+    -------
+    list of dict
+        In cell order: ``name``, ``levels``, ``runs`` (planned), ``completed``, ``figures`` (name ->
+        :func:`oacli.campaign.intervals.median_interval`), ``events`` (name ->
+        :func:`oacli.campaign.intervals.proportion_interval`).
+    """
+    cells = campaign_cells(cfg)
+    names = [c.name for c in cells] or ["all"]
+    levels = {c.name: c.levels for c in cells}
+    planned = dict.fromkeys(names, 0)
+    for entry in runs_index.values():
+        cell = entry.get("cell", "all") if cells else "all"
+        if cell in planned:
+            planned[cell] += 1
+    figures: dict[str, dict[str, list[float | None]]] = {n: {} for n in names}
+    events: dict[str, dict[str, list[bool]]] = {n: {} for n in names}
+    for k, rec in sorted(final.items()):
+        if rec["status"] not in manifest.COMPLETED or not rec.get("metrics"):
+            continue
+        cell = (runs_index.get(str(k)) or {}).get("cell", "all") if cells else "all"
+        if cell not in figures:
+            continue
+        for key, value in run_figures(rec["metrics"]).items():
+            figures[cell].setdefault(key, []).append(value)
+        for key, flag in run_events(rec["status"], rec["metrics"]).items():
+            events[cell].setdefault(key, []).append(bool(flag))
+    out = []
+    for n in names:
+        completed = max((len(v) for v in events[n].values()), default=0)
+        out.append({
+            "name": n, "levels": levels.get(n, {}), "runs": planned[n], "completed": completed,
+            "figures": {key: median_interval(vals) for key, vals in figures[n].items()
+                        if any(v is not None for v in vals)},
+            "events": {key: proportion_interval(sum(flags), len(flags)) for key, flags in events[n].items()},
+        })
     return out
 
 
@@ -119,8 +260,9 @@ def summarize(cfg: CampaignConfig, final: dict[int, dict[str, Any]], runs_index:
                      "max_position_error_m": _pct([m.get("max_position_error_m") for m in metrics])},
         "estimation": _estimation(metrics, cfg),
         "faults": faults,
+        "cells": cell_statistics(cfg, final, runs_index),
         "hashes": {str(k): final[k].get("hash") for k in sorted(final)},
     }
 
 
-__all__ = ["PARAMS", "summarize"]
+__all__ = ["FLIGHT_NAMES", "PARAMS", "cell_statistics", "run_events", "run_figures", "summarize"]

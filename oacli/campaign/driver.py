@@ -158,10 +158,12 @@ def write_specs(campaign: Campaign, folder: Path) -> None:
         spec["oacli_version"] = __version__
         path = rdir / "spec.json"
         if not path.exists():
-            config_from_dict(spec["config"], source=f"run {k}")  # a dispersion that breaks the config stops here
+            cell = f" (cell {spec['cell']})" if "cell" in spec else ""
+            config_from_dict(spec["config"], source=f"run {k}{cell}")  # a dispersion or cell that breaks it stops here
             rdir.mkdir(parents=True, exist_ok=True)
             write_text_atomic(path, json.dumps(to_json_safe(spec), indent=1, allow_nan=False))
-        index[k] = {"seed": spec["seed"], "faults": spec["draws"]["faults"]}
+        index[k] = {"seed": spec["seed"], "faults": spec["draws"]["faults"],
+                    **({"cell": spec["cell"]} if "cell" in spec else {})}
     write_text_atomic(folder / "runs.json", json.dumps({"runs": cfg.runs, "index": index}, indent=1))
 
 

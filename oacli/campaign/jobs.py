@@ -168,7 +168,9 @@ def _closed_loop(cfg: Any, out: Path) -> tuple[dict[str, Any], list[np.ndarray]]
         summary.update(tube_summary(monitor, history, tel, cfg))
         add_tube_reasons(findings, summary)
     assess_track(summary, findings).apply(summary)
-    metrics = track_metrics(summary)
+    from oacli.campaign.study_metrics import response_metrics
+
+    metrics = {**track_metrics(summary), **response_metrics(tel)}  # + lag and hold error (study presets)
     metrics["stalled_steps"] = sum(1 for i in tel.solve_info if i.status == "stalled")
     return metrics, [tel.t_true, tel.x_true, tel.x_measured, tel.u_applied]
 
@@ -182,10 +184,14 @@ def _telemetry_arrays(mcap: Path) -> list[np.ndarray]:
 
 def _track(cfg: Any, out: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
     """The ``track`` stage with its files (``job: track``)."""
+    from oacli.campaign.study_metrics import response_metrics
+    from oacli.io.mcap_read import read_telemetry
     from oacli.stages.track import run_track
 
     result = run_track(cfg, out=out / "track")
-    return track_metrics(result.summary), _telemetry_arrays(out / "track" / "track.mcap")
+    tel = read_telemetry(out / "track" / "track.mcap")
+    metrics = {**track_metrics(result.summary), **response_metrics(tel)}  # + lag and hold error (study presets)
+    return metrics, [tel.t_true, tel.x_true, tel.x_measured, tel.u_applied]
 
 
 def estimate_metrics(estimate: dict[str, Any]) -> dict[str, Any]:
@@ -208,8 +214,11 @@ def estimate_metrics(estimate: dict[str, Any]) -> dict[str, Any]:
                    if isinstance(crb_entry, dict) else crb_entry, dtype=float)
     crb = np.where(np.isfinite(crb), crb, np.nan)
     err = theta - truth
+    from oacli.campaign.study_metrics import as_theta_list
+
     return {"error_pct": (100.0 * err / truth).tolist(),
             "error_over_crb": np.where(crb > 0, err / np.where(crb > 0, crb, 1.0), np.nan).tolist(),
+            "cov_reduction_pct": as_theta_list(estimate.get("cov_reduction_pct")),
             "status": estimate.get("status")}
 
 
@@ -257,6 +266,10 @@ def mission_metrics(folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
     estimate = summary.get("estimate") or {}
     metrics["estimate"] = estimate_metrics(estimate) if estimate.get("mass_kg") is not None else None
     metrics["segments"] = per_track
+    from oacli.campaign.study_metrics import comparison_metrics, sequential_estimate
+
+    metrics["comparison"] = comparison_metrics(folder, summary)  # the study presets' figures (segment 3's flights)
+    metrics["estimate_sequential"] = sequential_estimate(folder)
     arrays: list[np.ndarray] = []
     for key in sorted(tracks):
         arrays += _telemetry_arrays(stage_by_key(key).mcap(folder))

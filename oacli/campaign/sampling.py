@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from oacli.campaign.cells import cell_and_replicate
 from oacli.config.campaign import CampaignConfig
 from oacli.config.mission import deep_merge
 
@@ -115,20 +116,22 @@ def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[s
     -------
     dict
         ``{"k", "seed", "job", "config", "draws", "inject"}``; ``config`` is the run's config as plain data and
-        ``draws`` what was drawn (dispersion values and the faults that struck).
+        ``draws`` what was drawn (dispersion values and the faults that struck); with a ``grid``, also ``cell``
+        (its name) and ``replicate`` (whose sub-streams the draws come from, :mod:`oacli.campaign.cells`).
     """
     s, d, f = campaign.seed, campaign.dispersions, campaign.faults
-    data = copy.deepcopy(base)
+    cell, r = cell_and_replicate(campaign, k)  # r: the index of the draws (k without a grid; oacli.campaign.cells)
+    data = copy.deepcopy(base) if cell is None else deep_merge(base, cell.overrides)
     draws: dict[str, Any] = {}
-    data["seed"] = run_seed(s, k)
+    data["seed"] = run_seed(s, r)
     data["name"] = f"{campaign.name}-run-{k:05d}"[:64]
     mass_keys, inertia_keys = _plant_keys(campaign.job)
 
     uniform = d.distribution == "uniform"
     mass0 = float(_get(data, mass_keys))
-    mass = mass0 * (1.0 + 0.01 * d.mass_pct * _unit(substream(s, k, "dispersion/mass"), (), uniform))
+    mass = mass0 * (1.0 + 0.01 * d.mass_pct * _unit(substream(s, r, "dispersion/mass"), (), uniform))
     inertia0 = np.asarray(_get(data, inertia_keys), dtype=float)
-    rng_i = substream(s, k, "dispersion/inertia")
+    rng_i = substream(s, r, "dispersion/inertia")
     for _ in range(MAX_INERTIA_DRAWS):
         inertia = inertia0 * (1.0 + 0.01 * np.asarray(d.inertia_pct) * _unit(rng_i, (3,), uniform))
         if np.all(inertia > 0) and 2 * np.max(inertia) <= np.sum(inertia):  # the triangle inequalities
@@ -136,7 +139,7 @@ def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[s
     _set(data, mass_keys, float(mass))
     draws["mass_kg"] = float(mass)
     if d.principal_axes_rad > 0:
-        rng_a = substream(s, k, "dispersion/principal_axes")
+        rng_a = substream(s, r, "dispersion/principal_axes")
         if uniform:  # an angle uniform in [0, max] about a uniformly drawn axis
             direction = rng_a.standard_normal(3)
             rotvec = d.principal_axes_rad * rng_a.uniform() * direction / np.linalg.norm(direction)
@@ -153,14 +156,14 @@ def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[s
 
     truth = data.setdefault("truth", {})
     com0 = np.asarray(truth.get("com_offset_m") or (0.0, 0.0, 0.0), dtype=float)
-    com = com0 + np.asarray(d.com_offset_m) * _unit(substream(s, k, "dispersion/com_offset"), (3,), uniform)
+    com = com0 + np.asarray(d.com_offset_m) * _unit(substream(s, r, "dispersion/com_offset"), (3,), uniform)
     truth["com_offset_m"] = [float(v) for v in np.clip(com, -0.05, 0.05)]
 
     scale0 = np.asarray(truth.get("actuator_scale") or (1.0,) * 6, dtype=float)
     scale = scale0 * (1.0 + 0.01 * np.asarray(d.actuator_scale_pct)
-                      * substream(s, k, "dispersion/actuator_scale").standard_normal(6))
+                      * substream(s, r, "dispersion/actuator_scale").standard_normal(6))
     struck: list[str] = []
-    rng = substream(s, k, "fault/actuator_scale_errors")
+    rng = substream(s, r, "fault/actuator_scale_errors")
     if rng.random() < f.actuator_scale_errors.probability:
         scale = scale * (1.0 + 0.01 * f.actuator_scale_errors.std_pct * rng.standard_normal(6))
         struck.append("actuator_scale_errors")
@@ -169,37 +172,37 @@ def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[s
 
     sensors = data.setdefault("sensors", {})
     if d.sensor_noise_pct > 0:
-        factor = float(np.exp(0.01 * d.sensor_noise_pct * substream(s, k, "dispersion/sensor_noise")
+        factor = float(np.exp(0.01 * d.sensor_noise_pct * substream(s, r, "dispersion/sensor_noise")
                               .standard_normal()))
         for key in SENSOR_STD_KEYS:
             sensors[key] = float(sensors.get(key, 0.0)) * factor
         draws["sensor_noise_factor"] = factor
     sim = data.setdefault("simulation", {})
     offset = np.asarray(sim.get("initial_offset_m") or (0.0, 0.0, 0.0), dtype=float)
-    offset = offset + np.asarray(d.initial_position_m) * substream(s, k, "dispersion/initial_position") \
+    offset = offset + np.asarray(d.initial_position_m) * substream(s, r, "dispersion/initial_position") \
         .standard_normal(3)
     sim["initial_offset_m"] = [float(v) for v in offset]
     draws["initial_offset_m"] = sim["initial_offset_m"]
 
     loc = sensors.setdefault("localisation", {})
-    rng = substream(s, k, "fault/localisation_jumps")
+    rng = substream(s, r, "fault/localisation_jumps")
     if rng.random() < f.localisation_jumps.probability:
         loc.update(enabled=True, jump_probability=f.localisation_jumps.rate,
                    jump_position_m=list(f.localisation_jumps.position_m),
                    jump_attitude_rad=list(f.localisation_jumps.attitude_rad))
         struck.append("localisation_jumps")
-    rng = substream(s, k, "fault/dropped_measurements")
+    rng = substream(s, r, "fault/dropped_measurements")
     if rng.random() < f.dropped_measurements.probability:
         loc.update(enabled=True, drop_probability=f.dropped_measurements.rate)
         struck.append("dropped_measurements")
-    rng = substream(s, k, "fault/delayed_measurements")
+    rng = substream(s, r, "fault/delayed_measurements")
     if rng.random() < f.delayed_measurements.probability:
         loc.update(enabled=True, delay_probability=f.delayed_measurements.rate,
                    delay_mean_s=f.delayed_measurements.mean_delay_s)
         struck.append("delayed_measurements")
 
     faults = data.setdefault("faults", {})
-    rng = substream(s, k, "fault/actuator_saturation")
+    rng = substream(s, r, "fault/actuator_saturation")
     if rng.random() < f.actuator_saturation.probability:
         axis = int(rng.integers(6))
         fraction = [1.0] * 6
@@ -207,7 +210,7 @@ def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[s
         faults["actuator_saturation"] = fraction
         struck.append("actuator_saturation")
         draws["actuator_saturation"] = fraction
-    rng = substream(s, k, "fault/controller_stall")
+    rng = substream(s, r, "fault/controller_stall")
     if rng.random() < f.controller_stall.probability:
         stall = {"start_s": float(rng.uniform(*f.controller_stall.start_s)),
                  "duration_s": float(rng.uniform(*f.controller_stall.duration_s))}
@@ -216,7 +219,10 @@ def sample_run(campaign: CampaignConfig, base: dict[str, Any], k: int) -> dict[s
         draws["controller_stall"] = stall
     draws["faults"] = struck
     inject = campaign.inject.get(k)
-    return {"k": k, "seed": data["seed"], "job": campaign.job, "config": data, "draws": draws, "inject": inject}
+    spec = {"k": k, "seed": data["seed"], "job": campaign.job, "config": data, "draws": draws, "inject": inject}
+    if cell is not None:
+        spec.update(cell=cell.name, replicate=r)
+    return spec
 
 
 __all__ = ["run_seed", "sample_run", "substream"]

@@ -107,7 +107,11 @@ def campaign(
         finally:
             bar.close()
             handle.close()
-        return folder, finalize(folder, wall_time_s=time.perf_counter() - start, executor=handle.kind)
+        summary = finalize(folder, wall_time_s=time.perf_counter() - start, executor=handle.kind)
+        if cfg.outputs.report:  # report.html from the finalised folder (oacli report; outputs.report: false skips)
+            from oacli.commands.report import report_after_run
+            report_after_run(folder, say)
+        return folder, summary
 
     folder, summary = run_guarded(action)
     if summary is None:

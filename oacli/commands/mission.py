@@ -177,6 +177,9 @@ def mission(
         if say:
             say("writing mission.mcap (every stage on the mission clock, for Foxglove: docs/foxglove/mission.json)")
         write_mission_mcap(result.run_dir, result.summary)
+        if cfg.outputs.report:  # report.html from the finished folder (oacli report; outputs.report: false skips)
+            from oacli.commands.report import report_after_run
+            report_after_run(result.run_dir, say)
         return result
 
     result = run_guarded(action)

@@ -27,6 +27,7 @@ from oacli.config.fields import (
     none_to,
     sequence_of,
 )
+from oacli.config.outputs import CampaignOutputsConfig
 
 Probability = Annotated[Real, Field(ge=0, le=1)]
 Range = tuple[NonNegativeReal, NonNegativeReal]
@@ -157,6 +158,11 @@ class FlightFigures(Section):
     inertia_pct: NonNegativeVector3 = Field(default=(0.91, 1.35, 6.92), description="Flight Ixx, Iyy, Izz errors [%].")
 
 
+CellLevels = dict[Annotated[str, Field(min_length=1, max_length=40, pattern=r"^[A-Za-z0-9_.%+-]+$")],
+                  Annotated[dict[str, Any], none_to({})]]
+"""A factor's levels: level name -> overrides of the base config (nested, or dotted keys ``mission.prior.mass_kg``)."""
+
+
 class CampaignConfig(Section):
     """``oacli campaign``: Monte Carlo runs of one job over dispersed conditions and flight faults."""
 
@@ -177,9 +183,22 @@ class CampaignConfig(Section):
     max_retries: Annotated[StrictInt, Field(ge=0, le=10)] = Field(
         default=2, description="Retries of a run after a worker death, timeout or out-of-memory.")
     flight: Annotated[FlightFigures, none_to({})] = Field(default_factory=FlightFigures)
+    grid: Annotated[dict[Name, CellLevels], none_to({})] = Field(
+        default_factory=dict, description="Study cells: factor -> level -> overrides of the base config. The cells "
+        "are the product of the levels (in file order); run k flies cell k mod (number of cells), so 'runs' is the "
+        "total and a study needs runs = seeds per cell x cells. Runs of one replicate (k div cells) share their draws "
+        "and seed (a paired design). Summary: per cell, medians with distribution-free 95 % intervals.")
+    outputs: Annotated[CampaignOutputsConfig, none_to({})] = Field(default_factory=CampaignOutputsConfig)
     inject: Annotated[dict[Annotated[int, Field(ge=0)], InjectKind], none_to({})] = Field(
         default_factory=dict, description="Testing aid: break run k on purpose (raise | exit | oom | hang) to check "
         "failure isolation; 'exit', 'oom' and 'hang' strike every attempt.")
+
+    @model_validator(mode="after")
+    def _grid(self) -> CampaignConfig:
+        for factor, levels in self.grid.items():
+            if not levels:
+                raise PydanticCustomError("oacli_grid", f"grid.{factor}: needs at least one level")
+        return self
 
 
 __all__ = ["CampaignConfig", "CampaignFaults", "DispersionsConfig", "JobKind"]

@@ -111,7 +111,8 @@ class MissionConfig(Section):
     )
     segments: Annotated[dict[str, Any], none_to({})] = Field(
         default_factory=dict,
-        description="Per-segment overrides of the other sections (segment-1, segment-2, segment-3), deep-merged.",
+        description="Per-segment overrides of the other sections (segment-1, segment-2, segment-3), deep-merged; "
+        "a stage key (segment-3/baseline-mpc-prior ...) overrides that stage alone, after its segment's.",
     )
 
 

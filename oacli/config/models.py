@@ -209,10 +209,10 @@ class OacliConfig(Section):
         details: list[InitErrorDetails] = []
         for segment, overrides in self.mission.segments.items():
             loc0 = ("mission", "segments", segment)
-            if segment not in SEGMENT_NAMES:
+            if segment.split("/", 1)[0] not in SEGMENT_NAMES:  # a segment, or one stage of it (segment-3/track)
                 details.append(InitErrorDetails(type=PydanticCustomError(
-                    "oacli_segment", "unknown segment (allowed: " + ", ".join(SEGMENT_NAMES) + ")"), loc=loc0,
-                    input=overrides))
+                    "oacli_segment", "unknown segment (allowed: " + ", ".join(SEGMENT_NAMES) + ", or one of their "
+                    "stages, e.g. segment-3/baseline-mpc-prior)"), loc=loc0, input=overrides))
                 continue
             if overrides is None:
                 continue

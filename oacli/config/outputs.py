@@ -5,7 +5,7 @@ from __future__ import annotations
 from enum import StrEnum
 from typing import Annotated, Any
 
-from pydantic import BeforeValidator, Field
+from pydantic import BeforeValidator, Field, StrictBool
 from pydantic_core import PydanticCustomError
 
 from oacli.config.fields import Section
@@ -59,6 +59,12 @@ class OutputsConfig(Section):
         "and benchmarks). true and false still mean all and none.",
     )
 
+    report: StrictBool = Field(
+        default=True,
+        description="oacli mission: write report.html (one self-contained offline page: status, segments, figures, "
+        "config; 'oacli report RUN_DIR' writes it afterwards). false: no report.",
+    )
+
     @property
     def stage_pngs(self) -> bool:
         """Whether a stage draws its own PNGs (``all``)."""
@@ -70,4 +76,14 @@ class OutputsConfig(Section):
         return _plot_set(self.plots) is not PlotSet.NONE
 
 
-__all__ = ["OutputsConfig", "PlotSet"]
+class CampaignOutputsConfig(Section):
+    """Optional outputs of a campaign (the campaign file's ``outputs``)."""
+
+    report: StrictBool = Field(
+        default=True,
+        description="Write report.html in the campaign folder (statistics, per-cell intervals, CDFs, one row per run "
+        "with its rerun command; 'oacli report DIR' writes it afterwards). false: no report.",
+    )
+
+
+__all__ = ["CampaignOutputsConfig", "OutputsConfig", "PlotSet"]

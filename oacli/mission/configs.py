@@ -263,9 +263,14 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
     """
     mission = mission_section(cfg)
     a, b, c = mission.route
+    unknown = sorted(k for k in mission.segments if "/" in k and k not in {s.key for s in MISSION_STAGES})
+    if unknown:
+        raise ConfigError(f"mission.segments.{unknown[0]}: unknown stage (allowed: "
+                          + ", ".join(s.key for s in MISSION_STAGES) + ")")
     data = cfg.model_dump(mode="json")  # what dump_config writes, without the YAML text round trip
     data.pop("mission", None)
     data = deep_merge(data, mission.segments.get(stage.segment) or {})
+    data = deep_merge(data, mission.segments.get(stage.key) or {})  # one stage's own (e.g. a baseline), after
     index = next(i for i, s in enumerate(MISSION_STAGES) if s.key == stage.key)
     prior = prior_model(cfg)
     grasped = {"mass_kg": mission.grasped.mass_kg, "inertia_kgm2": list(mission.grasped.inertia_kgm2)}
