@@ -4,7 +4,7 @@ Information (issue 5 target: tr F⁻¹ of our design ≤ 0.5 × the best flown `
 problem of the flown files: B (10.8, -7.75, 5.2) → C (10.8, -7.75, 4.3), 60 s, |F| ≤ 0.25 N, |τ| ≤ 0.025 N·m,
 |ω| ≤ 0.175 rad/s, |v| ≤ 0.15 m/s, quaternion (0, 0, -0.7071, 0.7071) at both ends (configs/iss_reswarm.yaml,
 which also keeps 0.1 m from the JEM walls). Everything is evaluated in this run with the same Fisher information
-(Doerr Eq. 29, measurements every 0.5 s as in the files) and the same noise model, RATTLE's sequential estimator
+([Doerr2021] Eq. 29, measurements every 0.5 s as in the files) and the same noise model, RATTLE's sequential estimator
 (rattle ``param_est``: R = diag(5e-6 ×3 velocity, 2.5e-4 ×3 angular velocity, 5e-6 ×3 linear acceleration), read as
 variances since the filter forms S = H P Hᵀ + R), at θ = Astrobee with object ([Doerr2021] Table 1: 15 kg,
 0.1464/0.1376/0.1604 kg·m²). The flown files' inputs (force world frame, torque body frame; SOURCE.md) are rolled out

@@ -1,6 +1,6 @@
 """Benchmark: one MPC step at N = 5, 20, 40 — built once vs a naive problem rebuilt every step.
 
-Three paths solve the same tracking MPC (Doerr Eq. 26, 12-state hover error model of Astrobee, Clarabel) from
+Three paths solve the same tracking MPC ([Doerr2021] Eq. 26, 12-state hover error model of Astrobee, Clarabel) from
 the same sequence of initial states: the default compiled path (canonicalised once, Clarabel called directly
 with updated data), the same DPP problem through ``problem.solve()``, and a naive formulation that rebuilds
 the cvxpy problem every step, as a straight transcription of the equations would. Figures are medians over

@@ -15,7 +15,7 @@ CPU time of this process (``time.process_time``: oacli's plan + smooth, OMPL con
   exactly what ``oacli smooth`` runs (LQR shortcutting with the scene's ``planner.shortcut``, its connector built
   as the stage builds it, then the path-length polish with ``planner.polish``; cost cap: the plan's cost).
 * **oacli LQR-RRT\\* anytime + shortcut + polish** (``--anytime``): improving for ``--rrtstar-budget`` first.
-* **oacli kino-RRT**: motion primitives (ReSWARM Eqs. 26-27) with the exact LQR goal link (flyable as planned).
+* **oacli kino-RRT**: motion primitives ([ReSWARM2023] Eqs. 26-27) with the exact LQR goal link (flyable as planned).
 * **OMPL control RRT** (``ompl.control.RRT``): the same double integrator and limits, the scalar validity check of
   :class:`benchmarks.ompl_peers.ScalarValidity` (the same geometry: all keep-in boxes, keep-outs grown by the
   robot) at its propagation steps. Its first solution is its flyable trajectory.

@@ -11,7 +11,7 @@ own caps (``planner.limits``, ``excitation.limits``) may only lower these furthe
 
 Reference check (track). Before a reference is tracked, :func:`check_reference_limits` computes what following it
 asks of the simulated plant: the force ``m_truth (v_{k+1} − v_k)/Δt`` and torque ``I_truth Δω/Δt + ω × I_truth ω``
-of :func:`oacli.trajectory.feedforward_inputs` (Doerr Eqs. 34b, 35b) plus the plant's disturbance, against the
+of :func:`oacli.trajectory.feedforward_inputs` ([Doerr2021] Eqs. 34b, 35b) plus the plant's disturbance, against the
 actuator limits, and the reference's velocity and angular rate against the robot's limits.
 """
 
@@ -61,7 +61,7 @@ class LimitSet:
 
 
 def mass_upper_bound_kg(mass_prior_kg: float, mass_std_kg: float, mass_sigmas: float) -> float:
-    """The ``n_σ`` upper mass bound ``m_upper = m_prior + n_σ σ_m`` [kg] (Doerr et al. 2021, Eq. 28).
+    """The ``n_σ`` upper mass bound ``m_upper = m_prior + n_σ σ_m`` [kg] ([Doerr2021] Eq. 28).
 
     Parameters
     ----------
@@ -209,7 +209,7 @@ class DesignLimits:
 
 def design_limits(robot: LimitSet, margin: ReferenceMargin, caps: dict[str, Any] | None = None,
                   notes: tuple[str, ...] = ()) -> DesignLimits:
-    """The limits a reference designer must respect (module docstring; Doerr et al. 2021, Eq. 28).
+    """The limits a reference designer must respect (module docstring; [Doerr2021] Eq. 28).
 
     ``force = robot.force_N · m_prior/m_upper · φ_f``, ``torque = robot.torque_Nm · φ_τ``,
     ``velocity = robot.velocity_mps · φ_v``, ``angular rate = robot.angular_velocity_radps · φ_ω``, each then

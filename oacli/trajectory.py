@@ -50,7 +50,7 @@ def feedforward_inputs(x_ref: np.ndarray, dt: float, params: InertialParams) -> 
     """Inputs that make the model follow ``x_ref (N+1, 13)`` sampled every ``dt`` [s], shape (N, 6).
 
     Force ``f_k = m (v_{k+1} − v_k)/dt`` (exact for the discrete double integrator's velocity) and torque
-    ``τ_k = I (ω_{k+1} − ω_k)/dt + ω_k × I ω_k`` (Doerr Eqs. 34b, 35b).
+    ``τ_k = I (ω_{k+1} − ω_k)/dt + ω_k × I ω_k`` ([Doerr2021] Eqs. 34b, 35b).
 
     Parameters
     ----------

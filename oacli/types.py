@@ -3,12 +3,12 @@
 Every type is a frozen dataclass with fixed array shapes and SI units. Shapes are checked in
 ``__post_init__``; nothing is silently squeezed or broadcast.
 
-State convention (Doerr et al. 2021, Eq. 33): ``x = [r (3) m, v (3) m/s, q (4) [x, y, z, w] scalar last,
+State convention ([Doerr2021] Eq. 33): ``x = [r (3) m, v (3) m/s, q (4) [x, y, z, w] scalar last,
 omega (3) rad/s]``, 13 entries. ``r`` and ``v`` are expressed in the world (ISS) frame, ``q`` rotates body
 vectors into the world frame and ``omega`` is the body angular rate expressed in the body frame.
 
 Input convention: ``u = [f (3) N, tau (3) N·m]``; the force ``f`` is expressed in the **world** frame (as in
-Doerr Eq. 34b and in the RATTLE planner's model) and the torque ``tau`` in the **body** frame (Eq. 35b).
+[Doerr2021] Eq. 34b and in the RATTLE planner's model) and the torque ``tau`` in the **body** frame (Eq. 35b).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def _as_array(name: str, value, shape: tuple[int | None, ...]) -> np.ndarray:
 
 @dataclass(frozen=True)
 class InertialParams:
-    """Rigid-body inertial parameters (Doerr Eqs. 34-35).
+    """Rigid-body inertial parameters ([Doerr2021] Eqs. 34-35).
 
     Attributes
     ----------
@@ -237,7 +237,7 @@ class Telemetry:
 
 @dataclass(frozen=True)
 class ParameterEstimate:
-    """An estimate of the inertial parameters θ = [m kg, Ixx, Iyy, Izz kg·m²] (Doerr Eqs. 31-32).
+    """An estimate of the inertial parameters θ = [m kg, Ixx, Iyy, Izz kg·m²] ([Doerr2021] Eqs. 31-32).
 
     Attributes
     ----------

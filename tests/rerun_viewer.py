@@ -1,4 +1,4 @@
-"""Drive the bundled Rerun viewer headless and read what it shows (issue 33): which recordings it holds, which views
+"""Drive the bundled Rerun viewer headless and read what it shows: which recordings it holds, which views
 the blueprint of each one lays out on screen, and screenshots.
 
 rerun-sdk 0.41 ships ``rerun --headless`` (an offscreen viewer whose gRPC control service keeps running) and

@@ -1,5 +1,5 @@
 """Make flight-like telemetry from a clean ``track.mcap``: swapped, dropped and duplicated messages, dropped control
-steps, a file cut mid-write (issue 10). Every random choice comes from the generator passed in."""
+steps, a file cut mid-write. Every random choice comes from the generator passed in."""
 
 from __future__ import annotations
 

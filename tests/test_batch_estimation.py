@@ -1,4 +1,4 @@
-"""Batch maximum-likelihood estimation (Doerr 2021 Eqs. 31-32): model, Jacobians, exactness, outliers, the CRB."""
+"""Batch maximum-likelihood estimation ([Doerr2021] Eqs. 31-32): model, Jacobians, exactness, outliers, the CRB."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The fast batch path (issue 13.3) against the original: structured propagation, block normal equations with a
+"""The fast batch path against the original: structured propagation, block normal equations with a
 Schur complement on φ, block-QR covariance; ``estimate_batch(..., reference=True)`` is the original."""
 
 from __future__ import annotations
@@ -145,7 +145,7 @@ def test_fast_path_equals_the_original_on_a_run_with_outliers_and_a_gap():
 @pytest.mark.slow
 def test_fast_path_equals_the_original_on_the_iss_excitation_run(tmp_path):
     """The 60 s ISS excitation run (track stage, 325 records, configs/iss_reswarm.yaml with a payload): θ̂ and the
-    covariance equal to the reference path's to 1e-6 relative (issue 13.3), and to a dense QR of the same A; a
+    covariance equal to the reference path's to 1e-6 relative, and to a dense QR of the same A; a
     sparse LU of AᵀA (cond ≈ 7e12, what the reference used to solve) is itself off by more than 1e-6."""
     from oacli.config import load_config
     from oacli.estimation.alignment import align_records
@@ -189,7 +189,7 @@ def test_fast_path_equals_the_original_on_the_iss_excitation_run(tmp_path):
 
 
 def test_warm_started_windows_equal_cold_solves_of_the_same_records():
-    """estimate_batch_windows warm-starts each window (no continuation, little damping, issue 13): every window's
+    """estimate_batch_windows warm-starts each window (no continuation, little damping): every window's
     θ̂, covariance and inliers equal a cold estimate_batch (continuation from the prior) of the same records, on a
     20 s run with 5 % localisation jumps (several gating rounds) and a gap in the inputs. (With this nearly rigid
     process model and windows that double, the warm start saves no iterations; on the default mission it saves

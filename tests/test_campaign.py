@@ -210,7 +210,7 @@ def test_flight_preset_writes_valid_mission_configs(tmp_path):
 
 
 def test_hashes_equal_on_dask_local_cluster(tmp_path):
-    """Per-run result hashes on a Dask LocalCluster (bound to 127.0.0.1) equal the serial ones (issue 15)."""
+    """Per-run result hashes on a Dask LocalCluster (bound to 127.0.0.1) equal the serial ones."""
     path = tiny_campaign(tmp_path)
     serial = run_with(path, tmp_path / "serial", "serial")
     dask = run_with(path, tmp_path / "dask", "dask-local", workers=2)

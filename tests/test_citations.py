@@ -56,3 +56,21 @@ def test_no_citation_of_workspace_only_files():
             if UNRESOLVABLE.search(line):
                 found.append(f"{path.relative_to(REPO)}:{lineno}: {line.strip()[:100]}")
     assert not found, "cite by key (docs/references.md) instead of:\n" + "\n".join(found)
+
+
+# A place in the two seed papers cited without its key ("Doerr Eq. 30", "ReSWARM §4.2"): one citation form only.
+BARE = re.compile(r"(?:^|[^\[A-Za-z/])(?:Doerr|ReSWARM)(?: et al\.)?(?: 2021)?,? (?:Eqs?\.|§|Table|Fig\.)")
+
+
+def test_places_in_the_seed_papers_are_cited_with_their_key():
+    bare = []
+    for path in scanned_files():
+        if path == REFERENCES:
+            continue
+        for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if BARE.search(line):
+                bare.append(f"{path.relative_to(REPO)}:{n}: {line.strip()[:100]}")
+    assert not bare, "cite as [Doerr2021] Eq. N / [ReSWARM2023] §N:\n" + "\n".join(bare[:20])
+    assert BARE.search("the LQR cost (Doerr Eq. 10)") and BARE.search("ReSWARM §4.2.1 says")
+    assert not BARE.search("([Doerr2021] Eq. 10)") and not BARE.search("Doerr et al. 2021 plan")
+

@@ -187,7 +187,7 @@ def test_plan_and_smooth_stay_within_the_margined_limits(tmp_path):
     cfg = load_config(cfg_path)
     lim = planner_design_limits(cfg).limits
     # The robot is known (no planner.margin.mass_std_kg): the reference share only, no derating through the
-    # estimator prior's default variance (issue 29: 44 % of the force before).
+    # estimator prior's default variance.
     np.testing.assert_allclose(lim.force_N, 0.8 * np.array(cfg.robot.force_limit_N))
     plan = tmp_path / "plan"
     result = run_cli("plan", cfg_path, "--out", plan, "--quiet")

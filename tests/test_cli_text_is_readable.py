@@ -1,4 +1,4 @@
-"""What the CLI prints reads as text (issue 33 item 8): ``--help`` in Unix style, ``--from`` completes stage names,
+"""What the CLI prints reads as text: ``--help`` in Unix style, ``--from`` completes stage names,
 ``oacli info`` prints status findings as lines and points a cut file at ``oacli logs``, and the mission's final
 warning is a headline plus one wrapped line per finding."""
 

@@ -36,7 +36,7 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
     [
         (0.0, False),  # through the centre
         (0.299, False),  # 1 mm inside the sphere at the closest approach
-        (0.3, True),  # tangent: touching is allowed (free space is (p-c)ᵀP(p-c) >= 1, Doerr Eq. 12)
+        (0.3, True),  # tangent: touching is allowed (free space is (p-c)ᵀP(p-c) >= 1, [Doerr2021] Eq. 12)
         (0.301, True),
     ],
 )
@@ -116,7 +116,7 @@ def test_quartic_minimum_is_never_above_a_dense_sample_and_is_attained(coeffs, l
 
 
 # ------------------------------------------------------------------------------------------------------------
-# Ellipsoid-on-ellipsoid (ReSWARM §4.2.2)
+# Ellipsoid-on-ellipsoid ([ReSWARM2023] §4.2.2)
 # ------------------------------------------------------------------------------------------------------------
 
 

@@ -1,4 +1,4 @@
-"""The condensed QP solved by DAQP (the benchmarks' lower limit, issue 13 item 4) is the controllers' problem: the
+"""The condensed QP solved by DAQP (the benchmarks' lower limit) is the controllers' problem: the
 same first input as the compiled Clarabel path on one tube MPC instance and one tracking MPC instance with a
 keep-out half-space (a Parameter in the constraint matrix)."""
 

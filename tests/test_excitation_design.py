@@ -1,4 +1,4 @@
-"""Offline excitation design (Doerr 2021, Eq. 30): exact criterion gradients, the SCP and its guarantees."""
+"""Offline excitation design ([Doerr2021] Eq. 30): exact criterion gradients, the SCP and its guarantees."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ from oacli.stages.excite import excitation_problem
 from oacli.stages.settings import scp_settings
 from tests.conftest import INFO_TRAJECTORIES, REPO, require_shared
 
-THETA = np.array([15.0, 0.1464, 0.1376, 0.1604])  # Doerr 2021 Table 1, Astrobee with object
+THETA = np.array([15.0, 0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1, Astrobee with object
 FULL = MeasurementModel(0.01, 0.002, 0.005, 0.001, 0.003, 0.01)  # every quantity, attitude included
 # RATTLE's estimator (rattle param_est R_6DOF, variances): velocity, angular velocity, linear acceleration.
 RATTLE = MeasurementModel(velocity_std_mps=5e-6**0.5, angular_velocity_std_radps=2.5e-4**0.5,
@@ -368,7 +368,7 @@ def test_initial_guess_is_rest_to_rest_and_within_limits():
 
 @pytest.mark.shared_data
 def test_design_beats_the_best_flown_iss_excitation_by_half():
-    """Issue 5 target, checked in the same run with the same FIM and noise model: tr F⁻¹ of the design of the ISS
+    """The excitation target, checked in the same run with the same FIM and noise model: tr F⁻¹ of the design of the ISS
     B→C problem (configs/iss_reswarm.yaml) ≤ 0.5 × that of the best flown excitation_iss_* file (rolled out at
     θ = [Doerr2021] Table 1), and every parameter's Cramér-Rao bound lower."""
     require_shared(INFO_TRAJECTORIES)

@@ -1,4 +1,4 @@
-"""The fast path of the offline excitation design against the reference path (issue 9 speed target).
+"""The fast path of the offline excitation design against the reference path.
 
 The split rollout, Fisher information and adjoint (:mod:`oacli.excitation.split_information`) must reproduce the
 generic reference functions to rounding; the compiled subproblem must be DPP and solve to the same optimum as

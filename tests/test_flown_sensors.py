@@ -1,4 +1,4 @@
-"""Measurements as flown (issue 10 item 4): the simulated IMU against closed form, localisation faults at their
+"""Measurements as flown: the simulated IMU against closed form, localisation faults at their
 configured rates, held inputs between control instants, and IMU-fed estimates against the Cramér-Rao bound."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Foxglove users start from a layout (issue 33 item 4): every shipped layout names only topics and message paths
+"""Foxglove users start from a layout: every shipped layout names only topics and message paths
 that exist in the MCAP it is for (a stage of the shrunk default mission, or its ``mission.mcap``); the mission-level
 MCAP validates like the stage files and puts each stage on the mission clock; ``/scene`` holds the tube
 cross-sections and the planner tree."""

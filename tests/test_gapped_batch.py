@@ -1,4 +1,4 @@
-"""Gaps in the input record (whole controller records lost) in the batch estimator (issue 10).
+"""Gaps in the input record (whole controller records lost) in the batch estimator.
 
 The clean experiment behind the design (:func:`oacli.estimation.lost_inputs.segment_link_weights`): on noise-free data a
 split run gives exactly the unsplit estimate, whether the gap links are cut or bridged with the unknown force

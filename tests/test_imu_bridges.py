@@ -1,4 +1,4 @@
-"""The IMU's bridges of a lost controller record (issue 10): closed forms and properties.
+"""The IMU's bridges of a lost controller record: closed forms and properties.
 
 A lost control record leaves the IMU's readings in the log. The accelerometer's mean over the lost period measures
 the lost force as ``f/m`` (world frame); the slope of the gyro's readings measures the ``ω̇`` the lost torque produced

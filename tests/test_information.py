@@ -1,4 +1,4 @@
-"""Parameter sensitivities and Fisher information (Doerr Eqs. 29-30) against finite differences."""
+"""Parameter sensitivities and Fisher information ([Doerr2021] Eqs. 29-30) against finite differences."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from oacli.excitation.information import (
 from oacli.model import quaternion as quat
 from oacli.model import rigid_body as rb
 
-THETA = np.array([15.0, 0.1464, 0.1376, 0.1604])  # Doerr 2021 Table 1, Astrobee with object
+THETA = np.array([15.0, 0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1, Astrobee with object
 FULL = MeasurementModel(0.01, 0.002, 0.005, 0.001, 0.003, 0.01)
 
 

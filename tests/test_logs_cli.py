@@ -1,4 +1,4 @@
-"""Issue 11: ``oacli logs verify`` and ``oacli logs recover`` on sound, cut and corrupted MCAP files, checked
+"""``oacli logs verify`` and ``oacli logs recover`` on sound, cut and corrupted MCAP files, checked
 against what the ``mcap`` package itself reads."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""LQR: DARE by doubling against scipy, and the affine time-varying Riccati recursion (Doerr Eqs. 8-9)."""
+"""LQR: DARE by doubling against scipy, and the affine time-varying Riccati recursion ([Doerr2021] Eqs. 8-9)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""LQR-RRT*: exact LQR connections (Doerr Eqs. 5-10), real rewiring, and a pass-rate test on a scene with a known
+"""LQR-RRT*: exact LQR connections ([Doerr2021] Eqs. 5-10), real rewiring, and a pass-rate test on a scene with a known
 optimum (S1, shortest path 2.0907 m)."""
 
 from __future__ import annotations
@@ -108,7 +108,7 @@ def test_riccati_maps_equal_the_kkt_solution():
 
 
 def test_connection_is_the_limit_of_doerrs_affine_riccati_with_a_growing_terminal_weight(connector):
-    """Doerr Eqs. 8-9 (oacli.control.lqr.tv_riccati) in δx = x - x_b with Q_N → ∞ converge to the connection."""
+    """[Doerr2021] Eqs. 8-9 (oacli.control.lqr.tv_riccati) in δx = x - x_b with Q_N → ∞ converge to the connection."""
     x_a, x_b, goal = _end_points(4)
     n = 12
     exact = connector.forces(x_a, x_b, goal, n)

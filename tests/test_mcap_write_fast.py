@@ -1,4 +1,4 @@
-"""The MCAP writer's short paths (issue 9) write what the general ones did: the time-ordered merge by a stable sort,
+"""The MCAP writer's short paths write what the general ones did: the time-ordered merge by a stable sort,
 ``write_json``'s scalar time and prebuilt encoder, and :func:`oacli.io.jsonsafe.to_json_safe`'s plain-type path."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The mission's overhead paths (issue 9): the in-place chunk parser of :mod:`oacli.io.mcap_walk` against the
+"""The mission's overhead paths: the in-place chunk parser of :mod:`oacli.io.mcap_walk` against the
 ``mcap`` package's stream reader, topic filtering that still counts and caps every message, stage configs derived
 without the YAML text round trip, libyaml's emitter writing the same text, and stage configs remembered instead
 of parsed again."""

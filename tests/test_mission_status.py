@@ -1,4 +1,4 @@
-"""The mission's status is honest (issue 29): the worst of its stages, a stop on an ``unsafe`` stage, a later
+"""The mission's status is honest: the worst of its stages, a stop on an ``unsafe`` stage, a later
 failure beside it (never exit 2 for a valid config), a failed estimate not handed on, segment 3 derived from the
 learned model and its covariance.
 
@@ -191,8 +191,9 @@ PROBES = [
 @pytest.mark.slow
 @pytest.mark.parametrize(("name", "sets"), PROBES, ids=[p[0] for p in PROBES])
 def test_the_issues_probes_complete_or_stop_safely(name, sets, tmp_path):
-    """Each probe of issue 29 on the flight-like mission: it completes, or stops at an unsafe stage; its status
-    is the worst of its stages, its exit code that status's, never 2; an unsafe stage is the last one run."""
+    """Each probe of the payload-envelope review on the flight-like mission: it completes, or stops at an unsafe
+    stage; its status is the worst of its stages, its exit code that status's, never 2; an unsafe stage is the last
+    one run."""
     args = ["mission", str(ROOT / "configs" / "mission_iss.yaml"), "--out", str(tmp_path / "run"), "--quiet"]
     for s in sets:
         args += ["--set", s]

@@ -1,4 +1,4 @@
-"""Free-flyer model: quaternions, dynamics, exact discretisation and Jacobians (Doerr Eqs. 2, 33-36)."""
+"""Free-flyer model: quaternions, dynamics, exact discretisation and Jacobians ([Doerr2021] Eqs. 2, 33-36)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from oacli.model.double_integrator import double_integrator, hover_error_model, 
 from oacli.types import InertialParams
 from tests.conftest import random_state
 
-THETA = np.array([9.0877, 0.1454, 0.1366, 0.1594])  # Doerr 2021 Table 1, Astrobee
+THETA = np.array([9.0877, 0.1454, 0.1366, 0.1594])  # [Doerr2021] Table 1, Astrobee
 
 
 def central_difference(fun, x0: np.ndarray, eps: float = 1e-6) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Standard MPC (Doerr Eq. 26): DPP, equality with LQR when unconstrained, limits, fallback."""
+"""Standard MPC ([Doerr2021] Eq. 26): DPP, equality with LQR when unconstrained, limits, fallback."""
 
 from __future__ import annotations
 

@@ -123,7 +123,7 @@ def test_error_set_and_true_tube_cover_a_monte_carlo_of_the_observer(noise):
 
 
 def test_exits_are_counted_against_the_tube_in_force():
-    """After a redesign beyond W the promise is the new design's tube (issue 31: not ``designs[0]``): an error
+    """After a redesign beyond W the promise is the new design's tube: an error
     outside the first tube but inside the second counts only on the steps the first one was in force."""
     from oacli.stages.track_tube import tube_exits_in_force
 

@@ -1,4 +1,4 @@
-"""The planners' fast paths agree with the general computations they replace (issue 13: time to a flyable trajectory).
+"""The planners' fast paths agree with the general computations they replace.
 
 Each fast path is checked against an independent evaluation: the single-pair limit check against the batched one,
 the matmul connection against the einsum of the maps, the scalar steering end state against the rollout, the uniform

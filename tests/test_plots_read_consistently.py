@@ -1,4 +1,4 @@
-"""PNG plots that read consistently (issue 33 item 8): the innovation plot's gate and rejected records have their own
+"""PNG plots that read consistently: the innovation plot's gate and rejected records have their own
 colours, coinciding waypoints get one label (no B printed over C), and error panels of one figure share one kind of
 axis. Each read back from the drawn figure before it is saved."""
 

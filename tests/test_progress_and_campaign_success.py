@@ -1,4 +1,4 @@
-"""Progress that is never silent nor absurd, and a campaign's "success" said where it is printed (issue 33 items 7, 8).
+"""Progress that is never silent nor absurd, and a campaign's "success" said where it is printed.
 """
 
 from __future__ import annotations

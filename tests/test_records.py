@@ -1,4 +1,4 @@
-"""Issue 11: records that survive faults — time-ordered, chunked MCAP readable up to a cut by the ``mcap``
+"""Records that survive faults — time-ordered, chunked MCAP readable up to a cut by the ``mcap``
 package and by oacli's reader."""
 
 from __future__ import annotations
@@ -320,8 +320,7 @@ def small_tmpfs(tmp_path):
 
 @pytest.mark.parametrize("fails", ["track.mcap", "final track.mcap"])
 def test_full_disk_fails_fast_with_one_line_naming_the_cause(track_run, small_tmpfs, fails):
-    """The journal does not fit (200 kB), or it does but the complete file beside it does not (issue 32: the
-    journal is the record until the complete file is in place, so the disk holds both for a while): one line
+    """The journal does not fit (200 kB), or it does but the complete file beside it does not: one line
     naming track.mcap and ENOSPC; in the second case the journal stays the record."""
     sizes = {p.name: p.stat().st_size for p in track_run.iterdir()}
     room = 200_000 if fails == "track.mcap" else sizes["track.mcap"] + 100_000

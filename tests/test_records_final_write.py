@@ -1,4 +1,4 @@
-"""Issue 32 (1, 2): a SIGINT or SIGTERM at any moment around track's final write leaves either the complete files or
+"""A SIGINT or SIGTERM at any moment around track's final write leaves either the complete files or
 the journal (kept as ``track.mcap``, or its ``.partial`` that ``oacli logs recover`` reads) holding the whole
 simulation, and the ``interrupted`` summary says which (``records``); a signal once ``summary.json`` is written
 never rewrites it nor kills the process silently.

@@ -1,4 +1,4 @@
-"""Issue 32 (5): an advisory lock on a mission or campaign folder while it runs or resumes. A second resume exits 2
+"""An advisory lock on a mission or campaign folder while it runs or resumes. A second resume exits 2
 naming the holder (pid, host, start time); two concurrent ``oacli campaign DIR --resume`` fly each run exactly once.
 """
 

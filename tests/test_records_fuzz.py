@@ -1,4 +1,4 @@
-"""Issue 32: a seeded fuzz of configs and ``--set`` values (slow suite): at least 300 cases -- huge, tiny, negative,
+"""A seeded fuzz of configs and ``--set`` values (slow suite): at least 300 cases -- huge, tiny, negative,
 non-finite and ill-typed values of every numeric field a stage reads, config files and inputs that are FIFOs,
 devices, folders, binary data -- run through the CLI (Typer's runner, in this process): never exit 1, never a
 traceback (an exception escaping the command), never longer than 60 s (a SIGALRM turns a hang into a failure).

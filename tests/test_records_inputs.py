@@ -1,4 +1,4 @@
-"""Issue 32 (3, 4, 6, 7, 8): final names never become symlinks; ``logs verify/recover`` refuse what is not a regular
+"""Final names never become symlinks; ``logs verify/recover`` refuse what is not a regular
 file and read with bounded memory; the resource estimate refuses configs beyond the budget naming the field; no exit
 1 for input a user can fix; messages that name the real cause."""
 

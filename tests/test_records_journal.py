@@ -1,4 +1,4 @@
-"""Issue 11: ``excite`` and ``plan`` journal their MCAP while they compute, so a SIGKILL mid-run leaves a file the
+"""``excite`` and ``plan`` journal their MCAP while they compute, so a SIGKILL mid-run leaves a file the
 ``mcap`` package reads up to its last complete chunk, ``oacli logs recover`` saves, and a run folder that does not
 look complete."""
 

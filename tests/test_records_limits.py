@@ -1,4 +1,4 @@
-"""Issue 11: inputs that cannot exhaust the machine — MCAP files of millions of tiny messages and configs holding
+"""Inputs that cannot exhaust the machine — MCAP files of millions of tiny messages and configs holding
 huge lists are refused fast with one line naming the topic or field and the limit (exit 2)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 32 (1): a SIGINT or SIGTERM at any moment of a mission's final write (``mission.rrd``, ``plots/``,
+"""A SIGINT or SIGTERM at any moment of a mission's final write (``mission.rrd``, ``plots/``,
 ``summary.json``) leaves either the complete mission or an ``interrupted`` one whose stage folders are all still
 complete, and ``oacli mission --resume`` then finishes it.
 

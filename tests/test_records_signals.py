@@ -1,4 +1,4 @@
-"""Issue 11: ``plan`` and ``excite`` (offline SCP and RATTLE closed loop) under SIGKILL, SIGTERM and SIGINT.
+"""``plan`` and ``excite`` (offline SCP and RATTLE closed loop) under SIGKILL, SIGTERM and SIGINT.
 
 * SIGKILL at a random moment (seeded): every MCAP left in the run folder is read by the ``mcap`` package's stream
   reader (CRCs checked) up to its last complete chunk -- the chunks it yields are exactly the complete chunk records

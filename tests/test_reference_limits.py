@@ -1,4 +1,4 @@
-"""References the robot can fly: design limits (Doerr 2021 Eq. 28 mass margin), section limits above the robot's,
+"""References the robot can fly: design limits ([Doerr2021] Eq. 28 mass margin), section limits above the robot's,
 the reference check of ``oacli track`` and RATTLE's rate governor."""
 
 from __future__ import annotations
@@ -96,7 +96,7 @@ def test_iss_preset_excitation_limits_follow_the_excitation_prior():
 
 def test_planner_limits_use_the_robot_mass_and_only_the_planners_own_std():
     """The robot is known unless planner.margin says otherwise: no derating through the estimator prior's default
-    variance (15 kg², issue 29: a plan with no payload was 50 % slower); a given σ_m derates by Eq. 28's bound."""
+    variance (15 kg²: a plan with no payload was 50 % slower); a given σ_m derates by Eq. 28's bound."""
     data = iss_dict()
     cfg = config_from_dict(data)
     m = cfg.robot.mass_kg

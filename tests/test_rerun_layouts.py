@@ -1,4 +1,4 @@
-"""Layouts that cannot mislead (issue 33): convergence charts framed on their values, 3-D cameras framed on the
+"""Layouts that cannot mislead: convergence charts framed on their values, 3-D cameras framed on the
 path, view titles that follow the world frame, the campaign's layout, and ``--view`` failing loudly.
 
 Values are read back from the written ``.rrd`` files (:mod:`oacli.io.rerun.read`); the cameras are checked by

@@ -160,7 +160,7 @@ def test_robot_and_truth_models_from_the_preset(iss):
     np.testing.assert_array_equal(t.theta, [truth.mass_kg, *truth.inertia_kgm2])
     np.testing.assert_array_equal(t.covariance, np.zeros((4, 4)))
     np.testing.assert_array_equal(t.input_limits, m.input_limits)
-    # the planner's robot is known: no derating through the estimator's prior variance (issue 29); a σ_m given in
+    # the planner's robot is known: no derating through the estimator's prior variance; a σ_m given in
     # planner.margin is used (module docstring of oacli.stages.settings)
     limits = design_limits.planner_design_limits(iss)
     assert limits.margin.mass_std_kg == 0.0 and limits.margin.mass_ratio == 1.0

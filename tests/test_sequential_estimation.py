@@ -351,7 +351,7 @@ def test_settings_are_checked():
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Gaps in the input record (whole controller records lost, issue 10)
+# Gaps in the input record (whole controller records lost)
 # ---------------------------------------------------------------------------------------------------------------
 
 

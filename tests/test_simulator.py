@@ -9,7 +9,7 @@ from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.types import ControlStep, InertialParams, SolveInfo
 
-TRUTH = InertialParams(15.0, [0.1464, 0.1376, 0.1604])  # Doerr 2021 Table 1, Astrobee with object
+TRUTH = InertialParams(15.0, [0.1464, 0.1376, 0.1604])  # [Doerr2021] Table 1, Astrobee with object
 LIMITS = np.array([0.5, 0.5, 0.5, 0.05, 0.05, 0.05])
 
 
@@ -160,7 +160,7 @@ def test_plant_steps_equal_the_numpy_rk4_bit_for_bit(com_offset):
 def test_plant_matches_an_accurate_integration_of_the_rigid_body():
     """Closed loop with a spinning body and 12.5 plant steps per control period (steps split at the control
     instants): the true state at every control instant is within 1e-9 of ``solve_ivp`` (DOP853, tight tolerances)
-    of Doerr Eqs. 34-35 under the same held inputs."""
+    of [Doerr2021] Eqs. 34-35 under the same held inputs."""
     from scipy.integrate import solve_ivp
 
     from oacli.model.rigid_body import dynamics, theta_of

@@ -1,4 +1,4 @@
-"""Each stage's PNG plots (issue 12 item 2): written into the run folder, listed in summary.json, valid PNGs of a
+"""Each stage's PNG plots: written into the run folder, listed in summary.json, valid PNGs of a
 sensible size; the track error plot draws exactly the series behind the summary's RMS / max; a failing figure
 becomes a summary warning and never loses the run."""
 

@@ -1,4 +1,4 @@
-"""The track recording's error plot compares the true state and the reference at equal times (issue 12).
+"""The track recording's error plot compares the true state and the reference at equal times.
 
 The plant runs at 62.5 Hz and the controller at 5 Hz: every other control instant falls between two plant samples,
 8 ms before the next one. The errors plotted at the control instants take the true state at exactly those times.

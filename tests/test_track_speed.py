@@ -185,7 +185,7 @@ def test_an_isotropic_robot_designs_its_axis_once(axis):
     assert _isotropic_design().summary() == summary
 
 
-# -- the tube MPC step's speed pass (issue 13 item 4) ---------------------------------------------------------------
+# -- the tube MPC step's speed pass ---------------------------------------------------------------
 
 
 def _old_rows(rows: WorkspaceRows, ref: np.ndarray, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

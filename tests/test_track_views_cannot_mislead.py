@@ -1,4 +1,4 @@
-"""The track stage's ``views.png`` cannot show a collision that did not happen (issue 33 item 2).
+"""The track stage's ``views.png`` cannot show a collision that did not happen.
 
 Independent check, read from the drawn figure: each panel's basis comes from its axis labels, its keep-out shadow
 from its ``Ellipse`` patch and the flown path from its line. The true shadow is the convex hull of the projected

@@ -1,6 +1,6 @@
-"""Tube design with a relative ε (issue 8 item 5): Z against the minimal box of F_∞ on the ReSWARM preset, the split
+"""Tube design with a relative ε: Z against the minimal box of F_∞ on the ReSWARM preset, the split
 of the bound between F(α, s) and the facet reduction, the summary's figures, the flight settings' figures, and the
-config fields (Raković, Kerrigan, Kouramas & Mayne 2005; Mayne, Seron & Raković 2005; Doerr et al. 2021 Eq. 28)."""
+config fields (Raković, Kerrigan, Kouramas & Mayne 2005; Mayne, Seron & Raković 2005; [Doerr2021] Eq. 28)."""
 
 from __future__ import annotations
 
@@ -119,7 +119,7 @@ def test_preset_tightened_bounds_and_what_they_gained(preset_design):
 
 def test_flight_settings_reproduce_the_figures_of_the_issue():
     """Absolute ε = 0.005 (rattle z_poly_calc) on the same W: F(α, s) is 1.93× the minimal box in position and
-    1.90× in velocity (issue 8), and the reduced Z (5 % growth) is larger still."""
+    1.90× in velocity, and the reduced Z (5 % growth) is larger still."""
     for ax in design(0.005, "absolute", 0.05).axes:
         box = direct_f_inf_support(ax.a_closed, ax.disturbance.w, E4)
         f = ax.rpi.z.support(E4) / box

@@ -1,4 +1,4 @@
-"""Robust tube MPC: the QP (DPP, fast path = problem.solve()), W (Doerr Eq. 28), the design, the closed loop
+"""Robust tube MPC: the QP (DPP, fast path = problem.solve()), W ([Doerr2021] Eq. 28), the design, the closed loop
 under disturbances drawn from W (random and vertex sequences), the Mayne et al. 2005 example, fallback and hold."""
 
 from __future__ import annotations
@@ -130,7 +130,7 @@ def test_objective_includes_the_reference_constant(design, rng):
 
 
 def test_standard_block_is_the_existing_linear_mpc(rng):
-    """A standard block alone solves the same problem as oacli.control.mpc.LinearMPC (Doerr Eq. 26)."""
+    """A standard block alone solves the same problem as oacli.control.mpc.LinearMPC ([Doerr2021] Eq. 26)."""
     a, b = double_integrator(0.2, 1 / MASS)
     q, r = np.array([10.0, 1.0]), np.array([1.0])
     p = solve_dare(a, b, np.diag(q), np.diag(r))

@@ -39,7 +39,7 @@ def excite(
     method: Annotated[
         str | None,
         typer.Option("--method", "-m", metavar=choice_metavar(METHODS), autocompletion=complete_choices(METHODS),
-                     help="offline (SCP design, Doerr Eq. 30) or rattle (online "
+                     help="offline (SCP design, [Doerr2021] Eq. 30) or rattle (online "
                      "information-aware planner in closed loop). Overrides excitation.method."),
     ] = None,
     out: OutOption = None,

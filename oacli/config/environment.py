@@ -65,7 +65,7 @@ class KeepInBox(Section):
 
 
 class KeepOutEllipsoid(Section):
-    """Ellipsoidal keep-out zone (Doerr Eq. 12): either ``semi_axes_m`` (+ ``quaternion``) or ``shape_matrix``."""
+    """Ellipsoidal keep-out zone ([Doerr2021] Eq. 12): either ``semi_axes_m`` (+ ``quaternion``) or ``shape_matrix``."""
 
     center: Position3 = Field(description="Centroid [m].")
     semi_axes_m: BoundedPositiveVector3 | None = Field(
@@ -107,7 +107,7 @@ class EnvironmentConfig(Section):
 
     frame: Name = Field(default="world", description="Name of the world frame positions are expressed in.")
     safety_factor: Annotated[Real, Field(ge=1)] = Field(
-        default=1.0, description="Multiplies every keep-out semi-axis (Doerr Eq. 12), >= 1 [-]."
+        default=1.0, description="Multiplies every keep-out semi-axis ([Doerr2021] Eq. 12), >= 1 [-]."
     )
     keep_in: Annotated[tuple[KeepInBox, ...], none_to(())] = Field(
         default=(), description="Keep-in boxes; empty means unbounded."

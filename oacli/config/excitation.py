@@ -1,4 +1,4 @@
-"""The ``excitation`` section: information-rich trajectory design (Doerr et al. 2021, Eq. 30) and RATTLE.
+"""The ``excitation`` section: information-rich trajectory design ([Doerr2021] Eq. 30) and RATTLE.
 
 Everything has a default except the start and the goal (needed by ``oacli excite`` only, checked there). Numbers
 with a published source say so in their description; see ``configs/`` for commented presets.
@@ -177,7 +177,7 @@ class RattleConfig(Section):
 
 
 class ExcitationConfig(Section):
-    """Information-rich excitation from ``start`` to ``goal`` (Doerr Eq. 30) and online RATTLE planning."""
+    """Information-rich excitation from ``start`` to ``goal`` ([Doerr2021] Eq. 30) and online RATTLE planning."""
 
     method: Literal["offline", "rattle"] = Field(
         default="offline", description="'offline': SCP design (Eq. 30); 'rattle': online planner in closed loop."
@@ -209,7 +209,7 @@ class ExcitationConfig(Section):
     margin: Annotated[ReferenceMarginConfig, none_to({})] = Field(
         default_factory=ReferenceMarginConfig,
         description="Share of the robot's limits the design (offline and RATTLE) may use, with the mass margin of "
-        "Doerr Eq. 28 (σ_m default: sqrt(excitation.prior.variance[0])).",
+        "[Doerr2021] Eq. 28 (σ_m default: sqrt(excitation.prior.variance[0])).",
     )
     measurement: Annotated[MeasurementNoiseConfig, none_to({})] = Field(
         default_factory=MeasurementNoiseConfig, description="The FIM's measurement model."

@@ -2,7 +2,7 @@
 
 A designed reference (plan, smoothed plan, excitation) must be one the robot can fly. Its design limits are the
 robot's (``robot:``), scaled by the margins of :class:`ReferenceMarginConfig` (the force also by the mass margin
-``m_prior / m_upper`` of Doerr et al. 2021, Eq. 28) and capped further by a section's own ``limits``; see
+``m_prior / m_upper`` of [Doerr2021] Eq. 28) and capped further by a section's own ``limits``; see
 :mod:`oacli.reference_limits`. A section limit above the robot's is refused, or, with ``on_excess: clip``, clipped
 to the robot's with a warning. Imported by :mod:`oacli.config.models` through the section modules.
 """
@@ -31,7 +31,7 @@ class ReferenceMarginConfig(Section):
     """How much of the robot's limits a designed reference may use (:mod:`oacli.reference_limits`).
 
     Force: ``robot.force_limit_N · m_prior / m_upper · reference_force_fraction`` with
-    ``m_upper = m_prior + mass_sigmas · σ_m`` (Doerr 2021, Eq. 28: the 2σ mass bound), so that a plant as heavy as
+    ``m_upper = m_prior + mass_sigmas · σ_m`` ([Doerr2021] Eq. 28: the 2σ mass bound), so that a plant as heavy as
     ``m_upper`` still follows the reference's accelerations with ``1 − reference_force_fraction`` of the actuator
     left to the feedback. Torque, velocity and angular rate: the robot's limit times their fraction.
     """
@@ -43,7 +43,7 @@ class ReferenceMarginConfig(Section):
         "sets it to each segment's model σ_m); 0 = the model mass is exact.",
     )
     mass_sigmas: PositiveReal = Field(
-        default=2.0, description="n_σ of m_upper = m_prior + n_σ·σ_m (Doerr 2021 Eq. 28: 2), > 0."
+        default=2.0, description="n_σ of m_upper = m_prior + n_σ·σ_m ([Doerr2021] Eq. 28: 2), > 0."
     )
     reference_force_fraction: Fraction = Field(
         default=0.8,

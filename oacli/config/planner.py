@@ -31,7 +31,7 @@ from oacli.config.fields import (
 from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
 
 PlannerType = Literal["lqr-rrt-star", "kino-rrt"]
-"""Planner kinds: LQR-RRT* (Doerr et al. 2021) or kinodynamic RRT with motion primitives (ReSWARM §4.1.2)."""
+"""Planner kinds: LQR-RRT* (Doerr et al. 2021) or kinodynamic RRT with motion primitives ([ReSWARM2023] §4.1.2)."""
 
 #: Largest connection or shortcut horizon in planner steps (the LQR maps are precomputed for every horizon).
 MAX_STEPS = 400
@@ -51,7 +51,7 @@ class PlannerWeights(Section):
 
     position: NonNegativeVector3 = Field(
         default=(0.0, 0.0, 0.0),
-        description="q_r per axis [1/(m²·s)], >= 0: weight on the position error to the goal (Doerr Eq. 5); "
+        description="q_r per axis [1/(m²·s)], >= 0: weight on the position error to the goal ([Doerr2021] Eq. 5); "
         "a single number is used on all three axes.",
     )
     velocity: NonNegativeVector3 = Field(
@@ -59,7 +59,7 @@ class PlannerWeights(Section):
         description="q_v per axis [s/m²], >= 0: weight on the velocity error to the goal (at rest: on speed); "
         "a single number is used on all three axes.",
     )
-    force: Weight3 = Field(default=(1.0, 1.0, 1.0), description="R per axis [1/(N²·s)], > 0 (Doerr Eq. 5).")
+    force: Weight3 = Field(default=(1.0, 1.0, 1.0), description="R per axis [1/(N²·s)], > 0 ([Doerr2021] Eq. 5).")
     time: PositiveReal = Field(default=0.1, description="w_t [1/s], > 0: the price of one second of flight.")
 
     @model_validator(mode="before")
@@ -90,7 +90,7 @@ class KinoRrtConfig(Section):
 
 
 class ShortcutConfig(Section):
-    """LQR shortcutting (Doerr §"Trajectory Smoothing by LQR Shortcutting"; ReSWARM §4.3)."""
+    """LQR shortcutting ([Doerr2021] §"Trajectory Smoothing by LQR Shortcutting"; [ReSWARM2023] §4.3)."""
 
     tries: Annotated[StrictInt, Field(ge=0)] = Field(default=1000, description="Random shortcut tries [-], >= 0.")
     max_horizon_s: PositiveReal = Field(
@@ -154,7 +154,7 @@ class PlannerConfig(Section):
         default=0.1, description="Kino-RRT: speed below which the exact LQR goal link is tried [m/s]."
     )
     near_gamma: PositiveReal = Field(
-        default=20.0, description="γ of the near radius γ (log n / n)^(1/6) (Doerr Eq. 11), in cost units, > 0."
+        default=20.0, description="γ of the near radius γ (log n / n)^(1/6) ([Doerr2021] Eq. 11), in cost units, > 0."
     )
     max_near: Annotated[StrictInt, Field(ge=1)] = Field(default=30, description="Largest near set [-], >= 1.")
     steer_dt_s: PositiveReal = Field(default=0.5, description="Step of the held force in LQR connections [s].")
@@ -174,7 +174,7 @@ class PlannerConfig(Section):
         "the sphere of its largest semi-axis (the body turns along the path).",
     )
     weights: Annotated[PlannerWeights, none_to({})] = Field(
-        default_factory=PlannerWeights, description="Cost weights (Doerr Eq. 5 plus a price on time)."
+        default_factory=PlannerWeights, description="Cost weights ([Doerr2021] Eq. 5 plus a price on time)."
     )
     limits: Annotated[LimitsOverride, none_to({})] = Field(
         default_factory=LimitsOverride,
@@ -183,7 +183,7 @@ class PlannerConfig(Section):
     )
     margin: Annotated[ReferenceMarginConfig, none_to({})] = Field(
         default_factory=ReferenceMarginConfig,
-        description="Share of the robot's limits plan and smooth may use, with the mass margin of Doerr Eq. 28 "
+        description="Share of the robot's limits plan and smooth may use, with the mass margin of [Doerr2021] Eq. 28 "
         "(m_prior = robot.mass_kg, σ_m default: sqrt(estimation.prior.mass_variance_kg2)).",
     )
     kino: Annotated[KinoRrtConfig, none_to({})] = Field(

@@ -34,7 +34,7 @@ LimitVector3 = Annotated[tuple[_Limit, _Limit, _Limit], BeforeValidator(sequence
 
 
 class RobotConfig(Section):
-    """The robot model the planner, controller and estimator use (Doerr et al. 2021, Eqs. 33-36)."""
+    """The robot model the planner, controller and estimator use ([Doerr2021] Eqs. 33-36)."""
 
     mass_kg: PositiveReal = Field(description="Mass m [kg], > 0.")
     inertia_kgm2: PrincipalInertia = Field(

@@ -29,7 +29,7 @@ from oacli.config.fields import (
 
 
 class TubeTerminalWeights(Section):
-    """Diagonal terminal weight of the nominal translation MPC (Doerr Eq. 24, the matrix H)."""
+    """Diagonal terminal weight of the nominal translation MPC ([Doerr2021] Eq. 24, the matrix H)."""
 
     position: Weight3 = Field(default=(100.0, 100.0, 100.0), description="Terminal position weight [1/m²], > 0.")
     velocity: Weight3 = Field(default=(10.0, 10.0, 10.0), description="Terminal velocity weight [s²/m²], > 0.")
@@ -49,7 +49,7 @@ class TubeDisturbanceConfig(Section):
     mass_std_kg: NonNegativeReal = Field(
         default=0.0,
         description="Standard deviation σ of the mass estimate robot.mass_kg [kg], >= 0; W gains the one-step "
-        "deviation at the tube force limit between the model mass and mass ± mass_sigmas·σ (Doerr Eq. 28).",
+        "deviation at the tube force limit between the model mass and mass ± mass_sigmas·σ ([Doerr2021] Eq. 28).",
     )
     mass_sigmas: PositiveReal = Field(default=2.0, description="Mass interval half-width in σ (Eq. 28: 2).")
     force_N: NonNegativeVector3 = Field(

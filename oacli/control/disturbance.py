@@ -1,9 +1,9 @@
 """Disturbance sets W of the translational tube MPC, per world axis and control step.
 
-Translation is exactly linear in the world frame (force in the world frame, Doerr et al. 2021, Eq. 34), so the
+Translation is exactly linear in the world frame (force in the world frame, [Doerr2021] Eq. 34), so the
 model error of one axis over one control step ``dt`` is additive on ``[position, velocity]``:
 
-* mass uncertainty (Doerr Eq. 28): with the mass estimate ``m₀`` and standard deviation ``σ``, the largest
+* mass uncertainty ([Doerr2021] Eq. 28): with the mass estimate ``m₀`` and standard deviation ``σ``, the largest
   one-step deviation at the largest input ``u_max`` is
   ``w_max = |f(u_max, m₀) − max(f(u_max, m₀+2σ), f(u_max, m₀−2σ))|``, ``f`` the exact discrete double
   integrator from rest, ``f(u, m) = [dt²/(2m), dt/m] u``; the lighter mass moves further, so
@@ -43,7 +43,7 @@ def step_gain(dt_s: float) -> np.ndarray:
 def mass_uncertainty_bound(
     mass_kg: float, mass_std_kg: float, force_max_N: float, dt_s: float, n_sigma: float = 2.0
 ) -> np.ndarray:
-    """Doerr et al. 2021, Eq. 28: one-step bound ``[position m, velocity m/s]`` from mass uncertainty.
+    """[Doerr2021] Eq. 28: one-step bound ``[position m, velocity m/s]`` from mass uncertainty.
 
     Parameters
     ----------
@@ -112,7 +112,7 @@ class DisturbanceSpec:
     mass_std_kg : float
         Its standard deviation σ [kg] (0: no mass term).
     n_sigma : float
-        Mass interval half-width in σ (Doerr Eq. 28: 2).
+        Mass interval half-width in σ ([Doerr2021] Eq. 28: 2).
     force_N : ndarray
         External force bound per axis [N].
     box_position_m, box_velocity_mps : ndarray

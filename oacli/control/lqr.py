@@ -1,4 +1,4 @@
-"""Linear-quadratic regulators (Doerr et al. 2021, Eqs. 3-9).
+"""Linear-quadratic regulators ([Doerr2021] Eqs. 3-9).
 
 * :func:`solve_dare` / :func:`dlqr`: infinite-horizon discrete LQR by the structure-preserving doubling
   algorithm (Chu, Fan, Lin & Wang 2004), an independent method from scipy's Schur-based
@@ -130,7 +130,7 @@ def dlqr(
 
 @dataclass(frozen=True)
 class RiccatiSolution:
-    """Finite-horizon LQR solution (Doerr Eqs. 8-9).
+    """Finite-horizon LQR solution ([Doerr2021] Eqs. 8-9).
 
     Attributes
     ----------
@@ -209,12 +209,12 @@ def tv_riccati(
     q_final_lin: np.ndarray | None = None,
     c_final: float = 0.0,
 ) -> RiccatiSolution:
-    """Backward Riccati recursion with affine terms (Doerr Eqs. 8-9).
+    """Backward Riccati recursion with affine terms ([Doerr2021] Eqs. 8-9).
 
     Minimises ``Σ_k [½ δxᵀQ_kδx + ½ δuᵀR_kδu + δxᵀP_kδu + q_kᵀδx + r_kᵀδu] + ½ δx_NᵀQ_Nδx_N + q_Nᵀδx_N + c``
     subject to ``δx_{k+1} = A_k δx_k + B_k δu_k + g_k``.
 
-    Doerr Eq. 9 is written for this cost; here the constants are derived consistently with the ½ factors of
+    [Doerr2021] Eq. 9 is written for this cost; here the constants are derived consistently with the ½ factors of
     Eq. 4 (Eq. 9c as printed omits the ½ on ``g_kᵀ S_{k+1} g_k``).
 
     Parameters

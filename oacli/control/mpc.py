@@ -1,4 +1,4 @@
-"""Standard linear MPC (Doerr et al. 2021, Eq. 26) as a cvxpy problem built once and re-solved.
+"""Standard linear MPC ([Doerr2021] Eq. 26) as a cvxpy problem built once and re-solved.
 
 The problem is parametrised (DPP) by the initial state and the reference over the horizon, so cvxpy
 canonicalises it once; each step only updates the parameter values. By default the step then calls Clarabel
@@ -81,7 +81,7 @@ class MPCSolution:
 
 
 class LinearMPC:
-    """Linear MPC on an LTI model ``x_{k+1} = A x_k + B u_k`` (Doerr Eq. 26).
+    """Linear MPC on an LTI model ``x_{k+1} = A x_k + B u_k`` ([Doerr2021] Eq. 26).
 
     Parameters
     ----------

@@ -2,7 +2,7 @@
 
 The papers assumed perfect attitude tracking (Doerr et al. 2021, Results); this controller tracks attitude
 too, within the torque limits. Each step it expresses the measured state and the reference over the horizon
-in a local error chart and solves the standard MPC of Doerr Eq. 26 on the exact hover discretisation
+in a local error chart and solves the standard MPC of [Doerr2021] Eq. 26 on the exact hover discretisation
 (:func:`oacli.model.double_integrator.hover_error_model`):
 
 * position relative to the current reference position (a constant shift: translation is exactly linear),
@@ -93,7 +93,7 @@ def to_error_state(x: np.ndarray, origin_m: np.ndarray, q_anchor: np.ndarray) ->
 
 
 class TrackingMPC:
-    """Standard MPC tracking a reference trajectory (Doerr Eq. 26), attitude included.
+    """Standard MPC tracking a reference trajectory ([Doerr2021] Eq. 26), attitude included.
 
     Parameters
     ----------

@@ -2,10 +2,10 @@
 
 Under the hover model every world axis of translation is the exact double integrator ``[p, v]⁺ = A [p, v] + B f``
 (force in the world frame), decoupled from the other axes and from attitude. The tube is therefore designed per
-axis in 2-D (Mayne, Seron & Raković 2005; Doerr et al. 2021, Eqs. 18-27):
+axis in 2-D (Mayne, Seron & Raković 2005; [Doerr2021] Eqs. 18-27):
 
-1. ``K``: discrete LQR of the axis model (``u = K e``, Doerr Eq. 18; ReSWARM: Q = diag(5, 10), R = 2);
-2. ``W``: :mod:`oacli.control.disturbance` (Doerr Eq. 28 and configured terms);
+1. ``K``: discrete LQR of the axis model (``u = K e``, [Doerr2021] Eq. 18; ReSWARM: Q = diag(5, 10), R = 2);
+2. ``W``: :mod:`oacli.control.disturbance` ([Doerr2021] Eq. 28 and configured terms);
 3. ``Z``: the RPI outer ε-approximation ``F(α, s)`` of Raković et al. 2005 (Algorithm 1), then
    :func:`oacli.sets.reduce_facets` for a cheaper lasso constraint that is verified RPI and within
    ``(1 + growth) F(α, s)``. With a *relative* ε (the default) the bound covers the set in use:

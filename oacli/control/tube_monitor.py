@@ -1,6 +1,6 @@
 """Beyond W: measure the realised disturbance of the tube MPC every step and respond when it leaves W.
 
-The tube guarantee (Mayne, Seron & Raković 2005; Doerr et al. 2021, Eqs. 15-28) holds only while every one-step
+The tube guarantee (Mayne, Seron & Raković 2005; [Doerr2021] Eqs. 15-28) holds only while every one-step
 disturbance lies in the design's W. :class:`TubeMonitor` owns the :class:`oacli.control.tube_mpc.TubeMPC` and, at
 each control step k, measures the realised one-step disturbance of the translational error model per world axis,
 

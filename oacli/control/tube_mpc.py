@@ -1,9 +1,9 @@
 """Robust tube MPC tracking a reference: tube MPC on translation, standard MPC on attitude, one QP per step.
 
-Translation (Mayne, Seron & Raković 2005; Doerr et al. 2021, Eqs. 15-27): the nominal MPC chooses a free initial
+Translation (Mayne, Seron & Raković 2005; [Doerr2021] Eqs. 15-27): the nominal MPC chooses a free initial
 nominal state ``z_0`` with ``x̃ − z_0 ∈ Z`` (x̃ the measured state) and a nominal plan under the tightened
 constraints of :class:`oacli.control.tube_design.TubeDesign`; the applied force is
-``u = v_0 + K (x̃ − z_0)`` (Doerr Eqs. 18-19). The nominal model may step slower than the controller (ReSWARM:
+``u = v_0 + K (x̃ − z_0)`` ([Doerr2021] Eqs. 18-19). The nominal model may step slower than the controller (ReSWARM:
 1 s steps at 5 Hz); the nominal state then evolves between control instants with the exact double integrator
 under the held nominal input, so the tube guarantee holds at every control instant: if the disturbance of each
 control step lies in W, ``x̃_{k+1} − ẑ_{k+1} ∈ Z`` with ``ẑ_{k+1} = A z_0 + B v_0`` (Z is robust positively
@@ -17,7 +17,7 @@ the estimate (it changes no constraint). With a :class:`~oacli.control.observer.
 uses the estimated body rate.
 
 Attitude: the papers assumed it perfectly tracked (Doerr 2021, Results) and tubed translation only; here it is
-tracked by the standard MPC of Doerr Eq. 26 in the body-frame rotation-vector chart of
+tracked by the standard MPC of [Doerr2021] Eq. 26 in the body-frame rotation-vector chart of
 :mod:`oacli.control.tracking`, within the torque limits, in the same QP (one solver call per step). A linear tube
 on rotation would need W to bound the gyroscopic and chart linearisation errors, which grow with the rate; we
 claim no guarantee there that we cannot prove.

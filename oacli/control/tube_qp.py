@@ -1,9 +1,9 @@
 """The nominal MPC of robust tube MPC as one cvxpy QP, built once (DPP) and re-solved every step.
 
 The QP holds one or more decoupled linear subsystems ("blocks") over a common horizon N. A *tube block*
-(Mayne, Seron & Raković 2005; Doerr et al. 2021, Eq. 27) has a free initial nominal state ``z_0`` tied to the
+(Mayne, Seron & Raković 2005; [Doerr2021] Eq. 27) has a free initial nominal state ``z_0`` tied to the
 measured state ``x`` by the lasso constraint ``x − z_0 ∈ Z`` and tightened hard constraints ``z_k ∈ X̄``
-(k = 0..N) and ``v_k ∈ Ū``; a *standard block* (Doerr Eq. 26) starts at ``x`` and has soft state limits
+(k = 0..N) and ``v_k ∈ Ū``; a *standard block* ([Doerr2021] Eq. 26) starts at ``x`` and has soft state limits
 (exact ℓ1 penalty, so a measured state outside them never makes the QP infeasible) and hard input limits.
 Both minimise
 

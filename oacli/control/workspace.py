@@ -1,7 +1,7 @@
 """Keep-in and keep-out rows of the MPC problems, recomputed at every controller step.
 
 The controllers constrain each predicted position ``p_k`` (k = 0..N) to a convex inner piece of the free space
-(Doerr et al. 2021, Eqs. 12-14; the same pieces as the trajectory polish and the excitation design,
+([Doerr2021] Eqs. 12-14; the same pieces as the trajectory polish and the excitation design,
 :mod:`oacli.geometry.halfspaces`):
 
 * **keep-in**: each segment ``k → k+1`` gets the keep-in box that holds the ends of both the reference segment

@@ -1,4 +1,4 @@
-"""Batch maximum-likelihood estimation of states and inertial parameters (Doerr et al. 2021, Eqs. 31-32).
+"""Batch maximum-likelihood estimation of states and inertial parameters ([Doerr2021] Eqs. 31-32).
 
 Given records ``ỹ_k`` (measured state, applied input, optional accelerations) at times ``t_1 .. t_K``, the
 estimator maximises Eq. 31, ``Π p(ỹ_k | x_k) Π p(x_k | x_{k-1}, u_{k-1}, θ)``, over every state and the parameters,
@@ -229,7 +229,7 @@ def estimate_batch(
     warm_start: bool = False,
     reference: bool = False,
 ) -> BatchResult:
-    """Batch maximum-likelihood estimate of the states and θ from a set of records (Doerr Eqs. 31-32).
+    """Batch maximum-likelihood estimate of the states and θ from a set of records ([Doerr2021] Eqs. 31-32).
 
     Parameters
     ----------

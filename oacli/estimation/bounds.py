@@ -1,4 +1,4 @@
-"""Cramér-Rao bounds of the inertial parameters along an estimated trajectory (Doerr Eq. 29).
+"""Cramér-Rao bounds of the inertial parameters along an estimated trajectory ([Doerr2021] Eq. 29).
 
 The Fisher information of θ is built with the measurement model and the sensitivity conventions of
 :mod:`oacli.excitation.information` (``F = Σ_k G_kᵀ R⁻¹ G_k``, ``G_k = H_k S_k``), with two differences that make the

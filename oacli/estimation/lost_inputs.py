@@ -61,7 +61,7 @@ def gyro_bridge_offset(added_radps2: np.ndarray, rate_radps: np.ndarray, dt_s: n
 def unknown_torque_directions(dt_s: np.ndarray, inertia_kgm2: np.ndarray) -> np.ndarray:
     """Directions ``(K, 12, 3)`` along which a wrong body torque ``Δτ`` held over ``dt_s`` moves the end state, per
     unit of ``Δτ``, to first order and without the gyroscopic coupling: ``½T² J⁻¹ Δτ`` on the attitude and
-    ``T J⁻¹ Δτ`` on the angular velocity (Doerr Eq. 35 linearised at rest). Used only to weight a predicted
+    ``T J⁻¹ Δτ`` on the angular velocity ([Doerr2021] Eq. 35 linearised at rest). Used only to weight a predicted
     torque's error (:func:`segment_link_weights`), never to move the state.
 
     Parameters
@@ -87,7 +87,7 @@ def unknown_force_directions(dt_s: np.ndarray) -> np.ndarray:
     """Directions ``D_k`` (K, 12, 3) of ``x_{k+1} ⊟ f(x_k, u_k, θ)`` along which a wrong force held over an interval
     of ``dt_s`` moves the end state, per unit of ``Δf / m``.
 
-    The translational dynamics are linear with the force in the world frame (Doerr Eq. 34): a force error ``Δf``
+    The translational dynamics are linear with the force in the world frame ([Doerr2021] Eq. 34): a force error ``Δf``
     held over ``T`` moves ``r⁺`` by ``½T² Δf/m`` and ``v⁺`` by ``T Δf/m``, whatever the state, the attitude or the
     inertia, so the directions are exact and ``m`` only scales them.
 

@@ -1,9 +1,9 @@
-"""The state manifold of the free flyer: ``⊞``/``⊟`` and their exact Jacobians (Doerr et al. 2021, Eqs. 31-32).
+"""The state manifold of the free flyer: ``⊞``/``⊟`` and their exact Jacobians ([Doerr2021] Eqs. 31-32).
 
 The 13-entry state ``x = [r, v, q, ω]`` (see :mod:`oacli.types`) lives on ℝ⁶ × S³ × ℝ³. Estimators work with
 12-entry perturbations ``δx = [δr, δv, δφ, δω]`` where the attitude part is a **body-frame** rotation vector:
 
-    x ⊞ δx = [r + δr, v + δv, q ⊗ exp(δφ), ω + δω]                       ("⊞" of Doerr Eq. 31)
+    x ⊞ δx = [r + δr, v + δv, q ⊗ exp(δφ), ω + δω]                       ("⊞" of [Doerr2021] Eq. 31)
     y ⊟ x  = [r_y − r, v_y − v, log(q⁻¹ ⊗ q_y), ω_y − ω]                 so that x ⊞ (y ⊟ x) = y
 
 The Jacobians of ``log`` that make Gauss-Newton exact are the inverse right and left Jacobians of SO(3):
@@ -122,7 +122,7 @@ def boxminus(y: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def xi_stack(q: np.ndarray) -> np.ndarray:
-    """Ξ(q) of Doerr Eq. 36 for a stack of quaternions (..., 4) -> (..., 4, 3).
+    """Ξ(q) of [Doerr2021] Eq. 36 for a stack of quaternions (..., 4) -> (..., 4, 3).
 
     Parameters
     ----------

@@ -6,7 +6,7 @@ hold) and, optionally, accelerations from an IMU. Which components are used, and
 :class:`oacli.excitation.information.MeasurementModel` -- the same object the Fisher information uses, so the
 estimators and their Cramér-Rao bound (:mod:`oacli.estimation.bounds`) share one noise model.
 
-Process noise (Doerr Eq. 31, ``p(x_k | x_{k-1}, u_{k-1}, θ)``) is an unmodelled force (world frame) and torque
+Process noise ([Doerr2021] Eq. 31, ``p(x_k | x_{k-1}, u_{k-1}, θ)``) is an unmodelled force (world frame) and torque
 (body frame) acting as white noise. Over an interval Δt its intensity is ``σ²·Δt`` (so its effect on the velocity
 after Δt has the standard deviation of a force σ held over Δt), which gives per axis the non-singular covariance of
 the continuous white-noise-acceleration model (Bar-Shalom, Li & Kirubarajan 2001, §6.2.2)::

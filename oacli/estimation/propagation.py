@@ -5,7 +5,7 @@ within each control period the input is held and :func:`oacli.sim.simulator.simu
 fixed grid ``n · h`` (``h`` = plant period), splitting a step where a control instant falls between two grid
 points, and renormalises the quaternion after every step. One RK4 step of 0.2 s would only approximate those 12.5
 plant steps, so the estimators use the *same* sub-stepping (:func:`substep_schedule`): with the simulator's ``h``
-their model of the discrete dynamics ``x_{k+1} = f(x_k, u_k, θ)`` (Doerr Eq. 31) is exact, and noise-free data are
+their model of the discrete dynamics ``x_{k+1} = f(x_k, u_k, θ)`` ([Doerr2021] Eq. 31) is exact, and noise-free data are
 fitted exactly. On hardware any ``h`` of a few hundredths of a second gives the continuous dynamics to within
 RK4's error.
 
@@ -65,7 +65,7 @@ def substep_schedule(t0: np.ndarray, t1: np.ndarray, step_s: float) -> np.ndarra
 
 
 def dynamics_batch(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """ẋ = f(x, u, θ) (Doerr Eqs. 34-35) for stacks ``x (K, 13)``, ``u (K, 6)``; same as ``rigid_body.dynamics``.
+    """ẋ = f(x, u, θ) ([Doerr2021] Eqs. 34-35) for stacks ``x (K, 13)``, ``u (K, 6)``; same as ``rigid_body.dynamics``.
 
     Parameters
     ----------
@@ -277,13 +277,14 @@ def propagate_intervals_structured(
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """:func:`propagate_intervals` (with normalisation) exploiting the structure of the dynamics; same outputs.
 
-    The translational and rotational dynamics (Doerr Eqs. 34-35) are decoupled: ``[r, v]`` sees only the world-frame
-    force and the mass, ``[q, ω]`` only the body torque and the inertias. With the force held over an interval, the
-    translational RK4 sub-steps are exact (constant acceleration: RK4 integrates the quadratic exactly), so
-    ``r⁺ = r + T v + ½T² f/m``, ``v⁺ = v + T f/m`` over the whole interval ``T`` in closed form. Only the 7-entry
-    rotational state is integrated sub-step by sub-step, with its 7×10 Jacobian ``∂[q, ω]⁺/∂[q, ω, I]`` carried
-    through every RK4 stage and quaternion normalisation (the chain rule of :func:`propagate_intervals` restricted
-    to its non-zero blocks), so each sub-step costs a few (K, 7, 10) products instead of (K, 13, 17).
+    The translational and rotational dynamics ([Doerr2021] Eqs. 34-35) are decoupled: ``[r, v]`` sees only the
+    world-frame force and the mass, ``[q, ω]`` only the body torque and the inertias. With the force held over an
+    interval, the translational RK4 sub-steps are exact (constant acceleration: RK4 integrates the quadratic
+    exactly), so ``r⁺ = r + T v + ½T² f/m``, ``v⁺ = v + T f/m`` over the whole interval ``T`` in closed form. Only
+    the 7-entry rotational state is integrated sub-step by sub-step, with its 7×10 Jacobian
+    ``∂[q, ω]⁺/∂[q, ω, I]`` carried through every RK4 stage and quaternion normalisation (the chain rule of
+    :func:`propagate_intervals` restricted to its non-zero blocks), so each sub-step costs a few (K, 7, 10) products
+    instead of (K, 13, 17).
 
     Parameters
     ----------
@@ -508,7 +509,7 @@ def propagate_one(
     qx, qy, qz, qw, wx, wy, wz = (float(v) for v in x[_ROT])
     for h in dts:
         hh, h6 = 0.5 * h, h / 6.0
-        # Stage 1 (the rates of Doerr Eqs. 34-35 written out: this loop is the cost of a filter step).
+        # Stage 1 (the rates of [Doerr2021] Eqs. 34-35 written out: this loop is the cost of a filter step).
         z1 = (qx, qy, qz, qw, wx, wy, wz)
         a0, a1, a2, a3 = (0.5 * (qw * wx - qz * wy + qy * wz), 0.5 * (qz * wx + qw * wy - qx * wz),
                           0.5 * (-qy * wx + qx * wy + qw * wz), 0.5 * (-qx * wx - qy * wy - qz * wz))

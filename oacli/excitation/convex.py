@@ -1,7 +1,7 @@
 """cvxpy building blocks shared by the offline design and the online planner (DPP, built once).
 
 Both linearise the free-flyer along a rollout: translation is an exact LTI double integrator in the world frame,
-rotation ``[q (4), ω (3)]`` follows the time-varying RK4 Jacobians ``δx⁺ = A_k δx + B_k δτ`` (Doerr Eq. 2). The
+rotation ``[q (4), ω (3)]`` follows the time-varying RK4 Jacobians ``δx⁺ = A_k δx + B_k δτ`` ([Doerr2021] Eq. 2). The
 time-varying products are written column by column with element-wise Parameters
 (``δx⁺ = Σ_j A[:, :, j] ⊙ δx_j + Σ_j B[:, :, j] ⊙ δτ_j`` for all k at once) so that cvxpy canonicalises a
 handful of expressions instead of one matrix product per step.

@@ -1,4 +1,4 @@
-"""Offline information-optimal excitation (Doerr et al. 2021, Eq. 30) by sequential convex programming.
+"""Offline information-optimal excitation ([Doerr2021] Eq. 30) by sequential convex programming.
 
 Problem. Over N steps of ``dt`` from a start pose at rest to a goal pose at rest, find inputs ``u`` that minimise a
 criterion of the Fisher information ``F(u)`` (Eq. 29; A: ``tr F⁻¹``, D: ``−log det F``, E: ``−λ_min F``, on
@@ -207,7 +207,7 @@ def design_excitation(
     on_iteration: Callable[..., None] | None = None,
     reference: bool = False,
 ) -> ExcitationDesign:
-    """Design an information-optimal excitation trajectory (Doerr Eq. 30) by SCP; see the module docstring.
+    """Design an information-optimal excitation trajectory ([Doerr2021] Eq. 30) by SCP; see the module docstring.
 
     The default (fast) path and the reference path run the same SCP on the same subproblem; the fast one rolls out
     and differentiates with :mod:`oacli.excitation.split_information` (same numbers to rounding) and solves the

@@ -1,6 +1,6 @@
 """What the offline excitation design (:mod:`oacli.excitation.design`) takes and returns.
 
-:class:`ExcitationProblem` states the design problem (Doerr et al. 2021, Eq. 30: start and goal at rest, duration,
+:class:`ExcitationProblem` states the design problem ([Doerr2021] Eq. 30: start and goal at rest, duration,
 steps, the parameters it is designed for, the measurement model, limits, scene, criterion), :class:`ScpSettings`
 the sequential convex programming settings, :class:`ScpIterate` one SCP iteration and :class:`ExcitationDesign`
 the result.

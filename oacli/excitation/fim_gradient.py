@@ -11,7 +11,7 @@ Augmented dynamics. The sensitivity obeys the variational equation ``Ṡ = f_x S
 ``ż = g(z, u) = [f(x, u, θ); f_x(x, u, θ) S + f_θ(x, u, θ)]`` gives exactly the ``S_{k+1} = A_k S_k + C_k`` of
 :func:`oacli.excitation.information.propagate_with_sensitivities` (explicit Runge-Kutta schemes commute with
 differentiation with respect to parameters: "internal differentiation"). The Jacobians ``∂g/∂z``, ``∂g/∂u`` need
-the second derivatives of the rigid-body dynamics (Doerr Eqs. 34-35), given in closed form by
+the second derivatives of the rigid-body dynamics ([Doerr2021] Eqs. 34-35), given in closed form by
 :func:`sensitivity_rate_jacobians`; the step Jacobians ``Φ_z = ∂z_{k+1}/∂z_k``, ``Φ_u = ∂z_{k+1}/∂u_k`` follow by
 the chain rule through the four RK4 stages, as in :func:`oacli.model.rigid_body.rk4_step_jacobians`.
 
@@ -76,7 +76,7 @@ def sensitivity_rate_jacobians(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Jacobians of the sensitivity rate ``K = f_x(x, u, θ) S + f_θ(x, u, θ)`` with S held fixed.
 
-    These are the second derivatives of the rigid-body dynamics (Doerr Eqs. 34-35) contracted with S.
+    These are the second derivatives of the rigid-body dynamics ([Doerr2021] Eqs. 34-35) contracted with S.
 
     Parameters
     ----------
@@ -250,11 +250,11 @@ class FimGradient:
     s : ndarray, shape (N+1, 13, 4)
         Parameter sensitivities ``∂x_k/∂θ``.
     fim : ndarray, shape (4, 4)
-        Fisher information (Doerr Eq. 29).
+        Fisher information ([Doerr2021] Eq. 29).
     gradients : ndarray, shape (P, N, 6)
         ``∂⟨M_p, F⟩/∂u`` for each weight matrix ``M_p`` requested.
     a : ndarray, shape (N, 13, 13)
-        State step Jacobians ``∂x_{k+1}/∂x_k`` (the x-block of the augmented Jacobian; Doerr Eq. 2).
+        State step Jacobians ``∂x_{k+1}/∂x_k`` (the x-block of the augmented Jacobian; [Doerr2021] Eq. 2).
     b : ndarray, shape (N, 13, 6)
         Input step Jacobians ``∂x_{k+1}/∂u_k``.
     """
@@ -469,7 +469,7 @@ def criterion_gradient(
     criterion: Criterion = "A",
     scaling: Scaling = "absolute",
 ) -> tuple[float, np.ndarray]:
-    """Design criterion J(u) and its exact gradient ``∂J/∂u`` (N, 6) (Doerr Eq. 30 and its adjoint).
+    """Design criterion J(u) and its exact gradient ``∂J/∂u`` (N, 6) ([Doerr2021] Eq. 30 and its adjoint).
 
     Two passes: the first finds F (to form ``M = ∂J/∂F``), the second the adjoint of ``⟨M, F⟩``.
 

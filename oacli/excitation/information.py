@@ -1,4 +1,4 @@
-"""Parameter sensitivities and Fisher information of a trajectory (Doerr et al. 2021, Eqs. 29-30).
+"""Parameter sensitivities and Fisher information of a trajectory ([Doerr2021] Eqs. 29-30).
 
 The inertial parameters ``θ = [m, Ixx, Iyy, Izz]`` enter the discretised dynamics ``x_{k+1} = F(x_k, u_k, θ)``
 (RK4 with zero-order hold, :mod:`oacli.model.rigid_body`). Their effect on the state follows the forward
@@ -244,7 +244,7 @@ def information_per_step(
 
 
 def a_optimality(fim: np.ndarray) -> float:
-    """A-criterion tr(F⁻¹) (Doerr Eq. 30); ``inf`` when F is singular.
+    """A-criterion tr(F⁻¹) ([Doerr2021] Eq. 30); ``inf`` when F is singular.
 
     Parameters
     ----------

@@ -1,7 +1,7 @@
 """The merit of the offline excitation design's SCP (:mod:`oacli.excitation.design`): criterion and constraint
 violations of a rollout of the nonlinear model.
 
-The merit of an input sequence ``u`` is ``φ = J/J_ref + μ·V`` (Doerr et al. 2021, Eq. 30 for the criterion ``J``
+The merit of an input sequence ``u`` is ``φ = J/J_ref + μ·V`` ([Doerr2021] Eq. 30 for the criterion ``J``
 of the Fisher information, Eq. 29): ``J_ref`` the criterion of the first start, ``μ`` the exact-penalty weight and
 ``V`` the normalised constraint violation of the rollout (velocity and angular-rate limits, keep-in boxes and
 keep-out zones between samples, see :mod:`oacli.excitation.problem`, and the terminal tolerance), measured as the
@@ -41,7 +41,7 @@ class Evaluation:
     fim : ndarray, shape (4, 4)
         Fisher information of the rollout's measurements plus the prior information.
     criterion : float
-        Design criterion of ``fim`` (Doerr Eq. 30).
+        Design criterion of ``fim`` ([Doerr2021] Eq. 30).
     criterion_normalised : float
         ``criterion`` relative to the reference (:meth:`ScpMerit.normalise`).
     violations : dict
@@ -115,7 +115,7 @@ class ScpMerit:
         return crit / abs(ref)
 
     def fim(self, x: np.ndarray, s: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Fisher information (4, 4) of the measurements along a rollout (Doerr Eq. 29), symmetrised.
+        """Fisher information (4, 4) of the measurements along a rollout ([Doerr2021] Eq. 29), symmetrised.
 
         Parameters
         ----------

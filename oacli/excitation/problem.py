@@ -6,7 +6,7 @@ force the position between samples is the parabola ``p(τ) = p_k + v_k τ + ½ (
 ``δ = ‖a‖ dt²/8`` of the chord ``p_k → p_{k+1}`` (``a = f/m``). Hence:
 
 * keep-in box: both ends of the chord inside the box shrunk by ``δ`` (per axis) keeps the whole parabola inside;
-* keep-out ellipsoid ``(p − c)ᵀP(p − c) ≥ 1`` (Doerr Eq. 12): the half-space ``n̂ᵀp ≥ β̂`` bounded by the
+* keep-out ellipsoid ``(p − c)ᵀP(p − c) ≥ 1`` ([Doerr2021] Eq. 12): the half-space ``n̂ᵀp ≥ β̂`` bounded by the
   supporting plane of the ellipsoid at the point of its surface along ``p̄ − c`` in the ellipsoid's metric
   (``n̂ ∝ P(p̄ − c)``, the gradient direction at ``p̄``; :func:`oacli.geometry.halfspaces.point_halfspaces`), with
   ``p̄`` the chord midpoint of the current iterate, lies in free space. Both chord ends ``≥ β̂ + δ`` put the chord

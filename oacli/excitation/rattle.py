@@ -5,7 +5,7 @@ estimate ``θ̂`` and its standard deviations ``σ``, a horizon of N steps (40 �
 
     minimise   Σ_{k=1}^{N-1} ‖x_k ⊖ x_goal‖²_Q + Σ_{k=0}^{N-1} ‖u_k‖²_R + ‖x_N ⊖ x_goal‖²_{Q_N}
                − Σ_i γ_i · ½ log(1 + F_ii σ_i²)
-    subject to the RK4 dynamics (Doerr Eqs. 33-36) with θ̂, input, velocity and rate limits, keep-in boxes and
+    subject to the RK4 dynamics ([Doerr2021] Eqs. 33-36) with θ̂, input, velocity and rate limits, keep-in boxes and
                keep-out ellipsoids,
 
 where ``x ⊖ x_goal = [r − r_goal, v, e(q), ω]`` (``e`` the small-angle attitude error) and ``F`` is the Fisher

@@ -169,7 +169,7 @@ def rate_governed_torque(
 ) -> np.ndarray:
     """The torque nearest to ``torque_Nm`` (per body axis) whose predicted rate after ``dt_s`` is within the limit.
 
-    Euler's equation (Doerr Eq. 35b) over one held step predicts ``ω_i⁺ = ω_i + Δt (τ_i − g_i) / I_i`` with the
+    Euler's equation ([Doerr2021] Eq. 35b) over one held step predicts ``ω_i⁺ = ω_i + Δt (τ_i − g_i) / I_i`` with the
     gyroscopic term ``g = ω × I ω``; ``|ω_i⁺| ≤ ω_max,i`` is the interval
     ``τ_i ∈ [g_i + I_i (−ω_max,i − ω_i)/Δt, g_i + I_i (ω_max,i − ω_i)/Δt]``. The torque is clipped to that interval
     intersected with the actuator limits; when the two do not meet (the rate is already too high to be brought

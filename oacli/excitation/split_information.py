@@ -2,7 +2,7 @@
 
 The same quantities as :func:`oacli.excitation.information.propagate_with_sensitivities`,
 :func:`oacli.excitation.information.fisher_information` and :func:`oacli.excitation.fim_gradient.fim_gradients`
-(Doerr et al. 2021, Eqs. 29, 33-36), computed from the structure of the free-flyer model instead of a generic
+([Doerr2021] Eqs. 29, 33-36), computed from the structure of the free-flyer model instead of a generic
 13-state (65-state augmented) RK4 pass per step:
 
 * **The dynamics split.** The force acts in the world frame, so ``[r, v]`` is an exact double integrator in ``f``
@@ -180,14 +180,14 @@ def _omega(w: np.ndarray) -> np.ndarray:
 
 
 def _xi(q: np.ndarray) -> np.ndarray:
-    """Ξ(q) (..., 4, 3) of Doerr Eq. 36 (:func:`oacli.model.quaternion.xi_matrix`), batched."""
+    """Ξ(q) (..., 4, 3) of [Doerr2021] Eq. 36 (:func:`oacli.model.quaternion.xi_matrix`), batched."""
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     return np.stack([np.stack([w, -z, y], -1), np.stack([z, w, -x], -1), np.stack([-y, x, w], -1),
                      np.stack([-x, -y, -z], -1)], -2)
 
 
 def _wdot(xr: np.ndarray, tau: np.ndarray, inertia: np.ndarray) -> np.ndarray:
-    """``ω̇`` (..., 3) of Euler's equation (Doerr Eq. 35b)."""
+    """``ω̇`` (..., 3) of Euler's equation ([Doerr2021] Eq. 35b)."""
     ix, iy, iz = inertia
     wx, wy, wz = xr[..., 4], xr[..., 5], xr[..., 6]
     return np.stack([(tau[..., 0] - (iz - iy) * wy * wz) / ix, (tau[..., 1] - (ix - iz) * wz * wx) / iy,
@@ -305,7 +305,7 @@ def _rotation_outputs(ro: SplitRollout, model: MeasurementModel) -> tuple[np.nda
 
 
 def fisher_information(ro: SplitRollout, u: np.ndarray, theta: np.ndarray, model: MeasurementModel) -> np.ndarray:
-    """Fisher information (4, 4) of the measurements along a rollout (Doerr Eq. 29), block diagonal.
+    """Fisher information (4, 4) of the measurements along a rollout ([Doerr2021] Eq. 29), block diagonal.
 
     Parameters
     ----------

@@ -2,7 +2,7 @@
 with cvxpy Parameters (DPP) and solved with Clarabel.
 
 Around the current rollout it finds the step ``δu`` that minimises the exact convex criterion of the linearised
-Fisher information (Doerr et al. 2021, Eq. 30) plus the ℓ1 penalty of the slacks, subject to the linearised
+Fisher information ([Doerr2021] Eq. 30) plus the ℓ1 penalty of the slacks, subject to the linearised
 dynamics (translation exact, rotation by the RK4 Jacobians), the input bounds, the trust region and the softened
 velocity, rate, keep-in, keep-out and terminal constraints (see the module docstring of
 :mod:`oacli.excitation.design`).

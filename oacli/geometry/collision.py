@@ -1,16 +1,16 @@
 """Exact continuous collision checks of constant-acceleration motion against the workspace.
 
 The planners move the robot's centre along *pieces* of constant acceleration (a double integrator under a
-zero-order-hold force, Doerr Eq. 34)::
+zero-order-hold force, [Doerr2021] Eq. 34)::
 
     p(τ) = p0 + v0 τ + ½ a τ²,   0 <= τ <= h,
 
 and a straight segment is the special case ``a = 0``. Checking only the samples of a trajectory misses obstacles
-the robot passes through between two samples (the tunnelling problem named in Doerr §"Ellipsoid Method" and
-ReSWARM §4.2.1); here every piece is checked over its whole time interval:
+the robot passes through between two samples (the tunnelling problem named in [Doerr2021] §"Ellipsoid Method" and
+[ReSWARM2023] §4.2.1); here every piece is checked over its whole time interval:
 
-* **Keep-out ellipsoids** (Doerr Eqs. 12-14, safety factor already applied by :class:`oacli.geometry.Scene`)
-  against the robot's bounding ellipsoid (ReSWARM §4.2.2, :class:`RobotBody`). For a point robot,
+* **Keep-out ellipsoids** ([Doerr2021] Eqs. 12-14, safety factor already applied by :class:`oacli.geometry.Scene`)
+  against the robot's bounding ellipsoid ([ReSWARM2023] §4.2.2, :class:`RobotBody`). For a point robot,
   ``f(τ) = (p(τ) - c)ᵀ P (p(τ) - c) - 1`` is a quartic in τ and its minimum over [0, h] is found exactly from
   the real roots of the cubic ``f'`` (plus the end points). For a robot ellipsoid Σ2 the same exact quartic test
   is made against an outer ellipsoid ``E_s`` of the Minkowski sum (:mod:`oacli.geometry.overlap`): a piece outside

@@ -1,6 +1,6 @@
 """Convex pieces of the workspace for convex programs: keep-in boxes and supporting half-spaces of keep-out zones.
 
-The free space (Doerr et al. 2021, Eqs. 12-14) is a union of keep-in boxes minus keep-out ellipsoids: not convex.
+The free space ([Doerr2021] Eqs. 12-14) is a union of keep-in boxes minus keep-out ellipsoids: not convex.
 Every convex program of the project (the trajectory polish, the excitation design, the MPC controllers) replaces
 it, per step, by a convex inner piece: one keep-in box and one half-space per keep-out zone. This module holds
 the one implementation they share.
@@ -8,7 +8,7 @@ the one implementation they share.
 Keep-out zone grown by the robot
 --------------------------------
 Zone j's set of forbidden centre positions is ``O_j = E_j ⊕ R``: the keep-out ellipsoid (safety factor applied)
-grown by the robot's bounding ellipsoid R (ReSWARM §4.2.2; a sphere of the robot's radius, or a point). An
+grown by the robot's bounding ellipsoid R ([ReSWARM2023] §4.2.2; a sphere of the robot's radius, or a point). An
 ellipsoid containing ``O_j`` is ``{p : ‖L (p − c_j)‖ ≤ 1}`` (``E_j`` itself for a point robot; for a body, the
 trace-minimal outer ellipsoid of the Minkowski sum, ``Σ = Σ_j/(1 − s) + Σ_R/s``, Kurzhanski & Vályi 1997). Its
 normalised coordinates ``w = L (p − c_j)`` give the *metric direction* of a point, ``m = w/‖w‖``. The half-space

@@ -18,7 +18,7 @@ is found by a one-dimensional search. With ``Σ1 = L Lᵀ`` and the eigen-decomp
 
     g(s; δ) = Σ_i w_i² s (1 - s) / (s + λ_i (1 - s)).
 
-For a point robot (Σ2 = 0) ``g* = δᵀ Σ1⁻¹ δ``: the ellipsoid-on-point test of Doerr Eq. 12. For two spheres
+For a point robot (Σ2 = 0) ``g* = δᵀ Σ1⁻¹ δ``: the ellipsoid-on-point test of [Doerr2021] Eq. 12. For two spheres
 (radii a, r) ``g* = |δ|² / (a + r)²``: the distance test. ``sqrt(g*)`` is the factor by which both ellipsoids must
 be scaled about their centres to touch, a dimensionless clearance.
 """

@@ -1,4 +1,4 @@
-"""Keep-in boxes and ellipsoidal keep-out zones (Doerr et al. 2021, Eqs. 12-14)."""
+"""Keep-in boxes and ellipsoidal keep-out zones ([Doerr2021] Eqs. 12-14)."""
 
 from __future__ import annotations
 
@@ -54,7 +54,7 @@ class Box:
 
 @dataclass(frozen=True)
 class Ellipsoid:
-    """Ellipsoidal keep-out zone; free space is ``(p - c)ᵀ P (p - c) >= 1`` (Doerr Eq. 12).
+    """Ellipsoidal keep-out zone; free space is ``(p - c)ᵀ P (p - c) >= 1`` ([Doerr2021] Eq. 12).
 
     Attributes
     ----------
@@ -117,7 +117,7 @@ class Ellipsoid:
         return 1.0 / np.sqrt(eigval), eigvec
 
     def inflated(self, factor: float) -> Ellipsoid:
-        """The ellipsoid with every semi-axis multiplied by ``factor`` (a safety factor, Doerr Eq. 12).
+        """The ellipsoid with every semi-axis multiplied by ``factor`` (a safety factor, [Doerr2021] Eq. 12).
 
         Parameters
         ----------

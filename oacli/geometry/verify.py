@@ -104,7 +104,7 @@ def dense_positions(t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: fl
     """Times and positions of a zero-order-hold trajectory sampled at most ``spacing_m`` apart.
 
     Between samples the force is held, so the position is the exact parabola ``p_k + v_k τ + ½ (f_k/m) τ²``
-    (Doerr Eq. 34 with a world-frame force); each step is cut into equal parts, ending at the step's end.
+    ([Doerr2021] Eq. 34 with a world-frame force); each step is cut into equal parts, ending at the step's end.
 
     Parameters
     ----------

@@ -52,7 +52,7 @@ _TIME = {"type": "number", "minimum": 0, "description": "mission time since the 
 TRAJECTORY_SAMPLE_SCHEMA: dict[str, Any] = {
     "title": TRAJECTORY_SAMPLE,
     "description": (
-        "One sample of a state and input trajectory of the free flyer (Doerr et al. 2021, Eqs. 33-35). "
+        "One sample of a state and input trajectory of the free flyer ([Doerr2021] Eqs. 33-35). "
         "The input is held from this sample's t to the next one's (zero-order hold)."
     ),
     "type": "object",
@@ -344,7 +344,7 @@ _RECORD_TIME = {"type": "number", "minimum": 0, "description": "mission time [s]
 
 PARAMETER_ESTIMATE_SCHEMA: dict[str, Any] = {
     "description": "Estimate of the inertial parameters θ = [m, Ixx, Iyy, Izz] from the records up to t "
-    "(Doerr 2021 Eqs. 31-32).",
+    "([Doerr2021] Eqs. 31-32).",
     "type": "object",
     "properties": {
         "t": {**_RECORD_TIME, "description": "time of the last record used [s]"},

@@ -12,7 +12,7 @@ A mission run folder ``runs/mission-<name>-<UTC stamp>/`` holds::
     segment-2/estimate/               batch estimate from segment-2/track/track.mcap (at C)
     segment-3/plan/                   C -> A with the learned model
     segment-3/smooth/
-    segment-3/track/                  tube MPC, W from the estimate's 2σ bounds (Doerr Eq. 28)
+    segment-3/track/                  tube MPC, W from the estimate's 2σ bounds ([Doerr2021] Eq. 28)
     segment-3/baseline-mpc-prior/     the same reference, standard MPC, prior model (Fig. 3(d), cyan)
     segment-3/baseline-tube-prior/    the same reference, tube MPC, prior model and W (Fig. 3(d), magenta)
     mission.rrd                       one recording on the ``mission_time`` timeline

@@ -1,11 +1,11 @@
 """Exact discrete double integrator and the hover error model used by the MPC.
 
-Translation (Doerr Eq. 34) is linear: per axis ``[p, v]`` with ``p̈ = f/m``. Its exact zero-order-hold
+Translation ([Doerr2021] Eq. 34) is linear: per axis ``[p, v]`` with ``p̈ = f/m``. Its exact zero-order-hold
 discretisation over ``dt`` is ``A = [[1, dt], [0, 1]]``, ``B = [[dt²/(2m)], [dt/m]]``.
 
 Attitude linearised about rest (ω = 0) in a body-frame rotation-vector error chart ``φ`` (``q = q_a ⊗ exp(φ)``)
 is again a double integrator per principal axis: ``φ̈ = τ / I_i`` (the gyroscopic term ω × Iω is second order
-and vanishes in the linearisation at ω = 0). That is the exact discretisation of Doerr Eq. 2 about hover.
+and vanishes in the linearisation at ω = 0). That is the exact discretisation of [Doerr2021] Eq. 2 about hover.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
-"""Unit quaternions, scalar last ``[x, y, z, w]`` (Doerr et al. 2021, Eq. 33), Hamilton product.
+"""Unit quaternions, scalar last ``[x, y, z, w]`` ([Doerr2021] Eq. 33), Hamilton product.
 
 A quaternion ``q`` rotates body-frame vectors into the world frame: ``v_world = R(q) v_body``. The kinematics
-``q̇ = ½ Ξ(q) ω`` (Doerr Eqs. 35a, 36) use the body angular rate ``ω``, i.e. ``q̇ = ½ q ⊗ [ω, 0]``.
+``q̇ = ½ Ξ(q) ω`` ([Doerr2021] Eqs. 35a, 36) use the body angular rate ``ω``, i.e. ``q̇ = ½ q ⊗ [ω, 0]``.
 All functions accept a single quaternion (4,) or a stack (..., 4).
 """
 
@@ -70,7 +70,7 @@ def multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 def xi_matrix(q: np.ndarray) -> np.ndarray:
-    """Ξ(q) of Doerr Eq. 36, shape (4, 3): ``q̇ = ½ Ξ(q) ω``.
+    """Ξ(q) of [Doerr2021] Eq. 36, shape (4, 3): ``q̇ = ½ Ξ(q) ω``.
 
     Parameters
     ----------

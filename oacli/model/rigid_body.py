@@ -1,4 +1,4 @@
-"""Free-flyer rigid-body dynamics (Doerr et al. 2021, Eqs. 33-36) and their discretisation (Eq. 2).
+"""Free-flyer rigid-body dynamics ([Doerr2021] Eqs. 33-36) and their discretisation (Eq. 2).
 
 State ``x = [r, v, q, ω]`` (13), input ``u = [f, τ]`` (6): the force ``f`` [N] acts in the world frame, the
 torque ``τ`` [N·m] in the body frame (see :mod:`oacli.types`). Inertial parameters
@@ -44,7 +44,7 @@ def theta_of(params: InertialParams) -> np.ndarray:
 
 
 def dynamics(x: np.ndarray, u: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Continuous-time state derivative ẋ = f(x, u, θ) (Doerr Eqs. 34-35).
+    """Continuous-time state derivative ẋ = f(x, u, θ) ([Doerr2021] Eqs. 34-35).
 
     Parameters
     ----------
@@ -184,7 +184,7 @@ def propagate(x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float) -> np.
 def rk4_step_jacobians(
     x: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """RK4 step and its exact Jacobians (Doerr Eq. 2 discretisation).
+    """RK4 step and its exact Jacobians ([Doerr2021] Eq. 2 discretisation).
 
     Parameters
     ----------
@@ -235,7 +235,7 @@ def rk4_step_jacobians(
 def linearize_discrete(
     x_bar: np.ndarray, u_bar: np.ndarray, params: InertialParams, dt: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """LTV matrices of Doerr Eq. 2 about ``(x_bar, u_bar)``: ``δx_{k+1} = A δx_k + B δu_k + g``.
+    """LTV matrices of [Doerr2021] Eq. 2 about ``(x_bar, u_bar)``: ``δx_{k+1} = A δx_k + B δu_k + g``.
 
     Parameters
     ----------

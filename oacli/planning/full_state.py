@@ -1,9 +1,9 @@
 """From a translational plan to a full oacli :class:`~oacli.types.Trajectory` (13-state, 6 inputs) and back.
 
-The planners plan the translational state only (Doerr Eq. 34; ReSWARM §4.1.3). The attitude is interpolated from
-the start to the goal attitude along the whole plan with a rest-to-rest minimum-jerk time scaling of the slerp,
+The planners plan the translational state only ([Doerr2021] Eq. 34; [ReSWARM2023] §4.1.3). The attitude is interpolated
+from the start to the goal attitude along the whole plan with a rest-to-rest minimum-jerk time scaling of the slerp,
 ``q(t) = q₀ ⊗ exp(s(t/T) φ)`` with ``φ = log(q₀⁻¹ q₁)`` and ``s(τ) = 10τ³ - 15τ⁴ + 6τ⁵``, so that the body rate
-``ω = ṡ φ`` (body frame) and the torque ``τ = I ω̇ + ω × I ω`` (Doerr Eq. 35b) are consistent with the rigid-body
+``ω = ṡ φ`` (body frame) and the torque ``τ = I ω̇ + ω × I ω`` ([Doerr2021] Eq. 35b) are consistent with the rigid-body
 model. If the translation is too short for the rotation within the angular-rate and torque limits, the robot
 holds the goal position at rest until the rotation ends. The output is what ``oacli track --reference`` follows.
 """

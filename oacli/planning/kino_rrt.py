@@ -8,7 +8,7 @@
   propagation time Δt and propagated with the exact double integrator.
 * **Steer**: from the nearest node, every primitive is propagated; those that keep the velocity limits (velocity
   is linear in time, so the end points decide) and are collision-free in continuous time (the robot's bounding
-  ellipsoid against the keep-out ellipsoids: ReSWARM §4.2.2 ellipsoid-on-ellipsoid, swept over the whole
+  ellipsoid against the keep-out ellipsoids: [ReSWARM2023] §4.2.2 ellipsoid-on-ellipsoid, swept over the whole
   primitive, :mod:`oacli.geometry.collision`) compete; the one ending closest to the sample is added.
 * **Goal**: a node within the goal tolerance (position and speed) is linked to the exact goal at rest by a
   collision-checked LQR connection (:class:`~oacli.planning.steering.LqrConnector`), so the plan ends exactly on
@@ -94,7 +94,7 @@ class KinoRrtSettings:
 
 
 def motion_primitives(force_limit_N: np.ndarray, fraction: float, kind: str = "axes") -> np.ndarray:
-    """The action set of ReSWARM Eq. 27, shape (P, 3) [N]: zero first, then the ± actions.
+    """The action set of [ReSWARM2023] Eq. 27, shape (P, 3) [N]: zero first, then the ± actions.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""LQR-RRT* in the translational state space (Doerr et al. 2021 §"LQR-RRT*", Eqs. 5-11; Perez et al. 2012).
+"""LQR-RRT* in the translational state space ([Doerr2021] §"LQR-RRT*", Eqs. 5-11; Perez et al. 2012).
 
 One iteration, as in Doerr's list of seven components:
 

@@ -1,7 +1,7 @@
 """Nearest-neighbour search in a transformed space where the planner's metric is Euclidean.
 
 The LQR cost-to-go at a fixed horizon (:class:`oacli.planning.steering.LqrMetric`) and the weighted Euclidean
-metric of kinodynamic RRT (ReSWARM Eq. 26) are both squared Euclidean distances after a linear change of
+metric of kinodynamic RRT ([ReSWARM2023] Eq. 26) are both squared Euclidean distances after a linear change of
 coordinates, so nearest and near-set queries are a vectorised scan of a growable (n, d) array: one
 subtraction, one row-sum and an argmin or a partial sort. Up to a few ten thousand nodes that is faster than
 rebuilding and querying a k-d tree in Python.

@@ -4,7 +4,7 @@ LQR shortcutting (:mod:`oacli.planning.shortcut`) minimises the LQR cost ``J`` o
 speed that cost prefers wide turns around the tips of elongated keep-out ellipsoids (a tip's curvature radius
 ``a²/b`` is far below ``v²/a_max``), so the geometric path stays a few per cent longer than the shortest
 collision-free one. The polish takes the shortcut result and minimises its *path length* on the same double
-integrator (Doerr Eq. 34) by sequential convex programming (SCP; Schulman et al. 2014, "Motion planning with
+integrator ([Doerr2021] Eq. 34) by sequential convex programming (SCP; Schulman et al. 2014, "Motion planning with
 sequential convex optimization and convex collision checking"; Mao, Szmuk & Açıkmeşe 2016, "Successive
 convexification of non-convex optimal control problems"), each subproblem a second-order cone program solved by
 Clarabel. Near a tip the result slows down to turn tightly and makes up the time on the straights.
@@ -49,8 +49,8 @@ within the trust region satisfies them all.
 Convexified keep-out zones
 --------------------------
 Zone j's set of forbidden centre positions is ``O_j = E_j ⊕ R`` (the keep-out ellipsoid, safety factor applied,
-Doerr Eqs. 12-14, grown by the robot's bounding ellipsoid R, ReSWARM §4.2.2). For the reference r̄, the hull of
-piece k's control points is mapped into the normalised coordinates ``w = L (p − c_j)`` of an ellipsoid containing
+[Doerr2021] Eqs. 12-14, grown by the robot's bounding ellipsoid R, [ReSWARM2023] §4.2.2). For the reference r̄, the hull
+of piece k's control points is mapped into the normalised coordinates ``w = L (p − c_j)`` of an ellipsoid containing
 ``O_j`` (``E_j`` itself for a point robot; the trace-minimal outer ellipsoid of the Minkowski sum otherwise), where
 that ellipsoid is the unit ball. The hull's point ``w*`` of least norm (exact: vertices, edges and face of the
 triangle) gives the direction ``m = w*/‖w*‖``; the world normal is ``n = Lᵀ m`` and the offset is the support

@@ -1,7 +1,7 @@
 """The planning problem in the translational state space and how to sample it.
 
-The global planners plan the translational state ``x = [r, v]`` (Doerr Eq. 34) of the robot's centre, as Doerr
-et al. and ReSWARM §4.1.3 do: attitude is interpolated afterwards (:mod:`oacli.planning.full_state`).
+The global planners plan the translational state ``x = [r, v]`` ([Doerr2021] Eq. 34) of the robot's centre, as Doerr
+et al. and [ReSWARM2023] §4.1.3 do: attitude is interpolated afterwards (:mod:`oacli.planning.full_state`).
 """
 
 from __future__ import annotations

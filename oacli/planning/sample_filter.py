@@ -11,7 +11,7 @@ checker's.
 The test is *sufficient* for a collision (it never rejects a free position), with a relative margin so that
 rounding cannot make it disagree with the checker:
 
-* **keep-out** (Doerr Eqs. 12-14, zones with the safety factor applied): the robot's bounding ellipsoid
+* **keep-out** ([Doerr2021] Eqs. 12-14, zones with the safety factor applied): the robot's bounding ellipsoid
   ``{x : xᵀ Σ⁻¹ x <= 1}`` contains the ball of radius ``ρ = √λ_min(Σ)``, and a zone
   ``E = {x : (x - c)ᵀ P (x - c) <= 1}`` lies in the ball of its largest semi-axis ``a_max``, so that ball contains
   ``(ρ / a_max)(E - c)`` and the Minkowski sum ``E ⊕ body`` contains ``c + (1 + ρ / a_max)(E - c)``: the robot

@@ -1,5 +1,5 @@
-"""Trajectory smoothing by LQR shortcutting (Doerr et al. 2021 §"Trajectory Smoothing by LQR Shortcutting";
-ReSWARM §4.3; after Hauser & Ng-Thow-Hing 2010).
+"""Trajectory smoothing by LQR shortcutting ([Doerr2021] §"Trajectory Smoothing by LQR Shortcutting";
+[ReSWARM2023] §4.3; after Hauser & Ng-Thow-Hing 2010).
 
 Each try picks two random samples ``x_a`` (at ``t_a``) and ``x_b`` (at ``t_b``) of the current trajectory
 ``σ = [σ1, σ2, σ3]`` and computes the LQR interpolation between them: for every horizon, the exact LQR connection

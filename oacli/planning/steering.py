@@ -1,7 +1,7 @@
 """Exact LQR connections of the double integrator: LQR steering, the cost-to-go metric and LQR interpolation.
 
 A *connection* from ``x_a`` to ``x_b`` in N steps of ``dt`` is the zero-order-hold force sequence that minimises the
-exact continuous cost of :mod:`oacli.planning.translational` (Doerr Eq. 5 in continuous time, with ``Q`` on the
+exact continuous cost of :mod:`oacli.planning.translational` ([Doerr2021] Eq. 5 in continuous time, with ``Q`` on the
 error to the plan's goal ``x_g``) subject to the exact discrete dynamics (:func:`oacli.model.double_integrator.
 translational_model`) and the *terminal constraint* ``x_N = x_b``. It is Doerr's finite-horizon LQR problem
 (Eqs. 5-9) with an infinite terminal weight: where Perez et al.'s infinite-horizon steering only approaches
@@ -60,7 +60,7 @@ def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: f
     :func:`~oacli.planning.translational.interval_cost_matrix` over ``z = [r - r_g, v, v - v_g, u]``) is a pure
     quadratic form, and the terminal constraint ``x_N = x_b`` enters through a multiplier ν as the terminal value
     ``νᵀ (x_N - x_b)``. The value with ``j`` steps to go is ``½ ζᵀ P⁽ʲ⁾ ζ`` with ``ζ = [ξ; ν]``: the Riccati step of
-    Doerr Eq. 9 (for the augmented system, no affine terms) gives ``P⁽ʲ⁺¹⁾`` and the gain ``u = K⁽ʲ⁾ ζ``. The
+    [Doerr2021] Eq. 9 (for the augmented system, no affine terms) gives ``P⁽ʲ⁺¹⁾`` and the gain ``u = K⁽ʲ⁾ ζ``. The
     system is time-invariant, so ``P⁽ᴺ⁾`` is the value of the N-step problem for every N at once; maximising over
     ν (the ν-block of ``P⁽ᴺ⁾`` is negative definite for N >= 2) gives the optimal cost and ``ν*``, and rolling
     the gains forward gives the forces and states as linear maps of ``y = [r_a, v_a, r_b, v_b, r_g, v_g]``.
@@ -143,7 +143,7 @@ def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: f
 
 @dataclass(frozen=True)
 class ValueFunction:
-    """Quadratic cost-to-go ``V(x_a) = ½ x_aᵀ S x_a + x_aᵀ s + c`` of an N-step connection (Doerr Eq. 8).
+    """Quadratic cost-to-go ``V(x_a) = ½ x_aᵀ S x_a + x_aᵀ s + c`` of an N-step connection ([Doerr2021] Eq. 8).
 
     Attributes
     ----------
@@ -516,7 +516,7 @@ class LqrConnector:
         return xs, us
 
     def value_function(self, steps: int, x_b: np.ndarray, goal: np.ndarray) -> ValueFunction:
-        """Cost-to-go ``V(x_a)`` of reaching ``x_b`` in ``steps`` steps, in the form of Doerr Eq. 8.
+        """Cost-to-go ``V(x_a)`` of reaching ``x_b`` in ``steps`` steps, in the form of [Doerr2021] Eq. 8.
 
         Parameters
         ----------

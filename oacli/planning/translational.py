@@ -1,6 +1,6 @@
 """Translational trajectories of the double integrator under a zero-order-hold force, and their exact cost.
 
-The planners work in the translational state ``x = [r (3) m, v (3) m/s]`` of Doerr Eq. 34: ``r̈ = f / m`` per
+The planners work in the translational state ``x = [r (3) m, v (3) m/s]`` of [Doerr2021] Eq. 34: ``r̈ = f / m`` per
 world axis with the force ``f`` held constant over each interval. A :class:`TranslationalTrajectory` is a sequence
 of such intervals; between samples the position is the exact quadratic ``r(τ) = r_k + v_k τ + ½ (f_k/m) τ²``.
 

@@ -185,7 +185,7 @@ def _propagate_steps(s: list[float], u: list[float], mass: float, inertia: tuple
                      offset: tuple[float, float, float] | None, steps: list[float]) -> list[tuple[float, ...]]:
     """The plant over consecutive steps ``steps`` [s] under the held input ``u``: the state after each step.
 
-    Each step is :func:`oacli.model.rigid_body.propagate` (RK4 of Doerr Eqs. 34-35 with ``u`` held, then the
+    Each step is :func:`oacli.model.rigid_body.propagate` (RK4 of [Doerr2021] Eqs. 34-35 with ``u`` held, then the
     quaternion renormalised with ``w >= 0``) with the centre-of-mass torque (:func:`_with_offset_torque`) taken at
     the step's initial attitude, written out on Python floats: the same operations in the same order as the numpy
     version (bit-identical; ``tests/test_simulator.py`` checks), without its per-call array overhead. The

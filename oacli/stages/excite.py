@@ -17,7 +17,7 @@ Ctrl-C or a termination signal (SIGTERM, SIGHUP) keeps the journal of either met
 computation so far) next to an ``interrupted`` ``summary.json`` (exit 130 / 143).
 
 Both design within the limits of :func:`oacli.stages.design_limits.excitation_design_limits`: the robot's with
-``excitation.margin`` (the force also × m_prior/m_upper, Doerr Eq. 28), capped by ``excitation.limits`` (RATTLE:
+``excitation.margin`` (the force also × m_prior/m_upper, [Doerr2021] Eq. 28), capped by ``excitation.limits`` (RATTLE:
 ``excitation.rattle.limits`` over them); a cap above the robot's is refused (exit 2) or clipped with a warning. In
 RATTLE's closed loop the feedback may use the actuator's full limits and a rate governor keeps the body rate within
 ``robot.angular_velocity_limit_radps``. ``summary.json`` records the limits used (``design_limits``).

@@ -1,7 +1,7 @@
 """The ``track`` stage with ``controller: tube``: the controller from the config, its records and its summary.
 
 Split from :mod:`oacli.stages.track` so that the stage runner reads as one flow; everything here is specific to
-robust tube MPC (Mayne, Seron & Raković 2005; Raković et al. 2005; Doerr et al. 2021 Eqs. 15-28). The tube's
+robust tube MPC (Mayne, Seron & Raković 2005; Raković et al. 2005; [Doerr2021] Eqs. 15-28). The tube's
 design from the config is :func:`oacli.stages.settings.tube_design_from_config`.
 """
 

@@ -1,4 +1,4 @@
-"""Issue 12, second half: choices and clean metavars in --help, strict --json, stage names in run folders, and
+"""Choices and clean metavars in --help, strict --json, stage names in run folders, and
 named phases in the progress output."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""CLI conveniences of issue 12: --set, --json, info, runs list, config show, --view wiring."""
+"""CLI conveniences: --set, --json, info, runs list, config show, --view wiring."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 11, second pass: what the item-by-item review of the adversarial cases still found.
+"""What the item-by-item review of the adversarial cases still found.
 
 * a coordinate beyond the workspace bound named the bound as a literal ``{bound:g}`` (a message template with a
   format spec pydantic does not apply);
