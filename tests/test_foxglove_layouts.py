@@ -174,10 +174,11 @@ def test_scene_holds_the_tube_cross_sections_and_the_planner_tree(mission_dir):
     for k in (0, len(nominal) // 2, len(nominal) - 1):
         axes = designs[steps[k]["design"]]["axes"]
         z = np.asarray(nominal[k]["position"])
-        lo = np.array([-_support(np.asarray(a["z_normals"]), np.asarray(a["z_offsets"]), np.array([-1.0, 0.0]))
-                       for a in axes])
-        hi = np.array([_support(np.asarray(a["z_normals"]), np.asarray(a["z_offsets"]), np.array([1.0, 0.0]))
-                       for a in axes])
+        # The tube promised for the true state (Z; T with the default mission's observer), drawn around z.
+        lo = np.array([-_support(np.asarray(a["promise_normals"]), np.asarray(a["promise_offsets"]),
+                                 np.array([-1.0, 0.0])) for a in axes])
+        hi = np.array([_support(np.asarray(a["promise_normals"]), np.asarray(a["promise_offsets"]),
+                                np.array([1.0, 0.0])) for a in axes])
         t_ns, entity = now[k]
         assert t_ns == round(nominal[k]["t"] * 1e9)
         (cube,) = entity.cubes

@@ -172,14 +172,15 @@ def mission(
                 copy_stages_before(target, mission_dir, cfg, from_stage)
         say = (lambda line: typer.echo(line, err=True)) if not (quiet or json_out) else None
         result = run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
-        from oacli.mission.foxglove import write_mission_mcap
-
-        if say:
-            say("writing mission.mcap (every stage on the mission clock, for Foxglove: docs/foxglove/mission.json)")
-        write_mission_mcap(result.run_dir, result.summary)
         if cfg.outputs.report:  # report.html from the finished folder (oacli report; outputs.report: false skips)
             from oacli.commands.report import report_after_run
-            report_after_run(result.run_dir, say)
+            from oacli.signals import note_recorded
+
+            try:
+                report_after_run(result.run_dir, say)
+            except KeyboardInterrupt:  # the mission is recorded (summary.json): say so, exit 130/143
+                note_recorded(result.run_dir / "summary.json", str(result.summary.get("status")))
+                raise
         return result
 
     result = run_guarded(action)

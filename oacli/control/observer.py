@@ -78,7 +78,13 @@ class TranslationObserver:
         return None if self._x is None else self._x.copy()
 
     def applied(self, force_N: np.ndarray) -> None:
-        """Record the world force [N] (3,) applied from the last measurement to the next one."""
+        """Record the world force applied from the last measurement to the next one.
+
+        Parameters
+        ----------
+        force_N : ndarray, shape (3,)
+            Applied force, world frame [N].
+        """
         self._force = np.array(force_N, dtype=float)
 
     def update(self, t: float, y: np.ndarray) -> np.ndarray:
@@ -133,7 +139,13 @@ class RateObserver:
         self._torque: np.ndarray | None = None
 
     def applied(self, torque_Nm: np.ndarray) -> None:
-        """Record the body torque [N·m] (3,) applied until the next measurement."""
+        """Record the body torque applied until the next measurement.
+
+        Parameters
+        ----------
+        torque_Nm : ndarray, shape (3,)
+            Applied torque, body frame [N·m].
+        """
         self._torque = np.array(torque_Nm, dtype=float)
 
     def update(self, t: float, omega_radps: np.ndarray) -> np.ndarray:

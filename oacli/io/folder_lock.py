@@ -20,6 +20,7 @@ import json
 import os
 import socket
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -33,15 +34,27 @@ class FolderBusy(InputError):
     """Another oacli process holds the folder's lock (exit code 2)."""
 
 
-def _holder(folder: Path) -> str:
-    """``pid 123 on host h since 2026-12-05T14:00:00Z (oacli campaign --resume)``, or what is known."""
-    try:
-        with open(folder / HOLDER_FILE, encoding="utf-8") as f:
-            info = json.loads(f.read(4096))
-        return (f"pid {int(info['pid'])} on host {info['host']} since {info['started_utc']}"
-                + (f" ({info['command']})" if info.get("command") else ""))
-    except (OSError, ValueError, KeyError, TypeError):
-        return "another oacli process (its pid, host and start time are not written yet)"
+HOLDER_WAIT_S = 2.0
+"""How long a process that finds the lock taken waits for the holder's description [s]."""
+
+
+def _holder(folder: Path, wait_s: float = HOLDER_WAIT_S) -> str:
+    """``pid 123 on host h since 2026-12-05T14:00:00Z (oacli campaign --resume)``, or what is known.
+
+    The holder writes its description just after it takes the lock: a process that finds the lock taken waits up
+    to ``wait_s`` for it before saying it is not written yet.
+    """
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            with open(folder / HOLDER_FILE, encoding="utf-8") as f:
+                info = json.loads(f.read(4096))
+            return (f"pid {int(info['pid'])} on host {info['host']} since {info['started_utc']}"
+                    + (f" ({info['command']})" if info.get("command") else ""))
+        except (OSError, ValueError, KeyError, TypeError):
+            if time.monotonic() >= deadline:
+                return "another oacli process (its pid, host and start time are not written yet)"
+            time.sleep(0.05)
 
 
 @contextlib.contextmanager

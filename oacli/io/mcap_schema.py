@@ -303,8 +303,10 @@ TUBE_DESIGN_SCHEMA: dict[str, Any] = {
                    "from t"},
         "axes": {
             "type": "array",
-            "description": "per axis: Z as {e = [position m, velocity m/s] : H e <= h}, W's vertices, gain K "
-            "(u = v + K e), RPI figures and tightened bounds",
+            "description": "per axis: the QP's set (z_normals/z_offsets: Z, or R = T ⊖ S with an observer) and the "
+            "tube promised for the true state (promise_normals/promise_offsets: Z, or T with an observer) as "
+            "{e = [position m, velocity m/s] : H e <= h}, W's vertices, gain K (u = v + K e), RPI figures and "
+            "tightened bounds",
         },
     },
     "required": ["t", "dt_s", "axes"],

@@ -32,6 +32,7 @@ from oacli.io.folder_lock import folder_lock
 from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
 from oacli.mission.compare import ARRIVAL_TOLERANCE_M, comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
+from oacli.mission.foxglove import MISSION_MCAP, write_mission_mcap
 from oacli.mission.layout import MISSION_STAGES, SEGMENTS, MissionStage, stage_by_key
 from oacli.mission.plots import write_mission_plots
 from oacli.mission.recording import write_mission_recording
@@ -460,9 +461,12 @@ def _run_mission(
         records = load_mission_records(mission_dir, summary)  # once for both (the stage MCAPs are cached)
         write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary,
                                 recording_name=f"{cfg.name}/mission", records=records)
+        say("writing mission.mcap (every stage on the mission clock, for Foxglove: docs/foxglove/mission.json)")
+        write_mission_mcap(mission_dir, summary)
         with held():  # matplotlib can swallow an interruption raised inside its drawing: raised after the PNGs
             plots = write_mission_plots(mission_dir, summary, records=records) if cfg.outputs.mission_pngs else {}
         summary["files"]["rrd"] = "mission.rrd"
+        summary["files"]["mcap"] = MISSION_MCAP
         summary["files"]["plots"] = {k: str(p.relative_to(mission_dir)) for k, p in plots.items()}
         summary["wall_time_s"] = time.perf_counter() - wall
         write_summary(mission_dir, summary)

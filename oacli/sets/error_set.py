@@ -88,7 +88,13 @@ class OutputFeedbackSets:
         return self.true.z
 
     def extents(self) -> dict[str, tuple[float, float]]:
-        """Half-widths ``(position m, velocity m/s)`` of S, T and R (largest over ±e)."""
+        """Half-widths ``(position m, velocity m/s)`` of S, T and R (largest over ±e).
+
+        Returns
+        -------
+        dict of str to (float, float)
+            ``"error"`` (S), ``"true"`` (T), ``"lasso"`` (R): position [m] and velocity [m/s] half-widths.
+        """
         e = np.vstack([np.eye(2), -np.eye(2)])
         out = {}
         for name, p in (("error", self.s), ("true", self.t), ("lasso", self.lasso)):
@@ -180,7 +186,20 @@ def output_feedback_sets(
 
 
 def output_feedback_summary(outs: list[OutputFeedbackSets]) -> dict[str, Any]:
-    """Sizes of the output-feedback sets ([Mayne2006]) per axis: S, T, R half-widths, L, the noise bound."""
+    """Sizes of the output-feedback sets ([Mayne2006]) per axis: S, T, R half-widths, L, the noise bound.
+
+    Parameters
+    ----------
+    outs : list of OutputFeedbackSets
+        One per translational axis.
+
+    Returns
+    -------
+    dict
+        ``observer_gain``, the noise bounds [m, m/s], the half-widths of S (``error_set_*``), T (``true_tube_*``)
+        and R (``lasso_*``) per axis [m, m/s], the error set's facets and Minkowski terms, and whether S covers
+        the initial error (the noise box).
+    """
     ext = [o.extents() for o in outs]
     noise = [[float(o.noise.support(np.array([1.0, 0.0]))), float(o.noise.support(np.array([0.0, 1.0])))] for o in outs]
     return {

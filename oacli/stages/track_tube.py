@@ -419,7 +419,8 @@ def write_tube_topics(writer: StageMcapWriter, tel: Telemetry, monitor: TubeMoni
         axes = []
         for ax in design.axes:
             axes.append({
-                "name": ax.name, "z_normals": ax.z.a, "z_offsets": ax.z.b, "w_vertices": ax.disturbance.w.vertices,
+                "name": ax.name, "z_normals": ax.z.a, "z_offsets": ax.z.b, "promise_normals": ax.promise.a,
+                "promise_offsets": ax.promise.b, "w_vertices": ax.disturbance.w.vertices,
                 "gain": ax.gain[0], "s": ax.rpi.s, "alpha": ax.rpi.alpha, "epsilon": ax.rpi.epsilon,
                 "facets_before_reduction": ax.reduction.facets_before, "w_scale": ax.disturbance.scale,
                 "force_bounds_N": ax.force_bounds_N, "velocity_bounds_mps": ax.velocity_bounds_mps,
