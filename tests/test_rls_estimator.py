@@ -222,3 +222,13 @@ def test_cli_rls_with_the_flight_imu_reports_the_rattle_table_columns(tmp_path):
     s = json.loads((tmp_path / "rls-diff" / "summary.json").read_text())
     assert s["rls_sources"]["linear_acceleration"] == "velocity finite difference"
     assert any("biased in closed loop" in w for w in s["warnings"])
+
+
+def test_process_variance_is_added_in_theta_units():
+    """A sample without any wrench or rate carries no information: θ stays and cov(θ) grows by exactly the
+    configured random-walk variance (given in θ's units, mapped to ψ = 1/θ and back)."""
+    q = np.array([0.5, 1e-4, 2e-4, 3e-4])
+    est = RlsEstimator(PRIOR, gate_probability=None, process_variance=q)
+    est.update(0.0, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), 1e-3, 1e-3)
+    np.testing.assert_allclose(est.estimate.theta, PRIOR.theta, rtol=1e-15)
+    np.testing.assert_allclose(np.diag(est.estimate.covariance), np.diag(PRIOR.covariance) + q, rtol=1e-12)

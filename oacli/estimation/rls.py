@@ -312,7 +312,8 @@ class RlsEstimator:
     gate_probability : float or None
         χ² gate probability (0.99 in flight; None: no gate).
     process_variance : ndarray, shape (4,), optional
-        Random-walk variance added to ``P`` per sample (RATTLE's ``Q``; default 0, a constant θ).
+        Random-walk variance of θ added per sample [kg², (kg·m²)² ×3] (RATTLE's ``Q``; default 0, a constant θ);
+        mapped to ψ = 1/θ as ``var(θ) / θ⁴``.
     """
 
     prior: ParameterEstimate
@@ -359,8 +360,8 @@ class RlsEstimator:
         -------
         RlsStep
         """
-        if self.process_variance is not None:
-            self._p = self._p + np.diag(self.process_variance)
+        if self.process_variance is not None:  # given in θ's units: ψ = 1/θ has var(ψ) = var(θ) / θ⁴ (first order)
+            self._p = self._p + np.diag(np.asarray(self.process_variance, dtype=float) * self._psi**4)
         z = np.concatenate([accel_mps2, alpha_radps2])
         theta = 1.0 / self._psi
         h, jac_theta = acceleration_model(theta, force_N, torque_Nm, rate_radps, self.force_scale)
