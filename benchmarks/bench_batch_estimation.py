@@ -45,8 +45,8 @@ from oacli.estimation.alignment import align_records  # noqa: E402
 from oacli.estimation.batch import estimate_batch, estimate_batch_windows, extend_states  # noqa: E402
 from oacli.estimation.batch_problem import BatchProblem  # noqa: E402
 from oacli.estimation.preprocessing import order_by_time  # noqa: E402
-from oacli.io.mcap_read import read_telemetry_streams  # noqa: E402
 from oacli.io.reference_files import load_reference  # noqa: E402
+from oacli.io.telemetry_streams import read_telemetry_streams  # noqa: E402
 from oacli.stages.settings import estimation_prior, estimator_settings  # noqa: E402
 from oacli.stages.track import run_track  # noqa: E402
 

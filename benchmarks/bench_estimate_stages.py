@@ -48,7 +48,7 @@ from oacli.config import load_config
 from oacli.estimation.alignment import align_records
 from oacli.estimation.batch import estimate_batch_windows
 from oacli.estimation.sequential import SequentialEstimator
-from oacli.io.mcap_read import read_telemetry_streams
+from oacli.io.telemetry_streams import read_telemetry_streams
 from oacli.stages.estimate import _with_imu
 from oacli.stages.settings import estimation_prior, estimator_settings
 

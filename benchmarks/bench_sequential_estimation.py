@@ -46,7 +46,7 @@ import numpy as np
 mission, out_npz, batch = Path(sys.argv[1]), sys.argv[2], sys.argv[3] == "1"
 from oacli.config import load_config
 from oacli.estimation.alignment import align_records
-from oacli.io.mcap_read import read_telemetry_streams
+from oacli.io.telemetry_streams import read_telemetry_streams
 from oacli.stages.settings import estimation_prior, estimator_settings
 from oacli.stages.estimate import _with_imu, run_estimate, run_estimation
 cfg_path = mission / "segment-2" / "estimate-sequential" / "config.yaml"

@@ -149,8 +149,8 @@ def test_fast_path_equals_the_original_on_the_iss_excitation_run(tmp_path):
     sparse LU of AᵀA (cond ≈ 7e12, what the reference used to solve) is itself off by more than 1e-6."""
     from oacli.config import load_config
     from oacli.estimation.alignment import align_records
-    from oacli.io.mcap_read import read_telemetry_streams
     from oacli.io.reference_files import load_reference
+    from oacli.io.telemetry_streams import read_telemetry_streams
     from oacli.stages.settings import estimation_prior, estimator_settings
     from oacli.stages.track import run_track
 

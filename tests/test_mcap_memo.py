@@ -126,7 +126,7 @@ def test_a_failed_write_is_not_remembered(tmp_path):
 
 
 def test_telemetry_streams_of_a_remembered_file_equal_the_files(tmp_path, monkeypatch):
-    from oacli.io.mcap_read import read_telemetry_streams
+    from oacli.io.telemetry_streams import read_telemetry_streams
 
     rng = np.random.default_rng(9)
     t = np.arange(30) * 0.2

@@ -22,8 +22,8 @@ from typer.testing import CliRunner
 
 from oacli.cli import app
 from oacli.io.mcap_io import read_stage
-from oacli.io.mcap_read import read_telemetry_streams
 from oacli.io.mcap_write import StageMcapWriter
+from oacli.io.telemetry_streams import read_telemetry_streams
 from tests.conftest import REPO
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"

@@ -23,33 +23,16 @@ overconfident (and then gate good records). So the filter starts as a batch solv
 and hands over -- last state, φ and their joint covariance -- once every parameter is known to
 ``bootstrap_relative_std`` (5 %). Until then :meth:`SequentialEstimator.update` returns the batch estimate.
 
-Why not RLS on the regressor: it needs accelerations, which the telemetry does not carry at all for the angular
-part (numerical differentiation at 5 Hz is worse than in flight), and it discards the pose measurements that
-carry most of the information (integrated over the whole run). The EKF uses pose, velocity and angular rate
-directly, and accelerations when a record has them; for a linear-Gaussian model its final estimate equals the batch
-posterior, so the two estimators cross-check each other.
-
-The parameters are filtered as ``φ`` (:mod:`oacli.estimation.parametrization`), so every estimate is physical
-(mass > 0, inertia triangle inequalities) by construction: nothing is ever clipped or reset. The prior ``N(θ₀, P₀)``
-is mapped to φ by linearisation. Records go through a :class:`~oacli.estimation.preprocessing.ReorderBuffer`
-([ReSWARM2023] §5.4.3): out-of-order time stamps within the window are processed in order, later ones are reported as
-late. If the state itself is lost (``reinitialise_after`` consecutive rejections, e.g. after starting on a
-localisation jump), the robot state -- never θ -- is re-initialised from the current record and the event is
-recorded. Imperfect telemetry (:mod:`oacli.estimation.alignment`): an input-only record (its localisation message
-was lost) is a prediction without update (status ``"predicted"``). A record that starts a segment (the input before
-it is unknown) after a single lost control record is reached as the batch links it
-(:func:`~oacli.estimation.lost_inputs.lost_input_prior`,
-:func:`~oacli.estimation.lost_inputs.segment_link_weights`): the
-prediction across the gap uses the mean of the known inputs on either side, and the error of that prediction
-(measured on the records so far) is process noise over the interval (counted in ``gaps_bridged``); when the lost
-instant's record carries the accelerometer's mean over its period (``/imu`` survived,
-:func:`oacli.estimation.imu.attach_accelerations`) the lost force is taken from it instead, as the batch does
-(:func:`~oacli.estimation.lost_inputs.lost_input_model`: ``f/m`` measured to ``σ_a²/n``, no mass sensitivity over that
-interval; counted in ``gaps_bridged_imu``), and the lost torque from the gyro's slope over the period when the
-record carries it (``J⁻¹τ = ω̇ + J⁻¹(ω × Jω)``, [Doerr2021] Eq. 35b: no torque and no inertia over that interval;
-counted in ``gaps_bridged_gyro``, and once per gap in ``gaps_bridged_imu``); after a longer
-gap -- one the batch cuts -- the robot state is re-initialised from the measurement (status ``"segment"``, counted in
-``segments``, not a failure). An input is never held across a gap.
+The flight's own estimator, recursive least squares on accelerations, is :mod:`oacli.estimation.rls`; this filter
+uses the pose, velocity and angular rate directly (they carry most of the information, integrated over the whole
+run) and accelerations when a record has them; for a linear-Gaussian model its final estimate equals the batch
+posterior, so the two estimators cross-check each other. The parameters are filtered as ``φ``
+(:mod:`oacli.estimation.parametrization`), so every estimate is physical by construction: nothing is ever clipped or
+reset. Out-of-order records go through a :class:`~oacli.estimation.preprocessing.ReorderBuffer`; a lost state
+(``reinitialise_after`` consecutive rejections) re-initialises the robot state, never θ; lost records and gaps in
+the input record are bridged as the batch links them (:mod:`oacli.estimation.lost_inputs`, with the IMU where it
+survived) or, after a longer gap, start a new segment. docs/estimation.md ("The sequential filter") has the details
+and the counters each case increments.
 
 Usage (what an online planner does)::
 

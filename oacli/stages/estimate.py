@@ -50,10 +50,10 @@ from oacli.excitation.information import PARAM_NAMES
 from oacli.geometry.shapes import Scene
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_io import StageMcapWriter
-from oacli.io.mcap_read import TelemetryStreams, read_telemetry_streams
 from oacli.io.plots.estimate import write_estimate_plots
 from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
+from oacli.io.telemetry_streams import TelemetryStreams, read_telemetry_streams
 from oacli.phases import set_phase
 from oacli.stages.estimate_rls import run_rls
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
