@@ -22,42 +22,17 @@ from typing import Any
 
 import numpy as np
 
+from oacli.model.limits import LIMIT_FIELDS, MotionLimits
 from oacli.trajectory import feedforward_inputs
 from oacli.types import InertialParams, Trajectory
 
-QUANTITIES = ("force_N", "torque_Nm", "velocity_mps", "angular_velocity_radps")
-"""The limited quantities, in the order of :class:`LimitSet`'s fields."""
+QUANTITIES = LIMIT_FIELDS
+"""The limited quantities, in the order of :class:`~oacli.model.limits.MotionLimits`' fields."""
 
 UNITS = {"force_N": "N", "torque_Nm": "N·m", "velocity_mps": "m/s", "angular_velocity_radps": "rad/s"}
 AXES = "xyz"
 LIMIT_RTOL = 1e-9
 """A value counts as above its limit when ``|value| > limit · (1 + LIMIT_RTOL)``."""
-
-
-@dataclass(frozen=True)
-class LimitSet:
-    """Per-axis bounds: force [N] (world axes), torque [N·m] (body axes), velocity [m/s], angular rate [rad/s]."""
-
-    force_N: np.ndarray
-    torque_Nm: np.ndarray
-    velocity_mps: np.ndarray
-    angular_velocity_radps: np.ndarray
-
-    def __post_init__(self) -> None:
-        for name in QUANTITIES:
-            value = np.array(getattr(self, name), dtype=float).reshape(3)
-            if not np.all(np.isfinite(value)) or np.any(value <= 0):
-                raise ValueError(f"{name} must be three finite numbers > 0, got {value}")
-            value.setflags(write=False)
-            object.__setattr__(self, name, value)
-
-    def get(self, quantity: str) -> np.ndarray:
-        """The bound of one quantity (a name of :data:`QUANTITIES`)."""
-        return getattr(self, quantity)
-
-    def as_dict(self) -> dict[str, list[float]]:
-        """``{quantity: [x, y, z]}`` as plain floats."""
-        return {q: [float(v) for v in self.get(q)] for q in QUANTITIES}
 
 
 def mass_upper_bound_kg(mass_prior_kg: float, mass_std_kg: float, mass_sigmas: float) -> float:
@@ -142,7 +117,7 @@ class LimitExcess:
     robot: float
 
 
-def limits_above_robot(robot: LimitSet, caps: dict[str, Any]) -> list[LimitExcess]:
+def limits_above_robot(robot: MotionLimits, caps: dict[str, Any]) -> list[LimitExcess]:
     """Every axis where a requested cap (``{quantity: (3,) or None}``) is above the robot's limit."""
     out = []
     for quantity in QUANTITIES:
@@ -163,9 +138,9 @@ class DesignLimits:
 
     Attributes
     ----------
-    limits : LimitSet
+    limits : MotionLimits
         What the design may use.
-    robot : LimitSet
+    robot : MotionLimits
         The robot's actuator and flight-mode limits.
     margin : ReferenceMargin
     capped : dict
@@ -174,8 +149,8 @@ class DesignLimits:
         Clipped caps and other remarks, one line each (for the log and the summary).
     """
 
-    limits: LimitSet
-    robot: LimitSet
+    limits: MotionLimits
+    robot: MotionLimits
     margin: ReferenceMargin
     capped: dict[str, np.ndarray] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
@@ -207,7 +182,7 @@ class DesignLimits:
                 f"angular rate {vec(lim.angular_velocity_radps)} rad/s")
 
 
-def design_limits(robot: LimitSet, margin: ReferenceMargin, caps: dict[str, Any] | None = None,
+def design_limits(robot: MotionLimits, margin: ReferenceMargin, caps: dict[str, Any] | None = None,
                   notes: tuple[str, ...] = ()) -> DesignLimits:
     """The limits a reference designer must respect (module docstring; [Doerr2021] Eq. 28).
 
@@ -217,7 +192,7 @@ def design_limits(robot: LimitSet, margin: ReferenceMargin, caps: dict[str, Any]
 
     Parameters
     ----------
-    robot : LimitSet
+    robot : MotionLimits
         The robot's limits.
     margin : ReferenceMargin
     caps : dict, optional
@@ -240,7 +215,7 @@ def design_limits(robot: LimitSet, margin: ReferenceMargin, caps: dict[str, Any]
         else:
             cap = np.asarray(cap, dtype=float).reshape(3)
             values[quantity], capped[quantity] = np.minimum(margined, cap), cap < margined
-    return DesignLimits(LimitSet(**values), robot, margin, capped, tuple(notes))
+    return DesignLimits(MotionLimits(**values), robot, margin, capped, tuple(notes))
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -374,7 +349,7 @@ def required_inputs(reference: Trajectory, plant: InertialParams) -> np.ndarray:
 def check_reference_limits(
     reference: Trajectory,
     plant: InertialParams,
-    limits: LimitSet,
+    limits: MotionLimits,
     disturbance_bias: np.ndarray | None = None,
     disturbance_bound: np.ndarray | None = None,
 ) -> ReferenceLimitCheck:
@@ -385,7 +360,7 @@ def check_reference_limits(
     reference : Trajectory
     plant : InertialParams
         The plant that will fly it (the config's ``truth``).
-    limits : LimitSet
+    limits : MotionLimits
         Actuator limits (force per world axis, torque per body axis) and the speed and rate limits.
     disturbance_bias, disturbance_bound : ndarray, shape (6,), optional
         The plant's additive disturbance ``[f, τ]`` (constant part and bound of the random part): the actuator
@@ -419,7 +394,7 @@ __all__ = [
     "QUANTITIES",
     "DesignLimits",
     "LimitExcess",
-    "LimitSet",
+    "MotionLimits",
     "QuantityCheck",
     "ReferenceLimitCheck",
     "ReferenceMargin",

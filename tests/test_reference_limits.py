@@ -14,7 +14,7 @@ from oacli.errors import ConfigError, InputError
 from oacli.excitation.rattle_loop import rate_governed_torque
 from oacli.model import rigid_body as rb
 from oacli.reference_limits import (
-    LimitSet,
+    MotionLimits,
     ReferenceMargin,
     check_reference_limits,
     design_limits,
@@ -29,7 +29,7 @@ from oacli.types import InertialParams, Trajectory
 from tests.conftest import REPO
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
-ROBOT = LimitSet([0.452, 0.216, 0.257], [0.0452, 0.0216, 0.0257], [0.2] * 3, [0.1745] * 3)
+ROBOT = MotionLimits([0.452, 0.216, 0.257], [0.0452, 0.0216, 0.0257], [0.2] * 3, [0.1745] * 3)
 
 
 def iss_dict() -> dict:

@@ -29,7 +29,7 @@ from oacli.io.rerun.read import (
 from oacli.io.rerun.track import track_blueprint, write_track_recording
 from oacli.io.rerun.writer import StageRecording
 from oacli.metrics import TrackingErrors
-from oacli.reference_limits import LimitSet
+from oacli.model.limits import MotionLimits
 from oacli.types import SolveInfo, Telemetry, Trajectory
 
 F32 = {"rtol": 2e-7, "atol": 2e-6}  # float32 storage of positions (|r| ~ 11 m)
@@ -119,7 +119,7 @@ def _kwargs(run: dict) -> dict:
         "reference": Trajectory(run["t_ref"], run["x_ref"], np.zeros((len(run["t_ref"]), 6)), name="reference"),
         "telemetry": telemetry,
         "errors": TrackingErrors(t_ctrl, run["position_error_m"], run["attitude_error_rad"]),
-        "limits": LimitSet(run["force_limit_N"], run["torque_limit_Nm"], [0.2] * 3, [0.17] * 3),
+        "limits": MotionLimits(run["force_limit_N"], run["torque_limit_Nm"], [0.2] * 3, [0.17] * 3),
         "log": run["log"],
     }
 

@@ -44,6 +44,32 @@ class MotionLimits:
             value.setflags(write=False)
             object.__setattr__(self, name, value)
 
+    def get(self, quantity: str) -> np.ndarray:
+        """The bound of one quantity (a name of :data:`LIMIT_FIELDS`).
+
+        Parameters
+        ----------
+        quantity : str
+            ``"force_N"``, ``"torque_Nm"``, ``"velocity_mps"`` or ``"angular_velocity_radps"``.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
+        if quantity not in LIMIT_FIELDS:
+            raise KeyError(quantity)
+        value: np.ndarray = getattr(self, quantity)
+        return value
+
+    def as_dict(self) -> dict[str, list[float]]:
+        """``{quantity: [x, y, z]}`` as plain floats.
+
+        Returns
+        -------
+        dict of str to list of float
+        """
+        return {q: [float(v) for v in self.get(q)] for q in LIMIT_FIELDS}
+
     @property
     def input(self) -> np.ndarray:
         """Input bounds ``[f (3) N, τ (3) N·m]``, shape (6,)."""

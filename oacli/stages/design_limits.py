@@ -31,7 +31,6 @@ from oacli.reference_limits import (
     QUANTITIES,
     UNITS,
     DesignLimits,
-    LimitSet,
     ReferenceMargin,
     design_limits,
     limits_above_robot,
@@ -43,7 +42,7 @@ ROBOT_FIELDS = {"force_N": "force_limit_N", "torque_Nm": "torque_limit_Nm", "vel
 """The ``robot`` field of each limited quantity."""
 
 
-def robot_limit_set(robot: RobotConfig) -> LimitSet:
+def robot_limit_set(robot: RobotConfig) -> MotionLimits:
     """The robot's actuator and flight-mode limits.
 
     Parameters
@@ -53,10 +52,10 @@ def robot_limit_set(robot: RobotConfig) -> LimitSet:
 
     Returns
     -------
-    LimitSet
+    MotionLimits
         Force, torque, velocity and angular-rate limits per axis.
     """
-    return LimitSet(**{q: np.asarray(getattr(robot, ROBOT_FIELDS[q]), dtype=float) for q in QUANTITIES})
+    return MotionLimits(**{q: np.asarray(getattr(robot, ROBOT_FIELDS[q]), dtype=float) for q in QUANTITIES})
 
 
 def resolve_design_limits(

@@ -46,8 +46,7 @@ LogEntry = tuple[float, str, str]
 
 
 class AxisLimits(Protocol):
-    """Per-axis bounds a recording plots as ± limits (:class:`oacli.reference_limits.LimitSet`,
-    :class:`oacli.model.limits.MotionLimits`)."""
+    """Per-axis bounds a recording plots as ± limits (:class:`oacli.model.limits.MotionLimits`)."""
 
     @property
     def force_N(self) -> np.ndarray:
