@@ -95,6 +95,7 @@ class StageRecording(SpatialLogging):
         self._rec.set_log_time_enabled(False)
         self._rec.set_log_tick_enabled(False)
         self._rec.send_recording_name(recording_name)
+        self._recording_id = str(self._rec.get_recording_id())
         self._saved = False
         self.application_id = application_id
         self.recording_name = recording_name
@@ -114,7 +115,7 @@ class StageRecording(SpatialLogging):
     @property
     def recording_id(self) -> str:
         """The Rerun recording id."""
-        return self._rec.get_recording_id()
+        return self._recording_id
 
     def _check_open(self) -> None:
         if self._saved:
@@ -288,11 +289,37 @@ class StageRecording(SpatialLogging):
             self._rec.disconnect()
             self._saved = True
         data += stream.read(flush=True) or b""
+        del stream
+        self._release()
         with atomic_path(path) as tmp:
             fd = os.open(tmp, os.O_WRONLY | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0))
             with os.fdopen(fd, "wb") as handle:
                 handle.write(data)
             _check_complete(tmp, self.recording_id)
+
+
+    def _release(self) -> None:
+        """Drop the closed stream and join its threads (and those of any other recording nobody holds).
+
+        Rerun keeps a dropped :class:`rerun.RecordingStream`'s two threads (its chunk batcher and its sink
+        forwarder) alive until ``rerun.bindings.flush_and_cleanup_orphaned_recordings`` runs, which only
+        ``rr.init`` calls: a campaign worker flying one mission after another gathered ~1,800 idle threads
+        (2 per recording) until the batchers' ticks alone loaded the machine. Called once the stream is
+        disconnected (``save``); later use of the recording raises ``RuntimeError`` through ``_check_open``.
+        """
+        del self._rec
+        release_orphaned_recordings()
+
+
+def release_orphaned_recordings() -> None:
+    """Flush and join every Rerun recording stream no Python object refers to any more.
+
+    The public function ``rr.init`` calls for the same purpose (``rerun.bindings``, rerun-sdk >= 0.20); a no-op
+    where the bindings lack it.
+    """
+    cleanup = getattr(rr.bindings, "flush_and_cleanup_orphaned_recordings", None)
+    if cleanup is not None:
+        cleanup()
 
 
 def _check_complete(path: Path, recording_id: str) -> None:
