@@ -105,9 +105,8 @@ def prior_model(cfg: OacliConfig) -> RobotModel:
     RobotModel
     """
     prior = mission_section(cfg).prior
-    variance = np.array([prior.mass_std_kg, *prior.inertia_std_kgm2]) ** 2
     return robot_model(cfg).with_estimate(
-        np.array([prior.mass_kg, *prior.inertia_kgm2]), np.diag(variance))
+        np.array([prior.mass_kg, *prior.inertia_kgm2]), np.diag(np.array(prior.variance, dtype=float)))
 
 
 REFERENCE_SHARE = 0.8
@@ -115,20 +114,33 @@ REFERENCE_SHARE = 0.8
 of the heaviest plausible plant (the rest for the feedback, as ``reference_force_fraction``)."""
 
 
+def model_section(model: RobotModel) -> dict[str, Any]:
+    """``model`` (mean *and* the diagonal of its covariance) as a stage config's ``robot:`` entries.
+
+    Parameters
+    ----------
+    model : RobotModel
+
+    Returns
+    -------
+    dict
+        ``{"mass_kg", "inertia_kgm2", "variance"}``: ``robot_model`` of the stage's config gives back θ and
+        ``diag(covariance)`` exactly.
+    """
+    theta = model.theta
+    return {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
+            "variance": [float(v) for v in np.diag(model.covariance)]}
+
+
 def _model_sections(model: RobotModel, w_sigmas: float) -> dict[str, Any]:
     """The config entries that make ``model`` (mean *and* covariance) the controller's and the planner's model.
 
-    The tube's W from ``w_sigmas`` σ of its mass ([Doerr2021] Eq. 28); the planner's design limits derated by the
-    same model's σ_m (``planner.margin.mass_std_kg``: the uncertainty of *this* model, not an unrelated section's
-    default); the reference section's accelerations within the limits for the heaviest plausible plant
-    (:func:`reference_within_model`).
+    The stage's ``robot:`` is the model (:func:`model_section`): the tube's W takes ``w_sigmas`` σ of its mass
+    ([Doerr2021] Eq. 28) and the planner's design limits ``planner.margin.mass_sigmas`` σ, both σ_m the model's.
     """
-    theta = model.theta
-    std = model.std
     return {
-        "robot": {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]]},
-        "controller": {"tube": {"disturbance": {"mass_std_kg": float(std[0]), "mass_sigmas": float(w_sigmas)}}},
-        "planner": {"margin": {"mass_std_kg": float(std[0])}},
+        "robot": model_section(model),
+        "controller": {"tube": {"disturbance": {"mass_sigmas": float(w_sigmas)}}},
     }
 
 
@@ -157,8 +169,8 @@ def reference_within_model(reference: dict[str, Any], robot: dict[str, Any], mod
     dict
         ``{"acceleration_mps2": …, "angular_acceleration_radps2": …}``.
     """
-    m_upper = model.mass_kg + n_sigma * model.mass_std_kg
-    i_upper = float(np.max(model.inertia_kgm2 + n_sigma * model.std[1:4]))
+    m_upper = model.parameter_interval("mass_kg", n_sigma)[1]
+    i_upper = float(np.max(model.inertia_upper_kgm2(n_sigma)))
     acc = REFERENCE_SHARE * min(robot["force_limit_N"]) / m_upper
     ang = REFERENCE_SHARE * min(robot["torque_limit_Nm"]) / i_upper
     return {"acceleration_mps2": min(float(reference["acceleration_mps2"]), acc),
@@ -166,9 +178,7 @@ def reference_within_model(reference: dict[str, Any], robot: dict[str, Any], mod
 
 
 def _prior_sections(prior: RobotModel) -> dict[str, Any]:
-    theta, var = prior.theta, np.diag(prior.covariance)
-    section = {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
-               "mass_variance_kg2": float(var[0]), "inertia_variance_kg2m4": [float(v) for v in var[1:4]]}
+    section = model_section(prior)
     return {"excitation": {"prior": dict(section)}, "estimation": {"prior": dict(section)}}
 
 
@@ -219,7 +229,7 @@ def _connection_s(data: dict[str, Any], model: RobotModel, n_sigma: float) -> fl
     acceleration a takes ``2 sqrt(d / a)``, and a heavier model at the same force accelerates ``m_robot / m_upper``
     times slower: without it, a 25 kg payload's plan found no connection within the iteration budget."""
     base, dt = float(data["planner"]["max_connection_s"]), float(data["planner"]["steer_dt_s"])
-    m_upper = model.mass_kg + n_sigma * model.mass_std_kg
+    m_upper = model.parameter_interval("mass_kg", n_sigma)[1]
     scaled = base * max(1.0, float(np.sqrt(m_upper / float(data["robot"]["mass_kg"]))))
     return max(base, dt * float(np.ceil(scaled / dt - 1e-9)))  # a whole number of steering steps
 

@@ -57,7 +57,7 @@ from oacli.io.runfolder import StageResult, StageRun
 from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.phases import set_phase
 from oacli.reference_limits import DesignLimits
-from oacli.stages.design_limits import design_limit_log, excitation_design_limits, robot_limit_set, to_motion_limits
+from oacli.stages.design_limits import design_limit_log, excitation_design_limits, to_motion_limits
 from oacli.stages.excite_journal import ExciteJournal, RattleJournal
 from oacli.stages.settings import (
     estimator_settings,
@@ -67,6 +67,7 @@ from oacli.stages.settings import (
     open_run,
     plant_disturbance,
     rattle_planner_weights,
+    robot_model,
     scp_settings,
     sensor_noise,
     terminal_tolerance,
@@ -407,7 +408,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         # the journal stays the record until the complete file is in place (StageJournal.replaced_by)
         _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true, journal)
         t_info, info = gathered_information(run.estimates, prior_cov)
-        robot_lim = robot_limit_set(cfg.robot)
+        robot_lim = robot_model(cfg).limits
         if cfg.outputs.plots:
             write_excite_plots(stage_run, summary, t_info_s=t_info, information=info,
                                t_input_s=run.telemetry.t_ctrl, u=run.telemetry.u_applied,
@@ -598,6 +599,6 @@ def _write_rattle_outputs(stage_run: StageRun, cfg: OacliConfig, problem: Excita
                          np.array([r.t for r in run.replans]), np.array([r.gamma for r in run.replans]))
     write_excite_recording(
         stage_run.file("rrd", "excite.rrd"), scene=problem.scene, trajectory=traj,
-        information=InformationSeries(theta_true, info_traj, post_std), limits=robot_limit_set(cfg.robot),
+        information=InformationSeries(theta_true, info_traj, post_std), limits=robot_model(cfg).limits,
         rattle=rattle, log=log, recording_name=f"{cfg.name}/excite",
     )

@@ -126,7 +126,8 @@ def _track_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> F
 
 
 def _excite_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Figures:
-    from oacli.stages.design_limits import excitation_design_limits, robot_limit_set, to_motion_limits
+    from oacli.stages.design_limits import excitation_design_limits, to_motion_limits
+    from oacli.stages.settings import robot_model
 
     record = read_stage(folder / "excite.mcap", topics=[ms.TOPIC_TRAJECTORY, ms.TOPIC_EXCITATION_INFORMATION])
     traj = record.trajectories[ms.TOPIC_TRAJECTORY]
@@ -136,7 +137,7 @@ def _excite_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> 
     method = str(summary.get("method", ""))
     if method == "rattle":
         limits = to_motion_limits(excitation_design_limits(cfg, rattle=True))
-        robot = robot_limit_set(cfg.robot)
+        robot = robot_model(cfg).limits
         # the flown trajectory is the control instants plus the final state (no input there)
         return excite_figures(method=method, t_info_s=t_info, information=information, t_input_s=traj.t[:-1],
                               u=traj.u[:-1], force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,

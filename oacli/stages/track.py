@@ -35,7 +35,6 @@ from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
 from oacli.signals import held
 from oacli.sim.simulator import simulate
 from oacli.sim.stall import with_stall
-from oacli.stages.design_limits import robot_limit_set
 from oacli.stages.faults import fault_arguments
 from oacli.stages.flown_sensors import FlownSensors, flown_sensors, write_flown_sensor_topics
 from oacli.stages.settings import (
@@ -156,7 +155,7 @@ def check_reference_for_plant(cfg: OacliConfig, reference: Trajectory, log: list
         With ``strict``, when the plant cannot follow the reference within the limits (naming the quantity, the
         time and both values).
     """
-    check = check_reference_limits(reference, cfg.truth_params(), robot_limit_set(cfg.robot),
+    check = check_reference_limits(reference, cfg.truth_params(), robot_model(cfg).limits,
                                    disturbance_bias=np.asarray(cfg.truth.disturbance.bias),
                                    disturbance_bound=np.asarray(cfg.truth.disturbance.random_bound))
     if not check.ok:
