@@ -27,7 +27,7 @@ from oacli.mission.run import learned_model
 from oacli.mission.verdict import MissionStageError, stage_verdict
 from oacli.model.robot_model import RobotModel
 from oacli.stages.design_limits import planner_design_limits
-from oacli.stages.settings import robot_model
+from oacli.stages.settings import robot_model, tube_design_from_config
 from oacli.status import EXIT_CODES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -153,6 +153,11 @@ def test_segment_3_is_derived_from_the_learned_model_and_its_covariance():
     assert plan.planner.max_connection_s == pytest.approx(24.5)
     track = stage_config(cfg, stage_by_key("segment-3/track"), Handoff(reference=Path("r.mcap"), estimate=learned))
     assert robot_model(track) == learned  # W's σ_m and the plan's: one model, the learned covariance
+    # the plan's force cap within the tightened nominal bounds Ū of the tube that flies it (issue 28)
+    design = tube_design_from_config(track)
+    for i, ax in enumerate(design.axes):
+        assert plan.planner.limits.force_N[i] <= min(-ax.force_bounds_N[0], ax.force_bounds_N[1]) + 1e-12
+        assert planner_design_limits(plan).limits.force_N[i] <= ax.force_bounds_N[1] + 1e-12
     # Probe 2 (3× the inertias): the reference's angular acceleration fits the heaviest plausible inertia.
     big = prior.with_estimate(np.array([15.5, 0.46, 0.43, 0.49]), np.diag([0.05, 0.002, 0.002, 0.002]) ** 2)
     plan = stage_config(_cfg("mission.grasped.inertia_kgm2=[0.46,0.43,0.49]"), stage_by_key("segment-3/plan"),

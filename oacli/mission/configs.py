@@ -19,10 +19,10 @@ import numpy as np
 
 from oacli.config import OacliConfig, config_from_dict
 from oacli.config.mission import MissionConfig, deep_merge
-from oacli.errors import ConfigError
-from oacli.mission.layout import MISSION_STAGES, MissionStage
+from oacli.errors import ConfigError, InfeasibleError
+from oacli.mission.layout import MISSION_STAGES, MissionStage, stage_by_key
 from oacli.model.robot_model import RobotModel
-from oacli.stages.settings import robot_model
+from oacli.stages.settings import robot_model, tube_design_from_config
 
 
 @dataclass(frozen=True)
@@ -234,9 +234,33 @@ def _connection_s(data: dict[str, Any], model: RobotModel, n_sigma: float) -> fl
     return max(base, dt * float(np.ceil(scaled / dt - 1e-9)))  # a whole number of steering steps
 
 
-def _tube_force_cap(data: dict[str, Any]) -> list[float]:
-    """Segment 3's planner force cap: :data:`REFERENCE_SHARE` of the tube's nominal force limit
-    ``controller.tube.force_limit_N``, never above the file's own ``planner.limits.force_N`` or the robot's limit.
+def tube_nominal_force_N(cfg: OacliConfig) -> np.ndarray | None:
+    """The tightened nominal input bound ``Ū = U ⊖ K Z`` (``U ⊖ K R`` with the observer) per world axis [N] of the
+    tube ``cfg`` is flown with (:func:`oacli.stages.settings.tube_design_from_config`, its robot model); the
+    smaller of ``−Ū_lower`` and ``Ū_upper`` (the nominal MPC's constraint, [Doerr2021] Eq. 27).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        A tube-MPC stage's config.
+
+    Returns
+    -------
+    ndarray, shape (3,), or None
+        None when no tube can be designed (the track stage then reports why).
+    """
+    try:
+        design = tube_design_from_config(cfg)
+    except InfeasibleError:
+        return None
+    return np.array([min(-ax.force_bounds_N[0], ax.force_bounds_N[1]) for ax in design.axes])
+
+
+def _tube_force_cap(data: dict[str, Any], nominal_N: np.ndarray | None = None) -> list[float]:
+    """Segment 3's planner force cap: :data:`REFERENCE_SHARE` of the tube's force limit
+    ``controller.tube.force_limit_N``, never above the tightened nominal bound ``nominal_N`` of the tube the plan is
+    flown with (:func:`tube_nominal_force_N`: the nominal MPC cannot ask more), the file's own
+    ``planner.limits.force_N`` or the robot's limit.
 
     The tube MPC flies the plan, and segment 3 starts where segment 2's true state ended (up to 0.58 m from C for a
     25 kg payload on the 14.5 kg prior): a plan asking the whole nominal force leaves none to catch up, and such a
@@ -244,8 +268,9 @@ def _tube_force_cap(data: dict[str, Any]) -> list[float]:
     """
     tube = data["controller"]["tube"].get("force_limit_N") or data["robot"]["force_limit_N"]
     own = data["planner"].get("limits", {}).get("force_N") or data["robot"]["force_limit_N"]
-    return [float(min(REFERENCE_SHARE * t, o, r))
-            for t, o, r in zip(tube, own, data["robot"]["force_limit_N"], strict=True)]
+    nominal = [np.inf] * 3 if nominal_N is None else [float(v) for v in nominal_N]
+    return [float(min(REFERENCE_SHARE * t, n, o, r))
+            for t, n, o, r in zip(tube, nominal, own, data["robot"]["force_limit_N"], strict=True)]
 
 
 def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, source: str = "mission") -> OacliConfig:
@@ -315,7 +340,12 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         sets = deep_merge(sets, inertia_margin_sections(model, mission.rate_margin_sigmas, data))
     if stage.segment == "segment-3":
         assert model is not None
-        sets = deep_merge(sets, {"planner": {"limits": {"force_N": _tube_force_cap(data)},
+        nominal = None
+        if stage.command in ("plan", "smooth"):  # the plan within the nominal bounds of the tube that flies it
+            track = stage_config(cfg, stage_by_key("segment-3/track"), Handoff(estimate=handoff.estimate),
+                                 source=source)
+            nominal = tube_nominal_force_N(track)
+        sets = deep_merge(sets, {"planner": {"limits": {"force_N": _tube_force_cap(data, nominal)},
                                              "max_connection_s": _connection_s(data, model, mission.w_sigmas)}})
     if stage.command == "track" and handoff.reference is not None:
         sets = deep_merge(sets, {"reference": {"source": "file", "file": str(handoff.reference)}})
