@@ -300,21 +300,5 @@ class RobotModel:
         t = _read_only("theta", theta, (N_THETA,))
         return replace(self, mass_kg=float(t[0]), inertia_kgm2=t[1:4], covariance=covariance)
 
-    def with_inertial(self, mass_kg: float, inertia_kgm2: np.ndarray) -> RobotModel:
-        """The same model with another mass and inertia (the covariance kept), e.g. the plant after a grasp.
-
-        Parameters
-        ----------
-        mass_kg : float
-            Mass [kg].
-        inertia_kgm2 : ndarray, shape (3,)
-            Principal inertias [kg·m²].
-
-        Returns
-        -------
-        RobotModel
-        """
-        return replace(self, mass_kg=mass_kg, inertia_kgm2=inertia_kgm2)
-
 
 __all__ = ["COVARIANCE_RTOL", "N_THETA", "PARAMETER_NAMES", "RobotModel", "check_covariance"]
