@@ -215,7 +215,7 @@ def robot_body(cfg: OacliConfig, q_start: np.ndarray, q_goal: np.ndarray) -> Rob
     """
     axes = cfg.planner.robot_semi_axes_m
     if axes is None:
-        return RobotBody.sphere(cfg.robot.radius_m)
+        return RobotBody.sphere(robot_model(cfg).radius_m)
     if float(quat.angle_between(np.asarray(q_start), np.asarray(q_goal))) < 1e-9:
         return RobotBody.ellipsoid(np.asarray(axes), quat.to_rotation_matrix(np.asarray(q_start)))
     return RobotBody.sphere(float(max(axes)))
@@ -293,7 +293,7 @@ def shortcut_connector(cfg: OacliConfig) -> LqrConnector:
     LqrConnector
     """
     p = cfg.planner
-    return LqrConnector(cfg.robot.mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
+    return LqrConnector(robot_model(cfg).mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
 
 
 def polish_settings(cfg: OacliConfig) -> PolishSettings:

@@ -315,7 +315,7 @@ def run_track(
             if cfg.outputs.plots:  # held: matplotlib turns an interruption inside its drawing into an error
                 with held():  # (a lost signal, a missing PNG); it is raised once the figures are written
                     write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,
-                                      robot_radius_m=float(cfg.robot.radius_m))
+                                      robot_radius_m=float(robot_model(cfg).radius_m))
             return run.finish(summary)
 
 

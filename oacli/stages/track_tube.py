@@ -89,7 +89,7 @@ def workspace_arguments(cfg: OacliConfig) -> dict[str, Any]:
     """
     if not cfg.controller.position_constraints:
         return {}
-    return {"scene": cfg.scene(), "robot": RobotBody.sphere(cfg.robot.radius_m),
+    return {"scene": cfg.scene(), "robot": RobotBody.sphere(robot_model(cfg).radius_m),
             "keep_in_margin_m": cfg.environment.keep_in_margin_m}
 
 
