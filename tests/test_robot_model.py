@@ -112,6 +112,16 @@ def test_with_estimate_round_trip_keeps_limits_and_geometry():
     assert e != m
 
 
+@pytest.mark.parametrize("key", ["mass_std_kg", "inertia_std_kgm2"])
+def test_the_mission_priors_old_sigma_keys_are_refused_naming_the_variance(key):
+    data = yaml.safe_load((REPO / "configs" / "mission_iss.yaml").read_text())
+    data["mission"]["prior"][key] = 1.0
+    with pytest.raises(ConfigError) as err:
+        config_from_dict(data, source="test.yaml")
+    assert err.value.problems == [f"test.yaml: mission.prior.{key}: 1.0: no longer a key: give the model's variances "
+                                  "as one list variance: [m kg², Ixx, Iyy, Izz (kg·m²)²] (the unit of robot.variance)"]
+
+
 # -- no bare mass in a core signature (issue 28) ------------------------------------------------------------
 
 NUMERICAL_KERNELS = {
