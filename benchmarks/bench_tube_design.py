@@ -46,17 +46,17 @@ def design(cfg, mode: str, epsilon: float, growth: float):
     from oacli.control.disturbance import DisturbanceSpec
     from oacli.control.tube_design import AncillaryWeights, design_translation_tube
 
-    tube, robot = cfg.controller.tube, cfg.robot
+    tube, robot = cfg.controller.tube, cfg.robot.model()
     dist, anc = tube.disturbance, tube.ancillary
     spec = DisturbanceSpec(
-        mass_kg=robot.mass_kg, mass_std_kg=dist.mass_std_kg, n_sigma=dist.mass_sigmas,
+        n_sigma=dist.mass_sigmas,
         force_N=np.asarray(dist.force_N), box_position_m=np.asarray(dist.position_m),
         box_velocity_mps=np.asarray(dist.velocity_mps), noise_position_m=np.asarray(dist.position_noise_m),
         noise_velocity_mps=np.asarray(dist.velocity_noise_mps),
     )
     force_limit = np.asarray(tube.force_limit_N if tube.force_limit_N is not None else robot.force_limit_N)
     return design_translation_tube(
-        mass_kg=robot.mass_kg, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
+        model=robot, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
         velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
         weights=AncillaryWeights(anc.position, anc.velocity, anc.force), spec=spec, epsilon=epsilon,
         epsilon_mode=mode, max_terms=tube.rpi_max_terms, facet_growth=growth,

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from oacli.model.limits import LIMIT_FIELDS, MotionLimits
+from oacli.model.robot_model import RobotModel
 from oacli.trajectory import feedforward_inputs
 from oacli.types import InertialParams, Trajectory
 
@@ -35,35 +36,16 @@ LIMIT_RTOL = 1e-9
 """A value counts as above its limit when ``|value| > limit · (1 + LIMIT_RTOL)``."""
 
 
-def mass_upper_bound_kg(mass_prior_kg: float, mass_std_kg: float, mass_sigmas: float) -> float:
-    """The ``n_σ`` upper mass bound ``m_upper = m_prior + n_σ σ_m`` [kg] ([Doerr2021] Eq. 28).
-
-    Parameters
-    ----------
-    mass_prior_kg : float
-        Mass of the model the reference is designed with [kg], > 0.
-    mass_std_kg : float
-        Standard deviation σ_m of that mass [kg], >= 0.
-    mass_sigmas : float
-        n_σ (Eq. 28 uses the 2σ bounds), > 0.
-    """
-    if not (mass_prior_kg > 0 and mass_std_kg >= 0 and mass_sigmas > 0):
-        raise ValueError("need mass_prior_kg > 0, mass_std_kg >= 0 and mass_sigmas > 0")
-    return float(mass_prior_kg + mass_sigmas * mass_std_kg)
-
-
 @dataclass(frozen=True)
 class ReferenceMargin:
     """The margins of a design: the mass uncertainty (Eq. 28) and the shares of the robot's limits.
 
     Attributes
     ----------
-    mass_prior_kg : float
-        Mass of the designer's model [kg].
-    mass_std_kg : float
-        σ_m of the prior mass [kg].
+    model : RobotModel
+        The designer's model: ``m_prior`` and, from its covariance, σ_m.
     mass_sigmas : float
-        n_σ of ``m_upper = m_prior + n_σ σ_m``.
+        n_σ of ``m_upper = m_prior + n_σ σ_m`` (>= 0; 0: the design is not derated for the mass).
     force_fraction, torque_fraction, velocity_fraction, angular_velocity_fraction : float
         Shares in (0, 1] of the (mass-margined) force limit and of the torque, velocity and angular-rate limits.
 
@@ -74,8 +56,7 @@ class ReferenceMargin:
     to the torque share kept for the feedback, and ``oacli track`` checks the torque the true plant needs.
     """
 
-    mass_prior_kg: float
-    mass_std_kg: float = 0.0
+    model: RobotModel
     mass_sigmas: float = 2.0
     force_fraction: float = 1.0
     torque_fraction: float = 1.0
@@ -83,16 +64,26 @@ class ReferenceMargin:
     angular_velocity_fraction: float = 1.0
 
     def __post_init__(self) -> None:
-        mass_upper_bound_kg(self.mass_prior_kg, self.mass_std_kg, self.mass_sigmas)  # validates
+        self.model.parameter_interval("mass_kg", self.mass_sigmas)  # validates n_σ
         for name in ("force_fraction", "torque_fraction", "velocity_fraction", "angular_velocity_fraction"):
             value = getattr(self, name)
             if not 0 < value <= 1:
                 raise ValueError(f"{name} must be in (0, 1], got {value}")
 
     @property
+    def mass_prior_kg(self) -> float:
+        """``m_prior``: the model's mass [kg]."""
+        return self.model.mass_kg
+
+    @property
+    def mass_std_kg(self) -> float:
+        """σ_m of the model's mass [kg] (``sqrt(covariance[0, 0])``)."""
+        return self.model.mass_std_kg
+
+    @property
     def mass_upper_kg(self) -> float:
-        """``m_upper = m_prior + n_σ σ_m`` [kg] (Eq. 28)."""
-        return mass_upper_bound_kg(self.mass_prior_kg, self.mass_std_kg, self.mass_sigmas)
+        """``m_upper = m_prior + n_σ σ_m`` [kg] (Eq. 28: :meth:`RobotModel.parameter_interval`)."""
+        return self.model.parameter_interval("mass_kg", self.mass_sigmas)[1]
 
     @property
     def mass_ratio(self) -> float:
@@ -401,6 +392,5 @@ __all__ = [
     "check_reference_limits",
     "design_limits",
     "limits_above_robot",
-    "mass_upper_bound_kg",
     "required_inputs",
 ]

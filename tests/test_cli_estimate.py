@@ -50,7 +50,7 @@ def payload_config(path: Path, **changes) -> Path:
     data["reference"].update({"waypoints": ["B", "R1", "R2"], "cruise_speed_mps": 0.05, "acceleration_mps2": 0.01,
                               "angular_rate_radps": 0.15, "angular_acceleration_radps2": 0.1, "hold_s": 0.5})
     data["simulation"]["settle_time_s"] = 1.0
-    data["estimation"]["prior"] = {"mass_variance_kg2": 15.0, "inertia_variance_kg2m4": [0.005] * 3}
+    data["estimation"]["prior"] = {"variance": [15.0, 0.005, 0.005, 0.005]}
     data["estimation"]["window_s"] = 15.0
     for key, value in changes.items():
         section, field = key.split("__")

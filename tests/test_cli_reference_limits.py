@@ -186,7 +186,7 @@ def test_plan_and_smooth_stay_within_the_margined_limits(tmp_path):
     cfg_path = ISS
     cfg = load_config(cfg_path)
     lim = planner_design_limits(cfg).limits
-    # The robot is known (no planner.margin.mass_std_kg): the reference share only, no derating through the
+    # The robot is known (no robot.variance): the reference share only, no derating through the
     # estimator prior's default variance.
     np.testing.assert_allclose(lim.force_N, 0.8 * np.array(cfg.robot.force_limit_N))
     plan = tmp_path / "plan"

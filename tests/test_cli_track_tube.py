@@ -188,7 +188,7 @@ def test_too_large_w_stops_with_exit_3_and_leaves_no_run_folder(tmp_path):
 @pytest.mark.parametrize(("edit", "field"), [
     (lambda d: d["controller"]["tube"].update(prediction_step_s=0.3), "controller.tube.prediction_step_s"),
     (lambda d: d["controller"]["tube"].update(force_limit_N=[0.5, 0.15, 0.15]), "controller.tube.force_limit_N.0"),
-    (lambda d: d["controller"]["tube"]["disturbance"].update(mass_std_kg=5.0), "controller.tube.disturbance"),
+    (lambda d: d["robot"].update(variance=[25.0, 0.0, 0.0, 0.0]), "controller.tube.disturbance.mass_sigmas"),
     (lambda d: d["controller"]["tube"].update(rpi_epsilon=-1.0), "controller.tube.rpi_epsilon"),
     (lambda d: d["controller"]["tube"].update(lasso=1), "controller.tube.lasso"),
 ])

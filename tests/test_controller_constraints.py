@@ -41,6 +41,7 @@ from oacli.stages.track_tube import workspace_arguments
 from oacli.trajectory import feedforward_inputs, sample_states
 from oacli.types import InertialParams, SolveInfo
 from tests.conftest import REPO
+from tests.model_helpers import mass_model
 
 # [AstrobeeFSW] astrobee/config/worlds/iss.config: the bare robot
 BARE = InertialParams(9.583788668, [0.153427995, 0.14271405, 0.162302759])
@@ -214,8 +215,8 @@ def _jem_zone_scene() -> Scene:
 
 
 def _tube_design(mass=9.5, mass_std=0.1, force=0.002):
-    spec = DisturbanceSpec(mass, mass_std, force_N=np.full(3, force))
-    return design_translation_tube(mass_kg=mass, dt_s=0.2, force_limit_N=np.full(3, 0.15),
+    spec = DisturbanceSpec(force_N=np.full(3, force))
+    return design_translation_tube(model=mass_model(mass, mass_std), dt_s=0.2, force_limit_N=np.full(3, 0.15),
                                    velocity_limit_mps=np.full(3, 0.2), weights=AncillaryWeights(5.0, 10.0, 2.0),
                                    spec=spec, epsilon=0.005)
 

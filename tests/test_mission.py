@@ -29,6 +29,7 @@ from oacli.cli import app
 from oacli.config import load_config
 from oacli.io.mcap_read import read_stage, read_telemetry
 from oacli.mission.layout import MISSION_STAGES
+from oacli.stages.settings import robot_model
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNNER = CliRunner()
@@ -87,14 +88,16 @@ def test_model_handoff_prior_then_estimate(mission):
     seg2 = load_config(run / "segment-2/track/config.yaml")
     assert seg2.controller.type == "tube" and seg2.truth.mass_kg == grasped.mass_kg
     assert seg2.robot.mass_kg == prior.mass_kg
-    assert seg2.controller.tube.disturbance.mass_std_kg == prior.mass_std_kg
+    assert seg2.robot.variance == prior.variance  # the stage's model block: mean and variance of mission.prior
+    assert robot_model(seg2).mass_std_kg == np.sqrt(prior.variance[0])  # W's σ_m: the model's
     # Segment 3: the batch estimate's final θ and σ_m (read from estimate.mcap), W from its 2σ.
     params = [r for r in read_stage(run / "segment-2/estimate/estimate.mcap").json_records["/estimate/params"]
               if r["final"]][-1]
     seg3 = load_config(run / "segment-3/track/config.yaml")
     assert seg3.robot.mass_kg == pytest.approx(params["mass_kg"], rel=1e-12)
     assert seg3.robot.inertia_kgm2 == pytest.approx(params["inertia_kgm2"], rel=1e-12)
-    assert seg3.controller.tube.disturbance.mass_std_kg == pytest.approx(np.sqrt(params["covariance"][0][0]))
+    np.testing.assert_allclose(seg3.robot.variance, np.diag(params["covariance"]), rtol=1e-12)  # learned σ
+    assert robot_model(seg3).mass_std_kg == pytest.approx(np.sqrt(params["covariance"][0][0]))
     assert seg3.controller.tube.disturbance.mass_sigmas == mission_cfg.mission.w_sigmas
     for name, kind in (("baseline-mpc-prior", "mpc"), ("baseline-tube-prior", "tube")):
         base = load_config(run / "segment-3" / name / "config.yaml")
@@ -320,13 +323,13 @@ def test_each_estimate_stage_config_holds_the_missions_prior_its_method_and_its_
     from oacli.mission.layout import stage_by_key
 
     data = apply_overrides(yaml.safe_load((ROOT / "configs" / "mission_iss.yaml").read_text()),
-                           ["mission.prior.mass_kg=12", "mission.prior.mass_std_kg=2"])
+                           ["mission.prior.mass_kg=12", "mission.prior.variance=[4,0.0004,0.0004,0.0004]"])
     cfg = config_from_dict(data, source="test")
     telemetry = Path("/runs/m/segment-2/track/track.mcap")
     for key, method in (("segment-2/estimate", "batch"), ("segment-2/estimate-sequential", "sequential")):
         stage_cfg = stage_config(cfg, stage_by_key(key), Handoff(telemetry=telemetry))
         assert stage_cfg.estimation.method == method
         assert stage_cfg.estimation.prior.mass_kg == pytest.approx(12.0)
-        assert stage_cfg.estimation.prior.mass_variance_kg2 == pytest.approx(4.0)
+        assert stage_cfg.estimation.prior.variance[0] == pytest.approx(4.0)
         assert stage_cfg.inputs.estimate_telemetry == str(telemetry)
     assert stage_config(cfg, stage_by_key("segment-2/excite"), Handoff()).excitation.prior.mass_kg == pytest.approx(12)

@@ -26,6 +26,8 @@ from oacli.mission.layout import MISSION_STAGES, stage_by_key
 from oacli.mission.run import learned_model
 from oacli.mission.verdict import MissionStageError, stage_verdict
 from oacli.model.robot_model import RobotModel
+from oacli.stages.design_limits import planner_design_limits
+from oacli.stages.settings import robot_model, tube_design_from_config
 from oacli.status import EXIT_CODES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -125,7 +127,7 @@ def test_a_batch_estimate_that_failed_is_not_handed_on(mission_run, tmp_path):
     assert stage_verdict({"segment-2/estimate": handled}, ["segment-2/estimate"]).status == "degraded"
     stage_cfg = stage_config(cfg, stage_by_key("segment-3/track"), Handoff(reference=Path("r.mcap"),
                                                                            estimate=bad.model))
-    assert stage_cfg.controller.tube.disturbance.mass_std_kg == pytest.approx(prior_model(cfg).mass_std_kg)
+    assert robot_model(stage_cfg) == prior_model(cfg)  # mean and covariance (diagonal) of the prior
 
 
 def _cfg(*sets: str):
@@ -141,7 +143,8 @@ def test_segment_3_is_derived_from_the_learned_model_and_its_covariance():
     learned = prior.with_estimate(np.array([25.0, 0.157, 0.145, 0.162]), np.diag([0.043, 8e-4, 8e-4, 7e-4]) ** 2)
     plan = stage_config(cfg, stage_by_key("segment-3/plan"), Handoff(estimate=learned))
     assert plan.robot.mass_kg == 25.0
-    assert plan.planner.margin.mass_std_kg == pytest.approx(0.043)
+    assert robot_model(plan).mass_std_kg == pytest.approx(0.043)  # the plan's σ_m: the learned model's
+    assert planner_design_limits(plan).margin.mass_std_kg == pytest.approx(0.043)
     m_upper = 25.0 + 2 * 0.043
     assert plan.reference.acceleration_mps2 * m_upper <= 0.8 * min(plan.robot.force_limit_N) + 1e-12
     tube_force = np.array(cfg.controller.tube.force_limit_N or cfg.robot.force_limit_N)  # null: the robot's
@@ -149,7 +152,12 @@ def test_segment_3_is_derived_from_the_learned_model_and_its_covariance():
     # the steering horizon grows with the model's mass (same force, slower): 15 s × sqrt(25.09 / 9.58) → 24.5 s
     assert plan.planner.max_connection_s == pytest.approx(24.5)
     track = stage_config(cfg, stage_by_key("segment-3/track"), Handoff(reference=Path("r.mcap"), estimate=learned))
-    assert track.controller.tube.disturbance.mass_std_kg == pytest.approx(0.043)
+    assert robot_model(track) == learned  # W's σ_m and the plan's: one model, the learned covariance
+    # the plan's force cap within the tightened nominal bounds Ū of the tube that flies it (issue 28)
+    design = tube_design_from_config(track)
+    for i, ax in enumerate(design.axes):
+        assert plan.planner.limits.force_N[i] <= min(-ax.force_bounds_N[0], ax.force_bounds_N[1]) + 1e-12
+        assert planner_design_limits(plan).limits.force_N[i] <= ax.force_bounds_N[1] + 1e-12
     # Probe 2 (3× the inertias): the reference's angular acceleration fits the heaviest plausible inertia.
     big = prior.with_estimate(np.array([15.5, 0.46, 0.43, 0.49]), np.diag([0.05, 0.002, 0.002, 0.002]) ** 2)
     plan = stage_config(_cfg("mission.grasped.inertia_kgm2=[0.46,0.43,0.49]"), stage_by_key("segment-3/plan"),
@@ -162,7 +170,7 @@ def test_rate_margin_from_the_models_inertia_sigma():
     torque shares shrink by I/I_upper (the prior's in segment 2); 0 leaves both as configured."""
     cfg = _cfg("mission.rate_margin_sigmas=2")
     stage = stage_config(cfg, stage_by_key("segment-2/excite"), Handoff())
-    i, s = np.array(cfg.mission.prior.inertia_kgm2), np.array(cfg.mission.prior.inertia_std_kgm2)
+    i, s = np.array(cfg.mission.prior.inertia_kgm2), np.sqrt(np.array(cfg.mission.prior.variance[1:]))
     keep = 1.0 / (1.0 + float(np.max(2 * s / i)))
     assert stage.controller.rate_margin == pytest.approx(1 - keep)
     assert stage.excitation.margin.reference_angular_velocity_fraction == pytest.approx(0.9 * keep)

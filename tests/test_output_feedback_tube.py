@@ -15,6 +15,7 @@ from oacli.control.observer import TranslationObserver, kalman_gain, observer_sp
 from oacli.control.tube_design import AncillaryWeights, design_translation_tube
 from oacli.model.double_integrator import double_integrator
 from oacli.sets import rpi_margins
+from tests.model_helpers import mass_model
 
 DT, MASS = 0.2, 15.5
 SIGMA = np.array([0.01, 0.00223606797749979])  # the flight's position and velocity noise (mission_iss.yaml)
@@ -22,11 +23,11 @@ SIGMA = np.array([0.01, 0.00223606797749979])  # the flight's position and veloc
 
 def _axis(k_sigma: float = 3.0, gain: tuple[float, float] = (0.5, 0.3)):
     a, b = double_integrator(DT, 1.0 / MASS)
-    spec = observer_spec(mass_kg=MASS, dt_s=DT, position_std_m=SIGMA[0], velocity_std_mps=SIGMA[1],
+    spec = observer_spec(model=mass_model(MASS, 0.05), dt_s=DT, position_std_m=SIGMA[0], velocity_std_mps=SIGMA[1],
                          noise_sigmas=k_sigma, gain=gain, accel_std_mps2=0.01)
     design = design_translation_tube(
-        mass_kg=MASS, dt_s=DT, force_limit_N=np.full(3, 0.15), velocity_limit_mps=np.full(3, 0.2),
-        weights=AncillaryWeights(), spec=DisturbanceSpec(mass_kg=MASS, mass_std_kg=0.05, force_N=np.full(3, 0.005)),
+        model=mass_model(MASS, 0.05), dt_s=DT, force_limit_N=np.full(3, 0.15), velocity_limit_mps=np.full(3, 0.2),
+        weights=AncillaryWeights(), spec=DisturbanceSpec(force_N=np.full(3, 0.005)),
         epsilon=0.05, observer=spec)
     return a, b, design
 
@@ -129,8 +130,8 @@ def test_exits_are_counted_against_the_tube_in_force():
 
     def sf_design(force_n: float):
         return design_translation_tube(
-            mass_kg=MASS, dt_s=DT, force_limit_N=np.full(3, 0.15), velocity_limit_mps=np.full(3, 0.2),
-            weights=AncillaryWeights(), spec=DisturbanceSpec(mass_kg=MASS, force_N=np.full(3, force_n)), epsilon=0.05)
+            model=mass_model(MASS), dt_s=DT, force_limit_N=np.full(3, 0.15), velocity_limit_mps=np.full(3, 0.2),
+            weights=AncillaryWeights(), spec=DisturbanceSpec(force_N=np.full(3, force_n)), epsilon=0.05)
 
     small, large = sf_design(0.002), sf_design(0.02)
     p_small = small.axes[0].promise.support(np.array([1.0, 0.0]))

@@ -19,14 +19,15 @@ from oacli.reference_limits import (
     check_reference_limits,
     design_limits,
     limits_above_robot,
-    mass_upper_bound_kg,
     required_inputs,
 )
-from oacli.stages.design_limits import excitation_design_limits, planner_design_limits, robot_limit_set
+from oacli.stages.design_limits import excitation_design_limits, planner_design_limits
+from oacli.stages.settings import robot_model
 from oacli.stages.track import check_reference_for_plant
 from oacli.trajectory import feedforward_inputs
 from oacli.types import InertialParams, Trajectory
 from tests.conftest import REPO
+from tests.model_helpers import mass_model
 
 ISS = REPO / "configs" / "iss_reswarm.yaml"
 ROBOT = MotionLimits([0.452, 0.216, 0.257], [0.0452, 0.0216, 0.0257], [0.2] * 3, [0.1745] * 3)
@@ -42,16 +43,18 @@ def iss_dict() -> dict:
 
 
 def test_mass_upper_bound_is_the_eq28_two_sigma_bound():
-    assert mass_upper_bound_kg(15.0, math.sqrt(15.0), 2.0) == pytest.approx(15.0 + 2.0 * 3.872983346207417)
-    assert mass_upper_bound_kg(9.5, 0.0, 2.0) == 9.5
+    assert ReferenceMargin(mass_model(15.0, math.sqrt(15.0)), 2.0).mass_upper_kg == pytest.approx(
+        15.0 + 2.0 * 3.872983346207417)
+    assert ReferenceMargin(mass_model(9.5), 2.0).mass_upper_kg == 9.5
     with pytest.raises(ValueError):
-        mass_upper_bound_kg(9.5, -0.1, 2.0)
+        ReferenceMargin(mass_model(9.5, 0.1), -1.0)
 
 
 def test_a_plant_at_the_upper_mass_follows_the_design_with_the_feedback_share_left(rng):
     for _ in range(50):
         m_prior = rng.uniform(5.0, 30.0)
-        margin = ReferenceMargin(m_prior, rng.uniform(0.0, 5.0), rng.uniform(1.0, 3.0), force_fraction=0.8)
+        margin = ReferenceMargin(mass_model(m_prior, rng.uniform(0.0, 5.0)), rng.uniform(1.0, 3.0),
+                                 force_fraction=0.8)
         lim = design_limits(ROBOT, margin)
         # The design accelerates its model at up to a = f/m_prior; the heaviest plant of the margin needs
         # m_upper a, which must be the feedback-free share of the actuator, no more.
@@ -63,7 +66,7 @@ def test_a_plant_at_the_upper_mass_follows_the_design_with_the_feedback_share_le
 
 
 def test_design_limits_apply_the_shares_and_only_lower_with_caps():
-    margin = ReferenceMargin(10.0, 1.0, 2.0, force_fraction=0.8, torque_fraction=0.7, velocity_fraction=0.9,
+    margin = ReferenceMargin(mass_model(10.0, 1.0), 2.0, force_fraction=0.8, torque_fraction=0.7, velocity_fraction=0.9,
                              angular_velocity_fraction=0.5)
     lim = design_limits(ROBOT, margin, {"force_N": [0.1, 1.0, 1.0], "angular_velocity_radps": None})
     np.testing.assert_allclose(lim.limits.force_N, [0.1, 0.216 * 10 / 12 * 0.8, 0.257 * 10 / 12 * 0.8])
@@ -94,20 +97,21 @@ def test_iss_preset_excitation_limits_follow_the_excitation_prior():
     np.testing.assert_allclose(rattle.limits.torque_Nm, np.minimum(0.015, 0.8 * ROBOT.torque_Nm))
 
 
-def test_planner_limits_use_the_robot_mass_and_only_the_planners_own_std():
-    """The robot is known unless planner.margin says otherwise: no derating through the estimator prior's default
-    variance (15 kg²: a plan with no payload was 50 % slower); a given σ_m derates by Eq. 28's bound."""
+def test_planner_limits_use_the_robot_model_and_its_own_std():
+    """The robot is known unless robot.variance says otherwise: no derating through the estimator prior's default
+    variance (15 kg²: a plan with no payload was 50 % slower); the model's σ_m derates by Eq. 28's bound, n_σ the
+    planner's (planner.margin.mass_sigmas)."""
     data = iss_dict()
     cfg = config_from_dict(data)
     m = cfg.robot.mass_kg
     lim = planner_design_limits(cfg)
     np.testing.assert_allclose(lim.limits.force_N, ROBOT.force_N * 0.8)
     np.testing.assert_allclose(lim.limits.velocity_mps, 0.18)
-    data["planner"]["margin"] = {"mass_std_kg": math.sqrt(15.0)}
+    data["robot"]["variance"] = [15.0, 0.0, 0.0, 0.0]
     lim = planner_design_limits(config_from_dict(data))
     np.testing.assert_allclose(lim.limits.force_N, ROBOT.force_N * 0.8 * m / (m + 2.0 * math.sqrt(15.0)))
-    # A model known exactly (σ_m = 0) keeps only the feedback share.
-    data["planner"]["margin"] = {"mass_std_kg": 0.0, "reference_force_fraction": 1.0}
+    # The planner choosing 0 σ (or a model known exactly) keeps only the feedback share.
+    data["planner"]["margin"] = {"mass_sigmas": 0.0, "reference_force_fraction": 1.0}
     lim = planner_design_limits(config_from_dict(data))
     np.testing.assert_allclose(lim.limits.force_N, ROBOT.force_N)
 
@@ -129,7 +133,7 @@ def test_a_section_limit_above_the_robot_is_refused_naming_field_and_values():
 def test_clip_lowers_to_the_robot_and_states_it():
     data = iss_dict()
     data["excitation"]["limits"]["force_N"] = [0.25, 0.25, 0.25]
-    data["excitation"]["margin"] = {"on_excess": "clip", "reference_force_fraction": 1.0, "mass_std_kg": 0.0}
+    data["excitation"]["margin"] = {"on_excess": "clip", "reference_force_fraction": 1.0, "mass_sigmas": 0.0}
     lim = excitation_design_limits(config_from_dict(data))
     np.testing.assert_allclose(lim.limits.force_N, [0.25, 0.216, 0.25])
     assert len(lim.notes) == 1 and "excitation.limits.force_N.1 = 0.25 N" in lim.notes[0]
@@ -218,7 +222,7 @@ def test_check_for_plant_warns_in_the_log_or_refuses_when_strict():
     assert log == [(0.0, "warning", check.message())]
     with pytest.raises(InputError, match=r"force_N 0\.3 N > 0\.216 N \(y\) at t = 0\.00 s.*--strict"):
         check_reference_for_plant(cfg, ref, [], strict=True)
-    assert robot_limit_set(cfg.robot).force_N[1] == 0.216
+    assert robot_model(cfg).limits.force_N[1] == 0.216
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -251,7 +251,7 @@ def test_study_presets_load_with_their_cells():
         pct = int(cell.levels["prior_error"].removesuffix("pct"))
         prior = cell.overrides["mission"]["prior"]
         assert grasped - prior["mass_kg"] == pytest.approx(pct / 100 * payload, abs=1e-5)
-        assert 2 * prior["mass_std_kg"] >= grasped - prior["mass_kg"] - 1e-6  # 2σ covers the error (Eq. 28)
+        assert 2 * prior["variance"][0] ** 0.5 >= grasped - prior["mass_kg"] - 1e-6  # 2σ covers the error (Eq. 28)
         unconstrained = cell.levels["standard_mpc"] == "no_workspace"
         seg = cell.overrides.get("mission", {}).get("segments", {})
         assert ("segment-3/baseline-mpc-prior" in seg) == unconstrained
@@ -259,7 +259,7 @@ def test_study_presets_load_with_their_cells():
     assert campaign_cells(rattle.config) == () and rattle.config.runs >= 50
     assert rattle.base["mission"]["excitation_method"] == "rattle"
     assert rattle.base["mission"]["grasped"]["mass_kg"] == rattle.base["robot"]["mass_kg"]  # the bare robot
-    assert rattle.base["mission"]["prior"]["mass_std_kg"] ** 2 == pytest.approx(15.0)  # [RattleCode] P0
+    assert rattle.base["mission"]["prior"]["variance"][0] == pytest.approx(15.0)  # [RattleCode] P0
     expset3 = load_campaign(ROOT / "configs" / "study_expset3.yaml")
     cells = campaign_cells(expset3.config)
     assert [c.overrides["controller"]["type"] for c in cells] == ["tube", "mpc"]

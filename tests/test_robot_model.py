@@ -1,9 +1,9 @@
 """The robot model that flows through the stages (:mod:`oacli.model.robot_model`) and its config builders.
 
-Closed-form references: the [Doerr2021] Eq. 28 mass interval ``m ± n_σ σ_m`` against the tube's disturbance bound
+Closed-form references: the [Doerr2021] Eq. 28 interval ``θ_i ± n_σ σ_i`` against the tube's disturbance bound
 and the design limits' ``m_upper``; the estimate round trip; every validation error names its field. The builders
-(``robot_model``, ``truth_model``, the priors) are checked against the preset's YAML numbers, and the one
-``PriorConfig`` against both spellings of its variances.
+(``robot_model``, ``truth_model``, the priors) are checked against the preset's YAML numbers, and every key the
+model's σ used to be read from is refused with the one line naming its new place (issue 28).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from oacli.control.disturbance import mass_uncertainty_bound, step_gain
 from oacli.errors import ConfigError
 from oacli.model.limits import MotionLimits
 from oacli.model.robot_model import RobotModel
-from oacli.reference_limits import mass_upper_bound_kg
+from oacli.reference_limits import ReferenceMargin
 from oacli.stages import design_limits, settings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -67,10 +67,24 @@ def test_mass_bounds_are_doerr_eq_28(sigma_kg, n_sigma):
     assert lower == pytest.approx(9.5 - n_sigma * sigma_kg, rel=1e-14)
     assert upper == pytest.approx(9.5 + n_sigma * sigma_kg, rel=1e-14)
     # the design limits' m_upper and the tube's W (the lighter mass moves further) use the same interval
-    assert upper == pytest.approx(mass_upper_bound_kg(9.5, sigma_kg, n_sigma), rel=1e-14) if n_sigma > 0 else True
+    assert ReferenceMargin(m, n_sigma).mass_upper_kg == upper
+    assert m.parameter_interval("mass_kg", n_sigma) == (lower, upper)
     u_max, dt = 0.15, 0.2
-    w = mass_uncertainty_bound(m.mass_kg, m.mass_std_kg, u_max, dt, n_sigma)
+    w = mass_uncertainty_bound(m, u_max, dt, n_sigma)
     np.testing.assert_allclose(w, u_max * (1.0 / lower - 1.0 / 9.5) * step_gain(dt), rtol=1e-12, atol=1e-18)
+
+
+def test_parameter_intervals_of_the_inertias_are_their_sigma_bounds():
+    m = model()
+    for i, name in enumerate(("Ixx", "Iyy", "Izz")):
+        lower, upper = m.parameter_interval(name, 3.0)
+        assert lower == pytest.approx(INERTIA[i] - 3.0 * m.std[i + 1], rel=1e-14)
+        assert upper == pytest.approx(INERTIA[i] + 3.0 * m.std[i + 1], rel=1e-14)
+        assert m.inertia_upper_kgm2(3.0)[i] == upper
+    with pytest.raises(ValueError, match="unknown parameter"):
+        m.parameter_interval("Ixy", 2.0)
+    with pytest.raises(ValueError, match="n_sigma"):
+        m.parameter_interval("Ixx", -1.0)
 
 
 def test_mass_bounds_refuse_a_non_positive_lower_mass():
@@ -98,11 +112,77 @@ def test_with_estimate_round_trip_keeps_limits_and_geometry():
     assert e != m
 
 
-def test_with_inertial_keeps_the_covariance():
-    m = model()
-    g = m.with_inertial(15.0, [0.1464, 0.1376, 0.1604])
-    assert g.mass_kg == 15.0 and np.array_equal(g.inertia_kgm2, [0.1464, 0.1376, 0.1604])
-    np.testing.assert_array_equal(g.covariance, m.covariance)
+@pytest.mark.parametrize("key", ["mass_std_kg", "inertia_std_kgm2"])
+def test_the_mission_priors_old_sigma_keys_are_refused_naming_the_variance(key):
+    data = yaml.safe_load((REPO / "configs" / "mission_iss.yaml").read_text())
+    data["mission"]["prior"][key] = 1.0
+    with pytest.raises(ConfigError) as err:
+        config_from_dict(data, source="test.yaml")
+    assert err.value.problems == [f"test.yaml: mission.prior.{key}: 1.0: no longer a key: give the model's variances "
+                                  "as one list variance: [m kg², Ixx, Iyy, Izz (kg·m²)²] (the unit of robot.variance)"]
+
+
+# -- no bare mass in a core signature (issue 28) ------------------------------------------------------------
+
+NUMERICAL_KERNELS = {
+    # the planners' double-integrator kernels (the mean mass only; the planner's model is cfg.robot's)
+    "model/double_integrator.py:translational_model", "planning/full_state.py:translational_part",
+    "planning/full_state.py:minimum_time_lower_bound_s", "planning/polish_conic.py:__init__",
+    "planning/polish_grid.py:terminal_correction", "planning/polish_grid.py:exact_trajectory",
+    "planning/polish_grid.py:propagate", "planning/polish_subproblem.py:lqr_cost_expression",
+    "planning/polish_subproblem.py:__init__", "planning/result.py:edge_trajectory",
+    "planning/result.py:path_trajectory", "planning/result.py:edge_polylines", "planning/result.py:tree_record",
+    "planning/steering.py:axis_maps", "planning/steering.py:__init__", "planning/translational.py:interval_cost_matrix",
+    "planning/translational.py:interval_costs", "planning/translational.py:trusted",
+    "planning/translational.py:from_forces",
+    # the excitation's translation kernels (θ[0] of the design's model)
+    "excitation/problem.py:chord_margin_m", "excitation/problem.py:collision_free",
+    "excitation/problem.py:translation_excitation", "excitation/rattle.py:stop_distance",
+    # the simulated plant and its IMU, the geometric verification, the reference feedforward, two estimation kernels
+    "sim/full_inertia.py:__init__", "sim/imu.py:simulate_imu", "geometry/verify.py:dense_positions",
+    "geometry/verify.py:dense_check", "control/reference_sampler.py:feedforward",
+    "estimation/lost_inputs.py:lost_input_model", "estimation/rls.py:calibrate_force_scale",
+}
+"""Public core functions that still take the mass as a number (docs/architecture.md, "The robot model"): numerical
+kernels of the mean mass. The tube, W, the observer, the design limits and the tube's config checks take the
+model; this list may only shrink."""
+CORE_EXCLUDED = ("io", "commands", "stages", "mission", "campaign")
+
+
+def bare_mass_signatures() -> set[str]:
+    """``file:function`` of every public function in the core with a parameter named like a mass that is not
+    annotated as a ``RobotModel``."""
+    import ast
+
+    root = REPO / "oacli"
+    found = set()
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root)
+        if rel.parts[0] in CORE_EXCLUDED or rel.name == "cli.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                continue
+            if node.name.startswith("_") and node.name != "__init__":
+                continue
+            args = node.args.posonlyargs + node.args.args + node.args.kwonlyargs
+            if any("mass" in a.arg and "RobotModel" not in (ast.unparse(a.annotation) if a.annotation else "")
+                   for a in args):
+                found.add(f"{rel.as_posix()}:{node.name}")
+    return found
+
+
+def test_no_new_core_signature_takes_a_bare_mass():
+    found = bare_mass_signatures()
+    new = found - NUMERICAL_KERNELS
+    assert not new, f"a bare mass in a core signature (take the RobotModel): {sorted(new)}"
+    # the entry points of the issue take the model
+    for name in ("control/tube_design.py:design_translation_tube", "control/tube_design.py:design_axis",
+                 "control/disturbance.py:mass_uncertainty_bound", "control/disturbance.py:force_disturbance_bound",
+                 "control/observer.py:observer_spec", "config/tube.py:tube_problems",
+                 "reference_limits.py:mass_upper_bound_kg"):
+        assert name not in found
+    assert len(found) == len(NUMERICAL_KERNELS)  # the list is exact: remove a kernel from it once it takes the model
 
 
 @pytest.mark.parametrize("kw, field", [
@@ -149,10 +229,10 @@ def iss():
 
 def test_robot_and_truth_models_from_the_preset(iss):
     raw = yaml.safe_load((REPO / "configs" / "iss_reswarm.yaml").read_text())
-    robot, est = raw["robot"], raw["estimation"]["prior"]
+    robot = raw["robot"]
     m = settings.robot_model(iss)
     np.testing.assert_array_equal(m.theta, [robot["mass_kg"], *robot["inertia_kgm2"]])
-    np.testing.assert_array_equal(np.diag(m.covariance), [est["mass_variance_kg2"], *est["inertia_variance_kg2m4"]])
+    np.testing.assert_array_equal(m.covariance, np.zeros((4, 4)))  # no robot.variance: the robot model known
     np.testing.assert_array_equal(m.force_limit_N, robot["force_limit_N"])
     assert m.radius_m == iss.robot.radius_m
     t = settings.truth_model(iss)
@@ -160,13 +240,14 @@ def test_robot_and_truth_models_from_the_preset(iss):
     np.testing.assert_array_equal(t.theta, [truth.mass_kg, *truth.inertia_kgm2])
     np.testing.assert_array_equal(t.covariance, np.zeros((4, 4)))
     np.testing.assert_array_equal(t.input_limits, m.input_limits)
-    # the planner's robot is known: no derating through the estimator's prior variance; a σ_m given in
-    # planner.margin is used (module docstring of oacli.stages.settings)
+    # the planner's robot is known: no derating through the estimator's prior variance; the robot model's σ_m
+    # (robot.variance) is the planner's and the tube's
     limits = design_limits.planner_design_limits(iss)
     assert limits.margin.mass_std_kg == 0.0 and limits.margin.mass_ratio == 1.0
-    assert m.mass_std_kg == math.sqrt(est["mass_variance_kg2"]) > 0
-    given = iss.model_copy(update={"planner": iss.planner.model_copy(update={
-        "margin": iss.planner.margin.model_copy(update={"mass_std_kg": 2.0})})})
+    data = yaml.safe_load(dump_config(iss))
+    data["robot"]["variance"] = [4.0, 0.0, 0.0, 0.0]
+    given = config_from_dict(data, source="test.yaml")
+    assert settings.robot_model(given).mass_std_kg == 2.0
     margin = design_limits.planner_design_limits(given).margin
     assert margin.mass_upper_kg == iss.robot.mass_kg + 2 * 2.0
 
@@ -179,23 +260,33 @@ def test_priors_apply_their_section_mean_over_the_robot(iss):
     np.testing.assert_array_equal(np.diag(e.covariance), exc["variance"])
     p = settings.estimation_prior(iss)
     np.testing.assert_array_equal(p.theta, [est["mass_kg"], *est["inertia_kgm2"]])
-    np.testing.assert_array_equal(p.covariance, settings.robot_model(iss).covariance)
+    np.testing.assert_array_equal(np.diag(p.covariance), est["variance"])
 
 
-def test_one_prior_config_reads_both_spellings():
+def test_one_prior_config_one_spelling():
     a = PriorConfig(variance=(15.0, 0.005, 0.004, 0.003))
-    b = PriorConfig(mass_variance_kg2=15.0, inertia_variance_kg2m4=(0.005, 0.004, 0.003))
-    assert a == b
     np.testing.assert_array_equal(a.covariance(), np.diag([15.0, 0.005, 0.004, 0.003]))
-    assert "variance" not in a.model_dump()  # written back as the two unit-named fields
+    assert a.model_dump()["variance"] == (15.0, 0.005, 0.004, 0.003)
 
 
-def test_prior_variances_in_both_spellings_are_refused_with_the_field(iss):
+@pytest.mark.parametrize("path, value, new_place", [
+    (("controller", "tube", "disturbance", "mass_std_kg"), 0.1, "robot.variance"),
+    (("planner", "margin", "mass_std_kg"), 0.1, "robot.variance[0]"),
+    (("excitation", "margin", "mass_std_kg"), 0.1, "excitation.prior.variance[0]"),
+    (("estimation", "prior", "mass_variance_kg2"), 1.0, "variance: [m kg²"),
+    (("excitation", "prior", "inertia_variance_kg2m4"), [0.1, 0.1, 0.1], "variance: [m kg²"),
+])
+def test_old_keys_of_the_model_sigma_are_refused_naming_the_new_place(iss, path, value, new_place):
     data = yaml.safe_load(dump_config(iss))
-    data["estimation"]["prior"]["variance"] = [1.0, 0.1, 0.1, 0.1]
+    section = data
+    for key in path[:-1]:
+        section = section.setdefault(key, {})
+    section[path[-1]] = value
     with pytest.raises(ConfigError) as err:
         config_from_dict(data, source="test.yaml")
-    assert "estimation.prior" in str(err.value) and "not both" in str(err.value)
+    lines = err.value.problems
+    assert len(lines) == 1, lines
+    assert ".".join(path) in lines[0] and new_place in lines[0] and "no longer a key" in lines[0]
 
 
 @pytest.mark.parametrize("preset", ["doerr2021", "iss_reswarm", "iss_reswarm_tube"])

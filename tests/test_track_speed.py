@@ -19,6 +19,7 @@ from oacli.geometry.shapes import Box, Scene
 from oacli.model import quaternion as quat
 from oacli.reference import waypoint_reference
 from oacli.types import InertialParams, Trajectory
+from tests.model_helpers import mass_model
 
 PARAMS = InertialParams(9.5, np.array([0.153, 0.143, 0.162]))
 
@@ -155,8 +156,8 @@ def test_segment_pieces_are_best_piece(rng):
 
 
 def _isotropic_design():
-    spec = DisturbanceSpec(9.5, 0.1, force_N=np.full(3, 0.002))
-    return design_translation_tube(mass_kg=9.5, dt_s=0.2, force_limit_N=np.full(3, 0.15),
+    spec = DisturbanceSpec(force_N=np.full(3, 0.002))
+    return design_translation_tube(model=mass_model(9.5, 0.1), dt_s=0.2, force_limit_N=np.full(3, 0.15),
                                    velocity_limit_mps=np.full(3, 0.2), weights=AncillaryWeights(5.0, 10.0, 2.0),
                                    spec=spec, epsilon=0.05)
 

@@ -30,6 +30,7 @@ from oacli.errors import ConfigError, InfeasibleError
 from oacli.sets import Polytope
 from oacli.stages.settings import tube_design_from_config
 from tests.conftest import REPO
+from tests.model_helpers import mass_model
 
 PRESET = REPO / "configs" / "iss_reswarm_tube.yaml"
 E4 = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])  # ±position, ±velocity
@@ -55,8 +56,9 @@ def lp_support(p: Polytope, d: np.ndarray) -> float:
 
 
 def design(epsilon, mode="relative", growth=0.02, spec=None, **kw):
-    spec = spec or DisturbanceSpec(MASS, 0.1, force_N=np.full(3, 0.002))
-    return design_translation_tube(mass_kg=MASS, dt_s=DT, force_limit_N=np.full(3, 0.15),
+    spec = spec or DisturbanceSpec(force_N=np.full(3, 0.002))
+    model = kw.pop("model", mass_model(MASS, 0.1))
+    return design_translation_tube(model=model, dt_s=DT, force_limit_N=np.full(3, 0.15),
                                    velocity_limit_mps=np.full(3, 0.2), weights=WEIGHTS, spec=spec, epsilon=epsilon,
                                    epsilon_mode=mode, facet_growth=growth, **kw)
 
@@ -150,9 +152,9 @@ def test_split_of_the_relative_bound(eps, growth):
 def test_relative_design_property(mass_std, force, eps, growth, noise_v):
     """Random W (mass, force and velocity-noise terms): Z ⊇ F(α, s) ⊇ F_∞, Z ⊆ (1 + ε) F_∞ along the axes and
     K, Z is RPI, and the tightened bounds are within ε of the ideal ones (Z = F_∞), never beyond."""
-    spec = DisturbanceSpec(MASS, mass_std, force_N=np.full(3, force), noise_velocity_mps=np.full(3, noise_v))
-    common = {"mass_kg": MASS, "dt_s": DT, "force_limit_N": 0.15, "velocity_limit_mps": 0.2, "weights": WEIGHTS,
-              "spec": spec}
+    spec = DisturbanceSpec(force_N=np.full(3, force), noise_velocity_mps=np.full(3, noise_v))
+    common = {"model": mass_model(MASS, mass_std), "dt_s": DT, "force_limit_N": 0.15, "velocity_limit_mps": 0.2,
+              "weights": WEIGHTS, "spec": spec}
     ax = design_axis(1, epsilon=eps, epsilon_mode="relative", facet_growth=growth, **common)
     a_k, w = ax.a_closed, ax.disturbance.w
     dirs = np.vstack([E4, ax.gain, -ax.gain])

@@ -14,6 +14,7 @@ from oacli.control.tube_design import AncillaryWeights, design_translation_tube
 from oacli.sets import Polytope
 from oacli.sets.hull import convex_hull_2d, minkowski_sum_linear_images, minkowski_sum_polygons
 from oacli.sets.rpi import minimal_rpi_support
+from tests.model_helpers import mass_model
 
 
 def _support(points: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -80,8 +81,8 @@ def test_batched_minimal_rpi_support_equals_a_plain_sum():
 
 
 def _design(force_n: float):
-    spec = DisturbanceSpec(9.5, 0.1, force_N=np.full(3, force_n))
-    return design_translation_tube(mass_kg=9.5, dt_s=0.2, force_limit_N=np.full(3, 0.15),
+    spec = DisturbanceSpec(force_N=np.full(3, force_n))
+    return design_translation_tube(model=mass_model(9.5, 0.1), dt_s=0.2, force_limit_N=np.full(3, 0.15),
                                    velocity_limit_mps=np.full(3, 0.2), weights=AncillaryWeights(5.0, 10.0, 2.0),
                                    spec=spec, epsilon=0.05)
 

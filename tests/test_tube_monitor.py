@@ -16,6 +16,7 @@ from oacli.reference import waypoint_reference
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.types import InertialParams
+from tests.model_helpers import mass_model
 from tests.test_tube_mpc import DT, INERTIA, LIMITS, MASS, TERMINAL, U_TUBE, V_MAX, WEIGHTS, reswarm_design
 
 TRUTH_MASS = 9.583788668
@@ -24,9 +25,10 @@ ACTUATOR = LIMITS.force_N
 
 def redesign_fn(mass_std=0.1, force=0.002):
     def redesign(extra):
-        spec = DisturbanceSpec(MASS, mass_std, force_N=np.full(3, force), box_position_m=extra[:, 0],
+        spec = DisturbanceSpec(force_N=np.full(3, force), box_position_m=extra[:, 0],
                                box_velocity_mps=extra[:, 1])
-        return design_translation_tube(mass_kg=MASS, dt_s=DT, force_limit_N=U_TUBE, velocity_limit_mps=V_MAX,
+        return design_translation_tube(model=mass_model(MASS, mass_std), dt_s=DT, force_limit_N=U_TUBE,
+                                       velocity_limit_mps=V_MAX,
                                        weights=AncillaryWeights(5.0, 10.0, 2.0), spec=spec, epsilon=0.005,
                                        max_terms=200)
     return redesign

@@ -25,6 +25,7 @@ from oacli.sets import Polytope, minimal_rpi_outer, rpi_margins
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.types import InertialParams
+from tests.model_helpers import mass_model
 
 # ReSWARM tube MPC settings ([RattleCode] casadi_nmpc / z_poly_calc).
 MASS = 9.5
@@ -39,8 +40,9 @@ TERMINAL = TerminalWeights(np.full(3, 100.0), np.full(3, 10.0))
 
 
 def reswarm_design(mass_std=0.1, force=0.002, **kw):
-    spec = DisturbanceSpec(MASS, mass_std, force_N=np.full(3, force))
-    return design_translation_tube(mass_kg=MASS, dt_s=DT, force_limit_N=U_TUBE, velocity_limit_mps=V_MAX,
+    spec = DisturbanceSpec(force_N=np.full(3, force))
+    return design_translation_tube(model=mass_model(MASS, mass_std), dt_s=DT, force_limit_N=U_TUBE,
+                                   velocity_limit_mps=V_MAX,
                                    weights=AncillaryWeights(5.0, 10.0, 2.0), spec=spec, epsilon=0.005,
                                    epsilon_mode="absolute", facet_growth=0.05, **kw)  # rattle z_poly_calc
 
@@ -159,7 +161,7 @@ def test_compiled_qp_refuses_a_parameter_in_the_quadratic_term():
 
 def test_mass_bound_is_doerr_eq_28_and_covers_every_mass_in_the_interval():
     m0, sigma, u_max, dt = 9.5, 0.1, 0.15, 0.2
-    w = mass_uncertainty_bound(m0, sigma, u_max, dt)
+    w = mass_uncertainty_bound(mass_model(m0, sigma), u_max, dt)
 
     def f(u, m):  # the exact one-step double integrator from rest
         return np.array([0.5 * dt * dt, dt]) * u / m
@@ -404,13 +406,13 @@ def test_bounded_measurement_noise_is_covered_by_w_and_the_state_tightening():
     from oacli.control.tube_design import design_axis
 
     noise = np.array([0.002, 0.0005])  # [m, m/s]
-    spec = DisturbanceSpec(MASS, 0.1, force_N=np.full(3, 0.002), noise_position_m=np.full(3, noise[0]),
+    spec = DisturbanceSpec(force_N=np.full(3, 0.002), noise_position_m=np.full(3, noise[0]),
                            noise_velocity_mps=np.full(3, noise[1]))
-    common = {"mass_kg": MASS, "dt_s": DT, "force_limit_N": 0.15, "velocity_limit_mps": 0.2,
+    common = {"model": mass_model(MASS, 0.1), "dt_s": DT, "force_limit_N": 0.15, "velocity_limit_mps": 0.2,
               "weights": AncillaryWeights(5.0, 10.0, 2.0), "epsilon": 0.005}
     ax = design_axis(0, spec=spec, **common)
     assert ax.feasible
-    clean = design_axis(0, spec=DisturbanceSpec(MASS, 0.1, force_N=np.full(3, 0.002)), **common)
+    clean = design_axis(0, spec=DisturbanceSpec(force_N=np.full(3, 0.002)), **common)
     assert ax.velocity_bounds_mps[1] < clean.velocity_bounds_mps[1] - noise[1]  # noise tightens X beyond Z alone
     z, k, a, b = ax.z, ax.gain, ax.a, ax.b
     qp = NominalQP([QPBlock("x", a, b, np.array([50.0, 5.0]), np.array([0.1]), np.diag([100.0, 10.0]),

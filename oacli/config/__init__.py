@@ -388,12 +388,33 @@ def _short_repr(value: Any) -> str:
     return text if len(text) <= VALUE_REPR_CHARS else text[: VALUE_REPR_CHARS - 3] + "..."
 
 
+_PRIOR_VARIANCE = ("give the prior's variances as one list variance: [m kg², Ixx, Iyy, Izz (kg·m²)²] in the same "
+                   "section")
+MOVED_KEYS: dict[tuple[str, str], str] = {
+    ("disturbance", "mass_std_kg"): "W's σ_m is the robot model's: set robot.variance: [m kg², Ixx, Iyy, Izz "
+    "(kg·m²)²] (σ_m = sqrt(robot.variance[0])); mass_sigmas stays here",
+    ("margin", "mass_std_kg"): "a design's σ_m is its model's: robot.variance[0] for the planner, "
+    "excitation.prior.variance[0] for the excitation [kg²]; margin.mass_sigmas: 0 for no mass derating",
+    ("prior", "mass_variance_kg2"): _PRIOR_VARIANCE,
+    ("prior", "inertia_variance_kg2m4"): _PRIOR_VARIANCE,
+    ("prior", "mass_std_kg"): "give the model's variances as one list variance: [m kg², Ixx, Iyy, Izz (kg·m²)²] "
+    "(the unit of robot.variance)",
+    ("prior", "inertia_std_kgm2"): "give the model's variances as one list variance: [m kg², Ixx, Iyy, Izz "
+    "(kg·m²)²] (the unit of robot.variance)",
+}
+"""Keys of earlier config versions and where their value lives now (issue 28: one robot model carries θ and its
+covariance): ``(parent section, key)`` → the message of the exit-2 line."""
+
+
 def _reason(err: Mapping[str, Any], loc: tuple[str | int, ...]) -> str:
     kind = err["type"]
     ctx = err.get("ctx") or {}
     if kind == "missing":
         return "required key is missing"
     if kind == "extra_forbidden":
+        moved = MOVED_KEYS.get((str(loc[-2]), str(loc[-1]))) if len(loc) >= 2 else None
+        if moved is not None:
+            return f"no longer a key: {moved}"
         allowed = _allowed_keys(loc[:-1])
         if not allowed:
             return "unknown key"

@@ -13,7 +13,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from oacli.config.fields import Fraction, NonNegativeReal, PositiveReal, PositiveVector3, Section
+from oacli.config.fields import Fraction, NonNegativeReal, PositiveVector3, Section
 
 
 class LimitsOverride(Section):
@@ -36,14 +36,11 @@ class ReferenceMarginConfig(Section):
     left to the feedback. Torque, velocity and angular rate: the robot's limit times their fraction.
     """
 
-    mass_std_kg: NonNegativeReal | None = Field(
-        default=None,
-        description="σ_m: standard deviation of the prior mass [kg], >= 0. Default: the prior the designer's model "
-        "comes from (excitation: sqrt(excitation.prior.variance[0]); planner: 0, the robot model known; the mission "
-        "sets it to each segment's model σ_m); 0 = the model mass is exact.",
-    )
-    mass_sigmas: PositiveReal = Field(
-        default=2.0, description="n_σ of m_upper = m_prior + n_σ·σ_m ([Doerr2021] Eq. 28: 2), > 0."
+    mass_sigmas: NonNegativeReal = Field(
+        default=2.0,
+        description="n_σ of m_upper = m_prior + n_σ·σ_m ([Doerr2021] Eq. 28: 2), >= 0; σ_m is the designer's "
+        "model's (excitation: sqrt(excitation.prior.variance[0]); planner: sqrt(robot.variance[0])); 0: no mass "
+        "derating.",
     )
     reference_force_fraction: Fraction = Field(
         default=0.8,

@@ -20,7 +20,7 @@ from oacli.config.fields import (
     Name,
     NonNegativeReal,
     PositiveReal,
-    PositiveVector3,
+    PositiveVector4,
     PrincipalInertia,
     Section,
     StrictBool,
@@ -66,13 +66,14 @@ class GraspedPlantConfig(Section):
 
 
 class PayloadPriorConfig(Section):
-    """The controller's model of robot + payload before estimation, with its 1σ uncertainty."""
+    """The controller's model of robot + payload before estimation: mean and variances (the unit of
+    ``robot.variance``)."""
 
     mass_kg: PositiveReal = Field(description="Prior mass [kg].")
     inertia_kgm2: PrincipalInertia = Field(description="Prior principal inertias [kg·m²].")
-    mass_std_kg: PositiveReal = Field(description="1σ of the prior mass [kg] (W of segment 2, [Doerr2021] Eq. 28).")
-    inertia_std_kgm2: PositiveVector3 = Field(
-        description="1σ of the prior principal inertias [kg·m²]."
+    variance: PositiveVector4 = Field(
+        description="Variances of θ = [m, Ixx, Iyy, Izz] [kg², (kg·m²)² ×3], > 0 (σ_m = sqrt(variance[0]) sizes "
+        "segment 2's W, [Doerr2021] Eq. 28)."
     )
 
 

@@ -183,8 +183,7 @@ class OacliConfig(Section):
             problems += tube_problems(
                 self.controller.tube,
                 period_s=self.controller.period_s,
-                robot_mass_kg=self.robot.mass_kg,
-                robot_force_limit_N=self.robot.force_limit_N,
+                model=self.robot.model(),
                 sensor_std=(self.sensors.position_std_m, self.sensors.velocity_std_mps),
             )
         if self.controller.rate_hz > self.simulation.plant_rate_hz:

@@ -12,6 +12,7 @@ from oacli.config.faults import InertiaTensor
 from oacli.config.fields import (
     NonNegativeReal,
     NonNegativeVector3,
+    NonNegativeVector4,
     PositiveReal,
     PrincipalInertia,
     Real,
@@ -21,6 +22,7 @@ from oacli.config.fields import (
     read_only,
     sequence_of,
 )
+from oacli.model.robot_model import RobotModel
 from oacli.types import InertialParams
 
 ActuatorScale = Annotated[Real, Field(ge=0.5, le=1.5)]
@@ -34,7 +36,11 @@ LimitVector3 = Annotated[tuple[_Limit, _Limit, _Limit], BeforeValidator(sequence
 
 
 class RobotConfig(Section):
-    """The robot model the planner, controller and estimator use ([Doerr2021] Eqs. 33-36)."""
+    """The robot model the planner, controller and tube use ([Doerr2021] Eqs. 33-36): θ, its variances, limits.
+
+    The stage's one model block: :meth:`model` is the :class:`~oacli.model.robot_model.RobotModel` every core entry
+    point takes (the tube's W and the planner's design limits derive their σ from its ``variance``).
+    """
 
     mass_kg: PositiveReal = Field(description="Mass m [kg], > 0.")
     inertia_kgm2: PrincipalInertia = Field(
@@ -52,6 +58,21 @@ class RobotConfig(Section):
         description="Angular velocity bound per body axis [rad/s] (default: Astrobee nominal flight mode).",
     )
     radius_m: NonNegativeReal = Field(default=0.25, description="Collision radius of the robot [m], >= 0.")
+    variance: NonNegativeVector4 = Field(
+        default=(0.0, 0.0, 0.0, 0.0),
+        description="Variances of θ = [m, Ixx, Iyy, Izz] [kg², (kg·m²)² ×3], >= 0 (the diagonal of the model's "
+        "covariance; 0: known exactly). The tube's W and the planner's design limits take σ_m = sqrt(variance[0]) "
+        "([Doerr2021] Eq. 28); the mission writes each segment's model here (the prior's, then the estimate's).",
+    )
+
+    def model(self) -> RobotModel:
+        """This section as the :class:`~oacli.model.robot_model.RobotModel` (covariance ``diag(variance)``)."""
+        return RobotModel(
+            mass_kg=self.mass_kg, inertia_kgm2=np.asarray(self.inertia_kgm2),
+            covariance=np.diag(np.asarray(self.variance, dtype=float)), force_limit_N=np.asarray(self.force_limit_N),
+            torque_limit_Nm=np.asarray(self.torque_limit_Nm), velocity_limit_mps=np.asarray(self.velocity_limit_mps),
+            angular_velocity_limit_radps=np.asarray(self.angular_velocity_limit_radps), radius_m=self.radius_m,
+        )
 
     def inertial_params(self) -> InertialParams:
         """Mass and principal inertias as :class:`oacli.types.InertialParams`."""

@@ -26,6 +26,7 @@ from oacli.config.fields import (
     Weight3,
     none_to,
 )
+from oacli.model.robot_model import RobotModel
 
 
 class TubeTerminalWeights(Section):
@@ -46,12 +47,12 @@ class AncillaryConfig(Section):
 class TubeDisturbanceConfig(Section):
     """What the disturbance set W per control step is made of (summed per world axis)."""
 
-    mass_std_kg: NonNegativeReal = Field(
-        default=0.0,
-        description="Standard deviation σ of the mass estimate robot.mass_kg [kg], >= 0; W gains the one-step "
-        "deviation at the tube force limit between the model mass and mass ± mass_sigmas·σ ([Doerr2021] Eq. 28).",
+    mass_sigmas: PositiveReal = Field(
+        default=2.0,
+        description="Mass interval half-width in σ (Eq. 28: 2): W gains the one-step deviation at the tube force "
+        "limit between the model mass and mass ± mass_sigmas·σ_m ([Doerr2021] Eq. 28), σ_m = sqrt(robot.variance[0]) "
+        "(the model's; 0: no mass term).",
     )
-    mass_sigmas: PositiveReal = Field(default=2.0, description="Mass interval half-width in σ (Eq. 28: 2).")
     force_N: NonNegativeVector3 = Field(
         default=(0.0, 0.0, 0.0), description="Bound of an external force per world axis [N], >= 0."
     )
@@ -178,11 +179,11 @@ class TubeConfig(Section):
     )
 
 
-def tube_problems(tube: TubeConfig, *, period_s: float, robot_mass_kg: float,
-                  robot_force_limit_N: tuple[float, ...],
+def tube_problems(tube: TubeConfig, *, period_s: float, model: RobotModel,
                   sensor_std: tuple[float, float] | None = None) -> list[tuple[tuple[str | int, ...], Any, str]]:
     """Cross-field problems of ``controller.tube`` as ``(loc, value, reason)`` (checked when type is ``tube``);
-    ``sensor_std`` is ``(sensors.position_std_m, sensors.velocity_std_mps)``."""
+    ``model`` is the robot model (``robot.model()``: its mass interval and force limit), ``sensor_std``
+    ``(sensors.position_std_m, sensors.velocity_std_mps)``."""
     problems: list[tuple[tuple[str | int, ...], Any, str]] = []
     base = ("controller", "tube")
     if tube.observer.enabled and sensor_std is not None and not (sensor_std[0] > 0 and sensor_std[1] > 0):
@@ -196,22 +197,23 @@ def tube_problems(tube: TubeConfig, *, period_s: float, robot_mass_kg: float,
                 f"must be an integer multiple of the control period 1/controller.rate_hz = {period_s:g} s",
             ))
     if tube.force_limit_N is not None:
-        for i, (lim, robot) in enumerate(zip(tube.force_limit_N, robot_force_limit_N, strict=True)):
+        for i, (lim, robot) in enumerate(zip(tube.force_limit_N, model.force_limit_N, strict=True)):
             if lim > robot * (1 + 1e-12):
                 problems.append(((*base, "force_limit_N", i), lim,
                                  f"must be <= robot.force_limit_N[{i}] = {robot:g} N (the actuator limit)"))
     dist = tube.disturbance
-    if dist.mass_std_kg == 0:
+    if model.mass_std_kg == 0:
         for i, axis in enumerate("xyz"):
             if dist.force_N[i] == 0 and not (dist.position_m[i] > 0 and dist.velocity_mps[i] > 0):
                 problems.append((
                     (*base, "disturbance"), None,
-                    f"W has no width on the {axis} axis: set mass_std_kg > 0, force_N > 0, or both position_m and "
-                    "velocity_mps > 0 (the invariant-set algorithm needs the origin inside W)",
+                    f"W has no width on the {axis} axis: set robot.variance[0] > 0, force_N > 0, or both "
+                    "position_m and velocity_mps > 0 (the invariant-set algorithm needs the origin inside W)",
                 ))
                 break
-    low = robot_mass_kg - dist.mass_sigmas * dist.mass_std_kg
+    low = model.parameter_interval("mass_kg", dist.mass_sigmas)[0]
     if not (low > 0 and math.isfinite(low)):
-        problems.append(((*base, "disturbance", "mass_std_kg"), dist.mass_std_kg,
-                         f"robot.mass_kg - {dist.mass_sigmas:g} sigma = {low:g} kg must be > 0"))
+        problems.append(((*base, "disturbance", "mass_sigmas"), dist.mass_sigmas,
+                         f"robot.mass_kg - {dist.mass_sigmas:g} sigma (sigma = sqrt(robot.variance[0]) = "
+                         f"{model.mass_std_kg:g} kg) = {low:g} kg must be > 0"))
     return problems

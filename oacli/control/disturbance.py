@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from oacli.model.robot_model import RobotModel
 from oacli.sets import Polytope
 
 
@@ -40,17 +41,15 @@ def step_gain(dt_s: float) -> np.ndarray:
     return np.array([0.5 * dt_s * dt_s, dt_s])
 
 
-def mass_uncertainty_bound(
-    mass_kg: float, mass_std_kg: float, force_max_N: float, dt_s: float, n_sigma: float = 2.0
-) -> np.ndarray:
-    """[Doerr2021] Eq. 28: one-step bound ``[position m, velocity m/s]`` from mass uncertainty.
+def mass_uncertainty_bound(model: RobotModel, force_max_N: float, dt_s: float, n_sigma: float = 2.0) -> np.ndarray:
+    """[Doerr2021] Eq. 28: one-step bound ``[position m, velocity m/s]`` from the model's mass uncertainty.
+
+    The mass interval is ``model.mass_bounds_kg(n_sigma)`` (σ_m from ``model.covariance``).
 
     Parameters
     ----------
-    mass_kg : float
-        Mass estimate m₀ [kg] (the controller's model).
-    mass_std_kg : float
-        Standard deviation σ of the estimate [kg], ≥ 0.
+    model : RobotModel
+        The controller's model: mass m₀ [kg] and its covariance.
     force_max_N : float
         Largest force magnitude the controller applies on this axis [N].
     dt_s : float
@@ -68,33 +67,34 @@ def mass_uncertainty_bound(
     ValueError
         When ``m₀ − n_sigma σ ≤ 0``.
     """
-    low = mass_kg - n_sigma * mass_std_kg
-    if not low > 0:
-        raise ValueError(f"mass - {n_sigma:g} sigma = {low:g} kg is not positive")
-    f0 = force_max_N / mass_kg * step_gain(dt_s)
+    low, high = model.mass_bounds_kg(n_sigma)
+    f0 = force_max_N / model.mass_kg * step_gain(dt_s)
     f_low = force_max_N / low * step_gain(dt_s)
-    f_high = force_max_N / (mass_kg + n_sigma * mass_std_kg) * step_gain(dt_s)
+    f_high = force_max_N / high * step_gain(dt_s)
     return np.abs(f0 - np.maximum(f_low, f_high))
 
 
-def force_disturbance_bound(force_N: float, mass_min_kg: float, dt_s: float) -> np.ndarray:
-    """One-step bound ``[position m, velocity m/s]`` of a force ``|d| ≤ force_N`` held over ``dt_s``.
+def force_disturbance_bound(force_N: float, model: RobotModel, dt_s: float, n_sigma: float = 2.0) -> np.ndarray:
+    """One-step bound ``[position m, velocity m/s]`` of a force ``|d| ≤ force_N`` held over ``dt_s`` on the
+    lightest plausible mass ``m₀ − n_σ σ_m`` of ``model`` (:meth:`RobotModel.mass_bounds_kg`).
 
     Parameters
     ----------
     force_N : float
         Bound of the disturbance force [N].
-    mass_min_kg : float
-        Smallest mass considered [kg].
+    model : RobotModel
+        The controller's model.
     dt_s : float
         Step [s].
+    n_sigma : float
+        Width of the mass interval in σ.
 
     Returns
     -------
     ndarray, shape (2,)
         Half-widths ``[position m, velocity m/s]``.
     """
-    return force_N / mass_min_kg * step_gain(dt_s)
+    return force_N / model.mass_bounds_kg(n_sigma)[0] * step_gain(dt_s)
 
 
 def _zeros3() -> np.ndarray:
@@ -103,14 +103,13 @@ def _zeros3() -> np.ndarray:
 
 @dataclass(frozen=True)
 class DisturbanceSpec:
-    """What W is made of, per world axis (each array shape (3,)).
+    """What W is made of besides the model, per world axis (each array shape (3,)).
+
+    The mass m₀ and its σ are the controller's model's (:class:`~oacli.model.robot_model.RobotModel`, passed to
+    :meth:`axis`); the spec holds only the consumer's choices.
 
     Attributes
     ----------
-    mass_kg : float
-        Mass estimate m₀ [kg].
-    mass_std_kg : float
-        Its standard deviation σ [kg] (0: no mass term).
     n_sigma : float
         Mass interval half-width in σ ([Doerr2021] Eq. 28: 2).
     force_N : ndarray
@@ -121,8 +120,6 @@ class DisturbanceSpec:
         Measurement noise bounds [m], [m/s].
     """
 
-    mass_kg: float
-    mass_std_kg: float = 0.0
     n_sigma: float = 2.0
     force_N: np.ndarray = field(default_factory=_zeros3)
     box_position_m: np.ndarray = field(default_factory=_zeros3)
@@ -144,11 +141,14 @@ class DisturbanceSpec:
         """
         return np.array([self.noise_position_m[axis], self.noise_velocity_mps[axis]], dtype=float)
 
-    def axis(self, axis: int, force_max_N: float, dt_s: float, scale: float = 1.0) -> AxisDisturbance:
-        """W of world axis ``axis`` (0, 1, 2) for inputs ``|u| ≤ force_max_N`` and control step ``dt_s``.
+    def axis(self, model: RobotModel, axis: int, force_max_N: float, dt_s: float,
+             scale: float = 1.0) -> AxisDisturbance:
+        """W of world axis ``axis`` (0, 1, 2) for ``model``, inputs ``|u| ≤ force_max_N`` and control step ``dt_s``.
 
         Parameters
         ----------
+        model : RobotModel
+            The controller's model: m₀ and σ_m (0: no mass term) of [Doerr2021] Eq. 28.
         axis : int
             World axis 0, 1 or 2.
         force_max_N : float
@@ -164,12 +164,11 @@ class DisturbanceSpec:
             W and its parts.
         """
         mass_term = (
-            mass_uncertainty_bound(self.mass_kg, self.mass_std_kg, force_max_N, dt_s, self.n_sigma)
-            if self.mass_std_kg > 0
+            mass_uncertainty_bound(model, force_max_N, dt_s, self.n_sigma)
+            if model.mass_std_kg > 0
             else np.zeros(2)
         )
-        m_min = self.mass_kg - self.n_sigma * self.mass_std_kg
-        force_term = force_disturbance_bound(float(self.force_N[axis]), m_min, dt_s)
+        force_term = force_disturbance_bound(float(self.force_N[axis]), model, dt_s, self.n_sigma)
         box_term = np.array([self.box_position_m[axis], self.box_velocity_mps[axis]], dtype=float)
         noise = self.noise_box(axis)
         half = mass_term + force_term + box_term

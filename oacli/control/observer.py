@@ -20,6 +20,7 @@ import numpy as np
 from oacli.control.lqr import solve_dare
 from oacli.control.tube_design import ObserverSpec, TubeDesign
 from oacli.model.double_integrator import double_integrator
+from oacli.model.robot_model import RobotModel
 
 
 def kalman_gain(a: np.ndarray, dt_s: float, accel_std_mps2: float, position_std_m: float,
@@ -173,14 +174,14 @@ class RateObserver:
         return self._w.copy()
 
 
-def observer_spec(*, mass_kg: float, dt_s: float, position_std_m: float, velocity_std_mps: float,
+def observer_spec(*, model: RobotModel, dt_s: float, position_std_m: float, velocity_std_mps: float,
                   noise_sigmas: float, gain: tuple[float, float] | None, accel_std_mps2: float) -> ObserverSpec:
     """The observer of an output-feedback tube design: gain L and the noise bound ``noise_sigmas`` σ per axis.
 
     Parameters
     ----------
-    mass_kg : float
-        Model mass [kg].
+    model : RobotModel
+        The controller's model (its mass m₀ [kg]: the double integrator the observer predicts with).
     dt_s : float
         Control period [s].
     position_std_m, velocity_std_mps : float
@@ -198,7 +199,7 @@ def observer_spec(*, mass_kg: float, dt_s: float, position_std_m: float, velocit
     """
     if not (position_std_m > 0 and velocity_std_mps > 0):
         raise ValueError("the observer needs sensors.position_std_m > 0 and sensors.velocity_std_mps > 0")
-    a, _ = double_integrator(dt_s, 1.0 / mass_kg)
+    a, _ = double_integrator(dt_s, 1.0 / model.mass_kg)
     ell = (np.diag([float(gain[0]), float(gain[1])]) if gain is not None
            else kalman_gain(a, dt_s, accel_std_mps2, position_std_m, velocity_std_mps))
     noise = np.tile([noise_sigmas * position_std_m, noise_sigmas * velocity_std_mps], (3, 1))

@@ -41,6 +41,7 @@ from oacli.control.tube_epsilon import reduction_growth, split_relative_epsilon
 from oacli.control.tube_qp import LinearConstraint
 from oacli.errors import InfeasibleError
 from oacli.model.double_integrator import double_integrator
+from oacli.model.robot_model import RobotModel
 from oacli.sets import (
     EpsilonMode,
     FacetReduction,
@@ -218,7 +219,7 @@ class TubeDesign:
 
     axes: tuple[AxisTube, AxisTube, AxisTube]
     dt_s: float
-    mass_kg: float
+    model: RobotModel
 
     @property
     def gain(self) -> np.ndarray:
@@ -387,7 +388,7 @@ def _interval(p: Polytope) -> tuple[float, float]:
 def design_axis(
     axis: int,
     *,
-    mass_kg: float,
+    model: RobotModel,
     dt_s: float,
     force_limit_N: float,
     velocity_limit_mps: float,
@@ -406,7 +407,7 @@ def design_axis(
     ----------
     axis : int
         World axis 0, 1 or 2.
-    mass_kg, dt_s, weights, spec, epsilon, epsilon_mode, max_terms, facet_growth
+    model, dt_s, weights, spec, epsilon, epsilon_mode, max_terms, facet_growth
         As in :func:`design_translation_tube`.
     force_limit_N, velocity_limit_mps : float
         U and X of this axis.
@@ -419,9 +420,9 @@ def design_axis(
     -------
     AxisTube
     """
-    a, b = double_integrator(dt_s, 1.0 / mass_kg)
+    a, b = double_integrator(dt_s, 1.0 / model.mass_kg)
     gain, _ = dlqr(a, b, np.diag([weights.position, weights.velocity]), np.array([[weights.force]]))
-    dist = spec.axis(axis, force_limit_N, dt_s, w_scale)
+    dist = spec.axis(model, axis, force_limit_N, dt_s, w_scale)
     parts = None if observer is None else (np.asarray(observer.gain, dtype=float), np.asarray(observer.noise)[axis])
     try:
         return _axis_from_parts(AXIS_NAMES[axis], a, b, gain, dist, force_limit_N=force_limit_N,
@@ -602,7 +603,7 @@ def _describe_infeasible(ax: AxisTube, dt_s: float) -> str:
 
 def design_translation_tube(
     *,
-    mass_kg: float,
+    model: RobotModel,
     dt_s: float,
     force_limit_N: np.ndarray,
     velocity_limit_mps: np.ndarray,
@@ -620,8 +621,9 @@ def design_translation_tube(
 
     Parameters
     ----------
-    mass_kg : float
-        Model mass m₀ [kg].
+    model : RobotModel
+        The controller's model: m₀ of the double integrator and, from its covariance, σ_m of W's mass term
+        ([Doerr2021] Eq. 28, ``spec.n_sigma`` σ).
     dt_s : float
         Control period (the step of the ancillary law and of W) [s].
     force_limit_N, velocity_limit_mps : ndarray, shape (3,)
@@ -648,7 +650,7 @@ def design_translation_tube(
     Returns
     -------
     TubeDesign
-        The three axis tubes, the control period and the model mass.
+        The three axis tubes, the control period and the model.
 
     Raises
     ------
@@ -658,7 +660,7 @@ def design_translation_tube(
     """
     if on_empty not in ("error", "scale_w"):
         raise ValueError(f"on_empty must be 'error' or 'scale_w', got {on_empty!r}")
-    common = {"mass_kg": mass_kg, "dt_s": dt_s, "weights": weights, "spec": spec, "epsilon": epsilon,
+    common = {"model": model, "dt_s": dt_s, "weights": weights, "spec": spec, "epsilon": epsilon,
               "epsilon_mode": epsilon_mode, "max_terms": max_terms, "facet_growth": facet_growth,
               "observer": observer}
     axes = []
@@ -670,7 +672,7 @@ def design_translation_tube(
                 raise InfeasibleError(_describe_infeasible(ax, dt_s))
             ax = _scaled_axis(i, common, limits, min_nominal_fraction)
         axes.append(ax)
-    return TubeDesign(axes=tuple(axes), dt_s=float(dt_s), mass_kg=float(mass_kg))  # type: ignore[arg-type]
+    return TubeDesign(axes=tuple(axes), dt_s=float(dt_s), model=model)  # type: ignore[arg-type]
 
 
 def _keeps_fraction(ax: AxisTube, fraction: float) -> bool:

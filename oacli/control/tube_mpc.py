@@ -198,7 +198,7 @@ class TubeMPC:
         initial_weight: float = 0.0,
         rate_observer: RateObserver | None = None,
     ) -> None:
-        params = InertialParams(design.mass_kg, inertia_kgm2)
+        params = InertialParams(design.model.mass_kg, inertia_kgm2)
         ratio = prediction_step_s / design.dt_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError("prediction_step_s must be an integer multiple of the control period")

@@ -19,10 +19,10 @@ import numpy as np
 
 from oacli.config import OacliConfig, config_from_dict
 from oacli.config.mission import MissionConfig, deep_merge
-from oacli.errors import ConfigError
-from oacli.mission.layout import MISSION_STAGES, MissionStage
+from oacli.errors import ConfigError, InfeasibleError
+from oacli.mission.layout import MISSION_STAGES, MissionStage, stage_by_key
 from oacli.model.robot_model import RobotModel
-from oacli.stages.settings import robot_model
+from oacli.stages.settings import robot_model, tube_design_from_config
 
 
 @dataclass(frozen=True)
@@ -105,9 +105,8 @@ def prior_model(cfg: OacliConfig) -> RobotModel:
     RobotModel
     """
     prior = mission_section(cfg).prior
-    variance = np.array([prior.mass_std_kg, *prior.inertia_std_kgm2]) ** 2
     return robot_model(cfg).with_estimate(
-        np.array([prior.mass_kg, *prior.inertia_kgm2]), np.diag(variance))
+        np.array([prior.mass_kg, *prior.inertia_kgm2]), np.diag(np.array(prior.variance, dtype=float)))
 
 
 REFERENCE_SHARE = 0.8
@@ -115,20 +114,33 @@ REFERENCE_SHARE = 0.8
 of the heaviest plausible plant (the rest for the feedback, as ``reference_force_fraction``)."""
 
 
+def model_section(model: RobotModel) -> dict[str, Any]:
+    """``model`` (mean *and* the diagonal of its covariance) as a stage config's ``robot:`` entries.
+
+    Parameters
+    ----------
+    model : RobotModel
+
+    Returns
+    -------
+    dict
+        ``{"mass_kg", "inertia_kgm2", "variance"}``: ``robot_model`` of the stage's config gives back θ and
+        ``diag(covariance)`` exactly.
+    """
+    theta = model.theta
+    return {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
+            "variance": [float(v) for v in np.diag(model.covariance)]}
+
+
 def _model_sections(model: RobotModel, w_sigmas: float) -> dict[str, Any]:
     """The config entries that make ``model`` (mean *and* covariance) the controller's and the planner's model.
 
-    The tube's W from ``w_sigmas`` σ of its mass ([Doerr2021] Eq. 28); the planner's design limits derated by the
-    same model's σ_m (``planner.margin.mass_std_kg``: the uncertainty of *this* model, not an unrelated section's
-    default); the reference section's accelerations within the limits for the heaviest plausible plant
-    (:func:`reference_within_model`).
+    The stage's ``robot:`` is the model (:func:`model_section`): the tube's W takes ``w_sigmas`` σ of its mass
+    ([Doerr2021] Eq. 28) and the planner's design limits ``planner.margin.mass_sigmas`` σ, both σ_m the model's.
     """
-    theta = model.theta
-    std = model.std
     return {
-        "robot": {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]]},
-        "controller": {"tube": {"disturbance": {"mass_std_kg": float(std[0]), "mass_sigmas": float(w_sigmas)}}},
-        "planner": {"margin": {"mass_std_kg": float(std[0])}},
+        "robot": model_section(model),
+        "controller": {"tube": {"disturbance": {"mass_sigmas": float(w_sigmas)}}},
     }
 
 
@@ -157,8 +169,8 @@ def reference_within_model(reference: dict[str, Any], robot: dict[str, Any], mod
     dict
         ``{"acceleration_mps2": …, "angular_acceleration_radps2": …}``.
     """
-    m_upper = model.mass_kg + n_sigma * model.mass_std_kg
-    i_upper = float(np.max(model.inertia_kgm2 + n_sigma * model.std[1:4]))
+    m_upper = model.parameter_interval("mass_kg", n_sigma)[1]
+    i_upper = float(np.max(model.inertia_upper_kgm2(n_sigma)))
     acc = REFERENCE_SHARE * min(robot["force_limit_N"]) / m_upper
     ang = REFERENCE_SHARE * min(robot["torque_limit_Nm"]) / i_upper
     return {"acceleration_mps2": min(float(reference["acceleration_mps2"]), acc),
@@ -166,9 +178,7 @@ def reference_within_model(reference: dict[str, Any], robot: dict[str, Any], mod
 
 
 def _prior_sections(prior: RobotModel) -> dict[str, Any]:
-    theta, var = prior.theta, np.diag(prior.covariance)
-    section = {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
-               "mass_variance_kg2": float(var[0]), "inertia_variance_kg2m4": [float(v) for v in var[1:4]]}
+    section = model_section(prior)
     return {"excitation": {"prior": dict(section)}, "estimation": {"prior": dict(section)}}
 
 
@@ -219,14 +229,38 @@ def _connection_s(data: dict[str, Any], model: RobotModel, n_sigma: float) -> fl
     acceleration a takes ``2 sqrt(d / a)``, and a heavier model at the same force accelerates ``m_robot / m_upper``
     times slower: without it, a 25 kg payload's plan found no connection within the iteration budget."""
     base, dt = float(data["planner"]["max_connection_s"]), float(data["planner"]["steer_dt_s"])
-    m_upper = model.mass_kg + n_sigma * model.mass_std_kg
+    m_upper = model.parameter_interval("mass_kg", n_sigma)[1]
     scaled = base * max(1.0, float(np.sqrt(m_upper / float(data["robot"]["mass_kg"]))))
     return max(base, dt * float(np.ceil(scaled / dt - 1e-9)))  # a whole number of steering steps
 
 
-def _tube_force_cap(data: dict[str, Any]) -> list[float]:
-    """Segment 3's planner force cap: :data:`REFERENCE_SHARE` of the tube's nominal force limit
-    ``controller.tube.force_limit_N``, never above the file's own ``planner.limits.force_N`` or the robot's limit.
+def tube_nominal_force_N(cfg: OacliConfig) -> np.ndarray | None:
+    """The tightened nominal input bound ``Ū = U ⊖ K Z`` (``U ⊖ K R`` with the observer) per world axis [N] of the
+    tube ``cfg`` is flown with (:func:`oacli.stages.settings.tube_design_from_config`, its robot model); the
+    smaller of ``−Ū_lower`` and ``Ū_upper`` (the nominal MPC's constraint, [Doerr2021] Eq. 27).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        A tube-MPC stage's config.
+
+    Returns
+    -------
+    ndarray, shape (3,), or None
+        None when no tube can be designed (the track stage then reports why).
+    """
+    try:
+        design = tube_design_from_config(cfg)
+    except InfeasibleError:
+        return None
+    return np.array([min(-ax.force_bounds_N[0], ax.force_bounds_N[1]) for ax in design.axes])
+
+
+def _tube_force_cap(data: dict[str, Any], nominal_N: np.ndarray | None = None) -> list[float]:
+    """Segment 3's planner force cap: :data:`REFERENCE_SHARE` of the tube's force limit
+    ``controller.tube.force_limit_N``, never above the tightened nominal bound ``nominal_N`` of the tube the plan is
+    flown with (:func:`tube_nominal_force_N`: the nominal MPC cannot ask more), the file's own
+    ``planner.limits.force_N`` or the robot's limit.
 
     The tube MPC flies the plan, and segment 3 starts where segment 2's true state ended (up to 0.58 m from C for a
     25 kg payload on the 14.5 kg prior): a plan asking the whole nominal force leaves none to catch up, and such a
@@ -234,8 +268,9 @@ def _tube_force_cap(data: dict[str, Any]) -> list[float]:
     """
     tube = data["controller"]["tube"].get("force_limit_N") or data["robot"]["force_limit_N"]
     own = data["planner"].get("limits", {}).get("force_N") or data["robot"]["force_limit_N"]
-    return [float(min(REFERENCE_SHARE * t, o, r))
-            for t, o, r in zip(tube, own, data["robot"]["force_limit_N"], strict=True)]
+    nominal = [np.inf] * 3 if nominal_N is None else [float(v) for v in nominal_N]
+    return [float(min(REFERENCE_SHARE * t, n, o, r))
+            for t, n, o, r in zip(tube, nominal, own, data["robot"]["force_limit_N"], strict=True)]
 
 
 def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, source: str = "mission") -> OacliConfig:
@@ -305,7 +340,12 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         sets = deep_merge(sets, inertia_margin_sections(model, mission.rate_margin_sigmas, data))
     if stage.segment == "segment-3":
         assert model is not None
-        sets = deep_merge(sets, {"planner": {"limits": {"force_N": _tube_force_cap(data)},
+        nominal = None
+        if stage.command in ("plan", "smooth"):  # the plan within the nominal bounds of the tube that flies it
+            track = stage_config(cfg, stage_by_key("segment-3/track"), Handoff(estimate=handoff.estimate),
+                                 source=source)
+            nominal = tube_nominal_force_N(track)
+        sets = deep_merge(sets, {"planner": {"limits": {"force_N": _tube_force_cap(data, nominal)},
                                              "max_connection_s": _connection_s(data, model, mission.w_sigmas)}})
     if stage.command == "track" and handoff.reference is not None:
         sets = deep_merge(sets, {"reference": {"source": "file", "file": str(handoff.reference)}})

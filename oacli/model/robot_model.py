@@ -10,9 +10,13 @@ estimated and handed to the next segment):
 * the actuator and flight-mode limits (:class:`oacli.model.limits.MotionLimits`; [ReSWARM2023] Table 2);
 * the collision radius.
 
-The mass interval of the robust tube is ``[m − n_σ σ_m, m + n_σ σ_m]`` ([Doerr2021] Eq. 28, ``n_σ = 2``), with
-``σ_m = sqrt(covariance[0, 0])``: :meth:`RobotModel.mass_bounds_kg`. The estimator hands its result to the next
-segment through :meth:`RobotModel.with_estimate` (same limits and geometry, new θ and covariance).
+Every σ-bound is derived from ``covariance`` by one function, :meth:`RobotModel.parameter_interval`
+(``[θ_i − n_σ σ_i, θ_i + n_σ σ_i]``, [Doerr2021] Eq. 28), each consumer choosing only its own ``n_σ``: the tube's
+W (:meth:`RobotModel.mass_bounds_kg`, :mod:`oacli.control.disturbance`), the design limits' heaviest plant
+(:mod:`oacli.reference_limits`), the mission's reference and rate margins. The tube design, W, the observer, the
+design limits and the tube's config checks take the model, not a bare mass (docs/architecture.md, "The robot
+model"). The estimator hands its result to the next segment through :meth:`RobotModel.with_estimate` (same limits
+and geometry, new θ and covariance).
 """
 
 from __future__ import annotations
@@ -26,6 +30,9 @@ from oacli.types import InertialParams
 
 N_THETA = 4
 """Length of θ = [m, Ixx, Iyy, Izz]."""
+
+PARAMETER_NAMES = ("mass_kg", "Ixx", "Iyy", "Izz")
+"""The names of θ's entries, in order (:meth:`RobotModel.parameter_interval`)."""
 
 INERTIA_TRIANGLE_RTOL = 1e-12
 """Relative tolerance of the triangle inequalities ``Ixx + Iyy >= Izz`` (as the config's)."""
@@ -176,8 +183,43 @@ class RobotModel:
         """σ_m = ``sqrt(covariance[0, 0])`` [kg]."""
         return float(self.std[0])
 
+    def parameter_interval(self, name: str, n_sigma: float) -> tuple[float, float]:
+        """The ``n_σ`` interval ``[θ_i − n_σ σ_i, θ_i + n_σ σ_i]`` of one parameter ([Doerr2021] Eq. 28).
+
+        The one function every consumer derives a σ-bound from (the tube's W, the design limits' heaviest plant,
+        the reference's and the rate margins): each chooses only its own ``n_sigma``; σ_i is
+        ``sqrt(covariance[i, i])``.
+
+        Parameters
+        ----------
+        name : str
+            ``"mass_kg"`` or ``"Ixx"``, ``"Iyy"``, ``"Izz"`` (:data:`PARAMETER_NAMES`).
+        n_sigma : float
+            Half-width in standard deviations, finite and >= 0.
+
+        Returns
+        -------
+        lower, upper : float
+            ``θ_i ∓ n_σ σ_i`` [kg or kg·m²] (the lower bound may be <= 0: a consumer that divides by it checks).
+
+        Raises
+        ------
+        ValueError
+            An unknown name or a negative or non-finite ``n_sigma``.
+        """
+        if name not in PARAMETER_NAMES:
+            raise ValueError(f"unknown parameter {name!r} (one of {', '.join(PARAMETER_NAMES)})")
+        if not (n_sigma >= 0 and np.isfinite(n_sigma)):
+            raise ValueError(f"n_sigma: must be a finite number >= 0, got {n_sigma}")
+        i = PARAMETER_NAMES.index(name)
+        half = float(n_sigma) * float(self.std[i])
+        value = float(self.theta[i])
+        return value - half, value + half
+
     def mass_bounds_kg(self, n_sigma: float = 2.0) -> tuple[float, float]:
         """The mass interval ``[m − n_σ σ_m, m + n_σ σ_m]`` of the robust tube ([Doerr2021] Eq. 28).
+
+        :meth:`parameter_interval` of the mass, refusing a lower bound that is not positive (Eq. 28 divides by it).
 
         Parameters
         ----------
@@ -192,15 +234,26 @@ class RobotModel:
         Raises
         ------
         ValueError
-            ``n_sigma`` negative, or the lower bound not positive (Eq. 28 divides by it).
+            ``n_sigma`` negative, or the lower bound not positive.
         """
-        if not (n_sigma >= 0 and np.isfinite(n_sigma)):
-            raise ValueError(f"n_sigma: must be a finite number >= 0, got {n_sigma}")
-        half = float(n_sigma) * self.mass_std_kg
-        lower, upper = self.mass_kg - half, self.mass_kg + half
+        lower, upper = self.parameter_interval("mass_kg", n_sigma)
         if not lower > 0:
             raise ValueError(f"mass_kg - {n_sigma:g} sigma = {lower:g} kg is not positive")
         return lower, upper
+
+    def inertia_upper_kgm2(self, n_sigma: float) -> np.ndarray:
+        """Upper ends ``I + n_σ σ_I`` of the three principal inertias' intervals [kg·m²], shape (3,).
+
+        Parameters
+        ----------
+        n_sigma : float
+            Half-width in standard deviations, >= 0.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
+        return np.array([self.parameter_interval(n, n_sigma)[1] for n in PARAMETER_NAMES[1:]])
 
     # -- limits -------------------------------------------------------------------------------------------------
 
@@ -247,21 +300,5 @@ class RobotModel:
         t = _read_only("theta", theta, (N_THETA,))
         return replace(self, mass_kg=float(t[0]), inertia_kgm2=t[1:4], covariance=covariance)
 
-    def with_inertial(self, mass_kg: float, inertia_kgm2: np.ndarray) -> RobotModel:
-        """The same model with another mass and inertia (the covariance kept), e.g. the plant after a grasp.
 
-        Parameters
-        ----------
-        mass_kg : float
-            Mass [kg].
-        inertia_kgm2 : ndarray, shape (3,)
-            Principal inertias [kg·m²].
-
-        Returns
-        -------
-        RobotModel
-        """
-        return replace(self, mass_kg=mass_kg, inertia_kgm2=inertia_kgm2)
-
-
-__all__ = ["COVARIANCE_RTOL", "N_THETA", "RobotModel", "check_covariance"]
+__all__ = ["COVARIANCE_RTOL", "N_THETA", "PARAMETER_NAMES", "RobotModel", "check_covariance"]

@@ -3,19 +3,17 @@ uncertainty and each section's shares and caps (:mod:`oacli.reference_limits`).
 
 Design limits
 -------------
-Which prior mass and which σ_m (the "prior mass uncertainty" of ``m_upper = m_prior + n_σ σ_m``, [Doerr2021]
-Eq. 28), :mod:`oacli.reference_limits`:
+Which model (the ``m_prior`` and σ_m of ``m_upper = m_prior + n_σ σ_m``, [Doerr2021] Eq. 28,
+:mod:`oacli.reference_limits`): a :class:`~oacli.model.robot_model.RobotModel`, σ_m from its covariance:
 
-* ``excite``: the design's model is ``excitation.prior`` (mass default ``robot.mass_kg``), so ``m_prior`` is that
-  mass and σ_m the square root of its variance ``excitation.prior.variance[0]``;
-* ``plan`` and ``smooth``: the model is ``robot.mass_kg``, known unless said otherwise: σ_m is
-  ``planner.margin.mass_std_kg``, default 0 (a robot without payload is not derated through another section's
-  default variance; the mission sets it to the σ_m of each segment's model: the prior's, then the estimate's).
+* ``excite``: the design's model, ``excitation.prior`` (mass default ``robot.mass_kg``, σ_m =
+  ``sqrt(excitation.prior.variance[0])``);
+* ``plan`` and ``smooth``: the robot model (``robot:``, σ_m = ``sqrt(robot.variance[0])``, 0 unless given; the
+  mission writes each segment's model there: the prior's, then the estimate's), the same model the tube's W uses.
 
-``<section>.margin.mass_std_kg`` overrides σ_m (0 for a model known exactly); ``controller.tube.disturbance.
-mass_std_kg`` is not used: it is the spread of the estimate the tube's disturbance set W is sized for, not a
-prior. Section caps above the robot's limits are refused (:class:`~oacli.errors.ConfigError`, exit 2) or, with
-``margin.on_excess: clip``, clipped with a note that the stage writes to its log and summary.
+Each section chooses only its n_σ, ``<section>.margin.mass_sigmas`` (0: no mass derating). Section caps above
+the robot's limits are refused (:class:`~oacli.errors.ConfigError`, exit 2) or, with ``margin.on_excess: clip``,
+clipped with a note that the stage writes to its log and summary.
 """
 
 from __future__ import annotations
@@ -24,9 +22,9 @@ import numpy as np
 
 from oacli.config import OacliConfig
 from oacli.config.limits import LimitsOverride, ReferenceMarginConfig
-from oacli.config.models import RobotConfig
 from oacli.errors import ConfigError
 from oacli.model.limits import MotionLimits
+from oacli.model.robot_model import RobotModel
 from oacli.reference_limits import (
     QUANTITIES,
     UNITS,
@@ -35,50 +33,29 @@ from oacli.reference_limits import (
     design_limits,
     limits_above_robot,
 )
-from oacli.stages.settings import excitation_prior_model
+from oacli.stages.settings import excitation_prior_model, robot_model
 
 ROBOT_FIELDS = {"force_N": "force_limit_N", "torque_Nm": "torque_limit_Nm", "velocity_mps": "velocity_limit_mps",
                 "angular_velocity_radps": "angular_velocity_limit_radps"}
 """The ``robot`` field of each limited quantity."""
 
 
-def robot_limit_set(robot: RobotConfig) -> MotionLimits:
-    """The robot's actuator and flight-mode limits.
-
-    Parameters
-    ----------
-    robot : RobotConfig
-        The config's ``robot`` section.
-
-    Returns
-    -------
-    MotionLimits
-        Force, torque, velocity and angular-rate limits per axis.
-    """
-    return MotionLimits(**{q: np.asarray(getattr(robot, ROBOT_FIELDS[q]), dtype=float) for q in QUANTITIES})
-
-
 def resolve_design_limits(
-    robot: RobotConfig,
+    model: RobotModel,
     margin: ReferenceMarginConfig,
     caps: list[tuple[str, LimitsOverride]],
     *,
-    mass_prior_kg: float,
-    default_mass_std_kg: float,
     margin_path: str,
 ) -> DesignLimits:
-    """Design limits from the robot, a margin section and section caps (later caps win per quantity).
+    """Design limits from the designer's model, a margin section and section caps (later caps win per quantity).
 
     Parameters
     ----------
-    robot : RobotConfig
+    model : RobotModel
+        The designer's model: the robot's limits, ``m_prior`` and σ_m (from its covariance).
     margin : ReferenceMarginConfig
     caps : list of (str, LimitsOverride)
         Config path of each cap section (``"excitation.limits"``) and its values, in override order.
-    mass_prior_kg : float
-        Mass of the designer's model [kg].
-    default_mass_std_kg : float
-        σ_m used when ``margin.mass_std_kg`` is not given [kg].
     margin_path : str
         Config path of the margin section (for messages).
 
@@ -92,7 +69,7 @@ def resolve_design_limits(
     ConfigError
         A cap above the robot's limit with ``on_excess: error``: one line per axis, naming the field, both values.
     """
-    robot_limits = robot_limit_set(robot)
+    robot_limits = model.limits
     effective: dict[str, tuple[str, np.ndarray]] = {}
     for path, section in caps:
         for quantity in QUANTITIES:
@@ -116,9 +93,8 @@ def resolve_design_limits(
         if lines:
             raise ConfigError(lines)
     caps_clipped = {q: np.minimum(v, robot_limits.get(q)) for q, (_, v) in effective.items()}
-    std = default_mass_std_kg if margin.mass_std_kg is None else margin.mass_std_kg
     ref_margin = ReferenceMargin(
-        mass_prior_kg=mass_prior_kg, mass_std_kg=std, mass_sigmas=margin.mass_sigmas,
+        model=model, mass_sigmas=margin.mass_sigmas,
         force_fraction=margin.reference_force_fraction, torque_fraction=margin.reference_torque_fraction,
         velocity_fraction=margin.reference_velocity_fraction,
         angular_velocity_fraction=margin.reference_angular_velocity_fraction,
@@ -145,9 +121,7 @@ def excitation_design_limits(cfg: OacliConfig, *, rattle: bool = False) -> Desig
     caps = [("excitation.limits", exc.limits)]
     if rattle:
         caps.append(("excitation.rattle.limits", exc.rattle.limits))
-    prior = excitation_prior_model(cfg)
-    return resolve_design_limits(cfg.robot, exc.margin, caps, mass_prior_kg=prior.mass_kg,
-                                 default_mass_std_kg=prior.mass_std_kg, margin_path="excitation.margin")
+    return resolve_design_limits(excitation_prior_model(cfg), exc.margin, caps, margin_path="excitation.margin")
 
 
 def planner_design_limits(cfg: OacliConfig) -> DesignLimits:
@@ -163,8 +137,7 @@ def planner_design_limits(cfg: OacliConfig) -> DesignLimits:
     DesignLimits
     """
     p = cfg.planner
-    return resolve_design_limits(cfg.robot, p.margin, [("planner.limits", p.limits)],
-                                 mass_prior_kg=cfg.robot.mass_kg, default_mass_std_kg=0.0,
+    return resolve_design_limits(robot_model(cfg), p.margin, [("planner.limits", p.limits)],
                                  margin_path="planner.margin")
 
 

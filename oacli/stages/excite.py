@@ -57,7 +57,7 @@ from oacli.io.runfolder import StageResult, StageRun
 from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.phases import set_phase
 from oacli.reference_limits import DesignLimits
-from oacli.stages.design_limits import design_limit_log, excitation_design_limits, robot_limit_set, to_motion_limits
+from oacli.stages.design_limits import design_limit_log, excitation_design_limits, to_motion_limits
 from oacli.stages.excite_journal import ExciteJournal, RattleJournal
 from oacli.stages.settings import (
     estimator_settings,
@@ -67,6 +67,7 @@ from oacli.stages.settings import (
     open_run,
     plant_disturbance,
     rattle_planner_weights,
+    robot_model,
     scp_settings,
     sensor_noise,
     terminal_tolerance,
@@ -365,7 +366,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     design_lim = excitation_design_limits(cfg, rattle=True)
     problem = excitation_problem(cfg, design_lim)  # start, goal, workspace checks, measurement model
     limits = to_motion_limits(design_lim)
-    actuator = cfg.robot.input_limits  # the plant's actuators: the feedback may use what the plan leaves
+    actuator = robot_model(cfg).input_limits  # the plant's actuators: the feedback may use what the plan leaves
     planner = InformationAwarePlanner(
         problem.goal, horizon=rcfg.horizon, dt_s=rcfg.step_s, limits=limits, measurement=problem.measurement,
         scene=problem.scene, weights=rattle_planner_weights(cfg),
@@ -398,7 +399,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             input_limits=actuator, feedback_q=cw.state_weights(), feedback_r=cw.input_weights(),
             sensors=sensor_noise(cfg), disturbance=plant_disturbance(cfg),
             rng=np.random.default_rng(cfg.seed), progress=progress,
-            rate_limit_radps=np.asarray(cfg.robot.angular_velocity_limit_radps),
+            rate_limit_radps=np.asarray(robot_model(cfg).angular_velocity_limit_radps),
             actuator_scale=np.asarray(cfg.truth.actuator_scale), com_offset_m=np.asarray(cfg.truth.com_offset_m),
             on_step=journal.on_step,
         )
@@ -407,7 +408,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         # the journal stays the record until the complete file is in place (StageJournal.replaced_by)
         _write_rattle_outputs(stage_run, cfg, problem, run, traj, log, prior_cov, theta_true, journal)
         t_info, info = gathered_information(run.estimates, prior_cov)
-        robot_lim = robot_limit_set(cfg.robot)
+        robot_lim = robot_model(cfg).limits
         if cfg.outputs.plots:
             write_excite_plots(stage_run, summary, t_info_s=t_info, information=info,
                                t_input_s=run.telemetry.t_ctrl, u=run.telemetry.u_applied,
@@ -454,7 +455,7 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
     crb = final.std if final.method == "oracle-crb" else _flown_crb(tel, theta_true, prior_cov, problem.measurement)
     log.insert(0, (0.0, "info", f"RATTLE closed loop, estimator: {final.method} ({what})"))
     log[1:1] = design_limit_log(design_lim)
-    robot = cfg.robot
+    robot = robot_model(cfg)
     peak_rate = float(np.max(np.abs(tel.x_true[:, 10:13])))
     peak_speed = float(np.max(np.abs(tel.x_true[:, 3:6])))
     within_robot = bool(np.all(np.abs(tel.x_true[:, 10:13]) <= np.asarray(robot.angular_velocity_limit_radps)
@@ -509,7 +510,7 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
         "force_limit_N": design_lim.limits.force_N,
         "torque_limit_Nm": design_lim.limits.torque_Nm,
     }
-    robot = cfg.robot
+    robot = robot_model(cfg)
     report = safety_report(
         tel.t_true, tel.x_true, scene=scene, velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
         angular_velocity_limit_radps=np.asarray(robot.angular_velocity_limit_radps), robot_radius_m=robot.radius_m,
@@ -598,6 +599,6 @@ def _write_rattle_outputs(stage_run: StageRun, cfg: OacliConfig, problem: Excita
                          np.array([r.t for r in run.replans]), np.array([r.gamma for r in run.replans]))
     write_excite_recording(
         stage_run.file("rrd", "excite.rrd"), scene=problem.scene, trajectory=traj,
-        information=InformationSeries(theta_true, info_traj, post_std), limits=robot_limit_set(cfg.robot),
+        information=InformationSeries(theta_true, info_traj, post_std), limits=robot_model(cfg).limits,
         rattle=rattle, log=log, recording_name=f"{cfg.name}/excite",
     )

@@ -45,7 +45,14 @@ from oacli.planning.translational import TranslationalTrajectory
 from oacli.planning.tree import EDGE_LQR, EDGE_PRIMITIVE
 from oacli.stages.design_limits import design_limit_log, planner_design_limits
 from oacli.stages.plan_journal import PlanJournal
-from oacli.stages.settings import cost_weights, kino_rrt_settings, lqr_rrt_star_settings, open_run, robot_body
+from oacli.stages.settings import (
+    cost_weights,
+    kino_rrt_settings,
+    lqr_rrt_star_settings,
+    open_run,
+    robot_body,
+    robot_model,
+)
 from oacli.status import NO_SOLUTION, OK, StatusReport, add_output_trajectory_reasons, status_log
 from oacli.types import Trajectory
 
@@ -129,7 +136,7 @@ def build_problem(cfg: OacliConfig, seg: Segment) -> tuple[PlanningProblem, Robo
     checker = CollisionChecker(scene, body)
     check_endpoint(f"start of segment {seg.name}", f"waypoints.{seg.start_name}", seg.start[0:3], checker, body)
     check_endpoint(f"goal of segment {seg.name}", f"waypoints.{seg.goal_name}", seg.goal[0:3], checker, body)
-    robot = cfg.robot
+    robot = robot_model(cfg)
     limits = planner_design_limits(cfg).limits
     problem = PlanningProblem(
         start=seg.start[0:6], goal=seg.goal[0:6], mass_kg=robot.mass_kg,
@@ -161,7 +168,7 @@ def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChe
     ``within_limits``: within the design limits (:func:`~oacli.stages.design_limits.planner_design_limits`);
     ``within_robot_limits``: within the robot's own; ``min_time_lower_bound_s`` under the design limits.
     """
-    robot = cfg.robot
+    robot = robot_model(cfg)
     design = planner_design_limits(cfg)
     lim = design.limits
     trans = translational_part(traj, robot.mass_kg)
@@ -371,7 +378,7 @@ def run_plan(
             trajectory=output, limits=limits.limits, log=log, recording_name=f"{cfg.name}/plan",
         )
         if cfg.outputs.plots:
-            write_path_plots(run, summary, scene=scene, robot_radius_m=float(cfg.robot.radius_m),
+            write_path_plots(run, summary, scene=scene, robot_radius_m=float(robot_model(cfg).radius_m),
                              paths={} if output is None else {"plan": output.x[:, 0:3]}, start_m=seg.start[0:3],
                              goal_m=seg.goal[0:3])
         stage = run.finish(summary)

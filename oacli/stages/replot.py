@@ -85,23 +85,26 @@ def _stage_config(folder: Path) -> OacliConfig:
 
 def _plan_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Figures:
     from oacli.stages.plan import resolve_segment
+    from oacli.stages.settings import robot_model
 
     seg = resolve_segment(cfg, None)  # the run's config holds the segment it planned
     record = read_stage(folder / "plan.mcap", topics=[ms.TOPIC_TRAJECTORY])
     traj = record.trajectories.get(ms.TOPIC_TRAJECTORY)
-    return path_figures(stage="plan", scene=cfg.scene(), robot_radius_m=float(cfg.robot.radius_m),
+    return path_figures(stage="plan", scene=cfg.scene(), robot_radius_m=float(robot_model(cfg).radius_m),
                         paths={} if traj is None else {"plan": traj.x[:, 0:3]}, start_m=seg.start[0:3],
                         goal_m=seg.goal[0:3])
 
 
 def _smooth_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Figures:
+    from oacli.stages.settings import robot_model
+
     record = read_stage(folder / "smooth.mcap", topics=[ms.TOPIC_TRAJECTORY, SMOOTH_INPUT_TOPIC])
     traj_in = record.trajectories.get(SMOOTH_INPUT_TOPIC)  # the input as read
     if traj_in is None:  # a file from before the topic: the input file itself
         source = cfg.inputs.smooth_input or record.metadata.get("oacli.smooth", {}).get("input")
         traj_in = read_trajectory(_recorded_file(source, summary, folder, "input plan"))
     traj_out = record.trajectories[ms.TOPIC_TRAJECTORY]
-    return path_figures(stage="smooth", scene=cfg.scene(), robot_radius_m=float(cfg.robot.radius_m),
+    return path_figures(stage="smooth", scene=cfg.scene(), robot_radius_m=float(robot_model(cfg).radius_m),
                         paths={"plan (input)": traj_in.x[:, 0:3], "smoothed": traj_out.x[:, 0:3]},
                         start_m=traj_in.x[0, 0:3], goal_m=traj_in.x[-1, 0:3])
 
@@ -120,13 +123,14 @@ def _reference(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Traje
 def _track_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Figures:
     from oacli.stages.settings import robot_model
 
-    telemetry = read_telemetry(folder / "track.mcap")
+    telemetry, model = read_telemetry(folder / "track.mcap"), robot_model(cfg)
     return track_figures(telemetry=telemetry, reference=_reference(folder, summary, cfg),
-                         limits=robot_model(cfg).limits, scene=cfg.scene(), robot_radius_m=float(cfg.robot.radius_m))
+                         limits=model.limits, scene=cfg.scene(), robot_radius_m=float(model.radius_m))
 
 
 def _excite_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> Figures:
-    from oacli.stages.design_limits import excitation_design_limits, robot_limit_set, to_motion_limits
+    from oacli.stages.design_limits import excitation_design_limits, to_motion_limits
+    from oacli.stages.settings import robot_model
 
     record = read_stage(folder / "excite.mcap", topics=[ms.TOPIC_TRAJECTORY, ms.TOPIC_EXCITATION_INFORMATION])
     traj = record.trajectories[ms.TOPIC_TRAJECTORY]
@@ -136,7 +140,7 @@ def _excite_figures(folder: Path, summary: dict[str, Any], cfg: OacliConfig) -> 
     method = str(summary.get("method", ""))
     if method == "rattle":
         limits = to_motion_limits(excitation_design_limits(cfg, rattle=True))
-        robot = robot_limit_set(cfg.robot)
+        robot = robot_model(cfg).limits
         # the flown trajectory is the control instants plus the final state (no input there)
         return excite_figures(method=method, t_info_s=t_info, information=information, t_input_s=traj.t[:-1],
                               u=traj.u[:-1], force_limit_N=limits.force_N, torque_limit_Nm=limits.torque_Nm,

@@ -6,8 +6,8 @@ here, runs them and writes its records (:mod:`oacli.io`): a short file.
 
 The robot
 ---------
-:func:`robot_model` is the controller's prior (``robot:``; the covariance of θ from ``estimation.prior``'s
-variances), :func:`truth_model` the simulated plant (``truth:``, θ known exactly); both are
+:func:`robot_model` is the controller's and the planner's model (``robot:``, with its ``variance``),
+:func:`truth_model` the simulated plant (``truth:``, θ known exactly); both are
 :class:`oacli.model.robot_model.RobotModel`. The excitation design's and the estimators' priors are the robot model
 with ``excitation.prior`` or ``estimation.prior`` applied (:func:`excitation_prior_model`,
 :func:`estimation_prior_model`).
@@ -85,12 +85,12 @@ def open_run(stage: str, cfg: OacliConfig, *, out: Path | None, runs_root: Path,
 # ----------------------------------------------------------------------------------------------------------------
 
 def robot_model(cfg: OacliConfig) -> RobotModel:
-    """The controller's prior model of the robot: ``robot:`` with the covariance of ``estimation.prior``.
+    """The controller's and the planner's model of the robot: ``robot:`` (θ, its variances, limits, radius).
 
-    θ = ``[robot.mass_kg, *robot.inertia_kgm2]``; covariance ``diag(estimation.prior.mass_variance_kg2,
-    *estimation.prior.inertia_variance_kg2m4)`` (the variances the estimator starts from; its *mean* may differ
-    from ``robot:``, see :func:`estimation_prior_model`), so ``sqrt(covariance[0, 0])`` is the σ_m of the planner's
-    design limits ([Doerr2021] Eq. 28). Limits and radius from ``robot:``.
+    ``robot.model()``: θ = ``[robot.mass_kg, *robot.inertia_kgm2]``, covariance ``diag(robot.variance)``, so
+    ``sqrt(covariance[0, 0])`` is the σ_m of the tube's W and of the planner's design limits ([Doerr2021] Eq. 28).
+    The estimators' and the excitation design's priors are this model with their section's prior applied
+    (:func:`estimation_prior_model`, :func:`excitation_prior_model`).
 
     Parameters
     ----------
@@ -101,13 +101,7 @@ def robot_model(cfg: OacliConfig) -> RobotModel:
     -------
     RobotModel
     """
-    robot = cfg.robot
-    return RobotModel(
-        mass_kg=robot.mass_kg, inertia_kgm2=np.asarray(robot.inertia_kgm2),
-        covariance=cfg.estimation.prior.covariance(), force_limit_N=np.asarray(robot.force_limit_N),
-        torque_limit_Nm=np.asarray(robot.torque_limit_Nm), velocity_limit_mps=np.asarray(robot.velocity_limit_mps),
-        angular_velocity_limit_radps=np.asarray(robot.angular_velocity_limit_radps), radius_m=robot.radius_m,
-    )
+    return cfg.robot.model()
 
 
 def truth_model(cfg: OacliConfig) -> RobotModel:
@@ -221,7 +215,7 @@ def robot_body(cfg: OacliConfig, q_start: np.ndarray, q_goal: np.ndarray) -> Rob
     """
     axes = cfg.planner.robot_semi_axes_m
     if axes is None:
-        return RobotBody.sphere(cfg.robot.radius_m)
+        return RobotBody.sphere(robot_model(cfg).radius_m)
     if float(quat.angle_between(np.asarray(q_start), np.asarray(q_goal))) < 1e-9:
         return RobotBody.ellipsoid(np.asarray(axes), quat.to_rotation_matrix(np.asarray(q_start)))
     return RobotBody.sphere(float(max(axes)))
@@ -299,7 +293,7 @@ def shortcut_connector(cfg: OacliConfig) -> LqrConnector:
     LqrConnector
     """
     p = cfg.planner
-    return LqrConnector(cfg.robot.mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
+    return LqrConnector(robot_model(cfg).mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
 
 
 def polish_settings(cfg: OacliConfig) -> PolishSettings:
@@ -510,29 +504,22 @@ def estimation_prior_model(cfg: OacliConfig) -> RobotModel:
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def tube_disturbance_spec(cfg: OacliConfig, model: RobotModel | None = None, *,
-                          mass_std_kg: float | None = None) -> DisturbanceSpec:
-    """The disturbance set W's ingredients (``controller.tube.disturbance`` and the controller's model mass).
+def tube_disturbance_spec(cfg: OacliConfig) -> DisturbanceSpec:
+    """What W is made of besides the model (``controller.tube.disturbance``): n_σ of [Doerr2021] Eq. 28, the force,
+    box and noise terms; m₀ and σ_m are the model's, passed with it to the design.
 
     Parameters
     ----------
     cfg : OacliConfig
         Resolved configuration.
-    model : RobotModel, optional
-        The controller's model (default :func:`robot_model`): its mass is m₀ of [Doerr2021] Eq. 28.
-    mass_std_kg : float, optional
-        σ of Eq. 28 [kg]; default ``controller.tube.disturbance.mass_std_kg`` (pass ``model.mass_std_kg`` to size W
-        for the model's own covariance, e.g. an estimate's).
 
     Returns
     -------
     DisturbanceSpec
     """
-    model = robot_model(cfg) if model is None else model
     dist = cfg.controller.tube.disturbance
-    std = dist.mass_std_kg if mass_std_kg is None else mass_std_kg
     return DisturbanceSpec(
-        mass_kg=model.mass_kg, mass_std_kg=std, n_sigma=dist.mass_sigmas,
+        n_sigma=dist.mass_sigmas,
         force_N=np.asarray(dist.force_N), box_position_m=np.asarray(dist.position_m),
         box_velocity_mps=np.asarray(dist.velocity_mps), noise_position_m=np.asarray(dist.position_noise_m),
         noise_velocity_mps=np.asarray(dist.velocity_noise_mps),
@@ -540,8 +527,7 @@ def tube_disturbance_spec(cfg: OacliConfig, model: RobotModel | None = None, *,
 
 
 def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = None,
-                            max_terms: int | None = None, model: RobotModel | None = None,
-                            mass_std_kg: float | None = None) -> TubeDesign:
+                            max_terms: int | None = None, model: RobotModel | None = None) -> TubeDesign:
     """The translational tube of ``controller.tube`` ([Mayne2005]; [Rakovic2005]; [Doerr2021] Eqs. 15-28).
 
     Parameters
@@ -554,10 +540,8 @@ def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = 
     max_terms : int, optional
         Caps the invariant-set terms below ``rpi_max_terms``.
     model : RobotModel, optional
-        The controller's model (default :func:`robot_model`): mass, force limit (unless
-        ``controller.tube.force_limit_N``) and velocity limit.
-    mass_std_kg : float, optional
-        σ of [Doerr2021] Eq. 28 (see :func:`tube_disturbance_spec`).
+        The controller's model (default :func:`robot_model`): mass and, from its covariance, σ_m of W's mass term,
+        force limit (unless ``controller.tube.force_limit_N``) and velocity limit.
 
     Returns
     -------
@@ -572,7 +556,7 @@ def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = 
     model = robot_model(cfg) if model is None else model
     dist = tube.disturbance
     force_limit = np.asarray(tube.force_limit_N) if tube.force_limit_N is not None else model.force_limit_N
-    spec = tube_disturbance_spec(cfg, model, mass_std_kg=mass_std_kg)
+    spec = tube_disturbance_spec(cfg)
     on_empty = dist.on_empty_tightening
     if extra_box is not None:
         extra = np.asarray(extra_box, dtype=float).reshape(3, 2)
@@ -582,11 +566,11 @@ def tube_design_from_config(cfg: OacliConfig, *, extra_box: np.ndarray | None = 
     anc = tube.ancillary
     obs = tube.observer
     observer = None if not obs.enabled else observer_spec(
-        mass_kg=model.mass_kg, dt_s=cfg.controller.period_s, position_std_m=cfg.sensors.position_std_m,
+        model=model, dt_s=cfg.controller.period_s, position_std_m=cfg.sensors.position_std_m,
         velocity_std_mps=cfg.sensors.velocity_std_mps, noise_sigmas=obs.noise_sigmas, gain=obs.gain,
         accel_std_mps2=obs.accel_std_mps2)
     return design_translation_tube(
-        mass_kg=model.mass_kg, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
+        model=model, dt_s=cfg.controller.period_s, force_limit_N=force_limit,
         velocity_limit_mps=model.velocity_limit_mps,
         weights=AncillaryWeights(anc.position, anc.velocity, anc.force), spec=spec, epsilon=tube.rpi_epsilon,
         epsilon_mode=tube.rpi_epsilon_mode,

@@ -44,7 +44,7 @@ from oacli.planning.shortcut import ACCEPTED, ShortcutResult, lqr_shortcut
 from oacli.planning.translational import TranslationalTrajectory
 from oacli.stages.design_limits import design_limit_log, planner_design_limits
 from oacli.stages.plan import SMOOTH_STREAM, describe_body, to_output, trajectory_metrics
-from oacli.stages.settings import cost_weights, open_run, polish_settings, robot_body, shortcut_connector
+from oacli.stages.settings import cost_weights, open_run, polish_settings, robot_body, robot_model, shortcut_connector
 from oacli.status import StatusReport, add_output_trajectory_reasons, status_log
 from oacli.types import Trajectory
 
@@ -71,7 +71,7 @@ def check_input(cfg: OacliConfig, path: Path, traj: Trajectory, checker: Collisi
     Its forces and velocities must be within the design limits (:func:`planner_design_limits`): the smoother only
     ever replaces sections, so an input beyond them would leave an output beyond them.
     """
-    robot = cfg.robot
+    robot = robot_model(cfg)
     limits = planner_design_limits(cfg).limits
     trans = translational_part(traj, robot.mass_kg)
     if not trans.is_zoh_consistent():
@@ -169,7 +169,7 @@ def run_polish(cfg: OacliConfig, trans: TranslationalTrajectory, checker: Collis
                cost_cap: float | None) -> PolishResult:
     """Polish a shortcut result as configured in ``planner.polish`` (duration budget from ``duration_factor``),
     within the design limits."""
-    robot, p = cfg.robot, cfg.planner.polish
+    robot, p = robot_model(cfg), cfg.planner.polish
     limits = planner_design_limits(cfg).limits
     budget = None
     if p.duration_factor is not None:
@@ -224,7 +224,7 @@ def run_smooth(
     wall_start = time.perf_counter()
     input_path = Path(input_path).resolve()
     traj_in = load_plan(cfg, input_path)
-    robot = cfg.robot
+    robot = robot_model(cfg)
     q_start, q_goal = traj_in.x[0, 6:10], traj_in.x[-1, 6:10]
     body = robot_body(cfg, q_start, q_goal)
     checker = CollisionChecker(cfg.scene(), body)
@@ -311,7 +311,7 @@ def run_smooth(
             shortcuts=shortcut_steps, polish=polish_steps, limits=lim, log=log, recording_name=f"{cfg.name}/smooth",
         )
         if cfg.outputs.plots:
-            write_path_plots(run, summary, scene=checker.scene, robot_radius_m=float(cfg.robot.radius_m),
+            write_path_plots(run, summary, scene=checker.scene, robot_radius_m=float(robot_model(cfg).radius_m),
                              paths={"plan (input)": traj_in.x[:, 0:3], "smoothed": traj_out.x[:, 0:3]},
                              start_m=traj_in.x[0, 0:3], goal_m=goal[0:3])
         return run.finish(summary)

@@ -35,7 +35,6 @@ from oacli.reference_limits import ReferenceLimitCheck, check_reference_limits
 from oacli.signals import held
 from oacli.sim.simulator import simulate
 from oacli.sim.stall import with_stall
-from oacli.stages.design_limits import robot_limit_set
 from oacli.stages.faults import fault_arguments
 from oacli.stages.flown_sensors import FlownSensors, flown_sensors, write_flown_sensor_topics
 from oacli.stages.settings import (
@@ -156,7 +155,7 @@ def check_reference_for_plant(cfg: OacliConfig, reference: Trajectory, log: list
         With ``strict``, when the plant cannot follow the reference within the limits (naming the quantity, the
         time and both values).
     """
-    check = check_reference_limits(reference, cfg.truth_params(), robot_limit_set(cfg.robot),
+    check = check_reference_limits(reference, cfg.truth_params(), robot_model(cfg).limits,
                                    disturbance_bias=np.asarray(cfg.truth.disturbance.bias),
                                    disturbance_bound=np.asarray(cfg.truth.disturbance.random_bound))
     if not check.ok:
@@ -316,7 +315,7 @@ def run_track(
             if cfg.outputs.plots:  # held: matplotlib turns an interruption inside its drawing into an error
                 with held():  # (a lost signal, a missing PNG); it is raised once the figures are written
                     write_track_plots(run, summary, telemetry=tel, reference=reference, limits=limits, scene=scene,
-                                      robot_radius_m=float(cfg.robot.radius_m))
+                                      robot_radius_m=float(robot_model(cfg).radius_m))
             return run.finish(summary)
 
 

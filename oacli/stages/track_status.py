@@ -15,6 +15,7 @@ from typing import Any
 from oacli.config import OacliConfig
 from oacli.metrics import safety_block, safety_report
 from oacli.model.limits import MotionLimits
+from oacli.stages.settings import robot_model
 from oacli.status import SAFE_HOLD_MODE, StatusReport, add_safety_reasons, controller_mode_counts, mode_word
 from oacli.types import Telemetry
 
@@ -23,11 +24,11 @@ def track_safety(cfg: OacliConfig, tel: Telemetry, limits: MotionLimits) -> dict
     """The ``safety`` block of a tracking run: every kind of violation of the true state (see the module)."""
     report = safety_report(
         tel.t_true, tel.x_true, scene=cfg.scene(), velocity_limit_mps=limits.velocity_mps,
-        angular_velocity_limit_radps=limits.angular_velocity_radps, robot_radius_m=cfg.robot.radius_m,
+        angular_velocity_limit_radps=limits.angular_velocity_radps, robot_radius_m=robot_model(cfg).radius_m,
         keep_in_margin_m=cfg.environment.keep_in_margin_m, t_ctrl=tel.t_ctrl, u_command=tel.u_command,
         input_limits=limits.input,
     )
-    return safety_block(report, samples=len(tel.t_true), robot_radius_m=cfg.robot.radius_m,
+    return safety_block(report, samples=len(tel.t_true), robot_radius_m=robot_model(cfg).radius_m,
                         keep_in_margin_m=cfg.environment.keep_in_margin_m)
 
 

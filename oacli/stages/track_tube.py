@@ -89,7 +89,7 @@ def workspace_arguments(cfg: OacliConfig) -> dict[str, Any]:
     """
     if not cfg.controller.position_constraints:
         return {}
-    return {"scene": cfg.scene(), "robot": RobotBody.sphere(cfg.robot.radius_m),
+    return {"scene": cfg.scene(), "robot": RobotBody.sphere(robot_model(cfg).radius_m),
             "keep_in_margin_m": cfg.environment.keep_in_margin_m}
 
 
@@ -103,12 +103,12 @@ MAX_REDESIGNS = 3
 
 def monitored_tube_controller(
     cfg: OacliConfig, reference: Trajectory, design: TubeDesign, weights: TrackingWeights, limits: MotionLimits,
-    *, model: RobotModel | None = None, mass_std_kg: float | None = None,
+    *, model: RobotModel | None = None,
 ) -> TubeMonitor:
     """The tube controller of ``cfg`` with the beyond-W check and response of ``controller.tube.beyond_w``.
 
-    ``model`` (default :func:`~oacli.stages.settings.robot_model`) and ``mass_std_kg`` are those ``design`` was
-    made with (:func:`~oacli.stages.settings.tube_design_from_config`); a redesign beyond W uses them too.
+    ``model`` (default :func:`~oacli.stages.settings.robot_model`) is the one ``design`` was made with
+    (:func:`~oacli.stages.settings.tube_design_from_config`); a redesign beyond W uses it too.
     """
     model = robot_model(cfg) if model is None else model
     observer, rates = observer_for(design), rate_observer_for(cfg, model)  # one estimate across redesigns
@@ -118,7 +118,7 @@ def monitored_tube_controller(
         design,
         response=cfg.controller.tube.beyond_w, actuator_force_limit_N=np.asarray(model.force_limit_N),
         redesign=lambda extra: tube_design_from_config(cfg, extra_box=extra, max_terms=REDESIGN_MAX_TERMS,
-                                                       model=model, mass_std_kg=mass_std_kg),
+                                                       model=model),
         margin=REDESIGN_MARGIN, max_redesigns=MAX_REDESIGNS, noise_allowance=noise_boxes(cfg)[0],
     )
 

@@ -1,0 +1,58 @@
+"""The unrolled copies of [Doerr2021] Eqs. 35-36 that have no pinning test of their own, pinned to the reference
+:func:`oacli.model.rigid_body.dynamics` (Eq. 35), :func:`oacli.model.rigid_body.dynamics_jacobians` and
+:func:`oacli.model.quaternion.xi_matrix` (Eq. 36) on random states, torques and inertias (docs/equations.md names
+each fast path and its test; the others: tests/test_simulator.py, tests/test_batch_fast_path.py,
+tests/test_batch_estimation.py, tests/test_sequential_estimation.py, tests/test_excitation_fast.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from oacli.estimation.manifold import xi_stack
+from oacli.estimation.rotation_features import rate_map_blocks, rotation_rates, rotational_rate
+from oacli.excitation.split_information import _gyro, _wdot, _xi
+from oacli.model import rigid_body as rb
+from oacli.model.quaternion import xi_matrix
+
+
+def _samples(seed: int, k: int = 40):
+    rng = np.random.default_rng(seed)
+    x = np.zeros((k, 13))
+    q = rng.normal(size=(k, 4))
+    x[:, 6:10] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x[:, 10:13] = rng.normal(scale=0.3, size=(k, 3))
+    u = rng.normal(scale=0.05, size=(k, 6))
+    inertia = rng.uniform(0.1, 0.5, size=3)
+    inertia[2] = min(inertia[2], inertia[0] + inertia[1])  # a physical body (triangle inequality)
+    theta = np.array([9.5, *inertia])
+    return x, u, theta
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_rotation_feature_rates_and_jacobians_equal_the_reference(seed):
+    x, u, theta = _samples(seed)
+    z = x[:, 6:13]
+    want = np.array([rb.dynamics(x[k], u[k], theta)[6:13] for k in range(len(x))])
+    np.testing.assert_allclose(rotation_rates(z, u[:, 3:6], theta[1:4]), want, rtol=1e-13, atol=1e-15)
+    rates, jac = rotational_rate(z, u[:, 3:6], theta[1:4], rate_map_blocks(tuple(theta[1:4])))
+    np.testing.assert_allclose(rates, want, rtol=1e-13, atol=1e-15)
+    for k in range(len(x)):
+        fx, _, ft = rb.dynamics_jacobians(x[k], u[k], theta)
+        np.testing.assert_allclose(jac[k, :, :7], fx[6:13, 6:13], rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(jac[k, :, 7:10], ft[6:13, 1:4], rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_split_information_euler_and_xi_equal_the_reference(seed):
+    x, u, theta = _samples(seed)
+    xr = x[:, 6:13]
+    want = np.array([rb.dynamics(x[k], u[k], theta)[10:13] for k in range(len(x))])
+    np.testing.assert_allclose(_wdot(xr, u[:, 3:6], theta[1:4]), want, rtol=1e-14, atol=1e-16)
+    xi_ref = np.array([xi_matrix(q) for q in x[:, 6:10]])
+    np.testing.assert_array_equal(_xi(x[:, 6:10]), xi_ref)
+    np.testing.assert_array_equal(xi_stack(x[:, 6:10]), xi_ref)
+    for k in range(len(x)):
+        fx, _, _ = rb.dynamics_jacobians(x[k], u[k], theta)
+        np.testing.assert_allclose(_gyro(x[k, 10:13], theta[1:4]), fx[10:13, 10:13], rtol=1e-13, atol=1e-16)
