@@ -163,7 +163,7 @@ def _design_check(problem, design) -> str:
     tol = 1 + 1e-9
     within = bool(np.all(np.abs(u) <= lim.input * tol) and np.all(np.abs(x[:, 3:6]) <= lim.velocity_mps * tol)
                   and np.all(np.abs(x[:, 10:13]) <= lim.angular_velocity_radps * tol))
-    clear = collision_free(problem.scene, x, u, problem.dt, problem.theta[0], substeps=50)
+    clear = collision_free(problem.scene, x, u, problem.dt, problem.theta, substeps=50)
     res = design.terminal_residual
     t = problem.terminal
     end = (res["position_m"] <= t.position_m * tol and res["velocity_mps"] <= t.velocity_mps * (1 + 1e-6)

@@ -124,7 +124,7 @@ class Scene:
         cfg = scene_config(name)
         problem, body = build_problem(cfg, resolve_segment(cfg, None))
         bound = minimum_time_lower_bound_s(problem.start, problem.goal, problem.force_limit_N,
-                                           problem.velocity_limit_mps, problem.mass_kg)
+                                           problem.velocity_limit_mps, problem.model)
         lower, upper = keep_in_bounds(problem.checker)
         return cls(name, cfg, problem, bound, body.bounding_radius_m, lower, upper, ScalarValidity(problem.checker))
 
@@ -151,7 +151,7 @@ def _p90(values) -> float:
 
 
 def _dense_ok(traj: TranslationalTrajectory, sc: Scene) -> bool:
-    return dense_check(traj.t, traj.x, traj.u, traj.mass_kg, sc.problem.checker.scene, sc.radius_m).ok
+    return dense_check(traj.t, traj.x, traj.u, traj.model, sc.problem.checker.scene, sc.radius_m).ok
 
 
 def _metrics(traj: TranslationalTrajectory, sc: Scene) -> dict[str, float]:
@@ -214,13 +214,13 @@ def run_kino(sc: Scene, seed: int) -> dict:
 def run_ompl_control(sc: Scene, seed: int, budget_s: float) -> dict:
     pr = sc.problem
     c0 = time.process_time()
-    ok, wall, path = ompl_control_rrt(pr.start, pr.goal, sc.lower, sc.upper, pr.mass_kg, pr.force_limit_N,
+    ok, wall, path = ompl_control_rrt(pr.start, pr.goal, sc.lower, sc.upper, pr.model.mass_kg, pr.force_limit_N,
                                       pr.velocity_limit_mps, sc.valid, time_budget_s=budget_s)
     cpu = time.process_time() - c0  # the whole call: the solve plus OMPL's setup and the path read-out
     row: dict = {"seed": seed, "solved": ok, "ttfs_s": wall if ok else float("nan"), "goal": GOAL_OMPL_CONTROL,
                  "ttfs_cpu_s": cpu if ok else float("nan")}
     if ok and path is not None:
-        traj = TranslationalTrajectory(path.t, path.x, path.u, pr.mass_kg)
+        traj = TranslationalTrajectory(path.t, path.x, path.u, pr.model)
         row |= _metrics(traj, sc) | {"flyable_s": wall, "flyable_cpu_s": cpu}
     return row
 
@@ -232,8 +232,8 @@ def run_ompl_geometric(sc: Scene, seed: int, budget_s: float) -> dict:
     row: dict = {"seed": seed, "solved": ok, "ttfs_s": float("nan"), "goal": GOAL_OMPL_GEOMETRIC}
     if ok and pts is not None:
         t0 = time.perf_counter()
-        t, x, u = stop_and_go(pts, pr.mass_kg, pr.force_limit_N, pr.velocity_limit_mps)
-        traj = TranslationalTrajectory(t, x, u, pr.mass_kg)
+        t, x, u = stop_and_go(pts, pr.model.mass_kg, pr.force_limit_N, pr.velocity_limit_mps)
+        traj = TranslationalTrajectory(t, x, u, pr.model)
         row |= _metrics(traj, sc) | {"flyable_s": wall + time.perf_counter() - t0, "polyline_length_m": length}
     return row
 

@@ -32,7 +32,7 @@ def assert_valid_plan(traj: TranslationalTrajectory, problem: PlanningProblem, r
     distance; the samples follow the held forces exactly; force and velocity limits hold; it starts at the start
     and ends exactly at the goal.
     """
-    dense = dense_check(traj.t, traj.x, traj.u, traj.mass_kg, problem.checker.scene, robot_radius_m)
+    dense = dense_check(traj.t, traj.x, traj.u, traj.model, problem.checker.scene, robot_radius_m)
     assert dense.ok, dense
     assert dense.max_spacing_m <= 0.005 + 1e-9
     assert traj.zoh_residual() <= 1e-9

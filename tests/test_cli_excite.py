@@ -107,7 +107,7 @@ def test_mcap_reads_back_and_agrees_with_the_summary(excite_run, config):
     assert residual <= cfg.excitation.terminal_tolerance.position_m * (1 + 1e-6)
     assert np.max(np.abs(traj.u[:, 0:3])) == pytest.approx(summary["max_force_N"], abs=1e-12)
     # Collision-free between the samples too (the parabola under the held force), with the clearance kept.
-    _, pts = dense_positions(traj.t, traj.x, traj.u[:-1, 0:3], 15.0, substeps=50)
+    _, pts = dense_positions(traj.t, traj.x, traj.u[:-1, 0:3] / 15.0, substeps=50)
     assert np.all(cfg.scene().in_keep_in(pts, margin_m=cfg.excitation.clearance_m - 1e-6))
     # The criterion per iteration; the last one is the design's.
     iterations = record.json_records["/excitation/iterations"]

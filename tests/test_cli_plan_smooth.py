@@ -88,7 +88,7 @@ def test_plan_run_folder_summary_and_mcap_agree(runs):
     assert record.metadata["oacli.plan"]["segment"] == "S-G"
     traj = read_trajectory(plan_dir / "plan.mcap")
     assert traj.duration_s == pytest.approx(summary["duration_s"])
-    trans = translational_part(traj, cfg.robot.mass_kg)
+    trans = translational_part(traj, cfg.robot.model())
     w = cfg.planner.weights
     goal = np.concatenate([cfg.waypoints["G"].position, np.zeros(3)])
     assert trans.cost(CostWeights(w.position, w.velocity, w.force, w.time), goal) == pytest.approx(summary["cost"])
@@ -98,7 +98,7 @@ def test_plan_run_folder_summary_and_mcap_agree(runs):
     assert np.all(np.abs(traj.u[:, 0:3]) <= 0.5 + 1e-9) and np.all(np.abs(traj.x[:, 3:6]) <= 0.2 + 1e-9)
     np.testing.assert_array_equal(traj.x[0, 0:3], [0.0, 0.0, 0.0])
     np.testing.assert_array_equal(traj.x[-1, 0:6], goal)
-    dense = dense_check(trans.t, trans.x, trans.u, trans.mass_kg, cfg.scene(), 0.0)
+    dense = dense_check(trans.t, trans.x, trans.u, trans.model, cfg.scene(), 0.0)
     assert dense.ok and dense.max_spacing_m <= 0.005 + 1e-9
 
     nodes = record.json_records["/plan/tree"]
@@ -174,8 +174,8 @@ def test_smooth_reads_the_plan_back_and_never_raises_the_cost(runs):
     np.testing.assert_array_equal(after.x[0, 0:6], before.x[0, 0:6])
     np.testing.assert_array_equal(after.x[-1, 0:6], before.x[-1, 0:6])
     cfg = load_config(runs["config"])
-    trans = translational_part(after, cfg.robot.mass_kg)
-    assert dense_check(trans.t, trans.x, trans.u, trans.mass_kg, cfg.scene(), 0.0).ok
+    trans = translational_part(after, cfg.robot.model())
+    assert dense_check(trans.t, trans.x, trans.u, trans.model, cfg.scene(), 0.0).ok
     assert trans.path_length_m() >= S1_SHORTEST_M
 
     rrd = smooth_dir / "smooth.rrd"

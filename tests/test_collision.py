@@ -16,6 +16,7 @@ from oacli.geometry.collision import CollisionChecker, Pieces, RobotBody
 from oacli.geometry.overlap import EllipsoidPair, ellipsoids_overlap
 from oacli.geometry.quartic import quartic_minimum
 from oacli.geometry.verify import dense_check, dense_positions, point_ellipsoid_distance
+from tests.model_helpers import mass_model
 
 SPHERE = Scene(keep_out=(Ellipsoid.from_semi_axes([1.0, 0.0, 0.0], [0.3, 0.3, 0.3]),))
 
@@ -274,7 +275,7 @@ def test_dense_positions_fixed_substeps_follow_the_held_force_parabola():
         h = t[k + 1] - t[k]
         x[k + 1, 0:3] = x[k, 0:3] + x[k, 3:6] * h + 0.5 * f[k] / mass * h**2
         x[k + 1, 3:6] = x[k, 3:6] + f[k] / mass * h
-    times, pts = dense_positions(t, x, f, mass, substeps=4)
+    times, pts = dense_positions(t, x, f / mass, substeps=4)
     np.testing.assert_allclose(times, [0.0, 0.125, 0.25, 0.375, 0.5, 0.75, 1.0, 1.25, 1.5])
     np.testing.assert_allclose(pts[[0, 4, 8]], x[:, 0:3], atol=1e-15)
     tau = times[5] - t[1]
@@ -285,12 +286,12 @@ def test_dense_check_spacing_and_verdicts():
     t = np.array([0.0, 1.0, 2.0])
     x = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 1.0, 0.0, 0.0], [2.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
     f = np.zeros((2, 3))
-    _, pts = dense_positions(t, x, f, 1.0)
+    _, pts = dense_positions(t, x, f / 1.0)
     assert np.linalg.norm(np.diff(pts, axis=0), axis=1).max() <= 0.005 + 1e-12
-    bad = dense_check(t, x, f, 1.0, SPHERE, robot_radius_m=0.0)
+    bad = dense_check(t, x, f, mass_model(1.0), SPHERE, robot_radius_m=0.0)
     assert not bad.ok and bad.keep_out_violations > 0
     x_ok = x.copy()
     x_ok[:, 1] = 0.4
-    good = dense_check(t, x_ok, f, 1.0, SPHERE, robot_radius_m=0.05)
+    good = dense_check(t, x_ok, f, mass_model(1.0), SPHERE, robot_radius_m=0.05)
     assert good.ok and good.min_clearance_m == pytest.approx(0.4 - 0.3 - 0.05, abs=1e-6)
-    assert not dense_check(t, x_ok, f, 1.0, SPHERE, robot_radius_m=0.15).ok
+    assert not dense_check(t, x_ok, f, mass_model(1.0), SPHERE, robot_radius_m=0.15).ok

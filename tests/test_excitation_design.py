@@ -163,10 +163,10 @@ def test_parabola_stays_within_the_chord_margin(seed):
     x[0, 0:6] = rng.uniform(-1, 1, 6) * [1, 1, 1, 0.2, 0.2, 0.2]
     f = rng.uniform(-1, 1, 3) * LIMITS.force_N
     x[1, 0:3] = x[0, 0:3] + x[0, 3:6] * dt + 0.5 * f / mass * dt**2
-    _, pts = dense_positions(np.array([0.0, dt]), x, f[None, :], mass, substeps=64)
+    _, pts = dense_positions(np.array([0.0, dt]), x, f[None, :] / mass, substeps=64)
     s = np.linspace(0, 1, 65)[:, None]
     chord = x[0, 0:3] + s * (x[1, 0:3] - x[0, 0:3])
-    assert np.all(np.abs(pts - chord) <= chord_margin_m(np.abs(f), mass, dt) + 1e-12)
+    assert np.all(np.abs(pts - chord) <= chord_margin_m(np.abs(f), np.array([mass, 0.1, 0.1, 0.1]), dt) + 1e-12)
 
 
 def test_minimum_time_closed_form_and_infeasible_duration():
@@ -215,7 +215,7 @@ def test_design_respects_keep_in_and_keep_out_between_samples(obstacle_design):
     traj = design.trajectory
     # The initial guess flies straight through the keep-out zone: the design had to restore feasibility.
     assert np.any(p.scene.in_keep_out(design.initial.x[:, 0:3]))
-    _, pts = dense_positions(traj.t, traj.x, traj.u[:-1, 0:3], p.theta[0], substeps=100)
+    _, pts = dense_positions(traj.t, traj.x, traj.u[:-1, 0:3] / p.theta[0], substeps=100)
     ell = p.scene.keep_out[0]
     d = pts - ell.center
     assert np.einsum("ki,ij,kj->k", d, ell.shape, d).min() >= 1.0

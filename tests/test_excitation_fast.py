@@ -138,7 +138,7 @@ def test_compiled_subproblem_is_dpp_and_solves_to_the_reference_optimum(criterio
 def _dense_feasible(p, design) -> None:
     traj = design.trajectory
     x, u = traj.x, traj.u[:-1]
-    _, pts = dense_positions(traj.t, x, u[:, 0:3], p.theta[0], substeps=100)
+    _, pts = dense_positions(traj.t, x, u[:, 0:3] / p.theta[0], substeps=100)
     assert np.all(p.scene.in_keep_in(pts))
     ell = p.scene.keep_out[0]
     d = pts - ell.center

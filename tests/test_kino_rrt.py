@@ -11,6 +11,7 @@ from oacli.planning.kino_rrt import KinoRrtSettings, motion_primitives, plan_kin
 from oacli.planning.problem import PlanningProblem
 from oacli.planning.translational import TranslationalTrajectory
 from oacli.planning.tree import EDGE_LQR, EDGE_PRIMITIVE
+from tests.model_helpers import mass_model
 from tests.plan_checks import S1_SHORTEST_M, assert_valid_plan, scene_problem
 
 
@@ -63,10 +64,10 @@ def test_long_primitives_never_tunnel_through_a_thin_wall():
     base = scene_problem()
     lower = np.array([b.lower for b in boxes])
     upper = np.array([b.upper for b in boxes])
-    problem = PlanningProblem(base.start, base.goal, base.mass_kg, base.force_limit_N, base.velocity_limit_mps,
+    problem = PlanningProblem(base.start, base.goal, base.model, base.force_limit_N, base.velocity_limit_mps,
                               checker, lower, upper, base.weights)
     # A primitive straight through the wall: both ends inside the keep-in union, the middle is not.
-    jump = TranslationalTrajectory.from_forces([0.6, 0.0, 0.0, 0.2, 0.0, 0.0], [[0.25, 0.0, 0.0]], 4.0, 9.6)
+    jump = TranslationalTrajectory.from_forces([0.6, 0.0, 0.0, 0.2, 0.0, 0.0], [[0.25, 0.0, 0.0]], 4.0, mass_model(9.6))
     assert checker.points_free(jump.x[:, 0:3]).all()
     assert not checker.check(jump.pieces()).free
     settings = KinoRrtSettings(primitive_dt_s=4.0, max_iterations=6000, time_budget_s=60.0)
@@ -86,7 +87,7 @@ def test_robot_ellipsoid_against_obstacles_uses_ellipsoid_on_ellipsoid_checks():
     problem = scene_problem()
     body = RobotBody.ellipsoid([0.15, 0.05, 0.05])
     checker = CollisionChecker(problem.checker.scene, body)
-    ell_problem = PlanningProblem(problem.start, problem.goal, problem.mass_kg, problem.force_limit_N,
+    ell_problem = PlanningProblem(problem.start, problem.goal, problem.model, problem.force_limit_N,
                                   problem.velocity_limit_mps, checker, problem.sample_lower, problem.sample_upper,
                                   problem.weights)
     result = plan_kino_rrt(ell_problem, KinoRrtSettings(max_iterations=4000, time_budget_s=60.0),

@@ -20,15 +20,17 @@ from oacli.planning.shortcut import lqr_shortcut
 from oacli.planning.steering import LqrConnector, axis_maps
 from oacli.planning.translational import CostWeights, TranslationalTrajectory, interval_cost_matrix
 from oacli.planning.tree import EDGE_LQR, Tree
+from tests.model_helpers import mass_model
 from tests.plan_checks import S1_SHORTEST_M, assert_valid_plan, scene_problem
 
 WEIGHTS = CostWeights([0.3, 0.5, 0.7], [1.1, 1.3, 0.2], [2.0, 3.0, 4.0], 0.5)
 MASS, DT = 9.6, 0.5
+MODEL = mass_model(MASS)
 
 
 @pytest.fixture(scope="module")
 def connector() -> LqrConnector:
-    return LqrConnector(MASS, DT, WEIGHTS, 40)
+    return LqrConnector(MODEL, DT, WEIGHTS, 40)
 
 
 def _end_points(seed: int):
@@ -77,9 +79,9 @@ def test_connection_lands_exactly_and_follows_the_exact_double_integrator(connec
 def test_riccati_maps_equal_the_kkt_solution():
     """The O(N) multiplier-Riccati construction equals the dense KKT solution of the same quadratic programme."""
     n, dt, m, q_r, q_v, r_f = 13, 0.5, 9.6, 0.3, 1.1, 2.0
-    g_all, _, cost_all = axis_maps(n, dt, m, q_r, q_v, r_f)
+    g_all, _, cost_all = axis_maps(n, dt, mass_model(m), q_r, q_v, r_f)
     a, b = double_integrator(dt, 1.0 / m)
-    w = interval_cost_matrix(dt, m, q_r, q_v, r_f)
+    w = interval_cost_matrix(dt, mass_model(m), q_r, q_v, r_f)
     # y = [r_a, v_a, r_b, v_b, r_g, v_g]; z_k = [r_k - r_g, v_k, v_k - v_g, u_k] = zy_k y + zu_k U
     xa = np.zeros((n + 1, 2, 6))
     xu = np.zeros((n + 1, 2, n))
@@ -113,7 +115,7 @@ def test_connection_is_the_limit_of_doerrs_affine_riccati_with_a_growing_termina
     n = 12
     exact = connector.forces(x_a, x_b, goal, n)
     a1, b1 = double_integrator(DT, 1.0 / MASS)
-    w = [interval_cost_matrix(DT, MASS, WEIGHTS.position[i], WEIGHTS.velocity[i], WEIGHTS.force[i]) for i in range(3)]
+    w = [interval_cost_matrix(DT, MODEL, WEIGHTS.position[i], WEIGHTS.velocity[i], WEIGHTS.force[i]) for i in range(3)]
     errors = []
     for q_final in (1e4, 1e6, 1e8):
         forces = np.empty((n, 3))
@@ -166,7 +168,7 @@ def test_connection_is_optimal_among_trajectories_with_the_same_end_points(conne
     null = np.linalg.svd(reach)[2][2:].T  # (n, n - 2)
     for _ in range(20):
         du = null @ rng.normal(size=(n - 2, 3)) * 0.05
-        other = TranslationalTrajectory.from_forces(x_a, best.u + du, DT, MASS)
+        other = TranslationalTrajectory.from_forces(x_a, best.u + du, DT, MODEL)
         np.testing.assert_allclose(other.x[-1], x_b, atol=1e-9)
         assert other.cost(WEIGHTS, goal) > best_cost
 
@@ -210,10 +212,10 @@ def test_rewire_moves_the_subtree_and_propagates_the_cost_change():
 
 def _tree_is_consistent(result, problem):
     """Every node's cost is its parent's cost plus its own edge's exact cost, recomputed from scratch."""
-    conn = LqrConnector(problem.mass_kg, 0.5, problem.weights, 30)
+    conn = LqrConnector(problem.model, 0.5, problem.weights, 30)
     tree = result.tree
     for node in range(1, len(tree)):
-        edge = edge_trajectory(tree, node, conn, problem.goal, problem.mass_kg)
+        edge = edge_trajectory(tree, node, conn, problem.goal)
         assert tree.cost[node] == pytest.approx(tree.cost[tree.parent[node]] + edge.cost(problem.weights,
                                                                                         problem.goal), rel=1e-9)
 
@@ -222,7 +224,7 @@ def test_s1_pass_rate_over_20_seeds_with_a_known_optimum():
     """S1: 20/20 seeds solve within 400 iterations; every plan and smoothed plan is dense-checked, never shorter
     than the optimum 2.0907 m (a shorter one would have cut through the sphere) and, smoothed, within 3 % of it."""
     problem = scene_problem()
-    conn = LqrConnector(problem.mass_kg, 0.5, problem.weights, 60)
+    conn = LqrConnector(problem.model, 0.5, problem.weights, 60)
     settings = LqrRrtStarSettings(max_iterations=400, time_budget_s=60.0)
     lengths, solved = [], 0
     for seed in range(20):
@@ -270,7 +272,7 @@ def test_unreachable_goal_returns_the_partial_tree():
     # A wall spanning the whole keep-in box separates start and goal.
     scene = Scene(keep_in=(Box([-1, -1, -1], [3, 1, 1]),),
                   keep_out=(Ellipsoid.from_semi_axes([1.0, 0.0, 0.0], [0.1, 5.0, 5.0]),))
-    problem = PlanningProblem(np.zeros(6), np.array([2.0, 0, 0, 0, 0, 0]), 9.6, np.full(3, 0.5), np.full(3, 0.2),
+    problem = PlanningProblem(np.zeros(6), np.array([2.0, 0, 0, 0, 0, 0]), MODEL, np.full(3, 0.5), np.full(3, 0.2),
                               CollisionChecker(scene), [[-1, -1, -1]], [[3, 1, 1]], scene_problem().weights)
     result = plan_lqr_rrt_star(problem, LqrRrtStarSettings(max_iterations=60), np.random.default_rng(0))
     assert result.status == "no_solution" and result.trajectory is None and result.path == ()

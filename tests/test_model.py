@@ -13,6 +13,7 @@ from oacli.model import rigid_body as rb
 from oacli.model.double_integrator import double_integrator, hover_error_model, translational_model
 from oacli.types import InertialParams
 from tests.conftest import random_state
+from tests.model_helpers import mass_model
 
 THETA = np.array([9.0877, 0.1454, 0.1366, 0.1594])  # [Doerr2021] Table 1, Astrobee
 
@@ -110,7 +111,7 @@ class TestDiscreteModels:
         a, b = double_integrator(dt, 1.0 / m)
         np.testing.assert_allclose(a, a_d, atol=1e-15)
         np.testing.assert_allclose(b, b_d, atol=1e-15)
-        a6, b6 = translational_model(m, dt)
+        a6, b6 = translational_model(mass_model(m), dt)
         big = scipy.linalg.expm(np.block([[np.kron(a_c, np.eye(3)), np.kron(b_c, np.eye(3))], [np.zeros((3, 9))]]) * dt)
         np.testing.assert_allclose(a6, big[:6, :6], atol=1e-14)
         np.testing.assert_allclose(b6, big[:6, 6:], atol=1e-14)

@@ -15,6 +15,7 @@ from oacli.geometry.shapes import Box, Ellipsoid
 from oacli.planning.translational import TranslationalTrajectory
 from oacli.stages.plan import build_problem, resolve_segment
 from tests.conftest import REPO
+from tests.model_helpers import mass_model
 from tests.plan_checks import S1, S2
 
 
@@ -89,7 +90,7 @@ def test_stop_and_go_is_flyable() -> None:
     pts = np.array([[0.0, 0.0, 0.0], [1.0, 0.5, 0.0], [1.0, 0.5, 0.01], [2.0, -0.5, 0.3]])
     f_lim, v_lim, m = np.array([0.452, 0.216, 0.257]), np.full(3, 0.2), 9.58
     t, x, u = stop_and_go(pts, m, f_lim, v_lim)
-    traj = TranslationalTrajectory(t, x, u, m)
+    traj = TranslationalTrajectory(t, x, u, mass_model(m))
     assert traj.zoh_residual() <= 1e-12
     assert np.all(traj.max_abs_force_N() <= f_lim * (1 + 1e-12))
     assert np.all(traj.max_abs_velocity_mps() <= v_lim * (1 + 1e-12))

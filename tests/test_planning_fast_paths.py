@@ -15,6 +15,7 @@ from oacli.geometry import Box, Ellipsoid, Scene
 from oacli.geometry.collision import CollisionChecker, Pieces, RobotBody
 from oacli.planning.steering import LqrConnector
 from oacli.planning.translational import CostWeights, TranslationalTrajectory
+from tests.model_helpers import mass_model
 from tests.plan_checks import scene_problem
 
 WEIGHTS = CostWeights(np.array([0.1, 0.0, 0.2]), np.array([0.0, 0.3, 0.0]), np.array([1.0, 1.0, 2.0]), 0.1)
@@ -29,7 +30,7 @@ def _pair(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 @pytest.mark.parametrize("max_steps", [30, 120])
 def test_single_pair_limit_check_matches_the_batched_check(max_steps):
-    conn = LqrConnector(9.6, 0.5, WEIGHTS, max_steps)
+    conn = LqrConnector(mass_model(9.6), 0.5, WEIGHTS, max_steps)
     rng = np.random.default_rng(3)
     f_lim, v_lim = np.full(3, 0.5), np.full(3, 0.2)
     seen = set()
@@ -46,7 +47,7 @@ def test_single_pair_limit_check_matches_the_batched_check(max_steps):
 
 
 def test_connection_trajectory_matches_the_einsum_of_its_maps_and_follows_the_dynamics():
-    conn = LqrConnector(9.6, 0.5, WEIGHTS, 40)
+    conn = LqrConnector(mass_model(9.6), 0.5, WEIGHTS, 40)
     rng = np.random.default_rng(4)
     for _ in range(30):
         x_a, x_b, goal = _pair(rng)
@@ -63,7 +64,7 @@ def test_connection_trajectory_matches_the_einsum_of_its_maps_and_follows_the_dy
 
 
 def test_steering_end_state_is_the_last_state_of_the_saturated_rollout():
-    conn = LqrConnector(9.6, 0.5, WEIGHTS, 10)
+    conn = LqrConnector(mass_model(9.6), 0.5, WEIGHTS, 10)
     rng = np.random.default_rng(5)
     f_lim, v_lim = np.full(3, 0.1), np.full(3, 0.05)  # tight: the clipping is active
     for _ in range(30):
@@ -80,9 +81,9 @@ def test_steering_end_state_is_the_last_state_of_the_saturated_rollout():
 def test_uniform_refinement_matches_exact_propagation():
     rng = np.random.default_rng(6)
     forces = rng.normal(size=(12, 3)) * 0.2
-    traj = TranslationalTrajectory.from_forces(rng.normal(size=6), forces, 0.5, 9.6, t0=2.0)
+    traj = TranslationalTrajectory.from_forces(rng.normal(size=6), forces, 0.5, mass_model(9.6), t0=2.0)
     fine = traj.refined(0.1)
-    expected = TranslationalTrajectory.from_forces(traj.x[0], np.repeat(forces, 5, axis=0), 0.1, 9.6, t0=2.0)
+    expected = TranslationalTrajectory.from_forces(traj.x[0], np.repeat(forces, 5, axis=0), 0.1, traj.model, t0=2.0)
     assert len(fine) == 61
     np.testing.assert_allclose(fine.t, expected.t, rtol=0, atol=1e-12)
     np.testing.assert_allclose(fine.x, expected.x, rtol=0, atol=1e-12)
@@ -113,7 +114,7 @@ def test_box_draw_is_the_draw_of_generator_choice():
     base = scene_problem()
     lower = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 5.0, 0.0]])
     upper = lower + np.array([[3.0, 1.0, 1.0], [1.0, 1.0, 1.0], [2.0, 2.0, 0.5]])
-    problem = PlanningProblem(base.start, base.goal, base.mass_kg, base.force_limit_N, base.velocity_limit_mps,
+    problem = PlanningProblem(base.start, base.goal, base.model, base.force_limit_N, base.velocity_limit_mps,
                               base.checker, lower, upper, base.weights)
     volumes = np.prod(upper - lower, axis=1)
     ours, ref = np.random.default_rng(11), np.random.default_rng(11)
@@ -126,7 +127,7 @@ def test_box_draw_is_the_draw_of_generator_choice():
 
 
 def test_batched_connections_match_each_connection_and_are_zero_beyond_their_horizon():
-    conn = LqrConnector(9.6, 0.5, WEIGHTS, 40)
+    conn = LqrConnector(mass_model(9.6), 0.5, WEIGHTS, 40)
     rng = np.random.default_rng(12)
     for _ in range(10):
         x_a = np.stack([_pair(rng)[0] for _ in range(9)])
@@ -145,7 +146,7 @@ def test_batched_connections_match_each_connection_and_are_zero_beyond_their_hor
 
 
 def test_connection_costs_are_the_exact_costs_of_the_connections():
-    conn = LqrConnector(9.6, 0.5, WEIGHTS, 30)
+    conn = LqrConnector(mass_model(9.6), 0.5, WEIGHTS, 30)
     rng = np.random.default_rng(13)
     x_a = np.stack([_pair(rng)[0] for _ in range(5)])
     x_b, goal = _pair(rng)[1:]

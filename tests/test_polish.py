@@ -51,9 +51,11 @@ from oacli.planning.problem import PlanningProblem
 from oacli.planning.shortcut import lqr_shortcut
 from oacli.planning.steering import LqrConnector
 from oacli.planning.translational import CostWeights, TranslationalTrajectory
+from tests.model_helpers import mass_model
 from tests.plan_checks import S1, S1_SHORTEST_M, S2, assert_valid_plan, scene_problem
 
 MASS = 9.6
+MODEL = mass_model(MASS)
 F_MAX = np.full(3, 0.5)
 V_MAX = np.full(3, 0.2)
 WEIGHTS = CostWeights(np.zeros(3), np.zeros(3), np.ones(3), 0.1)
@@ -67,7 +69,7 @@ def smoothed(problem: PlanningProblem, seed: int, tries: int = 300, iterations: 
     result = plan_lqr_rrt_star(problem, LqrRrtStarSettings(max_iterations=iterations, time_budget_s=60.0),
                                np.random.default_rng(seed))
     assert result.solved
-    conn = LqrConnector(problem.mass_kg, 0.5, problem.weights, 120)
+    conn = LqrConnector(problem.model, 0.5, problem.weights, 120)
     return lqr_shortcut(result.trajectory, conn, problem.checker, problem.goal, problem.force_limit_N,
                         problem.velocity_limit_mps, np.random.default_rng(seed), tries=tries, sample_dt_s=0.1)
 
@@ -165,17 +167,17 @@ def test_terminal_correction_is_the_least_norm_change_that_reaches_the_goal():
     forces = rng.uniform(-0.4, 0.4, (h.size, 3))
     x0 = np.concatenate([rng.uniform(-1, 1, 3), rng.uniform(-0.1, 0.1, 3)])
     goal = np.concatenate([rng.uniform(-1, 1, 3), np.zeros(3)])
-    fixed = terminal_correction(x0, forces, goal, h, MASS)
-    end = TranslationalTrajectory.from_forces(x0, fixed, h, MASS).x[-1]
+    fixed = terminal_correction(x0, forces, goal, h, MODEL)
+    end = TranslationalTrajectory.from_forces(x0, fixed, h, MODEL).x[-1]
     np.testing.assert_allclose(end, goal, atol=1e-12)
     # Cross-check with the pseudo-inverse of the final-state map built by finite differences of the propagation.
-    base = TranslationalTrajectory.from_forces(x0, forces, h, MASS).x[-1]
+    base = TranslationalTrajectory.from_forces(x0, forces, h, MODEL).x[-1]
     for axis in range(3):
         cols = []
         for k in range(h.size):
             bumped = forces.copy()
             bumped[k, axis] += 1.0
-            cols.append((TranslationalTrajectory.from_forces(x0, bumped, h, MASS).x[-1] - base)[[axis, axis + 3]])
+            cols.append((TranslationalTrajectory.from_forces(x0, bumped, h, MODEL).x[-1] - base)[[axis, axis + 3]])
         gamma = np.array(cols).T  # (2, n), exact: the map is affine
         err = goal[[axis, axis + 3]] - base[[axis, axis + 3]]
         np.testing.assert_allclose(fixed[:, axis] - forces[:, axis], np.linalg.pinv(gamma) @ err, atol=1e-10)
@@ -184,7 +186,7 @@ def test_terminal_correction_is_the_least_norm_change_that_reaches_the_goal():
 def test_projection_onto_the_grid_reproduces_a_trajectory_that_lives_on_it():
     rng = np.random.default_rng(5)
     h = polish_grid(6.3, 0.5, 0.1)
-    traj = TranslationalTrajectory.from_forces(np.zeros(6), rng.uniform(-0.3, 0.3, (h.size, 3)), h, MASS)
+    traj = TranslationalTrajectory.from_forces(np.zeros(6), rng.uniform(-0.3, 0.3, (h.size, 3)), h, MODEL)
     goal = traj.x[-1].copy()
     fine = traj.refined(0.1)
     projected = project_onto_grid(fine, h, goal)
@@ -197,15 +199,15 @@ def test_the_cost_expression_is_the_exact_lqr_cost_and_the_subproblem_is_dpp():
     rng = np.random.default_rng(7)
     h = polish_grid(4.2, 0.5, 0.1)
     traj = TranslationalTrajectory.from_forces(rng.uniform(-1, 1, 6) * 0.1, rng.uniform(-0.4, 0.4, (h.size, 3)), h,
-                                               MASS)
+                                               MODEL)
     goal = np.concatenate([rng.uniform(-1, 1, 3), np.zeros(3)])
     r, v, f = cp.Variable((h.size + 1, 3)), cp.Variable((h.size + 1, 3)), cp.Variable((h.size, 3))
     r.value, v.value, f.value = traj.x[:, 0:3], traj.x[:, 3:6], traj.u
-    expr = lqr_cost_expression(r, v, f, h, MASS, weights, goal)
+    expr = lqr_cost_expression(r, v, f, h, MODEL, weights, goal)
     assert expr.is_convex()
     assert float(expr.value) == pytest.approx(traj.cost(weights, goal), rel=1e-10)
     for cap in (False, True):
-        sub = PolishSubproblem(h, MASS, traj.x[0], goal, F_MAX, V_MAX, 2, PolishSettings(), weights,
+        sub = PolishSubproblem(h, MODEL, traj.x[0], goal, F_MAX, V_MAX, 2, PolishSettings(), weights,
                                with_cost_cap=cap)
         assert sub.problem.is_dpp()
 
@@ -220,7 +222,7 @@ def test_direct_conic_subproblem_equals_the_cvxpy_formulation(cap, n_zones, robo
     weights = CostWeights([0.3, 0.1, 0.2], [2.0, 1.0, 0.5], [1.0, 2.0, 0.5], 0.1)
     rng = np.random.default_rng(11)
     h = polish_grid(6.3, 0.5, 0.1)  # the last piece shorter
-    ref = TranslationalTrajectory.from_forces(np.zeros(6), rng.uniform(-0.2, 0.2, (h.size, 3)), h, MASS)
+    ref = TranslationalTrajectory.from_forces(np.zeros(6), rng.uniform(-0.2, 0.2, (h.size, 3)), h, MODEL)
     goal = ref.x[-1].copy()
     goal[3:6] = 0.0
     zones_cfg = [Ellipsoid.from_semi_axes(rng.uniform(-0.3, 0.3, 3) + ref.x[h.size // 2, 0:3] + [0.3, 0, 0],
@@ -234,7 +236,7 @@ def test_direct_conic_subproblem_equals_the_cvxpy_formulation(cap, n_zones, robo
     lo, hi = keep_in_bounds(checker, p0, p1, p2)
     results = []
     for builder in (PolishSubproblem, PolishConic):
-        sub = builder(h, MASS, x[0], goal, F_MAX, V_MAX, n_zones, PolishSettings(), weights, with_cost_cap=cap)
+        sub = builder(h, MODEL, x[0], goal, F_MAX, V_MAX, n_zones, PolishSettings(), weights, with_cost_cap=cap)
         if cap:
             sub.set_cost_cap(1.5 * ref.cost(weights, goal))
         sub.set_reference(x[:, 0:3], 0.1, lo, hi, [pl[0] for pl in planes], [pl[1] for pl in planes])
@@ -256,7 +258,7 @@ def test_working_set_solve_equals_the_full_subproblem(seed):
     weights = CostWeights([30.0, 10.0, 20.0], [2.0, 1.0, 0.5], [1.0, 2.0, 0.5], 0.1)
     rng = np.random.default_rng(seed)
     h = polish_grid(8.0, 0.5, 0.1)
-    ref = TranslationalTrajectory.from_forces(np.zeros(6), rng.uniform(-0.05, 0.05, (h.size, 3)), h, MASS)
+    ref = TranslationalTrajectory.from_forces(np.zeros(6), rng.uniform(-0.05, 0.05, (h.size, 3)), h, MODEL)
     goal = ref.x[-1].copy()
     goal[3:6] = 0.0
     # 1.4 times the bang-bang force of the rest-to-rest move: the least-effort profile (peak 1.5 times) is clipped.
@@ -268,13 +270,13 @@ def test_working_set_solve_equals_the_full_subproblem(seed):
     time_cost = weights.time * h.sum()
 
     def solve(active: bool, cap: float | None):
-        sub = PolishConic(h, MASS, x[0], goal, f_max, V_MAX, 0, dataclasses.replace(PolishSettings(),
+        sub = PolishConic(h, MODEL, x[0], goal, f_max, V_MAX, 0, dataclasses.replace(PolishSettings(),
                           active_set=active), weights, with_cost_cap=cap is not None)
         if cap is not None:
             sub.set_cost_cap(cap)
         sub.set_reference(x[:, 0:3], 0.5, lo, hi, [], [])
         assert sub.solve() == "optimal"
-        cost = TranslationalTrajectory.from_forces(x[0], sub.f_value, h, MASS).cost(weights, goal)
+        cost = TranslationalTrajectory.from_forces(x[0], sub.f_value, h, MODEL).cost(weights, goal)
         return sub.objective, sub.f_value, sub.rounds, cost
 
     free = {active: solve(active, None) for active in (False, True)}
@@ -316,7 +318,7 @@ def test_polish_hugs_the_inner_corner_of_an_l_shaped_keep_in():
     # (0.6, 0.3): |(1.1, 0.3)| + |(0.2, 1.2)| = 2.3567 m.
     boxes = (Box([-1, -0.3, -0.3], [1, 0.3, 0.3]), Box([0.6, -0.3, -0.3], [1, 2, 0.3]))
     checker = CollisionChecker(Scene(keep_in=boxes))
-    problem = PlanningProblem(np.r_[-0.5, 0, 0, 0, 0, 0], np.r_[0.8, 1.5, 0, 0, 0, 0], MASS, F_MAX, V_MAX, checker,
+    problem = PlanningProblem(np.r_[-0.5, 0, 0, 0, 0, 0], np.r_[0.8, 1.5, 0, 0, 0, 0], MODEL, F_MAX, V_MAX, checker,
                               np.array([b.lower for b in boxes]), np.array([b.upper for b in boxes]), WEIGHTS)
     shortest = np.hypot(1.1, 0.3) + np.hypot(0.2, 1.2)
     shortcut = smoothed(problem, 0, iterations=3000)
@@ -533,13 +535,13 @@ def test_smooth_runs_the_polish_and_records_it(tmp_path):
     record = read_stage(tmp_path / "on" / "smooth.mcap")
     out = record.trajectories["/trajectory"]
     shortcut = record.trajectories["/trajectory/shortcut"]
-    cfg_mass = data["robot"]["mass_kg"]
-    trans = translational_part(out, cfg_mass)
+    cfg_model = mass_model(data["robot"]["mass_kg"])
+    trans = translational_part(out, cfg_model)
     assert trans.path_length_m() == pytest.approx(pol["length_after_m"], rel=1e-9)
-    assert translational_part(shortcut, cfg_mass).path_length_m() == pytest.approx(pol["length_before_m"], rel=1e-9)
+    assert translational_part(shortcut, cfg_model).path_length_m() == pytest.approx(pol["length_before_m"], rel=1e-9)
     assert trans.zoh_residual() < 1e-9 and np.allclose(np.diff(out.t), 0.1)
     np.testing.assert_array_equal(out.x[[0, -1], 0:6], plan_traj.x[[0, -1], 0:6])
-    assert dense_check(trans.t, trans.x, trans.u, trans.mass_kg, Scene(
+    assert dense_check(trans.t, trans.x, trans.u, trans.model, Scene(
         keep_in=(Box([-1, -1, -1], [3, 1, 1]),), keep_out=(Ellipsoid.from_semi_axes([1, 0, 0], [0.3] * 3),)), 0.0).ok
     steps = record.json_records["/smooth/polish"]
     assert len(steps) == pol["iterations"]

@@ -49,5 +49,5 @@ def test_attitude_errors_and_feedforward_are_the_generic_helpers(rng):
         np.testing.assert_allclose(attitude_errors(anchor, q[5]), quat.error_vector(anchor, q[5]), rtol=0,
                                    atol=1e-15)
         x = rng.normal(size=(11, 13))
-        np.testing.assert_allclose(feedforward(x, 0.2, PARAMS.mass_kg, PARAMS.inertia_kgm2),
+        np.testing.assert_allclose(feedforward(x, 0.2, PARAMS),
                                    feedforward_inputs(x, 0.2, PARAMS), rtol=0, atol=1e-15)

@@ -125,27 +125,14 @@ def test_the_mission_priors_old_sigma_keys_are_refused_naming_the_variance(key):
 # -- no bare mass in a core signature (issue 28) ------------------------------------------------------------
 
 NUMERICAL_KERNELS = {
-    # the planners' double-integrator kernels (the mean mass only; the planner's model is cfg.robot's)
-    "model/double_integrator.py:translational_model", "planning/full_state.py:translational_part",
-    "planning/full_state.py:minimum_time_lower_bound_s", "planning/polish_conic.py:__init__",
-    "planning/polish_grid.py:terminal_correction", "planning/polish_grid.py:exact_trajectory",
-    "planning/polish_grid.py:propagate", "planning/polish_subproblem.py:lqr_cost_expression",
-    "planning/polish_subproblem.py:__init__", "planning/result.py:edge_trajectory",
-    "planning/result.py:path_trajectory", "planning/result.py:edge_polylines", "planning/result.py:tree_record",
-    "planning/steering.py:axis_maps", "planning/steering.py:__init__", "planning/translational.py:interval_cost_matrix",
-    "planning/translational.py:interval_costs", "planning/translational.py:trusted",
-    "planning/translational.py:from_forces",
-    # the excitation's translation kernels (θ[0] of the design's model)
-    "excitation/problem.py:chord_margin_m", "excitation/problem.py:collision_free",
-    "excitation/problem.py:translation_excitation", "excitation/rattle.py:stop_distance",
-    # the simulated plant and its IMU, the geometric verification, the reference feedforward, two estimation kernels
-    "sim/full_inertia.py:__init__", "sim/imu.py:simulate_imu", "geometry/verify.py:dense_positions",
-    "geometry/verify.py:dense_check", "control/reference_sampler.py:feedforward",
+    # the simulated plant and its IMU, two estimation kernels (being rewritten around the model: sim/, estimation/)
+    "sim/full_inertia.py:__init__", "sim/imu.py:simulate_imu",
     "estimation/lost_inputs.py:lost_input_model", "estimation/rls.py:calibrate_force_scale",
 }
 """Public core functions that still take the mass as a number (docs/architecture.md, "The robot model"): numerical
-kernels of the mean mass. The tube, W, the observer, the design limits and the tube's config checks take the
-model; this list may only shrink."""
+kernels of the mean mass. The tube, W, the observer, the design limits, the planners' double-integrator kernels
+(``RobotModel``), the excitation's translation kernels (θ), the geometric verification and the reference
+feed-forward take the model; this list may only shrink."""
 CORE_EXCLUDED = ("io", "commands", "stages", "mission", "campaign")
 
 

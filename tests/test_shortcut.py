@@ -26,7 +26,7 @@ def plan_for(scene: str, seed: int):
         result = plan_lqr_rrt_star(problem, LqrRrtStarSettings(max_iterations=1500, time_budget_s=60.0),
                                    np.random.default_rng(seed))
         assert result.solved
-        conn = LqrConnector(problem.mass_kg, 0.5, problem.weights, 60)
+        conn = LqrConnector(problem.model, 0.5, problem.weights, 60)
         _PLANS[key] = (problem, conn, result.trajectory)
     return _PLANS[key]
 
@@ -75,7 +75,7 @@ def _detour_around(obstacle_y: float) -> tuple[TranslationalTrajectory, LqrConne
     scene = Scene(keep_in=(Box([-1, -1, -1], [3, 1, 1]),),
                   keep_out=(Ellipsoid.from_semi_axes([1.0, obstacle_y, 0.0], [0.3, 0.3, 0.3]),))
     problem = scene_problem()
-    conn = LqrConnector(problem.mass_kg, 0.5, problem.weights, 80)
+    conn = LqrConnector(problem.model, 0.5, problem.weights, 80)
     via = np.array([1.0, 0.5, 0.0, 0.1, 0.0, 0.0])
     first = conn.trajectory(np.zeros(6), via, problem.goal, 30)
     second = conn.trajectory(via, problem.goal, problem.goal, 30)

@@ -16,7 +16,7 @@ import numpy as np
 
 from oacli.geometry.vectors import cross_rows
 from oacli.model import quaternion as quat
-from oacli.types import Trajectory
+from oacli.types import InertialParams, Trajectory
 
 
 class ReferenceSampler:
@@ -131,8 +131,8 @@ def attitude_errors(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.asarray(k * v)
 
 
-def feedforward(x_ref: np.ndarray, dt: float, mass_kg: float, inertia_kgm2: np.ndarray) -> np.ndarray:
-    """:func:`oacli.trajectory.feedforward_inputs` written out (the same operations), shape (N, 6).
+def feedforward(x_ref: np.ndarray, dt: float, params: InertialParams) -> np.ndarray:
+    """:func:`oacli.trajectory.feedforward_inputs` written out (the same operations and arguments), shape (N, 6).
 
     Parameters
     ----------
@@ -140,14 +140,15 @@ def feedforward(x_ref: np.ndarray, dt: float, mass_kg: float, inertia_kgm2: np.n
         Reference states.
     dt : float
         Sample period [s].
-    mass_kg : float
-    inertia_kgm2 : ndarray, shape (3,)
+    params : InertialParams
+        The controller's model θ (``RobotModel.params``): mass m [kg] and principal inertias I [kg·m²].
 
     Returns
     -------
     ndarray, shape (N, 6)
         ``m (v_{k+1} − v_k)/dt`` and ``I (ω_{k+1} − ω_k)/dt + ω_k × I ω_k``.
     """
+    mass_kg, inertia_kgm2 = params.mass_kg, params.inertia_kgm2
     out = np.empty((x_ref.shape[0] - 1, 6))
     out[:, 0:3] = mass_kg * ((x_ref[1:, 3:6] - x_ref[:-1, 3:6]) / dt)
     w = x_ref[:-1, 10:13]

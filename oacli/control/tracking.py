@@ -139,7 +139,6 @@ class TrackingMPC:
             raise ValueError("max_consecutive_failures must be >= 1")
         self.reference = reference
         self._sampler = ReferenceSampler(reference)
-        self._inertia = np.asarray(params.inertia_kgm2, dtype=float)
         self.params = params
         self.dt_s = float(dt_s)
         self.horizon = int(horizon)
@@ -199,7 +198,7 @@ class TrackingMPC:
         if self._hold_q is not None:
             info = SolveInfo("hold (safe_hold)", False, solve_time_s=0.0, step_time_s=time.perf_counter() - start)
             return ControlStep(u=self._hold_input(x, self._hold_q), info=info, x_reference=x_ref_full[0])
-        u_ref = feedforward(x_ref_full, self.dt_s, self.params.mass_kg, self._inertia)
+        u_ref = feedforward(x_ref_full, self.dt_s, self.params)
         origin = x_ref_full[0, 0:3]
         anchor = x_ref_full[0, 6:10]
         # The measured state and the references in one call (row by row the same values).

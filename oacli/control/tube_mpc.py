@@ -205,7 +205,6 @@ class TubeMPC:
         self.reference, self.params, self.design = reference, params, design
         self.observer, self.rate_observer = observer, rate_observer
         self._sampler = ReferenceSampler(reference)
-        self._inertia = np.asarray(params.inertia_kgm2, dtype=float)
         self.horizon, self.step_s, self.dt_s = int(horizon), float(prediction_step_s), design.dt_s
         self.limits, self.max_failures = limits, int(max_consecutive_failures)
         a12, b12 = hover_error_model(params, self.step_s)
@@ -336,7 +335,7 @@ class TubeMPC:
         info: SolveInfo
         attempted = self._hold_q is None
         if attempted:
-            u_ref = feedforward(x_ref_full, self.step_s, self.params.mass_kg, self._inertia)
+            u_ref = feedforward(x_ref_full, self.step_s, self.params)
             anchor = x_ref_full[0, 6:10]
             # Translation is exactly linear: the QP works relative to the measured position (small numbers,
             # so the solver's absolute tolerances are small against Z).

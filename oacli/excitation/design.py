@@ -306,7 +306,7 @@ def design_excitation(
         stop_reason=stop,
         terminal_residual=terminal_residual(x[-1], p.goal),
         violations=current.violations,
-        collision_free=collision_free(p.scene, x, current.u, p.dt, p.theta[0]),
+        collision_free=collision_free(p.scene, x, current.u, p.dt, p.theta),
         crb_std=cramer_rao_std(fim_meas, p.theta),
         information_over_time=cumulative_information(x, current.u, p.theta, p.dt, p.measurement,
                                                      rollout=current.rollout),

@@ -90,7 +90,7 @@ class ScpMerit:
         self.fast = fast
         self.penalty = penalty
         self.d = scaling_matrix(problem.theta, problem.scaling)
-        self.margin = chord_margin_m(problem.limits.force_N, problem.theta[0], problem.dt) + problem.clearance_m
+        self.margin = chord_margin_m(problem.limits.force_N, problem.theta, problem.dt) + problem.clearance_m
         self.keep_out_margin = float(np.linalg.norm(self.margin - problem.clearance_m)) + problem.clearance_m
         self.reference: float | None = None
 

@@ -50,14 +50,15 @@ class TerminalTolerance:
     angular_velocity_radps: float = 1e-3
 
 
-def chord_margin_m(force_limit_n: np.ndarray, mass_kg: float, dt_s: float) -> np.ndarray:
+def chord_margin_m(force_limit_n: np.ndarray, theta: np.ndarray, dt_s: float) -> np.ndarray:
     """Per-axis bound ``|a_i| dt²/8`` [m] on the distance between the parabola and its chord over one step.
 
     Parameters
     ----------
     force_limit_n : ndarray, shape (3,)
         Force limits [N].
-    mass_kg : float
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model the design is made for (``a_i = F_i / m``).
     dt_s : float
         Step [s].
 
@@ -65,7 +66,7 @@ def chord_margin_m(force_limit_n: np.ndarray, mass_kg: float, dt_s: float) -> np
     -------
     ndarray, shape (3,)
     """
-    return np.asarray(force_limit_n, dtype=float) / mass_kg * dt_s**2 / 8.0
+    return np.asarray(force_limit_n, dtype=float) / theta[0] * dt_s**2 / 8.0
 
 
 def box_assignment(scene: Scene, p_start: np.ndarray, p_end: np.ndarray, margin: np.ndarray) -> np.ndarray:
@@ -274,7 +275,8 @@ def keep_out_violation(scene: Scene, positions: np.ndarray, margin_m: float, end
     return out
 
 
-def collision_free(scene: Scene, x: np.ndarray, u: np.ndarray, dt_s: float, mass_kg: float, substeps: int = 20) -> bool:
+def collision_free(scene: Scene, x: np.ndarray, u: np.ndarray, dt_s: float, theta: np.ndarray,
+                   substeps: int = 20) -> bool:
     """True when the continuous motion stays in a keep-in box and out of every keep-out zone (dense re-check).
 
     Parameters
@@ -286,7 +288,8 @@ def collision_free(scene: Scene, x: np.ndarray, u: np.ndarray, dt_s: float, mass
         Inputs (a last row is unused).
     dt_s : float
         Step [s].
-    mass_kg : float
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model (the held acceleration is ``f / m``).
     substeps : int, optional
         Points per step (:func:`oacli.geometry.verify.dense_positions`).
 
@@ -295,7 +298,8 @@ def collision_free(scene: Scene, x: np.ndarray, u: np.ndarray, dt_s: float, mass
     bool
     """
     n = x.shape[0] - 1
-    _, pts = dense_positions(dt_s * np.arange(n + 1), x, u[:n, 0:3], mass_kg, substeps=substeps)
+    _, pts = dense_positions(dt_s * np.arange(n + 1), x, np.asarray(u[:n, 0:3], dtype=float) / theta[0],
+                             substeps=substeps)
     return bool(np.all(scene.in_keep_in(pts)) and not np.any(scene.in_keep_out(pts)))
 
 
@@ -503,7 +507,7 @@ def translation_excitation(
     start: np.ndarray,
     transfer_force: np.ndarray,
     dt_s: float,
-    mass_kg: float,
+    theta: np.ndarray,
     limits: MotionLimits,
     scene: Scene,
     margin_m: np.ndarray,
@@ -525,7 +529,8 @@ def translation_excitation(
         Forces [N] of the rest-to-rest transfer.
     dt_s : float
         Step [s].
-    mass_kg : float
+    theta : ndarray, shape (4,)
+        θ = [m, Ixx, Iyy, Izz] of the model the design is made for (its mass relates force and velocity).
     limits : MotionLimits
     scene : Scene
     margin_m : ndarray, shape (3,)
@@ -539,6 +544,7 @@ def translation_excitation(
         Forces [N] to add to the transfer (zero on axes where nothing fits).
     """
     n = transfer_force.shape[0]
+    mass_kg = theta[0]
     duration = n * dt_s
     v_tr = np.vstack([np.zeros(3), np.cumsum(transfer_force * dt_s / mass_kg, axis=0)])
     p_tr = start[0:3] + np.vstack([np.zeros(3), np.cumsum(0.5 * dt_s * (v_tr[:-1] + v_tr[1:]), axis=0)])

@@ -321,23 +321,23 @@ class InformationAwarePlanner:
 
     # -- true cost and violation --------------------------------------------------------------------------------
 
-    def _margins(self, mass: float) -> tuple[np.ndarray, float]:
-        margin = chord_margin_m(self.limits.force_N, mass, self.dt) + self.clearance_m
+    def _margins(self, theta: np.ndarray) -> tuple[np.ndarray, float]:
+        margin = chord_margin_m(self.limits.force_N, theta, self.dt) + self.clearance_m
         return margin, float(np.linalg.norm(margin - self.clearance_m)) + self.clearance_m
 
-    def stop_distance(self, mass: float) -> np.ndarray:
+    def stop_distance(self, theta: np.ndarray) -> np.ndarray:
         """Per-axis braking distance [m] from the end-of-horizon speed bound at full force.
 
         Parameters
         ----------
-        mass : float
-            Model mass [kg].
+        theta : ndarray, shape (4,)
+            θ = [m, Ixx, Iyy, Izz] of the model planned with (the current estimate); the mass m [kg] brakes.
 
         Returns
         -------
         ndarray, shape (3,)
         """
-        return self.stop_speed**2 * mass / (2.0 * self.limits.force_N)
+        return self.stop_speed**2 * theta[0] / (2.0 * self.limits.force_N)
 
     def _evaluate(self, x0, u, theta, std, gamma) -> dict:
         x, s = propagate_with_sensitivities(x0, u, theta, self.dt)
@@ -356,8 +356,8 @@ class InformationAwarePlanner:
                                  + np.sum(x[-1, 10:13] ** 2))
         effort = w.force * np.sum(u[:, 0:3] ** 2) + w.torque * np.sum(u[:, 3:6] ** 2)
         lim = self.limits
-        margin, out_margin = self._margins(theta[0])
-        stop = self.stop_distance(theta[0])
+        margin, out_margin = self._margins(theta)
+        stop = self.stop_distance(theta)
         viol = (
             np.sum(np.maximum(np.max(np.abs(x[1:, 3:6]) / lim.velocity_mps, axis=1) - 1.0, 0.0))
             + np.sum(np.maximum(np.max(np.abs(x[1:, 10:13]) / lim.angular_velocity_radps, axis=1) - 1.0, 0.0))
@@ -389,8 +389,8 @@ class InformationAwarePlanner:
         w_max = self.limits.angular_velocity_radps[None, :]
         self.p_w_bound.value = np.minimum(w_max, np.maximum(0.9 * w_max, np.abs(x[1:, 10:13])))
         pos = x[:, 0:3]
-        margin, out_margin = self._margins(theta[0])
-        stop = self.stop_distance(theta[0])
+        margin, out_margin = self._margins(theta)
+        stop = self.stop_distance(theta)
         if self.has_keep_in:
             _, boxes = keep_in_violation(self.scene, pos, margin)
             lo = np.array([self.scene.keep_in[i].lower for i in boxes]) + margin

@@ -35,8 +35,8 @@ def initial_guess(problem: ExcitationProblem, excitation_fraction: float = 0.3) 
     lim = p.limits
     frac = excitation_fraction
     u = rest_to_rest_inputs(p.start, p.goal, p.steps, p.dt, p.theta)
-    margin = chord_margin_m(lim.force_N, p.theta[0], p.dt) + p.clearance_m
-    pattern = translation_excitation(p.start, u[:, 0:3], p.dt, p.theta[0], lim, p.scene, margin)
+    margin = chord_margin_m(lim.force_N, p.theta, p.dt) + p.clearance_m
+    pattern = translation_excitation(p.start, u[:, 0:3], p.dt, p.theta, lim, p.scene, margin)
     for _ in range(12):
         amp = frac * np.vstack([np.where(np.any(pattern != 0, axis=0), 0.0, lim.force_N), lim.torque_Nm])
         u = rest_to_rest_inputs(p.start, p.goal, p.steps, p.dt, p.theta, excitation=amp)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.geometry.shapes import Scene
+from oacli.model.robot_model import RobotModel
 
 _BISECTIONS = 200
 
@@ -99,21 +100,21 @@ class DenseCheck:
     keep_out_violations: int
 
 
-def dense_positions(t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: float,
+def dense_positions(t: np.ndarray, x: np.ndarray, acceleration: np.ndarray,
                     spacing_m: float = 0.005, substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Times and positions of a zero-order-hold trajectory sampled at most ``spacing_m`` apart.
 
-    Between samples the force is held, so the position is the exact parabola ``p_k + v_k τ + ½ (f_k/m) τ²``
-    ([Doerr2021] Eq. 34 with a world-frame force); each step is cut into equal parts, ending at the step's end.
+    Between samples the force is held, so the position is the exact parabola ``p_k + v_k τ + ½ a_k τ²`` with
+    ``a_k = f_k/m`` ([Doerr2021] Eq. 34 with a world-frame force; the caller divides by its model's mass, as
+    :func:`dense_check` does); each step is cut into equal parts, ending at the step's end.
 
     Parameters
     ----------
     t : ndarray, shape (n+1,)
     x : ndarray, shape (n+1, >= 6)
         States; ``x[:, 0:3]`` position [m], ``x[:, 3:6]`` velocity [m/s].
-    force : ndarray, shape (n, 3)
-        Held world-frame force [N].
-    mass_kg : float
+    acceleration : ndarray, shape (n, 3)
+        Held world-frame acceleration ``f/m`` [m/s²].
     spacing_m : float
         Largest distance between consecutive points [m] (bounded per step by the step's top speed).
     substeps : int, optional
@@ -128,12 +129,12 @@ def dense_positions(t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: fl
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
-    force = np.asarray(force, dtype=float)
+    acceleration = np.asarray(acceleration, dtype=float)
     times = [t[:1]]
     pos = [x[:1, 0:3]]
     for k in range(t.shape[0] - 1):
         h = t[k + 1] - t[k]
-        v, acc = x[k, 3:6], force[k] / mass_kg
+        v, acc = x[k, 3:6], acceleration[k]
         top_speed = np.linalg.norm(v) + np.linalg.norm(acc) * h  # bounds the speed over the whole interval
         m = substeps if substeps is not None else max(1, int(np.ceil(top_speed * h / spacing_m)))
         tau = h * np.arange(1, m + 1) / m
@@ -143,15 +144,19 @@ def dense_positions(t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: fl
 
 
 def dense_check(
-    t: np.ndarray, x: np.ndarray, force: np.ndarray, mass_kg: float, scene: Scene, robot_radius_m: float,
+    t: np.ndarray, x: np.ndarray, force: np.ndarray, model: RobotModel, scene: Scene, robot_radius_m: float,
     spacing_m: float = 0.005,
 ) -> DenseCheck:
     """Re-check a zero-order-hold trajectory every ``spacing_m`` against ``scene`` (module docstring).
 
     Parameters
     ----------
-    t, x, force, mass_kg, spacing_m
+    t, x, spacing_m
         The trajectory and sampling, as in :func:`dense_positions`.
+    force : ndarray, shape (n, 3)
+        Held world-frame force [N].
+    model : RobotModel
+        The robot the trajectory is planned for (the held acceleration is ``force / model.mass_kg``).
     scene : Scene
         Keep-in boxes and keep-out ellipsoids.
     robot_radius_m : float
@@ -161,7 +166,7 @@ def dense_check(
     -------
     DenseCheck
     """
-    times, pts = dense_positions(t, x, force, mass_kg, spacing_m)
+    times, pts = dense_positions(t, x, np.asarray(force, dtype=float) / model.mass_kg, spacing_m)
     spacing = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).max()) if len(pts) > 1 else 0.0
     bad_in = ~scene.in_keep_in(pts)
     clearance = np.full(len(pts), np.inf)

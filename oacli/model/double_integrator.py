@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from oacli.model.robot_model import RobotModel
 from oacli.types import InertialParams
 
 ERROR_STATE_DIM = 12  # [r (3), v (3), φ (3), ω (3)]
@@ -37,13 +38,13 @@ def double_integrator(dt: float, gain: float = 1.0) -> tuple[np.ndarray, np.ndar
     return a, b
 
 
-def translational_model(mass_kg: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def translational_model(model: RobotModel, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact discrete translational model, state ``[r (3), v (3)]``, input ``f (3)`` (world frame).
 
     Parameters
     ----------
-    mass_kg : float
-        Mass [kg].
+    model : RobotModel
+        The robot; its mass ``model.mass_kg`` [kg] ([Doerr2021] Eq. 34b).
     dt : float
         Step [s].
 
@@ -52,6 +53,11 @@ def translational_model(mass_kg: float, dt: float) -> tuple[np.ndarray, np.ndarr
     a : ndarray, shape (6, 6)
     b : ndarray, shape (6, 3)
     """
+    return _translation(model.mass_kg, dt)
+
+
+def _translation(mass_kg: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`translational_model` of the mass ``mass_kg`` [kg] (also :func:`hover_error_model`'s block)."""
     eye = np.eye(3)
     a = np.block([[eye, dt * eye], [np.zeros((3, 3)), eye]])
     b = np.vstack([0.5 * dt * dt / mass_kg * eye, dt / mass_kg * eye])
@@ -76,7 +82,7 @@ def hover_error_model(params: InertialParams, dt: float) -> tuple[np.ndarray, np
     """
     a = np.zeros((12, 12))
     b = np.zeros((12, 6))
-    a_t, b_t = translational_model(params.mass_kg, dt)
+    a_t, b_t = _translation(params.mass_kg, dt)
     a[:6, :6] = a_t
     b[:6, :3] = b_t
     eye = np.eye(3)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from oacli.model import quaternion as quat
+from oacli.model.robot_model import RobotModel
 from oacli.planning.translational import TranslationalTrajectory
 from oacli.types import InertialParams, Trajectory
 
@@ -76,7 +77,7 @@ def hold_until(trans: TranslationalTrajectory, end_s: float, dt_s: float) -> Tra
     t = trans.t[-1] + dt_s * np.arange(1, n + 1)
     x = np.tile(trans.x[-1], (n, 1))
     return TranslationalTrajectory(
-        np.concatenate([trans.t, t]), np.vstack([trans.x, x]), np.vstack([trans.u, np.zeros((n, 3))]), trans.mass_kg
+        np.concatenate([trans.t, t]), np.vstack([trans.x, x]), np.vstack([trans.u, np.zeros((n, 3))]), trans.model
     )
 
 
@@ -144,25 +145,25 @@ def full_state_trajectory(
     return Trajectory(t, x, u, name=name, frame=frame)
 
 
-def translational_part(traj: Trajectory, mass_kg: float) -> TranslationalTrajectory:
+def translational_part(traj: Trajectory, model: RobotModel) -> TranslationalTrajectory:
     """The translational plan inside a 13-state trajectory (position, velocity, held force).
 
     Parameters
     ----------
     traj : Trajectory
         A 13-state trajectory.
-    mass_kg : float
-        Mass [kg].
+    model : RobotModel
+        The robot the trajectory is planned for (its mass [kg] relates the held force to the motion).
 
     Returns
     -------
     TranslationalTrajectory
     """
-    return TranslationalTrajectory(traj.t, traj.x[:, 0:6], traj.u[:-1, 0:3], mass_kg)
+    return TranslationalTrajectory(traj.t, traj.x[:, 0:6], traj.u[:-1, 0:3], model)
 
 
 def minimum_time_lower_bound_s(
-    start: np.ndarray, goal: np.ndarray, force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray, mass_kg: float
+    start: np.ndarray, goal: np.ndarray, force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray, model: RobotModel
 ) -> float:
     """A lower bound [s] on the duration of any rest-to-rest motion from ``start`` to ``goal`` (positions).
 
@@ -176,8 +177,8 @@ def minimum_time_lower_bound_s(
         Start and goal states (positions first).
     force_limit_N, velocity_limit_mps : ndarray, shape (3,)
         Limits per axis.
-    mass_kg : float
-        Mass [kg].
+    model : RobotModel
+        The robot (``a_i = F_i / model.mass_kg``; the limits are given apart: they may be design limits).
 
     Returns
     -------
@@ -185,7 +186,7 @@ def minimum_time_lower_bound_s(
     """
     d = np.abs(np.asarray(goal, dtype=float)[0:3] - np.asarray(start, dtype=float)[0:3])
     v = np.asarray(velocity_limit_mps, dtype=float)
-    a = np.asarray(force_limit_N, dtype=float) / mass_kg
+    a = np.asarray(force_limit_N, dtype=float) / model.mass_kg
     coast = d >= v * v / a
     t = np.where(coast, d / v + v / a, 2.0 * np.sqrt(d / a))
     return float(t.max())

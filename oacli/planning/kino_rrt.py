@@ -157,11 +157,10 @@ def plan_kino_rrt(
     """
     s = settings
     t0 = clock()
-    mass = problem.mass_kg
     goal = problem.goal
-    conn = LqrConnector(mass, s.dt_s, problem.weights, s.max_link_steps)
+    conn = LqrConnector(problem.model, s.dt_s, problem.weights, s.max_link_steps)
     prims = motion_primitives(problem.force_limit_N, s.primitive_fraction, s.primitive_set)
-    acc = prims / mass
+    acc = prims / problem.model.mass_kg
     dt = s.primitive_dt_s
     weight = np.array([s.position_weight] * 3 + [s.velocity_weight] * 3)
     tree = Tree(problem.start)
@@ -242,7 +241,7 @@ def plan_kino_rrt(
             x1 = np.concatenate([p1[cand], v1[cand]], axis=1)
             best = int(cand[np.argmin(np.sum((weight * (x1 - x_rand)) ** 2, axis=1))])
             x_new = np.concatenate([p1[best], v1[best]])
-            edge_cost = float(interval_costs(x0[None, :], prims[best][None, :], np.array([dt]), mass,
+            edge_cost = float(interval_costs(x0[None, :], prims[best][None, :], np.array([dt]), problem.model,
                                              problem.weights, goal)[0])
             node = tree.add(x_new, near, tree.cost[near] + edge_cost, EDGE_PRIMITIVE, force=prims[best],
                             duration_s=dt, iteration=iteration, wall_time_s=clock() - t0)
@@ -262,10 +261,10 @@ def plan_kino_rrt(
     snapshots.append(TreeSnapshot(iteration, tree.parent.copy(), path))
     if progress is not None:
         progress(1.0)
-    record = tree_record(tree, goal_node, conn, goal, mass)
+    record = tree_record(tree, goal_node, conn, goal)
     common = dict(tree=record, rewires=(), solutions=tuple(solutions), snapshots=tuple(snapshots),
                   iterations=iteration, planning_time_s=clock() - t0, stop_reason=stop, stats=stats)
     if goal_node < 0:
         return PlanResult(NO_SOLUTION, "kino-rrt", None, (), math.nan, **common)  # type: ignore[arg-type]
-    traj = path_trajectory(tree, list(path), conn, goal, mass)
+    traj = path_trajectory(tree, list(path), conn, goal)
     return PlanResult(SOLVED, "kino-rrt", traj, path, traj.cost(problem.weights, goal), **common)  # type: ignore[arg-type]

@@ -123,7 +123,7 @@ class _Planner:
         self.rng = rng
         self.clock = clock
         self.t0 = clock()
-        self.conn = LqrConnector(problem.mass_kg, settings.dt_s, problem.weights, settings.max_steps)
+        self.conn = LqrConnector(problem.model, settings.dt_s, problem.weights, settings.max_steps)
         self.metric = self.conn.metric(settings.metric_steps)
         self.filter = SampleFilter(problem.checker)
         self._f_lim = problem.force_limit_N * (1.0 + LIMIT_RTOL)
@@ -394,7 +394,7 @@ class _Planner:
 
     def result(self, stop: str) -> PlanResult:
         tree, problem = self.tree, self.problem
-        record = tree_record(tree, self.goal_node, self.conn, self.goal, problem.mass_kg)
+        record = tree_record(tree, self.goal_node, self.conn, self.goal)
         common = dict(
             tree=record, rewires=tuple(self.rewires), solutions=tuple(self.solutions),
             snapshots=tuple(self.snapshots), iterations=self.iteration, planning_time_s=self.elapsed(),
@@ -403,7 +403,7 @@ class _Planner:
         if self.goal_node < 0:
             return PlanResult(NO_SOLUTION, "lqr-rrt-star", None, (), math.nan, **common)  # type: ignore[arg-type]
         path = tree.path_to(self.goal_node)
-        traj = path_trajectory(tree, path, self.conn, self.goal, problem.mass_kg)
+        traj = path_trajectory(tree, path, self.conn, self.goal)
         return PlanResult(SOLVED, "lqr-rrt-star", traj, tuple(path), traj.cost(problem.weights, self.goal), **common)  # type: ignore[arg-type]
 
 

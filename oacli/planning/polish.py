@@ -333,7 +333,7 @@ def polish_trajectory(
         return result(SKIPPED, traj, f"the input is shorter than two polish steps of {s.step_s:g} s")
     zones = keep_out_zones(checker.scene, checker.robot)
     builder = PolishConic if s.backend == "direct" else PolishSubproblem
-    sub = builder(h, traj.mass_kg, traj.x[0], goal, force_limit_N, velocity_limit_mps, len(zones), s,
+    sub = builder(h, traj.model, traj.x[0], goal, force_limit_N, velocity_limit_mps, len(zones), s,
                   weights, with_cost_cap=cap is not None)
     if cap is not None:
         sub.set_cost_cap(cap)
@@ -369,7 +369,7 @@ def polish_trajectory(
             radius *= 0.5
             ahead = last_step = None
             continue
-        full = exact_trajectory(traj.x[0], sub.f_value, goal, h, traj.mass_kg)
+        full = exact_trajectory(traj.x[0], sub.f_value, goal, h, traj.model)
         coarse = trim_rest(full, goal, s.rest_tolerance)
         cand = coarse.refined(dt_s)  # the output, judged as it would be returned
         buffer = float(np.max(sub.buffer_value))  # type: ignore[arg-type]

@@ -36,6 +36,7 @@ import clarabel
 import numpy as np
 import scipy.sparse as sp
 
+from oacli.model.robot_model import RobotModel
 from oacli.planning.polish_settings import PolishSettings
 from oacli.planning.translational import CostWeights, interval_cost_matrix
 from oacli.solver import CLARABEL_STATUS, solver_error_status
@@ -91,11 +92,11 @@ class PolishConic:
     ``f_value`` (N, 3), ``buffer_value`` (N,) and ``objective`` hold the solution.
     """
 
-    def __init__(self, h: np.ndarray, mass_kg: float, start: np.ndarray, goal: np.ndarray,
+    def __init__(self, h: np.ndarray, model: RobotModel, start: np.ndarray, goal: np.ndarray,
                  force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray, n_zones: int, settings: PolishSettings,
                  weights: CostWeights, with_cost_cap: bool = False) -> None:
         h = np.asarray(h, dtype=float)
-        n, m = h.shape[0], float(mass_kg)
+        n, m = h.shape[0], model.mass_kg
         self.h, self.n = h, n
         self.n_zones = int(n_zones)
         self.r_ref: np.ndarray | None = None
@@ -185,7 +186,7 @@ class PolishConic:
             soc.count += 4 * n
         self._soc = soc.matrix(self.n_var)
         self._n_soc = 2 * n
-        self._cap = self._cap_rows(h, m, weights, goal) if self.with_cost_cap else None
+        self._cap = self._cap_rows(h, model, weights, goal) if self.with_cost_cap else None
         self._cap_gz = None if self._cap is None else (self._cap[0].tocsr()[1:-1], self._cap[1][1:-1])
         self._time_cost = weights.time * float(h.sum())
         # Clarabel without iterative refinement of its KKT solves: half the time per interior-point iteration on
@@ -229,7 +230,7 @@ class PolishConic:
         """
         self.cost_cap = float(cap)
 
-    def _cap_rows(self, h: np.ndarray, m: float, weights: CostWeights,
+    def _cap_rows(self, h: np.ndarray, model: RobotModel, weights: CostWeights,
                   goal: np.ndarray) -> tuple[sp.coo_matrix, np.ndarray]:
         """Rows ``2 G z`` of the cost cap's cone: A = −2 G M, b = −2 G c with ``z = M x − c`` per piece and axis."""
         rows: list[np.ndarray] = []
@@ -240,7 +241,7 @@ class PolishConic:
         for step in np.unique(h):
             idx = np.flatnonzero(h == step)
             for i in range(3):
-                w = interval_cost_matrix(float(step), m, weights.position[i], weights.velocity[i], weights.force[i])
+                w = interval_cost_matrix(float(step), model, weights.position[i], weights.velocity[i], weights.force[i])
                 lam, vec = np.linalg.eigh(0.5 * (w + w.T))
                 keep = lam > 1e-14 * max(float(lam.max()), 1e-300)
                 g = np.sqrt(lam[keep])[:, None] * vec[:, keep].T  # (q, 4) on z = [r − r_g, v, v − v_g, f]

@@ -7,6 +7,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from oacli.model.robot_model import RobotModel
 from oacli.planning.translational import TranslationalTrajectory
 
 
@@ -44,7 +45,7 @@ def _final_state_map(h: np.ndarray, mass_kg: float) -> np.ndarray:
 
 
 def terminal_correction(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h: np.ndarray,
-                        mass_kg: float) -> np.ndarray:
+                        model: RobotModel) -> np.ndarray:
     """Least-norm change of the held forces (N, 3) after which the propagated final state is ``goal``.
 
     Per axis the final state is affine in the forces, ``x_N = Φ x_0 + Γ f`` with the columns
@@ -60,7 +61,8 @@ def terminal_correction(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h:
         Required final state.
     h : ndarray, shape (N,)
         Piece lengths [s].
-    mass_kg : float
+    model : RobotModel
+        The robot; ``m = model.mass_kg`` [kg].
 
     Returns
     -------
@@ -68,7 +70,7 @@ def terminal_correction(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h:
         The corrected forces.
     """
     h = np.broadcast_to(np.asarray(h, dtype=float), (forces.shape[0],))
-    gamma = _final_state_map(h, mass_kg)
+    gamma = _final_state_map(h, model.mass_kg)
     x0 = np.asarray(x0, dtype=float)
     final = np.concatenate([x0[0:3] + h.sum() * x0[3:6] + gamma[0] @ forces, x0[3:6] + gamma[1] @ forces])
     err = np.asarray(goal, dtype=float) - final
@@ -77,12 +79,12 @@ def terminal_correction(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h:
 
 
 def exact_trajectory(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h: np.ndarray,
-                     mass_kg: float) -> TranslationalTrajectory:
+                     model: RobotModel) -> TranslationalTrajectory:
     """The motion of held ``forces`` from ``x0`` corrected to end exactly at ``goal`` (last sample pinned).
 
     Parameters
     ----------
-    x0, forces, goal, h, mass_kg
+    x0, forces, goal, h, model
         As in :func:`terminal_correction`.
 
     Returns
@@ -90,13 +92,13 @@ def exact_trajectory(x0: np.ndarray, forces: np.ndarray, goal: np.ndarray, h: np
     TranslationalTrajectory
     """
     h = np.asarray(h, dtype=float)
-    forces = terminal_correction(x0, np.asarray(forces, dtype=float).reshape(-1, 3), goal, h, mass_kg)
-    x = propagate(x0, forces, h, mass_kg)
+    forces = terminal_correction(x0, np.asarray(forces, dtype=float).reshape(-1, 3), goal, h, model)
+    x = propagate(x0, forces, h, model)
     x[-1] = goal  # equal up to rounding after the correction
-    return TranslationalTrajectory.trusted(np.concatenate([[0.0], np.cumsum(h)]), x, forces, mass_kg)
+    return TranslationalTrajectory.trusted(np.concatenate([[0.0], np.cumsum(h)]), x, forces, model)
 
 
-def propagate(x0: np.ndarray, forces: np.ndarray, h: np.ndarray, mass_kg: float) -> np.ndarray:
+def propagate(x0: np.ndarray, forces: np.ndarray, h: np.ndarray, model: RobotModel) -> np.ndarray:
     """Knot states (N+1, 6) of the exact double integrator under held ``forces`` (N, 3) for durations ``h``:
     :meth:`~oacli.planning.translational.TranslationalTrajectory.from_forces` as running sums (the same sums,
     rounded in another order).
@@ -106,7 +108,8 @@ def propagate(x0: np.ndarray, forces: np.ndarray, h: np.ndarray, mass_kg: float)
     x0 : ndarray, shape (6,)
     forces : ndarray, shape (N, 3)
     h : ndarray, shape (N,)
-    mass_kg : float
+    model : RobotModel
+        The robot (its mass [kg]).
 
     Returns
     -------
@@ -114,7 +117,7 @@ def propagate(x0: np.ndarray, forces: np.ndarray, h: np.ndarray, mass_kg: float)
     """
     x0 = np.asarray(x0, dtype=float)
     hc = np.asarray(h, dtype=float)[:, None]
-    dv = forces * (hc / mass_kg)
+    dv = forces * (hc / model.mass_kg)
     x = np.empty((forces.shape[0] + 1, 6))
     x[:, 3:6] = np.cumsum(np.vstack([x0[None, 3:6], dv]), axis=0)
     x[:, 0:3] = np.cumsum(np.vstack([x0[None, 0:3], x[:-1, 3:6] * hc + 0.5 * dv * hc]), axis=0)
@@ -146,7 +149,7 @@ def trim_rest(traj: TranslationalTrajectory, goal: np.ndarray, tolerance: float)
     k = max(int(np.argmax(resting)) if resting.any() else len(h), 2)
     if k >= len(h):
         return traj
-    return exact_trajectory(traj.x[0], traj.u[:k], goal, h[:k], traj.mass_kg)
+    return exact_trajectory(traj.x[0], traj.u[:k], goal, h[:k], traj.model)
 
 
 def project_onto_grid(traj: TranslationalTrajectory, h: np.ndarray, goal: np.ndarray) -> TranslationalTrajectory:
@@ -191,7 +194,7 @@ def project_onto_grid(traj: TranslationalTrajectory, h: np.ndarray, goal: np.nda
     rhs = np.vstack([target[:, 0:3], w_v * target[:, 3:6], np.zeros((n, 3)), rhs_dyn])
     sol = spla.spsolve(kkt, rhs)
     forces = np.asarray(sol).reshape(-1, 3)[2 * n:3 * n]
-    return exact_trajectory(x0, forces, goal, h, m)
+    return exact_trajectory(x0, forces, goal, h, traj.model)
 
 
 def within_limits(traj: TranslationalTrajectory, force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray) -> bool:

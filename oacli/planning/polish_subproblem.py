@@ -5,6 +5,7 @@ from __future__ import annotations
 import cvxpy as cp
 import numpy as np
 
+from oacli.model.robot_model import RobotModel
 from oacli.planning.polish_settings import PolishSettings
 from oacli.planning.translational import CostWeights, interval_cost_matrix
 from oacli.solver import solve_clarabel
@@ -21,7 +22,8 @@ class PolishSubproblem:
     ----------
     h : ndarray, shape (N,)
         Piece lengths [s].
-    mass_kg : float
+    model : RobotModel
+        The robot (its mass [kg] is the double integrator's).
     start, goal : ndarray, shape (6,)
         Fixed first and last states.
     force_limit_N, velocity_limit_mps : ndarray, shape (3,)
@@ -34,11 +36,11 @@ class PolishSubproblem:
         Add the constraint ``J <= cost_cap``.
     """
 
-    def __init__(self, h: np.ndarray, mass_kg: float, start: np.ndarray, goal: np.ndarray,
+    def __init__(self, h: np.ndarray, model: RobotModel, start: np.ndarray, goal: np.ndarray,
                  force_limit_N: np.ndarray, velocity_limit_mps: np.ndarray, n_zones: int, settings: PolishSettings,
                  weights: CostWeights, with_cost_cap: bool = False) -> None:
         h = np.asarray(h, dtype=float)
-        n, m = h.shape[0], float(mass_kg)
+        n, m = h.shape[0], model.mass_kg
         hc = h[:, None]
         self.h = h
         self.r = cp.Variable((n + 1, 3), name="r")
@@ -74,7 +76,7 @@ class PolishSubproblem:
         self.cost_cap = None
         if with_cost_cap:
             self.cost_cap = cp.Parameter(name="cost_cap")
-            cons.append(lqr_cost_expression(r, v, f, h, m, weights, goal) <= self.cost_cap)
+            cons.append(lqr_cost_expression(r, v, f, h, model, weights, goal) <= self.cost_cap)
         self.problem = cp.Problem(cp.Minimize(objective), cons)
 
     def set_reference(self, r_ref: np.ndarray, radius: float, box_lower: np.ndarray, box_upper: np.ndarray,
@@ -138,7 +140,7 @@ class PolishSubproblem:
         return solve_clarabel(self.problem, quiet=True, canon_backend="COO").status
 
 
-def lqr_cost_expression(r, v, f, h: np.ndarray, mass_kg: float, weights: CostWeights, goal: np.ndarray):
+def lqr_cost_expression(r, v, f, h: np.ndarray, model: RobotModel, weights: CostWeights, goal: np.ndarray):
     """``J`` of :mod:`oacli.planning.translational` as a convex cvxpy expression on pieces of lengths ``h``.
 
     Each piece contributes ``w_t h_k + Σ_axes ½ zᵀ W(h_k) z`` with ``z = [r_k − r_g, v_k, v_k − v_g, f_k]``
@@ -152,7 +154,8 @@ def lqr_cost_expression(r, v, f, h: np.ndarray, mass_kg: float, weights: CostWei
         Held forces.
     h : ndarray, shape (n,)
         Piece lengths [s].
-    mass_kg : float
+    model : RobotModel
+        The robot (its mass [kg]).
     weights : CostWeights
     goal : ndarray, shape (6,)
 
@@ -166,7 +169,7 @@ def lqr_cost_expression(r, v, f, h: np.ndarray, mass_kg: float, weights: CostWei
     for step in np.unique(h):
         idx = np.flatnonzero(h == step)
         for i in range(3):
-            w = interval_cost_matrix(float(step), mass_kg, weights.position[i], weights.velocity[i], weights.force[i])
+            w = interval_cost_matrix(float(step), model, weights.position[i], weights.velocity[i], weights.force[i])
             lam, vec = np.linalg.eigh(0.5 * (w + w.T))
             keep = lam > 1e-14 * max(float(lam.max()), 1e-300)
             g = np.sqrt(lam[keep])[:, None] * vec[:, keep].T

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from oacli.geometry.collision import CollisionChecker
+from oacli.model.robot_model import RobotModel
 from oacli.planning.translational import CostWeights
 
 
@@ -22,8 +23,9 @@ class PlanningProblem:
     ----------
     start, goal : ndarray, shape (6,)
         ``[r (m), v (m/s)]``; the goal is usually at rest.
-    mass_kg : float
-        Mass of the double integrator [kg].
+    model : RobotModel
+        The robot model planned with (its mass, ``model.mass_kg``, is the double integrator's; the limits below
+        are the planner's design limits, not necessarily the model's own).
     force_limit_N : ndarray, shape (3,)
         ``|f_i| <= F_i`` per world axis [N].
     velocity_limit_mps : ndarray, shape (3,)
@@ -38,7 +40,7 @@ class PlanningProblem:
 
     start: np.ndarray
     goal: np.ndarray
-    mass_kg: float
+    model: RobotModel
     force_limit_N: np.ndarray
     velocity_limit_mps: np.ndarray
     checker: CollisionChecker

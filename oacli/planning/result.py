@@ -160,7 +160,7 @@ class PlanResult:
 
 
 def edge_trajectory(
-    tree: Tree | TreeRecord, node: int, connector: LqrConnector, goal: np.ndarray, mass_kg: float
+    tree: Tree | TreeRecord, node: int, connector: LqrConnector, goal: np.ndarray
 ) -> TranslationalTrajectory:
     """The trajectory of ``node``'s incoming edge (from its parent's state to its own, exact).
 
@@ -170,11 +170,9 @@ def edge_trajectory(
     node : int
         A node other than the root.
     connector : LqrConnector
-        The steering function that made the LQR edges.
+        The steering function that made the LQR edges; its robot model propagates the motion-primitive edges.
     goal : ndarray, shape (6,)
         Goal state of the plan.
-    mass_kg : float
-        Mass [kg] (for motion-primitive edges).
 
     Returns
     -------
@@ -186,15 +184,16 @@ def edge_trajectory(
     if kind == EDGE_LQR:
         return connector.trajectory(x_p, tree.states[node], goal, int(tree.steps[node]))
     if kind == EDGE_PRIMITIVE:
-        traj = TranslationalTrajectory.from_forces(x_p, tree.force[node][None, :], tree.duration_s[node], mass_kg)
+        traj = TranslationalTrajectory.from_forces(x_p, tree.force[node][None, :], tree.duration_s[node],
+                                                   connector.model)
         x = traj.x.copy()
         x[-1] = tree.states[node]  # identical up to rounding; keep the node's stored state exactly
-        return TranslationalTrajectory(traj.t, x, traj.u, mass_kg)
+        return TranslationalTrajectory(traj.t, x, traj.u, traj.model)
     raise ValueError(f"node {node} has no incoming edge")
 
 
 def path_trajectory(
-    tree: Tree, path: list[int], connector: LqrConnector, goal: np.ndarray, mass_kg: float
+    tree: Tree, path: list[int], connector: LqrConnector, goal: np.ndarray
 ) -> TranslationalTrajectory:
     """Concatenate the edges along ``path`` (root first) into one trajectory starting at t = 0.
 
@@ -204,24 +203,22 @@ def path_trajectory(
     path : list of int
         Node indices, root first.
     connector : LqrConnector
-        The steering function that made the LQR edges.
+        The steering function that made the LQR edges; its robot model propagates the motion-primitive edges.
     goal : ndarray, shape (6,)
         Goal state of the plan.
-    mass_kg : float
-        Mass [kg] (for motion-primitive edges).
 
     Returns
     -------
     TranslationalTrajectory
     """
     if len(path) < 2:
-        return TranslationalTrajectory(np.zeros(1), tree.states[path[0]][None, :], np.zeros((0, 3)), mass_kg)
-    parts = [edge_trajectory(tree, n, connector, goal, mass_kg) for n in path[1:]]
+        return TranslationalTrajectory(np.zeros(1), tree.states[path[0]][None, :], np.zeros((0, 3)), connector.model)
+    parts = [edge_trajectory(tree, n, connector, goal) for n in path[1:]]
     return TranslationalTrajectory.concatenate(parts)
 
 
 def edge_polylines(
-    tree: Tree, connector: LqrConnector, goal: np.ndarray, mass_kg: float, samples_per_edge: int = 8
+    tree: Tree, connector: LqrConnector, goal: np.ndarray, samples_per_edge: int = 8
 ) -> tuple[np.ndarray, ...]:
     """Positions along every node's incoming edge (the root gets an empty array), for drawing the tree.
 
@@ -229,11 +226,9 @@ def edge_polylines(
     ----------
     tree : Tree
     connector : LqrConnector
-        The steering function that made the LQR edges.
+        The steering function that made the LQR edges; its robot model propagates the motion-primitive edges.
     goal : ndarray, shape (6,)
         Goal state of the plan.
-    mass_kg : float
-        Mass [kg] (for motion-primitive edges).
     samples_per_edge : int, optional
         Segments per edge.
 
@@ -244,14 +239,14 @@ def edge_polylines(
     """
     out: list[np.ndarray] = [np.zeros((0, 3))]
     for node in range(1, tree.n):
-        traj = edge_trajectory(tree, node, connector, goal, mass_kg)
+        traj = edge_trajectory(tree, node, connector, goal)
         t = np.linspace(traj.t[0], traj.t[-1], samples_per_edge + 1)
         out.append(traj.states_at(t)[:, 0:3])
     return tuple(out)
 
 
 def tree_record(
-    tree: Tree, goal_node: int, connector: LqrConnector, goal: np.ndarray, mass_kg: float
+    tree: Tree, goal_node: int, connector: LqrConnector, goal: np.ndarray
 ) -> TreeRecord:
     """Freeze a :class:`~oacli.planning.tree.Tree` into a :class:`TreeRecord` (with edge polylines).
 
@@ -261,11 +256,9 @@ def tree_record(
     goal_node : int
         Node that reached the goal (-1: none).
     connector : LqrConnector
-        The steering function that made the LQR edges.
+        The steering function that made the LQR edges; its robot model propagates the motion-primitive edges.
     goal : ndarray, shape (6,)
         Goal state of the plan.
-    mass_kg : float
-        Mass [kg] (for motion-primitive edges).
 
     Returns
     -------
@@ -283,5 +276,5 @@ def tree_record(
         iteration=tree.iteration.copy(),
         wall_time_s=tree.wall_time_s.copy(),
         goal_node=int(goal_node),
-        edges=edge_polylines(tree, connector, goal, mass_kg),
+        edges=edge_polylines(tree, connector, goal),
     )

@@ -149,8 +149,8 @@ def splice(
     x = np.concatenate([traj.x[: a + 1], section.x[1:], traj.x[b + 1 :]])
     u = np.concatenate([traj.u[:a], section.u, traj.u[b:]])
     if np.all(np.diff(t) > 0):  # always, unless rounding of the shift merged two samples
-        return TranslationalTrajectory.trusted(t, x, u, traj.mass_kg)
-    return TranslationalTrajectory(t, x, u, traj.mass_kg)
+        return TranslationalTrajectory.trusted(t, x, u, traj.model)
+    return TranslationalTrajectory(t, x, u, traj.model)
 
 
 def lqr_shortcut(

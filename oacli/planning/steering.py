@@ -20,12 +20,13 @@ the tree node ``x_a`` (fixed sample ``x_b``) it is ``(x_a - m)ᵀ M_aa (x_a - m)
 
 from __future__ import annotations
 
-import functools
+import collections
 from dataclasses import dataclass
 
 import numpy as np
 
 from oacli.model.double_integrator import double_integrator
+from oacli.model.robot_model import RobotModel
 from oacli.planning.translational import CostWeights, TranslationalTrajectory, interval_cost_matrix
 
 #: A connection needs at least two steps (one step cannot reach an arbitrary position and velocity).
@@ -34,14 +35,20 @@ MIN_STEPS = 2
 LIMIT_RTOL = 1e-9
 
 
-@functools.lru_cache(maxsize=8)
-def _connector_maps(n_max: int, dt: float, mass: float, per_axis: tuple[tuple[float, float, float], ...]):
-    """The stacked per-axis maps of :class:`LqrConnector` (read-only): they depend only on these numbers, so they
-    are built once per process (the plan and smooth stages of a mission, the seeds of a benchmark share them)."""
+#: The connector maps built so far by ``(n_max, dt, mass, per-axis weights)``, the 8 last used (oldest first).
+_MAPS: collections.OrderedDict[tuple, tuple] = collections.OrderedDict()
+
+
+def _connector_maps(n_max: int, dt: float, model: RobotModel, per_axis: tuple[tuple[float, float, float], ...]):
+    """The stacked per-axis maps of :class:`LqrConnector` (read-only): they depend only on these numbers (of the
+    model, its mass), so they are built once per process (plan and smooth, a benchmark's seeds share them)."""
+    if (key := (n_max, dt, model.mass_kg, per_axis)) in _MAPS:
+        _MAPS.move_to_end(key)
+        return _MAPS[key]
     computed: dict[tuple[float, float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for w_axis in per_axis:  # axes with equal weights share their maps
         if w_axis not in computed:
-            computed[w_axis] = axis_maps(n_max, dt, mass, *w_axis)
+            computed[w_axis] = axis_maps(n_max, dt, model, *w_axis)
     maps = [computed[w_axis] for w_axis in per_axis]
     g = np.stack([m[0] for m in maps])  # (3, N+1, N, 6)
     x = np.stack([m[1] for m in maps])  # (3, N+1, N+1, 2, 6)
@@ -49,10 +56,13 @@ def _connector_maps(n_max: int, dt: float, mass: float, per_axis: tuple[tuple[fl
     v = np.ascontiguousarray(x[:, :, :, 1, :])  # velocity maps (3, N+1, N+1, 6)
     for arr in (g, x, m, v):
         arr.setflags(write=False)
-    return g, x, m, v, g[:, :, 0, :].tolist()
+    _MAPS[key] = out = (g, x, m, v, g[:, :, 0, :].tolist())
+    while len(_MAPS) > 8:
+        _MAPS.popitem(last=False)
+    return out
 
 
-def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: float):
+def axis_maps(n_max: int, dt: float, model: RobotModel, q_r: float, q_v: float, r_f: float):
     """Per-axis maps of every N-step connection, ``MIN_STEPS <= N <= n_max``, by one Riccati recursion.
 
     The end points and the goal are carried as constant states, ``ξ = [r, v, r_g, v_g, r_b, v_b]``, so the
@@ -71,8 +81,8 @@ def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: f
         Longest horizon [steps].
     dt : float
         Step [s] of the held force.
-    mass : float
-        Mass [kg].
+    model : RobotModel
+        The robot; its mass ``model.mass_kg`` [kg] is the double integrator's.
     q_r, q_v, r_f : float
         Position, velocity and force weights of this axis (:class:`~oacli.planning.translational.CostWeights`).
 
@@ -85,8 +95,8 @@ def axis_maps(n_max: int, dt: float, mass: float, q_r: float, q_v: float, r_f: f
     cost : ndarray, shape (n_max + 1, 6, 6)
         ``J_N = yᵀ cost[N] y`` (without the time term).
     """
-    a, b = double_integrator(dt, 1.0 / mass)
-    w = interval_cost_matrix(dt, mass, q_r, q_v, r_f)
+    a, b = double_integrator(dt, 1.0 / model.mass_kg)
+    w = interval_cost_matrix(dt, model, q_r, q_v, r_f)
     # z = t_z @ [ξ; u], ξ = [r, v, r_g, v_g, r_b, v_b]
     t_z = np.zeros((4, 7))
     t_z[0, [0, 2]] = [1.0, -1.0]
@@ -167,8 +177,8 @@ class LqrConnector:
 
     Parameters
     ----------
-    mass_kg : float
-        Mass of the double integrator [kg].
+    model : RobotModel
+        The robot; its mass ``model.mass_kg`` is the double integrator's [kg].
     dt_s : float
         Step [s] of the zero-order-hold force.
     weights : CostWeights
@@ -177,17 +187,17 @@ class LqrConnector:
         Longest connection [steps].
     """
 
-    def __init__(self, mass_kg: float, dt_s: float, weights: CostWeights, max_steps: int) -> None:
+    def __init__(self, model: RobotModel, dt_s: float, weights: CostWeights, max_steps: int) -> None:
         if max_steps < MIN_STEPS:
             raise ValueError(f"max_steps must be >= {MIN_STEPS}, got {max_steps}")
-        self.mass_kg = float(mass_kg)
+        self.model = model
         self.dt_s = float(dt_s)
         self.weights = weights
         self.max_steps = int(max_steps)
         n_max = self.max_steps
         per_axis = [(float(weights.position[i]), float(weights.velocity[i]), float(weights.force[i])) for i in range(3)]
         self._g, self._x, self._m, self._v, self._first_gain = _connector_maps(
-            n_max, self.dt_s, self.mass_kg, tuple(per_axis))
+            n_max, self.dt_s, model, tuple(per_axis))
         self._g_flat = self._g.reshape(3, -1, 6)
         self._m_flat = self._m.reshape(3, -1, 6)
         self._v_flat = self._v.reshape(3, -1, 6)
@@ -407,7 +417,7 @@ class LqrConnector:
         x[0] = np.asarray(x_a, dtype=float).reshape(6)
         x[-1] = np.asarray(x_b, dtype=float).reshape(6)
         t = t0 + self.dt_s * np.arange(steps + 1)
-        return TranslationalTrajectory.trusted(t, x, np.ascontiguousarray(u), self.mass_kg)
+        return TranslationalTrajectory.trusted(t, x, np.ascontiguousarray(u), self.model)
 
     def saturated_rollout(
         self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
@@ -439,8 +449,7 @@ class LqrConnector:
             ``steps`` intervals of ``dt_s`` from ``x_a``.
         """
         xs, us = self._saturated(x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps)
-        m, dt = self.mass_kg, self.dt_s
-        return TranslationalTrajectory(dt * np.arange(steps + 1), xs, us, m)
+        return TranslationalTrajectory(self.dt_s * np.arange(steps + 1), xs, us, self.model)
 
     def saturated_end(
         self, x_a: np.ndarray, x_target: np.ndarray, goal: np.ndarray, steps: int, force_limit_N: np.ndarray,
@@ -471,7 +480,7 @@ class LqrConnector:
 
     def _saturated(self, x_a, x_target, goal, steps, force_limit_N, velocity_limit_mps):
         self._check_steps(steps)
-        m, dt = self.mass_kg, self.dt_s
+        m, dt = self.model.mass_kg, self.dt_s
         # Scalar arithmetic per axis: a handful of flops per step, far below numpy's per-call overhead.
         f_lim = [float(f) for f in np.asarray(force_limit_N, dtype=float).reshape(3)]
         v_lim = [float(v) for v in np.asarray(velocity_limit_mps, dtype=float).reshape(3)]

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.geometry.collision import Pieces
+from oacli.model.robot_model import RobotModel
 
 #: Relative tolerance of the zero-order-hold consistency check of sampled trajectories.
 ZOH_RTOL = 1e-7
@@ -65,7 +66,7 @@ class CostWeights:
             raise ValueError("the time weight must be > 0")
 
 
-def interval_cost_matrix(h: float, mass_kg: float, q_r: float, q_v: float, r_f: float) -> np.ndarray:
+def interval_cost_matrix(h: float, model: RobotModel, q_r: float, q_v: float, r_f: float) -> np.ndarray:
     """``W(h)`` of one axis with ``½ zᵀ W z = ∫₀ʰ [½ q_r (r(τ) - r_g)² + ½ q_v (v(τ) - v_g)² + ½ r_f f²] dτ``.
 
     ``z = [r₀ - r_g, v₀, v₀ - v_g, f]`` (start position error, start velocity, start velocity error, held force),
@@ -75,8 +76,8 @@ def interval_cost_matrix(h: float, mass_kg: float, q_r: float, q_v: float, r_f: 
     ----------
     h : float
         Interval length [s].
-    mass_kg : float
-        Mass [kg].
+    model : RobotModel
+        The robot; its mass ``m = model.mass_kg`` [kg].
     q_r, q_v, r_f : float
         Position, velocity and force weights of the axis.
 
@@ -84,7 +85,7 @@ def interval_cost_matrix(h: float, mass_kg: float, q_r: float, q_v: float, r_f: 
     -------
     ndarray, shape (4, 4)
     """
-    m = mass_kg
+    m = model.mass_kg
     w = np.zeros((4, 4))
     # position error e_r + v τ + ½ a τ², a = f/m: indices (0, 1, 3)
     pos = q_r * np.array(
@@ -103,7 +104,7 @@ def interval_cost_matrix(h: float, mass_kg: float, q_r: float, q_v: float, r_f: 
 
 
 def interval_costs(
-    x: np.ndarray, u: np.ndarray, h: np.ndarray, mass_kg: float, weights: CostWeights, goal: np.ndarray
+    x: np.ndarray, u: np.ndarray, h: np.ndarray, model: RobotModel, weights: CostWeights, goal: np.ndarray
 ) -> np.ndarray:
     """Exact cost of each zero-order-hold interval, shape (n,).
 
@@ -115,7 +116,8 @@ def interval_costs(
         Held forces [N].
     h : ndarray, shape (n,)
         Interval lengths [s].
-    mass_kg : float
+    model : RobotModel
+        The robot (its mass [kg]).
     weights : CostWeights
     goal : ndarray, shape (6,)
         Goal state ``x_g``.
@@ -127,7 +129,7 @@ def interval_costs(
     x = np.asarray(x, dtype=float)
     u = np.asarray(u, dtype=float)
     h = np.asarray(h, dtype=float)[:, None]
-    a = u / mass_kg
+    a = u / model.mass_kg
     e_r = x[:, 0:3] - goal[0:3]
     v = x[:, 3:6]
     e_v = v - goal[3:6]
@@ -177,14 +179,14 @@ class TranslationalTrajectory:
         States ``[r (m), v (m/s)]`` at the samples.
     u : ndarray, shape (n, 3)
         World-frame force [N] held from ``t[k]`` to ``t[k+1]``.
-    mass_kg : float
-        Mass [kg] of the model the samples follow.
+    model : RobotModel
+        The robot model the samples follow (its mass, :attr:`mass_kg`, is the double integrator's).
     """
 
     t: np.ndarray
     x: np.ndarray
     u: np.ndarray
-    mass_kg: float
+    model: RobotModel
 
     def __post_init__(self) -> None:
         t = np.array(self.t, dtype=float).reshape(-1)
@@ -199,12 +201,18 @@ class TranslationalTrajectory:
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "x", x)
         object.__setattr__(self, "u", u)
-        object.__setattr__(self, "mass_kg", float(self.mass_kg))
+        if not isinstance(self.model, RobotModel):
+            raise TypeError(f"model: expected a RobotModel, got {type(self.model).__name__}")
+
+    @property
+    def mass_kg(self) -> float:
+        """Mass [kg] of the double integrator, ``model.mass_kg``."""
+        return self.model.mass_kg
 
     # -- construction ----------------------------------------------------------------------------------------
 
     @classmethod
-    def trusted(cls, t: np.ndarray, x: np.ndarray, u: np.ndarray, mass_kg: float) -> TranslationalTrajectory:
+    def trusted(cls, t: np.ndarray, x: np.ndarray, u: np.ndarray, model: RobotModel) -> TranslationalTrajectory:
         """Wrap float arrays of the right shapes, ``t`` strictly increasing, without copying or checking them.
 
         For the planners' inner loops, whose arrays are built from already valid trajectories; the arrays are
@@ -215,7 +223,7 @@ class TranslationalTrajectory:
         t : ndarray, shape (n+1,)
         x : ndarray, shape (n+1, 6)
         u : ndarray, shape (n, 3)
-        mass_kg : float
+        model : RobotModel
 
         Returns
         -------
@@ -227,11 +235,11 @@ class TranslationalTrajectory:
         object.__setattr__(out, "t", t)
         object.__setattr__(out, "x", x)
         object.__setattr__(out, "u", u)
-        object.__setattr__(out, "mass_kg", float(mass_kg))
+        object.__setattr__(out, "model", model)
         return out
 
     @classmethod
-    def from_forces(cls, x0: np.ndarray, forces: np.ndarray, h: np.ndarray, mass_kg: float, t0: float = 0.0):
+    def from_forces(cls, x0: np.ndarray, forces: np.ndarray, h: np.ndarray, model: RobotModel, t0: float = 0.0):
         """Propagate the exact double integrator from ``x0`` under held ``forces (n, 3)`` for durations ``h``.
 
         Parameters
@@ -242,8 +250,8 @@ class TranslationalTrajectory:
             Held forces [N].
         h : ndarray, shape (n,)
             Interval lengths [s].
-        mass_kg : float
-            Mass [kg].
+        model : RobotModel
+            The robot (its mass [kg]).
         t0 : float, optional
             Time [s] of the first sample.
 
@@ -255,11 +263,11 @@ class TranslationalTrajectory:
         h = np.broadcast_to(np.asarray(h, dtype=float), (forces.shape[0],))
         x = np.empty((forces.shape[0] + 1, 6))
         x[0] = x0
-        acc = forces / mass_kg
+        acc = forces / model.mass_kg
         for k in range(forces.shape[0]):
             x[k + 1, 0:3] = x[k, 0:3] + x[k, 3:6] * h[k] + 0.5 * acc[k] * h[k] ** 2
             x[k + 1, 3:6] = x[k, 3:6] + acc[k] * h[k]
-        return cls(t0 + np.concatenate([[0.0], np.cumsum(h)]), x, forces, mass_kg)
+        return cls(t0 + np.concatenate([[0.0], np.cumsum(h)]), x, forces, model)
 
     @staticmethod
     def concatenate(parts: list[TranslationalTrajectory]) -> TranslationalTrajectory:
@@ -270,7 +278,7 @@ class TranslationalTrajectory:
         Parameters
         ----------
         parts : list of TranslationalTrajectory
-            At least one part, all with the same mass.
+            At least one part, all of the same model.
 
         Returns
         -------
@@ -287,7 +295,7 @@ class TranslationalTrajectory:
             t.append(t[-1][-1] + part.t[1:] - part.t[0])
             x.append(part.x[1:])
             u.append(part.u)
-        return TranslationalTrajectory(np.concatenate(t), np.vstack(x), np.vstack(u), parts[0].mass_kg)
+        return TranslationalTrajectory(np.concatenate(t), np.vstack(x), np.vstack(u), parts[0].model)
 
     # -- queries ---------------------------------------------------------------------------------------------
 
@@ -326,7 +334,7 @@ class TranslationalTrajectory:
         -------
         ndarray, shape (n,)
         """
-        return interval_costs(self.x[:-1], self.u, self.h, self.mass_kg, weights, np.asarray(goal, dtype=float))
+        return interval_costs(self.x[:-1], self.u, self.h, self.model, weights, np.asarray(goal, dtype=float))
 
     def cost(self, weights: CostWeights, goal: np.ndarray) -> float:
         """Exact total cost ``J`` (module docstring).
@@ -432,7 +440,7 @@ class TranslationalTrajectory:
         t_all[sample_idx] = self.t  # interval ends exact
         x_all = self.states_at(t_all)
         x_all[sample_idx] = self.x  # keep the original samples bit-exact
-        return TranslationalTrajectory(t_all, x_all, self.u[piece], self.mass_kg)
+        return TranslationalTrajectory(t_all, x_all, self.u[piece], self.model)
 
     def _refined_uniform(self, c: int) -> TranslationalTrajectory:
         """:meth:`refined` when every interval has the same length and splits into ``c`` samples."""
@@ -451,7 +459,7 @@ class TranslationalTrajectory:
         t_all = np.empty(n * c + 1)
         t_all[:-1] = (self.t[:-1, None] + tau[None, :]).reshape(-1)
         t_all[::c] = self.t
-        return TranslationalTrajectory.trusted(t_all, x_all, np.repeat(self.u, c, axis=0), self.mass_kg)
+        return TranslationalTrajectory.trusted(t_all, x_all, np.repeat(self.u, c, axis=0), self.model)
 
     def zoh_residual(self) -> float:
         """Largest deviation [m or m/s] of the samples from the exact propagation of the held forces.

@@ -139,7 +139,7 @@ def build_problem(cfg: OacliConfig, seg: Segment) -> tuple[PlanningProblem, Robo
     robot = robot_model(cfg)
     limits = planner_design_limits(cfg).limits
     problem = PlanningProblem(
-        start=seg.start[0:6], goal=seg.goal[0:6], mass_kg=robot.mass_kg,
+        start=seg.start[0:6], goal=seg.goal[0:6], model=robot,
         force_limit_N=limits.force_N, velocity_limit_mps=limits.velocity_mps,
         checker=checker, sample_lower=np.array([b.lower for b in scene.keep_in]),
         sample_upper=np.array([b.upper for b in scene.keep_in]),
@@ -171,7 +171,7 @@ def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChe
     robot = robot_model(cfg)
     design = planner_design_limits(cfg)
     lim = design.limits
-    trans = translational_part(traj, robot.mass_kg)
+    trans = translational_part(traj, robot)
     report = checker.check(trans.pieces())
     force = np.abs(traj.u[:, 0:3]).max(axis=0)
     torque = np.abs(traj.u[:, 3:6]).max(axis=0)
@@ -185,8 +185,7 @@ def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChe
             and np.all(omega <= limits.angular_velocity_radps * (1 + 1e-9))
         )
 
-    bound = minimum_time_lower_bound_s(traj.x[0, 0:3], traj.x[-1, 0:3], lim.force_N, lim.velocity_mps,
-                                       robot.mass_kg)
+    bound = minimum_time_lower_bound_s(traj.x[0, 0:3], traj.x[-1, 0:3], lim.force_N, lim.velocity_mps, robot)
     out: dict[str, Any] = {
         "cost": trans.cost(cost_weights(cfg), goal6),
         "path_length_m": trans.path_length_m(),
@@ -209,7 +208,7 @@ def trajectory_metrics(cfg: OacliConfig, traj: Trajectory, checker: CollisionChe
             "kind": report.kind, "zone": report.zone,
         }
     if np.allclose(body.sigma, body.sigma[0, 0] * np.eye(3)):  # sphere or point: the dense re-check applies
-        dense = dense_check(trans.t, trans.x, trans.u, trans.mass_kg, checker.scene, body.bounding_radius_m)
+        dense = dense_check(trans.t, trans.x, trans.u, trans.model, checker.scene, body.bounding_radius_m)
         out["dense_check"] = {"ok": dense.ok, "samples": dense.samples, "max_spacing_m": dense.max_spacing_m,
                               "min_clearance_m": dense.min_clearance_m}
     return out

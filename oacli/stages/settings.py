@@ -293,7 +293,7 @@ def shortcut_connector(cfg: OacliConfig) -> LqrConnector:
     LqrConnector
     """
     p = cfg.planner
-    return LqrConnector(robot_model(cfg).mass_kg, p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
+    return LqrConnector(robot_model(cfg), p.steer_dt_s, cost_weights(cfg), p.steps(p.shortcut.max_horizon_s))
 
 
 def polish_settings(cfg: OacliConfig) -> PolishSettings:

@@ -73,7 +73,7 @@ def check_input(cfg: OacliConfig, path: Path, traj: Trajectory, checker: Collisi
     """
     robot = robot_model(cfg)
     limits = planner_design_limits(cfg).limits
-    trans = translational_part(traj, robot.mass_kg)
+    trans = translational_part(traj, robot)
     if not trans.is_zoh_consistent():
         raise InputError(
             f"{path}: /trajectory does not follow the double integrator of robot.mass_kg = {robot.mass_kg:g} kg "
@@ -173,7 +173,7 @@ def run_polish(cfg: OacliConfig, trans: TranslationalTrajectory, checker: Collis
     limits = planner_design_limits(cfg).limits
     budget = None
     if p.duration_factor is not None:
-        bound = minimum_time_lower_bound_s(trans.x[0], goal, limits.force_N, limits.velocity_mps, robot.mass_kg)
+        bound = minimum_time_lower_bound_s(trans.x[0], goal, limits.force_N, limits.velocity_mps, robot)
         budget = p.duration_factor * bound
     return polish_trajectory(trans, checker, goal, limits.force_N, limits.velocity_mps, cost_weights(cfg),
                              dt_s=cfg.planner.output_dt_s,
@@ -229,7 +229,7 @@ def run_smooth(
     body = robot_body(cfg, q_start, q_goal)
     checker = CollisionChecker(cfg.scene(), body)
     check_input(cfg, input_path, traj_in, checker)
-    trans = translational_part(traj_in, robot.mass_kg)
+    trans = translational_part(traj_in, robot)
     goal = trans.x[-1].copy()
     p = cfg.planner
     connector = shortcut_connector(cfg)
