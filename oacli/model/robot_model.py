@@ -14,9 +14,9 @@ Every σ-bound is derived from ``covariance`` by one function, :meth:`RobotModel
 (``[θ_i − n_σ σ_i, θ_i + n_σ σ_i]``, [Doerr2021] Eq. 28), each consumer choosing only its own ``n_σ``: the tube's
 W (:meth:`RobotModel.mass_bounds_kg`, :mod:`oacli.control.disturbance`), the design limits' heaviest plant
 (:mod:`oacli.reference_limits`), the mission's reference and rate margins. The tube design, W, the observer, the
-design limits and the tube's config checks take the model, not a bare mass (docs/architecture.md, "The robot
-model"). The estimator hands its result to the next segment through :meth:`RobotModel.with_estimate` (same limits
-and geometry, new θ and covariance).
+design limits, the tube's config checks and the planners take the model, not a bare mass (docs/architecture.md,
+"The robot model"). The estimator hands its result to the next segment through :meth:`RobotModel.with_estimate`
+(same limits and geometry, new θ and covariance).
 """
 
 from __future__ import annotations
