@@ -30,8 +30,10 @@ def assert_valid_plan(traj: TranslationalTrajectory, problem: PlanningProblem, r
 
     Dense re-check every 5 mm of the whole trajectory (goal link and splices included) by point-to-ellipsoid
     distance; the samples follow the held forces exactly; force and velocity limits hold; it starts at the start
-    and ends exactly at the goal.
+    and ends exactly at the goal. The trajectory carries the problem's robot model itself (planner, shortcut and
+    polish hand the one object on; issue 28).
     """
+    assert traj.model is problem.model
     dense = dense_check(traj.t, traj.x, traj.u, traj.model, problem.checker.scene, robot_radius_m)
     assert dense.ok, dense
     assert dense.max_spacing_m <= 0.005 + 1e-9

@@ -21,6 +21,7 @@ from oacli.control.disturbance import mass_uncertainty_bound, step_gain
 from oacli.errors import ConfigError
 from oacli.model.limits import MotionLimits
 from oacli.model.robot_model import RobotModel
+from oacli.planning.translational import TranslationalTrajectory
 from oacli.reference_limits import ReferenceMargin
 from oacli.stages import design_limits, settings
 
@@ -170,6 +171,16 @@ def test_no_new_core_signature_takes_a_bare_mass():
                  "reference_limits.py:mass_upper_bound_kg"):
         assert name not in found
     assert len(found) == len(NUMERICAL_KERNELS)  # the list is exact: remove a kernel from it once it takes the model
+
+
+def test_a_translational_trajectory_carries_the_model_not_a_mass():
+    with pytest.raises(TypeError, match=r"^model: expected a RobotModel, got float"):
+        TranslationalTrajectory(np.array([0.0, 1.0]), np.zeros((2, 6)), np.zeros((1, 3)), 9.5)
+    m = model()
+    traj = TranslationalTrajectory.from_forces(np.zeros(6), [[0.95, 0.0, 0.0]], 2.0, m)
+    assert traj.model is m and traj.mass_kg == 9.5
+    assert traj.x[-1, 3] == pytest.approx(0.95 * 2.0 / 9.5, rel=1e-15)  # v = f h / m ([Doerr2021] Eq. 34)
+    assert traj.x[-1, 0] == pytest.approx(0.5 * 0.95 / 9.5 * 2.0**2, rel=1e-15)
 
 
 @pytest.mark.parametrize("kw, field", [
