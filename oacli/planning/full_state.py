@@ -85,7 +85,6 @@ def full_state_trajectory(
     trans: TranslationalTrajectory,
     q_start: np.ndarray,
     q_goal: np.ndarray,
-    params: InertialParams,
     *,
     rate_limit_radps: np.ndarray,
     torque_limit_Nm: np.ndarray,
@@ -98,11 +97,10 @@ def full_state_trajectory(
     Parameters
     ----------
     trans : TranslationalTrajectory
-        Translational plan starting at t = 0 (and ending at rest if a hold may be needed).
+        Translational plan starting at t = 0 (and ending at rest if a hold may be needed); its robot model's
+        principal inertias ``trans.model.inertia_kgm2`` size the rotation and its torques.
     q_start, q_goal : ndarray, shape (4,)
         Attitudes ``[x, y, z, w]`` at the start and the goal.
-    params : InertialParams
-        Mass (must match ``trans.mass_kg``) and principal inertias.
     rate_limit_radps, torque_limit_Nm : ndarray, shape (3,)
         Body rate and torque limits the rotation must respect.
     hold_dt_s : float
@@ -119,6 +117,7 @@ def full_state_trajectory(
     q1 = quat.normalize(np.asarray(q_goal, dtype=float))
     phi = quat.error_vector(q0, q1)
     angle = float(np.linalg.norm(phi))
+    params = trans.model.params
     t_rot = rotation_duration_s(angle, params, rate_limit_radps, torque_limit_Nm)
     if t_rot > trans.duration_s:
         trans = hold_until(trans, t_rot, hold_dt_s)

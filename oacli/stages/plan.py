@@ -154,7 +154,7 @@ def to_output(cfg: OacliConfig, trans: TranslationalTrajectory, q_start: np.ndar
     design limits' angular rate and torque."""
     limits = planner_design_limits(cfg).limits
     return full_state_trajectory(
-        trans.refined(cfg.planner.output_dt_s), q_start, q_goal, cfg.robot_params(),
+        trans.refined(cfg.planner.output_dt_s), q_start, q_goal,
         rate_limit_radps=limits.angular_velocity_radps,
         torque_limit_Nm=limits.torque_Nm, hold_dt_s=cfg.planner.output_dt_s, name=name,
         frame=cfg.environment.frame,
