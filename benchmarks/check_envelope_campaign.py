@@ -7,7 +7,7 @@ the keep-in boxes (the union, shrunk by ``environment.keep_in_margin_m``), the b
 outside every keep-out ellipsoid (exact distance by minimisation where the grown-ellipsoid test flags a sample),
 ``|v_i| ≤ velocity limit``, ``|ω_i| ≤ angular-rate limit``, ``|F_i| ≤ force limit``. Then it prints, per mission
 status, the runs, their violations, the runs arriving at A within 2 cm, the reasons of the others, the batch mass
-error and the exit codes.
+error, the exit codes and the runs whose segment 3 flew the prior (the estimate not handed on).
 
 Run: ``python benchmarks/check_envelope_campaign.py CAMPAIGN_FOLDER``
 """
@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from oacli.config import load_config
 from oacli.io.mcap_read import read_telemetry
+from oacli.status import EXIT_CODES
 
 RTOL = 1e-9
 TRACKS = ("segment-1/track", "segment-2/track", "segment-3/track")
@@ -118,6 +119,14 @@ def main() -> None:
         row["final_distance_m"] = comp.get("final_distance_m")
         est = summary.get("estimate") or {}
         row["mass_error_pct"] = (est.get("error_pct") or {}).get("mass_kg")
+        inertia = est.get("inertia_kgm2")
+        if inertia:  # how far the estimate is from the lamina boundary (a sum of two = the third)
+            i = np.asarray(inertia, dtype=float)
+            row["triangle_slack"] = float(np.min(i.sum() - 2 * i) / i.max())
+        learned = summary.get("learned_model") or {}
+        row["learned_source"] = learned.get("source")
+        row["learned_note"] = learned.get("note")
+        row["exit_code"] = EXIT_CODES.get(summary["status"], 1)
         rows.append(row)
     n = len(rows)
     print(f"{n} runs; statuses: {dict(Counter(r['status'] for r in rows))}")
@@ -136,6 +145,12 @@ def main() -> None:
     errs = [r["mass_error_pct"] for r in rows if r.get("mass_error_pct") is not None]
     if errs:
         print(f"batch mass error: median {statistics.median(errs):.3g} %, max {max(errs):.3g} % ({len(errs)} runs)")
+    print(f"mission exit codes (from the status): {dict(Counter(r.get('exit_code') for r in rows))}")
+    fallbacks = [r for r in rows if r.get("learned_source") == "prior"]
+    print(f"segment 3 flew the prior (the batch estimate not handed on): {len(fallbacks)}/{n}")
+    for r in fallbacks:
+        print(f"    {r['run']}: triangle slack of the estimate {r.get('triangle_slack', float('nan')):.2g} "
+              f"(min(sum of two - third) / max); {r.get('learned_note')}")
     manifest = args.campaign / "manifest.jsonl"
     if manifest.exists():
         lines = [json.loads(line) for line in manifest.read_text().splitlines() if line.strip()]

@@ -210,3 +210,20 @@ def assert_recording_opens_right(rrd, stage):
 
 def test_tube_track_recording_opens_with_every_panel_filled(tube_run):
     assert_recording_opens_right(tube_run / "track.rrd", "track-tube")
+
+
+def test_a_tube_with_w_shrunk_by_scale_w_ends_degraded_saying_so(tmp_path):
+    # The W of test_too_large_w_... (no tube for it) flown with the explicit policy: W is shrunk per axis, so the
+    # tube guarantees less than the model's uncertainty says; the run must not claim "ok" (status honesty).
+    cfg = write_variant(tmp_path, lambda d: d["controller"]["tube"]["disturbance"].update(
+        force_N=[0.2] * 3, on_empty_tightening="scale_w"))
+    out = tmp_path / "run"
+    result = run_cli("track", cfg, "--out", out, "--quiet")
+    assert result.exit_code == 0, result.output  # degraded exits 0
+    s = json.loads((out / "summary.json").read_text())
+    scales = [a["w_scale"] for a in design_record(out)["axes"]]
+    assert s["tube"]["w_scale"] == scales and all(0 < v < 1 for v in scales)
+    assert s["status"] == "degraded"
+    (reason,) = [r for r in s["status_reasons"] if r["kind"] == "w_scaled"]
+    assert reason["level"] == "degraded" and "scale_w" in reason["message"]
+    assert f"x to {scales[0]:.3g}" in reason["message"]

@@ -133,7 +133,12 @@ def _closed_loop(cfg: Any, out: Path) -> tuple[dict[str, Any], list[np.ndarray]]
     )
     from oacli.stages.track import _track_summary, reference_from_config
     from oacli.stages.track_status import assess_track
-    from oacli.stages.track_tube import add_tube_reasons, monitored_tube_controller, tube_summary, workspace_arguments
+    from oacli.stages.track_tube import (
+        add_tube_reasons,
+        monitored_tube_controller,
+        standard_mpc_arguments,
+        tube_summary,
+    )
     from oacli.status import StatusReport
 
     reference = reference_from_config(cfg)
@@ -149,7 +154,7 @@ def _closed_loop(cfg: Any, out: Path) -> tuple[dict[str, Any], list[np.ndarray]]
         controller = TrackingMPC(reference, model.params, dt_s=cfg.controller.period_s, horizon=cfg.controller.horizon,
                                  weights=weights, limits=limits,
                                  max_consecutive_failures=cfg.controller.max_consecutive_failures,
-                                 **workspace_arguments(cfg))
+                                 **standard_mpc_arguments(cfg))
     x0 = reference.x[0].copy()
     x0[0:3] += np.asarray(cfg.simulation.initial_offset_m)
     stall = cfg.faults.controller_stall

@@ -49,6 +49,27 @@ ControllerType = Literal["mpc", "tube"]
 """Controller kinds: ``"mpc"`` (standard MPC) and ``"tube"`` (robust tube MPC, settings in ``controller.tube``)."""
 
 
+class EstimateConfig(Section):
+    """The standard MPC's state estimate (``controller.estimate``): the measured state or a steady-state Kalman
+    filter's estimate, and the margin of the workspace rows for its error (oacli.control.tracking)."""
+
+    observer: StrictBool = Field(
+        default=True,
+        description="Act on a steady-state Kalman filter's estimate of position and velocity (the tube's "
+        "observer, oacli.control.observer; Astrobee's controller acts on its EKF's) instead of the raw "
+        "measurement; used when sensors.position_std_m and velocity_std_mps are both > 0 (else the measurement).",
+    )
+    accel_std_mps2: PositiveReal = Field(
+        default=0.01, description="σ of the filter's white process acceleration [m/s²], > 0 (model error).",
+    )
+    margin_sigmas: NonNegativeReal = Field(
+        default=3.0,
+        description="The workspace rows keep the TRUE position clear at this many σ of the error of the next "
+        "position predicted from the estimate (sensors' σ, or the filter's covariance), >= 0; 0: the rows bound "
+        "the estimate only.",
+    )
+
+
 class ControllerConfig(Section):
     """The tracking controller."""
 
@@ -74,6 +95,10 @@ class ControllerConfig(Section):
         "keep-out zones (grown by it): soft rows in the standard MPC, hard rows tightened by the tube in the tube "
         "MPC (oacli.control.workspace). false: positions are free.",
     )
+    estimate: Annotated[EstimateConfig, none_to({})] = Field(
+        default_factory=EstimateConfig,
+        description="The standard MPC's state estimate and the margin its workspace rows keep for its error.",
+    )
     tube: Annotated[TubeConfig, none_to({})] = Field(
         default_factory=TubeConfig, description="Robust tube MPC settings (used when type is 'tube')."
     )
@@ -96,4 +121,5 @@ __all__ = [
     "ControllerConfig",
     "ControllerType",
     "ControllerWeights",
+    "EstimateConfig",
 ]

@@ -17,10 +17,18 @@ reference and outside the keep-out zones grown by the robot's body (:mod:`oacli.
 linearised at the previous plan when there is one), and the point where each predicted state would stop, braking
 at half the model's deceleration (force limit / model mass), stays in the box too — so a plant up to twice as
 heavy as the model has room to stop. The rows are soft with an exact ℓ1 penalty (:class:`LinearMPC`):
-there is no robustness margin here (use the tube MPC for a guarantee), but a measured state outside a row never
-makes the QP infeasible. The rows hold at the prediction instants, with no extra margin for the motion between
-them: a plan certified collision-free in continuous time (``oacli smooth``) is then followed as closely as
-without rows.
+a measured state outside a row never makes the QP infeasible.
+
+State estimate (optional, :class:`StateEstimate`): the controller plans from the measured state, or, with an
+observer, from a steady-state Kalman filter's estimate of position and velocity
+(:class:`oacli.control.observer.TranslationObserver`, fed the commanded force). Either way the true position at the
+next step is the one predicted from the estimate minus the prediction's error, zero-mean with per-axis σ
+``sqrt(σ_p² + dt² σ_v²)`` from a raw measurement (position and velocity errors) or ``sqrt(P⁻_pp)``, the filter's
+a-priori position variance (:func:`predicted_position_std`); the workspace rows keep it clear at ``k`` σ
+(:class:`~oacli.control.workspace.WorkspaceRows`), so the *true* state keeps out of the zones the independent
+safety check measures. Beyond that there is no robustness margin here (model error, disturbances: use the tube MPC
+for a guarantee). The rows hold at the prediction instants, with no extra margin for the motion between them: a
+plan certified collision-free in continuous time (``oacli smooth``) is then followed as closely as without rows.
 
 Failures: when a solve fails the controller follows the shifted previous plan, and once that is used up the LQR
 law of the same weights, clipped to the limits. After ``max_consecutive_failures`` failed solves in a row it
@@ -37,14 +45,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from oacli.control.lqr import dlqr
+from oacli.control.lqr import dlqr, solve_dare
 from oacli.control.mpc import POSITION_PENALTY, LinearMPC
+from oacli.control.observer import TranslationObserver, kalman_gain
 from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
 from oacli.control.workspace import WorkspaceRows, shifted_plan
 from oacli.geometry.collision import RobotBody
 from oacli.geometry.shapes import Scene
 from oacli.model import quaternion as quat
-from oacli.model.double_integrator import hover_error_model
+from oacli.model.double_integrator import double_integrator, hover_error_model
 from oacli.model.limits import MotionLimits
 from oacli.types import ControlStep, InertialParams, SolveInfo, Trajectory
 
@@ -69,6 +78,86 @@ class TrackingWeights:
     def r_diag(self) -> np.ndarray:
         """Input weight diagonal (6,)."""
         return np.concatenate([self.force, self.torque])
+
+
+@dataclass(frozen=True)
+class StateEstimate:
+    """What the standard MPC acts on and the margin its workspace rows keep for its error (module docstring).
+
+    Attributes
+    ----------
+    position_std_m, velocity_std_mps : float
+        The sensors' σ per axis [m], [m/s] (>= 0).
+    observer_accel_std_mps2 : float or None
+        σ of the Kalman filter's white process acceleration [m/s²]; None: act on the measurement (also when a
+        sensor σ is 0: there is nothing to filter).
+    sigmas : float
+        k: the rows keep the true position clear at k σ of the prediction's error.
+    """
+
+    position_std_m: float
+    velocity_std_mps: float
+    observer_accel_std_mps2: float | None = None
+    sigmas: float = 3.0
+
+    @property
+    def filtered(self) -> bool:
+        """True when the controller acts on the observer's estimate."""
+        return self.observer_accel_std_mps2 is not None and self.position_std_m > 0 and self.velocity_std_mps > 0
+
+
+def predicted_position_std(estimate: StateEstimate, mass_kg: float, dt_s: float) -> float:
+    """σ [m] per axis of the error of the position predicted one step ahead from the state estimate.
+
+    From a raw measurement the prediction ``p̂ + dt v̂ + …`` is off by ``e_p + dt e_v``: σ =
+    ``sqrt(σ_p² + dt² σ_v²)``. From the steady-state Kalman filter it is the a-priori covariance ``P⁻`` of the
+    filter Riccati equation (:func:`oacli.control.observer.kalman_gain`; Anderson & Moore 1979, §4.4): σ =
+    ``sqrt(P⁻_pp)``.
+
+    Parameters
+    ----------
+    estimate : StateEstimate
+    mass_kg : float
+        The model's mass [kg].
+    dt_s : float
+        Control period [s].
+
+    Returns
+    -------
+    float
+    """
+    if not estimate.filtered:
+        return float(np.hypot(estimate.position_std_m, dt_s * estimate.velocity_std_mps))
+    assert estimate.observer_accel_std_mps2 is not None  # filtered
+    a, _ = double_integrator(dt_s, 1.0 / mass_kg)
+    g = np.array([[0.5 * dt_s * dt_s], [dt_s]])
+    q = estimate.observer_accel_std_mps2**2 * (g @ g.T) + 1e-18 * np.eye(2)
+    r = np.diag([estimate.position_std_m**2, estimate.velocity_std_mps**2])
+    p_prior = solve_dare(np.asarray(a).T, np.eye(2), q, r)
+    return float(np.sqrt(p_prior[0, 0]))
+
+
+def estimate_observer(estimate: StateEstimate | None, mass_kg: float, dt_s: float) -> TranslationObserver | None:
+    """The translational observer of ``estimate`` (None when the controller acts on the measurement).
+
+    Parameters
+    ----------
+    estimate : StateEstimate or None
+    mass_kg : float
+        The model's mass [kg].
+    dt_s : float
+        Control period [s].
+
+    Returns
+    -------
+    TranslationObserver or None
+    """
+    if estimate is None or not estimate.filtered:
+        return None
+    assert estimate.observer_accel_std_mps2 is not None  # filtered
+    a, b = double_integrator(dt_s, 1.0 / mass_kg)
+    gain = kalman_gain(a, dt_s, estimate.observer_accel_std_mps2, estimate.position_std_m, estimate.velocity_std_mps)
+    return TranslationObserver(a, b, gain, dt_s)
 
 
 def to_error_state(x: np.ndarray, origin_m: np.ndarray, q_anchor: np.ndarray) -> np.ndarray:
@@ -118,6 +207,9 @@ class TrackingMPC:
         Failed solves in a row before the latched safe hold; None: never hold.
     position_penalty : float
         Exact ℓ1 penalty on the position rows' slack [1/m].
+    estimate : StateEstimate, optional
+        The measured state or an observer's estimate, and the rows' margin for its error (module docstring);
+        None: the measured state, no margin.
     """
 
     def __init__(
@@ -134,6 +226,7 @@ class TrackingMPC:
         keep_in_margin_m: float = 0.0,
         max_consecutive_failures: int | None = None,
         position_penalty: float = POSITION_PENALTY,
+        estimate: StateEstimate | None = None,
     ) -> None:
         if max_consecutive_failures is not None and max_consecutive_failures < 1:
             raise ValueError("max_consecutive_failures must be >= 1")
@@ -150,7 +243,11 @@ class TrackingMPC:
             self.workspace = WorkspaceRows(
                 scene, robot, keep_in_margin_m=keep_in_margin_m,
                 activation_m=1.0 + float(np.max(limits.velocity_mps)) * horizon_s,
+                error_std_m=None if estimate is None else np.full(
+                    3, predicted_position_std(estimate, params.mass_kg, self.dt_s)),
+                error_sigmas=0.0 if estimate is None else estimate.sigmas,
             )
+        self.observer = estimate_observer(estimate, params.mass_kg, self.dt_s)
         ws = self.workspace
         a, b = hover_error_model(params, self.dt_s)
         self.mpc = LinearMPC(
@@ -179,6 +276,33 @@ class TrackingMPC:
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
         """Solve once at time ``t`` [s] from the measured state; see :class:`oacli.types.Controller`.
+
+        With an observer the position and velocity are its estimate (updated with this measurement and the
+        force of the previous step), the attitude and rate the measured ones.
+
+        Parameters
+        ----------
+        t : float
+            Mission time [s] of the measurement.
+        x_measured : ndarray, shape (13,)
+            Measured state ``[r, v, q, ω]``.
+
+        Returns
+        -------
+        ControlStep
+            The input to hold until the next step, the solve record and the reference state at ``t``.
+        """
+        x = np.asarray(x_measured, dtype=float)
+        if self.observer is None:
+            return self._step(t, x)
+        x = x.copy()
+        x[0:6] = self.observer.update(t, x[0:6])
+        out = self._step(t, x)
+        self.observer.applied(out.u[0:3])
+        return out
+
+    def _step(self, t: float, x_measured: np.ndarray) -> ControlStep:
+        """One step from the state the controller acts on (measured or estimated); see :meth:`step`.
 
         Parameters
         ----------

@@ -27,6 +27,12 @@ MPC's Z projected on position, plus the measurement noise bound), the box shrink
 ``β_jk`` grows by the support ``max_e (−nᵀe) = Σ_i max(n_i, 0) ext_neg_i + max(−n_i, 0) ext_pos_i``, so
 ``n ᵀ(p_k + e) ≥`` the zone's support: the true position is then inside the box and outside the grown zone.
 A further isotropic ``clearance_m`` covers motion between the instants the rows apply to (see the controllers).
+
+Tightening by the state-estimate error (the standard MPC, which plans from the measured state): when the true
+position is ``p_k + e`` with ``e`` zero-mean Gaussian of per-axis standard deviations ``σ_i`` (uncorrelated), the
+rows keep the true position clear at ``k`` σ: each box face moves in by ``k σ_i`` and ``β_jk`` grows by
+``k sqrt(Σ_i n_i² σ_i²)``, the ``k``-σ quantile of ``−nᵀe`` (a Gaussian along the normal: exact for a half-space,
+where the error box's support ``k Σ_i |n_i| σ_i`` would be up to √3 times larger).
 """
 
 from __future__ import annotations
@@ -130,24 +136,33 @@ class WorkspaceRows:
         ``[ext_neg, ext_pos]`` per axis [m]: the error set the rows are tightened by (zero by default).
     clearance_m : float
         Extra isotropic margin [m] on every row.
+    error_std_m : ndarray, shape (3,), optional
+        Per-axis standard deviation σ_i [m] of a Gaussian error of the position the rows constrain (the state
+        estimate's); none by default.
+    error_sigmas : float
+        ``k``: the rows keep the true position clear at ``k`` σ of that error (module docstring), >= 0.
     activation_m : float
         Keep-out zones farther than this [m] from the horizon's points get inactive rows.
     """
 
     def __init__(self, scene: Scene, robot: RobotBody | None = None, *, keep_in_margin_m: float = 0.0,
-                 extent_m: np.ndarray | None = None, clearance_m: float = 0.0, activation_m: float = 2.0) -> None:
+                 extent_m: np.ndarray | None = None, clearance_m: float = 0.0, activation_m: float = 2.0,
+                 error_std_m: np.ndarray | None = None, error_sigmas: float = 0.0) -> None:
         self.scene = scene
         self.robot = RobotBody.point() if robot is None else robot
         self.zones = keep_out_zones(scene, self.robot)
         ext = np.zeros((3, 2)) if extent_m is None else np.asarray(extent_m, dtype=float).reshape(3, 2)
-        if np.any(ext < 0) or clearance_m < 0 or keep_in_margin_m < 0:
-            raise ValueError("keep-in margin, tightening extents and clearance must be >= 0")
+        std = np.zeros(3) if error_std_m is None else np.asarray(error_std_m, dtype=float).reshape(3)
+        if np.any(ext < 0) or clearance_m < 0 or keep_in_margin_m < 0 or np.any(std < 0) or error_sigmas < 0:
+            raise ValueError("keep-in margin, tightening extents, clearance and error σ must be >= 0")
         self.extent_m = ext
+        #: ``k σ_i`` per axis [m]: the estimate-error margin (module docstring).
+        self.error_margin_m = float(error_sigmas) * std
         self.clearance_m = float(clearance_m)
         self.activation_m = float(activation_m)
         self.keep_in_margin_m = float(keep_in_margin_m)
-        self._shrink_lower = self.keep_in_margin_m + ext[:, 0] + self.clearance_m
-        self._shrink_upper = self.keep_in_margin_m + ext[:, 1] + self.clearance_m
+        self._shrink_lower = self.keep_in_margin_m + ext[:, 0] + self.clearance_m + self.error_margin_m
+        self._shrink_upper = self.keep_in_margin_m + ext[:, 1] + self.clearance_m + self.error_margin_m
         self._lower, self._upper = keep_in_pieces(scene)
         # best_piece's shrunk pieces, (B, 1, 3) each: the same every step.
         margin = 0.5 * (self._shrink_lower + self._shrink_upper)
@@ -165,7 +180,8 @@ class WorkspaceRows:
         return len(self.zones)
 
     def tightening_m(self, normals: np.ndarray) -> np.ndarray:
-        """``max_e (−nᵀe)`` over the error box plus the clearance [m].
+        """``max_e (−nᵀe)`` over the error box, plus the clearance and the estimate-error margin
+        ``k sqrt(Σ n_i² σ_i²)`` [m].
 
         Parameters
         ----------
@@ -179,7 +195,8 @@ class WorkspaceRows:
         """
         n = np.asarray(normals, dtype=float)
         ext = self.extent_m
-        return np.asarray(np.maximum(n, 0.0) @ ext[:, 0] + np.maximum(-n, 0.0) @ ext[:, 1] + self.clearance_m)
+        gauss = np.sqrt((n**2) @ self.error_margin_m**2)
+        return np.asarray(np.maximum(n, 0.0) @ ext[:, 0] + np.maximum(-n, 0.0) @ ext[:, 1] + self.clearance_m + gauss)
 
     def _best_segment_pieces(self, ref: np.ndarray, lin: np.ndarray) -> np.ndarray:
         """:func:`oacli.geometry.halfspaces.best_piece` of the segments' ends ``ref[:-1], ref[1:], lin[:-1],

@@ -54,9 +54,9 @@ from oacli.stages.track_tube import (
     describe_beyond_w,
     describe_tube_design,
     monitored_tube_controller,
+    standard_mpc_arguments,
     tube_layers,
     tube_summary,
-    workspace_arguments,
     write_tube_topics,
 )
 from oacli.status import StatusReport, status_log
@@ -249,7 +249,7 @@ def run_track(
         controller = TrackingMPC(
             reference, model.params, dt_s=cfg.controller.period_s, horizon=cfg.controller.horizon,
             weights=weights, limits=ctrl_limits, max_consecutive_failures=cfg.controller.max_consecutive_failures,
-            **workspace_arguments(cfg),
+            **standard_mpc_arguments(cfg),
         )
     else:
         controller = monitored_tube_controller(cfg, reference, design, weights, ctrl_limits, model=model)

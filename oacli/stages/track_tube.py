@@ -15,7 +15,7 @@ from scipy import special, stats
 
 from oacli.config import OacliConfig
 from oacli.control.observer import RateObserver, TranslationObserver, observer_for
-from oacli.control.tracking import TrackingWeights
+from oacli.control.tracking import StateEstimate, TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_monitor import TubeMonitor, half_widths
 from oacli.control.tube_mpc import TerminalWeights, TubeHistory, TubeMPC
@@ -91,6 +91,36 @@ def workspace_arguments(cfg: OacliConfig) -> dict[str, Any]:
         return {}
     return {"scene": cfg.scene(), "robot": RobotBody.sphere(robot_model(cfg).radius_m),
             "keep_in_margin_m": cfg.environment.keep_in_margin_m}
+
+
+def state_estimate(cfg: OacliConfig) -> StateEstimate:
+    """The standard MPC's state estimate and its rows' margin (``controller.estimate``, ``sensors``' σ).
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+
+    Returns
+    -------
+    StateEstimate
+    """
+    est, s = cfg.controller.estimate, cfg.sensors
+    return StateEstimate(s.position_std_m, s.velocity_std_mps,
+                         est.accel_std_mps2 if est.observer else None, est.margin_sigmas)
+
+
+def standard_mpc_arguments(cfg: OacliConfig) -> dict[str, Any]:
+    """:func:`workspace_arguments` and the :func:`state_estimate` for :class:`~oacli.control.tracking.TrackingMPC`.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+
+    Returns
+    -------
+    dict
+    """
+    return {**workspace_arguments(cfg), "estimate": state_estimate(cfg)}
 
 
 #: Term budget of the invariant set when the tube is redesigned beyond W during a run (bounds its time).
@@ -378,6 +408,12 @@ def add_tube_reasons(report: StatusReport, summary: dict[str, Any]) -> None:
                                     f"{beyond['checked_steps']} steps (first at t = {beyond['first_violation_s']:.2f} "
                                     f"s, up to {beyond['max_over_w']:.3g} × W); response: {what}{new_w}")
     tube = summary["tube"]
+    scales = tube.get("w_scale") or []
+    if any(s < 1.0 for s in scales):
+        shrunk = ", ".join(f"{axis} to {s:.3g}" for axis, s in zip("xyz", scales, strict=False) if s < 1.0)
+        report.degraded("w_scaled", f"W was shrunk below what the model's uncertainty says ({shrunk} of it; "
+                                    "controller.tube.disturbance.on_empty_tightening: scale_w): the tube guarantees "
+                                    "the smaller W only")
     if tube.get("noise_beyond_bound", 0) > tube.get("noise_beyond_limit", np.inf):
         report.degraded("noise", f"the sensor noise exceeded {tube['noise_sigmas']:g} σ on {tube['noise_beyond_bound']}"
                                  f" steps, more than the Gaussian tail allows ({tube['noise_beyond_expected']:.2g} "
