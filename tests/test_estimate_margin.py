@@ -17,6 +17,7 @@ from oacli.geometry import Ellipsoid, Scene
 from oacli.geometry.collision import RobotBody
 from oacli.model.double_integrator import double_integrator
 from oacli.stages.track_tube import standard_mpc_arguments, workspace_arguments
+from oacli.types import InertialParams
 from tests.conftest import REPO
 
 SIGMA = np.array([0.004, 0.002, 0.003])  # per-axis σ of the error [m]
@@ -61,7 +62,7 @@ def test_predicted_position_std_is_the_monte_carlo_error_of_the_next_position(fi
     dt, mass, sp, sv, sa = 0.2, 9.583788668, 0.01, 0.00223606797749979, 0.01
     est = StateEstimate(sp, sv, sa if filtered else None, K)
     a, b = double_integrator(dt, 1.0 / mass)
-    obs = estimate_observer(est, mass, dt)
+    obs = estimate_observer(est, InertialParams(mass, np.array([0.153, 0.143, 0.162])), dt)
     assert isinstance(obs, TranslationObserver) == filtered
     rng = np.random.default_rng(7)
     x = np.zeros((2, 3))  # [p; v] per axis (columns)
@@ -81,9 +82,9 @@ def test_predicted_position_std_is_the_monte_carlo_error_of_the_next_position(fi
         if k > 50:
             errors.append(pred[0] - x[0])
     measured = float(np.std(np.concatenate(errors)))
-    assert measured == pytest.approx(predicted_position_std(est, mass, dt), rel=0.05)
+    assert measured == pytest.approx(predicted_position_std(est, dt), rel=0.05)
     if filtered:  # the filter's prediction is 4-5 times better than the raw measurement's
-        assert predicted_position_std(est, mass, dt) < 0.3 * sp
+        assert predicted_position_std(est, dt) < 0.3 * sp
 
 
 def test_the_config_reaches_the_standard_mpc_only():
@@ -97,4 +98,4 @@ def test_the_config_reaches_the_standard_mpc_only():
     quiet = cfg.model_copy(update={"sensors": cfg.sensors.model_copy(update={"position_std_m": 0.0,
                                                                            "velocity_std_mps": 0.0})})
     est0 = standard_mpc_arguments(quiet)["estimate"]
-    assert not est0.filtered and predicted_position_std(est0, 9.58, 0.2) == 0.0  # no noise, no margin
+    assert not est0.filtered and predicted_position_std(est0, 0.2) == 0.0  # no noise, no margin

@@ -106,7 +106,7 @@ class StateEstimate:
         return self.observer_accel_std_mps2 is not None and self.position_std_m > 0 and self.velocity_std_mps > 0
 
 
-def predicted_position_std(estimate: StateEstimate, mass_kg: float, dt_s: float) -> float:
+def predicted_position_std(estimate: StateEstimate, dt_s: float) -> float:
     """σ [m] per axis of the error of the position predicted one step ahead from the state estimate.
 
     From a raw measurement the prediction ``p̂ + dt v̂ + …`` is off by ``e_p + dt e_v``: σ =
@@ -117,19 +117,21 @@ def predicted_position_std(estimate: StateEstimate, mass_kg: float, dt_s: float)
     Parameters
     ----------
     estimate : StateEstimate
-    mass_kg : float
-        The model's mass [kg].
     dt_s : float
         Control period [s].
 
     Returns
     -------
     float
+
+    Notes
+    -----
+    Independent of the mass: the filter's ``A`` is the double integrator's, and the input (known) adds no error.
     """
     if not estimate.filtered:
         return float(np.hypot(estimate.position_std_m, dt_s * estimate.velocity_std_mps))
     assert estimate.observer_accel_std_mps2 is not None  # filtered
-    a, _ = double_integrator(dt_s, 1.0 / mass_kg)
+    a, _ = double_integrator(dt_s)
     g = np.array([[0.5 * dt_s * dt_s], [dt_s]])
     q = estimate.observer_accel_std_mps2**2 * (g @ g.T) + 1e-18 * np.eye(2)
     r = np.diag([estimate.position_std_m**2, estimate.velocity_std_mps**2])
@@ -137,14 +139,16 @@ def predicted_position_std(estimate: StateEstimate, mass_kg: float, dt_s: float)
     return float(np.sqrt(p_prior[0, 0]))
 
 
-def estimate_observer(estimate: StateEstimate | None, mass_kg: float, dt_s: float) -> TranslationObserver | None:
+def estimate_observer(
+    estimate: StateEstimate | None, params: InertialParams, dt_s: float
+) -> TranslationObserver | None:
     """The translational observer of ``estimate`` (None when the controller acts on the measurement).
 
     Parameters
     ----------
     estimate : StateEstimate or None
-    mass_kg : float
-        The model's mass [kg].
+    params : InertialParams
+        The controller's model (its mass [kg] scales the force input).
     dt_s : float
         Control period [s].
 
@@ -155,7 +159,7 @@ def estimate_observer(estimate: StateEstimate | None, mass_kg: float, dt_s: floa
     if estimate is None or not estimate.filtered:
         return None
     assert estimate.observer_accel_std_mps2 is not None  # filtered
-    a, b = double_integrator(dt_s, 1.0 / mass_kg)
+    a, b = double_integrator(dt_s, 1.0 / params.mass_kg)
     gain = kalman_gain(a, dt_s, estimate.observer_accel_std_mps2, estimate.position_std_m, estimate.velocity_std_mps)
     return TranslationObserver(a, b, gain, dt_s)
 
@@ -244,10 +248,10 @@ class TrackingMPC:
                 scene, robot, keep_in_margin_m=keep_in_margin_m,
                 activation_m=1.0 + float(np.max(limits.velocity_mps)) * horizon_s,
                 error_std_m=None if estimate is None else np.full(
-                    3, predicted_position_std(estimate, params.mass_kg, self.dt_s)),
+                    3, predicted_position_std(estimate, self.dt_s)),
                 error_sigmas=0.0 if estimate is None else estimate.sigmas,
             )
-        self.observer = estimate_observer(estimate, params.mass_kg, self.dt_s)
+        self.observer = estimate_observer(estimate, params, self.dt_s)
         ws = self.workspace
         a, b = hover_error_model(params, self.dt_s)
         self.mpc = LinearMPC(
