@@ -1,0 +1,323 @@
+"""The process model of the full rigid body (:mod:`oacli.estimation.rigid_parameters`) with exact Jacobians.
+
+The dynamics of [Doerr2021] Eqs. 34-35 about the centre of mass, with the wrench Astrobee's body-fixed actuators
+deliver ([ReSWARM2023] §3, Eqs. 38-39; :mod:`oacli.sim.actuators`):
+
+    F_b = κ_F ⊙ (Rᵀ F),   v̇ = R F_b / m,   ω̇ = J⁻¹ (κ_τ ⊙ τ − c × F_b − ω × J ω),   q̇ = ½ Ξ(q) ω
+
+with the full inertia tensor ``J``. As in the simulator (and :mod:`oacli.estimation.propagation`), each interval
+between records is integrated on the plant's grid, the input held; the wrench is evaluated at the attitude at the
+start of every sub-step and held over its four RK4 stages (what :func:`oacli.sim.simulator.simulate` does), so
+noise-free data of the simulator are fitted exactly. Within a sub-step the acceleration is then constant, so the
+translation is closed form: ``v⁺ = v + Σ h_i a_i``, ``r⁺ = r + T v + Σ (½ h_i² + h_i (T − s_i − h_i)) a_i`` (``s_i``
+the sub-step's start within the interval of length ``T``). The rotation ``z = [q, ω]`` is integrated sub-step by
+sub-step with its Jacobian with respect to ``[z_0, θ]`` carried through every RK4 stage, the held wrench's
+dependence on the sub-step's initial attitude, and every quaternion normalisation (chain rule, as
+:func:`oacli.estimation.propagation.propagate_intervals` does for θ = [m, Ixx, Iyy, Izz]).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from oacli.estimation.rigid_parameters import N_FULL, inertia_tensor
+
+STATE_DIM = 13
+_NZ = 7
+_J_BASIS = np.zeros((6, 3, 3))
+for _e, (_a, _b) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
+    _J_BASIS[_e, _a, _b] = _J_BASIS[_e, _b, _a] = 1.0
+
+__all__ = ["accelerations_full", "propagate_full", "rotation_matrices", "wrench_full"]
+
+
+def rotation_matrices(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``R(q)`` (K, 3, 3) for unit quaternions ``q = [x, y, z, w]`` and ``∂R/∂q`` (K, 4, 3, 3) projected on the
+    tangent of the unit sphere (``R(q/|q|)``'s derivative at ``|q| = 1``: no radial part).
+
+    Parameters
+    ----------
+    q : ndarray, shape (K, 4)
+
+    Returns
+    -------
+    rot : ndarray, shape (K, 3, 3)
+    d_rot : ndarray, shape (K, 4, 3, 3)
+    """
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    k = q.shape[0]
+    rot = np.empty((k, 3, 3))
+    rot[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    rot[:, 0, 1] = 2 * (x * y - z * w)
+    rot[:, 0, 2] = 2 * (x * z + y * w)
+    rot[:, 1, 0] = 2 * (x * y + z * w)
+    rot[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    rot[:, 1, 2] = 2 * (y * z - x * w)
+    rot[:, 2, 0] = 2 * (x * z - y * w)
+    rot[:, 2, 1] = 2 * (y * z + x * w)
+    rot[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    zero = np.zeros(k)
+    d = np.empty((k, 4, 3, 3))
+    d[:, 0] = np.stack([np.stack([zero, 2 * y, 2 * z], -1), np.stack([2 * y, -4 * x, -2 * w], -1),
+                        np.stack([2 * z, 2 * w, -4 * x], -1)], 1)
+    d[:, 1] = np.stack([np.stack([-4 * y, 2 * x, 2 * w], -1), np.stack([2 * x, zero, 2 * z], -1),
+                        np.stack([-2 * w, 2 * z, -4 * y], -1)], 1)
+    d[:, 2] = np.stack([np.stack([-4 * z, -2 * w, 2 * x], -1), np.stack([2 * w, -4 * z, 2 * y], -1),
+                        np.stack([2 * x, 2 * y, zero], -1)], 1)
+    d[:, 3] = np.stack([np.stack([zero, -2 * z, 2 * y], -1), np.stack([2 * z, zero, -2 * x], -1),
+                        np.stack([-2 * y, 2 * x, zero], -1)], 1)
+    # Projection on the tangent: ∂R(q/|q|)/∂q = Σ_j ∂R/∂q_j (δ_ji − q_j q_i) at |q| = 1.
+    radial = np.einsum("kj,kjab->kab", q, d)
+    d = d - q[:, :, None, None] * radial[:, None]
+    return rot, d
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    k = v.shape[0]
+    out = np.zeros((k, 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
+    return out
+
+
+def wrench_full(q: np.ndarray, u: np.ndarray, theta: np.ndarray, derivatives: bool = True
+                ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The delivered wrench ``[R F_b, κ_τ ⊙ τ − c × F_b]`` (module docstring) and its derivatives.
+
+    Parameters
+    ----------
+    q : ndarray, shape (K, 4)
+        Unit attitudes.
+    u : ndarray, shape (K, 6)
+        Commanded force (world) [N] and torque (body) [N·m].
+    theta : ndarray, shape (16,)
+    derivatives : bool
+        Also return the derivatives.
+
+    Returns
+    -------
+    w : ndarray, shape (K, 6)
+        World force [N], torque about the centre of mass (body) [N·m].
+    d_q : ndarray, shape (K, 6, 4) or None
+        ``∂w/∂q`` (tangent-projected).
+    d_theta : ndarray, shape (K, 6, 16) or None
+        ``∂w/∂θ``.
+    """
+    kf, kt, c = theta[10:13], theta[13:16], theta[7:10]
+    rot, d_rot = rotation_matrices(q)
+    f = u[:, 0:3]
+    fb0 = np.einsum("kji,kj->ki", rot, f)  # Rᵀ F
+    fb = kf * fb0
+    w = np.empty((q.shape[0], 6))
+    w[:, 0:3] = np.einsum("kij,kj->ki", rot, fb)
+    w[:, 3:6] = kt * u[:, 3:6] - np.cross(c, fb)
+    if not derivatives:
+        return w, None, None
+    k = q.shape[0]
+    d_fb0 = np.einsum("knji,kj->kin", d_rot, f)  # (K, 3, 4)
+    d_fb = kf[None, :, None] * d_fb0
+    d_q = np.empty((k, 6, 4))
+    d_q[:, 0:3] = np.einsum("knij,kj->kin", d_rot, fb) + rot @ d_fb
+    d_q[:, 3:6] = -np.cross(c[None, :, None], d_fb, axisa=1, axisb=1, axisc=1)
+    d_th = np.zeros((k, 6, N_FULL))
+    d_th[:, 0:3, 10:13] = rot * fb0[:, None, :]
+    # ∂(−c × F_b)/∂κ_F,j = −c × e_j (Rᵀ F)_j ;  ∂(−c × F_b)/∂c = [F_b]×
+    d_th[:, 3:6, 10:13] = -_skew(np.broadcast_to(c, (k, 3)).copy()) * fb0[:, None, :]
+    d_th[:, 3:6, 7:10] = _skew(fb)
+    d_th[:, 3, 13], d_th[:, 4, 14], d_th[:, 5, 15] = u[:, 3], u[:, 4], u[:, 5]
+    return w, d_q, d_th
+
+
+def _rotation_rate(z: np.ndarray, tau: np.ndarray, j: np.ndarray, j_inv: np.ndarray, jacobians: bool
+                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """``ż = [½ Ξ(q) ω, J⁻¹(τ − ω × Jω)]`` (K, 7), ``∂ż/∂z`` (K, 7, 7) and ``∂ω̇/∂J`` (K, 3, 6) with τ held."""
+    qx, qy, qz, qw = z[:, 0], z[:, 1], z[:, 2], z[:, 3]
+    w = z[:, 4:7]
+    wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
+    jw = w @ j.T
+    wdot = (tau - np.cross(w, jw)) @ j_inv.T
+    out = np.empty((z.shape[0], _NZ))
+    out[:, 0] = 0.5 * (qw * wx - qz * wy + qy * wz)
+    out[:, 1] = 0.5 * (qz * wx + qw * wy - qx * wz)
+    out[:, 2] = 0.5 * (-qy * wx + qx * wy + qw * wz)
+    out[:, 3] = 0.5 * (-qx * wx - qy * wy - qz * wz)
+    out[:, 4:7] = wdot
+    if not jacobians:
+        return out, None, None
+    k = z.shape[0]
+    jz = np.zeros((k, _NZ, _NZ))
+    h = 0.5
+    jz[:, 0, 1], jz[:, 0, 2], jz[:, 0, 3] = h * wz, -h * wy, h * wx
+    jz[:, 1, 0], jz[:, 1, 2], jz[:, 1, 3] = -h * wz, h * wx, h * wy
+    jz[:, 2, 0], jz[:, 2, 1], jz[:, 2, 3] = h * wy, -h * wx, h * wz
+    jz[:, 3, 0], jz[:, 3, 1], jz[:, 3, 2] = -h * wx, -h * wy, -h * wz
+    jz[:, 0, 4], jz[:, 0, 5], jz[:, 0, 6] = h * qw, -h * qz, h * qy
+    jz[:, 1, 4], jz[:, 1, 5], jz[:, 1, 6] = h * qz, h * qw, -h * qx
+    jz[:, 2, 4], jz[:, 2, 5], jz[:, 2, 6] = -h * qy, h * qx, h * qw
+    jz[:, 3, 4], jz[:, 3, 5], jz[:, 3, 6] = -h * qx, -h * qy, -h * qz
+    # ∂ω̇/∂ω = −J⁻¹ ([ω]× J − [Jω]×)
+    jz[:, 4:7, 4:7] = -j_inv @ (_skew(w) @ j - _skew(jw))
+    # ∂ω̇/∂J_e = −J⁻¹ (ω × E_e ω + E_e ω̇)
+    ew = np.einsum("eab,kb->kea", _J_BASIS, w)
+    ewd = np.einsum("eab,kb->kea", _J_BASIS, wdot)
+    jj = -np.einsum("ab,keb->kae", j_inv, np.cross(w[:, None, :], ew) + ewd)
+    return out, jz, jj
+
+
+def accelerations_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``[v̇, ω̇]`` of the continuous dynamics at ``x`` (module docstring) and its Jacobians (the accelerometer and
+    gyro-slope rows of the batch problem).
+
+    Parameters
+    ----------
+    x : ndarray, shape (K, 13)
+    u : ndarray, shape (K, 6)
+    theta : ndarray, shape (16,)
+
+    Returns
+    -------
+    acc : ndarray, shape (K, 6)
+        [m/s², rad/s²].
+    d_x : ndarray, shape (K, 6, 13)
+    d_theta : ndarray, shape (K, 6, 16)
+    """
+    j = inertia_tensor(theta)
+    j_inv = np.linalg.inv(j)
+    m = float(theta[0])
+    wr, wq, wth = wrench_full(x[:, 6:10], u, theta)
+    assert wq is not None and wth is not None
+    rate, jz, jj = _rotation_rate(x[:, 6:13], wr[:, 3:6], j, j_inv, True)
+    assert jz is not None and jj is not None
+    k = x.shape[0]
+    acc = np.empty((k, 6))
+    acc[:, 0:3] = wr[:, 0:3] / m
+    acc[:, 3:6] = rate[:, 4:7]
+    d_x = np.zeros((k, 6, STATE_DIM))
+    d_x[:, 0:3, 6:10] = wq[:, 0:3] / m
+    d_x[:, 3:6, 6:10] = j_inv @ wq[:, 3:6]
+    d_x[:, 3:6, 10:13] = jz[:, 4:7, 4:7]
+    d_th = np.zeros((k, 6, N_FULL))
+    d_th[:, 0:3] = wth[:, 0:3] / m
+    d_th[:, 0:3, 0] -= wr[:, 0:3] / m**2
+    d_th[:, 3:6] = j_inv @ wth[:, 3:6]
+    d_th[:, 3:6, 1:7] += jj
+    return acc, d_x, d_th
+
+
+def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray, *,
+                   jacobians: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Integrate K intervals of the full model, each from its own state with its own held input.
+
+    Parameters
+    ----------
+    x : ndarray, shape (K, 13)
+        Start states (unit quaternions).
+    u : ndarray, shape (K, 6)
+        Commanded inputs held over each interval [N world frame, N·m body frame].
+    theta : ndarray, shape (16,)
+        θ (:mod:`oacli.estimation.rigid_parameters`).
+    durations : ndarray, shape (K, M)
+        Sub-step durations from :func:`oacli.estimation.propagation.substep_schedule` (zeros skipped exactly).
+    jacobians : bool
+        False: the end states only.
+
+    Returns
+    -------
+    x_next : ndarray, shape (K, 13)
+    a : ndarray, shape (K, 13, 13) or None
+        ``∂x_next/∂x``.
+    c : ndarray, shape (K, 13, 16) or None
+        ``∂x_next/∂θ``.
+    """
+    x = np.array(x, dtype=float, ndmin=2)
+    u = np.array(u, dtype=float, ndmin=2)
+    durations = np.array(durations, dtype=float, ndmin=2)
+    theta = np.asarray(theta, dtype=float)
+    k = x.shape[0]
+    m = float(theta[0])
+    j = inertia_tensor(theta)
+    j_inv = np.linalg.inv(j)
+    nc = _NZ + N_FULL
+    total_s = durations.sum(axis=1)
+    z = x[:, 6:13].copy()
+    v_sum = np.zeros((k, 3))
+    r_sum = np.zeros((k, 3))
+    d_z = d_v = d_r = None
+    if jacobians:
+        d_z = np.zeros((k, _NZ, nc))
+        d_z[:, :, 0:_NZ] = np.eye(_NZ)
+        d_v = np.zeros((k, 3, nc))
+        d_r = np.zeros((k, 3, nc))
+    elapsed = np.zeros(k)
+    for col in range(durations.shape[1]):
+        h = durations[:, col]
+        active = h > 0.0
+        if not np.any(active):
+            continue
+        wr, wq, wth = wrench_full(z[:, 0:4], u, theta, jacobians)
+        tau = wr[:, 3:6]
+        acc = wr[:, 0:3] / m
+        weight = 0.5 * h * h + h * (total_s - elapsed - h)
+        v_sum += h[:, None] * acc
+        r_sum += weight[:, None] * acc
+        hv = h[:, None]
+        g_tau = None
+        if jacobians:
+            assert d_z is not None and d_v is not None and d_r is not None and wq is not None and wth is not None
+            dq0 = d_z[:, 0:4, :]
+            g_acc = wq[:, 0:3] @ dq0
+            g_acc[:, :, _NZ:] += wth[:, 0:3]
+            g_acc /= m
+            g_acc[:, :, _NZ] -= acc / m
+            d_v += h[:, None, None] * g_acc
+            d_r += weight[:, None, None] * g_acc
+            g_tau = wq[:, 3:6] @ dq0
+            g_tau[:, :, _NZ:] += wth[:, 3:6]
+            g_tau = np.einsum("ab,kbc->kac", j_inv, g_tau)  # ∂ω̇/∂(held τ) · ∂τ/∂[z0, θ]
+        ks: list[np.ndarray] = []
+        dks: list[np.ndarray] = []
+        for coef in (0.0, 0.5, 0.5, 1.0):
+            zs = z if not ks else z + coef * hv * ks[-1]
+            f, jz, jj = _rotation_rate(zs, tau, j, j_inv, jacobians)
+            ks.append(f)
+            if jacobians:
+                assert d_z is not None and jz is not None and jj is not None and g_tau is not None
+                ds = d_z if not dks else d_z + coef * h[:, None, None] * dks[-1]
+                dk = jz @ ds
+                dk[:, 4:7, :] += g_tau
+                dk[:, 4:7, _NZ + 1:_NZ + 7] += jj
+                dks.append(dk)
+        z_new = z + (hv / 6.0) * (ks[0] + 2.0 * ks[1] + 2.0 * ks[2] + ks[3])
+        q = z_new[:, 0:4]
+        norm = np.sqrt(np.einsum("ki,ki->k", q, q))
+        sign = np.where(q[:, 3] < 0.0, -1.0, 1.0)
+        q_hat = q / norm[:, None]
+        z_new[:, 0:4] = sign[:, None] * q_hat
+        if jacobians:
+            assert d_z is not None
+            d_new = d_z + (h[:, None, None] / 6.0) * (dks[0] + 2.0 * dks[1] + 2.0 * dks[2] + dks[3])
+            proj = (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) * (sign / norm)[:, None, None]
+            d_new[:, 0:4, :] = proj @ d_new[:, 0:4, :]
+            d_z = np.where(active[:, None, None], d_new, d_z)
+        z = np.where(active[:, None], z_new, z)
+        elapsed += h
+    x_next = np.empty_like(x)
+    x_next[:, 0:3] = x[:, 0:3] + total_s[:, None] * x[:, 3:6] + r_sum
+    x_next[:, 3:6] = x[:, 3:6] + v_sum
+    x_next[:, 6:13] = z
+    if not jacobians:
+        return x_next, None, None
+    assert d_z is not None and d_v is not None and d_r is not None
+    a = np.zeros((k, STATE_DIM, STATE_DIM))
+    a[:, 0:6, 0:6] = np.eye(6)
+    a[:, 0, 3] = a[:, 1, 4] = a[:, 2, 5] = total_s
+    a[:, 0:3, 6:13] = d_r[:, :, 0:_NZ]
+    a[:, 3:6, 6:13] = d_v[:, :, 0:_NZ]
+    a[:, 6:13, 6:13] = d_z[:, :, 0:_NZ]
+    c = np.empty((k, STATE_DIM, N_FULL))
+    c[:, 0:3] = d_r[:, :, _NZ:]
+    c[:, 3:6] = d_v[:, :, _NZ:]
+    c[:, 6:13] = d_z[:, :, _NZ:]
+    return x_next, a, c
