@@ -40,6 +40,7 @@ from oacli.config.estimation import RlsConfig
 from oacli.errors import InfeasibleError, InputError
 from oacli.estimation.alignment import AlignmentReport, align_records
 from oacli.estimation.batch import UNIDENTIFIED_VARIANCE, BatchResult, estimate_batch_windows
+from oacli.estimation.batch_model import FullModel
 from oacli.estimation.bounds import CramerRaoBound, cramer_rao_bound, describe_unobservable, unobservable_parameters
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
@@ -55,6 +56,7 @@ from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
 from oacli.io.telemetry_streams import TelemetryStreams, read_telemetry_streams
 from oacli.phases import set_phase
+from oacli.stages.estimate_rigid import batch_model, rigid_body_summary, truth_full_from_config_yaml
 from oacli.stages.estimate_rls import run_rls
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
 from oacli.status import StatusReport, status_log
@@ -157,6 +159,7 @@ def run_estimation(
     records: list[Measurement], settings: EstimatorSettings, prior: ParameterEstimate, method: str, *,
     use_prior: bool = True, window_s: float = 10.0, progress: Callable[[float], None] | None = None,
     rls: RlsConfig | None = None, imu: ImuStream | None = None, period_s: float | None = None,
+    model: FullModel | None = None,
 ) -> EstimationRun:
     """Run one estimator over time-ordered records and evaluate the Cramér-Rao bound along its estimate.
 
@@ -182,6 +185,9 @@ def run_estimation(
         Method ``rls``: the telemetry's IMU (angular accelerations from the gyro).
     period_s : float, optional
         Method ``rls``: the control period [s].
+    model : FullModel, optional
+        Method ``batch``: the part of the full rigid body estimated (:func:`oacli.stages.estimate_rigid.batch_model`;
+        default θ = [m, Ixx, Iyy, Izz]).
     """
     start = time.perf_counter()
     t = np.array([r.t for r in records])
@@ -206,7 +212,8 @@ def run_estimation(
             if progress is not None:
                 progress(fraction)
 
-        results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=window_done)
+        results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=window_done,
+                                         model=model)
         batch = results[-1]
         history = [r.estimate for r in results]
         final, states, d2, dof = batch.estimate, batch.states, batch.d2, batch.dof
@@ -527,9 +534,10 @@ def run_estimate(
         raise InputError(f"{telemetry}: {measured} usable measurement(s); estimation needs at least 2")
     settings = estimator_settings(cfg)
     prior = estimation_prior(cfg)
+    model = batch_model(cfg, prior) if method == "batch" else None
     run = run_estimation(records, settings, prior, method, use_prior=cfg.estimation.use_prior,
                          window_s=cfg.estimation.window_s, progress=progress, rls=cfg.estimation.rls,
-                         imu=_imu_stream(streams), period_s=alignment.control_period_s)
+                         imu=_imu_stream(streams), period_s=alignment.control_period_s, model=model)
     limit = cfg.estimation.max_relative_std
     unobservable = unobservable_parameters(run.bound, run.final.theta, limit)
     if unobservable:
@@ -554,6 +562,8 @@ def run_estimate(
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
     summary = _estimate_summary(run, prior, truth, telemetry, alignment, streams)
+    if run.batch is not None:
+        summary["rigid_body"] = rigid_body_summary(run.batch, model, truth_full_from_config_yaml(streams.config_yaml))
     if use_localisation:
         summary["measurements_topic"] = ms.TOPIC_LOCALISATION
         log.insert(1, (0.0, "info", f"measured states from {ms.TOPIC_LOCALISATION} (by stamp)"))
