@@ -1,4 +1,4 @@
-"""The full rigid body in the batch estimator: exact Jacobians, physical parametrisation, recovery, the 4-parameter case.
+"""The full rigid body in the batch estimator: exact Jacobians, physical φ, recovery, the 4-parameter case.
 
 θ = mass, inertia tensor with products, centre-of-mass offset, force and torque scale per body axis
 (oacli.estimation.rigid_parameters, rigid_dynamics, batch_model).
@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from estimation_helpers import (
     CONTROL_PERIOD_S,
     PLANT_PERIOD_S,
@@ -20,6 +19,7 @@ from estimation_helpers import (
     settings,
     simulate_open_loop,
 )
+
 from oacli.config import config_from_dict
 from oacli.errors import ConfigError
 from oacli.estimation.batch import estimate_batch

@@ -64,13 +64,13 @@ class BatchProblem:
         starts[0] = True
         self.segment_starts = np.flatnonzero(starts)
         self.links = ~starts[1:]  # process residual k -> k+1 present
-        model = settings.measurement
-        self.state_rows, accel_rows = measured_rows(model)
+        meas = settings.measurement
+        self.state_rows, accel_rows = measured_rows(meas)
         # Acceleration rows are used only where every record with a measurement carries them.
         measured_acc = self.acc[self.has_state]
         self.accel_rows = np.array([i for i in accel_rows if np.all(np.isfinite(measured_acc[:, i]))], dtype=int)
-        self.w_state = np.sqrt(model.state_weights[self.state_rows])
-        self.w_accel = np.sqrt(model.acceleration_weights[self.accel_rows])
+        self.w_state = np.sqrt(meas.state_weights[self.state_rows])
+        self.w_accel = np.sqrt(meas.acceleration_weights[self.accel_rows])
         self.dof = len(self.state_rows) + len(self.accel_rows)
         self.gauge_rows = np.setdiff1d(np.arange(TANGENT_DIM), self.state_rows)
         self.durations = substep_schedule(self.t[:-1], self.t[1:], settings.substep_s)
@@ -82,7 +82,7 @@ class BatchProblem:
         self._w_proc_linked = self._w_proc_nominal
         self._q_proc = settings.process.covariance(np.diff(self.t), weights_theta) if self.has_gaps else None
         self._weights_theta = np.asarray(weights_theta, dtype=float)
-        self._bridge = bridge_accelerations(records, model) if self.has_gaps else (None, None)
+        self._bridge = bridge_accelerations(records, meas) if self.has_gaps else (None, None)
         self._gyro = bridge_angular_accelerations(records) if self.has_gaps else None
         self.w_proc = self._w_proc_nominal
         self.set_lost_inputs()

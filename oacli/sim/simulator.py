@@ -8,8 +8,9 @@ Actuators saturate each axis at its limit. Two actuator effects of a real free-f
 (:mod:`oacli.sim.actuators`): a scale error between the applied and the delivered input per *body* axis (Astrobee's
 impellers are body-fixed), and a centre-of-mass offset ``r`` from the geometric centre the thrust acts on, which
 adds the torque ``-r × F_body``; both are recomputed at every plant step from the attitude at its start. The
-disturbance's force is added in the world frame after them and does not torque the body. The recorded ``u_applied`` stays what the robot believes it applied (the saturated command), as
-a flight log would. Every random draw comes from the generator passed in.
+disturbance's force is added in the world frame after them and does not torque the body. The recorded
+``u_applied`` stays what the robot believes it applied (the saturated command), as a flight log would. Every
+random draw comes from the generator passed in.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from oacli.model import quaternion as quat
 from oacli.model.rigid_body import theta_of
 from oacli.sim.actuators import delivered_wrench, delivered_wrench_floats
 from oacli.sim.full_inertia import TensorPlant
