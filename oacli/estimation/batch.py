@@ -192,7 +192,7 @@ class BatchResult:
 
 def covariance_at(
     records: Sequence[Measurement], settings: EstimatorSettings, prior: ParameterEstimate | None,
-    states: np.ndarray, phi: np.ndarray, weights_theta: np.ndarray,
+    states: np.ndarray, phi: np.ndarray, weights_theta: np.ndarray, model: FullModel | None = None,
 ) -> np.ndarray:
     """The batch problem's parameter covariance ``[(AᵀA)⁻¹]_θθ`` at a given point, without iterating.
 
@@ -213,13 +213,15 @@ def covariance_at(
         Parameters at the point in the solver's parametrisation (:mod:`oacli.estimation.parametrization`).
     weights_theta : ndarray, shape (4,)
         θ ``[m kg, Ixx, Iyy, Izz kg·m²]`` at which the lost inputs' model is weighted.
+    model : FullModel, optional
+        The full rigid body's chosen part (default θ = [m, Ixx, Iyy, Izz]).
 
     Returns
     -------
-    ndarray, shape (4, 4)
+    ndarray, shape (4, 4) or (16, 16)
         Covariance of ``θ`` (``inf`` diagonal when ``AᵀA`` is singular).
     """
-    problem = BatchProblem(records, settings, prior, weights_theta)
+    problem = BatchProblem(records, settings, prior, weights_theta, model)
     cov, _ = marginal_covariances(problem, states, phi, problem.has_state.copy())
     return cov
 

@@ -106,6 +106,8 @@ class EstimationRun:
         Sequential: gaps it could not bridge (the batch cuts them), where it re-initialised the robot state.
     extras : dict or None
         The method's own summary entries (``rls``: force scale and its calibration, infeasible updates).
+    full : tuple of ndarray or None
+        The full rigid body's θ (16) and covariance (16×16) when one was estimated.
     nis_ratio : float
         Sequential: mean normalised innovation squared of the filter's own updates over its expected value (its
         dimension); about 1 for a consistent filter, NaN when the filter made no update of its own.
@@ -140,6 +142,7 @@ class EstimationRun:
     gaps_bridged_imu: int = 0
     segment_restarts: int = 0
     extras: dict[str, Any] | None = None
+    full: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def truth_from_config_yaml(text: str | None) -> np.ndarray | None:
@@ -186,8 +189,8 @@ def run_estimation(
     period_s : float, optional
         Method ``rls``: the control period [s].
     model : FullModel, optional
-        Method ``batch``: the part of the full rigid body estimated (:func:`oacli.stages.estimate_rigid.batch_model`;
-        default θ = [m, Ixx, Iyy, Izz]).
+        Methods ``batch`` and ``sequential``: the part of the full rigid body estimated
+        (:func:`oacli.stages.estimate_rigid.batch_model`; default θ = [m, Ixx, Iyy, Izz]).
     """
     start = time.perf_counter()
     t = np.array([r.t for r in records])
@@ -201,6 +204,7 @@ def run_estimation(
     bootstrap_unidentified = False
     gaps_bridged = gaps_bridged_imu = segment_restarts = 0
     extras: dict[str, Any] | None = None
+    full = None
     if method == "batch":
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
         set_phase(progress, f"batch window 1/{len(ends)}")
@@ -215,6 +219,8 @@ def run_estimation(
         results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=window_done,
                                          model=model)
         batch = results[-1]
+        if batch.theta_full is not None and batch.covariance_full is not None:
+            full = (batch.theta_full, batch.covariance_full)
         history = [r.estimate for r in results]
         final, states, d2, dof = batch.estimate, batch.states, batch.d2, batch.dof
         status = ["accepted" if ok else "rejected" if by_t[ti].state_measured else "predicted"
@@ -223,13 +229,14 @@ def run_estimation(
         used = batch.inliers
         t = batch.t
     elif method == "sequential":
-        est = SequentialEstimator(settings, prior, intermediate_estimates=False)  # only the final one is kept
+        est = SequentialEstimator(settings, prior, intermediate_estimates=False, model=model)  # keeps the final one
         set_phase(progress, f"sequential EKF ({len(records)} records)")
         for i, rec in enumerate(records):
             est.update(rec)
             if progress is not None and (i % 25 == 0 or i == len(records) - 1):
                 progress((i + 1) / len(records))
         final = est.flush()
+        full = est.full_estimate() if model is not None else None
         steps = [s for s in est.history if s.status != "late"]
         history = [s.estimate for s in steps]
         states = np.array([s.state for s in steps])
@@ -276,7 +283,7 @@ def run_estimation(
         reinitialisations=reinitialisations, solve_time_s=time.perf_counter() - start, segments=segments,
         nis_ratio=nis_ratio, nis_dof=nis_dof, bootstrap_unidentified=bootstrap_unidentified,
         gaps_bridged=gaps_bridged, gaps_bridged_imu=gaps_bridged_imu,
-        segment_restarts=segment_restarts, extras=extras,
+        segment_restarts=segment_restarts, extras=extras, full=full,
     )
 
 
@@ -534,7 +541,7 @@ def run_estimate(
         raise InputError(f"{telemetry}: {measured} usable measurement(s); estimation needs at least 2")
     settings = estimator_settings(cfg)
     prior = estimation_prior(cfg)
-    model = batch_model(cfg, prior) if method == "batch" else None
+    model = batch_model(cfg, prior) if method in ("batch", "sequential") else None
     run = run_estimation(records, settings, prior, method, use_prior=cfg.estimation.use_prior,
                          window_s=cfg.estimation.window_s, progress=progress, rls=cfg.estimation.rls,
                          imu=_imu_stream(streams), period_s=alignment.control_period_s, model=model)
@@ -562,8 +569,9 @@ def run_estimate(
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
     summary = _estimate_summary(run, prior, truth, telemetry, alignment, streams)
-    if run.batch is not None:
-        summary["rigid_body"] = rigid_body_summary(run.batch, model, truth_full_from_config_yaml(streams.config_yaml))
+    if method in ("batch", "sequential"):
+        summary["rigid_body"] = rigid_body_summary(run.final, run.full, model,
+                                                   truth_full_from_config_yaml(streams.config_yaml))
     if use_localisation:
         summary["measurements_topic"] = ms.TOPIC_LOCALISATION
         log.insert(1, (0.0, "info", f"measured states from {ms.TOPIC_LOCALISATION} (by stamp)"))

@@ -14,7 +14,6 @@ import numpy as np
 import yaml
 
 from oacli.config import OacliConfig
-from oacli.estimation.batch import BatchResult
 from oacli.estimation.batch_model import FullModel, full_prior
 from oacli.estimation.rigid_parameters import FULL_NAMES, ParameterSet
 from oacli.types import ParameterEstimate
@@ -77,32 +76,35 @@ def truth_full_from_config_yaml(text: str | None) -> np.ndarray | None:
     return theta if np.all(np.isfinite(theta)) else None
 
 
-def rigid_body_summary(batch: BatchResult, model: FullModel | None, truth: np.ndarray | None) -> dict[str, Any]:
+def rigid_body_summary(final: ParameterEstimate, full: tuple[np.ndarray, np.ndarray] | None,
+                       model: FullModel | None, truth: np.ndarray | None) -> dict[str, Any]:
     """The ``rigid_body`` section of the summary: every estimated entry's estimate, σ, prior σ, and with a truth
     its error and z-score.
 
     Parameters
     ----------
-    batch : BatchResult
-        The final batch solve.
+    final : ParameterEstimate
+        The final estimate of [m, Ixx, Iyy, Izz].
+    full : tuple of ndarray or None
+        The full θ (16) and its covariance (16×16) when a :class:`FullModel` was estimated.
     model : FullModel or None
-        The model it was solved with (None: θ = [m, Ixx, Iyy, Izz]).
+        The model (None: θ = [m, Ixx, Iyy, Izz]).
     truth : ndarray, shape (16,) or None
 
     Returns
     -------
     dict
     """
-    if model is None or batch.theta_full is None or batch.covariance_full is None:
+    if model is None or full is None:
         idx = np.arange(4)
-        theta = np.r_[batch.estimate.theta, np.zeros(6), np.ones(6)]
+        theta = np.r_[final.theta, np.zeros(6), np.ones(6)]
         cov = np.zeros((16, 16))
-        cov[:4, :4] = batch.estimate.covariance
+        cov[:4, :4] = final.covariance
         prior_std = np.full(16, np.nan)
         groups: tuple[str, ...] = ("mass", "inertia")
     else:
         idx = model.params.index
-        theta, cov = batch.theta_full, batch.covariance_full
+        theta, cov = full
         prior_std = np.sqrt(np.diag(model.prior_cov))
         groups = model.params.groups
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
