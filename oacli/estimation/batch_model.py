@@ -36,32 +36,107 @@ class LegacyModel:
     prior_index = np.arange(4)
 
     def theta(self, phi: np.ndarray) -> np.ndarray:
-        """θ (4) of φ (4)."""
+        """θ (4) of φ (4).
+
+        Parameters
+        ----------
+        phi : ndarray, shape (n,)
+            φ of the estimated entries.
+
+        Returns
+        -------
+        ndarray, shape (4,)
+        """
         return par.theta_from_phi(phi)
 
     def theta4(self, phi: np.ndarray) -> np.ndarray:
-        """[m, Ixx, Iyy, Izz] of φ."""
+        """[m, Ixx, Iyy, Izz] of φ.
+
+        Parameters
+        ----------
+        phi : ndarray, shape (n,)
+            φ of the estimated entries.
+
+        Returns
+        -------
+        ndarray, shape (4,)
+        """
         return par.theta_from_phi(phi)
 
     def jacobian(self, phi: np.ndarray) -> np.ndarray:
-        """``dθ/dφ`` (4×4)."""
+        """``dθ/dφ`` (4×4).
+
+        Parameters
+        ----------
+        phi : ndarray, shape (n,)
+            φ of the estimated entries.
+
+        Returns
+        -------
+        ndarray, shape (4, 4)
+        """
         return par.theta_jacobian(phi)
 
     def phi(self, theta: np.ndarray) -> np.ndarray:
-        """φ of θ (4 entries)."""
+        """φ of θ (its first 4 entries).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (4,) or more
+
+        Returns
+        -------
+        ndarray, shape (4,)
+        """
         return par.phi_from_theta(np.asarray(theta, dtype=float)[:4])
 
     def propagate(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray, *,
                   jacobians: bool = True, reference: bool = False
                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """End states, ``∂f/∂x`` (K, 13, 13), ``∂f/∂θ`` (K, 13, 4) of the process model."""
+        """End states, ``∂f/∂x`` and ``∂f/∂θ`` of the process model ([Doerr2021] Eqs. 34-35).
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+        u : ndarray, shape (K, 6)
+        theta : ndarray
+            θ of :meth:`theta`.
+        durations : ndarray, shape (K, M)
+            Sub-step durations [s].
+        jacobians : bool
+            False: the end states only.
+        reference : bool
+            The general RK4 path (4 parameters only).
+
+        Returns
+        -------
+        x_next : ndarray, shape (K, 13)
+        a : ndarray, shape (K, 13, 13) or None
+        c : ndarray, shape (K, 13, len(theta)) or None
+        """
         if reference:
             return propagate_intervals(x, u, theta, durations)
         return propagate_intervals_structured(x, u, theta, durations, jacobians=jacobians)
 
     def accelerations(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, jacobians: bool = True
                       ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """``[v̇, ω̇]`` (K, 6) and its Jacobians on x (K, 6, 13) and θ (K, 6, 4) ([Doerr2021] Eqs. 34-35)."""
+        """``[v̇, ω̇]`` and its Jacobians on x and θ ([Doerr2021] Eqs. 34-35).
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+        u : ndarray, shape (K, 6)
+        theta : ndarray
+            θ of :meth:`theta`.
+        jacobians : bool
+            Also the Jacobians.
+
+        Returns
+        -------
+        acc : ndarray, shape (K, 6)
+        d_x : ndarray, shape (K, 6, 13) or None
+        d_theta : ndarray, shape (K, 6, len(theta)) or None
+        """
         f = dynamics_batch(x, u, theta)[:, _ACCEL_ROWS]
         if not jacobians:
             return f, None, None
@@ -97,19 +172,59 @@ class FullModel:
         return self.params.index
 
     def theta(self, phi: np.ndarray) -> np.ndarray:
-        """θ (16) of φ (n)."""
+        """θ (16) of φ (n).
+
+        Parameters
+        ----------
+        phi : ndarray, shape (n,)
+            φ of the estimated entries.
+
+        Returns
+        -------
+        ndarray, shape (16,)
+        """
         return self.params.theta(phi)
 
     def theta4(self, phi: np.ndarray) -> np.ndarray:
-        """[m, Ixx, Iyy, Izz] of φ."""
+        """[m, Ixx, Iyy, Izz] of φ.
+
+        Parameters
+        ----------
+        phi : ndarray, shape (n,)
+            φ of the estimated entries.
+
+        Returns
+        -------
+        ndarray, shape (4,)
+        """
         return self.params.theta(phi)[:4]
 
     def jacobian(self, phi: np.ndarray) -> np.ndarray:
-        """``dθ/dφ`` (16×n)."""
+        """``dθ/dφ`` (16×n).
+
+        Parameters
+        ----------
+        phi : ndarray, shape (n,)
+            φ of the estimated entries.
+
+        Returns
+        -------
+        ndarray, shape (16, n)
+        """
         return self.params.jacobian(phi)
 
     def phi(self, theta: np.ndarray) -> np.ndarray:
-        """φ (n) of θ (16; 4 entries: the rest from the fixed values)."""
+        """φ (n) of θ.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (16,) or (4,)
+            θ; with 4 entries the rest from the fixed values.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
         theta = np.asarray(theta, dtype=float)
         if theta.size == 4:
             theta = np.r_[theta, self.params.theta_fixed[4:]]
@@ -118,12 +233,48 @@ class FullModel:
     def propagate(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray, *,
                   jacobians: bool = True, reference: bool = False
                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """End states, ``∂f/∂x`` (K, 13, 13), ``∂f/∂θ`` (K, 13, 16) (:func:`propagate_full`)."""
+        """End states, ``∂f/∂x`` and ``∂f/∂θ`` of the full model (:func:`propagate_full`).
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+        u : ndarray, shape (K, 6)
+        theta : ndarray
+            θ of :meth:`theta`.
+        durations : ndarray, shape (K, M)
+            Sub-step durations [s].
+        jacobians : bool
+            False: the end states only.
+        reference : bool
+            The general RK4 path (4 parameters only).
+
+        Returns
+        -------
+        x_next : ndarray, shape (K, 13)
+        a : ndarray, shape (K, 13, 13) or None
+        c : ndarray, shape (K, 13, len(theta)) or None
+        """
         return propagate_full(x, u, theta, durations, jacobians=jacobians)
 
     def accelerations(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, jacobians: bool = True
                       ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """``[v̇, ω̇]`` (K, 6) and its Jacobians on x (K, 6, 13) and θ (K, 6, 16) (:func:`accelerations_full`)."""
+        """``[v̇, ω̇]`` and its Jacobians on x and θ (:func:`accelerations_full`).
+
+        Parameters
+        ----------
+        x : ndarray, shape (K, 13)
+        u : ndarray, shape (K, 6)
+        theta : ndarray
+            θ of :meth:`theta`.
+        jacobians : bool
+            Also the Jacobians.
+
+        Returns
+        -------
+        acc : ndarray, shape (K, 6)
+        d_x : ndarray, shape (K, 6, 13) or None
+        d_theta : ndarray, shape (K, 6, len(theta)) or None
+        """
         f, dx, dth = accelerations_full(x, u, theta)
         return (f, dx, dth) if jacobians else (f, None, None)
 

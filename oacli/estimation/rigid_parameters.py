@@ -216,21 +216,57 @@ class ParameterSet:
         return self.groups == LEGACY_GROUPS and bool(np.all(self.theta_fixed[4:16] == ideal))
 
     def phi_full(self, phi: np.ndarray) -> np.ndarray:
-        """The 16-entry φ with the estimated entries ``phi`` (n) inserted into the fixed ones."""
+        """The 16-entry φ with the estimated entries ``phi`` inserted into the fixed ones.
+
+        Parameters
+        ----------
+        phi : ndarray, shape (n,)
+
+        Returns
+        -------
+        ndarray, shape (16,)
+        """
         out = phi_from_theta_full(self.theta_fixed)
         out[self.index] = np.asarray(phi, dtype=float)
         return out
 
     def phi_from_theta(self, theta_full: np.ndarray) -> np.ndarray:
-        """φ (n) of a physical θ (16); the entries not estimated are ignored."""
+        """φ of the estimated entries of a physical θ (the others are ignored).
+
+        Parameters
+        ----------
+        theta_full : ndarray, shape (16,)
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
         return phi_from_theta_full(theta_full)[self.index]
 
     def theta(self, phi: np.ndarray) -> np.ndarray:
-        """θ (16) of φ (n)."""
+        """θ (16) of φ.
+
+        Parameters
+        ----------
+        phi : ndarray, shape (n,)
+
+        Returns
+        -------
+        ndarray, shape (16,)
+        """
         return theta_from_phi_full(self.phi_full(phi))
 
     def jacobian(self, phi: np.ndarray) -> np.ndarray:
-        """``dθ/dφ`` (16×n) at φ (n)."""
+        """``dθ/dφ`` at φ.
+
+        Parameters
+        ----------
+        phi : ndarray, shape (n,)
+
+        Returns
+        -------
+        ndarray, shape (16, n)
+        """
         return theta_jacobian_full(self.phi_full(phi))[:, self.index]
 
 

@@ -225,7 +225,13 @@ class SequentialEstimator:
 
     def full_estimate(self) -> tuple[np.ndarray, np.ndarray]:
         """θ and its covariance of the model filtered: the full rigid body's (16, 16×16; entries not estimated
-        held, zero variance) or [m, Ixx, Iyy, Izz] (4, 4×4) (the current filter state; call after :meth:`flush`)."""
+        held, zero variance) or [m, Ixx, Iyy, Izz] (4, 4×4) (the current filter state; call after :meth:`flush`).
+
+        Returns
+        -------
+        theta : ndarray, shape (16,) or (4,)
+        covariance : ndarray, shape (16, 16) or (4, 4)
+        """
         jac = self._model.jacobian(self._phi)
         cov = jac @ self._p[TANGENT_DIM:, TANGENT_DIM:] @ jac.T
         return self._model.theta(self._phi), 0.5 * (cov + cov.T)

@@ -40,6 +40,18 @@ def bridge_gap(est: SequentialEstimator, rec: Measurement) -> bool:
     (several lost instants, uneven stamps, fewer triples than the batch needs) is a gap the filter does not
     bridge: it re-initialises the robot state there (``segments``). Online the input after the gap must be
     taken as known (the batch also checks the interval after it).
+
+    Parameters
+    ----------
+    est : SequentialEstimator
+        The filter (its input history, θ̂ and noise models; its gap state is set here).
+    rec : Measurement
+        The record after the gap.
+
+    Returns
+    -------
+    bool
+        The gap is bridged (the next prediction crosses it).
     """
     t = np.array(est._inputs_t)
     k1 = t.size - 1  # rec
