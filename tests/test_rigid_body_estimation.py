@@ -26,7 +26,7 @@ from oacli.estimation.batch import estimate_batch
 from oacli.estimation.batch_model import FullModel, full_prior
 from oacli.estimation.manifold import boxplus, lift_matrix
 from oacli.estimation.propagation import propagate_intervals_structured, substep_schedule
-from oacli.estimation.rigid_dynamics import accelerations_full, propagate_full
+from oacli.estimation.rigid_dynamics import accelerations_full, propagate_full, propagate_full_one
 from oacli.estimation.rigid_parameters import (
     FULL_NAMES,
     ParameterSet,
@@ -91,7 +91,8 @@ def test_process_model_jacobians_equal_central_differences():
 
 def test_process_model_is_the_simulators_plant():
     """Noise-free: the full model over one control period reaches the simulator's state (body-axis force scale,
-    CoM torque, full inertia tensor), and reduces to the 4-parameter structured propagation for the ideal body."""
+    CoM torque, full inertia tensor); its single-interval path equals the batched one; it reduces to the
+    4-parameter structured propagation for the ideal body."""
     x, u, dur = _random_intervals(1)
     tel = simulate(Playback(np.tile(u, (2, 1))), x[0], InertialParams(TRUTH[0], TRUTH[1:4]), duration_s=0.2,
                    control_period_s=0.2, plant_period_s=PLANT_PERIOD_S, input_limits=np.full(6, 10.0),
@@ -100,6 +101,11 @@ def test_process_model_is_the_simulators_plant():
     dur0 = substep_schedule(np.array([0.0]), np.array([0.2]), PLANT_PERIOD_S)
     np.testing.assert_allclose(propagate_full(x, u, TRUTH, dur0, jacobians=False)[0][0], tel.x_true[-1],
                                atol=1e-13)
+    for k in range(x.shape[0]):  # the single-interval path (a filter step) is the same map
+        one = propagate_full_one(x[k], u[k], TRUTH, dur[k])
+        batched = propagate_full(x[k:k + 1], u[k:k + 1], TRUTH, dur[k:k + 1])
+        for got, want in zip(one, batched, strict=True):
+            np.testing.assert_allclose(got, want[0], atol=1e-14)
     ideal = np.r_[TRUTH[:4], EXTRA_MEAN]
     full = propagate_full(x, u, ideal, dur)
     legacy = propagate_intervals_structured(x, u, TRUTH[:4], dur)

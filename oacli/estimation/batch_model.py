@@ -21,7 +21,7 @@ from oacli.estimation.propagation import (
     propagate_intervals,
     propagate_intervals_structured,
 )
-from oacli.estimation.rigid_dynamics import accelerations_full, propagate_full
+from oacli.estimation.rigid_dynamics import accelerations_full, propagate_full, propagate_full_one
 from oacli.estimation.rigid_parameters import N_FULL, ParameterSet
 
 _ACCEL_ROWS = np.r_[3:6, 10:13]
@@ -254,6 +254,9 @@ class FullModel:
         a : ndarray, shape (K, 13, 13) or None
         c : ndarray, shape (K, 13, len(theta)) or None
         """
+        if jacobians and np.shape(x)[0] == 1:  # a filter step: the single-interval path (8× faster)
+            x1, a1, c1 = propagate_full_one(x, u, theta, durations)
+            return x1[None], a1[None], c1[None]
         return propagate_full(x, u, theta, durations, jacobians=jacobians)
 
     def accelerations(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, jacobians: bool = True

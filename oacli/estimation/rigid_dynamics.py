@@ -28,7 +28,7 @@ _J_BASIS = np.zeros((6, 3, 3))
 for _e, (_a, _b) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
     _J_BASIS[_e, _a, _b] = _J_BASIS[_e, _b, _a] = 1.0
 
-__all__ = ["accelerations_full", "propagate_full", "rotation_matrices", "wrench_full"]
+__all__ = ["accelerations_full", "propagate_full", "propagate_full_one", "rotation_matrices", "wrench_full"]
 
 
 def rotation_matrices(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -336,4 +336,150 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
     c[:, 0:3] = d_r[:, :, _NZ:]
     c[:, 3:6] = d_v[:, :, _NZ:]
     c[:, 6:13] = d_z[:, :, _NZ:]
+    return x_next, a, c
+
+
+def propagate_full_one(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`propagate_full` for a single interval (a filter step): the same outputs, the states integrated in
+    Python floats and the stage Jacobians of all sub-steps evaluated at once.
+
+    As :func:`oacli.estimation.propagation.propagate_one` does for θ = [m, Ixx, Iyy, Izz]: the sub-steps are
+    integrated first (the wrench of :func:`oacli.sim.actuators.delivered_wrench_floats` at each sub-step's start,
+    RK4 of ``ω̇ = J⁻¹(τ − ω × Jω)``), their stage points kept; the wrench and rate Jacobians are then formed in one
+    vectorised call each and chained sub-step by sub-step.
+
+    Parameters
+    ----------
+    x : ndarray, shape (13,) or (1, 13)
+    u : ndarray, shape (6,) or (1, 6)
+    theta : ndarray, shape (16,)
+    durations : ndarray, shape (M,) or (1, M)
+        Sub-step durations [s] (zeros skipped).
+
+    Returns
+    -------
+    x_next : ndarray, shape (13,)
+    a : ndarray, shape (13, 13)
+        ``∂x_next/∂x``.
+    c : ndarray, shape (13, 16)
+        ``∂x_next/∂θ``.
+    """
+    from oacli.sim.actuators import delivered_wrench_floats
+
+    x = np.asarray(x, dtype=float).reshape(STATE_DIM)
+    u = np.asarray(u, dtype=float).reshape(6)
+    theta = np.asarray(theta, dtype=float)
+    dts = [float(d) for d in np.asarray(durations, dtype=float).reshape(-1) if d > 0.0]
+    n = len(dts)
+    m = float(theta[0])
+    j = inertia_tensor(theta)
+    j_inv = np.linalg.inv(j)
+    (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = j.tolist()
+    (i00, i01, i02), (i10, i11, i12), (i20, i21, i22) = j_inv.tolist()
+    kf = (float(theta[10]), float(theta[11]), float(theta[12]))
+    r = (float(theta[7]), float(theta[8]), float(theta[9]))
+    f0, f1, f2 = (float(v) for v in u[0:3])
+    t0, t1, t2 = (float(v) for v in theta[13:16] * u[3:6])
+    total_s = float(sum(dts))
+    qx, qy, qz, qw, wx, wy, wz = (float(v) for v in x[6:13])
+    starts: list[tuple[float, ...]] = []
+    stages: list[tuple[float, ...]] = []
+    taus: list[tuple[float, float, float]] = []
+    accs: list[tuple[float, float, float]] = []
+    raw: list[tuple[float, ...]] = []
+    vx, vy, vz = (float(v) for v in x[3:6])
+    rx, ry, rz = 0.0, 0.0, 0.0
+    elapsed = 0.0
+    for h in dts:
+        g0, g1, g2, tx, ty, tz = delivered_wrench_floats(f0, f1, f2, t0, t1, t2, qx, qy, qz, qw, kf, r)
+        starts.append((qx, qy, qz, qw))
+        taus.append((tx, ty, tz))
+        ax, ay, az = g0 / m, g1 / m, g2 / m
+        accs.append((ax, ay, az))
+        weight = 0.5 * h * h + h * (total_s - elapsed - h)
+        rx, ry, rz = rx + weight * ax, ry + weight * ay, rz + weight * az
+        vx, vy, vz = vx + h * ax, vy + h * ay, vz + h * az
+        elapsed += h
+
+        def rate(px: float, py: float, pz: float, pw: float, ox: float, oy: float, oz: float,
+                 tx: float = tx, ty: float = ty, tz: float = tz) -> tuple[float, ...]:
+            hx, hy, hz = j00 * ox + j01 * oy + j02 * oz, j10 * ox + j11 * oy + j12 * oz, j20 * ox + j21 * oy + j22 * oz
+            bx, by, bz = tx - (oy * hz - oz * hy), ty - (oz * hx - ox * hz), tz - (ox * hy - oy * hx)
+            return (0.5 * (pw * ox - pz * oy + py * oz), 0.5 * (pz * ox + pw * oy - px * oz),
+                    0.5 * (-py * ox + px * oy + pw * oz), 0.5 * (-px * ox - py * oy - pz * oz),
+                    i00 * bx + i01 * by + i02 * bz, i10 * bx + i11 * by + i12 * bz, i20 * bx + i21 * by + i22 * bz)
+
+        z = (qx, qy, qz, qw, wx, wy, wz)
+        k1 = rate(*z)
+        s2 = tuple(a + 0.5 * h * b for a, b in zip(z, k1, strict=True))
+        k2 = rate(*s2)
+        s3 = tuple(a + 0.5 * h * b for a, b in zip(z, k2, strict=True))
+        k3 = rate(*s3)
+        s4 = tuple(a + h * b for a, b in zip(z, k3, strict=True))
+        k4 = rate(*s4)
+        stages += (z, s2, s3, s4)
+        qx, qy, qz, qw, wx, wy, wz = (a + (h / 6.0) * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+                                      for a, b1, b2, b3, b4 in zip(z, k1, k2, k3, k4, strict=True))
+        raw.append((qx, qy, qz, qw))
+        norm = float(np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw))
+        sgn = (-1.0 if qw < 0.0 else 1.0) / norm
+        qx, qy, qz, qw = sgn * qx, sgn * qy, sgn * qz, sgn * qw
+    x_next = np.empty(STATE_DIM)
+    x_next[0:3] = x[0:3] + total_s * x[3:6] + np.array([rx, ry, rz])
+    x_next[3:6] = [vx, vy, vz]
+    x_next[6:13] = [qx, qy, qz, qw, wx, wy, wz]
+    a = np.eye(STATE_DIM)
+    a[0, 3] = a[1, 4] = a[2, 5] = total_s
+    c = np.zeros((STATE_DIM, N_FULL))
+    if n == 0:
+        return x_next, a, c
+    nc = _NZ + N_FULL
+    _, wq, wth = wrench_full(np.array(starts), np.broadcast_to(u, (n, 6)), theta)
+    assert wq is not None and wth is not None
+    tau_rep = np.repeat(np.array(taus), 4, axis=0)
+    _, jz_all, jj_all = _rotation_rate(np.array(stages), tau_rep, j, j_inv, True)
+    assert jz_all is not None and jj_all is not None
+    jz_all = jz_all.reshape(n, 4, _NZ, _NZ)
+    jj_all = jj_all.reshape(n, 4, 3, 6)
+    acc_arr = np.array(accs)
+    q_raw = np.array(raw)
+    d_z = np.zeros((_NZ, nc))
+    d_z[:, 0:_NZ] = np.eye(_NZ)
+    d_v = np.zeros((3, nc))
+    d_r = np.zeros((3, nc))
+    elapsed = 0.0
+    for i, h in enumerate(dts):
+        dq0 = d_z[0:4]
+        g_acc = wq[i, 0:3] @ dq0
+        g_acc[:, _NZ:] += wth[i, 0:3]
+        g_acc /= m
+        g_acc[:, _NZ] -= acc_arr[i] / m
+        weight = 0.5 * h * h + h * (total_s - elapsed - h)
+        elapsed += h
+        d_v += h * g_acc
+        d_r += weight * g_acc
+        g_tau = wq[i, 3:6] @ dq0
+        g_tau[:, _NZ:] += wth[i, 3:6]
+        g_tau = j_inv @ g_tau
+        dks: list[np.ndarray] = []
+        for s, coef in enumerate((0.0, 0.5, 0.5, 1.0)):
+            ds = d_z if not dks else d_z + (coef * h) * dks[-1]
+            dk = jz_all[i, s] @ ds
+            dk[4:7] += g_tau
+            dk[4:7, _NZ + 1:_NZ + 7] += jj_all[i, s]
+            dks.append(dk)
+        d_new = d_z + (h / 6.0) * (dks[0] + 2.0 * dks[1] + 2.0 * dks[2] + dks[3])
+        q = q_raw[i]
+        norm = float(np.sqrt(q @ q))
+        q_hat = q / norm
+        sign = -1.0 if q[3] < 0.0 else 1.0
+        d_new[0:4] = ((np.eye(4) - np.outer(q_hat, q_hat)) * (sign / norm)) @ d_new[0:4]
+        d_z = d_new
+    a[0:3, 6:13] = d_r[:, 0:_NZ]
+    a[3:6, 6:13] = d_v[:, 0:_NZ]
+    a[6:13, 6:13] = d_z[:, 0:_NZ]
+    c[0:3] = d_r[:, _NZ:]
+    c[3:6] = d_v[:, _NZ:]
+    c[6:13] = d_z[:, _NZ:]
     return x_next, a, c
