@@ -7,7 +7,7 @@ process noise, or the force and torque measured by the IMU where it survived ([D
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
@@ -20,13 +20,10 @@ from oacli.estimation.lost_inputs import (
 from oacli.estimation.models import Measurement
 from oacli.estimation.propagation import TIME_TOL_S
 
-if TYPE_CHECKING:
-    from oacli.estimation.sequential import SequentialEstimator
-
 __all__ = ["bridge_gap"]
 
 
-def bridge_gap(est: SequentialEstimator, rec: Measurement) -> bool:
+def bridge_gap(est: Any, rec: Measurement) -> bool:
     """Prepare the prediction across a gap in the input record ending at ``rec`` (``rec.starts_segment``), as the
     batch links it (:func:`~oacli.estimation.lost_inputs.lost_input_prior`,
     :func:`~oacli.estimation.lost_inputs.segment_link_weights`); False when it cannot be bridged.
@@ -43,7 +40,7 @@ def bridge_gap(est: SequentialEstimator, rec: Measurement) -> bool:
 
     Parameters
     ----------
-    est : SequentialEstimator
+    est : oacli.estimation.sequential.SequentialEstimator
         The filter (its input history, θ̂ and noise models; its gap state is set here).
     rec : Measurement
         The record after the gap.
