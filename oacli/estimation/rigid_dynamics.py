@@ -24,9 +24,6 @@ from oacli.estimation.rigid_parameters import N_FULL, inertia_tensor
 
 STATE_DIM = 13
 _NZ = 7
-_J_BASIS = np.zeros((6, 3, 3))
-for _e, (_a, _b) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
-    _J_BASIS[_e, _a, _b] = _J_BASIS[_e, _b, _a] = 1.0
 
 __all__ = ["accelerations_full", "propagate_full", "propagate_full_one", "rotation_matrices", "wrench_full"]
 
@@ -175,10 +172,20 @@ def _rotation_rate(z: np.ndarray, tau: np.ndarray, j: np.ndarray, j_inv: np.ndar
     # ∂ω̇/∂ω = −J⁻¹ ([ω]× J − [Jω]×)
     jz[:, 4:7, 4:7] = -j_inv @ (_skew(w) @ j - _skew(jw))
     # ∂ω̇/∂J_e = −J⁻¹ (ω × E_e ω + E_e ω̇)
-    ew = np.einsum("eab,kb->kea", _J_BASIS, w)
-    ewd = np.einsum("eab,kb->kea", _J_BASIS, wdot)
-    jj = -np.einsum("ab,keb->kae", j_inv, _cross(w[:, None, :], ew) + ewd)
+    ew = _basis_products(w)
+    terms = _cross(w[:, None, :], ew)
+    terms += _basis_products(wdot)
+    jj = -(terms @ j_inv.T).transpose(0, 2, 1)
     return out, jz, jj
+
+
+def _basis_products(v: np.ndarray) -> np.ndarray:
+    """``E_e v`` (K, 6, 3) for the symmetric basis matrices of J's entries [xx, yy, zz, xy, xz, yz]."""
+    out = np.zeros((v.shape[0], 6, 3))
+    out[:, 0, 0] = out[:, 3, 1] = out[:, 4, 2] = v[:, 0]
+    out[:, 1, 1] = out[:, 3, 0] = out[:, 5, 2] = v[:, 1]
+    out[:, 2, 2] = out[:, 4, 0] = out[:, 5, 1] = v[:, 2]
+    return out
 
 
 def accelerations_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray
@@ -267,10 +274,11 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
         d_v = np.zeros((k, 3, nc))
         d_r = np.zeros((k, 3, nc))
     elapsed = np.zeros(k)
+    all_active = bool(np.all(durations > 0.0))
     for col in range(durations.shape[1]):
         h = durations[:, col]
         active = h > 0.0
-        if not np.any(active):
+        if not all_active and not np.any(active):
             continue
         wr, wq, wth = wrench_full(z[:, 0:4], u, theta, jacobians)
         tau = wr[:, 3:6]
@@ -291,20 +299,28 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
             d_r += weight[:, None, None] * g_acc
             g_tau = wq[:, 3:6] @ dq0
             g_tau[:, :, _NZ:] += wth[:, 3:6]
-            g_tau = np.einsum("ab,kbc->kac", j_inv, g_tau)  # ∂ω̇/∂(held τ) · ∂τ/∂[z0, θ]
+            g_tau = j_inv @ g_tau  # ∂ω̇/∂(held τ) · ∂τ/∂[z0, θ]
         ks: list[np.ndarray] = []
-        dks: list[np.ndarray] = []
-        for coef in (0.0, 0.5, 0.5, 1.0):
+        d_sum = None  # Σ_s w_s dk_s (RK4 weights 1, 2, 2, 1)
+        dk = None
+        for coef, weight in ((0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)):
             zs = z if not ks else z + coef * hv * ks[-1]
             f, jz, jj = _rotation_rate(zs, tau, j, j_inv, jacobians)
             ks.append(f)
             if jacobians:
                 assert d_z is not None and jz is not None and jj is not None and g_tau is not None
-                ds = d_z if not dks else d_z + coef * h[:, None, None] * dks[-1]
-                dk = jz @ ds
-                dk[:, 4:7, :] += g_tau
+                ds = d_z if dk is None else d_z + (coef * h)[:, None, None] * dk
+                # ż's Jacobian: the q rows on [q, ω], the ω rows on ω only (the torque is held)
+                dk = np.empty_like(ds)
+                np.matmul(jz[:, 0:4, 0:4], ds[:, 0:4], out=dk[:, 0:4])
+                dk[:, 0:4] += jz[:, 0:4, 4:7] @ ds[:, 4:7]
+                np.matmul(jz[:, 4:7, 4:7], ds[:, 4:7], out=dk[:, 4:7])
+                dk[:, 4:7] += g_tau
                 dk[:, 4:7, _NZ + 1:_NZ + 7] += jj
-                dks.append(dk)
+                if d_sum is None:
+                    d_sum = dk.copy()
+                else:
+                    d_sum += weight * dk
         z_new = z + (hv / 6.0) * (ks[0] + 2.0 * ks[1] + 2.0 * ks[2] + ks[3])
         q = z_new[:, 0:4]
         norm = np.sqrt(np.einsum("ki,ki->k", q, q))
@@ -312,12 +328,13 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
         q_hat = q / norm[:, None]
         z_new[:, 0:4] = sign[:, None] * q_hat
         if jacobians:
-            assert d_z is not None
-            d_new = d_z + (h[:, None, None] / 6.0) * (dks[0] + 2.0 * dks[1] + 2.0 * dks[2] + dks[3])
+            assert d_z is not None and d_sum is not None
+            d_sum *= (h / 6.0)[:, None, None]
+            d_sum += d_z
             proj = (np.eye(4) - q_hat[:, :, None] * q_hat[:, None, :]) * (sign / norm)[:, None, None]
-            d_new[:, 0:4, :] = proj @ d_new[:, 0:4, :]
-            d_z = np.where(active[:, None, None], d_new, d_z)
-        z = np.where(active[:, None], z_new, z)
+            d_sum[:, 0:4, :] = proj @ d_sum[:, 0:4, :]
+            d_z = d_sum if all_active else np.where(active[:, None, None], d_sum, d_z)
+        z = z_new if all_active else np.where(active[:, None], z_new, z)
         elapsed += h
     x_next = np.empty_like(x)
     x_next[:, 0:3] = x[:, 0:3] + total_s[:, None] * x[:, 3:6] + r_sum
