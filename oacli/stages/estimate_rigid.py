@@ -18,7 +18,7 @@ from oacli.estimation.batch_model import FullModel, full_prior
 from oacli.estimation.rigid_parameters import FULL_NAMES, ParameterSet
 from oacli.types import ParameterEstimate
 
-__all__ = ["batch_model", "rigid_body_summary", "truth_full_from_config_yaml"]
+__all__ = ["batch_model", "rigid_body_line", "rigid_body_summary", "truth_full_from_config_yaml"]
 
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
@@ -123,3 +123,23 @@ def rigid_body_summary(final: ParameterEstimate, full: tuple[np.ndarray, np.ndar
                       and abs(float(truth[i]) - float(theta[i])) > 1e-12]
         out["held_but_not_true"] = unmodelled
     return out
+
+
+def rigid_body_line(section: dict[str, Any]) -> str:
+    """One log line of the ``rigid_body`` section: the entries beyond mass and inertia, ``name = value ± σ`` (and
+    the largest |z| with a truth).
+
+    Parameters
+    ----------
+    section : dict
+        :func:`rigid_body_summary`'s output.
+
+    Returns
+    -------
+    str
+    """
+    parts = [f"{name} = {value:.6g} ± {section['std'][name]:.2g}" for name, value in section["estimate"].items()
+             if name not in FULL_NAMES[:4]]
+    line = "rigid body: " + ", ".join(parts)
+    z = [abs(v) for v in (section.get("z_score") or {}).values() if v is not None]
+    return line + (f"; largest |z| {max(z):.2f}" if z else "")
