@@ -56,7 +56,7 @@ from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
 from oacli.io.telemetry_streams import TelemetryStreams, read_telemetry_streams
 from oacli.phases import set_phase
-from oacli.stages.estimate_rigid import batch_model, rigid_body_line, rigid_body_summary, truth_full_from_config_yaml
+from oacli.stages.estimate_rigid import batch_model, rigid_body_section
 from oacli.stages.estimate_rls import run_rls
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
 from oacli.status import StatusReport, status_log
@@ -570,10 +570,8 @@ def run_estimate(
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
     summary = _estimate_summary(run, prior, truth, telemetry, alignment, streams)
     if method in ("batch", "sequential"):
-        summary["rigid_body"] = rigid_body_summary(run.final, run.full, model,
-                                                   truth_full_from_config_yaml(streams.config_yaml))
-        if model is not None:
-            log.append((float(run.t_records[-1]), "info", rigid_body_line(summary["rigid_body"])))
+        log.append((float(run.t_records[-1]), "info", rigid_body_section(summary, run, model, settings, records,
+                                                                         streams.config_yaml)))
     if use_localisation:
         summary["measurements_topic"] = ms.TOPIC_LOCALISATION
         log.insert(1, (0.0, "info", f"measured states from {ms.TOPIC_LOCALISATION} (by stamp)"))

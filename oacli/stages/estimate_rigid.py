@@ -15,10 +15,13 @@ import yaml
 
 from oacli.config import OacliConfig
 from oacli.estimation.batch_model import FullModel, full_prior
+from oacli.estimation.bounds_full import FullBound, cramer_rao_bound_full
+from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.rigid_parameters import FULL_NAMES, ParameterSet
 from oacli.types import ParameterEstimate
 
-__all__ = ["batch_model", "rigid_body_line", "rigid_body_summary", "truth_full_from_config_yaml"]
+__all__ = ["apply_full_bound", "batch_model", "full_bound", "rigid_body_line", "rigid_body_section",
+           "rigid_body_summary", "truth_full_from_config_yaml"]
 
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
@@ -140,6 +143,91 @@ def rigid_body_line(section: dict[str, Any]) -> str:
     """
     parts = [f"{name} = {value:.6g} ± {section['std'][name]:.2g}" for name, value in section["estimate"].items()
              if name not in FULL_NAMES[:4]]
-    line = "rigid body: " + ", ".join(parts)
+    line = "rigid body: " + (", ".join(parts) or "mass and inertia only")
     z = [abs(v) for v in (section.get("z_score") or {}).values() if v is not None]
     return line + (f"; largest |z| {max(z):.2f}" if z else "")
+
+
+def full_bound(t: np.ndarray, states: np.ndarray, status: list[str], full: tuple[np.ndarray, np.ndarray] | None,
+               model: FullModel | None, settings: EstimatorSettings, records: list[Measurement]) -> FullBound | None:
+    """The full model's Cramér-Rao bound along the estimate (:func:`cramer_rao_bound_full`), or None without one.
+
+    Parameters
+    ----------
+    t : ndarray, shape (K,)
+        The estimate's record times [s].
+    states : ndarray, shape (K, 13)
+        Its estimated states.
+    status : list of str
+        Each record's status (``accepted``, ``initialised`` and ``segment`` count).
+    full : tuple of ndarray or None
+        θ̂ (16) and its covariance.
+    model : FullModel or None
+    settings : EstimatorSettings
+    records : list of Measurement
+        The aligned records (their inputs, gaps and accelerations).
+
+    Returns
+    -------
+    FullBound or None
+    """
+    if model is None or full is None:
+        return None
+    by_t = {r.t: r for r in records}
+    recs = [by_t[ti] for ti in t]
+    has_acc = all(np.any(np.isfinite(r.accelerations())) for r in recs if r.state_measured)
+    return cramer_rao_bound_full(
+        t, states, np.array([r.u_applied for r in recs]).reshape(-1, 6), full[0], model, settings.measurement,
+        settings.substep_s, used=np.array([s in ("accepted", "initialised", "segment") for s in status]),
+        accelerations_measured=has_acc, segment_starts=np.array([r.starts_segment for r in recs], dtype=bool))
+
+
+def apply_full_bound(summary: dict[str, Any], bound: FullBound | None) -> None:
+    """With the full model, the summary's ``crb_std`` and ``std_over_crb`` of mass and inertia are the full model's
+    bound (``crb_model`` says so), and ``rigid_body`` gets ``crb_std`` and ``error_over_crb`` of every entry.
+
+    Parameters
+    ----------
+    summary : dict
+        The estimate's summary (with ``rigid_body``), updated in place.
+    bound : FullBound or None
+        None: nothing changes (the 4-parameter bound stays).
+    """
+    if bound is None:
+        return
+    rb = summary["rigid_body"]
+    crb = {FULL_NAMES[i]: float(v) for i, v in zip(bound.index, bound.std, strict=True)}
+    rb["crb_std"] = crb
+    if "truth" in rb:
+        rb["error_over_crb"] = {name: (rb["estimate"][name] - rb["truth"][name]) / crb[name] if crb[name] > 0
+                                else None for name in crb}
+    summary["crb_std"] = {name: crb[name] for name in FULL_NAMES[:4]}
+    summary["std_over_crb"] = {name: summary["std"][name] / crb[name] for name in FULL_NAMES[:4]}
+    summary["crb_model"] = ("full rigid body " + str(rb["parameters"]) + ", the prior of the entries beyond mass and "
+                            "inertia included (oacli.estimation.bounds_full)")
+
+
+def rigid_body_section(summary: dict[str, Any], run: Any, model: FullModel | None, settings: EstimatorSettings,
+                       records: list[Measurement], config_yaml: str | None) -> str:
+    """Add the ``rigid_body`` section (and the full model's bound, :func:`apply_full_bound`) to an estimate's
+    summary; return its log line (:func:`rigid_body_line`).
+
+    Parameters
+    ----------
+    summary : dict
+        The estimate's summary, updated in place.
+    run : oacli.stages.estimate.EstimationRun
+        The estimation (final estimate, full θ and covariance, records' times, states and statuses).
+    model : FullModel or None
+    settings : EstimatorSettings
+    records : list of Measurement
+    config_yaml : str or None
+        The telemetry's attached config (its ``truth``).
+
+    Returns
+    -------
+    str
+    """
+    summary["rigid_body"] = rigid_body_summary(run.final, run.full, model, truth_full_from_config_yaml(config_yaml))
+    apply_full_bound(summary, full_bound(run.t_records, run.states, run.status, run.full, model, settings, records))
+    return rigid_body_line(summary["rigid_body"])
