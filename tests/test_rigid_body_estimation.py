@@ -170,6 +170,15 @@ def test_recovers_com_products_and_scales_within_their_bound():
     z = (result.theta_full - TRUTH) / std
     assert np.all(np.abs(z) < 3.0), dict(zip(FULL_NAMES, np.round(z, 2), strict=True))
     assert std[7:10].max() < 5e-4 and std[4:7].max() < 2e-4  # CoM to 0.5 mm, products to 2e-4 kg·m²
+    # The reported σ is the Cramér-Rao bound of the full model (bounds_full: initial state unknown, the prior of the
+    # entries beyond m and I included) up to the prior's information on m and I and the small process noise.
+    from oacli.estimation.bounds_full import cramer_rao_bound_full
+
+    model = _model()
+    bound = cramer_rao_bound_full(result.t, result.states, np.array([r.u_applied for r in recs]),
+                                  result.theta_full, model, settings().measurement, PLANT_PERIOD_S)
+    ratio = std[model.params.index] / bound.std
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), dict(zip(model.params.names, np.round(ratio, 3), strict=True))
 
 
 def test_sequential_filter_with_the_full_rigid_body():
