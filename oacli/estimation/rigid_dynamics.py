@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from oacli.estimation.rigid_parameters import N_FULL, inertia_tensor
+from oacli.sim.actuators import delivered_wrench_floats
 
 STATE_DIM = 13
 _NZ = 7
@@ -382,8 +383,6 @@ def propagate_full_one(x: np.ndarray, u: np.ndarray, theta: np.ndarray, duration
     c : ndarray, shape (13, 16)
         ``∂x_next/∂θ``.
     """
-    from oacli.sim.actuators import delivered_wrench_floats
-
     x = np.asarray(x, dtype=float).reshape(STATE_DIM)
     u = np.asarray(u, dtype=float).reshape(6)
     theta = np.asarray(theta, dtype=float)
