@@ -37,9 +37,26 @@ def test_actuator_scale_scales_the_delivered_force_not_the_recorded_one():
     scale = np.array([1.05, 0.97, 1.0, 1.0, 1.0, 1.0])
     tel = _run(u, actuator_scale=scale)
     t = tel.t_true[-1]
-    expected = 0.5 * (scale[0:3] * u[0:3] / 10.0) * t**2       # x = ½ a t², a = s·F / m
+    expected = 0.5 * (scale[0:3] * u[0:3] / 10.0) * t**2       # x = ½ a t², a = s·F / m (identity attitude:
+                                                                # the body axes are the world axes)
     np.testing.assert_allclose(tel.x_true[-1, 0:3], expected, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(tel.u_applied, np.tile(u, (len(tel.t_ctrl), 1)))   # what the log holds
+
+
+def test_actuator_scale_is_per_body_axis():
+    """Astrobee's impellers are body-fixed: yawed by 90° (body x = world y), a world-x force is scaled by the body
+    y factor and a world-y force by the body x factor."""
+    u = np.array([0.2, -0.1, 0.0, 0.0, 0.0, 0.0])
+    scale = np.array([1.05, 0.97, 1.0, 1.0, 1.0, 1.0])
+    x0 = np.zeros(13)
+    x0[6:10] = [0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5)]
+    tel = simulate(ConstantInput(u), x0, InertialParams(10.0, (0.15, 0.14, 0.16)), duration_s=2.0, control_period_s=0.2,
+                   plant_period_s=0.016, input_limits=np.array([1.0, 1.0, 1.0, 0.1, 0.1, 0.1]),
+                   sensors=SensorNoise(), disturbance=Disturbance.none(), rng=np.random.default_rng(0),
+                   actuator_scale=scale)
+    t = tel.t_true[-1]
+    expected = 0.5 * (np.array([0.97, 1.05, 1.0]) * u[0:3] / 10.0) * t**2
+    np.testing.assert_allclose(tel.x_true[-1, 0:3], expected, rtol=1e-9, atol=1e-12)
 
 
 def test_com_offset_torques_the_body_by_minus_r_cross_f():

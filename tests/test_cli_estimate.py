@@ -262,3 +262,26 @@ def test_scene_with_the_robot_body_in_the_estimate_and_track_mcaps(batch_run, tr
         assert edges == [0.30] * len(times) and len(times) >= 10
         assert np.all(np.diff(times[:-1]) >= 0.1e9 - 20e6)  # ≤ 10 Hz up to one plant sample
         assert times[-1] == ns[-1]
+
+
+def test_full_rigid_body_parameters_through_the_cli(track_run, tmp_path):
+    """`--set estimation.parameters=[...]`: the summary's rigid_body lists every estimated entry with σ, truth and
+    z-score (this plant has no CoM offset: found within 3σ of zero), the log names them; a set without the mass
+    is refused with exit 2 and one line naming the field, before any run folder."""
+    cfg, telemetry = track_run
+    out = tmp_path / "full"
+    result = run_cli("estimate", cfg, "--telemetry", telemetry, "--out", out, "--quiet",
+                     "--set", "estimation.parameters=[mass,inertia,com]")
+    assert result.exit_code in (0, 4), result.output
+    s = json.loads((out / "summary.json").read_text())
+    rb = s["rigid_body"]
+    assert rb["parameters"] == ["mass", "inertia", "com"]
+    assert set(rb["estimate"]) == {*NAMES, "com_x_m", "com_y_m", "com_z_m"}
+    assert rb["truth"]["com_x_m"] == 0.0 and all(abs(rb["z_score"][n]) < 3 for n in ("com_x_m", "com_y_m", "com_z_m"))
+    assert rb["estimate"]["mass_kg"] == pytest.approx(s["mass_kg"], rel=1e-12)
+    assert rb["std"]["mass_kg"] == pytest.approx(s["std"]["mass_kg"], rel=1e-12)
+    assert rb["prior_std"]["com_x_m"] == pytest.approx(0.01)
+    bad = run_cli("estimate", cfg, "--telemetry", telemetry, "--runs-dir", tmp_path / "runs",
+                  "--set", "estimation.parameters=[mass,com]")
+    assert bad.exit_code == 2 and "parameters" in bad.stderr and "Traceback" not in bad.output
+    assert not (tmp_path / "runs").exists()

@@ -149,15 +149,19 @@ def test_estimate_within_its_targets(mission):
     est = json.loads((run / "segment-2/estimate/summary.json").read_text())
     assert est["status"] == "ok"
     # The flight figures ([ReSWARM2023]: mass 0.39 %, inertias 0.91 / 1.35 / 6.92 %) on a 24 s excitation with the
-    # RATTLE noise levels and unmodelled actuator errors: within 3x those figures, and the mass within 1 %.
-    flight = {"mass_kg": 0.39, "Ixx_kgm2": 0.91, "Iyy_kgm2": 1.35, "Izz_kgm2": 6.92}
-    for key, pct in est["error_pct"].items():
-        assert pct <= 3 * flight[key], (key, pct)
-    assert est["error_pct"]["mass_kg"] < 1.0
-    # The learned model is much better than the prior it started from (14.5 kg for 15.5 kg).
+    # RATTLE noise levels, the CoM offset and thrust scale errors estimated with θ: the inertias within 3x those
+    # figures. The mass is known only as well as the thrust scale (a common factor of κ_F and m is invisible:
+    # docs/estimation.md): within its σ, which the κ_F prior (± 5 %) sets near 2.7 %.
+    flight = {"Ixx_kgm2": 0.91, "Iyy_kgm2": 1.35, "Izz_kgm2": 6.92}
+    for key, pct in flight.items():
+        assert est["error_pct"][key] <= 3 * pct, (key, est["error_pct"][key])
+    z = est["rigid_body"]["z_score"]
+    assert set(est["rigid_body"]["parameters"]) >= {"mass", "inertia", "com", "force_scale"}
+    assert all(abs(v) < 3.0 for v in z.values()), z  # every estimated parameter within 3σ
+    # The learned model is better than the prior it started from (14.5 kg for 15.5 kg).
     truth = np.array(est["truth_theta"])
     prior = np.array(est["prior_theta"])
-    assert abs(est["mass_kg"] - truth[0]) < 0.2 * abs(prior[0] - truth[0])
+    assert abs(est["mass_kg"] - truth[0]) < 0.5 * abs(prior[0] - truth[0])
 
 
 def test_baseline_comparison_present_and_consistent(mission):

@@ -134,13 +134,16 @@ class TorqueAndForce:
         return ControlStep(u, SolveInfo("open_loop", True), x_measured)
 
 
-@pytest.mark.parametrize("com_offset", [None, (0.004, -0.001, -0.0025)])
-def test_plant_steps_equal_the_numpy_rk4_bit_for_bit(com_offset):
+@pytest.mark.parametrize(("com_offset", "force_scale"), [(None, None), ((0.004, -0.001, -0.0025), None),
+                                                         ((0.004, -0.001, -0.0025), (1.03, 0.97, 1.02))])
+def test_plant_steps_equal_the_numpy_rk4_bit_for_bit(com_offset, force_scale):
     """The simulator's written-out plant steps (``_propagate_steps``) are :func:`oacli.model.rigid_body.propagate`
-    (RK4, then the quaternion renormalised with w >= 0) with the centre-of-mass torque taken at each step's start
-    (:func:`_with_offset_torque`): bit for bit against the numpy version, on a spinning body and uneven steps."""
+    (RK4, then the quaternion renormalised with w >= 0) with the delivered wrench (body-axis force scale and
+    centre-of-mass torque, :func:`oacli.sim.actuators.delivered_wrench`) taken at each step's start: bit for bit
+    against the numpy version, on a spinning body and uneven steps."""
     from oacli.model.rigid_body import propagate, theta_of
-    from oacli.sim.simulator import _propagate_steps, _with_offset_torque
+    from oacli.sim.actuators import delivered_wrench
+    from oacli.sim.simulator import _propagate_steps
 
     rng = np.random.default_rng(5)
     theta = theta_of(TRUTH)
@@ -150,9 +153,10 @@ def test_plant_steps_equal_the_numpy_rk4_bit_for_bit(com_offset):
         u = np.r_[0.2 * rng.normal(size=3), 0.02 * rng.normal(size=3)]
         steps = [0.016, 0.008, 0.016, 0.0123, 0.016]
         got = _propagate_steps([float(v) for v in x], [float(v) for v in u], TRUTH.mass_kg,
-                               tuple(float(v) for v in TRUTH.inertia_kgm2), com_offset, steps)
+                               tuple(float(v) for v in TRUTH.inertia_kgm2), com_offset, steps, force_scale)
         for dt, sample in zip(steps, got, strict=True):
-            u_step = u if com_offset is None else _with_offset_torque(u, x, np.array(com_offset))
+            u_step = delivered_wrench(u, x[6:10], None if force_scale is None else np.array(force_scale),
+                                      None if com_offset is None else np.array(com_offset))
             x = propagate(x, u_step, theta, dt)
             np.testing.assert_array_equal(np.array(sample), x)
 

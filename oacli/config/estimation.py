@@ -23,11 +23,47 @@ from oacli.config.fields import (
     Real,
     Section,
     StrictInt,
+    Vector3,
     none_to,
 )
 from oacli.config.prior import RATTLE_PRIOR_THETA, RATTLE_PRIOR_VARIANCE, PriorConfig
 
 EstimationMethod = Literal["batch", "sequential", "rls"]
+ParameterGroup = Literal["mass", "inertia", "products", "com", "force_scale", "torque_scale"]
+
+
+class RigidBodyPriorConfig(Section):
+    """Prior (and, for a group not estimated, the fixed value) of the full rigid body's other parameters.
+
+    The groups of ``estimation.parameters`` beyond mass and inertia (:mod:`oacli.estimation.rigid_parameters`):
+    products of inertia, centre-of-mass offset, per-body-axis force and torque scale ([ReSWARM2023] Eqs. 38-39).
+    """
+
+    products_kgm2: Vector3 = Field(
+        default=(0.0, 0.0, 0.0), description="Inertia tensor entries Jxy, Jxz, Jyz [kg·m²] (prior mean).")
+    products_std_kgm2: PositiveReal = Field(
+        default=0.005, description="Prior standard deviation of each inertia tensor entry off the diagonal [kg·m²].")
+    com_m: Vector3 = Field(
+        default=(0.0, 0.0, 0.0), description="Centre of mass relative to the geometric centre, body frame [m] "
+        "(prior mean; astrobee iss.config measured (0.0037, -0.0003, -0.0025) m).")
+    com_std_m: PositiveReal = Field(default=0.01, description="Prior standard deviation of each CoM component [m].")
+    force_scale: PositiveVector3 = Field(
+        default=(1.0, 1.0, 1.0), description="Delivered ÷ commanded force per body axis (prior mean).")
+    force_scale_std: PositiveReal = Field(
+        default=0.05, description="Prior standard deviation of each force scale (few-percent thrust errors, "
+        "[ReSWARM2023] §6.2.1).")
+    torque_scale: PositiveVector3 = Field(
+        default=(1.0, 1.0, 1.0), description="Delivered ÷ commanded torque per body axis (prior mean).")
+    torque_scale_std: PositiveReal = Field(
+        default=0.05, description="Prior standard deviation of each torque scale.")
+
+    def mean(self) -> np.ndarray:
+        """[products (3), CoM (3), force scale (3), torque scale (3)]."""
+        return np.r_[self.products_kgm2, self.com_m, self.force_scale, self.torque_scale].astype(float)
+
+    def std(self) -> np.ndarray:
+        """Standard deviations in the order of :meth:`mean`."""
+        return np.repeat([self.products_std_kgm2, self.com_std_m, self.force_scale_std, self.torque_scale_std], 3)
 
 
 class MeasurementNoiseConfig(Section):
@@ -98,6 +134,17 @@ class EstimationConfig(Section):
     prior: Annotated[PriorConfig, none_to({})] = Field(
         default_factory=PriorConfig, description="Prior on θ (also the starting point of the batch solver)."
     )
+    parameters: tuple[ParameterGroup, ...] = Field(
+        default=("mass", "inertia"),
+        description="Batch and sequential: which parameters are estimated, groups of mass, inertia (Ixx, Iyy, "
+        "Izz), products (Jxy, Jxz, Jyz), com (centre-of-mass offset), force_scale, torque_scale (per body axis); "
+        "must include mass and inertia. The others are held at rigid_body's means. The rls method estimates mass "
+        "and inertia only (its force scale: rls.force_scale).",
+    )
+    rigid_body: Annotated[RigidBodyPriorConfig, none_to({})] = Field(
+        default_factory=RigidBodyPriorConfig,
+        description="Prior of the parameters beyond mass and inertia (their fixed values when not estimated).",
+    )
     use_prior: bool = Field(
         default=True, description="Batch: include the prior in the likelihood (the sequential filter always does)."
     )
@@ -137,6 +184,15 @@ class EstimationConfig(Section):
     )
 
     @model_validator(mode="after")
+    def _parameter_groups(self) -> EstimationConfig:
+        groups = self.parameters
+        if len(set(groups)) != len(groups):
+            raise PydanticCustomError("oacli_estimation", "parameters: a group is listed twice")
+        if "mass" not in groups or "inertia" not in groups:
+            raise PydanticCustomError("oacli_estimation", "parameters: must include mass and inertia")
+        return self
+
+    @model_validator(mode="after")
     def _something_measured(self) -> EstimationConfig:
         noise = self.measurement_noise
         state = (noise.position_std_m, noise.velocity_std_mps, noise.attitude_std_rad, noise.angular_velocity_std_radps)
@@ -162,7 +218,9 @@ __all__ = [
     "EstimationConfig",
     "EstimationMethod",
     "MeasurementNoiseConfig",
+    "ParameterGroup",
     "PriorConfig",
     "ProcessNoiseConfig",
+    "RigidBodyPriorConfig",
     "RlsConfig",
 ]

@@ -127,7 +127,7 @@ class TruthConfig(Section):
     actuator_scale: Annotated[tuple[ActuatorScale, ActuatorScale, ActuatorScale, ActuatorScale, ActuatorScale,
                                     ActuatorScale], BeforeValidator(sequence_of(6))] = Field(
         default=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
-        description="Per-axis factor between the applied and the delivered input [force x, y, z (world), torque "
+        description="Per-axis factor between the applied and the delivered input [force x, y, z (body), torque "
                     "x, y, z (body)], in [0.5, 1.5]; 1 = perfect actuators. Unmodelled: controllers and estimators "
                     "see the commanded (saturated) input ([ReSWARM2023] §5.3: impeller thrust varies).",
     )

@@ -76,7 +76,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from oacli.estimation import parametrization as par
+from oacli.estimation.batch_model import FullModel, LegacyModel
 from oacli.estimation.batch_problem import BatchProblem, marginal_covariances
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.levenberg_marquardt import LAMBDA_INIT, levenberg_marquardt
@@ -160,6 +160,11 @@ class BatchResult:
         No record passed the χ² gate in some round (the previous inlier set was kept).
     segments : int
         Records linked by the process model form this many segments (1 without gaps).
+    theta_full : ndarray, shape (16,) or None
+        The full model's θ (:mod:`oacli.estimation.rigid_parameters`; entries not estimated at their fixed
+        values); None for θ = [m, Ixx, Iyy, Izz].
+    covariance_full : ndarray, shape (16, 16) or None
+        ``[(AᵀA)⁻¹]_θθ`` of the full θ (zero rows and columns for the entries not estimated).
     """
 
     estimate: ParameterEstimate
@@ -181,11 +186,13 @@ class BatchResult:
     chi2_dof: int = 0
     gate_emptied: bool = False
     segments: int = 1
+    theta_full: np.ndarray | None = None
+    covariance_full: np.ndarray | None = None
 
 
 def covariance_at(
     records: Sequence[Measurement], settings: EstimatorSettings, prior: ParameterEstimate | None,
-    states: np.ndarray, phi: np.ndarray, weights_theta: np.ndarray,
+    states: np.ndarray, phi: np.ndarray, weights_theta: np.ndarray, model: FullModel | None = None,
 ) -> np.ndarray:
     """The batch problem's parameter covariance ``[(AᵀA)⁻¹]_θθ`` at a given point, without iterating.
 
@@ -206,13 +213,15 @@ def covariance_at(
         Parameters at the point in the solver's parametrisation (:mod:`oacli.estimation.parametrization`).
     weights_theta : ndarray, shape (4,)
         θ ``[m kg, Ixx, Iyy, Izz kg·m²]`` at which the lost inputs' model is weighted.
+    model : FullModel, optional
+        The full rigid body's chosen part (default θ = [m, Ixx, Iyy, Izz]).
 
     Returns
     -------
-    ndarray, shape (4, 4)
+    ndarray, shape (4, 4) or (16, 16)
         Covariance of ``θ`` (``inf`` diagonal when ``AᵀA`` is singular).
     """
-    problem = BatchProblem(records, settings, prior, weights_theta)
+    problem = BatchProblem(records, settings, prior, weights_theta, model)
     cov, _ = marginal_covariances(problem, states, phi, problem.has_state.copy())
     return cov
 
@@ -228,6 +237,7 @@ def estimate_batch(
     continuation: bool = True,
     warm_start: bool = False,
     reference: bool = False,
+    model: FullModel | None = None,
 ) -> BatchResult:
     """Batch maximum-likelihood estimate of the states and θ from a set of records ([Doerr2021] Eqs. 31-32).
 
@@ -258,6 +268,9 @@ def estimate_batch(
         Use the original implementation (sparse ``A`` assembled, ``AᵀA`` factorised by LU, the general
         :func:`~oacli.estimation.propagation.propagate_intervals`) instead of the block normal equations with a
         Schur complement on φ; the same iterations, kept to check the fast path against (tests, benchmark).
+    model : FullModel, optional
+        Estimate a chosen part of the full rigid body (:mod:`oacli.estimation.batch_model`; ``initial_theta``
+        then has 16 entries or 4, the rest from the model's fixed values); default θ = [m, Ixx, Iyy, Izz].
 
     Returns
     -------
@@ -269,12 +282,13 @@ def estimate_batch(
     if len(recs) < 2:
         raise ValueError(f"the batch estimator needs at least 2 records with distinct time stamps, got {len(recs)}")
     if initial_theta is None and initial_phi is None:
-        if prior is None:
+        if prior is None and model is None:
             raise ValueError("give a prior or an initial_theta")
-        initial_theta = prior.theta
-    phi = par.phi_from_theta(initial_theta) if initial_phi is None else np.array(initial_phi, dtype=float)  # type: ignore[arg-type]
-    theta_w = prior.theta if prior is not None else par.theta_from_phi(phi)
-    problem = BatchProblem(recs, settings, prior, theta_w)
+        initial_theta = model.prior_mean if model is not None else prior.theta  # type: ignore[union-attr]
+    pm: LegacyModel | FullModel = LegacyModel() if model is None else model
+    phi = pm.phi(initial_theta) if initial_phi is None else np.array(initial_phi, dtype=float)  # type: ignore[arg-type]
+    theta_w = prior.theta if prior is not None else pm.theta4(phi)
+    problem = BatchProblem(recs, settings, prior, theta_w, model)
     x = problem.y.copy() if initial_states is None else np.array(initial_states, dtype=float)
     threshold = chi2_threshold(problem.dof, settings.gate_probability) if settings.gate_probability else np.inf
     inliers = problem.has_state.copy()
@@ -300,7 +314,7 @@ def estimate_batch(
         if rounds == 1 and problem.has_gaps:
             # The lost inputs' prediction corrected with this solve's measurement residuals (set_lost_inputs), and
             # solved again from here.
-            problem.set_lost_inputs(problem.measurement_noise(x, inliers), par.theta_from_phi(phi))
+            problem.set_lost_inputs(problem.measurement_noise(x, inliers), pm.theta4(phi))
             x, phi, its, converged = levenberg_marquardt(problem, x, phi, inliers, settings, history, reference,
                                                           lam0)
             iterations += its
@@ -313,10 +327,11 @@ def estimate_batch(
             break
         inliers = new_inliers
     d2 = problem.d2(x, phi)
-    cov, cov_last = marginal_covariances(problem, x, phi, inliers, reference)
+    cov_theta, cov_last = marginal_covariances(problem, x, phi, inliers, reference)
+    cov = cov_theta[:4, :4]
     estimate = ParameterEstimate(
         t=float(problem.t[-1]),
-        theta=par.theta_from_phi(phi),
+        theta=pm.theta4(phi),
         covariance=cov if np.all(np.isfinite(cov)) else np.diag(np.full(4, UNIDENTIFIED_VARIANCE)),
         method="batch",
         samples_used=int(inliers.sum()),
@@ -342,11 +357,14 @@ def estimate_batch(
         chi2_dof=problem.residual_count(inliers) - problem.n_var,
         gate_emptied=gate_emptied,
         segments=int(problem.segment_starts.size),
+        theta_full=None if model is None else model.theta(phi),
+        covariance_full=None if model is None else cov_theta,
     )
 
 
 def extend_states(
-    states: np.ndarray, records: Sequence[Measurement], theta: np.ndarray, substep_s: float
+    states: np.ndarray, records: Sequence[Measurement], theta: np.ndarray, substep_s: float,
+    model: FullModel | None = None,
 ) -> np.ndarray:
     """Warm start for a longer window.
 
@@ -359,10 +377,12 @@ def extend_states(
         Solved states of the first n records.
     records : sequence of Measurement
         The records of the longer window (at least n), in time order.
-    theta : ndarray, shape (4,)
-        θ = [m, Ixx, Iyy, Izz].
+    theta : ndarray, shape (4,) or (16,)
+        θ = [m, Ixx, Iyy, Izz], or the full model's θ with ``model``.
     substep_s : float
         Integration substep [s].
+    model : FullModel, optional
+        The full rigid body's process model (default: θ = [m, Ixx, Iyy, Izz]).
 
     Returns
     -------
@@ -378,7 +398,11 @@ def extend_states(
     for i in range(n, len(records)):
         if records[i].starts_segment:
             continue  # the input before it is unknown: start from its measurement
-        out[i] = propagate_state_one(out[i - 1], records[i - 1].u_applied, theta, sched[i - n])
+        if model is None:
+            out[i] = propagate_state_one(out[i - 1], records[i - 1].u_applied, theta, sched[i - n])
+        else:
+            out[i] = model.propagate(out[i - 1][None], records[i - 1].u_applied[None], theta, sched[i - n][None],
+                                     jacobians=False)[0][0]
     return out
 
 
@@ -390,6 +414,7 @@ def estimate_batch_windows(
     *,
     progress: Callable[[float], None] | None = None,
     reference: bool = False,
+    model: FullModel | None = None,
 ) -> list[BatchResult]:
     """Batch estimates on growing windows ``[t_first, t_end]`` (to show convergence over mission time).
 
@@ -412,6 +437,8 @@ def estimate_batch_windows(
     progress : callable, optional
     reference : bool
         Solve every window with the original implementation (see :func:`estimate_batch`).
+    model : FullModel, optional
+        Estimate a chosen part of the full rigid body (see :func:`estimate_batch`).
 
     Returns
     -------
@@ -427,14 +454,16 @@ def estimate_batch_windows(
     for i, end in enumerate(window_ends_s):
         n = int(np.searchsorted(t, end + TIME_TOL_S, side="right"))
         if n >= 2:
-            init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s)  # type: ignore[arg-type]
+            init = None if states is None else extend_states(states, ordered[:n], theta, settings.substep_s,  # type: ignore[arg-type]
+                                                             model)
             result = estimate_batch(ordered[:n], settings, prior, initial_theta=theta, initial_states=init,
                                     initial_phi=phi, warm_start=init is not None,
-                                    reference=reference)
+                                    reference=reference, model=model)
             if init is not None and not result.converged:  # the warm start did not pay off: solve from the prior
-                result = estimate_batch(ordered[:n], settings, prior, reference=reference)
+                result = estimate_batch(ordered[:n], settings, prior, reference=reference, model=model)
             results.append(result)
-            theta, phi, states = result.estimate.theta, result.phi, result.states
+            theta = result.estimate.theta if result.theta_full is None else result.theta_full
+            phi, states = result.phi, result.states
         if progress is not None:
             progress((i + 1) / len(window_ends_s))
     return results

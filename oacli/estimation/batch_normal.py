@@ -15,7 +15,6 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from oacli.estimation import parametrization as par
 from oacli.estimation.manifold import (
     TANGENT_DIM,
     so3_left_jacobian_inverse,
@@ -128,7 +127,7 @@ class NormalEquations:
         chol = self._factor(damping[:n])
         if chol is None:
             return None
-        border = self.hxp.reshape(n, par.N_PARAMS)
+        border = self.hxp.reshape(n, self.hxp.shape[-1])
         sol = sla.cho_solve_banded((chol, True), np.column_stack([self.gx.ravel(), border]), check_finite=False)
         schur = self.hpp + np.diag(damping[n:]) - border.T @ sol[:, 1:]
         try:
@@ -196,6 +195,8 @@ def process_jacobians(
     core = np.zeros((n, nt, nt))
     core[:, 0:6, 0:6] = a[:, 0:6, 0:6]
     core[:, 6:12, 6:12] = proj_rot @ (a[:, 6:13, 6:13] @ lift_rot)
+    if np.any(a[:, 0:6, 6:13]):  # the full model: the translation depends on the attitude (body-axis force scale)
+        core[:, 0:6, 6:12] = a[:, 0:6, 6:13] @ lift_rot
     cphi = c @ dtheta
     core_phi = np.empty((n, nt, dtheta.shape[1]))
     core_phi[:, 0:6] = cphi[:, 0:6]

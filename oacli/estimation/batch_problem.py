@@ -15,7 +15,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from oacli.estimation import parametrization as par
+from oacli.estimation.batch_model import FullModel, LegacyModel
 from oacli.estimation.batch_normal import NormalEquations, ResidualGroup, block_coo, process_jacobians, sparse_solve
 from oacli.estimation.lost_inputs import (
     bridge_accelerations,
@@ -32,46 +32,45 @@ from oacli.estimation.manifold import (
     so3_right_jacobian_inverse,
 )
 from oacli.estimation.models import EstimatorSettings, Measurement, measured_rows
-from oacli.estimation.propagation import (
-    dynamics_batch,
-    dynamics_jacobians_batch,
-    propagate_intervals,
-    propagate_intervals_structured,
-    substep_schedule,
-)
+from oacli.estimation.propagation import substep_schedule
 from oacli.types import ParameterEstimate
-
-_ACCEL_ROWS = np.r_[3:6, 10:13]  # v̇ and ω̇ rows of the continuous dynamics
 
 Propagated = tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray | None, np.ndarray | None]]
 """A cached process-model propagation: (states, φ, (x_next, a, c))."""
 
 
 class BatchProblem:
-    """Residuals ``b(ϑ)`` and the sparse Jacobian ``A`` of the batch problem for fixed data."""
+    """Residuals ``b(ϑ)`` and the sparse Jacobian ``A`` of the batch problem for fixed data.
+
+    ``model`` chooses θ: the original [m, Ixx, Iyy, Izz] (default) or a part of the full rigid body
+    (:mod:`oacli.estimation.batch_model`); φ then has ``model.n`` entries and the border of ``AᵀA`` as many columns.
+    """
 
     def __init__(
         self, records: Sequence[Measurement], settings: EstimatorSettings, prior: ParameterEstimate | None,
-        weights_theta: np.ndarray,
+        weights_theta: np.ndarray, model: LegacyModel | FullModel | None = None,
     ) -> None:
+        self.model: LegacyModel | FullModel = LegacyModel() if model is None else model
+        self.n_par = self.model.n
+        weights_theta = np.asarray(weights_theta, dtype=float)[:4]
         self.t = np.array([r.t for r in records])
         self.y = np.array([r.x_measured for r in records])
         self.u = np.array([r.u_applied for r in records])
         self.acc = np.array([r.accelerations() for r in records])
         self.k = len(records)
-        self.n_var = TANGENT_DIM * self.k + par.N_PARAMS
+        self.n_var = TANGENT_DIM * self.k + self.n_par
         self.has_state = np.array([r.state_measured for r in records], dtype=bool)
         starts = np.array([r.starts_segment for r in records], dtype=bool)
         starts[0] = True
         self.segment_starts = np.flatnonzero(starts)
         self.links = ~starts[1:]  # process residual k -> k+1 present
-        model = settings.measurement
-        self.state_rows, accel_rows = measured_rows(model)
+        meas = settings.measurement
+        self.state_rows, accel_rows = measured_rows(meas)
         # Acceleration rows are used only where every record with a measurement carries them.
         measured_acc = self.acc[self.has_state]
         self.accel_rows = np.array([i for i in accel_rows if np.all(np.isfinite(measured_acc[:, i]))], dtype=int)
-        self.w_state = np.sqrt(model.state_weights[self.state_rows])
-        self.w_accel = np.sqrt(model.acceleration_weights[self.accel_rows])
+        self.w_state = np.sqrt(meas.state_weights[self.state_rows])
+        self.w_accel = np.sqrt(meas.acceleration_weights[self.accel_rows])
         self.dof = len(self.state_rows) + len(self.accel_rows)
         self.gauge_rows = np.setdiff1d(np.arange(TANGENT_DIM), self.state_rows)
         self.durations = substep_schedule(self.t[:-1], self.t[1:], settings.substep_s)
@@ -83,14 +82,20 @@ class BatchProblem:
         self._w_proc_linked = self._w_proc_nominal
         self._q_proc = settings.process.covariance(np.diff(self.t), weights_theta) if self.has_gaps else None
         self._weights_theta = np.asarray(weights_theta, dtype=float)
-        self._bridge = bridge_accelerations(records, model) if self.has_gaps else (None, None)
+        self._bridge = bridge_accelerations(records, meas) if self.has_gaps else (None, None)
         self._gyro = bridge_angular_accelerations(records) if self.has_gaps else None
         self.w_proc = self._w_proc_nominal
         self.set_lost_inputs()
         self._propagation_cache: Propagated | None = None
         self.prior = prior
         if prior is not None:
-            self.prior_sqrt_info = np.linalg.inv(np.linalg.cholesky(prior.covariance))
+            if isinstance(self.model, FullModel):
+                idx = self.model.prior_index
+                self.prior_mean = self.model.prior_mean[idx]
+                prior_cov = self.model.prior_cov[np.ix_(idx, idx)]
+            else:
+                self.prior_mean, prior_cov = prior.theta, prior.covariance
+            self.prior_sqrt_info = np.linalg.inv(np.linalg.cholesky(prior_cov))
 
     def set_lost_inputs(self, noise: np.ndarray | None = None, theta: np.ndarray | None = None) -> None:
         """The model across the gaps of the input record: the unknown wrench predicted from its neighbours (the
@@ -184,8 +189,8 @@ class BatchProblem:
             ``∂b/∂δϑ`` with the variables ``[δx_1 .. δx_K, δφ]``; None when ``jacobian`` is false.
         """
         k = self.k
-        theta = par.theta_from_phi(phi)
-        dtheta = par.theta_jacobian(phi)
+        theta = self.model.theta(phi)
+        dtheta = self.model.jacobian(phi)
         parts: list[np.ndarray] = []
         triplets: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         row = 0
@@ -209,13 +214,13 @@ class BatchProblem:
 
         # Acceleration residuals (rows of the continuous dynamics at x_k, u_k).
         if idx.size and self.accel_rows.size:
-            f = dynamics_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS]
+            f, fx_jac, fth_jac = self.model.accelerations(x[idx], self.u[idx], theta, jacobian)
             res = ((f - self.acc[idx])[:, self.accel_rows] * self.w_accel).ravel()
             parts.append(res)
             if jacobian:
-                jac = dynamics_jacobians_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS][:, self.accel_rows]
-                jx = jac[:, :, 0:13] @ lift_matrix(x[idx]) * self.w_accel[None, :, None]
-                jp = jac[:, :, 13:] @ dtheta * self.w_accel[None, :, None]
+                assert fx_jac is not None and fth_jac is not None
+                jx = fx_jac[:, self.accel_rows] @ lift_matrix(x[idx]) * self.w_accel[None, :, None]
+                jp = fth_jac[:, self.accel_rows] @ dtheta * self.w_accel[None, :, None]
                 n_a = len(self.accel_rows)
                 r0 = row + n_a * np.arange(idx.size)
                 triplets.append(block_coo(jx, r0, TANGENT_DIM * idx))
@@ -224,7 +229,8 @@ class BatchProblem:
 
         # Process residuals x_{k+1} ⊟ f(x_k, u_k, θ), whitened by Q_k^-½.
         if k > 1:
-            fx, a, c = propagate_intervals(x[:-1], self.u[:-1], theta, self.durations)
+            fx, a, c = self.model.propagate(x[:-1], self.u[:-1], theta, self.durations, reference=True)
+            assert a is not None and c is not None
             e_raw = boxminus(x[1:], fx)  # the Jacobians are those of ⊟, at its value (the gap offset is constant)
             e = e_raw - self.gap_offset
             res = np.einsum("kij,kj->ki", self.w_proc, e).ravel()
@@ -259,11 +265,12 @@ class BatchProblem:
 
         # Gaussian prior on θ (in θ, not in φ).
         if self.prior is not None:
-            parts.append(self.prior_sqrt_info @ (theta - self.prior.theta))
+            pidx = self.model.prior_index
+            parts.append(self.prior_sqrt_info @ (theta[pidx] - self.prior_mean))
             if jacobian:
-                blk = (self.prior_sqrt_info @ dtheta)[None]
+                blk = (self.prior_sqrt_info @ dtheta[pidx])[None]
                 triplets.append(block_coo(blk, np.array([row]), np.array([phi_col])))
-            row += par.N_PARAMS
+            row += self.n_par
 
         b = np.concatenate(parts) if parts else np.zeros(0)
         if not jacobian:
@@ -279,7 +286,7 @@ class BatchProblem:
         cached = self._propagation_cache
         if cached is not None and np.array_equal(cached[0], x) and np.array_equal(cached[1], phi):
             return cached[2]
-        out = propagate_intervals_structured(x[:-1], self.u[:-1], theta, self.durations)
+        out = self.model.propagate(x[:-1], self.u[:-1], theta, self.durations)
         self._propagation_cache = (x.copy(), phi.copy(), out)
         return out
 
@@ -312,8 +319,8 @@ class BatchProblem:
             (4 columns); empty when ``jacobian`` is false.
         """
         k = self.k
-        theta = par.theta_from_phi(phi)
-        dtheta = par.theta_jacobian(phi)
+        theta = self.model.theta(phi)
+        dtheta = self.model.jacobian(phi)
         nt = TANGENT_DIM
         parts: list[np.ndarray] = []
         groups: list[ResidualGroup] = []
@@ -332,20 +339,20 @@ class BatchProblem:
                 groups.append(ResidualGroup(res, idx, blocks))
 
         if idx.size and self.accel_rows.size:
-            f = dynamics_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS]
+            f, fx_jac, fth_jac = self.model.accelerations(x[idx], self.u[idx], theta, jacobian)
             res = (f - self.acc[idx])[:, self.accel_rows] * self.w_accel
             parts.append(res.ravel())
             if jacobian:
-                jac = dynamics_jacobians_batch(x[idx], self.u[idx], theta)[:, _ACCEL_ROWS][:, self.accel_rows]
-                jx = jac[:, :, 0:13] @ lift_matrix(x[idx]) * self.w_accel[None, :, None]
-                jp = jac[:, :, 13:] @ dtheta * self.w_accel[None, :, None]
+                assert fx_jac is not None and fth_jac is not None
+                jx = fx_jac[:, self.accel_rows] @ lift_matrix(x[idx]) * self.w_accel[None, :, None]
+                jp = fth_jac[:, self.accel_rows] @ dtheta * self.w_accel[None, :, None]
                 groups.append(ResidualGroup(res, idx, jx, phi=jp))
 
         if k > 1:
             if jacobian:
                 fx, a, c = self._propagate(x, phi, theta)
             else:  # the end states only (a trial step's cost)
-                fx = propagate_intervals_structured(x[:-1], self.u[:-1], theta, self.durations, jacobians=False)[0]
+                fx = self.model.propagate(x[:-1], self.u[:-1], theta, self.durations, jacobians=False)[0]
             e_raw = boxminus(x[1:], fx)  # the Jacobians are those of ⊟, at its value (the gap offset is constant)
             e = e_raw - self.gap_offset
             res = np.einsum("kij,kj->ki", self.w_proc, e)
@@ -366,11 +373,12 @@ class BatchProblem:
                 groups.append(ResidualGroup(res, first, blk[:, self.gauge_rows]))
 
         if self.prior is not None:
-            res = self.prior_sqrt_info @ (theta - self.prior.theta)
+            pidx = self.model.prior_index
+            res = self.prior_sqrt_info @ (theta[pidx] - self.prior_mean)
             parts.append(res)
             if jacobian:
                 groups.append(ResidualGroup(res[None], np.zeros(0, dtype=int), None,
-                                     phi=(self.prior_sqrt_info @ dtheta)[None]))
+                                     phi=(self.prior_sqrt_info @ dtheta[pidx])[None]))
 
         b = np.concatenate(parts) if parts else np.zeros(0)
         return b, groups
@@ -403,7 +411,7 @@ class BatchProblem:
             (K, 12) and ``gp`` (4,) of ``AᵀA`` and ``Aᵀb``.
         """
         b, groups = self.jacobian_groups(x, phi, inliers)
-        k, nt, npar = self.k, TANGENT_DIM, par.N_PARAMS
+        k, nt, npar = self.k, TANGENT_DIM, self.n_par
         hd = np.zeros((k, nt, nt))
         ho = np.zeros((max(k - 1, 0), nt, nt))
         hxp = np.zeros((k, nt, npar))
@@ -453,7 +461,7 @@ class BatchProblem:
             rows or a negligible pivot of the last block) or the result is not finite.
         """
         _, groups = self.jacobian_groups(x, phi, inliers)
-        k, nt, npar = self.k, TANGENT_DIM, par.N_PARAMS
+        k, nt, npar = self.k, TANGENT_DIM, self.n_par
         single: list[list[np.ndarray]] = [[] for _ in range(k)]
         phi_only: list[np.ndarray] = []
         process = None
@@ -523,7 +531,7 @@ class BatchProblem:
         e = boxminus(x, self.y)[:, self.state_rows] * self.w_state
         out = np.sum(e * e, axis=1)
         if self.accel_rows.size:
-            f = dynamics_batch(x, self.u, par.theta_from_phi(phi))[:, _ACCEL_ROWS]
+            f = self.model.accelerations(x, self.u, self.model.theta(phi), False)[0]
             ea = (f - self.acc)[:, self.accel_rows] * self.w_accel
             out += np.sum(ea * ea, axis=1)
         out[~self.has_state] = np.nan
@@ -544,7 +552,7 @@ class BatchProblem:
         """
         n = int(inliers.sum()) * self.dof + int(self.link_rows.sum())
         n += self.gauge_rows.size * self.segment_starts.size
-        return n + (par.N_PARAMS if self.prior is not None else 0)
+        return n + (self.n_par if self.prior is not None else 0)
 
 
 def marginal_covariances(
@@ -577,7 +585,8 @@ def marginal_covariances(
     cov_last : ndarray, shape (16, 16)
         Covariance of ``[δx_K, δφ]`` (last state's 12 tangent entries, then φ); ``diag(inf)`` when singular.
     """
-    m = TANGENT_DIM + par.N_PARAMS
+    npar = problem.n_par
+    m = TANGENT_DIM + npar
     if reference:
         # The augmented system [[I, A], [Aᵀ, 0]] [r; z] = [0; −e]  ⇒  z = (AᵀA)⁻¹ e, by sparse LU: AᵀA is never
         # formed, so the covariance is good to cond(A)·ε like the QR (a solve of AᵀA squares the condition number:
@@ -591,9 +600,9 @@ def marginal_covariances(
         cov_last = None if sol is None else sol[rows + n - m:, :]
     else:
         cov_last = problem.last_covariance_qr(x, phi, inliers)
+    jac = problem.model.jacobian(phi)
     if cov_last is None:
-        return np.diag(np.full(par.N_PARAMS, np.inf)), np.diag(np.full(m, np.inf))
+        return np.diag(np.full(jac.shape[0], np.inf)), np.diag(np.full(m, np.inf))
     cov_last = 0.5 * (cov_last + cov_last.T)
-    jac = par.theta_jacobian(phi)
     cov = jac @ cov_last[TANGENT_DIM:, TANGENT_DIM:] @ jac.T
     return 0.5 * (cov + cov.T), cov_last

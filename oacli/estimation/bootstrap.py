@@ -11,8 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from oacli.estimation import parametrization as par
 from oacli.estimation.batch import BatchResult, covariance_at, estimate_batch, extend_states
+from oacli.estimation.batch_model import FullModel, LegacyModel
 from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.preprocessing import order_by_time
 from oacli.types import ParameterEstimate
@@ -25,7 +25,7 @@ the converged solve's on the default mission and two 12 s test runs)."""
 
 def handover_in_reach(
     records: Sequence[Measurement], last_solve: BatchResult | None, settings: EstimatorSettings,
-    prior: ParameterEstimate, relative_std: float,
+    prior: ParameterEstimate, relative_std: float, model: FullModel | None = None,
 ) -> bool:
     """Whether the covariance of the records so far may be within reach of the hand-over (offline checks).
 
@@ -49,7 +49,9 @@ def handover_in_reach(
     prior : ParameterEstimate
         The filter's prior on θ.
     relative_std : float
-        The hand-over threshold ``bootstrap_relative_std`` on ``std/|θ|`` [-].
+        The hand-over threshold ``bootstrap_relative_std`` on ``std/|θ|`` [-] (on mass and inertia).
+    model : FullModel, optional
+        The full rigid body's chosen part (:mod:`oacli.estimation.batch_model`); default θ = [m, Ixx, Iyy, Izz].
 
     Returns
     -------
@@ -58,22 +60,23 @@ def handover_in_reach(
     """
     try:
         recs = order_by_time(records).records
+        pm: LegacyModel | FullModel = LegacyModel() if model is None else model
         if last_solve is not None and last_solve.states.shape[0] <= len(recs):
             phi = last_solve.phi
-            states = extend_states(last_solve.states, recs, last_solve.estimate.theta, settings.substep_s)
+            states = extend_states(last_solve.states, recs, _theta_of(last_solve), settings.substep_s, model)
         else:
-            phi = par.phi_from_theta(prior.theta)
+            phi = pm.phi(prior.theta if model is None else model.prior_mean)
             states = np.array([r.x_measured for r in recs])
-        cov = covariance_at(recs, settings, prior, states, phi, prior.theta)
+        cov = covariance_at(recs, settings, prior, states, phi, prior.theta, model)[:4, :4]
     except (ValueError, ArithmeticError, np.linalg.LinAlgError):  # e.g. no measured record yet
         return True
-    ratio = np.sqrt(np.diag(cov)) / (relative_std * np.abs(par.theta_from_phi(phi)))
+    ratio = np.sqrt(np.diag(cov)) / (relative_std * np.abs(pm.theta4(phi)))
     return not bool(np.all(np.isfinite(ratio))) or float(np.max(ratio)) <= HANDOVER_MARGIN
 
 
 def solve_bootstrap(
     records: Sequence[Measurement], last_solve: BatchResult | None, settings: EstimatorSettings,
-    prior: ParameterEstimate, reference: bool = False,
+    prior: ParameterEstimate, reference: bool = False, model: FullModel | None = None,
 ) -> BatchResult:
     """Batch-solve the bootstrap's records ([Doerr2021] Eqs. 31-32), warm-started at the last solve when there is one.
 
@@ -92,6 +95,8 @@ def solve_bootstrap(
         The filter's prior on θ.
     reference : bool
         Solve on the batch's reference path (never warm-started).
+    model : FullModel, optional
+        The full rigid body's chosen part; default θ = [m, Ixx, Iyy, Izz].
 
     Returns
     -------
@@ -100,10 +105,16 @@ def solve_bootstrap(
     init_phi, init_states = None, None
     if last_solve is not None:
         init_phi = last_solve.phi
-        init_states = extend_states(last_solve.states, records, last_solve.estimate.theta, settings.substep_s)
+        init_states = extend_states(last_solve.states, records, _theta_of(last_solve), settings.substep_s, model)
     warm = init_phi is not None and not reference
     result = estimate_batch(records, settings, prior, initial_phi=init_phi, initial_states=init_states,
-                            warm_start=warm, reference=reference)
+                            warm_start=warm, reference=reference, model=model)
     if warm and not result.converged:  # the warm start did not pay off: solve as before
-        result = estimate_batch(records, settings, prior, initial_phi=init_phi, initial_states=init_states)
+        result = estimate_batch(records, settings, prior, initial_phi=init_phi, initial_states=init_states,
+                                model=model)
     return result
+
+
+def _theta_of(result: BatchResult) -> np.ndarray:
+    """The θ a solve's process model used: the full θ when it had one, else [m, Ixx, Iyy, Izz]."""
+    return result.estimate.theta if result.theta_full is None else result.theta_full

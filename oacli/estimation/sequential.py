@@ -49,16 +49,12 @@ import math
 import numpy as np
 import scipy.linalg as sla
 
-from oacli.estimation import parametrization as par
 from oacli.estimation.batch import BatchResult
+from oacli.estimation.batch_model import FullModel, LegacyModel
 from oacli.estimation.bootstrap import handover_in_reach, solve_bootstrap
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.lost_inputs import (
-    BRIDGE_FACTOR,
     gyro_bridge_offset,
-    lost_input_prior,
-    unknown_force_directions,
-    unknown_torque_directions,
 )
 from oacli.estimation.manifold import (
     TANGENT_DIM,
@@ -77,25 +73,13 @@ from oacli.estimation.manifold_one import (
 )
 from oacli.estimation.models import EstimatorSettings, Measurement, SequentialStep, measured_rows
 from oacli.estimation.preprocessing import ReorderBuffer
-from oacli.estimation.propagation import (
-    TIME_TOL_S,
-    dynamics_batch,
-    dynamics_jacobians_batch,
-    propagate_intervals,
-    propagate_one,
-    substep_schedule,
-)
+from oacli.estimation.propagation import propagate_intervals, propagate_one, substep_schedule
+from oacli.estimation.sequential_gaps import bridge_gap
 from oacli.types import ParameterEstimate
 
 __all__ = ["SequentialEstimator", "SequentialStep"]
 
-_ACCEL_ROWS = np.r_[3:6, 10:13]
-_N = TANGENT_DIM + par.N_PARAMS
-_EYE_N = np.eye(_N)
-_EYE_STEP = np.eye(_N + TANGENT_DIM)  # the last step's variables [δx_{k-1}, δφ, δx_k]
 _ATT = np.arange(6, 9)  # attitude rows/columns of the 12-entry error state
-_POSTERIOR_ORDER = np.ix_(*(2 * [np.r_[_N:_N + TANGENT_DIM, TANGENT_DIM:_N]]))
-"""Rows and columns of ``[x_k, φ]`` in the last step's ``[δx_{k-1}, δφ, δx_k]``."""
 _UNMEASURED_VARIANCE = 1.0  # initial variance of state components no sensor measures (gauge, see batch.py)
 _MAX_UPDATE_ITERATIONS = 5
 _STEP_TOL_PHI = 1e-6
@@ -139,6 +123,7 @@ class SequentialEstimator:
         self, settings: EstimatorSettings, prior: ParameterEstimate, *, reinitialise_after: int = 5,
         bootstrap_relative_std: float | None = 0.05, bootstrap_check_every: int = 5,
         bootstrap_max_records: int = 200, reference: bool = False, intermediate_estimates: bool = True,
+        model: FullModel | None = None,
     ) -> None:
         if reinitialise_after < 1:
             raise ValueError("reinitialise_after must be >= 1")
@@ -167,9 +152,16 @@ class SequentialEstimator:
         self.bootstrap_unidentified = False
         """The bootstrap's hand-over solve had no usable covariance (θ not identified by its records, e.g. no record
         passed its χ² gate): the filter went on from the prior instead (the estimate stage reports it)."""
-        self._phi = par.phi_from_theta(prior.theta)
-        jac_inv = np.linalg.inv(par.theta_jacobian(self._phi))
-        self._p_phi0 = jac_inv @ prior.covariance @ jac_inv.T
+        self._full = model
+        self._model: LegacyModel | FullModel = LegacyModel() if model is None else model
+        n = self._n = TANGENT_DIM + self._model.n  # the error state [δx, δφ]
+        self._eye_n, self._eye_step = np.eye(n), np.eye(n + TANGENT_DIM)  # the last step's [δx_{k-1}, δφ, δx_k]
+        self._posterior_order = np.ix_(*(2 * [np.r_[n:n + TANGENT_DIM, TANGENT_DIM:n]]))  # [x_k, φ] in it
+        idx = self._model.prior_index
+        p_theta0 = prior.covariance if model is None else model.prior_cov[np.ix_(idx, idx)]
+        self._phi = self._model.phi(prior.theta if model is None else model.prior_mean)
+        jac_inv = np.linalg.inv(self._model.jacobian(self._phi)[idx])
+        self._p_phi0 = jac_inv @ p_theta0 @ jac_inv.T
         self._state_rows, self._accel_rows = measured_rows(settings.measurement)
         self._r_state = 1.0 / settings.measurement.state_weights[self._state_rows]
         self._r_accel = 1.0 / settings.measurement.acceleration_weights[self._accel_rows]
@@ -179,11 +171,11 @@ class SequentialEstimator:
         self._att_sel = self._state_rows[att] - 6
         self._w_att = self._w_state[att, None]
         self._ix_innovation_att = np.ix_(att, _ATT)
-        self._ix_step_att = np.ix_(2 * TANGENT_DIM + par.N_PARAMS + att, _N + _ATT)
+        self._ix_step_att = np.ix_(n + TANGENT_DIM + att, n + _ATT)
         self._q_cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._buffer = ReorderBuffer(settings.reorder_window)
         self._x: np.ndarray | None = None
-        self._p = np.zeros((_N, _N))
+        self._p = np.zeros((n, n))
         self._p[TANGENT_DIM:, TANGENT_DIM:] = self._p_phi0
         self._t_last: float | None = None
         self._u_last: np.ndarray | None = None
@@ -220,17 +212,29 @@ class SequentialEstimator:
             return self._boot_estimate if self._boot_estimate is not None else self.prior
         if self._estimate_cache is not None:  # unchanged since the last record
             return self._estimate_cache
-        jac = par.theta_jacobian(self._phi)
-        cov = jac @ self._p[TANGENT_DIM:, TANGENT_DIM:] @ jac.T
+        theta, cov = self.full_estimate()
         self._estimate_cache = ParameterEstimate(
             t=float(self._t_last) if self._t_last is not None else float(self.prior.t),
-            theta=par.theta_from_phi(self._phi),
-            covariance=0.5 * (cov + cov.T),
+            theta=theta[:4],
+            covariance=cov[:4, :4],
             method="sequential" if self._t_last is not None else "prior",
             samples_used=self.samples_used,
             samples_rejected=self.samples_rejected,
         )
         return self._estimate_cache
+
+    def full_estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        """θ and its covariance of the model filtered: the full rigid body's (16, 16×16; entries not estimated
+        held, zero variance) or [m, Ixx, Iyy, Izz] (4, 4×4) (the current filter state; call after :meth:`flush`).
+
+        Returns
+        -------
+        theta : ndarray, shape (16,) or (4,)
+        covariance : ndarray, shape (16, 16) or (4, 4)
+        """
+        jac = self._model.jacobian(self._phi)
+        cov = jac @ self._p[TANGENT_DIM:, TANGENT_DIM:] @ jac.T
+        return self._model.theta(self._phi), 0.5 * (cov + cov.T)
 
     @property
     def state(self) -> np.ndarray | None:
@@ -291,15 +295,15 @@ class SequentialEstimator:
 
     def _predict(self, t: float) -> None:
         assert self._x is not None and self._t_last is not None and self._u_last is not None
-        theta = par.theta_from_phi(self._phi)
+        theta = self._model.theta(self._phi)
         durations = substep_schedule(np.array([self._t_last]), np.array([t]), self.settings.substep_s)
         self._before = (self._x.copy(), self._phi.copy(), self._p.copy(), durations)
         x_new, a, c = self._propagate(self._x, theta, durations)
         self._predicted = (x_new, a, c)  # the first iterate of the update linearises at this very point
         proj = self._proj(x_new)
-        phi_mat = _EYE_N.copy()
+        phi_mat = self._eye_n.copy()
         phi_mat[:TANGENT_DIM, :TANGENT_DIM] = proj @ a @ self._lift(self._x)
-        phi_mat[:TANGENT_DIM, TANGENT_DIM:] = proj @ c @ par.theta_jacobian(self._phi)
+        phi_mat[:TANGENT_DIM, TANGENT_DIM:] = proj @ c @ self._model.jacobian(self._phi)
         self._q, self._w_proc = self._process_noise(t - self._t_last)
         if self._gap_q is not None:  # across a bridged gap: the predicted input's error (_bridge_gap)
             self._q = self._q + self._gap_q
@@ -327,7 +331,11 @@ class SequentialEstimator:
         """The process model over the current interval from ``x`` with the held input: ``x⁺``, ``∂x⁺/∂x``,
         ``∂x⁺/∂θ``."""
         assert self._u_last is not None
-        if self.reference:
+        if self._full is not None:  # the full rigid body (rigid_dynamics.propagate_full)
+            x1, a1, c1 = self._full.propagate(x[None], self._u_last[None], theta, durations)
+            assert a1 is not None and c1 is not None
+            x_new, a, c = x1[0], a1[0], c1[0]
+        elif self.reference:
             x_new, a, c = propagate_intervals(x[None], self._u_last[None], theta, durations)
             x_new, a, c = x_new[0], a[0], c[0]
         else:
@@ -354,10 +362,9 @@ class SequentialEstimator:
     def _accel_model(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, dtheta: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted accelerations (6,) at ``x`` and their Jacobians w.r.t. ``δx`` (6, 12) and ``δφ`` (6, 4)."""
-        x1, u1 = x[None], u[None]
-        pred = dynamics_batch(x1, u1, theta)[0, _ACCEL_ROWS]
-        jac = dynamics_jacobians_batch(x1, u1, theta)[0][_ACCEL_ROWS]
-        return pred, jac[:, 0:13] @ self._lift(x), jac[:, 13:] @ dtheta
+        pred, jx, jth = self._model.accelerations(x[None], u[None], theta)
+        assert jx is not None and jth is not None
+        return pred[0], jx[0] @ self._lift(x), jth[0] @ dtheta
 
     def _innovation(self, rec: Measurement) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``ν``, ``H`` (m, 16) and ``R`` diagonal (m,) for the measured components of ``rec``."""
@@ -366,15 +373,15 @@ class SequentialEstimator:
         rows = self._state_rows
         acc, acc_rows, r_acc = self._accel_selection(rec)
         m = rows.size
-        h = np.zeros((m + acc_rows.size, _N))
+        h = np.zeros((m + acc_rows.size, self._n))
         h[np.arange(m), rows] = 1.0
         att = self._att_in_rows  # positions of the measured attitude rows 6:9 among ``rows``
         if att.size:
             h[self._ix_innovation_att] = self._jr(-e[6:9])[self._att_sel]
         nu, r = e[rows], self._r_state
         if acc_rows.size:
-            pred, jx, jphi = self._accel_model(self._x, rec.u_applied, par.theta_from_phi(self._phi),
-                                               par.theta_jacobian(self._phi))
+            pred, jx, jphi = self._accel_model(self._x, rec.u_applied, self._model.theta(self._phi),
+                                               self._model.jacobian(self._phi))
             h[m:, :TANGENT_DIM] = jx[acc_rows]
             h[m:, TANGENT_DIM:] = jphi[acc_rows]
             nu = np.concatenate([nu, (acc - pred)[acc_rows]])
@@ -396,9 +403,9 @@ class SequentialEstimator:
         x_prev, phi_prev, _, durations = self._before
         w_prior, w_proc = self._w_prior, self._w_proc
         nt = TANGENT_DIM
-        kb = nt + par.N_PARAMS  # [δx_{k-1}, δφ, δx_k]
-        theta = par.theta_from_phi(ph)
-        dtheta = par.theta_jacobian(ph)
+        kb = self._n  # [δx_{k-1}, δφ, δx_k]
+        theta = self._model.theta(ph)
+        dtheta = self._model.jacobian(ph)
         if first and not self.reference and self._predicted is not None:
             fx, a, c = self._predicted
         else:
@@ -458,7 +465,7 @@ class SequentialEstimator:
         x_prev, phi_prev, p_prev, _ = self._before
         self._w_prior = np.linalg.inv(np.linalg.cholesky(p_prev))
         self._acc = self._accel_selection(rec)
-        nt, kb = TANGENT_DIM, _N
+        nt, kb = TANGENT_DIM, self._n
         xa, ph, xb = x_prev, phi_prev, self._x  # never modified in place (each step makes new arrays)
         r, j = self._step_residuals(rec, xa, ph, xb, first=True)
         best_cost, best, best_j = float(r @ r), (xa, ph, xb), j
@@ -488,9 +495,9 @@ class SequentialEstimator:
         _, ph, xb = best
         # (JᵀJ)⁻¹ from the triangular factor of J (R⁻¹R⁻ᵀ): JᵀJ of a nearly rigid step has a condition number of
         # ~1e9, so its inverse would be good to ~1e-7 only; the factor of J keeps cond(J)·ε (~1e-11).
-        r_inv = sla.solve_triangular(np.linalg.qr(best_j, mode="r"), _EYE_STEP, check_finite=False)
+        r_inv = sla.solve_triangular(np.linalg.qr(best_j, mode="r"), self._eye_step, check_finite=False)
         cov = r_inv @ r_inv.T
-        p = cov[_POSTERIOR_ORDER]  # [x_k, φ]
+        p = cov[self._posterior_order]  # [x_k, φ]
         self._x, self._phi, self._p = xb, ph, 0.5 * (p + p.T)
 
     def _bootstrap(self, force: bool) -> None:
@@ -507,7 +514,7 @@ class SequentialEstimator:
         n = len(self._boot)
         if not (force or self.intermediate_estimates or n >= self.bootstrap_max_records or self._near_handover()):
             return
-        result = solve_bootstrap(self._boot, self._boot_last, self.settings, self.prior, self.reference)
+        result = solve_bootstrap(self._boot, self._boot_last, self.settings, self.prior, self.reference, self._full)
         self._boot_last = result
         est = result.estimate
         self._boot_estimate = ParameterEstimate(est.t, est.theta, est.covariance, "sequential", est.samples_used,
@@ -544,7 +551,8 @@ class SequentialEstimator:
     def _near_handover(self) -> bool:
         """Whether the records so far may be within reach of the hand-over (:func:`handover_in_reach`)."""
         assert self._boot is not None and self.bootstrap_relative_std is not None
-        return handover_in_reach(self._boot, self._boot_last, self.settings, self.prior, self.bootstrap_relative_std)
+        return handover_in_reach(self._boot, self._boot_last, self.settings, self.prior, self.bootstrap_relative_std,
+                                 self._full)
 
     def _predict_and_update(self, rec: Measurement) -> tuple[str, float, int]:
         """Predict to ``rec.t``, gate the innovation (χ², Mahalanobis d²) and update; returns (status, d², dof)."""
@@ -571,66 +579,9 @@ class SequentialEstimator:
         return "accepted", d2, dof
 
     def _bridge_gap(self, rec: Measurement) -> bool:
-        """Prepare the prediction across a gap in the input record ending at ``rec`` (``rec.starts_segment``), as the
-        batch links it (:func:`~oacli.estimation.lost_inputs.lost_input_prior`,
-        :func:`~oacli.estimation.lost_inputs.segment_link_weights`); False when it cannot be bridged.
-
-        One lost control instant: the previous record is the lost instant's input-only record (reached through a
-        known input), and the unknown interval is as long as the one before it and at most ``BRIDGE_FACTOR``
-        typical record spacings. Its input is predicted as the mean of the known inputs on either side,
-        ``(u_{k-1} + u_{k+1}) / 2``, and the prediction's error variance, measured on the records so far (every
-        triple of consecutive known inputs, as the batch measures it on the whole run), enters as process noise
-        ``D Σ_u Dᵀ`` over the interval (``D``: the force and torque directions of the end state). Anything else
-        (several lost instants, uneven stamps, fewer triples than the batch needs) is a gap the filter does not
-        bridge: it re-initialises the robot state there (``segments``). Online the input after the gap must be
-        taken as known (the batch also checks the interval after it).
-        """
-        t = np.array(self._inputs_t)
-        k1 = t.size - 1  # rec
-        k = k1 - 1  # the lost instant
-        if k < 1 or self._inputs_start[k] or rec.t != t[k1]:
-            return False
-        dt_gap, dt_prev = t[k1] - t[k], t[k] - t[k - 1]
-        if abs(dt_gap - dt_prev) > TIME_TOL_S + 1e-6 * abs(dt_gap):
-            return False
-        starts = np.array(self._inputs_start, dtype=bool)
-        links = ~starts[1:]
-        dt = np.diff(t)
-        if dt_gap > BRIDGE_FACTOR * float(np.median(dt[links])) + TIME_TOL_S:
-            return False
-        u = np.array(self._inputs_u)
-        _, _, variance = lost_input_prior(t, u, links)
-        if not np.all(np.isfinite(variance)):
-            return False
-        theta = self.prior.theta
-        self._u_last = 0.5 * (u[k - 1] + u[k1])
-        d_force = unknown_force_directions(np.array([dt_gap]))[0]
-        sigma_a = self.settings.measurement.linear_acceleration_std_mps2
-        if self._lost_acc is not None and sigma_a is not None and np.isfinite(sigma_a) and sigma_a > 0:
-            # The accelerometer measured the lost force as f/m (lost_input_model): no prediction, no mass.
-            acc, readings = self._lost_acc
-            variance = np.concatenate([np.full(3, float(sigma_a) ** 2 / max(readings, 1)), variance[3:6]])
-            self._u_last[0:3] = 0.0
-            self._gap_acc = (acc, float(dt_gap))
-            self.gaps_bridged_imu += 1
-        else:
-            d_force = d_force / theta[0]
-        d_torque = unknown_torque_directions(np.array([dt_gap]), theta[1:4])[0]
-        if self._lost_gyro is not None:
-            self.gaps_bridged_imu += self._gap_acc is None  # counted once per gap, either sensor
-            # The gyro measured the lost torque's ω̇ (lost_input_model): J⁻¹τ = ω̇ + J⁻¹(ω × Jω) with the model's
-            # torque 0 (its gyroscopic term stays), at the current θ̂; its variance directly on [½T², T].
-            alpha, alpha_var, rate = self._lost_gyro
-            inertia = par.theta_from_phi(self._phi)[1:4]
-            self._gap_gyro = (alpha + np.cross(rate, rate * inertia) / inertia, rate, float(dt_gap))
-            self._u_last[3:6] = 0.0
-            variance = np.concatenate([variance[0:3], np.full(3, alpha_var)])
-            d_torque = d_torque * theta[1:4]  # per unit ω̇
-            self.gaps_bridged_gyro += 1
-        d = np.concatenate([d_force, d_torque], axis=1)
-        self._gap_q = (d * variance) @ d.T
-        self.gaps_bridged += 1
-        return True
+        """Prepare the prediction across a gap ending at ``rec`` (:func:`~oacli.estimation.sequential_gaps.bridge_gap`);
+        False when it cannot be bridged."""
+        return bridge_gap(self, rec)
 
     def _process(self, rec: Measurement) -> None:
         self._estimate_cache = None

@@ -4,11 +4,13 @@ The truth plant (its own inertial parameters, which may differ from the controll
 with RK4 on a fixed grid of ``plant_period_s`` (62.5 Hz on Astrobee). The controller runs every
 ``control_period_s`` and its input is held (zero-order hold) until the next update; when a controller instant
 falls between two plant ticks the integration step is split there, so both rates are honoured exactly.
-Actuators saturate each axis at its limit. Two unmodelled actuator effects of a real free-flyer may be switched on:
-a per-axis scale error between the applied and the delivered input, and a centre-of-mass offset ``r`` from the
-geometric centre the thrust acts on, which adds the torque ``-r × F_body`` (recomputed at every plant step from the
-current attitude). The recorded ``u_applied`` stays what the robot believes it applied (the saturated command), as
-a flight log would. Every random draw comes from the generator passed in.
+Actuators saturate each axis at its limit. Two actuator effects of a real free-flyer may be switched on
+(:mod:`oacli.sim.actuators`): a scale error between the applied and the delivered input per *body* axis (Astrobee's
+impellers are body-fixed), and a centre-of-mass offset ``r`` from the geometric centre the thrust acts on, which
+adds the torque ``-r × F_body``; both are recomputed at every plant step from the attitude at its start. The
+disturbance's force is added in the world frame after them and does not torque the body. The recorded
+``u_applied`` stays what the robot believes it applied (the saturated command), as a flight log would. Every
+random draw comes from the generator passed in.
 """
 
 from __future__ import annotations
@@ -18,8 +20,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from oacli.model import quaternion as quat
 from oacli.model.rigid_body import theta_of
+from oacli.sim.actuators import delivered_wrench, delivered_wrench_floats
 from oacli.sim.full_inertia import TensorPlant
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.types import Controller, InertialParams, SolveInfo, Telemetry
@@ -66,7 +68,8 @@ def simulate(
     progress : callable, optional
         Called with the completed fraction in [0, 1] after each control step.
     actuator_scale : ndarray, shape (6,), optional
-        Delivered ÷ applied input per axis (default: ones, perfect actuators).
+        Delivered ÷ applied input per axis: force per body axis, torque per body axis (default: ones, perfect
+        actuators).
     com_offset_m : ndarray, shape (3,), optional
         Centre of mass relative to the geometric centre, body frame [m] (default: zero).
     on_step : callable, optional
@@ -103,6 +106,8 @@ def simulate(
     x_true = [tuple(state)]
     mass, inertia = float(theta[0]), (float(theta[1]), float(theta[2]), float(theta[3]))
     offset_r = None if offset is None else (float(offset[0]), float(offset[1]), float(offset[2]))
+    body_scale = None if np.all(scale[0:3] == 1.0) else (float(scale[0]), float(scale[1]), float(scale[2]))
+    body_scale_arr = None if body_scale is None else np.array(body_scale)
     t_ctrl = np.arange(n_ctrl) * control_period_s
     rec_meas = np.empty((n_ctrl, 13))
     rec_ref = np.empty((n_ctrl, 13))
@@ -126,7 +131,12 @@ def simulate(
         rec_meas[j], rec_ref[j], rec_cmd[j], rec_app[j], rec_dist[j] = y, step.x_reference, u_cmd, u_app, w
         infos.append(step.info)
         u_del = u_app if delivered_limits is None else np.clip(u_app, -delivered_limits, delivered_limits)
-        u_total = [float(v) for v in scale * u_del + w]
+        if body_scale is None and offset is None:
+            u_total = [float(v) for v in scale * u_del + w]
+            w_force = (0.0, 0.0, 0.0)
+        else:  # the force is scaled per body axis at every plant step; the disturbance force added after
+            u_total = [float(v) for v in np.r_[u_del[0:3], scale[3:6] * u_del[3:6] + w[3:6]]]
+            w_force = (float(w[0]), float(w[1]), float(w[2]))
         # The plant steps of this control period: up to each plant tick, the last one cut at t1.
         steps: list[float] = []
         ticks: list[float | None] = []
@@ -142,12 +152,13 @@ def simulate(
             else:
                 ticks.append(None)
         if tensor_plant is None:
-            states = _propagate_steps(state, u_total, mass, inertia, offset_r, steps)
+            states = _propagate_steps(state, u_total, mass, inertia, offset_r, steps, body_scale, w_force)
         else:  # products of inertia: the numpy step of the full tensor (campaign dispersions)
             states = []
             for dt in steps:
                 x_now, u_now = np.array(state), np.array(u_total)
-                u_step = u_now if offset is None else _with_offset_torque(u_now, x_now, offset)
+                u_step = delivered_wrench(u_now, x_now[6:10], body_scale_arr, offset)
+                u_step[0:3] += w_force
                 state = [float(v) for v in tensor_plant.propagate(x_now, u_step, theta, dt)]
                 states.append(tuple(state))
         if states:
@@ -182,11 +193,14 @@ def simulate(
 
 
 def _propagate_steps(s: list[float], u: list[float], mass: float, inertia: tuple[float, float, float],
-                     offset: tuple[float, float, float] | None, steps: list[float]) -> list[tuple[float, ...]]:
+                     offset: tuple[float, float, float] | None, steps: list[float],
+                     force_scale: tuple[float, float, float] | None = None,
+                     w_force: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> list[tuple[float, ...]]:
     """The plant over consecutive steps ``steps`` [s] under the held input ``u``: the state after each step.
 
     Each step is :func:`oacli.model.rigid_body.propagate` (RK4 of [Doerr2021] Eqs. 34-35 with ``u`` held, then the
-    quaternion renormalised with ``w >= 0``) with the centre-of-mass torque (:func:`_with_offset_torque`) taken at
+    quaternion renormalised with ``w >= 0``) with the delivered wrench (body-axis force scale ``force_scale`` and
+    centre-of-mass torque, :func:`oacli.sim.actuators.delivered_wrench`, plus the world force ``w_force``) taken at
     the step's initial attitude, written out on Python floats: the same operations in the same order as the numpy
     version (bit-identical; ``tests/test_simulator.py`` checks), without its per-call array overhead. The
     translational stages need no position (the force is held), so only the velocities of the stages are formed.
@@ -195,13 +209,15 @@ def _propagate_steps(s: list[float], u: list[float], mass: float, inertia: tuple
     ix, iy, iz = inertia
     f0, f1, f2, t0, t1, t2 = u
     ax, ay, az = f0 / mass, f1 / mass, f2 / mass
+    tx, ty, tz = t0, t1, t2
     dyz, dzx, dxy = iz - iy, ix - iz, iy - ix
     out: list[tuple[float, ...]] = []
+    varying = offset is not None or force_scale is not None
     for dt in steps:
-        if offset is None:
-            tx, ty, tz = t0, t1, t2
-        else:
-            tx, ty, tz = _offset_torque(f0, f1, f2, t0, t1, t2, qx, qy, qz, qw, offset)
+        if varying:
+            g0, g1, g2, tx, ty, tz = delivered_wrench_floats(f0, f1, f2, t0, t1, t2, qx, qy, qz, qw, force_scale,
+                                                             offset)
+            ax, ay, az = (g0 + w_force[0]) / mass, (g1 + w_force[1]) / mass, (g2 + w_force[2]) / mass
         h = 0.5 * dt
         # k1 at s
         a1 = 0.5 * (qw * wx - qz * wy + qy * wz)
@@ -262,31 +278,4 @@ def _propagate_steps(s: list[float], u: list[float], mass: float, inertia: tuple
             norm = -norm
         qx, qy, qz, qw = qx / norm, qy / norm, qz / norm, qw / norm
         out.append((px, py, pz, vx, vy, vz, qx, qy, qz, qw, wx, wy, wz))
-    return out
-
-
-def _offset_torque(f0: float, f1: float, f2: float, t0: float, t1: float, t2: float, qx: float, qy: float,
-                   qz: float, qw: float, r: tuple[float, float, float]) -> tuple[float, float, float]:
-    """The torque of :func:`_with_offset_torque` on Python floats: ``τ + (−r) × (Rᵀ F)``, R from the normalised
-    attitude (the same operations, written out)."""
-    norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-    if qw / norm < 0.0:
-        norm = -norm
-    x, y, z, w = qx / norm, qy / norm, qz / norm, qw / norm
-    b0 = (1 - 2 * (y * y + z * z)) * f0 + 2 * (x * y + z * w) * f1 + 2 * (x * z - y * w) * f2
-    b1 = 2 * (x * y - z * w) * f0 + (1 - 2 * (x * x + z * z)) * f1 + 2 * (y * z + x * w) * f2
-    b2 = 2 * (x * z + y * w) * f0 + 2 * (y * z - x * w) * f1 + (1 - 2 * (x * x + y * y)) * f2
-    a0, a1, a2 = -r[0], -r[1], -r[2]
-    return t0 + (a1 * b2 - a2 * b1), t1 + (a2 * b0 - a0 * b2), t2 + (a0 * b1 - a1 * b0)
-
-
-def _with_offset_torque(u: np.ndarray, x: np.ndarray, com_offset_m: np.ndarray) -> np.ndarray:
-    """``u`` plus the torque of its force about a centre of mass displaced by ``com_offset_m`` (body frame).
-
-    The force acts at the geometric centre, at ``-r`` from the centre of mass, so it adds ``τ = (-r) × F_body``
-    with ``F_body = Rᵀ F_world`` ([Doerr2021] Eq. 34 for the frames).
-    """
-    force_body = quat.to_rotation_matrix(x[6:10]).T @ u[0:3]
-    out = np.array(u, dtype=float)
-    out[3:6] += np.cross(-com_offset_m, force_body)
     return out

@@ -40,6 +40,7 @@ from oacli.config.estimation import RlsConfig
 from oacli.errors import InfeasibleError, InputError
 from oacli.estimation.alignment import AlignmentReport, align_records
 from oacli.estimation.batch import UNIDENTIFIED_VARIANCE, BatchResult, estimate_batch_windows
+from oacli.estimation.batch_model import FullModel
 from oacli.estimation.bounds import CramerRaoBound, cramer_rao_bound, describe_unobservable, unobservable_parameters
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.imu import ImuStream, attach_accelerations, fit_accelerometer_bias
@@ -55,6 +56,7 @@ from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
 from oacli.io.telemetry_streams import TelemetryStreams, read_telemetry_streams
 from oacli.phases import set_phase
+from oacli.stages.estimate_rigid import batch_model, rigid_body_section
 from oacli.stages.estimate_rls import run_rls
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
 from oacli.status import StatusReport, status_log
@@ -104,6 +106,8 @@ class EstimationRun:
         Sequential: gaps it could not bridge (the batch cuts them), where it re-initialised the robot state.
     extras : dict or None
         The method's own summary entries (``rls``: force scale and its calibration, infeasible updates).
+    full : tuple of ndarray or None
+        The full rigid body's θ (16) and covariance (16×16) when one was estimated.
     nis_ratio : float
         Sequential: mean normalised innovation squared of the filter's own updates over its expected value (its
         dimension); about 1 for a consistent filter, NaN when the filter made no update of its own.
@@ -138,6 +142,7 @@ class EstimationRun:
     gaps_bridged_imu: int = 0
     segment_restarts: int = 0
     extras: dict[str, Any] | None = None
+    full: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def truth_from_config_yaml(text: str | None) -> np.ndarray | None:
@@ -157,6 +162,7 @@ def run_estimation(
     records: list[Measurement], settings: EstimatorSettings, prior: ParameterEstimate, method: str, *,
     use_prior: bool = True, window_s: float = 10.0, progress: Callable[[float], None] | None = None,
     rls: RlsConfig | None = None, imu: ImuStream | None = None, period_s: float | None = None,
+    model: FullModel | None = None,
 ) -> EstimationRun:
     """Run one estimator over time-ordered records and evaluate the Cramér-Rao bound along its estimate.
 
@@ -182,6 +188,9 @@ def run_estimation(
         Method ``rls``: the telemetry's IMU (angular accelerations from the gyro).
     period_s : float, optional
         Method ``rls``: the control period [s].
+    model : FullModel, optional
+        Methods ``batch`` and ``sequential``: the part of the full rigid body estimated
+        (:func:`oacli.stages.estimate_rigid.batch_model`; default θ = [m, Ixx, Iyy, Izz]).
     """
     start = time.perf_counter()
     t = np.array([r.t for r in records])
@@ -195,6 +204,7 @@ def run_estimation(
     bootstrap_unidentified = False
     gaps_bridged = gaps_bridged_imu = segment_restarts = 0
     extras: dict[str, Any] | None = None
+    full = None
     if method == "batch":
         ends = [*np.arange(t[0] + window_s, t[-1] - 0.5 * window_s, window_s), t[-1]]
         set_phase(progress, f"batch window 1/{len(ends)}")
@@ -206,8 +216,11 @@ def run_estimation(
             if progress is not None:
                 progress(fraction)
 
-        results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=window_done)
+        results = estimate_batch_windows(records, settings, prior if use_prior else None, ends, progress=window_done,
+                                         model=model)
         batch = results[-1]
+        if batch.theta_full is not None and batch.covariance_full is not None:
+            full = (batch.theta_full, batch.covariance_full)
         history = [r.estimate for r in results]
         final, states, d2, dof = batch.estimate, batch.states, batch.d2, batch.dof
         status = ["accepted" if ok else "rejected" if by_t[ti].state_measured else "predicted"
@@ -216,13 +229,14 @@ def run_estimation(
         used = batch.inliers
         t = batch.t
     elif method == "sequential":
-        est = SequentialEstimator(settings, prior, intermediate_estimates=False)  # only the final one is kept
+        est = SequentialEstimator(settings, prior, intermediate_estimates=False, model=model)  # keeps the final one
         set_phase(progress, f"sequential EKF ({len(records)} records)")
         for i, rec in enumerate(records):
             est.update(rec)
             if progress is not None and (i % 25 == 0 or i == len(records) - 1):
                 progress((i + 1) / len(records))
         final = est.flush()
+        full = est.full_estimate() if model is not None else None
         steps = [s for s in est.history if s.status != "late"]
         history = [s.estimate for s in steps]
         states = np.array([s.state for s in steps])
@@ -269,7 +283,7 @@ def run_estimation(
         reinitialisations=reinitialisations, solve_time_s=time.perf_counter() - start, segments=segments,
         nis_ratio=nis_ratio, nis_dof=nis_dof, bootstrap_unidentified=bootstrap_unidentified,
         gaps_bridged=gaps_bridged, gaps_bridged_imu=gaps_bridged_imu,
-        segment_restarts=segment_restarts, extras=extras,
+        segment_restarts=segment_restarts, extras=extras, full=full,
     )
 
 
@@ -527,9 +541,10 @@ def run_estimate(
         raise InputError(f"{telemetry}: {measured} usable measurement(s); estimation needs at least 2")
     settings = estimator_settings(cfg)
     prior = estimation_prior(cfg)
+    model = batch_model(cfg, prior) if method in ("batch", "sequential") else None
     run = run_estimation(records, settings, prior, method, use_prior=cfg.estimation.use_prior,
                          window_s=cfg.estimation.window_s, progress=progress, rls=cfg.estimation.rls,
-                         imu=_imu_stream(streams), period_s=alignment.control_period_s)
+                         imu=_imu_stream(streams), period_s=alignment.control_period_s, model=model)
     limit = cfg.estimation.max_relative_std
     unobservable = unobservable_parameters(run.bound, run.final.theta, limit)
     if unobservable:
@@ -554,6 +569,9 @@ def run_estimate(
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
     summary = _estimate_summary(run, prior, truth, telemetry, alignment, streams)
+    if method in ("batch", "sequential"):
+        log.append((float(run.t_records[-1]), "info", rigid_body_section(summary, run, model, settings, records,
+                                                                         streams.config_yaml)))
     if use_localisation:
         summary["measurements_topic"] = ms.TOPIC_LOCALISATION
         log.insert(1, (0.0, "info", f"measured states from {ms.TOPIC_LOCALISATION} (by stamp)"))
