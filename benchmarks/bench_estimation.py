@@ -117,6 +117,7 @@ from oacli.sim.faults import inject_localisation_jumps
 from oacli.sim.imu import ImuModel, simulate_imu
 from oacli.sim.substreams import sensor_rng
 from oacli.stages.estimate import run_estimation
+from oacli.stages.settings import truth_model
 from oacli.stages.track import run_track
 from oacli.types import ParameterEstimate
 
@@ -189,7 +190,7 @@ def imu_records(tel, cfg, seed: int) -> list[Measurement]:
     delivered = DeliveredInput.from_telemetry(tel, np.asarray(cfg.truth.actuator_scale))
     model = ImuModel(accelerometer_noise_std_mps2=ACCEL_STD_MPS2, accelerometer_bias_std_mps2=1e-3,
                      gyro_noise_std_radps=GYRO_STD_RADPS, gyro_bias_std_radps=5e-4)
-    imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), TRUTH[0], model,
+    imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), truth_model(cfg), model,
                        sensor_rng(seed, "imu"))
     records, report = align_records(tel.t_ctrl, tel.x_measured, tel.t_ctrl, tel.u_applied, reorder_window=8)
     stream = ImuStream(imu.t, imu.specific_force_mps2, imu.angular_rate_radps)
@@ -206,7 +207,7 @@ def gapped_imu_records(records: list[Measurement], tel, cfg, seed: int) -> list[
     delivered = DeliveredInput.from_telemetry(tel, np.asarray(cfg.truth.actuator_scale))
     model = ImuModel(accelerometer_noise_std_mps2=ACCEL_STD_MPS2, accelerometer_bias_std_mps2=1e-3,
                      gyro_noise_std_radps=GYRO_STD_RADPS, gyro_bias_std_radps=5e-4)
-    imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), TRUTH[0], model,
+    imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), truth_model(cfg), model,
                        sensor_rng(seed, "imu"))
     stream = ImuStream(imu.t, imu.specific_force_mps2, imu.angular_rate_radps)
     t_inputs = np.array([r.t for r in records if r.state_measured])  # every stream lost at the same steps

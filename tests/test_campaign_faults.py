@@ -20,6 +20,7 @@ from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
 from oacli.sim.stall import StalledController
 from oacli.types import ControlStep, InertialParams, SolveInfo
+from tests.model_helpers import mass_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -100,12 +101,12 @@ def test_tensor_plant_equals_diagonal_plant_and_conserves_angular_momentum():
     x[10:13] = [0.05, -0.08, 0.12]
     u = np.array([0.1, -0.2, 0.05, 0.01, -0.02, 0.03])
     theta = np.array([9.0, 0.15, 0.14, 0.16])
-    diag = TensorPlant(9.0, np.diag(theta[1:]))
+    diag = TensorPlant(mass_model(9.0).params, np.diag(theta[1:]))
     assert np.allclose(diag.propagate(x, u, theta, 0.016), propagate(x, u, theta, 0.016), rtol=0, atol=1e-15)
     # Torque-free with products of inertia: world-frame angular momentum R J ω and energy are conserved.
     rot = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
     inertia = rot @ np.diag([0.15, 0.14, 0.16]) @ rot.T
-    plant = TensorPlant(9.0, inertia)
+    plant = TensorPlant(mass_model(9.0).params, inertia)
     y = x.copy()
     momentum0 = quat.to_rotation_matrix(y[6:10]) @ inertia @ y[10:13]
     energy0 = 0.5 * y[10:13] @ inertia @ y[10:13]

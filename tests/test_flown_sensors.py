@@ -29,6 +29,7 @@ from tests.estimation_helpers import (
     simulate_open_loop,
 )
 from tests.estimation_helpers import MODEL as STATE_MODEL
+from tests.model_helpers import mass_model
 
 ACC_STD = math.sqrt(5e-6)  # rattle param_est R, linear acceleration (a variance)
 YAW_90 = np.array([0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)])  # body x -> world y
@@ -46,7 +47,8 @@ def test_constant_force_gives_the_specific_force_f_over_m_in_the_body_frame():
     x0[6:10] = YAW_90
     tel = _open_loop(np.array([0.1, 0.0, 0.05, 0.0, 0.0, 0.0]), x0, 20)
     force = DeliveredInput.from_telemetry(tel).force_world(tel.t_true)
-    imu = simulate_imu(tel.t_true, tel.x_true, force, THETA_TRUE[0], ImuModel(), np.random.default_rng(1))
+    imu = simulate_imu(tel.t_true, tel.x_true, force, mass_model(THETA_TRUE[0]).params, ImuModel(),
+                       np.random.default_rng(1))
     # Yaw +90°: world x is body -y, world z is body z.
     expected = np.array([0.0, -0.1, 0.05]) / THETA_TRUE[0]
     np.testing.assert_allclose(imu.specific_force_mps2, np.tile(expected, (len(tel.t_true), 1)), atol=1e-12)
@@ -59,7 +61,7 @@ def test_constant_spin_gives_the_rate_plus_a_constant_bias():
     x0[10:13] = [0.0, 0.0, 0.1]  # about a principal axis, no torque: ω stays constant
     tel = _open_loop(np.zeros(6), x0, 20)
     model = ImuModel(gyro_bias_std_radps=0.01, accelerometer_bias_std_mps2=0.002)
-    imu = simulate_imu(tel.t_true, tel.x_true, np.zeros((len(tel.t_true), 3)), THETA_TRUE[0], model,
+    imu = simulate_imu(tel.t_true, tel.x_true, np.zeros((len(tel.t_true), 3)), mass_model(THETA_TRUE[0]).params, model,
                        np.random.default_rng(2))
     bias = imu.gyro_bias_radps[0]
     assert np.all(np.abs(bias) > 1e-5)
@@ -76,7 +78,7 @@ def test_imu_noise_and_random_walk_have_their_configured_spread():
     x[:, 9] = 1.0
     model = ImuModel(accelerometer_noise_std_mps2=ACC_STD, gyro_noise_std_radps=0.01,
                      accelerometer_bias_random_walk=1e-4)
-    imu = simulate_imu(t, x, np.zeros((n, 3)), 10.0, model, np.random.default_rng(3))
+    imu = simulate_imu(t, x, np.zeros((n, 3)), mass_model(10.0).params, model, np.random.default_rng(3))
     tol = 4.0 / math.sqrt(2 * 3 * n)  # relative std of a sample std over 3n values, 4 σ
     assert abs(np.std(imu.angular_rate_radps) / 0.01 - 1.0) < tol
     noise = imu.specific_force_mps2 - imu.accelerometer_bias_mps2
@@ -145,7 +147,7 @@ def _imu_fed_errors(seed: int, n: int = 100) -> tuple[np.ndarray, np.ndarray]:
     tel = simulate_open_loop(n, seed=seed)
     force = DeliveredInput.from_telemetry(tel).force_world(tel.t_true)
     model = ImuModel(accelerometer_noise_std_mps2=ACC_STD, accelerometer_bias_std_mps2=1e-3)
-    imu = simulate_imu(tel.t_true, tel.x_true, force, THETA_TRUE[0], model, sensor_rng(seed, "imu"))
+    imu = simulate_imu(tel.t_true, tel.x_true, force, mass_model(THETA_TRUE[0]).params, model, sensor_rng(seed, "imu"))
     records, _ = align_records(tel.t_ctrl, tel.x_measured, tel.t_ctrl, tel.u_applied, reorder_window=0)
     stream = ImuStream(imu.t, imu.specific_force_mps2, imu.angular_rate_radps)
     fit = fit_accelerometer_bias(records, stream, tel.t_ctrl, CONTROL_PERIOD_S)

@@ -46,6 +46,7 @@ from oacli.sim.delivered import DeliveredInput
 from oacli.sim.imu import ImuModel, simulate_imu
 from oacli.sim.sensors import SensorNoise
 from oacli.types import ParameterEstimate
+from tests.model_helpers import mass_model
 
 CUTS = (9, 17, 26, 34, 47)
 WIDE_PRIOR = ParameterEstimate(0.0, [15.0, 0.1, 0.1, 0.1], np.diag([15.0, 0.005, 0.005, 0.005]) * 1e8, "prior")
@@ -223,8 +224,8 @@ def test_the_prediction_corrected_for_the_feedback_on_the_neighbours_noise():
     _, _, plain = lost_input_prior(t, u, links)
     assert np.all(var < plain)
     # The model takes it only where asked, and only on bridged intervals.
-    u_plain, bridged, v_plain, _ = lost_input_model(t, u, links, 15.0)
-    u_corr, _, v_corr, _ = lost_input_model(t, u, links, 15.0, noise=noise)
+    u_plain, bridged, v_plain, _ = lost_input_model(t, u, links, np.array([15.0, 0.2, 0.2, 0.2]))
+    u_corr, _, v_corr, _ = lost_input_model(t, u, links, np.array([15.0, 0.2, 0.2, 0.2]), noise=noise)
     assert np.flatnonzero(bridged).tolist() == lost.tolist()
     np.testing.assert_allclose(u_corr[lost] - u_plain[lost], correction[lost])
     np.testing.assert_array_equal(u_corr[~np.r_[~links, False]], u_plain[~np.r_[~links, False]])
@@ -263,8 +264,8 @@ def test_the_accelerometer_bridges_a_lost_force():
     sigma_a = math.sqrt(5e-6)
     delivered = DeliveredInput.from_telemetry(tel)
     model = ImuModel(accelerometer_noise_std_mps2=sigma_a, accelerometer_bias_std_mps2=0.0)
-    imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), THETA_TRUE[0], model,
-                       np.random.default_rng(0))
+    imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), mass_model(THETA_TRUE[0]).params,
+                       model, np.random.default_rng(0))
     stream = ImuStream(imu.t, imu.specific_force_mps2, imu.angular_rate_radps)
     lost = [12, 30, 47, 63, 80, 97, 115, 131]
     recs = _gapped(tel, lost)

@@ -51,7 +51,7 @@ def _flight(seed: int, n: int, lost_every: int = 6):
     delivered = DeliveredInput.from_telemetry(tel)
     model = ImuModel(accelerometer_noise_std_mps2=SIGMA_A, gyro_noise_std_radps=SIGMA_G,
                      accelerometer_bias_std_mps2=0.0, gyro_bias_std_radps=5e-3)
-    imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), TRUTH.mass_kg, model,
+    imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true), TRUTH, model,
                        np.random.default_rng(100 + seed))
     assert np.all(np.abs(imu.gyro_bias_radps[0]) > 0)
     rng = np.random.default_rng(200 + seed)
@@ -150,8 +150,8 @@ def test_the_gyro_bridge_offset_reproduces_the_true_end_state():
     gyro = bridge_angular_accelerations(bridged)
     assert gyro is not None
     u_model, bridged_mask, variance, offset = lost_input_model(
-        t, u, links, TRUTH.mass_kg, bridge_acceleration=acc, bridge_acceleration_variance=var, gyro=gyro,
-        inertia_kgm2=THETA_TRUE[1:4])
+        t, u, links, np.r_[TRUTH.mass_kg, THETA_TRUE[1:4]], bridge_acceleration=acc, bridge_acceleration_variance=var,
+        gyro=gyro)
     gaps = np.flatnonzero(bridged_mask)
     assert gaps.size >= 15 and np.all(u_model[gaps] == 0.0)
     np.testing.assert_allclose(variance[gaps, 3:6], gyro.variance[gaps, None] * THETA_TRUE[1:4] ** 2)

@@ -37,6 +37,7 @@ from tests.estimation_helpers import (
     settings,
     simulate_open_loop,
 )
+from tests.model_helpers import mass_model
 
 
 def run_filter(recs, settings_=None, prior=RATTLE_PRIOR) -> SequentialEstimator:
@@ -403,7 +404,8 @@ def test_the_accelerometer_bridges_a_lost_force_in_the_filter_too():
     tel = closed_loop_pd(0, 150)
     sigma_a = math.sqrt(5e-6)
     imu = simulate_imu(tel.t_true, tel.x_true, DeliveredInput.from_telemetry(tel).force_world(tel.t_true),
-                       THETA_TRUE[0], ImuModel(accelerometer_noise_std_mps2=sigma_a, accelerometer_bias_std_mps2=0.0),
+                       mass_model(THETA_TRUE[0]).params,
+                       ImuModel(accelerometer_noise_std_mps2=sigma_a, accelerometer_bias_std_mps2=0.0),
                        np.random.default_rng(0))
     keep = np.ones(len(tel.t_ctrl), dtype=bool)
     keep[3 * np.random.default_rng(100).choice(np.arange(1, len(keep) // 3 - 1), 15, replace=False)] = False

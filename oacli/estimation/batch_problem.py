@@ -122,8 +122,8 @@ class BatchProblem:
         m_w = float(weights_theta[0])
         acc, var = self._bridge
         self.u, bridged, variance, self.gap_offset = lost_input_model(
-            self.t, self._u_records, self.links, m_w, bridge_acceleration=acc, bridge_acceleration_variance=var,
-            noise=noise, gyro=self._gyro, inertia_kgm2=weights_theta[1:4])
+            self.t, self._u_records, self.links, weights_theta[:4], bridge_acceleration=acc,
+            bridge_acceleration_variance=var, noise=noise, gyro=self._gyro)
         self._w_proc_nominal, self.link_rows = segment_link_weights(
             self._w_proc_linked, self._q_proc, np.diff(self.t), self.links, bridged,
             variance * np.r_[m_w**2, m_w**2, m_w**2, 1.0, 1.0, 1.0], weights_theta)

@@ -164,9 +164,8 @@ def cramer_rao_bound(
             noise = np.full((k, TANGENT_DIM), np.nan)
             noise[used] = boxminus(np.asarray(measured, dtype=float)[used], states[used])
         u, bridged, variance, _ = lost_input_model(
-            t, u, links, float(theta[0]), bridge_acceleration=bridge_acceleration,
-            bridge_acceleration_variance=bridge_acceleration_variance, noise=noise, gyro=gyro,
-            inertia_kgm2=theta[1:4])
+            t, u, links, np.asarray(theta, dtype=float)[:4], bridge_acceleration=bridge_acceleration,
+            bridge_acceleration_variance=bridge_acceleration_variance, noise=noise, gyro=gyro)
         dt = np.diff(t)
         for i in np.flatnonzero(bridged):
             d = np.concatenate([unknown_force_directions(dt[i:i + 1])[0],

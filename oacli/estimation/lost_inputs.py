@@ -241,9 +241,9 @@ def noise_corrected_prediction(
 
 
 def lost_input_model(
-    t: np.ndarray, u: np.ndarray, links: np.ndarray, mass_kg: float, *,
+    t: np.ndarray, u: np.ndarray, links: np.ndarray, theta: np.ndarray, *,
     bridge_acceleration: np.ndarray | None = None, bridge_acceleration_variance: np.ndarray | None = None,
-    noise: np.ndarray | None = None, gyro: GyroBridge | None = None, inertia_kgm2: np.ndarray | None = None,
+    noise: np.ndarray | None = None, gyro: GyroBridge | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What the estimator assumes over each interval with an unknown input (one model for :class:`BatchProblem` and
     :func:`oacli.estimation.bounds.cramer_rao_bound`).
@@ -277,8 +277,10 @@ def lost_input_model(
         Inputs (placeholders where unknown).
     links : ndarray of bool, shape (K - 1,)
         The input over interval k is known.
-    mass_kg : float
-        Mass at which a predicted force's variance is expressed as ``f/m``.
+    theta : ndarray, shape (4,)
+        The weighting point ``[m kg, Ixx, Iyy, Izz kg·m²]`` (of :func:`segment_link_weights`): a predicted force's
+        variance is expressed as ``f/m`` at its mass, the gyro-bridged torque's variance and gyroscopic term are
+        evaluated at its inertias.
     bridge_acceleration : ndarray, shape (K, 3), optional
         Mean measured ``f/m`` (world frame) over each record's outgoing interval (NaN where none).
     bridge_acceleration_variance : ndarray, shape (K,), optional
@@ -288,11 +290,7 @@ def lost_input_model(
         corrected for the controller's reaction to the neighbours' measurement noise
         (:func:`noise_corrected_prediction`).
     gyro : GyroBridge, optional
-        The gyro's ``ω̇`` over each record's outgoing interval (:func:`bridge_angular_accelerations`); used with
-        ``inertia_kgm2``.
-    inertia_kgm2 : ndarray, shape (3,), optional
-        Principal inertias where the gyro-bridged torque's variance and gyroscopic term are evaluated (the
-        weighting point of :func:`segment_link_weights`).
+        The gyro's ``ω̇`` over each record's outgoing interval (:func:`bridge_angular_accelerations`).
 
     Returns
     -------
@@ -310,6 +308,10 @@ def lost_input_model(
     t = np.asarray(t, dtype=float)
     k = t.size
     links = np.asarray(links, dtype=bool)
+    weighting = np.asarray(theta, dtype=float)
+    if weighting.shape != (4,):
+        raise ValueError(f"theta: expected [m, Ixx, Iyy, Izz] (shape (4,)), got shape {weighting.shape}")
+    mass_kg, inertia = float(weighting[0]), weighting[1:4]
     u_model, predicted, input_var = lost_input_prior(t, u, links)
     dt = np.diff(t)
     bridged = np.zeros(max(k - 1, 0), dtype=bool)
@@ -334,8 +336,7 @@ def lost_input_model(
         variance[imu, 0:3] = acc_var[imu, None]
         u_model[:-1][imu, 0:3] = 0.0
         offset[imu] = np.einsum("kij,kj->ki", unknown_force_directions(dt[imu]), acc[imu])
-    if gyro is not None and inertia_kgm2 is not None:
-        inertia = np.asarray(inertia_kgm2, dtype=float)
+    if gyro is not None:
         alpha, alpha_var, rate = gyro.angular_acceleration[:-1], gyro.variance[:-1], gyro.rate[:-1]
         turn = (bridged & np.all(np.isfinite(alpha), axis=1) & np.isfinite(alpha_var) & (alpha_var > 0)
                 & np.all(np.isfinite(rate), axis=1))

@@ -12,6 +12,7 @@ import numpy as np
 
 from oacli.model import quaternion as quat
 from oacli.model.rigid_body import dynamics
+from oacli.types import InertialParams
 
 
 class TensorPlant:
@@ -19,16 +20,16 @@ class TensorPlant:
 
     Parameters
     ----------
-    mass_kg : float
-        Mass [kg].
+    plant : InertialParams
+        The true plant (its mass [kg]; its principal inertias are replaced by the tensor's diagonal).
     inertia_tensor_kgm2 : array_like, shape (3, 3)
         ``J`` about the centre of mass, body frame [kg·m²] (symmetric positive definite).
     """
 
-    def __init__(self, mass_kg: float, inertia_tensor_kgm2: np.ndarray) -> None:
+    def __init__(self, plant: InertialParams, inertia_tensor_kgm2: np.ndarray) -> None:
         self.inertia = np.array(inertia_tensor_kgm2, dtype=float).reshape(3, 3)
         self.inertia_inv = np.linalg.inv(self.inertia)
-        self.theta = np.array([float(mass_kg), *np.diag(self.inertia)])
+        self.theta = np.array([plant.mass_kg, *np.diag(self.inertia)])
 
     def dynamics(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """``ẋ`` with ``ω̇ = J⁻¹ (τ − ω × J ω)`` ([Doerr2021] Eq. 35b).

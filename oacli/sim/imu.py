@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from oacli.model import quaternion as quat
+from oacli.types import InertialParams
 
 __all__ = ["ImuModel", "ImuSamples", "simulate_imu"]
 
@@ -75,7 +76,7 @@ def _bias(b0: np.ndarray, walk: np.ndarray, std_rw: float, dt: np.ndarray) -> np
 
 
 def simulate_imu(
-    t: np.ndarray, x_true: np.ndarray, force_world_N: np.ndarray, mass_kg: float, model: ImuModel,
+    t: np.ndarray, x_true: np.ndarray, force_world_N: np.ndarray, plant: InertialParams, model: ImuModel,
     rng: np.random.Generator,
 ) -> ImuSamples:
     """IMU readings at ``t`` from the true states and the delivered force (module docstring).
@@ -88,8 +89,8 @@ def simulate_imu(
         True states at ``t``.
     force_world_N : ndarray, shape (N, 3)
         Force acting on the robot at ``t`` (world frame) [N].
-    mass_kg : float
-        True mass [kg].
+    plant : InertialParams
+        The true plant (its mass [kg] turns the force into the specific force).
     model : ImuModel
     rng : numpy.random.Generator
         Draws, in order: initial biases (accelerometer, gyro; 3 each), random-walk normals (N × 3 each), white
@@ -109,7 +110,7 @@ def simulate_imu(
     b_acc = _bias(model.accelerometer_bias_std_mps2 * b0[0], walk[0], model.accelerometer_bias_random_walk, dt)
     b_gyr = _bias(model.gyro_bias_std_radps * b0[1], walk[1], model.gyro_bias_random_walk, dt)
     rot = quat.to_rotation_matrix(x[:, 6:10])
-    a_body = np.einsum("nji,nj->ni", rot, np.asarray(force_world_N, float).reshape(n, 3)) / mass_kg
+    a_body = np.einsum("nji,nj->ni", rot, np.asarray(force_world_N, float).reshape(n, 3)) / plant.mass_kg
     acc = a_body + b_acc + model.accelerometer_noise_std_mps2 * noise[0]
     gyr = x[:, 10:13] + b_gyr + model.gyro_noise_std_radps * noise[1]
     return ImuSamples(t, acc, gyr, b_acc, b_gyr)

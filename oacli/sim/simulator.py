@@ -94,7 +94,7 @@ def simulate(
     if duration_s <= 0 or control_period_s <= 0 or plant_period_s <= 0:
         raise ValueError("duration and periods must be > 0")
     theta = theta_of(truth)
-    tensor_plant = None if inertia_tensor_kgm2 is None else TensorPlant(truth.mass_kg, inertia_tensor_kgm2)
+    tensor_plant = None if inertia_tensor_kgm2 is None else TensorPlant(truth, inertia_tensor_kgm2)
     scale = np.ones(6) if actuator_scale is None else np.asarray(actuator_scale, dtype=float).reshape(6)
     offset = None if com_offset_m is None or not np.any(com_offset_m) else np.asarray(com_offset_m, float).reshape(3)
     n_ctrl = int(np.floor(duration_s / control_period_s + _TIME_TOL))

@@ -76,7 +76,7 @@ def flown_sensors(cfg: OacliConfig, tel: Telemetry) -> FlownSensors | None:
     imu = loc = None
     if s.imu.enabled:
         model = ImuModel(**s.imu.model_dump(exclude={"enabled"}))
-        imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true, tel.x_true), truth.mass_kg, model,
+        imu = simulate_imu(tel.t_true, tel.x_true, delivered.force_world(tel.t_true, tel.x_true), truth, model,
                            sensor_rng(cfg.seed, "imu"))
     if s.localisation.enabled:
         lc = s.localisation
