@@ -67,7 +67,8 @@ def _estimation(metrics: list[dict[str, Any]], cfg: CampaignConfig) -> dict[str,
 
 
 FLIGHT_NAMES = {"segment-3/track": "seg3_tube_estimate", "segment-3/baseline-mpc-prior": "seg3_mpc_prior",
-                "segment-3/baseline-tube-prior": "seg3_tube_prior"}
+                "segment-3/baseline-tube-prior": "seg3_tube_prior",
+                "segment-3/baseline-mpc-unconstrained-prior": "seg3_mpc_prior_unconstrained"}
 """Short names of segment 3's flights ([Doerr2021] Fig. 3(d)) in the per-run figures; other stage keys (a mission
 with another baseline) keep their key."""
 

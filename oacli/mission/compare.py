@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from oacli.mission.layout import BASELINES
+from oacli.mission.layout import FLIGHT_LABELS
 from oacli.mission.records import load_config_cached, read_telemetry_cached
 
 ARRIVAL_TOLERANCE_M = 0.02
@@ -106,7 +106,7 @@ def comparison_row(key: str, summary: dict[str, Any], mission_dir: Path) -> dict
     Parameters
     ----------
     key : str
-        ``segment-3/track`` or a baseline key (:data:`oacli.mission.layout.BASELINES`).
+        ``segment-3/track`` or a baseline key (:data:`oacli.mission.layout.FLIGHT_LABELS`).
     summary : dict
         The flight's stage summary (a failed baseline has only ``status`` and ``error``).
     mission_dir : Path
@@ -116,7 +116,7 @@ def comparison_row(key: str, summary: dict[str, Any], mission_dir: Path) -> dict
     -------
     dict
     """
-    row: dict[str, Any] = {"label": BASELINES.get(key, key), "status": summary.get("status")}
+    row: dict[str, Any] = {"label": FLIGHT_LABELS.get(key, key), "status": summary.get("status")}
     if "rms_position_error_m" not in summary:
         row["error"] = summary.get("error")
         return row

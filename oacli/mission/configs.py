@@ -299,7 +299,9 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         learned = handoff.estimate if handoff.estimate is not None else prior
         model = prior if stage.name.endswith("-prior") else learned
         sets = deep_merge(sets, _model_sections(model, mission.w_sigmas))
-        sets["controller"]["type"] = "mpc" if stage.name == "baseline-mpc-prior" else "tube"
+        sets["controller"]["type"] = "mpc" if stage.name.startswith("baseline-mpc-") else "tube"
+        if stage.name == "baseline-mpc-unconstrained-prior":  # the paper's standard MPC: no workspace constraints
+            sets["controller"]["position_constraints"] = False
     if model is not None:
         sets["reference"] = reference_within_model(data["reference"], data["robot"], model, mission.w_sigmas)
         sets = deep_merge(sets, inertia_margin_sections(model, mission.rate_margin_sigmas, data))
