@@ -54,8 +54,7 @@ def test_from_completes_the_mission_stage_names():
     (option,) = [p for p in mission.params if "--from" in getattr(p, "opts", ())]
     ctx = click.Context(mission)
     offered = [item.value for item in option.shell_complete(ctx, "segment-3/b")]
-    assert offered == ["segment-3/baseline-mpc-prior", "segment-3/baseline-tube-prior",
-                       "segment-3/baseline-mpc-unconstrained-prior"]
+    assert offered == ["segment-3/baseline-mpc-prior", "segment-3/baseline-tube-prior"]
     every = [item.value for item in option.shell_complete(ctx, "")]
     assert every == [s.key for s in MISSION_STAGES]
 

@@ -97,9 +97,17 @@ MISSION_STAGES: tuple[MissionStage, ...] = (
     MissionStage("segment-3", "track", "track"),
     MissionStage("segment-3", "baseline-mpc-prior", "track"),
     MissionStage("segment-3", "baseline-tube-prior", "track"),
+)
+"""Every stage of a default mission, in the order they run."""
+
+OPTIONAL_STAGES: tuple[MissionStage, ...] = (
     MissionStage("segment-3", "baseline-mpc-unconstrained-prior", "track"),
 )
-"""Every stage of a mission, in the order they run."""
+"""Stages a mission flies only when asked (``mission.unconstrained_baseline``), after :data:`MISSION_STAGES`; not
+in ``mission.mcap``, ``mission.rrd`` or the mission's plots (their folders are ordinary ``track`` folders)."""
+
+ALL_STAGES: tuple[MissionStage, ...] = MISSION_STAGES + OPTIONAL_STAGES
+"""Every stage a mission may run, in order (a stage's seed is drawn from its index here)."""
 
 SEGMENTS: tuple[str, ...] = ("segment-1", "segment-2", "segment-3")
 """The three segments: A → B (model known), B → C (payload uncertain), C → A (model learned)."""
@@ -137,7 +145,7 @@ def stage_by_key(key: str) -> MissionStage:
     KeyError
         Unknown key (the message lists the known ones).
     """
-    for stage in MISSION_STAGES:
+    for stage in ALL_STAGES:
         if stage.key == key.strip("/"):
             return stage
-    raise KeyError(f"{key!r}: not a mission stage; one of " + ", ".join(s.key for s in MISSION_STAGES))
+    raise KeyError(f"{key!r}: not a mission stage; one of " + ", ".join(s.key for s in ALL_STAGES))
