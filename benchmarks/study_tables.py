@@ -23,6 +23,7 @@ from oacli.campaign.aggregate import run_figures
 from oacli.campaign.cells import campaign_cells
 from oacli.campaign.driver import load_existing
 from oacli.campaign.intervals import median_interval, proportion_interval
+from oacli.campaign.study_metrics import THETA_KEYS
 
 
 def _m(stat: dict[str, Any], scale: float = 1.0, digits: int = 1) -> str:
@@ -63,6 +64,7 @@ def load(folder: Path) -> tuple[Any, dict[str, list[tuple[int, dict[str, Any], s
         cell = index[str(k)].get("cell", "all")
         figs = run_figures(rec["metrics"])
         figs["_metrics"] = rec["metrics"]
+        figs["_dir"] = folder / rec["attempt"]
         runs.setdefault(cell, []).append((k // ncells, figs, rec["status"]))
     return campaign, runs
 
@@ -125,13 +127,17 @@ def rattle(runs: dict[str, list[tuple[int, dict[str, Any], str]]]) -> None:
     for cell, rows in runs.items():
         print(f"cell {cell}: n = {len(rows)}")
         print("| parameter | RLS error [%] | flight error | RLS covariance reduction [%] | flight reduction |"
-              " error ÷ Cramér-Rao σ |")
-        print("|---|---|---|---|---|---|")
+              " error ÷ reported σ | error ÷ Cramér-Rao σ |")
+        print("|---|---|---|---|---|---|---|")
+        own = [json.loads((f["_dir"] / "estimate" / "summary.json").read_text()).get("error_over_std") or {}
+               for _, f, _ in rows]
         for i, p in enumerate(("mass", "Ixx", "Iyy", "Izz")):
             crb = median_interval([abs(f["_metrics"]["estimate"]["error_over_crb"][i]) for _, f, _ in rows
                                    if f["_metrics"].get("estimate")])
+            sig = median_interval([o.get(THETA_KEYS[i]) for o in own])
             print(f"| {p} | {_m(stat(rows, f'rls.abs_error_pct.{p}'), 1, 2)} | {flight_err[i]} | "
-                  f"{_m(stat(rows, f'rls.cov_reduction_pct.{p}'), 1, 3)} | {flight_red[i]} | {_m(crb, 1, 2)} |")
+                  f"{_m(stat(rows, f'rls.cov_reduction_pct.{p}'), 1, 3)} | {flight_red[i]} | {_m(sig, 1, 2)} | "
+                  f"{_m(crb, 1, 2)} |")
         statuses: dict[str, int] = {}
         for _, _, s in rows:
             statuses[s] = statuses.get(s, 0) + 1
