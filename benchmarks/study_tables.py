@@ -157,11 +157,36 @@ def expset3(runs: dict[str, list[tuple[int, dict[str, Any], str]]]) -> None:
         med = median_interval(diffs)
         print(f"| {key} [{unit}] | {_m(stat(tube, key), scale, 2)} | {_m(stat(std, key), scale, 2)} | "
               f"{_sign(diffs)}, median {_m(med, scale, 2)} |")
+    # Sluggishness at the goal: from the reference's stop, the time until the robot stays within 1 cm / 2 cm of it
+    for tol in (0.01, 0.02):
+        settle = {name: {r: settle_s(f["_dir"] / "track" / "track.mcap", tol) for r, f, _ in rows}
+                  for name, rows in (("tube", tube), ("standard", std))}
+        diffs = [settle["tube"][r] - settle["standard"][r] for r in settle["tube"] if r in settle["standard"]
+                 and not (math.isinf(settle["tube"][r]) and math.isinf(settle["standard"][r]))]
+        print(f"| settle_{100 * tol:.0f}cm_s [s] | {_m(median_interval(list(settle['tube'].values())), 1, 2)} | "
+              f"{_m(median_interval(list(settle['standard'].values())), 1, 2)} | {_sign(diffs)}, median "
+              f"{_m(median_interval(diffs), 1, 2)} |")
     for name, rows in (("tube", tube), ("standard", std)):
         statuses: dict[str, int] = {}
         for _, _, s in rows:
             statuses[s] = statuses.get(s, 0) + 1
         print(f"{name} statuses: {statuses}")
+
+
+def settle_s(track_mcap: Path, tolerance_m: float) -> float:
+    """Time from the reference's stop until the true position stays within ``tolerance_m`` of its end [s]
+    (``inf``: never; 0: already there when it stopped)."""
+    import numpy as np
+
+    from oacli.io.mcap_read import read_telemetry
+    from oacli.mission.compare import arrival_time_s
+
+    tel = read_telemetry(track_mcap)
+    ref = np.asarray(tel.x_reference, dtype=float)
+    moving = np.flatnonzero(np.linalg.norm(ref[:, 3:6], axis=1) > 1e-6)
+    t_stop = float(tel.t_ctrl[moving[-1] + 1]) if moving.size and moving[-1] + 1 < len(tel.t_ctrl) else 0.0
+    arrival = arrival_time_s(tel.t_true, tel.x_true[:, 0:3], ref[-1, 0:3], tolerance_m)
+    return math.inf if arrival is None else max(0.0, arrival - t_stop)
 
 
 def main() -> None:
