@@ -86,3 +86,23 @@ def test_an_rls_estimate_is_reported_under_its_own_name():
     f = run_figures(metrics)
     assert f["rls.abs_error_pct.mass"] == 0.4 and f["rls.cov_reduction_pct.Izz"] == 25.0
     assert not any(k.startswith("batch.") for k in f)
+
+
+def test_overshoot_is_measured_along_the_final_approach_not_the_last_velocity():
+    """A reference along -y that passes its goal by 10 mm and ends with a correction in +y (as some smoothed
+    segment-3 plans do): a flight following it overshoots 10 mm; along the last velocity the whole route read as
+    1.4 m past the goal."""
+    import numpy as np
+
+    from oacli.mission.compare import approach_direction, overshoot_m
+
+    y = np.concatenate([np.linspace(0.0, -1.41, 200), [-1.405, -1.4]])  # ends moving +y by 5 mm
+    ref = np.column_stack([np.zeros_like(y), y, np.zeros_like(y)])
+    goal = ref[-1]
+    flown = ref.copy()
+    flown[-1, 1] = -1.405                                                 # stops 5 mm past the goal
+    last_velocity = ref[-1] - ref[-2]
+    t = np.arange(len(y), dtype=float)
+    assert overshoot_m(t, flown, goal, last_velocity) > 1.3             # the former reading
+    np.testing.assert_allclose(approach_direction(ref) / np.linalg.norm(approach_direction(ref)), [0, -1, 0])
+    assert overshoot_m(t, flown, goal, approach_direction(ref)) == pytest.approx(0.01)
