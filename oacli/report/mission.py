@@ -154,11 +154,44 @@ def _drawn(folder: Path, summary: dict[str, Any], name: str, draw: str, records:
         return path.read_bytes(), "drawn from the stage MCAPs"
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The bytes an MCAP file starts and ends with (the MCAP specification, "Magic")."""
+
+
+def check_stage_mcaps(folder: Path, summary: dict[str, Any]) -> None:
+    """Refuse a mission whose stage MCAPs are not whole (each must end with :data:`MCAP_MAGIC`), without reading them.
+
+    Raises
+    ------
+    InputError
+        Naming the first cut or missing file.
+    """
+    from oacli.mission.layout import stage_by_key
+
+    for key, entry in (summary.get("stages") or {}).items():
+        if (entry or {}).get("status") not in COMPLETE_STATUSES:
+            continue  # not run, or failed: no file to check
+        try:
+            path = stage_by_key(key).mcap(folder)
+        except KeyError:
+            continue
+        try:
+            with path.open("rb") as fh:
+                head = fh.read(len(MCAP_MAGIC))
+                fh.seek(-len(MCAP_MAGIC), 2)
+                tail = fh.read()
+        except OSError as exc:
+            raise InputError(f"{path}: not readable ({exc.strerror or type(exc).__name__})") from None
+        if head != MCAP_MAGIC or tail != MCAP_MAGIC:
+            raise InputError(f"{path}: not a whole MCAP file (cut or another format)")
+
+
 def _bands(folder: Path, records: _Records) -> tuple[bytes, str]:
     """The tracking-error figure: :data:`BANDS_PNG` when an earlier report left it, else drawn (and left there when
     the mission has a ``plots/`` folder)."""
     cached = folder / BANDS_PNG
     if cached.is_file():
+        check_stage_mcaps(folder, records.summary)  # not read for the figure: still refuse a cut one
         return read_png(cached), "drawn from the track MCAPs"  # by an earlier report: the same figure
     from oacli.report.figures import tracking_bands
 
