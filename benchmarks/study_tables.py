@@ -104,8 +104,8 @@ def fig3d(runs: dict[str, list[tuple[int, dict[str, Any], str]]]) -> None:
           " std MPC/prior saturated: runs, median time [s] | tube/estimate saturated runs |")
     print("|---|---|---|---|---|")
     for cell, rows in runs.items():
-        sat = [bool((f.get(f"{mp}.time_saturated_s") or 0) > 0) for _, f, _ in rows]
-        sat_te = [bool((f.get(f"{te}.time_saturated_s") or 0) > 0) for _, f, _ in rows]
+        sat = [f[f"{mp}.time_saturated_s"] > 0 for _, f, _ in rows if f.get(f"{mp}.time_saturated_s") is not None]
+        sat_te = [f[f"{te}.time_saturated_s"] > 0 for _, f, _ in rows if f.get(f"{te}.time_saturated_s") is not None]
         over = " · ".join(_m(stat(rows, f"{x}.overshoot_m"), 1e3) for x in (te, mp, mu, tp))
         seg3 = sum(1 for _, f, _ in rows if f["_metrics"].get("comparison"))
         sat_s = _m(stat(rows, f"{mp}.time_saturated_s"), 1, 2)
