@@ -244,7 +244,8 @@ def test_study_presets_load_with_their_cells():
 
     fig3d = load_campaign(ROOT / "configs" / "study_fig3d.yaml")
     cells = campaign_cells(fig3d.config)
-    assert len(cells) == 16 and fig3d.config.runs == 50 * len(cells)
+    assert len(cells) == 8 and fig3d.config.runs == 50 * len(cells)
+    assert fig3d.base["mission"]["unconstrained_baseline"] is True  # the paper's standard MPC in every mission
     grasped = fig3d.base["mission"]["grasped"]["mass_kg"]
     payload = 15.0 - 9.0877  # [Doerr2021] Table 1: Astrobee with the object, Astrobee alone
     for cell in cells:
@@ -252,14 +253,12 @@ def test_study_presets_load_with_their_cells():
         prior = cell.overrides["mission"]["prior"]
         assert grasped - prior["mass_kg"] == pytest.approx(pct / 100 * payload, abs=1e-5)
         assert 2 * prior["variance"][0] ** 0.5 >= grasped - prior["mass_kg"] - 1e-6  # 2σ covers the error (Eq. 28)
-        unconstrained = cell.levels["standard_mpc"] == "no_workspace"
-        seg = cell.overrides.get("mission", {}).get("segments", {})
-        assert ("segment-3/baseline-mpc-prior" in seg) == unconstrained
     rattle = load_campaign(ROOT / "configs" / "study_rattle.yaml")
     assert campaign_cells(rattle.config) == () and rattle.config.runs >= 50
-    assert rattle.base["mission"]["excitation_method"] == "rattle"
-    assert rattle.base["mission"]["grasped"]["mass_kg"] == rattle.base["robot"]["mass_kg"]  # the bare robot
-    assert rattle.base["mission"]["prior"]["variance"][0] == pytest.approx(15.0)  # [RattleCode] P0
+    assert rattle.base["excitation"]["method"] == "rattle" and rattle.base["estimation"]["method"] == "rls"
+    assert rattle.base["truth"]["mass_kg"] == rattle.base["robot"]["mass_kg"]  # the bare robot
+    assert rattle.base["excitation"]["prior"]["variance"][0] == pytest.approx(15.0)  # [RattleCode] P0
+    assert rattle.base["estimation"]["prior"]["variance"][0] == pytest.approx(15.0)
     expset3 = load_campaign(ROOT / "configs" / "study_expset3.yaml")
     cells = campaign_cells(expset3.config)
     assert [c.overrides["controller"]["type"] for c in cells] == ["tube", "mpc"]

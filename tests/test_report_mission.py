@@ -182,3 +182,7 @@ def test_without_plots_the_report_draws_the_same_figures_from_the_mcaps(mission,
     assert text.count("drawn from the stage MCAPs") == 2
     for name in ("estimate_convergence", "paths"):  # the mission's own plot functions, byte for byte
         assert (run_dir / summary["files"]["plots"][name]).read_bytes() in pngs, name
+    # The mission's page left its tracking figure in plots/ (a later `oacli report` inlines it, reading no MCAP):
+    # the same bytes as drawn afresh here from the MCAPs; without a plots/ folder nothing is left behind.
+    assert (run_dir / "plots" / "tracking_bands.png").read_bytes() == pngs[0]
+    assert not (bare / "plots").exists()

@@ -67,7 +67,8 @@ def _estimation(metrics: list[dict[str, Any]], cfg: CampaignConfig) -> dict[str,
 
 
 FLIGHT_NAMES = {"segment-3/track": "seg3_tube_estimate", "segment-3/baseline-mpc-prior": "seg3_mpc_prior",
-                "segment-3/baseline-tube-prior": "seg3_tube_prior"}
+                "segment-3/baseline-tube-prior": "seg3_tube_prior",
+                "segment-3/baseline-mpc-unconstrained-prior": "seg3_mpc_prior_unconstrained"}
 """Short names of segment 3's flights ([Doerr2021] Fig. 3(d)) in the per-run figures; other stage keys (a mission
 with another baseline) keep their key."""
 
@@ -86,7 +87,8 @@ def run_figures(m: dict[str, Any]) -> dict[str, float | None]:
     Keys: ``rms_position_error_m``, ``max_position_error_m`` (a mission: segment 3's tube flight); per segment-3
     flight ``<flight>.<field>`` for :data:`FLIGHT_FIELDS` and ``<flight>.violations`` (keep-in + keep-out + limit),
     a flight that never arrives counting as ``inf``; per estimator (``batch``, ``sequential``) and parameter
-    ``<estimator>.abs_error_pct.<p>`` and ``<estimator>.cov_reduction_pct.<p>``; a track's :data:`RESPONSE_FIELDS`.
+    ``<estimator>.abs_error_pct.<p>`` (``rls`` for the flight's estimator) and
+    ``<estimator>.cov_reduction_pct.<p>``; a track's :data:`RESPONSE_FIELDS`.
 
     Parameters
     ----------
@@ -111,6 +113,7 @@ def run_figures(m: dict[str, Any]) -> dict[str, float | None]:
     for label, est in (("batch", m.get("estimate")), ("sequential", m.get("estimate_sequential"))):
         if not est:
             continue
+        label = "rls" if est.get("method") == "rls" else label  # job excite-estimate with the flight's RLS
         for i, p in enumerate(PARAMS):
             err = (est.get("error_pct") or [None] * 4)[i]
             out[f"{label}.abs_error_pct.{p}"] = None if err is None else abs(float(err))

@@ -32,6 +32,7 @@ import yaml
 
 from oacli import __version__
 from oacli.campaign import manifest
+from oacli.campaign.cells import campaign_cells
 from oacli.campaign.executors import ExecutorHandle
 from oacli.campaign.jobs import STATUS_OOM, execute_run
 from oacli.campaign.sampling import sample_run
@@ -152,6 +153,7 @@ def write_specs(campaign: Campaign, folder: Path) -> None:
     """Write the spec of every run that has none yet (validating its config), then ``runs.json``."""
     cfg = campaign.config
     index = {}
+    first_of_cell = max(len(campaign_cells(cfg)), 1)
     for k in range(cfg.runs):
         rdir = run_dir(folder, k)
         spec = sample_run(cfg, campaign.base, k)
@@ -159,7 +161,14 @@ def write_specs(campaign: Campaign, folder: Path) -> None:
         path = rdir / "spec.json"
         if not path.exists():
             cell = f" (cell {spec['cell']})" if "cell" in spec else ""
-            config_from_dict(spec["config"], source=f"run {k}{cell}")  # a dispersion or cell that breaks it stops here
+            run_cfg = config_from_dict(spec["config"], source=f"run {k}{cell}")  # a dispersion or cell breaking it
+            if cfg.job == "mission" and k < first_of_cell:  # each cell's stage configs derive (e.g. no tube observer
+                from oacli.mission.run import validate_mission  # without sensor noise): stops here, not in every run
+
+                try:
+                    validate_mission(run_cfg)
+                except ConfigError as exc:
+                    raise ConfigError([f"run {k}{cell}: {line}" for line in exc.problems]) from None
             rdir.mkdir(parents=True, exist_ok=True)
             write_text_atomic(path, json.dumps(to_json_safe(spec), indent=1, allow_nan=False))
         index[k] = {"seed": spec["seed"], "faults": spec["draws"]["faults"],

@@ -224,7 +224,7 @@ def estimate_metrics(estimate: dict[str, Any]) -> dict[str, Any]:
     return {"error_pct": (100.0 * err / truth).tolist(),
             "error_over_crb": np.where(crb > 0, err / np.where(crb > 0, crb, 1.0), np.nan).tolist(),
             "cov_reduction_pct": as_theta_list(estimate.get("cov_reduction_pct")),
-            "status": estimate.get("status")}
+            "method": estimate.get("method"), "status": estimate.get("status")}
 
 
 def _mission(cfg: Any, out: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
@@ -237,6 +237,29 @@ def _mission(cfg: Any, out: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
     write_text_atomic(folder / "config.yaml", dump_config(cfg))
     run_mission(cfg, folder)
     return mission_metrics(folder)
+
+
+def _excite_estimate(cfg: Any, out: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
+    """``excite`` → ``track`` → ``estimate`` (``job: excite-estimate``): the excitation (``excitation.method``, e.g.
+    RATTLE's replanning) flown by the tracking controller, then ``oacli estimate`` (``estimation.method``, e.g. the
+    flight's ``rls``) on that flight: the commands of ``configs/rattle_flight_rls.yaml`` as one run."""
+    from oacli.config import config_from_dict
+    from oacli.config.mission import deep_merge
+    from oacli.io.mcap_read import read_telemetry
+    from oacli.stages.estimate import run_estimate
+    from oacli.stages.excite import run_excite
+    from oacli.stages.track import run_track
+
+    run_excite(cfg, out=out / "excite")
+    data = deep_merge(cfg.model_dump(mode="json"),
+                      {"reference": {"source": "file", "file": str(out / "excite" / "excite.mcap")}})
+    track_cfg = config_from_dict(data, source=f"{cfg.name} (track)")
+    tracked = run_track(track_cfg, out=out / "track")
+    estimate = run_estimate(cfg, telemetry=out / "track" / "track.mcap", out=out / "estimate").summary
+    metrics = track_metrics(tracked.summary)
+    metrics["estimate"] = estimate_metrics(estimate) if estimate.get("truth_theta") else None
+    tel = read_telemetry(out / "track" / "track.mcap")
+    return metrics, [tel.t_true, tel.x_true, tel.x_measured, tel.u_applied]
 
 
 def mission_metrics(folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
@@ -281,7 +304,7 @@ def mission_metrics(folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
     return metrics, arrays
 
 
-JOBS = {"closed-loop": _closed_loop, "track": _track, "mission": _mission}
+JOBS = {"closed-loop": _closed_loop, "track": _track, "mission": _mission, "excite-estimate": _excite_estimate}
 
 
 def _inject(kind: str | None) -> None:

@@ -34,8 +34,9 @@ Range = tuple[NonNegativeReal, NonNegativeReal]
 MAX_RUNS = 100_000
 """Most runs one campaign may ask for (the manifest and plots stay readable)."""
 
-JobKind = Literal["mission", "track", "closed-loop"]
+JobKind = Literal["mission", "track", "closed-loop", "excite-estimate"]
 """``mission``: ``oacli mission`` per run (the flight's setting); ``track``: the ``track`` stage with its files;
+``excite-estimate``: ``excite``, ``track`` of the excitation, ``estimate`` (a RATTLE flight and its estimator);
 ``closed-loop``: the tracking controller and the truth plant only, no files (cheap: statistics of the controller
 alone, and the tests)."""
 
@@ -169,7 +170,8 @@ class CampaignConfig(Section):
     name: Name = Field(default="campaign", description="Campaign name (folder prefix), [A-Za-z0-9_.-]+.")
     seed: Annotated[StrictInt, Field(ge=0)] = Field(default=0, description="Campaign seed, >= 0.")
     runs: Annotated[StrictInt, Field(ge=1, le=MAX_RUNS)] = Field(description=f"Number of runs, 1..{MAX_RUNS}.")
-    job: JobKind = Field(default="mission", description="What each run flies: mission | track | closed-loop.")
+    job: JobKind = Field(default="mission",
+                         description="What each run flies: mission | track | closed-loop | excite-estimate.")
     base: str = Field(description="Base config file (a mission config for job 'mission'), relative to this file.")
     set: Annotated[dict[str, Any], none_to({})] = Field(
         default_factory=dict, description="Overrides deep-merged into the base config before any dispersion.")

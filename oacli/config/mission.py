@@ -110,6 +110,11 @@ class MissionConfig(Section):
     baselines: StrictBool = Field(
         default=True, description="Also fly segment 3 with standard and tube MPC on the prior ([Doerr2021] Fig. 3(d))."
     )
+    unconstrained_baseline: StrictBool = Field(
+        default=False, description="With baselines: also fly segment 3 with standard MPC on the prior WITHOUT "
+        "workspace constraints (controller.position_constraints false, the paper's standard MPC), folder "
+        "segment-3/baseline-mpc-unconstrained-prior.",
+    )
     segments: Annotated[dict[str, Any], none_to({})] = Field(
         default_factory=dict,
         description="Per-segment overrides of the other sections (segment-1, segment-2, segment-3), deep-merged; "

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from oacli.mission.layout import BASELINES
+from oacli.mission.layout import FLIGHT_LABELS
 from oacli.mission.records import load_config_cached, read_telemetry_cached
 
 ARRIVAL_TOLERANCE_M = 0.02
@@ -34,7 +34,7 @@ def overshoot_m(t: np.ndarray, position: np.ndarray, goal: np.ndarray, approach:
     goal : ndarray, shape (3,)
         The reference's final position [m].
     approach : ndarray, shape (3,)
-        Direction of the reference's last motion (normalised here).
+        Direction of the final approach (:func:`approach_direction`; normalised here).
 
     Returns
     -------
@@ -46,6 +46,36 @@ def overshoot_m(t: np.ndarray, position: np.ndarray, goal: np.ndarray, approach:
         return 0.0
     ahead = (position - np.asarray(goal, dtype=float)) @ (np.asarray(approach, dtype=float) / norm)
     return float(max(0.0, ahead.max()))
+
+
+APPROACH_CHORD_M = 0.1
+"""The approach direction is the chord from the last reference point this far from the goal to the goal [m]."""
+
+
+def approach_direction(reference_m: np.ndarray, chord_m: float = APPROACH_CHORD_M) -> np.ndarray:
+    """Direction of the final approach: from the last reference position at least ``chord_m`` from the goal to the
+    goal (the reference's own overall direction when it never is that far).
+
+    The reference's last velocity is not used: a smoothed plan can end with a small correction in another direction
+    (its velocity at the last moving sample pointed back along the route in some segment-3 plans), and then every
+    earlier sample of the flight projected as "past the goal" (overshoots of 0.66-1.42 m).
+
+    Parameters
+    ----------
+    reference_m : ndarray, shape (K, 3)
+        Reference positions [m]; the last is the goal.
+    chord_m : float
+        Chord length [m].
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Not normalised (zero for a reference that never moves).
+    """
+    ref = np.asarray(reference_m, dtype=float).reshape(-1, 3)
+    goal = ref[-1]
+    far = np.flatnonzero(np.linalg.norm(ref - goal, axis=1) >= chord_m)
+    return goal - (ref[far[-1]] if far.size else ref[0])
 
 
 def arrival_time_s(t: np.ndarray, position: np.ndarray, goal: np.ndarray, tolerance_m: float) -> float | None:
@@ -106,7 +136,7 @@ def comparison_row(key: str, summary: dict[str, Any], mission_dir: Path) -> dict
     Parameters
     ----------
     key : str
-        ``segment-3/track`` or a baseline key (:data:`oacli.mission.layout.BASELINES`).
+        ``segment-3/track`` or a baseline key (:data:`oacli.mission.layout.FLIGHT_LABELS`).
     summary : dict
         The flight's stage summary (a failed baseline has only ``status`` and ``error``).
     mission_dir : Path
@@ -116,7 +146,7 @@ def comparison_row(key: str, summary: dict[str, Any], mission_dir: Path) -> dict
     -------
     dict
     """
-    row: dict[str, Any] = {"label": BASELINES.get(key, key), "status": summary.get("status")}
+    row: dict[str, Any] = {"label": FLIGHT_LABELS.get(key, key), "status": summary.get("status")}
     if "rms_position_error_m" not in summary:
         row["error"] = summary.get("error")
         return row
@@ -124,8 +154,7 @@ def comparison_row(key: str, summary: dict[str, Any], mission_dir: Path) -> dict
     cfg = load_config_cached(folder / "config.yaml")
     tel = read_telemetry_cached(folder / "track.mcap")
     goal = tel.x_reference[-1, 0:3]
-    moving = np.flatnonzero(np.linalg.norm(tel.x_reference[:, 3:6], axis=1) > 1e-6)
-    approach = tel.x_reference[moving[-1], 3:6] if moving.size else np.zeros(3)
+    approach = approach_direction(tel.x_reference[:, 0:3])
     effort, saturated = effort_and_saturation(tel.t_ctrl, tel.u_applied, np.asarray(cfg.robot.force_limit_N),
                                               cfg.controller.period_s)
     violations = summary.get("constraint_violations_by_kind", {})

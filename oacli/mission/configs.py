@@ -20,7 +20,7 @@ import numpy as np
 from oacli.config import OacliConfig, config_from_dict
 from oacli.config.mission import MissionConfig, deep_merge
 from oacli.errors import ConfigError, InfeasibleError
-from oacli.mission.layout import MISSION_STAGES, MissionStage, stage_by_key
+from oacli.mission.layout import ALL_STAGES, MissionStage, stage_by_key
 from oacli.model.robot_model import RobotModel
 from oacli.stages.settings import robot_model, tube_design_from_config
 
@@ -58,7 +58,7 @@ def stage_seed(seed: int, index: int) -> int:
     seed : int
         The mission's seed.
     index : int
-        The stage's position in :data:`oacli.mission.layout.MISSION_STAGES`.
+        The stage's position in :data:`oacli.mission.layout.ALL_STAGES`.
 
     Returns
     -------
@@ -298,15 +298,15 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
     """
     mission = mission_section(cfg)
     a, b, c = mission.route
-    unknown = sorted(k for k in mission.segments if "/" in k and k not in {s.key for s in MISSION_STAGES})
+    unknown = sorted(k for k in mission.segments if "/" in k and k not in {s.key for s in ALL_STAGES})
     if unknown:
         raise ConfigError(f"mission.segments.{unknown[0]}: unknown stage (allowed: "
-                          + ", ".join(s.key for s in MISSION_STAGES) + ")")
+                          + ", ".join(s.key for s in ALL_STAGES) + ")")
     data = cfg.model_dump(mode="json")  # what dump_config writes, without the YAML text round trip
     data.pop("mission", None)
     data = deep_merge(data, mission.segments.get(stage.segment) or {})
     data = deep_merge(data, mission.segments.get(stage.key) or {})  # one stage's own (e.g. a baseline), after
-    index = next(i for i, s in enumerate(MISSION_STAGES) if s.key == stage.key)
+    index = next(i for i, s in enumerate(ALL_STAGES) if s.key == stage.key)
     prior = prior_model(cfg)
     grasped = {"mass_kg": mission.grasped.mass_kg, "inertia_kgm2": list(mission.grasped.inertia_kgm2)}
     sets: dict[str, Any] = {
@@ -334,7 +334,9 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         learned = handoff.estimate if handoff.estimate is not None else prior
         model = prior if stage.name.endswith("-prior") else learned
         sets = deep_merge(sets, _model_sections(model, mission.w_sigmas))
-        sets["controller"]["type"] = "mpc" if stage.name == "baseline-mpc-prior" else "tube"
+        sets["controller"]["type"] = "mpc" if stage.name.startswith("baseline-mpc-") else "tube"
+        if stage.name == "baseline-mpc-unconstrained-prior":  # the paper's standard MPC: no workspace constraints
+            sets["controller"]["position_constraints"] = False
     if model is not None:
         sets["reference"] = reference_within_model(data["reference"], data["robot"], model, mission.w_sigmas)
         sets = deep_merge(sets, inertia_margin_sections(model, mission.rate_margin_sigmas, data))

@@ -15,6 +15,8 @@ A mission run folder ``runs/mission-<name>-<UTC stamp>/`` holds::
     segment-3/track/                  tube MPC, W from the estimate's 2σ bounds ([Doerr2021] Eq. 28)
     segment-3/baseline-mpc-prior/     the same reference, standard MPC, prior model (Fig. 3(d), cyan)
     segment-3/baseline-tube-prior/    the same reference, tube MPC, prior model and W (Fig. 3(d), magenta)
+    segment-3/baseline-mpc-unconstrained-prior/   only with mission.unconstrained_baseline: standard MPC on the
+                                      prior without workspace constraints (the paper's standard MPC)
     mission.rrd                       one recording on the ``mission_time`` timeline
     plots/*.png                       tracking error per segment with baselines, estimate convergence, top view
     summary.json                      written last
@@ -96,7 +98,16 @@ MISSION_STAGES: tuple[MissionStage, ...] = (
     MissionStage("segment-3", "baseline-mpc-prior", "track"),
     MissionStage("segment-3", "baseline-tube-prior", "track"),
 )
-"""Every stage of a mission, in the order they run."""
+"""Every stage of a default mission, in the order they run."""
+
+OPTIONAL_STAGES: tuple[MissionStage, ...] = (
+    MissionStage("segment-3", "baseline-mpc-unconstrained-prior", "track"),
+)
+"""Stages a mission flies only when asked (``mission.unconstrained_baseline``), after :data:`MISSION_STAGES`; not
+in ``mission.mcap``, ``mission.rrd`` or the mission's plots (their folders are ordinary ``track`` folders)."""
+
+ALL_STAGES: tuple[MissionStage, ...] = MISSION_STAGES + OPTIONAL_STAGES
+"""Every stage a mission may run, in order (a stage's seed is drawn from its index here)."""
 
 SEGMENTS: tuple[str, ...] = ("segment-1", "segment-2", "segment-3")
 """The three segments: A → B (model known), B → C (payload uncertain), C → A (model learned)."""
@@ -107,6 +118,14 @@ BASELINES: dict[str, str] = {
     "segment-3/baseline-tube-prior": "tube MPC, prior",
 }
 """The three ways segment 3 is flown ([Doerr2021] Fig. 3(d): green, cyan, magenta)."""
+
+UNCONSTRAINED_BASELINE = "segment-3/baseline-mpc-unconstrained-prior"
+"""The optional fourth segment-3 flight (``mission.unconstrained_baseline``): standard MPC on the prior without
+``controller.position_constraints``, as [Doerr2021]'s standard MPC ("can lead to collisions"); a study flies it
+beside the constrained one in the same mission instead of doubling its missions. Not drawn in the plots."""
+
+FLIGHT_LABELS: dict[str, str] = {**BASELINES, UNCONSTRAINED_BASELINE: "standard MPC, prior, no workspace constraints"}
+"""Labels of every segment-3 flight a mission may fly."""
 
 
 def stage_by_key(key: str) -> MissionStage:
@@ -126,7 +145,7 @@ def stage_by_key(key: str) -> MissionStage:
     KeyError
         Unknown key (the message lists the known ones).
     """
-    for stage in MISSION_STAGES:
+    for stage in ALL_STAGES:
         if stage.key == key.strip("/"):
             return stage
-    raise KeyError(f"{key!r}: not a mission stage; one of " + ", ".join(s.key for s in MISSION_STAGES))
+    raise KeyError(f"{key!r}: not a mission stage; one of " + ", ".join(s.key for s in ALL_STAGES))

@@ -33,7 +33,7 @@ from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_s
 from oacli.mission.compare import ARRIVAL_TOLERANCE_M, comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
 from oacli.mission.foxglove import MISSION_MCAP, write_mission_mcap
-from oacli.mission.layout import MISSION_STAGES, SEGMENTS, MissionStage, stage_by_key
+from oacli.mission.layout import ALL_STAGES, SEGMENTS, UNCONSTRAINED_BASELINE, MissionStage, stage_by_key
 from oacli.mission.plots import write_mission_plots
 from oacli.mission.recording import write_mission_recording
 from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
@@ -45,7 +45,7 @@ from oacli.status import COMPLETE_STATUSES, DEGRADED, FAILED, INTERRUPTED, NO_SO
 ProgressFactory = Callable[[str], Callable[[float], None] | None]
 """Given a stage's key, the progress callback for that stage (or None)."""
 
-BASELINE_STAGES = ("baseline-mpc-prior", "baseline-tube-prior")
+BASELINE_STAGES = ("baseline-mpc-prior", "baseline-tube-prior", "baseline-mpc-unconstrained-prior")
 
 
 @dataclass
@@ -68,7 +68,8 @@ class MissionResult:
 
 
 def mission_stages(cfg: OacliConfig) -> tuple[MissionStage, ...]:
-    """The stages this mission runs (the baselines only with ``mission.baselines``).
+    """The stages this mission runs (the baselines only with ``mission.baselines``; the unconstrained standard MPC
+    only with ``mission.unconstrained_baseline`` too).
 
     Parameters
     ----------
@@ -79,8 +80,11 @@ def mission_stages(cfg: OacliConfig) -> tuple[MissionStage, ...]:
     -------
     tuple of MissionStage
     """
-    keep_baselines = mission_section(cfg).baselines
-    return tuple(s for s in MISSION_STAGES if keep_baselines or s.name not in BASELINE_STAGES)
+    mission = mission_section(cfg)
+    skip = set() if mission.baselines else set(BASELINE_STAGES)
+    if not (mission.baselines and mission.unconstrained_baseline):
+        skip.add(UNCONSTRAINED_BASELINE.split("/")[1])
+    return tuple(s for s in ALL_STAGES if s.name not in skip)
 
 
 def _final_position(track_mcap: Path) -> np.ndarray:

@@ -1,9 +1,10 @@
 """The content of a mission's report, read from its folder (``summary.json``, the stage MCAPs, ``plots/``).
 
 Figures: the tracking error per segment with the tube bands (:func:`oacli.report.figures.tracking_bands`, drawn from
-the MCAPs), the estimates converging with ± 2σ and the paths (``plots/estimate_convergence.png`` and
-``plots/paths.png`` when the mission drew them, otherwise drawn here from the MCAPs by the mission's own plot
-functions). A mission that did not end complete gets its status, error and config, no figures.
+the MCAPs once and kept in ``plots/tracking_bands.png`` when the mission has a ``plots/`` folder), the estimates
+converging with ± 2σ and the paths (``plots/estimate_convergence.png`` and ``plots/paths.png`` when the mission drew
+them, otherwise drawn here from the MCAPs by the mission's own plot functions). The stage MCAPs are read only for a
+figure not found in ``plots/``. A mission that did not end complete gets its status, error and config, no figures.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from oacli.errors import InputError
+from oacli.io.atomic import write_bytes_atomic
 from oacli.report.folder import read_png
 from oacli.status import COMPLETE_STATUSES
 
@@ -117,17 +119,95 @@ def comparison_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
-def _drawn(folder: Path, summary: dict[str, Any], name: str, draw: Any, records: Any) -> tuple[bytes, str]:
+BANDS_PNG = "plots/tracking_bands.png"
+"""Where the report keeps its tracking-error figure in a mission folder whose ``plots/`` the mission drew: a later
+``oacli report`` of the same (finished, unchanging) folder inlines it instead of reading every stage MCAP and
+drawing it again."""
+
+
+class _Records:
+    """The mission's records, read on first use only (a report whose figures are all in ``plots/`` reads none)."""
+
+    def __init__(self, folder: Path, summary: dict[str, Any]) -> None:
+        self.folder, self.summary = folder, summary
+        self._records: Any = None
+
+    def get(self) -> Any:
+        if self._records is None:
+            from oacli.mission.records import load_mission_records
+
+            try:
+                self._records = load_mission_records(self.folder, self.summary)
+            except FileNotFoundError as exc:
+                raise InputError(f"{self.folder}: {exc}") from None
+        return self._records
+
+
+def _drawn(folder: Path, summary: dict[str, Any], name: str, draw: str, records: _Records) -> tuple[bytes, str]:
     rel = ((summary.get("files") or {}).get("plots") or {}).get(name)
     if rel and (folder / rel).is_file():
         return read_png(folder / rel), rel
+    from oacli.mission import plots  # matplotlib: only when a figure is drawn here
+
     with tempfile.TemporaryDirectory(prefix="oacli-report-") as tmp:
-        path = draw(records, Path(tmp) / f"{name}.png")
+        path = getattr(plots, draw)(records.get(), Path(tmp) / f"{name}.png")
         return path.read_bytes(), "drawn from the stage MCAPs"
+
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The bytes an MCAP file starts and ends with (the MCAP specification, "Magic")."""
+
+
+def check_stage_mcaps(folder: Path, summary: dict[str, Any]) -> None:
+    """Refuse a mission whose stage MCAPs are not whole (each must end with :data:`MCAP_MAGIC`), without reading them.
+
+    Raises
+    ------
+    InputError
+        Naming the first cut or missing file.
+    """
+    from oacli.mission.layout import stage_by_key
+
+    for key, entry in (summary.get("stages") or {}).items():
+        if (entry or {}).get("status") not in COMPLETE_STATUSES:
+            continue  # not run, or failed: no file to check
+        try:
+            path = stage_by_key(key).mcap(folder)
+        except KeyError:
+            continue
+        try:
+            with path.open("rb") as fh:
+                head = fh.read(len(MCAP_MAGIC))
+                fh.seek(-len(MCAP_MAGIC), 2)
+                tail = fh.read()
+        except OSError as exc:
+            raise InputError(f"{path}: not readable ({exc.strerror or type(exc).__name__})") from None
+        if head != MCAP_MAGIC or tail != MCAP_MAGIC:
+            raise InputError(f"{path}: not a whole MCAP file (cut or another format)")
+
+
+def _bands(folder: Path, records: _Records) -> tuple[bytes, str]:
+    """The tracking-error figure: :data:`BANDS_PNG` when an earlier report left it, else drawn (and left there when
+    the mission has a ``plots/`` folder)."""
+    cached = folder / BANDS_PNG
+    if cached.is_file():
+        check_stage_mcaps(folder, records.summary)  # not read for the figure: still refuse a cut one
+        return read_png(cached), "drawn from the track MCAPs"  # by an earlier report: the same figure
+    from oacli.report.figures import tracking_bands
+
+    png = tracking_bands(records.get(), folder)
+    if cached.parent.is_dir():
+        try:
+            write_bytes_atomic(cached, png)
+        except OSError:
+            pass  # a read-only folder: the page still gets the figure
+    return png, "drawn from the track MCAPs"
 
 
 def mission_figures(folder: Path, summary: dict[str, Any]) -> list[dict[str, Any]]:
     """The mission's figures (module docstring), each ``{"id", "title", "caption", "png", "source"}``.
+
+    The stage MCAPs are read only for a figure that is not in ``plots/`` yet.
 
     Parameters
     ----------
@@ -143,25 +223,19 @@ def mission_figures(folder: Path, summary: dict[str, Any]) -> list[dict[str, Any
     InputError
         A stage MCAP or PNG is unreadable or cut.
     """
-    from oacli.mission.plots import plot_estimate_convergence, plot_paths
-    from oacli.mission.records import load_mission_records
-    from oacli.report.figures import tracking_bands
-
-    try:
-        records = load_mission_records(folder, summary)
-    except FileNotFoundError as exc:
-        raise InputError(f"{folder}: {exc}") from None
+    records = _Records(folder, summary)
+    png, source = _bands(folder, records)
     figures = [{"id": "tracking", "title": "Tracking error per segment",
                 "caption": "‖r − r_ref‖ of every flight; segment 3 with the [Doerr2021] Fig. 3(d) baselines. Shaded: "
                 "the range the tube allows around its nominal while the true state stays in the tube (tube MPC "
                 "flights); the line leaving its band is the state leaving the tube.",
-                "png": tracking_bands(records, folder), "source": "drawn from the track MCAPs"}]
-    png, source = _drawn(folder, summary, "estimate_convergence", plot_estimate_convergence, records)
+                "png": png, "source": source}]
+    png, source = _drawn(folder, summary, "estimate_convergence", "plot_estimate_convergence", records)
     figures.append({"id": "estimates", "title": "Estimates converging (± 2σ)",
                     "caption": "Mass and principal inertias after the grasp with ± 2σ bands and the truth (dashed); "
                     "right: error and 2σ relative to the truth against the flight's figures.",
                     "png": png, "source": source})
-    png, source = _drawn(folder, summary, "paths", plot_paths, records)
+    png, source = _drawn(folder, summary, "paths", "plot_paths", records)
     figures.append({"id": "paths", "title": "Paths", "caption": "Plans, smoothed paths, the excitation reference and "
                     "the flown paths of every segment among the keep-in boxes and keep-out zones.",
                     "png": png, "source": source})
