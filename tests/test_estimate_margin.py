@@ -44,6 +44,22 @@ def test_rows_keep_the_true_position_clear_at_k_sigma():
         WorkspaceRows(SCENE, error_std_m=-SIGMA, error_sigmas=K)
 
 
+def test_the_margin_floor_holds_with_an_exact_state_and_yields_to_k_sigma():
+    """max(k σ_i, floor) per axis: with σ = 0 every row moves out by exactly the floor (unit normals); where k σ_i
+    exceeds it, the k σ margin stands (the flight's sensors: 3 × 2.17 mm > 2 mm)."""
+    lin = np.array([[0.4, 0.1, 0.05], [0.6, -0.3, 0.2], [1.0, 0.0, -0.6]])
+    plain = WorkspaceRows(SCENE, RobotBody.sphere(0.1)).rows(lin)
+    floor = WorkspaceRows(SCENE, RobotBody.sphere(0.1), min_error_margin_m=0.002).rows(lin)
+    np.testing.assert_allclose(floor.offsets[0] - plain.offsets[0], 0.002, rtol=1e-12)
+    both = WorkspaceRows(SCENE, RobotBody.sphere(0.1), error_std_m=SIGMA, error_sigmas=K, min_error_margin_m=0.007)
+    n = plain.normals[0]
+    per_axis = np.maximum(K * SIGMA, 0.007)  # x: 12 mm stands, y and z: the 7 mm floor
+    np.testing.assert_allclose(both.rows(lin).offsets[0] - plain.offsets[0], np.sqrt((n**2) @ per_axis**2),
+                               rtol=1e-12)
+    with pytest.raises(ValueError, match="margin floor"):
+        WorkspaceRows(SCENE, min_error_margin_m=-0.001)
+
+
 def test_keep_in_boxes_shrink_by_k_sigma_per_axis():
     from oacli.geometry import Box
 
@@ -93,7 +109,8 @@ def test_the_config_reaches_the_standard_mpc_only():
     est = args.pop("estimate")
     assert args.keys() == workspace_arguments(cfg).keys()  # the tube MPC gets no estimate (it has its own)
     assert est == StateEstimate(cfg.sensors.position_std_m, cfg.sensors.velocity_std_mps,
-                                cfg.controller.estimate.accel_std_mps2, cfg.controller.estimate.margin_sigmas)
+                                cfg.controller.estimate.accel_std_mps2, cfg.controller.estimate.margin_sigmas,
+                                cfg.controller.estimate.min_margin_m)
     assert est.filtered and cfg.controller.estimate.margin_sigmas == 3.0
     quiet = cfg.model_copy(update={"sensors": cfg.sensors.model_copy(update={"position_std_m": 0.0,
                                                                            "velocity_std_mps": 0.0})})

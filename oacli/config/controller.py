@@ -68,6 +68,12 @@ class EstimateConfig(Section):
         "position predicted from the estimate (sensors' σ, or the filter's covariance), >= 0; 0: the rows bound "
         "the estimate only.",
     )
+    min_margin_m: NonNegativeReal = Field(
+        default=0.002,
+        description="Floor of that margin per axis [m], >= 0, kept with exact sensors too: with none, the soft "
+        "rows, their linearisation and the motion between control instants let the true position graze a "
+        "keep-out zone by ~0.01 mm (1 of 8 ideal-sensor seeds of configs/mission_iss.yaml's segment 1).",
+    )
 
 
 class ControllerConfig(Section):

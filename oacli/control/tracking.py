@@ -93,12 +93,15 @@ class StateEstimate:
         sensor σ is 0: there is nothing to filter).
     sigmas : float
         k: the rows keep the true position clear at k σ of the prediction's error.
+    min_margin_m : float
+        Floor [m] of that margin per axis (kept with an exact state too).
     """
 
     position_std_m: float
     velocity_std_mps: float
     observer_accel_std_mps2: float | None = None
     sigmas: float = 3.0
+    min_margin_m: float = 0.0
 
     @property
     def filtered(self) -> bool:
@@ -250,6 +253,7 @@ class TrackingMPC:
                 error_std_m=None if estimate is None else np.full(
                     3, predicted_position_std(estimate, self.dt_s)),
                 error_sigmas=0.0 if estimate is None else estimate.sigmas,
+                min_error_margin_m=0.0 if estimate is None else estimate.min_margin_m,
             )
         self.observer = estimate_observer(estimate, params, self.dt_s)
         ws = self.workspace

@@ -141,23 +141,29 @@ class WorkspaceRows:
         estimate's); none by default.
     error_sigmas : float
         ``k``: the rows keep the true position clear at ``k`` σ of that error (module docstring), >= 0.
+    min_error_margin_m : float
+        Floor [m] of the estimate-error margin per axis, ``max(k σ_i, floor)``, >= 0: what the rows keep even
+        with an exact state (soft rows, their linearisation about the previous solution and the motion between
+        control instants let the true position graze a zone by ~0.01 mm otherwise).
     activation_m : float
         Keep-out zones farther than this [m] from the horizon's points get inactive rows.
     """
 
     def __init__(self, scene: Scene, robot: RobotBody | None = None, *, keep_in_margin_m: float = 0.0,
                  extent_m: np.ndarray | None = None, clearance_m: float = 0.0, activation_m: float = 2.0,
-                 error_std_m: np.ndarray | None = None, error_sigmas: float = 0.0) -> None:
+                 error_std_m: np.ndarray | None = None, error_sigmas: float = 0.0,
+                 min_error_margin_m: float = 0.0) -> None:
         self.scene = scene
         self.robot = RobotBody.point() if robot is None else robot
         self.zones = keep_out_zones(scene, self.robot)
         ext = np.zeros((3, 2)) if extent_m is None else np.asarray(extent_m, dtype=float).reshape(3, 2)
         std = np.zeros(3) if error_std_m is None else np.asarray(error_std_m, dtype=float).reshape(3)
-        if np.any(ext < 0) or clearance_m < 0 or keep_in_margin_m < 0 or np.any(std < 0) or error_sigmas < 0:
-            raise ValueError("keep-in margin, tightening extents, clearance and error σ must be >= 0")
+        if (np.any(ext < 0) or clearance_m < 0 or keep_in_margin_m < 0 or np.any(std < 0) or error_sigmas < 0
+                or not min_error_margin_m >= 0):
+            raise ValueError("keep-in margin, tightening extents, clearance, error σ and margin floor must be >= 0")
         self.extent_m = ext
-        #: ``k σ_i`` per axis [m]: the estimate-error margin (module docstring).
-        self.error_margin_m = float(error_sigmas) * std
+        #: ``max(k σ_i, floor)`` per axis [m]: the estimate-error margin (module docstring).
+        self.error_margin_m = np.maximum(float(error_sigmas) * std, float(min_error_margin_m))
         self.clearance_m = float(clearance_m)
         self.activation_m = float(activation_m)
         self.keep_in_margin_m = float(keep_in_margin_m)

@@ -106,7 +106,7 @@ def state_estimate(cfg: OacliConfig) -> StateEstimate:
     """
     est, s = cfg.controller.estimate, cfg.sensors
     return StateEstimate(s.position_std_m, s.velocity_std_mps,
-                         est.accel_std_mps2 if est.observer else None, est.margin_sigmas)
+                         est.accel_std_mps2 if est.observer else None, est.margin_sigmas, est.min_margin_m)
 
 
 def standard_mpc_arguments(cfg: OacliConfig) -> dict[str, Any]:
