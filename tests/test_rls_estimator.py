@@ -23,7 +23,7 @@ from oacli.estimation.rls import (
     calibrate_force_scale,
 )
 from oacli.io.mcap_io import read_stage
-from oacli.types import ParameterEstimate
+from oacli.types import InertialParams, ParameterEstimate
 from tests.conftest import REPO
 from tests.test_cli_estimate import payload_config
 
@@ -143,7 +143,7 @@ def test_force_scale_calibration_recovers_the_scale_within_its_standard_error():
     z = []
     for seed in range(150):
         samples = synthetic(np.random.default_rng(seed), 120, theta=PRIOR.theta, scale=kappa)
-        fit = calibrate_force_scale(samples, PRIOR.theta[0])
+        fit = calibrate_force_scale(samples, InertialParams(PRIOR.theta[0], PRIOR.theta[1:4]))
         assert np.all(np.abs(fit.scale - kappa) < 4 * fit.std)
         z.append((fit.scale - kappa) / fit.std)
     rms = np.sqrt(np.mean(np.square(z), axis=0))
@@ -152,7 +152,7 @@ def test_force_scale_calibration_recovers_the_scale_within_its_standard_error():
         samples = synthetic(np.random.default_rng(0), 10)
         calibrate_force_scale(AccelerationSamples(*(
             getattr(samples, f) if f != "force_N" else np.zeros_like(samples.force_N)
-            for f in samples.__dataclass_fields__)), 9.6)
+            for f in samples.__dataclass_fields__)), InertialParams(9.6, PRIOR.theta[1:4]))
 
 
 def test_samples_rotate_the_world_force_into_the_body_frame():

@@ -125,15 +125,11 @@ def test_the_mission_priors_old_sigma_keys_are_refused_naming_the_variance(key):
 
 # -- no bare mass in a core signature (issue 28) ------------------------------------------------------------
 
-NUMERICAL_KERNELS = {
-    # the flight's force-scale calibration ([ReSWARM2023] Eqs. 38-39) on a robot of known mass: the RLS method's
-    # estimation.rls.calibration_mass_kg, a number the flight measured, not a model with an uncertainty
-    "estimation/rls.py:calibrate_force_scale",
-}
-"""Public core functions that still take the mass as a number (docs/architecture.md, "The robot model"): numerical
-kernels of the mean mass. The tube, W, the observer, the design limits, the planners' double-integrator kernels
-(``RobotModel``), the excitation's translation kernels (θ), the geometric verification and the reference
-feed-forward take the model; this list may only shrink."""
+NUMERICAL_KERNELS: set[str] = set()
+"""Public core functions that still take the mass as a number: none (docs/architecture.md, "The robot model"). The
+tube, W, the observer, the design limits, the planners' double-integrator kernels (``RobotModel``), the excitation's
+translation kernels and the lost-input model (θ), the simulator's plant and IMU, the reference feed-forward and the
+flight's force-scale calibration (``InertialParams``) take a model; a new bare mass fails the test below."""
 CORE_EXCLUDED = ("io", "commands", "stages", "mission", "campaign")
 
 

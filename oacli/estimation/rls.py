@@ -40,7 +40,7 @@ from oacli.estimation.imu import ImuStream, gyro_slopes
 from oacli.estimation.models import Measurement
 from oacli.estimation.parametrization import is_physical
 from oacli.model.quaternion import to_rotation_matrix
-from oacli.types import ParameterEstimate
+from oacli.types import InertialParams, ParameterEstimate
 
 __all__ = [
     "RATTLE_TABLE_COV_REDUCTION_PCT",
@@ -243,15 +243,15 @@ class ForceScale:
     samples: int
 
 
-def calibrate_force_scale(samples: AccelerationSamples, mass_kg: float) -> ForceScale:
+def calibrate_force_scale(samples: AccelerationSamples, known: InertialParams) -> ForceScale:
     """``κ_i = argmin ‖a_i − κ_i F_i / m‖²`` per body axis ([ReSWARM2023] Eqs. 38-39).
 
     Parameters
     ----------
     samples : AccelerationSamples
         Data of the robot with known mass.
-    mass_kg : float
-        The known mass [kg].
+    known : InertialParams
+        The robot whose mass [kg] is known (the flight: the bare robot, before the grasp); only its mass is used.
 
     Returns
     -------
@@ -262,9 +262,9 @@ def calibrate_force_scale(samples: AccelerationSamples, mass_kg: float) -> Force
     ValueError
         When an axis saw no force (κ not identified).
     """
-    if not mass_kg > 0:
-        raise ValueError("mass_kg must be > 0")
-    x = samples.force_N / mass_kg  # regressor per axis
+    if not known.mass_kg > 0:
+        raise ValueError("the known mass must be > 0")
+    x = samples.force_N / known.mass_kg  # regressor per axis
     y = samples.accel_mps2
     sxx = np.einsum("ki,ki->i", x, x)
     if np.any(sxx <= 0):

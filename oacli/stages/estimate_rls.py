@@ -24,7 +24,7 @@ from oacli.estimation.rls import (
     acceleration_samples,
     calibrate_force_scale,
 )
-from oacli.types import ParameterEstimate
+from oacli.types import InertialParams, ParameterEstimate
 
 
 @dataclass(frozen=True)
@@ -111,7 +111,7 @@ def run_rls(records: list[Measurement], settings: EstimatorSettings, prior: Para
     scale = np.array(config.force_scale, dtype=float)
     if config.calibration_mass_kg is not None:
         try:
-            fit = calibrate_force_scale(samples, config.calibration_mass_kg)
+            fit = calibrate_force_scale(samples, InertialParams(config.calibration_mass_kg, prior.theta[1:4]))
         except ValueError as exc:
             raise InputError(f"estimation.rls.calibration_mass_kg: {exc}") from None
         scale = fit.scale
