@@ -6,6 +6,7 @@ A mission run folder ``runs/mission-<name>-<UTC stamp>/`` holds::
     segment-1/plan/                   A -> B, model known: LQR-RRT* (or kino-RRT)
     segment-1/smooth/                 LQR shortcutting + polish of segment-1/plan/plan.mcap
     segment-1/track/                  standard MPC tracking segment-1/smooth/smooth.mcap
+    segment-1/calibrate/              actuator calibration from segment-1/track/track.mcap (known robot; optional)
     segment-2/excite/                 B -> C, payload grasped: A-optimal excitation (or RATTLE)
     segment-2/track/                  tube MPC tracking segment-2/excite/excite.mcap, W from the prior (Eq. 28)
     segment-2/estimate-sequential/    sequential estimate from segment-2/track/track.mcap (during the segment)
@@ -86,6 +87,7 @@ MISSION_STAGES: tuple[MissionStage, ...] = (
     MissionStage("segment-1", "plan", "plan"),
     MissionStage("segment-1", "smooth", "smooth"),
     MissionStage("segment-1", "track", "track"),
+    MissionStage("segment-1", "calibrate", "estimate"),
     MissionStage("segment-2", "excite", "excite"),
     MissionStage("segment-2", "track", "track"),
     MissionStage("segment-2", "estimate-sequential", "estimate"),
@@ -96,7 +98,28 @@ MISSION_STAGES: tuple[MissionStage, ...] = (
     MissionStage("segment-3", "baseline-mpc-prior", "track"),
     MissionStage("segment-3", "baseline-tube-prior", "track"),
 )
-"""Every stage of a mission, in the order they run."""
+"""Every stage of a mission, in the order they run (the optional ones only when enabled: ``mission_stages``)."""
+
+OPTIONAL_STAGES: frozenset[str] = frozenset({"segment-1/calibrate"})
+"""Stages added after the first layout: their seeds come after the others' (:func:`seed_index`), so a mission
+without them draws the same numbers as before."""
+
+
+def seed_index(stage: MissionStage) -> int:
+    """The position of ``stage``'s seed stream: its index among the original stages, the optional ones after them.
+
+    Parameters
+    ----------
+    stage : MissionStage
+
+    Returns
+    -------
+    int
+    """
+    core = [s.key for s in MISSION_STAGES if s.key not in OPTIONAL_STAGES]
+    if stage.key in core:
+        return core.index(stage.key)
+    return len(core) + sorted(OPTIONAL_STAGES).index(stage.key)
 
 SEGMENTS: tuple[str, ...] = ("segment-1", "segment-2", "segment-3")
 """The three segments: A → B (model known), B → C (payload uncertain), C → A (model learned)."""
