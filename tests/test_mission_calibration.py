@@ -42,7 +42,7 @@ def test_calibration_stage_fits_the_force_scale_and_segment_2_takes_it_as_prior(
     assert cfg.mission.calibration
     folder = stage_by_key(CALIBRATE_KEY).folder(run)
     cal = json.loads((folder / "summary.json").read_text())
-    assert cal["stage"] == "estimate" and cal["status"] in ("ok", "degraded") and cal["converged"]
+    assert cal["stage"] == "estimate" and cal["status"] == "ok" and cal["converged"]
     assert read_stage(folder / "estimate.mcap").metadata["oacli"]["stage"] == "estimate"
     # It estimated segment 1's telemetry, the known robot held at robot: with a negligible variance.
     cal_cfg = load_config(folder / "config.yaml")
@@ -118,6 +118,13 @@ def test_an_unconverged_calibration_falls_back_to_the_config_prior(mission_run, 
     assert summary["status"] == "degraded"
     assert "calibration_fallback" in [r["kind"] for r in summary["status_reasons"]]
     assert summary["calibration"]["source"] == "config"
+    # Converged but degraded (the actuator model does not fit segment 1, e.g. a saturating impeller): its small σ
+    # would make segment 2's mass confidently wrong, so it is not handed on either.
+    data.update(converged=True, status="degraded", status_reasons=[
+        {"level": "degraded", "kind": "fit_chi2", "message": "χ² 1.42 × its expected value"}])
+    path.write_text(json.dumps(data))
+    degraded = actuator_calibration(cfg, out)
+    assert degraded.source == "config" and "ended degraded (fit_chi2)" in degraded.note
     shutil.rmtree(out / CALIBRATE_KEY)   # the stage failed (handled): no folder at all
     assert "failed" in actuator_calibration(cfg, out).note
 

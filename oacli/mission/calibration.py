@@ -7,7 +7,9 @@ better than κ_F. Segment 1 flies the bare robot, whose mass and inertias are kn
 holds them with a negligible variance and estimates the estimation section's other groups. Its force and torque
 scales (mean and σ per body axis) become the ``estimation.rigid_body`` prior of segment 2's estimates
 (:func:`actuator_calibration`): the payload changes mass, inertia and CoM, not the impellers. A calibration that
-did not converge is not handed on: segment 2 keeps the config's prior and the mission says so (``degraded``).
+failed, did not converge or ended other than ``ok`` (e.g. ``degraded``: its χ² says the actuator model does not
+explain the telemetry, as with a saturating impeller, so its small σ would make segment 2's mass confidently
+wrong) is not handed on: segment 2 keeps the config's prior and the mission says so (``degraded``).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from oacli.config import OacliConfig
 from oacli.errors import ConfigError
 from oacli.io.runfolder import is_complete
 from oacli.mission.layout import stage_by_key
+from oacli.status import OK
 
 __all__ = ["CALIBRATE_KEY", "HANDED_GROUPS", "KNOWN_VARIANCE", "ActuatorCalibration", "actuator_calibration",
            "calibration_prior_section", "estimate_failures", "handed_rigid_body"]
@@ -173,6 +176,10 @@ def actuator_calibration(cfg: OacliConfig, mission_dir: Path) -> ActuatorCalibra
     if is_complete(folder):
         summary = json.loads((folder / "summary.json").read_text())
         problems = estimate_failures(summary)
+        if summary.get("status") != OK and not problems:  # a fit the model does not explain: σ not to be trusted
+            kinds = ", ".join(dict.fromkeys(str(r.get("kind")) for r in summary.get("status_reasons") or ()))
+            problems = [f"ended {summary.get('status')} ({kinds or 'see its summary.json'}): the actuator model "
+                        "does not explain segment 1's telemetry, so its σ is not to be trusted"]
     else:  # the stage refused (e.g. a scale unobservable from the telemetry)
         problems = ["failed (no estimate from segment 1's telemetry)"]
     handed = handed_rigid_body(summary) if not problems else {}
