@@ -140,3 +140,15 @@ def test_bad_calibration_settings_exit_2_naming_the_field(setting, field, tmp_pa
     assert result.exit_code == 2, result.output
     assert field in result.output and "Traceback" not in result.output
     assert not (tmp_path / "run" / "summary.json").exists()
+
+
+def test_rigid_body_scale_std_per_axis_or_one_for_all():
+    """``force_scale_std`` / ``torque_scale_std`` take one σ for the three body axes or one per axis (the
+    calibration's), in the order of :meth:`RigidBodyPriorConfig.mean`."""
+    from oacli.config.estimation import RigidBodyPriorConfig
+
+    one = RigidBodyPriorConfig().std()
+    np.testing.assert_array_equal(one, np.repeat([0.005, 0.01, 0.05, 0.05], 3))
+    per_axis = RigidBodyPriorConfig(force_scale_std=(0.003, 0.004, 0.005), torque_scale_std=(0.03, 0.02, 0.01)).std()
+    np.testing.assert_array_equal(per_axis[6:], [0.003, 0.004, 0.005, 0.03, 0.02, 0.01])
+    np.testing.assert_array_equal(per_axis[:6], one[:6])
