@@ -22,8 +22,8 @@ from oacli.config import config_from_dict, load_config
 from oacli.config.overrides import apply_overrides
 from oacli.io.mcap_read import read_stage
 from oacli.mission.calibration import CALIBRATE_KEY, KNOWN_VARIANCE, actuator_calibration
-from oacli.mission.configs import Handoff, stage_config, stage_seed
-from oacli.mission.layout import MISSION_STAGES, seed_index, stage_by_key
+from oacli.mission.configs import Handoff, seed_index, stage_config, stage_seed
+from oacli.mission.layout import MISSION_STAGES, stage_by_key
 from oacli.mission.run import handoff_for, mission_stages, mission_summary
 
 ROOT = Path(__file__).resolve().parents[1]

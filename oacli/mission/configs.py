@@ -21,7 +21,7 @@ from oacli.config import OacliConfig, config_from_dict
 from oacli.config.mission import MissionConfig, deep_merge
 from oacli.errors import ConfigError, InfeasibleError
 from oacli.mission.calibration import CALIBRATE_KEY, calibration_prior_section
-from oacli.mission.layout import MISSION_STAGES, MissionStage, seed_index, stage_by_key
+from oacli.mission.layout import MISSION_STAGES, MissionStage, stage_by_key
 from oacli.model.robot_model import RobotModel
 from oacli.stages.settings import robot_model, tube_design_from_config
 
@@ -72,6 +72,28 @@ def stage_seed(seed: int, index: int) -> int:
     """
     state = np.random.SeedSequence(seed, spawn_key=(index,)).generate_state(1, dtype=np.uint32)
     return int(state[0] % (2**31))
+
+
+CALIBRATION_SEED_INDEX = 1000
+"""The spawn key of ``segment-1/calibrate``'s seed: apart from the other stages', which keep their index without it
+(:func:`seed_index`), so ``mission.calibration: false`` draws the numbers of the mission before the calibration."""
+
+
+def seed_index(stage: MissionStage) -> int:
+    """The spawn key of ``stage``'s seed (:func:`stage_seed`): its index among the mission's stages without the
+    calibration, :data:`CALIBRATION_SEED_INDEX` for the calibration.
+
+    Parameters
+    ----------
+    stage : MissionStage
+
+    Returns
+    -------
+    int
+    """
+    if stage.key == CALIBRATE_KEY:
+        return CALIBRATION_SEED_INDEX
+    return [s.key for s in MISSION_STAGES if s.key != CALIBRATE_KEY].index(stage.key)
 
 
 def mission_section(cfg: OacliConfig) -> MissionConfig:

@@ -98,28 +98,7 @@ MISSION_STAGES: tuple[MissionStage, ...] = (
     MissionStage("segment-3", "baseline-mpc-prior", "track"),
     MissionStage("segment-3", "baseline-tube-prior", "track"),
 )
-"""Every stage of a mission, in the order they run (the optional ones only when enabled: ``mission_stages``)."""
-
-OPTIONAL_STAGES: frozenset[str] = frozenset({"segment-1/calibrate"})
-"""Stages added after the first layout: their seeds come after the others' (:func:`seed_index`), so a mission
-without them draws the same numbers as before."""
-
-
-def seed_index(stage: MissionStage) -> int:
-    """The position of ``stage``'s seed stream: its index among the original stages, the optional ones after them.
-
-    Parameters
-    ----------
-    stage : MissionStage
-
-    Returns
-    -------
-    int
-    """
-    core = [s.key for s in MISSION_STAGES if s.key not in OPTIONAL_STAGES]
-    if stage.key in core:
-        return core.index(stage.key)
-    return len(core) + sorted(OPTIONAL_STAGES).index(stage.key)
+"""Every stage of a mission, in the order they run."""
 
 SEGMENTS: tuple[str, ...] = ("segment-1", "segment-2", "segment-3")
 """The three segments: A → B (model known), B → C (payload uncertain), C → A (model learned)."""
