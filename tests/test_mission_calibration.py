@@ -153,3 +153,18 @@ def test_rigid_body_scale_std_per_axis_or_one_for_all():
     per_axis = RigidBodyPriorConfig(force_scale_std=(0.003, 0.004, 0.005), torque_scale_std=(0.03, 0.02, 0.01)).std()
     np.testing.assert_array_equal(per_axis[6:], [0.003, 0.004, 0.005, 0.03, 0.02, 0.01])
     np.testing.assert_array_equal(per_axis[:6], one[:6])
+
+
+def test_from_a_stage_the_mission_does_not_run_exits_2(mission_run, tmp_path):
+    """``--from segment-1/calibrate`` on a mission without the calibration: exit 2 naming the option, nothing
+    copied or run (before: every stage was copied and the mission ran none of them again)."""
+    run, _, _ = mission_run
+    source = tmp_path / "source"
+    source.mkdir()
+    data = yaml.safe_load((run / "config.yaml").read_text())
+    data["mission"]["calibration"] = False
+    (source / "config.yaml").write_text(yaml.safe_dump(data))
+    result = RUNNER.invoke(app, ["mission", str(source), "--from", CALIBRATE_KEY, "--out", str(tmp_path / "new")])
+    assert result.exit_code == 2, result.output
+    assert "--from: segment-1/calibrate is not a stage of this mission" in result.output
+    assert not (tmp_path / "new" / "segment-1").exists()

@@ -174,6 +174,10 @@ def mission(
                     stage_by_key(from_stage)
                 except KeyError as exc:
                     raise ConfigError(f"--from: {exc.args[0]}") from None
+                from oacli.mission.run import mission_stages
+                if from_stage.strip("/") not in [s.key for s in mission_stages(cfg)]:
+                    raise ConfigError(f"--from: {from_stage} is not a stage of this mission (an optional stage it "
+                                      "does not run: mission.calibration, mission.baselines)")
             mission_dir = start_mission(cfg, out=out, runs_root=runs_root)
             if from_stage is not None:
                 copy_stages_before(target, mission_dir, cfg, from_stage)
