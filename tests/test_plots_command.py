@@ -110,7 +110,7 @@ def test_mission_draws_only_its_own_pngs_and_plots_draws_the_rest(mission_run, t
             width, height = png_size(tmp_path / stage.segment / stage.name / name)
             assert width >= 500 and height >= 400
     stage_pngs = sum(len(PNGS[stage.command]) for stage in MISSION_STAGES)
-    assert stage_pngs == 29  # 5 track-kind stages x 3, 4 plan/smooth x 2, excite 2, 2 estimates x 2
+    assert stage_pngs == 31  # 5 track-kind stages x 3, 4 plan/smooth x 2, excite 2, 3 estimates x 2 (calibrate)
     assert sum(len(v) for v in written.values()) == stage_pngs + 3  # and 3 of the mission
     for name in ("tracking_error", "estimate_convergence", "paths"):  # the mission's: as the runner drew them
         a, b = _pixels(tmp_path / "plots" / f"{name}.png"), _pixels(mission_dir / "plots" / f"{name}.png")

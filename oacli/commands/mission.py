@@ -48,6 +48,13 @@ def print_mission_tables(summary: dict[str, Any]) -> None:
     for key, entry in summary["stages"].items():
         wall = entry.get("wall_time_s")
         typer.echo(f"  {key:<{width}}  {entry['status']:<10} {'' if wall is None else f'{wall:7.1f} s'}")
+    cal = summary.get("calibration") or {}
+    if cal.get("source") == "calibration":
+        typer.echo("actuator calibration (segment 1, [ReSWARM2023] Eqs. 38-39): force scale "
+                   + " / ".join(f"{k:.4f} ± {s:.4f}" for k, s in zip(cal["force_scale"], cal["force_scale_std"],
+                                                                    strict=True)) + ", segment 2's prior")
+    elif cal.get("note"):
+        typer.echo(f"actuator calibration: {cal['note']}")
     est = summary.get("estimate") or {}
     if est.get("error_pct"):
         typer.echo("estimate (batch) error %: " + format_value(est["error_pct"])
@@ -167,6 +174,10 @@ def mission(
                     stage_by_key(from_stage)
                 except KeyError as exc:
                     raise ConfigError(f"--from: {exc.args[0]}") from None
+                from oacli.mission.run import mission_stages
+                if from_stage.strip("/") not in [s.key for s in mission_stages(cfg)]:
+                    raise ConfigError(f"--from: {from_stage} is not a stage of this mission (an optional stage it "
+                                      "does not run: mission.calibration, mission.baselines)")
             mission_dir = start_mission(cfg, out=out, runs_root=runs_root)
             if from_stage is not None:
                 copy_stages_before(target, mission_dir, cfg, from_stage)

@@ -49,13 +49,13 @@ class RigidBodyPriorConfig(Section):
     com_std_m: PositiveReal = Field(default=0.01, description="Prior standard deviation of each CoM component [m].")
     force_scale: PositiveVector3 = Field(
         default=(1.0, 1.0, 1.0), description="Delivered ÷ commanded force per body axis (prior mean).")
-    force_scale_std: PositiveReal = Field(
-        default=0.05, description="Prior standard deviation of each force scale (few-percent thrust errors, "
-        "[ReSWARM2023] §6.2.1).")
+    force_scale_std: PositiveReal | PositiveVector3 = Field(
+        default=0.05, description="Prior standard deviation of each force scale, one for all axes or per body axis "
+        "(few-percent thrust errors, [ReSWARM2023] §6.2.1; the mission's segment-1/calibrate sets it per axis).")
     torque_scale: PositiveVector3 = Field(
         default=(1.0, 1.0, 1.0), description="Delivered ÷ commanded torque per body axis (prior mean).")
-    torque_scale_std: PositiveReal = Field(
-        default=0.05, description="Prior standard deviation of each torque scale.")
+    torque_scale_std: PositiveReal | PositiveVector3 = Field(
+        default=0.05, description="Prior standard deviation of each torque scale, one for all axes or per body axis.")
 
     def mean(self) -> np.ndarray:
         """[products (3), CoM (3), force scale (3), torque scale (3)]."""
@@ -63,7 +63,8 @@ class RigidBodyPriorConfig(Section):
 
     def std(self) -> np.ndarray:
         """Standard deviations in the order of :meth:`mean`."""
-        return np.repeat([self.products_std_kgm2, self.com_std_m, self.force_scale_std, self.torque_scale_std], 3)
+        return np.concatenate([np.broadcast_to(np.asarray(v, dtype=float), (3,)) for v in (
+            self.products_std_kgm2, self.com_std_m, self.force_scale_std, self.torque_scale_std)])
 
 
 class MeasurementNoiseConfig(Section):

@@ -115,6 +115,11 @@ class MissionConfig(Section):
         "workspace constraints (controller.position_constraints false, the paper's standard MPC), folder "
         "segment-3/baseline-mpc-unconstrained-prior.",
     )
+    calibration: StrictBool = Field(
+        default=False, description="Calibrate the actuators on segment 1's flight of the known robot first "
+        "(segment-1/calibrate: the estimation section's force and torque scales with the robot's mass and inertias "
+        "held, [ReSWARM2023] Eqs. 38-39) and hand its mean and σ to segment 2's estimates as their prior.",
+    )
     segments: Annotated[dict[str, Any], none_to({})] = Field(
         default_factory=dict,
         description="Per-segment overrides of the other sections (segment-1, segment-2, segment-3), deep-merged; "

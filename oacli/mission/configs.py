@@ -20,6 +20,7 @@ import numpy as np
 from oacli.config import OacliConfig, config_from_dict
 from oacli.config.mission import MissionConfig, deep_merge
 from oacli.errors import ConfigError, InfeasibleError
+from oacli.mission.calibration import CALIBRATE_KEY, calibration_prior_section
 from oacli.mission.layout import ALL_STAGES, MissionStage, stage_by_key
 from oacli.model.robot_model import RobotModel
 from oacli.stages.settings import robot_model, tube_design_from_config
@@ -41,6 +42,9 @@ class Handoff:
         Where the previous segment's true state ended, minus this segment's start [m].
     estimate : RobotModel or None
         The learned model (segment 3): mass, inertias and their covariance.
+    rigid_body : dict or None
+        Segment 2's estimates: the actuator calibration's ``estimation.rigid_body`` entries
+        (:mod:`oacli.mission.calibration`); None: the config's.
     """
 
     reference: Path | None = None
@@ -48,6 +52,7 @@ class Handoff:
     telemetry: Path | None = None
     initial_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     estimate: RobotModel | None = None
+    rigid_body: dict[str, Any] | None = None
 
 
 def stage_seed(seed: int, index: int) -> int:
@@ -67,6 +72,28 @@ def stage_seed(seed: int, index: int) -> int:
     """
     state = np.random.SeedSequence(seed, spawn_key=(index,)).generate_state(1, dtype=np.uint32)
     return int(state[0] % (2**31))
+
+
+CALIBRATION_SEED_INDEX = 1000
+"""The spawn key of ``segment-1/calibrate``'s seed: apart from the other stages', which keep their index without it
+(:func:`seed_index`), so ``mission.calibration: false`` draws the numbers of the mission before the calibration."""
+
+
+def seed_index(stage: MissionStage) -> int:
+    """The spawn key of ``stage``'s seed (:func:`stage_seed`): its index among the mission's stages without the
+    calibration, :data:`CALIBRATION_SEED_INDEX` for the calibration.
+
+    Parameters
+    ----------
+    stage : MissionStage
+
+    Returns
+    -------
+    int
+    """
+    if stage.key == CALIBRATE_KEY:
+        return CALIBRATION_SEED_INDEX
+    return [s.key for s in ALL_STAGES if s.key != CALIBRATE_KEY].index(stage.key)
 
 
 def mission_section(cfg: OacliConfig) -> MissionConfig:
@@ -306,7 +333,7 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
     data.pop("mission", None)
     data = deep_merge(data, mission.segments.get(stage.segment) or {})
     data = deep_merge(data, mission.segments.get(stage.key) or {})  # one stage's own (e.g. a baseline), after
-    index = next(i for i, s in enumerate(ALL_STAGES) if s.key == stage.key)
+    index = seed_index(stage)
     prior = prior_model(cfg)
     grasped = {"mass_kg": mission.grasped.mass_kg, "inertia_kgm2": list(mission.grasped.inertia_kgm2)}
     sets: dict[str, Any] = {
@@ -360,6 +387,10 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
             sets["inputs"] = {"estimate_telemetry": str(handoff.telemetry)}
         method = "sequential" if stage.name == "estimate-sequential" else "batch"
         sets = deep_merge(sets, {"estimation": {"method": method}})  # merged: the section holds the prior
+        if stage.key == CALIBRATE_KEY:  # the known robot: its θ held, the actuators fitted
+            sets = deep_merge(sets, calibration_prior_section(cfg))
+        elif handoff.rigid_body:
+            sets = deep_merge(sets, {"estimation": {"rigid_body": dict(handoff.rigid_body)}})
     data = deep_merge(data, sets)
     try:
         return config_from_dict(data, source=f"{source} ({stage.key})")

@@ -6,6 +6,7 @@ A mission run folder ``runs/mission-<name>-<UTC stamp>/`` holds::
     segment-1/plan/                   A -> B, model known: LQR-RRT* (or kino-RRT)
     segment-1/smooth/                 LQR shortcutting + polish of segment-1/plan/plan.mcap
     segment-1/track/                  standard MPC tracking segment-1/smooth/smooth.mcap
+    segment-1/calibrate/              actuator calibration from segment-1/track/track.mcap (known robot; optional)
     segment-2/excite/                 B -> C, payload grasped: A-optimal excitation (or RATTLE)
     segment-2/track/                  tube MPC tracking segment-2/excite/excite.mcap, W from the prior (Eq. 28)
     segment-2/estimate-sequential/    sequential estimate from segment-2/track/track.mcap (during the segment)
@@ -88,6 +89,7 @@ MISSION_STAGES: tuple[MissionStage, ...] = (
     MissionStage("segment-1", "plan", "plan"),
     MissionStage("segment-1", "smooth", "smooth"),
     MissionStage("segment-1", "track", "track"),
+    MissionStage("segment-1", "calibrate", "estimate"),
     MissionStage("segment-2", "excite", "excite"),
     MissionStage("segment-2", "track", "track"),
     MissionStage("segment-2", "estimate-sequential", "estimate"),

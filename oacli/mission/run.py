@@ -30,6 +30,7 @@ from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
 from oacli.io.folder_lock import folder_lock
 from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
+from oacli.mission.calibration import CALIBRATE_KEY, actuator_calibration, estimate_failures
 from oacli.mission.compare import ARRIVAL_TOLERANCE_M, comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
 from oacli.mission.foxglove import MISSION_MCAP, write_mission_mcap
@@ -69,7 +70,7 @@ class MissionResult:
 
 def mission_stages(cfg: OacliConfig) -> tuple[MissionStage, ...]:
     """The stages this mission runs (the baselines only with ``mission.baselines``; the unconstrained standard MPC
-    only with ``mission.unconstrained_baseline`` too).
+    only with ``mission.unconstrained_baseline`` too; the actuator calibration only with ``mission.calibration``).
 
     Parameters
     ----------
@@ -84,7 +85,7 @@ def mission_stages(cfg: OacliConfig) -> tuple[MissionStage, ...]:
     skip = set() if mission.baselines else set(BASELINE_STAGES)
     if not (mission.baselines and mission.unconstrained_baseline):
         skip.add(UNCONSTRAINED_BASELINE.split("/")[1])
-    return tuple(s for s in ALL_STAGES if s.name not in skip)
+    return tuple(s for s in ALL_STAGES if s.name not in skip and (mission.calibration or s.key != CALIBRATE_KEY))
 
 
 def _final_position(track_mcap: Path) -> np.ndarray:
@@ -145,31 +146,6 @@ class LearnedModel:
                 "note": self.note}
 
 
-def estimate_failures(estimate: dict[str, Any]) -> list[str]:
-    """Why a batch estimate's summary must not be handed on (empty: it may).
-
-    Parameters
-    ----------
-    estimate : dict
-        ``segment-2/estimate/summary.json``.
-
-    Returns
-    -------
-    list of str
-        ``did not converge``, ``has no covariance (θ not identified)``: plain words, no sentinel numbers.
-    """
-    out = []
-    if estimate.get("converged") is False:
-        out.append(f"did not converge (within {estimate.get('iterations', '?')} iterations)")
-    if estimate.get("covariance_identified") is False:
-        out.append("has no covariance (θ not identified by the telemetry)")
-    std = estimate.get("std") or {}
-    if any(v is None or not np.isfinite(v) for v in std.values()):
-        if not out:
-            out.append("has no finite standard deviation")
-    return out
-
-
 def learned_model(cfg: OacliConfig, mission_dir: Path) -> LearnedModel:
     """The model segment 3 is handed: the batch estimate (θ and covariance), or the prior when it failed.
 
@@ -226,8 +202,12 @@ def handoff_for(cfg: OacliConfig, stage: MissionStage, mission_dir: Path) -> Han
     learned = learned_model(cfg, d).model if stage.segment == "segment-3" else None
     if stage.command == "smooth":
         return Handoff(plan=stage_by_key(f"{stage.segment}/plan").mcap(d), estimate=learned)
+    if stage.key == CALIBRATE_KEY:
+        return Handoff(telemetry=stage_by_key("segment-1/track").mcap(d))
     if stage.command == "estimate":
-        return Handoff(telemetry=stage_by_key("segment-2/track").mcap(d))
+        calibration = actuator_calibration(cfg, d)
+        return Handoff(telemetry=stage_by_key("segment-2/track").mcap(d),
+                       rigid_body=calibration.rigid_body if calibration is not None else None)
     if stage.command != "track":
         return Handoff(estimate=learned)
     if stage.segment == "segment-1":
@@ -574,6 +554,9 @@ def mission_summary(cfg: OacliConfig, mission_dir: Path, stages: tuple[MissionSt
     learned = learned_model(cfg, mission_dir)
     if learned.note is not None:
         verdict.add(DEGRADED, "estimate_fallback", learned.note)
+    calibration = actuator_calibration(cfg, mission_dir)
+    if calibration is not None and calibration.note is not None:
+        verdict.add(DEGRADED, "calibration_fallback", calibration.note)
     estimate = results["segment-2/estimate"]
     comparison = {}
     for key in ("segment-3/track", *(f"segment-3/{n}" for n in BASELINE_STAGES)):
@@ -596,6 +579,7 @@ def mission_summary(cfg: OacliConfig, mission_dir: Path, stages: tuple[MissionSt
                            "folder": f"{s.segment}/{s.name}", "command": s.command} for s in stages},
         "estimate": _estimate_entry(estimate),
         "learned_model": learned.summary(),
+        "calibration": None if calibration is None else calibration.summary(),
         "estimate_sequential": {k: results["segment-2/estimate-sequential"].get(k)
                                 for k in ("mass_kg", "inertia_kgm2", "std", "error_pct", "status")},
         "comparison": comparison,
