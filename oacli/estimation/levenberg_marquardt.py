@@ -121,12 +121,15 @@ def levenberg_marquardt(
             # The first trial of an iteration is linearised at once (it is nearly always taken); after a rejection
             # the cost comes first, from the end states only, and the Jacobians only for a step that is taken.
             cheap = retried and not reference
-            with np.errstate(all="ignore"):  # a wild trial step may overflow; it is then rejected below
-                if cheap:
-                    b_new = problem.jacobian_groups(x_new, phi_new, inliers, jacobian=False)[0]
-                else:
-                    b_new, system_new = linearise(problem, x_new, phi_new, inliers, reference)
-                cost_new = float(b_new @ b_new)
+            try:
+                with np.errstate(all="ignore"):  # a wild trial step may overflow; it is then rejected below
+                    if cheap:
+                        b_new = problem.jacobian_groups(x_new, phi_new, inliers, jacobian=False)[0]
+                    else:
+                        b_new, system_new = linearise(problem, x_new, phi_new, inliers, reference)
+                    cost_new = float(b_new @ b_new)
+            except np.linalg.LinAlgError:  # a wild trial step made a matrix of the model singular (the full rigid
+                cost_new = float("inf")    # body's inertia tensor): rejected like an overflow, more damping
             if np.isfinite(cost_new) and cost_new <= cost:
                 if cheap:
                     b_new, system_new = linearise(problem, x_new, phi_new, inliers, reference)
