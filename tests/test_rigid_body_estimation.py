@@ -231,5 +231,6 @@ def test_hostile_data_still_gives_a_physical_estimate():
     (["mass", "inertia", "com", "com"], "listed twice"),
 ])
 def test_parameters_config_is_validated(value, reason):
-    with pytest.raises(ConfigError, match=reason):
+    with pytest.raises(ConfigError, match=reason) as err:
         config_from_dict({"name": "x", "estimation": {"parameters": value}})
+    assert "estimation.parameters" in str(err.value)  # names the field, not the whole section

@@ -10,10 +10,10 @@ noise as standard deviations (``std = sqrt(variance)``).
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from oacli.config.fields import (
@@ -184,14 +184,14 @@ class EstimationConfig(Section):
         description="Batch: also solve on growing windows every window_s seconds to record convergence [s], > 0.",
     )
 
-    @model_validator(mode="after")
-    def _parameter_groups(self) -> EstimationConfig:
-        groups = self.parameters
+    @field_validator("parameters")
+    @classmethod
+    def _parameter_groups(cls, groups: Any) -> Any:
         if len(set(groups)) != len(groups):
-            raise PydanticCustomError("oacli_estimation", "parameters: a group is listed twice")
+            raise PydanticCustomError("oacli_estimation", "a group is listed twice")
         if "mass" not in groups or "inertia" not in groups:
-            raise PydanticCustomError("oacli_estimation", "parameters: must include mass and inertia")
-        return self
+            raise PydanticCustomError("oacli_estimation", "must include mass and inertia")
+        return groups
 
     @model_validator(mode="after")
     def _something_measured(self) -> EstimationConfig:
