@@ -21,10 +21,10 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.config import config_from_dict, load_config
 from oacli.config.overrides import apply_overrides
-from oacli.mission.configs import Handoff, prior_model, stage_config
+from oacli.mission.configs import NOMINAL_FLOOR_SHARE, REFERENCE_SHARE, Handoff, prior_model, stage_config
 from oacli.mission.layout import MISSION_STAGES, stage_by_key
 from oacli.mission.run import learned_model
-from oacli.mission.verdict import MissionStageError, stage_verdict
+from oacli.mission.verdict import MissionStageError, plan_above_nominal, stage_verdict
 from oacli.model.robot_model import RobotModel
 from oacli.stages.design_limits import planner_design_limits
 from oacli.stages.settings import robot_model, tube_design_from_config
@@ -163,6 +163,28 @@ def test_segment_3_is_derived_from_the_learned_model_and_its_covariance():
     plan = stage_config(_cfg("mission.grasped.inertia_kgm2=[0.46,0.43,0.49]"), stage_by_key("segment-3/plan"),
                         Handoff(estimate=big))
     assert plan.reference.angular_acceleration_radps2 * (0.49 + 2 * 0.002) <= 0.8 * 0.0216 + 1e-12
+
+
+def test_a_plan_above_the_tubes_nominal_bound_is_reported():
+    """Where the plan's force floor binds (a light payload on a vague model: Ū ≈ 0.02 N, K R grows with σ_m), the
+    plan may ask more than the tube's nominal MPC can command; the mission reports it (``plan_above_nominal``),
+    and it stays silent where the cap follows Ū (the default mission's case)."""
+    cfg = load_config(ROOT / "configs" / "mission_unknown_payload.yaml")
+    vague = prior_model(cfg).with_estimate(np.array([10.0, 0.3, 0.3, 0.3]), np.diag([3.0, 3e-3, 3e-3, 3e-3]) ** 2)
+    plan = stage_config(cfg, stage_by_key("segment-3/plan"), Handoff(estimate=vague))
+    track = stage_config(cfg, stage_by_key("segment-3/track"), Handoff(reference=Path("r.mcap"), estimate=vague))
+    bounds = [list(ax.force_bounds_N) for ax in tube_design_from_config(track).axes]
+    u_bar = np.array([min(-lo, hi) for lo, hi in bounds])
+    tube_force = np.array(cfg.controller.tube.force_limit_N or cfg.robot.force_limit_N)
+    floor = NOMINAL_FLOOR_SHARE * REFERENCE_SHARE * tube_force
+    assert np.all(u_bar < floor)  # the floor binds: the cap is the floor, above Ū
+    np.testing.assert_allclose(plan.planner.limits.force_N, floor)
+    asked = {"max_force_per_axis_N": list(plan.planner.limits.force_N)}
+    message = plan_above_nominal(asked, {"tightened_force_N": bounds})
+    assert message is not None and all(f"{a} " in message for a in "xyz")
+    below = {"max_force_per_axis_N": list(0.99 * u_bar)}
+    assert plan_above_nominal(below, {"tightened_force_N": bounds}) is None
+    assert plan_above_nominal(asked, {"status": "ok"}) is None  # a standard-MPC flight has no Ū
 
 
 def test_rate_margin_from_the_models_inertia_sigma():

@@ -38,7 +38,7 @@ from oacli.mission.layout import ALL_STAGES, SEGMENTS, UNCONSTRAINED_BASELINE, M
 from oacli.mission.plots import write_mission_plots
 from oacli.mission.recording import write_mission_recording
 from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
-from oacli.mission.verdict import MissionStageError, stage_verdict, stop_reason
+from oacli.mission.verdict import MissionStageError, plan_above_nominal, stage_verdict, stop_reason
 from oacli.model.robot_model import RobotModel
 from oacli.signals import held
 from oacli.status import COMPLETE_STATUSES, DEGRADED, FAILED, INTERRUPTED, NO_SOLUTION
@@ -557,6 +557,9 @@ def mission_summary(cfg: OacliConfig, mission_dir: Path, stages: tuple[MissionSt
     calibration = actuator_calibration(cfg, mission_dir)
     if calibration is not None and calibration.note is not None:
         verdict.add(DEGRADED, "calibration_fallback", calibration.note)
+    lagging = plan_above_nominal(results.get("segment-3/smooth"), results.get("segment-3/track"))
+    if lagging is not None:
+        verdict.add(DEGRADED, "plan_above_nominal", lagging)
     estimate = results["segment-2/estimate"]
     comparison = {}
     for key in ("segment-3/track", *(f"segment-3/{n}" for n in BASELINE_STAGES)):

@@ -133,3 +133,40 @@ class MissionStageError(OacliError):
 
 
 __all__ = ["STOP_STATUSES", "MissionStageError", "MissionVerdict", "stage_verdict", "stop_reason"]
+
+
+def plan_above_nominal(reference: Mapping[str, Any] | None, track: Mapping[str, Any] | None,
+                       tolerance_N: float = 1e-6) -> str | None:
+    """Segment 3's flown reference asks more force than the nominal MPC of its tube may command, or None.
+
+    The plan's force cap follows the tube's tightened bound ``Ū = U ⊖ K Z`` ([Doerr2021] Eq. 27) only down to
+    :data:`oacli.mission.configs.NOMINAL_FLOOR_SHARE` of its share (a heavy payload's Ū left the planner without a
+    path): where that floor binds, the nominal MPC lags the part of the plan above Ū. The tube's promise holds (its
+    own status says so); the flight just cannot follow the plan as planned, which the mission reports as
+    ``degraded`` (``plan_above_nominal``).
+
+    Parameters
+    ----------
+    reference : mapping or None
+        The summary of the stage whose trajectory the flight tracks (``segment-3/smooth``): its
+        ``max_force_per_axis_N`` [N], world axes.
+    track : mapping or None
+        The tube flight's summary: its ``tightened_force_N`` ``[[lower, upper]] × 3`` [N] (absent for standard MPC).
+
+    Returns
+    -------
+    str or None
+        The finding's message, naming the axes and forces.
+    """
+    if not reference or not track:
+        return None
+    asked, bounds = reference.get("max_force_per_axis_N"), track.get("tightened_force_N")
+    if asked is None or bounds is None:
+        return None
+    over = [(axis, float(f), min(-float(lo), float(hi))) for axis, f, (lo, hi) in zip("xyz", asked, bounds, strict=True)
+            if float(f) > min(-float(lo), float(hi)) + tolerance_N]
+    if not over:
+        return None
+    parts = ", ".join(f"{axis} {f:.3g} N > Ū {u:.3g} N" for axis, f, u in over)
+    return (f"segment-3: the reference asks more force than the tube's nominal MPC may command ({parts}); the flight "
+            f"lags that part of the plan (the plan's force cap stops at a floor so that a path exists)")
