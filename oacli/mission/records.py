@@ -32,7 +32,6 @@ from oacli.io import mcap_schema as ms
 from oacli.io.mcap_read import TELEMETRY_TOPICS, StageRecord, read_stage, telemetry_from_record
 from oacli.metrics import tracking_errors
 from oacli.mission.layout import BASELINES, MISSION_STAGES, SEGMENTS, stage_by_key
-from oacli.sets import Polytope
 from oacli.types import Telemetry
 
 #: Cache the stage files read (module docstring); ``benchmarks/bench_outputs.py`` switches it off for the old path.
@@ -357,6 +356,48 @@ def _stage_config(mission_dir: Path) -> OacliConfig:
     raise FileNotFoundError(f"{mission_dir}: no stage folder with a config.yaml")
 
 
+def first_coordinate_range(normals: Any, offsets: Any) -> tuple[float, float]:
+    """``[min, max]`` of the first coordinate over the polygon ``{z ∈ R² : A z ≤ b}`` (a tube axis's Z).
+
+    For a bounded, non-empty polygon (its normals leave no angular gap of π or more) the extremes lie at vertices,
+    found here as the feasible intersections of pairs of edges (numpy only: the report draws the tube bands
+    without importing scipy); otherwise :meth:`oacli.sets.Polytope.support` decides (±inf, or -inf for an empty
+    set), as it did for every polygon before.
+
+    Parameters
+    ----------
+    normals : array_like, shape (m, 2)
+        ``A``.
+    offsets : array_like, shape (m,)
+        ``b``.
+
+    Returns
+    -------
+    tuple of float
+        ``(min z₀, max z₀)`` [the units of z₀, m for the position axis].
+    """
+    a = np.asarray(normals, dtype=float).reshape(-1, 2)
+    b = np.asarray(offsets, dtype=float).reshape(-1)
+    if len(a) >= 3 and np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
+        angles = np.sort(np.arctan2(a[:, 1], a[:, 0]))
+        gaps = np.diff(np.r_[angles, angles[0] + 2.0 * np.pi])
+        if gaps.max() < np.pi - 1e-9:  # bounded
+            i, j = np.triu_indices(len(a), 1)
+            det = a[i, 0] * a[j, 1] - a[i, 1] * a[j, 0]
+            keep = np.abs(det) > 1e-12 * np.linalg.norm(a[i], axis=1) * np.linalg.norm(a[j], axis=1)
+            i, j, det = i[keep], j[keep], det[keep]
+            x = (b[i] * a[j, 1] - b[j] * a[i, 1]) / det
+            y = (a[i, 0] * b[j] - a[j, 0] * b[i]) / det
+            tol = 1e-9 * max(1.0, float(np.abs(b).max()))
+            inside = np.all(np.outer(x, a[:, 0]) + np.outer(y, a[:, 1]) <= b + tol, axis=1)
+            if inside.any():
+                return float(x[inside].min()), float(x[inside].max())
+    from oacli.sets import Polytope  # scipy: only for an unbounded, empty or malformed set
+
+    zset = Polytope(a, b)
+    return -float(zset.support(np.array([-1.0, 0.0]))), float(zset.support(np.array([1.0, 0.0])))
+
+
 def _tube(record: StageRecord, t_ctrl_stage: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Box hull of ``z ⊕ Z`` per controller step from ``/state/nominal``, ``/tube/design`` and the design index of
     ``/tube/disturbance`` (the initial design where unknown)."""
@@ -368,8 +409,8 @@ def _tube(record: StageRecord, t_ctrl_stage: np.ndarray) -> tuple[np.ndarray, np
     for design in sorted(designs, key=lambda d: int(d.get("design", 0))):
         ext = []
         for ax in design["axes"]:
-            zset = Polytope(np.asarray(ax["z_normals"], dtype=float), np.asarray(ax["z_offsets"], dtype=float))
-            ext.append([zset.support(np.array([-1.0, 0.0])), zset.support(np.array([1.0, 0.0]))])
+            low, high = first_coordinate_range(ax["z_normals"], ax["z_offsets"])
+            ext.append([-low, high])
         extents.append(ext)
     ext_arr = np.asarray(extents, dtype=float)
     index = np.zeros(len(t_ctrl_stage), dtype=int)
