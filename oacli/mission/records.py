@@ -31,7 +31,8 @@ from oacli.geometry import Scene
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_read import TELEMETRY_TOPICS, StageRecord, read_stage, telemetry_from_record
 from oacli.metrics import tracking_errors
-from oacli.mission.layout import BASELINES, MISSION_STAGES, SEGMENTS, stage_by_key
+from oacli.mission.layout import ALL_STAGES, MISSION_STAGES, SEGMENTS, stage_by_key
+from oacli.mission.layout import FLIGHT_LABELS as SEGMENT3_LABELS
 from oacli.types import Telemetry
 
 #: Cache the stage files read (module docstring); ``benchmarks/bench_outputs.py`` switches it off for the old path.
@@ -159,14 +160,16 @@ def read_stage_cached(path: Path, topics: Sequence[str] | None = None) -> StageR
 PARAMETERS: tuple[tuple[str, str], ...] = (
     ("mass_kg", "kg"), ("Ixx_kgm2", "kg·m²"), ("Iyy_kgm2", "kg·m²"), ("Izz_kgm2", "kg·m²"))
 
-#: The flights of the mission in the order they are flown (segment-3's baselines last).
-FLIGHTS: tuple[str, ...] = ("segment-1/track", "segment-2/track", *BASELINES)
+#: The flights a mission may fly, in the order they are flown (segment-3's baselines last, the optional
+#: unconstrained standard MPC of ``mission.unconstrained_baseline`` after them; a flight not flown is not read).
+FLIGHTS: tuple[str, ...] = ("segment-1/track", "segment-2/track", *SEGMENT3_LABELS)
 
-#: Flight labels for legends: segments 1 and 2 by their controller, segment 3 as in :data:`BASELINES`.
+#: Flight labels for legends: segments 1 and 2 by their controller, segment 3 as in
+#: :data:`oacli.mission.layout.FLIGHT_LABELS`.
 FLIGHT_LABELS: dict[str, str] = {
     "segment-1/track": "segment 1, standard MPC",
     "segment-2/track": "segment 2, tube MPC, prior",
-    **{key: f"segment 3, {label}" for key, label in BASELINES.items()},
+    **{key: f"segment 3, {label}" for key, label in SEGMENT3_LABELS.items()},
 }
 
 
@@ -509,7 +512,7 @@ def load_mission_records(mission_dir: Path, summary: dict[str, Any]) -> MissionR
         if flight is not None:
             flights[key] = flight
     paths = {}
-    for stage in MISSION_STAGES:
+    for stage in ALL_STAGES:
         if stage.command in ("plan", "smooth", "excite"):
             p = _path(mission_dir, stage.key, segment_offset(summary, stage.segment))
             if p is not None:
@@ -521,7 +524,7 @@ def load_mission_records(mission_dir: Path, summary: dict[str, Any]) -> MissionR
             estimates[key] = e
     truth = (summary.get("estimate") or {}).get("truth_theta")
     log: list[tuple[float, str, str]] = []
-    for stage in MISSION_STAGES:
+    for stage in ALL_STAGES:  # the optional stages' logs too, when flown
         path = stage.mcap(mission_dir)
         if path.is_file():
             offset = segment_offset(summary, stage.segment)
