@@ -77,6 +77,22 @@ def test_report_drawing_its_tracking_figure_imports_no_solver_nor_scipy(mission_
         (mission_run[0] / "plots" / "tracking_bands.png").read_bytes()
 
 
+def test_report_of_a_run_without_plots_draws_every_figure_without_the_estimators(mission_run, tmp_path):
+    """A campaign's run (``outputs.plots: none``): the report draws its three figures from the MCAPs, still without
+    scipy or the estimators (the flight's error figures are a constant of the plots, equal to the estimator's)."""
+    from oacli.estimation.rls import RATTLE_TABLE_ERROR_PCT
+    from oacli.mission.plots import FLIGHT_ERROR_PCT
+    from oacli.report.mission import FLIGHT_ERROR_PCT as REPORT_FLIGHT_ERROR_PCT
+
+    assert FLIGHT_ERROR_PCT == RATTLE_TABLE_ERROR_PCT == REPORT_FLIGHT_ERROR_PCT == (0.39, 0.91, 1.35, 6.92)
+    run = tmp_path / "run"
+    shutil.copytree(mission_run[0], run)
+    shutil.rmtree(run / "plots")
+    modules = imported(["report", str(run), "--out", str(tmp_path / "r.html"), "-q"])
+    assert "oacli.mission.plots" in modules and (tmp_path / "r.html").read_text().count("data:image/png") == 3
+    assert heavy(modules, (*NEVER, "oacli.sets")) == []
+
+
 def test_first_coordinate_range_is_the_polytope_support(rng):
     """Random bounded polygons (a random point set's hull, as inequalities with redundant and near-parallel rows)
     against :meth:`Polytope.support` (scipy's HalfspaceIntersection / linprog); unbounded and empty ones are

@@ -40,6 +40,12 @@ from oacli.io.plots.common import (
 from oacli.mission.layout import FLIGHT_LABELS, SEGMENTS
 from oacli.mission.records import PARAMETERS, MissionRecords, load_mission_records
 
+#: Relative estimation errors of the ReSWARM flight experiments [%] (issue 9; [ReSWARM2023] §6.3.1, the RATTLE
+#: table): mass, Ixx, Iyy, Izz. The same figures as :data:`oacli.estimation.rls.RATTLE_TABLE_ERROR_PCT` (a test holds
+#: them equal), written here so that drawing a mission's figures (``oacli report`` of a campaign run) does not import
+#: the estimators and scipy with them.
+FLIGHT_ERROR_PCT = (0.39, 0.91, 1.35, 6.92)
+
 #: Matplotlib colours of the flights (segment 3 as [Doerr2021] Fig. 3(d): green, cyan, magenta).
 FLIGHT_COLORS: dict[str, str] = {
     "segment-1/track": "tab:orange",
@@ -132,10 +138,6 @@ def plot_estimate_convergence(records: MissionRecords, path: Path) -> Path:
     Path
         ``path``.
     """
-    # the relative estimation errors of the ReSWARM flight experiments [%] (issue 9; [ReSWARM2023] §6.3.1): mass,
-    # Ixx, Iyy, Izz; imported here, not with the module (oacli report draws the tracking figure without the estimators)
-    from oacli.estimation.rls import RATTLE_TABLE_ERROR_PCT as FLIGHT_ERROR_PCT
-
     truth = records.truth_theta
     fig, axes = subplots(4, 2, figsize=(12, 11), sharex=True)
     for i, (param, unit) in enumerate(PARAMETERS):
