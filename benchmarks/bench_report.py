@@ -13,8 +13,8 @@ system of the child) each:
   runs first per seed.
 
 Every child runs as an installed oacli does: with its bytecode cached (both trees are byte-compiled first and
-``PYTHONDONTWRITEBYTECODE`` is dropped from the children's environment; with it set, every run compiles ~100 modules
-again, ~0.4 s of CPU that an installed package never spends).
+``PYTHONDONTWRITEBYTECODE`` is dropped from the children's environment; with it set and no ``__pycache__``, every
+run compiles the tree's modules again, ~0.1 s of CPU that an installed package never spends).
 
 Prints per seed and the medians, each report's time as a percentage of the mission's (wall and CPU) and, with a
 compared tree, the new/old ratios. The machine's load inflates wall times; the CPU columns are the steadier figure.
