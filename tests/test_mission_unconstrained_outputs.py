@@ -1,6 +1,7 @@
 """A mission with ``mission.unconstrained_baseline`` (the study presets' Fig. 3(d) missions) shows its fourth
 segment-3 flight, the standard MPC without workspace constraints, wherever the other two baselines appear: in
-``mission.mcap``, ``mission.rrd``, the mission's tracking-error plot, and ``report.html`` (its table and its
+``mission.mcap`` (and the shipped Foxglove layout), ``mission.rrd``, the mission's tracking-error plot, and
+``report.html`` (its table and its
 tracking figure); each read back from the files.
 
 Cheap: the shrunk default mission of ``conftest.mission_run`` is copied with the option switched on in its
@@ -97,6 +98,20 @@ def test_mission_mcap_holds_the_flight_on_the_mission_clock(unconstrained):
         assert sorted(mission_times[topic]) == sorted(t + start_ns for t in times), topic
     offsets = json.loads(info["offsets_s"])
     assert offsets[KEY] == offsets["segment-3/baseline-mpc-prior"] == summary["segments"]["segment-3"]["start_time_s"]
+
+
+def test_the_shipped_foxglove_layout_shows_the_flight(unconstrained):
+    """docs/foxglove/mission.json names the flight's scene, pose, position and force; all of them, and every other
+    name of the layout, are in this mission's ``mission.mcap``."""
+    from tests.test_foxglove_layouts import DOCS, _first_messages, check_layout
+
+    _, run = unconstrained
+    layout = json.loads((DOCS / "mission.json").read_text())
+    text = json.dumps(layout)
+    for name in (f"/{KEY}/scene", f"/{KEY}/robot/pose", f"/{KEY}/state/true.position[0]",
+                 f"/{KEY}/control/applied.force[2]"):
+        assert f'"{name}"' in text, name
+    check_layout("mission", layout, _first_messages(run / "mission.mcap"))
 
 
 def test_mission_rrd_shows_the_flight_beside_the_baselines(unconstrained):

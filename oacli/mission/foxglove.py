@@ -122,11 +122,11 @@ def write_mission_mcap(mission_dir: Path, summary: dict[str, Any], path: Path | 
 
 def mission_layout() -> dict[str, Any]:
     """The layout of ``mission.mcap``: every stage's ``/scene`` in one 3D panel, the flights' positions and forces,
-    the two mass estimates and the merged log, on the mission clock (the default mission's stages: the optional
-    unconstrained baseline's topics, in ``mission.mcap`` when it flew, are not named in the shipped layout)."""
-    scenes = [f"/{s.key}/scene" for s in MISSION_STAGES]
-    poses = [f"/{s.key}/robot/pose" for s in MISSION_STAGES if s.command == "track"]
-    flights = [s.key for s in MISSION_STAGES if s.command == "track"]
+    the two mass estimates and the merged log, on the mission clock. Every stage a mission may fly is named (the
+    optional unconstrained baseline's series stay empty in a mission that did not fly it)."""
+    scenes = [f"/{s.key}/scene" for s in ALL_STAGES]
+    poses = [f"/{s.key}/robot/pose" for s in ALL_STAGES if s.command == "track"]
+    flights = [s.key for s in ALL_STAGES if s.command == "track"]
     panels: dict[str, dict[str, Any]] = {
         "3D!mission": three_d_panel(scenes, poses),
         "Plot!position": plot_panel("true position [m] of every flight", [
