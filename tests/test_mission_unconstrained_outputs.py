@@ -32,7 +32,7 @@ from oacli.mission.layout import BASELINES, FLIGHT_LABELS, UNCONSTRAINED_BASELIN
 from oacli.report.build import fmt
 
 KEY = UNCONSTRAINED_BASELINE
-RED = np.array([214, 39, 40])  # matplotlib's tab:red, the flight's colour in the PNGs
+OLIVE = np.array([188, 189, 34])  # matplotlib's tab:olive, the flight's colour in the PNGs
 
 
 @pytest.fixture(scope="module")
@@ -53,12 +53,12 @@ def unconstrained(mission_run, tmp_path_factory) -> tuple[Path, Path]:
     return source, run
 
 
-def _red_pixels(png: bytes) -> int:
-    """Pixels within a small distance of tab:red (anti-aliased line centres keep the colour)."""
+def _olive_pixels(png: bytes) -> int:
+    """Pixels within a small distance of tab:olive (anti-aliased line centres keep the colour)."""
     from PIL import Image
 
     rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)
-    return int((np.abs(rgb - RED).max(axis=2) <= 12).sum())
+    return int((np.abs(rgb - OLIVE).max(axis=2) <= 12).sum())
 
 
 def test_the_flight_flew_and_is_in_the_summary(unconstrained):
@@ -133,20 +133,20 @@ def test_mission_rrd_shows_the_flight_beside_the_baselines(unconstrained):
     assert {f"world/{KEY}/actual", f"world/{KEY}/robot"} <= entities
     assert f"world/{KEY}/tube" not in entities  # standard MPC: no tube
     names = [v["name"] or "" for v in read_blueprint_views(rrd) if v["class"] == "3D"]
-    assert any(f"{FLIGHT_LABELS[KEY]} (red)" in n for n in names), names
+    assert any(f"{FLIGHT_LABELS[KEY]} (olive)" in n for n in names), names
     # the default mission's recording does not name a flight it did not fly
     assert f"metrics/position_error/{KEY}" not in read_recording_scalars(source / "mission.rrd")
-    assert not any("(red)" in (v["name"] or "") for v in read_blueprint_views(source / "mission.rrd"))
+    assert not any("(olive)" in (v["name"] or "") for v in read_blueprint_views(source / "mission.rrd"))
 
 
 def test_plots_and_report_show_the_flight(unconstrained):
     source, run = unconstrained
     summary = json.loads((run / "summary.json").read_text())
-    # the tracking-error plot: the red line of the new flight (none in the default mission's)
+    # the tracking-error plot: the olive line of the new flight (none in the default mission's)
     rel = summary["files"]["plots"]["tracking_error"]
-    assert _red_pixels((run / rel).read_bytes()) > 200
-    assert _red_pixels((source / rel).read_bytes()) == 0
-    # the report: the comparison table's fourth row with its figures, and the red line in its tracking figure
+    assert _olive_pixels((run / rel).read_bytes()) > 200
+    assert _olive_pixels((source / rel).read_bytes()) == 0
+    # the report: the comparison table's fourth row with its figures, and the olive line in its tracking figure
     text = (run / "report.html").read_text()
     assert "Segment 3 flown 4 ways" in text
     row = summary["comparison"][KEY]
@@ -157,6 +157,6 @@ def test_plots_and_report_show_the_flight(unconstrained):
            f"<td>{fmt(1e3 * row['overshoot_m'])}</td>" in table
     pngs = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
     tracking = base64.b64decode(pngs[0])  # the tube-band figure comes first
-    assert _red_pixels(tracking) > 200
-    assert _red_pixels(base64.b64decode(re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"',
+    assert _olive_pixels(tracking) > 200
+    assert _olive_pixels(base64.b64decode(re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"',
                                                    (source / "report.html").read_text())[0])) == 0

@@ -126,7 +126,7 @@ UNCONSTRAINED_BASELINE = "segment-3/baseline-mpc-unconstrained-prior"
 """The optional fourth segment-3 flight (``mission.unconstrained_baseline``): standard MPC on the prior without
 ``controller.position_constraints``, as [Doerr2021]'s standard MPC ("can lead to collisions"); a study flies it
 beside the constrained one in the same mission instead of doubling its missions. Drawn and recorded with the other
-segment-3 flights when flown (red)."""
+segment-3 flights when flown (olive)."""
 
 FLIGHT_LABELS: dict[str, str] = {**BASELINES, UNCONSTRAINED_BASELINE: "standard MPC, prior, no workspace constraints"}
 """Labels of every segment-3 flight a mission may fly, in the order they fly (:data:`BASELINES`, then the optional

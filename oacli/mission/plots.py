@@ -4,7 +4,7 @@
 
 * ``tracking_error.png`` -- position error ‖r − r_ref‖ [m] over mission time, one panel per segment; segment 3
   with the three flights of :data:`oacli.mission.layout.BASELINES` ([Doerr2021] Fig. 3(d)) and, when flown, the
-  unconstrained standard MPC (``mission.unconstrained_baseline``, red);
+  unconstrained standard MPC (``mission.unconstrained_baseline``, olive: red is the keep-out zones);
 * ``estimate_convergence.png`` -- mass and the three principal inertias over mission time with ± 2σ bands and the
   truth (dashed), and the estimate's error and 2σ relative to the truth on a log scale against the ReSWARM flight
   figures (mass 0.39 %, inertias 0.91 / 1.35 / 6.92 %);
@@ -53,7 +53,7 @@ FLIGHT_COLORS: dict[str, str] = {
     "segment-3/track": "tab:green",
     "segment-3/baseline-mpc-prior": "tab:cyan",
     "segment-3/baseline-tube-prior": "m",
-    "segment-3/baseline-mpc-unconstrained-prior": "tab:red",
+    "segment-3/baseline-mpc-unconstrained-prior": "tab:olive",
 }
 _SEGMENT_COLORS = {"segment-1": "tab:orange", "segment-2": "tab:brown", "segment-3": "tab:green"}
 _METHOD_COLORS = {"sequential": "tab:blue", "batch": "tab:orange"}

@@ -72,11 +72,12 @@ FLIGHT_COLORS: dict[str, tuple[int, int, int, int]] = {
     "segment-3/track": (40, 180, 60, 255),
     "segment-3/baseline-mpc-prior": (30, 200, 230, 255),
     "segment-3/baseline-tube-prior": (220, 50, 220, 255),
-    "segment-3/baseline-mpc-unconstrained-prior": (230, 40, 40, 255),
+    "segment-3/baseline-mpc-unconstrained-prior": (188, 189, 34, 255),
 }
 #: The segment-3 flights' colours by name, for the 3-D tab's title (the unconstrained one only when flown).
 SEGMENT3_COLOR_NAMES = {"segment-3/track": "green", "segment-3/baseline-mpc-prior": "cyan",
-                        "segment-3/baseline-tube-prior": "magenta", "segment-3/baseline-mpc-unconstrained-prior": "red"}
+                        "segment-3/baseline-tube-prior": "magenta",
+                        "segment-3/baseline-mpc-unconstrained-prior": "olive"}
 _PATH_COLORS = {"plan": (150, 150, 255, 255), "smooth": (60, 110, 230, 255), "excite": (120, 60, 200, 255)}
 _TREE_COLOR = (160, 160, 160, 110)
 _WAYPOINT_COLOR = (250, 250, 250, 255)
