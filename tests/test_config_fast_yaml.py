@@ -87,13 +87,26 @@ def _nodes_document(extra: int) -> str:
 
 
 def test_the_node_count_counts_aliases_like_the_composer():
-    """At the cap the document loads by both loaders; one node over, both refuse it (the same count)."""
+    """At the cap the composed document passes the check and the pure-Python loader loads it; one node over, the
+    check fails and that loader refuses it (the same count)."""
     at_cap, over = _nodes_document(0), _nodes_document(1)
-    fast, slow = both(at_cap)
-    assert fast is not config._FAST_FAILED and fast == slow
-    assert config._load_fast(over) is config._FAST_FAILED
+    compose = config._CStrictSafeLoader
+    assert config._within_size_caps(yaml.compose(at_cap, Loader=compose)) is True
+    assert config._within_size_caps(yaml.compose(over, Loader=compose)) is False
+    assert config._parse_yaml(at_cap, "t.yaml") == yaml.load(at_cap, Loader=config._StrictSafeLoader)
     with pytest.raises(ConfigError, match="MAX_CONFIG_NODES"):
         config._parse_yaml(over, "t.yaml")
+
+
+def test_a_huge_document_goes_straight_to_the_strict_loader():
+    """More separators than FAST_PATH_MAX_SEPARATORS: libyaml does not compose it (the pure-Python loader refuses a
+    half-million-item list after 1000 items instead of libyaml building it first)."""
+    huge = "a: [" + ",".join(["0"] * 500_000) + "]\n"
+    assert config._load_fast(huge) is config._FAST_FAILED
+    small = "a: [" + ",".join(["0"] * 999) + "]\n"
+    assert config._load_fast(small) == {"a": [0] * 999}
+    with pytest.raises(ConfigError, match="MAX_CONFIG_LIST_ITEMS"):
+        config._parse_yaml(huge, "t.yaml")
 
 
 scalars = st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=8)

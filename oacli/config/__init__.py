@@ -400,12 +400,19 @@ def _within_size_caps(root: yaml.Node) -> bool:
 
 _FAST_FAILED = object()
 
+FAST_PATH_MAX_SEPARATORS = 20_000
+"""Documents with more commas and line breaks than this go straight to the pure-Python loader: libyaml composes the
+whole document before the size caps are checked (a 1 MiB list of half a million items: 2 s), where the pure-Python
+loader refuses it after :data:`oacli.config.sizes.MAX_CONFIG_LIST_ITEMS` items (the shipped configs: ~300 lines)."""
+
 
 def _load_fast(text: str) -> Any:
     """The document through :class:`_CStrictSafeLoader`, or :data:`_FAST_FAILED` when libyaml is missing, the text
     is not a valid config document for it, or it breaks a size cap (then :func:`_parse_yaml` parses it with the
     pure-Python loader, which gives the one-line error the user sees: the same message either way)."""
     if _CStrictSafeLoader is None:  # pragma: no cover - PyYAML built without libyaml
+        return _FAST_FAILED
+    if text.count(",") + text.count("\n") > FAST_PATH_MAX_SEPARATORS:
         return _FAST_FAILED
     loader = _CStrictSafeLoader(text)
     try:
