@@ -8,12 +8,16 @@ system of the child) each:
   (what a campaign run, written without a page, costs);
 * ``warm``: the same command again: the figure the first report left in ``plots/`` is inlined (what ``oacli
   report`` of a mission that wrote its page costs, the mission's default);
-* with ``--compare-tree DIR``, ``old``: the report of another oacli checkout (e.g. ``git -C /work/main archive HEAD
-  | tar -x -C /tmp/base``) on the same folder, its cache removed first; ``old`` and ``cold`` alternate which runs
-  first per seed.
+* with ``--compare-tree DIR``, ``old-cold`` and ``old-warm``: the same two reports by another oacli checkout
+  (e.g. ``git -C /work/main archive HEAD | tar -x -C /tmp/base``) on the same folder; the two trees alternate which
+  runs first per seed.
 
-Prints per seed and the medians, each report's time as a percentage of the mission's (wall and CPU). The machine's
-load inflates wall times; the CPU columns are the steadier figure.
+Every child runs as an installed oacli does: with its bytecode cached (both trees are byte-compiled first and
+``PYTHONDONTWRITEBYTECODE`` is dropped from the children's environment; with it set and no ``__pycache__``, every
+run compiles the tree's modules again, ~0.1 s of CPU that an installed package never spends).
+
+Prints per seed and the medians, each report's time as a percentage of the mission's (wall and CPU) and, with a
+compared tree, the new/old ratios. The machine's load inflates wall times; the CPU columns are the steadier figure.
 
 Run: ``nice -n 10 python benchmarks/bench_report.py [--seeds 3] [--compare-tree /tmp/base]``
 """
@@ -37,6 +41,7 @@ CACHE = Path("plots") / "tracking_bands.png"
 def timed(cmd: list[str], tree: Path) -> tuple[float, float]:
     """Wall and CPU (user + system of the child) seconds of ``cmd`` run with ``tree`` first on the path."""
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)  # as installed: bytecode cached (module docstring)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     subprocess.run(cmd, cwd=tree, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -56,9 +61,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--config", type=Path, default=ROOT / "configs" / "mission_iss.yaml")
-    parser.add_argument("--compare-tree", type=Path, help="another oacli checkout: its report as the 'old' side")
+    parser.add_argument("--compare-tree", type=Path, help="another oacli checkout: its reports as the 'old' side")
     args = parser.parse_args()
-    rows: dict[str, list[tuple[float, float]]] = {"mission": [], "cold": [], "warm": [], "old": []}
+    trees = [ROOT] + ([args.compare_tree.resolve()] if args.compare_tree else [])
+    for tree in trees:  # bytecode as an installed package has it (module docstring)
+        subprocess.run([sys.executable, "-m", "compileall", "-q", str(tree / "oacli")], check=True,
+                       stdout=subprocess.DEVNULL)
+    rows: dict[str, list[tuple[float, float]]] = {"mission": [], "cold": [], "warm": [], "old-cold": [],
+                                                  "old-warm": []}
     with tempfile.TemporaryDirectory(prefix="bench-report-") as tmp:
         for i in range(args.seeds):
             seed = i + 1
@@ -66,12 +76,12 @@ def main() -> None:
             rows["mission"].append(timed([sys.executable, "-m", "oacli", "mission", str(args.config), "--seed",
                                           str(seed), "--set", "outputs.report=false", "--out", str(mission), "-q"],
                                          ROOT))
-            sides = [("cold", ROOT)] + ([("old", args.compare_tree)] if args.compare_tree else [])
-            for name, tree in (sides if i % 2 == 0 else sides[::-1]):  # alternate which side runs first
-                rows[name].append(report(tree, mission, Path(tmp) / f"{name}-{seed}.html", clear=True))
-            if args.compare_tree:  # the new side's cache: its own cold run leaves it (the old side's removed it)
-                report(ROOT, mission, Path(tmp) / f"prime-{seed}.html", clear=True)
-            rows["warm"].append(report(ROOT, mission, Path(tmp) / f"warm-{seed}.html", clear=False))
+            sides = [("", ROOT)] + ([("old-", args.compare_tree.resolve())] if args.compare_tree else [])
+            for prefix, tree in (sides if i % 2 == 0 else sides[::-1]):  # alternate which side runs first
+                rows[prefix + "cold"].append(report(tree, mission, Path(tmp) / f"{prefix}cold-{seed}.html",
+                                                    clear=True))
+                rows[prefix + "warm"].append(report(tree, mission, Path(tmp) / f"{prefix}warm-{seed}.html",
+                                                    clear=False))
             m = rows["mission"][-1]
             print(f"seed {seed}: mission {m[0]:.1f} s wall, {m[1]:.1f} s CPU; " + "; ".join(
                 f"{k} {v[-1][0]:.2f} s ({100 * v[-1][0] / m[0]:.1f} %) wall, {v[-1][1]:.2f} s "
@@ -82,6 +92,10 @@ def main() -> None:
     for k, (w, c) in med.items():
         if k != "mission":
             print(f"  report {k}: {w:.2f} s wall ({100 * w / m[0]:.1f} %), {c:.2f} s CPU ({100 * c / m[1]:.1f} %)")
+    for case in ("cold", "warm"):
+        if f"old-{case}" in med:
+            (w, c), (wo, co) = med[case], med[f"old-{case}"]
+            print(f"  {case}: new / old = {w / wo:.2f} wall, {c / co:.2f} CPU")
 
 
 if __name__ == "__main__":

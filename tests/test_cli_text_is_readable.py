@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 from oacli.cli import app
 from oacli.commands.mission import WARNING_WIDTH, warning_lines
 from oacli.io.mcap_write import StageMcapWriter
-from oacli.mission.layout import MISSION_STAGES
+from oacli.mission.layout import ALL_STAGES
 
 runner = CliRunner()
 
@@ -54,9 +54,10 @@ def test_from_completes_the_mission_stage_names():
     (option,) = [p for p in mission.params if "--from" in getattr(p, "opts", ())]
     ctx = click.Context(mission)
     offered = [item.value for item in option.shell_complete(ctx, "segment-3/b")]
-    assert offered == ["segment-3/baseline-mpc-prior", "segment-3/baseline-tube-prior"]
+    assert offered == ["segment-3/baseline-mpc-prior", "segment-3/baseline-tube-prior",
+                       "segment-3/baseline-mpc-unconstrained-prior"]  # the optional one too (a study's missions)
     every = [item.value for item in option.shell_complete(ctx, "")]
-    assert every == [s.key for s in MISSION_STAGES]
+    assert every == [s.key for s in ALL_STAGES]
 
 
 def _small_mcap(path):

@@ -15,7 +15,6 @@ from typing import Annotated, Any
 import typer
 
 from oacli.commands.progress import Progress
-from oacli.config.overrides import apply_overrides
 from oacli.errors import ConfigError, OacliError
 from oacli.signals import (
     delivered,
@@ -26,7 +25,10 @@ from oacli.signals import (
     terminate_like_interrupt,
 )
 
-__all__ = ["Progress", "apply_overrides"]  # re-exported: the commands import them from here
+__all__ = ["Progress"]  # re-exported: the commands import it from here
+
+# Nothing heavy is imported at module level (oacli.config and its pydantic models, numpy, rich): `oacli --help` and
+# `oacli report` import every command module; a command imports what it needs when it runs.
 
 # Options every stage command shares (``Annotated`` aliases: ``out: OutOption = None``). Metavars name what a
 # value is (CONFIG, DIR, FILE, INT); flags show none (:func:`hide_flag_types`).
@@ -155,6 +157,7 @@ def load_config_with_seed(config: Path, seed: int | None, sets: list[str] | None
     import os
 
     from oacli.config import config_from_dict, load_config
+    from oacli.config.overrides import apply_overrides
 
     cfg = load_config(config)
     if sets:

@@ -75,9 +75,9 @@ def print_mission_tables(summary: dict[str, Any]) -> None:
 def complete_stage(incomplete: str) -> list[str]:
     """Shell completion of ``--from``: the mission's stage keys (``segment-3/track``, ...) starting with what was
     typed."""
-    from oacli.mission.layout import MISSION_STAGES
+    from oacli.mission.layout import ALL_STAGES
 
-    return [s.key for s in MISSION_STAGES if s.key.startswith(incomplete)]
+    return [s.key for s in ALL_STAGES if s.key.startswith(incomplete)]
 
 
 #: Width of the mission's final warning lines (wrapped, one finding a line).

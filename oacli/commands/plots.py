@@ -22,16 +22,16 @@ MISSION_PLOTS = "mission"
 def _draw_mission(run_dir: Path, summary: dict, keys: list[str] | None, out: Path | None) -> dict[str, dict]:
     from oacli.errors import InputError
     from oacli.io.runfolder import is_complete
-    from oacli.mission.layout import MISSION_STAGES
+    from oacli.mission.layout import ALL_STAGES
     from oacli.mission.plots import write_mission_plots
     from oacli.stages.replot import draw_stage
 
-    known = [s.key for s in MISSION_STAGES] + [MISSION_PLOTS]
+    known = [s.key for s in ALL_STAGES] + [MISSION_PLOTS]
     for key in keys or ():
         if key not in known:
             raise InputError(f"--stage: {key}: not a mission stage; one of {', '.join(known)}")
     written: dict[str, dict] = {}
-    for stage in MISSION_STAGES:
+    for stage in ALL_STAGES:  # an optional stage the mission did not fly has no folder: skipped silently
         if keys and stage.key not in keys:
             continue
         folder = stage.folder(run_dir)
@@ -45,7 +45,7 @@ def _draw_mission(run_dir: Path, summary: dict, keys: list[str] | None, out: Pat
         if not is_complete(run_dir):
             typer.echo(f"warning: mission plots skipped: the mission did not finish (status {summary.get('status')})",
                        err=True)
-        elif missing := [s.key for s in MISSION_STAGES if s.key in summary.get("stages", {})
+        elif missing := [s.key for s in ALL_STAGES if s.key in summary.get("stages", {})
                          and not is_complete(s.folder(run_dir))]:
             typer.echo(f"warning: mission plots skipped: stage folder {missing[0]} is not complete (emptied or "
                        f"damaged since the mission ran){f' (and {len(missing) - 1} more)' if len(missing) > 1 else ''}",

@@ -13,17 +13,11 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import TYPE_CHECKING
 
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    TaskID,
-    TaskProgressColumn,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
-from rich.progress import Progress as RichProgress
+if TYPE_CHECKING:  # rich is imported when a bar is drawn (a terminal), not with every command
+    from rich.progress import Progress as RichProgress
+    from rich.progress import TaskID
 
 
 class Progress:
@@ -68,6 +62,16 @@ class Progress:
         fraction = min(max(float(fraction), 0.0), 1.0)
         if self.tty:
             if self._bar is None:
+                from rich.console import Console
+                from rich.progress import (
+                    BarColumn,
+                    TaskProgressColumn,
+                    TextColumn,
+                    TimeElapsedColumn,
+                    TimeRemainingColumn,
+                )
+                from rich.progress import Progress as RichProgress
+
                 self._bar = RichProgress(
                     TextColumn("{task.description}"), BarColumn(), TaskProgressColumn(), TimeElapsedColumn(),
                     TextColumn("ETA"), TimeRemainingColumn(), console=Console(stderr=True), transient=False,
@@ -151,6 +155,10 @@ class CampaignProgress:
         self.done, self.total = int(done), int(total)
         if self.tty:
             if self._bar is None:
+                from rich.console import Console
+                from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
+                from rich.progress import Progress as RichProgress
+
                 self._bar = RichProgress(
                     TextColumn("campaign"), BarColumn(), TextColumn("{task.fields[runs]}"), TimeElapsedColumn(),
                     TextColumn("ETA {task.fields[eta]}"), console=Console(stderr=True), transient=False,

@@ -33,7 +33,7 @@ from oacli.io.foxglove_layouts import (
     stage_layouts,
     three_d_panel,
 )
-from oacli.mission.layout import MISSION_STAGES
+from oacli.mission.layout import ALL_STAGES, MISSION_STAGES
 
 #: Chunk size of ``mission.mcap`` [bytes, uncompressed], as the stage files'
 #: (:data:`oacli.io.mcap_write.DEFAULT_CHUNK_SIZE`).
@@ -45,7 +45,7 @@ _XYZ = ("x", "y", "z")
 def stage_offsets(summary: dict[str, Any]) -> dict[str, float]:
     """Mission time [s] at which each stage's clock starts: its segment's ``start_time_s``."""
     segments = summary.get("segments", {})
-    return {s.key: float(segments.get(s.segment, {}).get("start_time_s", 0.0)) for s in MISSION_STAGES}
+    return {s.key: float(segments.get(s.segment, {}).get("start_time_s", 0.0)) for s in ALL_STAGES}
 
 
 def write_mission_mcap(mission_dir: Path, summary: dict[str, Any], path: Path | None = None) -> Path:
@@ -72,7 +72,7 @@ def write_mission_mcap(mission_dir: Path, summary: dict[str, Any], path: Path | 
     channel_index: dict[tuple[str, str], int] = {}
     publish: list[int] = []
     frame = FRAME
-    for stage in MISSION_STAGES:
+    for stage in ALL_STAGES:  # an optional stage (segment-3/baseline-mpc-unconstrained-prior) when it flew
         source = stage.mcap(mission_dir)
         if not source.is_file():
             continue
@@ -94,6 +94,7 @@ def write_mission_mcap(mission_dir: Path, summary: dict[str, Any], path: Path | 
                     channels.append((topic, channel.message_encoding, schema_key, {**channel.metadata, **extra}))
                 messages.append((message.log_time + shift, len(messages), index, bytes(message.data)))
                 publish.append(message.publish_time + shift)
+    listed = {s.key for s in MISSION_STAGES} | {s.key for s in ALL_STAGES if s.mcap(mission_dir).is_file()}
     messages.sort(key=lambda m: (m[0], m[1]))
     config = (mission_dir / "config.yaml").read_bytes() if (mission_dir / "config.yaml").is_file() else b""
     with atomic_file(out) as handle:
@@ -110,7 +111,7 @@ def write_mission_mcap(mission_dir: Path, summary: dict[str, Any], path: Path | 
             "version": oacli.__version__, "stage": "mission", "name": str(summary.get("name", "")),
             "seed": str(summary.get("seed", "unknown")), "frame": frame, "contract_version": str(ms.CONTRACT_VERSION),
             "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "offsets_s": json.dumps({k: v for k, v in offsets.items()})})
+            "offsets_s": json.dumps({k: v for k, v in offsets.items() if k in listed})})
         writer.add_attachment(create_time=time.time_ns(), log_time=0, name=ms.CONFIG_ATTACHMENT,
                               media_type=ms.CONFIG_MEDIA_TYPE, data=config)
         for log_time, order, index, data in messages:
@@ -121,10 +122,11 @@ def write_mission_mcap(mission_dir: Path, summary: dict[str, Any], path: Path | 
 
 def mission_layout() -> dict[str, Any]:
     """The layout of ``mission.mcap``: every stage's ``/scene`` in one 3D panel, the flights' positions and forces,
-    the two mass estimates and the merged log, on the mission clock."""
-    scenes = [f"/{s.key}/scene" for s in MISSION_STAGES]
-    poses = [f"/{s.key}/robot/pose" for s in MISSION_STAGES if s.command == "track"]
-    flights = [s.key for s in MISSION_STAGES if s.command == "track"]
+    the two mass estimates and the merged log, on the mission clock. Every stage a mission may fly is named (the
+    optional unconstrained baseline's series stay empty in a mission that did not fly it)."""
+    scenes = [f"/{s.key}/scene" for s in ALL_STAGES]
+    poses = [f"/{s.key}/robot/pose" for s in ALL_STAGES if s.command == "track"]
+    flights = [s.key for s in ALL_STAGES if s.command == "track"]
     panels: dict[str, dict[str, Any]] = {
         "3D!mission": three_d_panel(scenes, poses),
         "Plot!position": plot_panel("true position [m] of every flight", [

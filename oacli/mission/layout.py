@@ -105,8 +105,9 @@ MISSION_STAGES: tuple[MissionStage, ...] = (
 OPTIONAL_STAGES: tuple[MissionStage, ...] = (
     MissionStage("segment-3", "baseline-mpc-unconstrained-prior", "track"),
 )
-"""Stages a mission flies only when asked (``mission.unconstrained_baseline``), after :data:`MISSION_STAGES`; not
-in ``mission.mcap``, ``mission.rrd`` or the mission's plots (their folders are ordinary ``track`` folders)."""
+"""Stages a mission flies only when asked (``mission.unconstrained_baseline``), after :data:`MISSION_STAGES`; when
+flown, in ``mission.mcap``, ``mission.rrd``, the mission's plots and its report beside the other baselines (their
+folders are ordinary ``track`` folders)."""
 
 ALL_STAGES: tuple[MissionStage, ...] = MISSION_STAGES + OPTIONAL_STAGES
 """Every stage a mission may run, in order (a stage's seed is drawn from its index here)."""
@@ -124,10 +125,12 @@ BASELINES: dict[str, str] = {
 UNCONSTRAINED_BASELINE = "segment-3/baseline-mpc-unconstrained-prior"
 """The optional fourth segment-3 flight (``mission.unconstrained_baseline``): standard MPC on the prior without
 ``controller.position_constraints``, as [Doerr2021]'s standard MPC ("can lead to collisions"); a study flies it
-beside the constrained one in the same mission instead of doubling its missions. Not drawn in the plots."""
+beside the constrained one in the same mission instead of doubling its missions. Drawn and recorded with the other
+segment-3 flights when flown (olive)."""
 
 FLIGHT_LABELS: dict[str, str] = {**BASELINES, UNCONSTRAINED_BASELINE: "standard MPC, prior, no workspace constraints"}
-"""Labels of every segment-3 flight a mission may fly."""
+"""Labels of every segment-3 flight a mission may fly, in the order they fly (:data:`BASELINES`, then the optional
+unconstrained one)."""
 
 
 def stage_by_key(key: str) -> MissionStage:

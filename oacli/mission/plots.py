@@ -3,7 +3,8 @@
 ``mission_dir/plots/``:
 
 * ``tracking_error.png`` -- position error ‖r − r_ref‖ [m] over mission time, one panel per segment; segment 3
-  with the three flights of :data:`oacli.mission.layout.BASELINES` ([Doerr2021] Fig. 3(d));
+  with the three flights of :data:`oacli.mission.layout.BASELINES` ([Doerr2021] Fig. 3(d)) and, when flown, the
+  unconstrained standard MPC (``mission.unconstrained_baseline``, olive: red is the keep-out zones);
 * ``estimate_convergence.png`` -- mass and the three principal inertias over mission time with ± 2σ bands and the
   truth (dashed), and the estimate's error and 2σ relative to the truth on a log scale against the ReSWARM flight
   figures (mass 0.39 %, inertias 0.91 / 1.35 / 6.92 %);
@@ -26,7 +27,6 @@ matplotlib.use("Agg", force=True)
 
 import numpy as np
 
-from oacli.estimation.rls import RATTLE_TABLE_ERROR_PCT
 from oacli.io.plots.common import (
     AXES,
     decimate,
@@ -37,12 +37,14 @@ from oacli.io.plots.common import (
     spans_decades,
     subplots,
 )
-from oacli.mission.layout import BASELINES, SEGMENTS
+from oacli.mission.layout import FLIGHT_LABELS, SEGMENTS
 from oacli.mission.records import PARAMETERS, MissionRecords, load_mission_records
 
-#: Relative estimation errors of the ReSWARM flight experiments [%] (issue 9; [ReSWARM2023] §6.3.1): mass, Ixx,
-#: Iyy, Izz.
-FLIGHT_ERROR_PCT = RATTLE_TABLE_ERROR_PCT
+#: Relative estimation errors of the ReSWARM flight experiments [%] (issue 9; [ReSWARM2023] §6.3.1, the RATTLE
+#: table): mass, Ixx, Iyy, Izz. The same figures as :data:`oacli.estimation.rls.RATTLE_TABLE_ERROR_PCT` (a test holds
+#: them equal), written here so that drawing a mission's figures (``oacli report`` of a campaign run) does not import
+#: the estimators and scipy with them.
+FLIGHT_ERROR_PCT = (0.39, 0.91, 1.35, 6.92)
 
 #: Matplotlib colours of the flights (segment 3 as [Doerr2021] Fig. 3(d): green, cyan, magenta).
 FLIGHT_COLORS: dict[str, str] = {
@@ -51,6 +53,7 @@ FLIGHT_COLORS: dict[str, str] = {
     "segment-3/track": "tab:green",
     "segment-3/baseline-mpc-prior": "tab:cyan",
     "segment-3/baseline-tube-prior": "m",
+    "segment-3/baseline-mpc-unconstrained-prior": "tab:olive",
 }
 _SEGMENT_COLORS = {"segment-1": "tab:orange", "segment-2": "tab:brown", "segment-3": "tab:green"}
 _METHOD_COLORS = {"sequential": "tab:blue", "batch": "tab:orange"}
@@ -80,7 +83,7 @@ def plot_tracking_error(records: MissionRecords, path: Path) -> Path:
         flights = [f for f in records.flights.values() if f.key.startswith(seg + "/") and f.t_ctrl.size]
         for f in flights:
             rms = float(np.sqrt(np.mean(f.position_error_m**2)))
-            label = BASELINES.get(f.key, f.label) + f" (RMS {1e3 * rms:.1f} mm)"
+            label = FLIGHT_LABELS.get(f.key, f.label) + f" (RMS {1e3 * rms:.1f} mm)"
             ax.plot(*decimate(f.t_ctrl, f.position_error_m), color=FLIGHT_COLORS.get(f.key), lw=1.3, label=label)
         info = records.segments.get(seg, {})
         ax.set_title(f"{seg}: {info.get('from', '?')} → {info.get('to', '?')}", loc="left", fontsize="medium")
@@ -271,7 +274,8 @@ def _path_view(ax: Any, records: MissionRecords, axes: tuple[int, int], lower: n
         ax.plot(*decimate(p.positions_m[:, i], p.positions_m[:, j]), ls=ls, lw=lw,
                 color=_SEGMENT_COLORS.get(seg, "0.4"), alpha=0.8, label=f"{seg} {what}")
     for key, f in records.flights.items():
-        label = f"{key.split('/')[0]} flown" if key not in BASELINES else f"segment 3 flown: {BASELINES[key]}"
+        label = (f"{key.split('/')[0]} flown" if key not in FLIGHT_LABELS
+                 else f"segment 3 flown: {FLIGHT_LABELS[key]}")
         width = {"segment-3/track": 3.0, "segment-3/baseline-mpc-prior": 2.0}.get(key, 1.2)  # overlaid: widest under
         ax.plot(*decimate(f.x_true[:, i], f.x_true[:, j]), lw=width, color=FLIGHT_COLORS.get(key), label=label)
     span = float(max(upper[i] - lower[i], upper[j] - lower[j]))

@@ -5,7 +5,8 @@ shifts it by its segment's ``start_time_s``. Application id ``oacli-mission``: t
 layout apart from the stage recordings' (blueprints are stored per application id).
 
 Entities (a fixed contract; tests read them back). ``<flight>`` is a track folder's key (``segment-1/track``,
-``segment-2/track``, ``segment-3/track``, ``segment-3/baseline-mpc-prior``, ``segment-3/baseline-tube-prior``):
+``segment-2/track``, ``segment-3/track``, ``segment-3/baseline-mpc-prior``, ``segment-3/baseline-tube-prior`` and,
+when the mission flew it (``mission.unconstrained_baseline``), ``segment-3/baseline-mpc-unconstrained-prior``):
 
 * ``world/keep_in``, ``world/keep_out`` (static scene), ``world/waypoints`` (A, B, C; static);
 * ``world/<segment>/plan/tree`` and ``world/<segment>/plan/path`` (the planner's tree and plan),
@@ -19,7 +20,7 @@ Entities (a fixed contract; tests read them back). ``<flight>`` is a track folde
 * ``metrics/position_error/<flight>`` -- ‖r − r_ref‖ [m] of every flight;
 * ``metrics/force_N`` and ``metrics/torque_Nm`` -- applied input per axis of the main flight (segments 1, 2 and
   segment-3's tube MPC with estimate), with ``limit_upper``/``limit_lower`` children (the limit of each flight);
-* ``metrics/force_fraction/<flight>`` -- max over axes of |f_i| / f_limit_i of the three segment-3 flights, with
+* ``metrics/force_fraction/<flight>`` -- max over axes of |f_i| / f_limit_i of every segment-3 flight, with
   ``metrics/force_fraction/limit`` (1: saturated);
 * ``estimate/<param>/<method>`` (``method`` = ``sequential`` or ``batch``) with children ``upper_2sigma`` /
   ``lower_2sigma`` (estimate ± 2 std of the estimate MCAP), and ``estimate/<param>/truth`` (when known), for
@@ -49,7 +50,7 @@ from oacli.io.rerun.writer import (
     time_column,
     time_series_view,
 )
-from oacli.mission.layout import BASELINES, SEGMENTS
+from oacli.mission.layout import BASELINES, FLIGHT_LABELS, SEGMENTS
 from oacli.mission.records import PARAMETERS, Flight, MissionRecords, load_mission_records
 
 APPLICATION_ID = "oacli-mission"
@@ -71,7 +72,12 @@ FLIGHT_COLORS: dict[str, tuple[int, int, int, int]] = {
     "segment-3/track": (40, 180, 60, 255),
     "segment-3/baseline-mpc-prior": (30, 200, 230, 255),
     "segment-3/baseline-tube-prior": (220, 50, 220, 255),
+    "segment-3/baseline-mpc-unconstrained-prior": (188, 189, 34, 255),
 }
+#: The segment-3 flights' colours by name, for the 3-D tab's title (the unconstrained one only when flown).
+SEGMENT3_COLOR_NAMES = {"segment-3/track": "green", "segment-3/baseline-mpc-prior": "cyan",
+                        "segment-3/baseline-tube-prior": "magenta",
+                        "segment-3/baseline-mpc-unconstrained-prior": "olive"}
 _PATH_COLORS = {"plan": (150, 150, 255, 255), "smooth": (60, 110, 230, 255), "excite": (120, 60, 200, 255)}
 _TREE_COLOR = (160, 160, 160, 110)
 _WAYPOINT_COLOR = (250, 250, 250, 255)
@@ -91,7 +97,7 @@ def mission_blueprint(records: MissionRecords | None = None) -> rrb.Blueprint:
     Left: a 3D view of the whole mission (tab 1) and one of the three segment-3 flights side by side (tab 2), above
     the text log, their cameras framed on the waypoints and paths (not on the whole workspace). Middle: position
     error of every flight [m], force and torque of the main flight against the limits, and force / limit of the
-    three segment-3 flights. Right: the four parameters converging with ± 2σ and
+    segment-3 flights. Right: the four parameters converging with ± 2σ and
     the truth, zoomed on segment 2.
 
     Parameters
@@ -112,8 +118,8 @@ def mission_blueprint(records: MissionRecords | None = None) -> rrb.Blueprint:
         origin=WORLD,
         contents=["$origin/keep_in", "$origin/keep_out", f"$origin/{WAYPOINTS.split('/', 1)[1]}",
                   "$origin/segment-3/**", "- $origin/segment-3/plan/**"],
-        name="Segment 3: " + ", ".join(f"{label} ({c})" for label, c in
-                                       zip(BASELINES.values(), ("green", "cyan", "magenta"), strict=True)),
+        name="Segment 3: " + ", ".join(f"{label} ({SEGMENT3_COLOR_NAMES[key]})" for key, label in FLIGHT_LABELS.items()
+                                       if key in BASELINES or (records is not None and key in records.flights)),
     )
     scene = rrb.Vertical(rrb.Tabs(world, seg3, active_tab=0), rrb.TextLogView(origin=LOG, name="Log"),
                          row_shares=[3.0, 1.0], name="Scene")
@@ -230,10 +236,10 @@ def _log_inputs(rec: StageRecording, records: MissionRecords) -> None:
         _step_limits(rec, FORCE, main, [f.force_limit_N for f in main], faded)
         rec.log_series(TORQUE, t, u[:, 3:6], AXIS_NAMES)
         _step_limits(rec, TORQUE, main, [f.torque_limit_Nm for f in main], faded)
-    seg3 = [records.flights[k] for k in BASELINES if k in records.flights and records.flights[k].t_ctrl.size]
+    seg3 = [records.flights[k] for k in FLIGHT_LABELS if k in records.flights and records.flights[k].t_ctrl.size]
     for f in seg3:
         frac = np.max(np.abs(f.u_applied[:, 0:3]) / f.force_limit_N, axis=1)
-        rec.log_series(f"{FORCE_FRACTION}/{f.key}", f.t_ctrl, frac, [BASELINES[f.key]],
+        rec.log_series(f"{FORCE_FRACTION}/{f.key}", f.t_ctrl, frac, [FLIGHT_LABELS[f.key]],
                        colors=[FLIGHT_COLORS[f.key]])
     if seg3:
         span = np.array([min(f.t_ctrl[0] for f in seg3), max(f.t_ctrl[-1] for f in seg3)])

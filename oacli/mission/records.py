@@ -31,8 +31,8 @@ from oacli.geometry import Scene
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_read import TELEMETRY_TOPICS, StageRecord, read_stage, telemetry_from_record
 from oacli.metrics import tracking_errors
-from oacli.mission.layout import BASELINES, MISSION_STAGES, SEGMENTS, stage_by_key
-from oacli.sets import Polytope
+from oacli.mission.layout import ALL_STAGES, MISSION_STAGES, SEGMENTS, stage_by_key
+from oacli.mission.layout import FLIGHT_LABELS as SEGMENT3_LABELS
 from oacli.types import Telemetry
 
 #: Cache the stage files read (module docstring); ``benchmarks/bench_outputs.py`` switches it off for the old path.
@@ -160,14 +160,16 @@ def read_stage_cached(path: Path, topics: Sequence[str] | None = None) -> StageR
 PARAMETERS: tuple[tuple[str, str], ...] = (
     ("mass_kg", "kg"), ("Ixx_kgm2", "kg·m²"), ("Iyy_kgm2", "kg·m²"), ("Izz_kgm2", "kg·m²"))
 
-#: The flights of the mission in the order they are flown (segment-3's baselines last).
-FLIGHTS: tuple[str, ...] = ("segment-1/track", "segment-2/track", *BASELINES)
+#: The flights a mission may fly, in the order they are flown (segment-3's baselines last, the optional
+#: unconstrained standard MPC of ``mission.unconstrained_baseline`` after them; a flight not flown is not read).
+FLIGHTS: tuple[str, ...] = ("segment-1/track", "segment-2/track", *SEGMENT3_LABELS)
 
-#: Flight labels for legends: segments 1 and 2 by their controller, segment 3 as in :data:`BASELINES`.
+#: Flight labels for legends: segments 1 and 2 by their controller, segment 3 as in
+#: :data:`oacli.mission.layout.FLIGHT_LABELS`.
 FLIGHT_LABELS: dict[str, str] = {
     "segment-1/track": "segment 1, standard MPC",
     "segment-2/track": "segment 2, tube MPC, prior",
-    **{key: f"segment 3, {label}" for key, label in BASELINES.items()},
+    **{key: f"segment 3, {label}" for key, label in SEGMENT3_LABELS.items()},
 }
 
 
@@ -357,6 +359,48 @@ def _stage_config(mission_dir: Path) -> OacliConfig:
     raise FileNotFoundError(f"{mission_dir}: no stage folder with a config.yaml")
 
 
+def first_coordinate_range(normals: Any, offsets: Any) -> tuple[float, float]:
+    """``[min, max]`` of the first coordinate over the polygon ``{z ∈ R² : A z ≤ b}`` (a tube axis's Z).
+
+    For a bounded, non-empty polygon (its normals leave no angular gap of π or more) the extremes lie at vertices,
+    found here as the feasible intersections of pairs of edges (numpy only: the report draws the tube bands
+    without importing scipy); otherwise :meth:`oacli.sets.Polytope.support` decides (±inf, or -inf for an empty
+    set), as it did for every polygon before.
+
+    Parameters
+    ----------
+    normals : array_like, shape (m, 2)
+        ``A``.
+    offsets : array_like, shape (m,)
+        ``b``.
+
+    Returns
+    -------
+    tuple of float
+        ``(min z₀, max z₀)`` [the units of z₀, m for the position axis].
+    """
+    a = np.asarray(normals, dtype=float).reshape(-1, 2)
+    b = np.asarray(offsets, dtype=float).reshape(-1)
+    if len(a) >= 3 and np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
+        angles = np.sort(np.arctan2(a[:, 1], a[:, 0]))
+        gaps = np.diff(np.r_[angles, angles[0] + 2.0 * np.pi])
+        if gaps.max() < np.pi - 1e-9:  # bounded
+            i, j = np.triu_indices(len(a), 1)
+            det = a[i, 0] * a[j, 1] - a[i, 1] * a[j, 0]
+            keep = np.abs(det) > 1e-12 * np.linalg.norm(a[i], axis=1) * np.linalg.norm(a[j], axis=1)
+            i, j, det = i[keep], j[keep], det[keep]
+            x = (b[i] * a[j, 1] - b[j] * a[i, 1]) / det
+            y = (a[i, 0] * b[j] - a[j, 0] * b[i]) / det
+            tol = 1e-9 * max(1.0, float(np.abs(b).max()))
+            inside = np.all(np.outer(x, a[:, 0]) + np.outer(y, a[:, 1]) <= b + tol, axis=1)
+            if inside.any():
+                return float(x[inside].min()), float(x[inside].max())
+    from oacli.sets import Polytope  # scipy: only for an unbounded, empty or malformed set
+
+    zset = Polytope(a, b)
+    return -float(zset.support(np.array([-1.0, 0.0]))), float(zset.support(np.array([1.0, 0.0])))
+
+
 def _tube(record: StageRecord, t_ctrl_stage: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Box hull of ``z ⊕ Z`` per controller step from ``/state/nominal``, ``/tube/design`` and the design index of
     ``/tube/disturbance`` (the initial design where unknown)."""
@@ -368,8 +412,8 @@ def _tube(record: StageRecord, t_ctrl_stage: np.ndarray) -> tuple[np.ndarray, np
     for design in sorted(designs, key=lambda d: int(d.get("design", 0))):
         ext = []
         for ax in design["axes"]:
-            zset = Polytope(np.asarray(ax["z_normals"], dtype=float), np.asarray(ax["z_offsets"], dtype=float))
-            ext.append([zset.support(np.array([-1.0, 0.0])), zset.support(np.array([1.0, 0.0]))])
+            low, high = first_coordinate_range(ax["z_normals"], ax["z_offsets"])
+            ext.append([-low, high])
         extents.append(ext)
     ext_arr = np.asarray(extents, dtype=float)
     index = np.zeros(len(t_ctrl_stage), dtype=int)
@@ -468,7 +512,7 @@ def load_mission_records(mission_dir: Path, summary: dict[str, Any]) -> MissionR
         if flight is not None:
             flights[key] = flight
     paths = {}
-    for stage in MISSION_STAGES:
+    for stage in ALL_STAGES:
         if stage.command in ("plan", "smooth", "excite"):
             p = _path(mission_dir, stage.key, segment_offset(summary, stage.segment))
             if p is not None:
@@ -480,7 +524,7 @@ def load_mission_records(mission_dir: Path, summary: dict[str, Any]) -> MissionR
             estimates[key] = e
     truth = (summary.get("estimate") or {}).get("truth_theta")
     log: list[tuple[float, str, str]] = []
-    for stage in MISSION_STAGES:
+    for stage in ALL_STAGES:  # the optional stages' logs too, when flown
         path = stage.mcap(mission_dir)
         if path.is_file():
             offset = segment_offset(summary, stage.segment)

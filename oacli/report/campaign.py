@@ -25,6 +25,7 @@ from oacli.report.folder import read_png, read_summary
 HEADLINE = ("seg3_tube_estimate.rms_position_error_m", "seg3_mpc_prior.rms_position_error_m",
             "seg3_tube_prior.rms_position_error_m", "seg3_mpc_prior.overshoot_m", "seg3_mpc_prior.time_saturated_s",
             "seg3_tube_prior.arrival_time_s", "seg3_mpc_prior.keep_out_clearance_m",
+            "seg3_mpc_prior_unconstrained.keep_out_clearance_m",
             "sequential.abs_error_pct.mass", "sequential.abs_error_pct.Izz", "sequential.cov_reduction_pct.mass",
             "batch.abs_error_pct.mass", "batch.abs_error_pct.Izz", "hold_rms_m", "lag_s", "hold_max_m",
             "rms_position_error_m")
