@@ -89,7 +89,6 @@ def test_recovers_com_and_products_within_3_sigma_at_the_bound() -> None:
                                        samples.rate_radps[k])
         w = 1.0 / np.r_[np.full(3, samples.accel_std_mps2[k]), np.full(3, samples.alpha_std_radps2[k])]
         info += (h * w[:, None]).T @ (h * w[:, None])
-    from oacli.estimation.rls_full import _theta_jacobian
     t_jac = _theta_jacobian(psi)
     crb = np.sqrt(np.diag(t_jac @ np.linalg.inv(info) @ t_jac.T))  # data alone: the prior adds little here
     ratio = est.std / crb
