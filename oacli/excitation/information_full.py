@@ -50,6 +50,7 @@ from oacli.excitation.information import MeasurementModel
 
 __all__ = [
     "FullInformation",
+    "FullInformationTerm",
     "FullScaling",
     "a_criterion_full",
     "a_criterion_gradient_full",
@@ -60,6 +61,7 @@ __all__ = [
     "functional_gradient",
     "ideal_theta",
     "information_per_step_full",
+    "information_summary",
     "information_unknown_start",
     "parameter_scale",
 ]
@@ -432,3 +434,118 @@ def a_criterion_gradient_full(x0: np.ndarray, u: np.ndarray, theta: np.ndarray, 
     m = -(d[:, None] * (fs_inv @ fs_inv) * d[None, :])
     _, grad = functional_gradient(x0, u, theta, dt, model, 0.5 * (m + m.T)[None], groups, input_scale)
     return value, grad[0]
+
+
+def information_summary(x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model: MeasurementModel,
+                        groups: Sequence[str], prior_std: np.ndarray, scaling: FullScaling = "prior"
+                        ) -> dict[str, object]:
+    """What a trajectory tells about the chosen entries: the scaled A-criterion and the Cramér-Rao bound, the
+    information of the data plus the prior of the entries beyond mass and inertia (:func:`add_prior_information`).
+
+    Parameters
+    ----------
+    x0, u, theta, dt, model, groups
+        As :func:`fisher_information_full`.
+    prior_std : ndarray, shape (16,)
+        Prior σ of every θ entry.
+    scaling : {"prior", "nominal", "absolute"}
+
+    Returns
+    -------
+    dict
+        ``parameters``, ``scaling``, ``a_criterion`` (``tr (D F D)⁻¹``; None when singular), ``crb_std`` and
+        ``prior_std`` by entry name, ``crb_over_prior`` (σ_CRB / σ_prior by name).
+    """
+    info = fisher_information_full(x0, u, theta, dt, model, groups)
+    fim = add_prior_information(info.fim, groups, prior_std)
+    d = parameter_scale(theta, prior_std, groups, scaling)
+    crit = a_criterion_full(fim, d)
+    crb = cramer_rao_std_full(fim)
+    sigma = np.asarray(prior_std, dtype=float).reshape(N_FULL)[info.index]
+    return {
+        "parameters": list(groups),
+        "scaling": scaling,
+        "a_criterion": crit if np.isfinite(crit) else None,
+        "crb_std": {n: float(v) for n, v in zip(info.names, crb, strict=True)},
+        "prior_std": {n: float(v) for n, v in zip(info.names, sigma, strict=True)},
+        "crb_over_prior": {n: float(v) for n, v in zip(info.names, crb / sigma, strict=True)},
+    }
+
+
+@dataclass(frozen=True)
+class FullInformationTerm:
+    """The chosen entries and what is known of the others.
+
+    Attributes
+    ----------
+    groups : tuple of str
+        Informed groups (must include mass and inertia).
+    theta_extra : ndarray, shape (12,)
+        Prior mean of [products kg·m², CoM m, force scale, torque scale] (the model where nothing better is known).
+    prior_std : ndarray, shape (16,)
+        Prior standard deviation of every θ entry.
+    input_scale : ndarray, shape (6,)
+        Difference step scale per input channel [N, N·m] (the planner's input limits).
+    """
+
+    groups: tuple[str, ...]
+    theta_extra: np.ndarray
+    prior_std: np.ndarray
+    input_scale: np.ndarray
+
+    def __post_init__(self) -> None:
+        if "mass" not in self.groups or "inertia" not in self.groups:
+            raise ValueError("the information term needs mass and inertia among its groups")
+        entry_index(self.groups)  # unknown names raise
+
+    @property
+    def index(self) -> np.ndarray:
+        """θ indices of the entries."""
+        return entry_index(self.groups)
+
+    def theta(self, theta4: np.ndarray) -> np.ndarray:
+        """θ (16) with ``[m, I]`` from the estimate and the rest from the prior.
+
+        Parameters
+        ----------
+        theta4 : ndarray, shape (4,)
+
+        Returns
+        -------
+        ndarray, shape (16,)
+        """
+        return ideal_theta(theta4, self.theta_extra)
+
+    def information(self, x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float,
+                    measurement: MeasurementModel) -> FullInformation:
+        """The horizon's information of the entries (:func:`fisher_information_full`).
+
+        Parameters
+        ----------
+        x0 : ndarray, shape (13,)
+        u : ndarray, shape (N, 6)
+        theta : ndarray, shape (16,)
+        dt : float
+        measurement : MeasurementModel
+
+        Returns
+        -------
+        FullInformation
+        """
+        return fisher_information_full(x0, u, theta, dt, measurement, self.groups)
+
+    def gradient(self, x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, measurement: MeasurementModel,
+                 weight: np.ndarray) -> np.ndarray:
+        """``∂⟨M, F⟩/∂u`` (N, 6) for one weight matrix ``M`` (p, p) (:func:`functional_gradient`).
+
+        Parameters
+        ----------
+        x0, u, theta, dt, measurement
+            As :meth:`information`.
+        weight : ndarray, shape (p, p)
+
+        Returns
+        -------
+        ndarray, shape (N, 6)
+        """
+        return functional_gradient(x0, u, theta, dt, measurement, weight[None], self.groups, self.input_scale)[1][0]

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import cvxpy as cp
 import numpy as np
@@ -43,6 +42,7 @@ from oacli.excitation.information import (
     output_sensitivities,
     propagate_with_sensitivities,
 )
+from oacli.excitation.information_full import FullInformationTerm
 from oacli.excitation.problem import (
     LENGTH_UNIT_M,
     attitude_errors,
@@ -56,9 +56,6 @@ from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
 from oacli.model.limits import MotionLimits
 from oacli.solver import solve_clarabel
 from oacli.types import Trajectory
-
-if TYPE_CHECKING:
-    from oacli.excitation.rattle_full import FullInformationTerm
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """RATTLE's information term for chosen entries of the full rigid body ([ReSWARM2023] §4.4 generalised).
 
 The planner of :mod:`oacli.excitation.rattle` rewards ``Σ_i γ_i · ½ log(1 + F_ii σ_i²)`` over θ = [m, Ixx, Iyy, Izz].
-With :class:`FullInformationTerm` the sum runs over the chosen entries of the full θ
+With :class:`oacli.excitation.information_full.FullInformationTerm` the sum runs over the chosen entries of the full θ
 (:mod:`oacli.estimation.rigid_parameters`; ``excitation.information.parameters``): ``F`` is the full model's
 Fisher information along the horizon (:func:`oacli.excitation.information_full.fisher_information_full`), its input
 gradient the batched central differences of :func:`oacli.excitation.information_full.functional_gradient`, the
@@ -13,101 +13,13 @@ information term needs no further scaling.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from oacli.estimation.rigid_parameters import GROUPS, N_FULL
-from oacli.excitation.information import MeasurementModel
-from oacli.excitation.information_full import (
-    FullInformation,
-    entry_index,
-    fisher_information_full,
-    functional_gradient,
-    ideal_theta,
-)
+from oacli.excitation.information_full import FullInformationTerm, entry_index
 from oacli.excitation.rattle import InformationWeighting
 
 __all__ = ["FullInformationTerm", "entry_estimate", "full_weighting"]
-
-
-@dataclass(frozen=True)
-class FullInformationTerm:
-    """The chosen entries and what is known of the others.
-
-    Attributes
-    ----------
-    groups : tuple of str
-        Informed groups (must include mass and inertia).
-    theta_extra : ndarray, shape (12,)
-        Prior mean of [products kg·m², CoM m, force scale, torque scale] (the model where nothing better is known).
-    prior_std : ndarray, shape (16,)
-        Prior standard deviation of every θ entry.
-    input_scale : ndarray, shape (6,)
-        Difference step scale per input channel [N, N·m] (the planner's input limits).
-    """
-
-    groups: tuple[str, ...]
-    theta_extra: np.ndarray
-    prior_std: np.ndarray
-    input_scale: np.ndarray
-
-    def __post_init__(self) -> None:
-        if "mass" not in self.groups or "inertia" not in self.groups:
-            raise ValueError("the information term needs mass and inertia among its groups")
-        entry_index(self.groups)  # unknown names raise
-
-    @property
-    def index(self) -> np.ndarray:
-        """θ indices of the entries."""
-        return entry_index(self.groups)
-
-    def theta(self, theta4: np.ndarray) -> np.ndarray:
-        """θ (16) with ``[m, I]`` from the estimate and the rest from the prior.
-
-        Parameters
-        ----------
-        theta4 : ndarray, shape (4,)
-
-        Returns
-        -------
-        ndarray, shape (16,)
-        """
-        return ideal_theta(theta4, self.theta_extra)
-
-    def information(self, x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float,
-                    measurement: MeasurementModel) -> FullInformation:
-        """The horizon's information of the entries (:func:`fisher_information_full`).
-
-        Parameters
-        ----------
-        x0 : ndarray, shape (13,)
-        u : ndarray, shape (N, 6)
-        theta : ndarray, shape (16,)
-        dt : float
-        measurement : MeasurementModel
-
-        Returns
-        -------
-        FullInformation
-        """
-        return fisher_information_full(x0, u, theta, dt, measurement, self.groups)
-
-    def gradient(self, x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, measurement: MeasurementModel,
-                 weight: np.ndarray) -> np.ndarray:
-        """``∂⟨M, F⟩/∂u`` (N, 6) for one weight matrix ``M`` (p, p) (:func:`functional_gradient`).
-
-        Parameters
-        ----------
-        x0, u, theta, dt, measurement
-            As :meth:`information`.
-        weight : ndarray, shape (p, p)
-
-        Returns
-        -------
-        ndarray, shape (N, 6)
-        """
-        return functional_gradient(x0, u, theta, dt, measurement, weight[None], self.groups, self.input_scale)[1][0]
 
 
 def full_weighting(base: InformationWeighting, groups: tuple[str, ...], gamma0: dict[str, float],

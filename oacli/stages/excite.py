@@ -45,6 +45,7 @@ from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.design import ExcitationDesign, ExcitationProblem, design_excitation
 from oacli.excitation.fim_gradient import criterion_value, scaling_matrix
 from oacli.excitation.information import PARAM_NAMES, MeasurementModel, cramer_rao_std
+from oacli.excitation.information_full import ideal_theta, information_summary
 from oacli.excitation.oracle import CramerRaoOracle
 from oacli.excitation.rattle import InformationAwarePlanner
 from oacli.excitation.rattle_loop import RattleRun, run_rattle
@@ -62,6 +63,8 @@ from oacli.stages.excite_journal import ExciteJournal, RattleJournal
 from oacli.stages.settings import (
     estimator_settings,
     excitation_prior_model,
+    excitation_prior_std_full,
+    full_information_term,
     information_weighting,
     measurement_model,
     open_run,
@@ -141,6 +144,21 @@ def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> 
         clearance_m=exc.clearance_m,
         terminal=terminal_tolerance(cfg),
     )
+
+
+def _information_full_block(cfg: OacliConfig, x0: np.ndarray, u: np.ndarray, theta4: np.ndarray, dt: float,
+                            measurement: MeasurementModel) -> dict[str, Any] | None:
+    """The scaled A-criterion and CRB of ``excitation.information.parameters`` along a trajectory (None for the
+    default, mass and inertia: the summary's criterion and crb_std already say it)."""
+    info = cfg.excitation.information
+    if info.is_legacy:
+        return None
+    theta = ideal_theta(theta4, cfg.estimation.rigid_body.mean())
+    block = information_summary(x0, u, theta, dt, measurement, tuple(info.parameters),
+                                excitation_prior_std_full(cfg), info.scaling)
+    block["designed_for"] = ("the informed entries (RATTLE's information term)" if cfg.excitation.method == "rattle"
+                             else "mass and inertia (the SCP's criterion); the other entries are reported")
+    return block
 
 
 def _named(values: np.ndarray) -> dict[str, float]:
@@ -296,6 +314,10 @@ def _offline_outputs(cfg: OacliConfig, problem: ExcitationProblem, limits: Desig
         "steps": problem.steps,
         "dt_s": problem.dt,
     }
+    block = _information_full_block(cfg, problem.start, u[:problem.steps], problem.theta, problem.dt,
+                                    problem.measurement)
+    if block is not None:
+        summary["information_full"] = block
     offline_findings(summary, problem).apply(summary)
     log.extend(status_log(summary))
     mcap = run.open_mcap(method="offline")
@@ -371,7 +393,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         problem.goal, horizon=rcfg.horizon, dt_s=rcfg.step_s, limits=limits, measurement=problem.measurement,
         scene=problem.scene, weights=rattle_planner_weights(cfg),
         iterations=rcfg.iterations, penalty=rcfg.penalty, clearance_m=exc.clearance_m,
-        stop_speed_fraction=rcfg.stop_speed_fraction,
+        stop_speed_fraction=rcfg.stop_speed_fraction, information=full_information_term(cfg, limits.input),
     )
     weighting = information_weighting(cfg)
     prior_model, plant = excitation_prior_model(cfg), truth_model(cfg)
@@ -519,6 +541,10 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
     )
     summary["safety"] = safety_block(report, samples=len(tel.t_true), robot_radius_m=robot.radius_m,
                                      keep_in_margin_m=cfg.environment.keep_in_margin_m)
+    block = _information_full_block(cfg, traj.x[0], traj.u[:-1], theta_true, cfg.controller.period_s,
+                                    problem.measurement)
+    if block is not None:
+        summary["information_full"] = block
     rattle_findings(summary, problem, run).apply(summary)
     log.extend(status_log(summary, float(tel.t_true[-1])))
     return summary, traj, log
