@@ -120,6 +120,12 @@ class RlsConfig(Section):
         default=(0.0, 0.0, 0.0, 0.0),
         description="Random-walk variance added to P per sample [kg², (kg·m²)² ×3] (RATTLE's Q; 0: constant θ).",
     )
+    full_body: bool = Field(
+        default=False,
+        description="Estimate the groups of estimation.parameters (mass, inertia, products, com; the scales are "
+        "calibrated, not estimated) with the full rigid body's RLS (oacli.estimation.rls_full); false: [m, I] only "
+        "(process_variance applies to this one only).",
+    )
 
 
 class EstimationConfig(Section):
