@@ -39,6 +39,8 @@ def test_weights_and_entry_estimates() -> None:
     theta, std = entry_estimate(TRUTH, np.full(4, 0.1), term, (full_theta, cov))
     np.testing.assert_allclose(std, np.r_[np.full(4, 0.1), np.full(3, 2e-3), np.full(3, 0.05)])
     assert theta[7] == 0.004
+    _, std4 = entry_estimate(TRUTH, np.full(4, 0.1), term, (TRUTH, np.eye(4)))  # a 4-parameter filter
+    np.testing.assert_array_equal(std4, np.r_[np.full(4, 0.1), np.full(3, 0.01), np.full(3, 0.05)])
     with pytest.raises(ValueError, match="mass and inertia"):
         FullInformationTerm(("mass", "com"), EXTRA, PRIOR_STD, PLANNER_LIMITS.input)
 

@@ -59,7 +59,8 @@ def entry_estimate(estimate_theta: np.ndarray, estimate_std: np.ndarray, term: F
     term : FullInformationTerm
     full : (ndarray (16,), ndarray (16, 16)), optional
         The estimator's full estimate and covariance (:meth:`oacli.estimation.sequential.SequentialEstimator.
-        full_estimate`); an entry with zero variance there is not estimated, its σ is its prior's.
+        full_estimate`); an entry with zero variance there is not estimated, its σ is its prior's (a 4-parameter
+        filter's (4,) estimate adds nothing).
 
     Returns
     -------
@@ -70,7 +71,7 @@ def entry_estimate(estimate_theta: np.ndarray, estimate_std: np.ndarray, term: F
     theta = term.theta(estimate_theta)
     std = np.asarray(term.prior_std, dtype=float).reshape(N_FULL).copy()
     std[0:4] = estimate_std
-    if full is not None:
+    if full is not None and np.asarray(full[0]).size == N_FULL:  # a 4-parameter filter's is (4,): nothing more
         theta_f, cov_f = (np.asarray(a, dtype=float) for a in full)
         var = np.diag(cov_f)
         estimated = var > 0
