@@ -43,6 +43,7 @@ from oacli.errors import ConfigError, InfeasibleError, InputError
 from oacli.estimation.online import OnlineSequentialEstimator
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.design import ExcitationDesign, ExcitationProblem, design_excitation
+from oacli.excitation.design_types import FullDesignSpec
 from oacli.excitation.fim_gradient import criterion_value, scaling_matrix
 from oacli.excitation.information import PARAM_NAMES, MeasurementModel, cramer_rao_std
 from oacli.excitation.information_full import ideal_theta, information_summary
@@ -129,6 +130,13 @@ def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> 
     prior_model = excitation_prior_model(cfg)
     theta = np.array(prior_model.theta)
     prior_info = np.linalg.inv(prior_model.covariance) if exc.use_prior_information else None
+    spec = None
+    if not exc.information.is_legacy and exc.method == "offline":
+        if exc.criterion != "A":
+            raise ConfigError(f"excitation.information.parameters: the full rigid body's design has the A-criterion "
+                              f"only (excitation.criterion is {exc.criterion})")
+        spec = FullDesignSpec(tuple(exc.information.parameters), ideal_theta(theta, cfg.estimation.rigid_body.mean()),
+                              excitation_prior_std_full(cfg), exc.information.scaling)
     return ExcitationProblem(
         start=start,
         goal=goal,
@@ -143,6 +151,7 @@ def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> 
         prior_information=prior_info,
         clearance_m=exc.clearance_m,
         terminal=terminal_tolerance(cfg),
+        information=spec,
     )
 
 
@@ -157,7 +166,7 @@ def _information_full_block(cfg: OacliConfig, x0: np.ndarray, u: np.ndarray, the
     block = information_summary(x0, u, theta, dt, measurement, tuple(info.parameters),
                                 excitation_prior_std_full(cfg), info.scaling)
     block["designed_for"] = ("the informed entries (RATTLE's information term)" if cfg.excitation.method == "rattle"
-                             else "mass and inertia (the SCP's criterion); the other entries are reported")
+                             else "the informed entries (the SCP's criterion: criterion_initial/final)")
     return block
 
 
