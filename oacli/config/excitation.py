@@ -183,12 +183,12 @@ class InformationConfig(Section):
     """Which entries of the full rigid body's θ the excitation informs, and how the A-criterion is scaled.
 
     The default, mass and inertia, is the 4-parameter design of [Doerr2021] Eq. 30 and RATTLE's information term,
-    unchanged. More groups (:mod:`oacli.excitation.information_full`): RATTLE's information term counts them (weights
-    below, their σ from the sequential filter's full estimate, else their prior σ), and the offline design reports
-    their scaled A-criterion and Cramér-Rao bound along the designed trajectory (its SCP still optimises the
-    4-parameter criterion, ``criterion``/``parameter_scaling``). The γ0 and floors of the groups beyond mass and
-    inertia have no published source: they are chosen like RATTLE's (γ0 = 20, floor ≈ what the flight's table
-    calls a good estimate).
+    unchanged. More groups (:mod:`oacli.excitation.information_full`): the offline SCP minimises their scaled
+    A-criterion (:mod:`oacli.excitation.design_full`; ``criterion`` must be A, ``parameter_scaling`` is not used)
+    and RATTLE's information term counts them (weights below, their σ from the sequential filter's full estimate,
+    else their prior σ); the summary reports their Cramér-Rao bound along the trajectory. The γ0 and floors of the
+    groups beyond mass and inertia have no published source: they are chosen like RATTLE's (γ0 = 20, floor of the
+    order of a good estimate).
     """
 
     parameters: tuple[ParameterGroup, ...] = Field(
