@@ -149,6 +149,9 @@ def test_cli_rls_full_body_recovers_the_com(tmp_path) -> None:
         name = f"com_{axis}_m"
         err = full["theta"][name] - data["truth"]["com_offset_m"][i]
         assert abs(err) < 3 * full["std"][name] + 1e-4, (name, err, full["std"][name])
+    rb = s["rigid_body"]  # the run's full estimate feeds the rigid-body section like the batch's
+    assert rb["parameters"] == ["mass", "inertia", "com"]
+    assert rb["estimate"]["com_x_m"] == pytest.approx(full["theta"]["com_x_m"], rel=1e-12)
     # With the scales in the groups the method refuses by name.
     data["estimation"]["parameters"] = ["mass", "inertia", "force_scale"]
     cfg.write_text(yaml.safe_dump(data, sort_keys=False))

@@ -571,7 +571,7 @@ def run_estimate(
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
     summary = _estimate_summary(run, prior, truth, telemetry, alignment, streams)
-    if method in ("batch", "sequential"):
+    if method in ("batch", "sequential") or full_rls:
         log.append((float(run.t_records[-1]), "info", rigid_body_section(summary, run, model, settings, records,
                                                                          streams.config_yaml)))
     if use_localisation:
