@@ -48,3 +48,24 @@ def test_full_design_informs_products_and_com_better_than_the_four_entry_design(
     assert sum(s_full["crb_over_prior"][k] for k in products) < sum(s_legacy["crb_over_prior"][k] for k in products)
     # The outputs stay the 4 entries' information of the design.
     assert design.fim.shape == (4, 4) and design.crb_std.shape == (4,)
+
+
+def test_config_refuses_bad_information_choices(tmp_path) -> None:
+    from pydantic import ValidationError
+    from typer.testing import CliRunner
+
+    from oacli.cli import app
+    from oacli.config.excitation import ExcitationConfig
+    from tests.conftest import REPO
+
+    assert ExcitationConfig().information.is_legacy
+    with pytest.raises(ValidationError, match=r"information\.parameters"):
+        ExcitationConfig(information={"parameters": ["mass", "com"]})
+    with pytest.raises(ValidationError, match=r"information\.parameters"):
+        ExcitationConfig(information={"parameters": ["mass", "inertia", "spin"]})
+    result = CliRunner().invoke(app, ["excite", str(REPO / "configs" / "iss_reswarm.yaml"), "--out",
+                                      str(tmp_path / "x"), "--quiet", "--set", "excitation.criterion=D", "--set",
+                                      "excitation.information.parameters=[mass,inertia,com]"])
+    assert result.exit_code == 2, result.output
+    assert "excitation.information.parameters" in result.output and "A-criterion" in result.output
+    assert "Traceback" not in result.output
