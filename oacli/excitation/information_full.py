@@ -32,7 +32,8 @@ therefore evaluated on the scaled information ``F_s = D F D`` with ``D = diag(d)
 :func:`functional_gradient` computes ``∂⟨M, F⟩/∂u`` by central differences of the rollout, all ``2·6·N``
 perturbed rollouts propagated together as one batch of the vectorised model (one pass of ``N`` batched steps);
 the truncation error is ``O(h²)`` with a relative step ``h = 1e-5`` of each input's scale (tested against the exact
-adjoint of :mod:`oacli.excitation.fim_gradient` in the 4-entry case).
+adjoint of :mod:`oacli.excitation.fim_gradient` in the 4-entry case). A perturbation of step k changes nothing
+before it, so those rows are propagated from step k on only (half the work).
 """
 
 from __future__ import annotations
@@ -134,11 +135,12 @@ class FullInformation:
 
 
 def _rollouts(x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model: MeasurementModel,
-              idx: np.ndarray, per_step: bool, x0_unknown: bool = False
+              idx: np.ndarray, per_step: bool, x0_unknown: bool = False, rows_per_step: int = 0
               ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """F (B, p, p) of B input sequences ``u`` (B, N, 6) from one ``x0``; optionally per step, and the states of
     the first sequence. ``x0_unknown``: the information of ``[δx_0 (12), θ_S]`` (B = 1), the state measured at
-    k = 0 too."""
+    k = 0 too. ``rows_per_step`` > 0: rows ``1 + r k .. r (k + 1)`` differ from row 0 only from step k on (input
+    perturbations of step k), so before it they are row 0's and are not propagated (causality: half the work)."""
     b, n = u.shape[0], u.shape[1]
     nx = TANGENT_DIM if x0_unknown else 0
     p = nx + idx.size
@@ -155,26 +157,29 @@ def _rollouts(x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: float, model
     if x0_unknown:
         g0 = s * w_state[None, :, None]
         fim += np.einsum("bmi,bmj->bij", g0, g0)
-    durations = np.full((b, 1), float(dt))
     for k in range(n):
-        uk = u[:, k]
-        lift = lift_matrix(x)
-        info = np.zeros((b, p, p))
+        act = b if rows_per_step <= 0 else min(b, 1 + rows_per_step * (k + 1))
+        xa, sa, uk = x[:act], s[:act], u[:act, k]
+        lift = lift_matrix(xa)
+        info = np.zeros((act, p, p))
         if np.any(w_acc):
-            _, jx, jth = accelerations_full(x, uk, theta)
-            g = (jx @ lift) @ s
+            _, jx, jth = accelerations_full(xa, uk, theta)
+            g = (jx @ lift) @ sa
             g[:, :, nx:] += jth[:, :, idx]
             g *= w_acc[None, :, None]
             info += np.einsum("bmi,bmj->bij", g, g)
-        x_next, a, c = propagate_full(x, uk, theta, durations)
+        x_next, a, c = propagate_full(xa, uk, theta, np.full((act, 1), float(dt)))
         assert a is not None and c is not None
         proj = project_matrix(x_next)
-        s = proj @ (a @ (lift @ s))
-        s[:, :, nx:] += proj @ c[:, :, idx]
-        x = x_next
-        g = s * w_state[None, :, None]
+        s_next = proj @ (a @ (lift @ sa))
+        s_next[:, :, nx:] += proj @ c[:, :, idx]
+        g = s_next * w_state[None, :, None]
         info += np.einsum("bmi,bmj->bij", g, g)
-        fim += info
+        x[:act], s[:act] = x_next, s_next
+        fim[:act] += info
+        if act < b:  # the rows perturbed later are still row 0
+            x[act:], s[act:] = x_next[0], s_next[0]
+            fim[act:] += info[0]
         if steps is not None:
             steps[k] = info[0]
         xs[k + 1] = x[0]
@@ -396,7 +401,7 @@ def functional_gradient(x0: np.ndarray, u: np.ndarray, theta: np.ndarray, dt: fl
             col = 1 + 2 * (6 * k + j)
             batch[col, k, j] += h[j]
             batch[col + 1, k, j] -= h[j]
-    fim, _, _ = _rollouts(x0, batch, theta, dt, model, idx, per_step=False)
+    fim, _, _ = _rollouts(x0, batch, theta, dt, model, idx, per_step=False, rows_per_step=12)
     values = np.einsum("qij,bij->qb", w, fim)
     diff = (values[:, 1::2] - values[:, 2::2]).reshape(w.shape[0], n, 6) / (2.0 * h[None, None, :])
     f = fim[0]
