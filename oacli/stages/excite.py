@@ -553,6 +553,11 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
     block = _information_full_block(cfg, traj.x[0], traj.u[:-1], theta_true, cfg.controller.period_s,
                                     problem.measurement)
     if block is not None:
+        last = run.replans[-1]
+        if last.std_entries is not None and last.gamma_entries is not None:
+            names = list(block["crb_std"])
+            block["std_final"] = dict(zip(names, map(float, last.std_entries), strict=True))
+            block["gamma_final"] = dict(zip(names, map(float, last.gamma_entries), strict=True))
         summary["information_full"] = block
     rattle_findings(summary, problem, run).apply(summary)
     log.extend(status_log(summary, float(tel.t_true[-1])))
