@@ -69,3 +69,32 @@ def test_planner_with_the_full_term() -> None:
     assert com_plan.information.shape == (7, 7)
     assert _reward(com_plan.information, std, g)[4:].sum() > _reward(f_legacy, std, g)[4:].sum()
     assert com_plan.information_reward == pytest.approx(_reward(com_plan.information, std, g).sum(), rel=1e-12)
+
+
+@pytest.mark.slow
+def test_closed_loop_with_the_full_term_keeps_the_entries_weights() -> None:
+    from oacli.excitation.oracle import CramerRaoOracle
+    from oacli.excitation.rattle_loop import run_rattle
+    from oacli.sim.sensors import Disturbance, SensorNoise
+    from oacli.types import InertialParams
+
+    groups = ("mass", "inertia", "com")
+    term = FullInformationTerm(groups, EXTRA, PRIOR_STD, PLANNER_LIMITS.input)
+    weighting = full_weighting(InformationWeighting(), groups, {"com": 20.0}, {"com": 5e-4})
+    run = run_rattle(
+        _planner(term), CramerRaoOracle(TRUTH, P0, RATTLE_MODEL, state(B)), weighting, state(B),
+        InertialParams(TRUTH[0], TRUTH[1:]), duration_s=24.0, replan_period_s=12.0, control_period_s=0.2,
+        plant_period_s=1 / 62.5, input_limits=PLANNER_LIMITS.input,
+        feedback_q=np.r_[[10.0] * 3, [1.0] * 3, [10.0] * 3, [1.0] * 3], feedback_r=np.r_[[1.0] * 3, [100.0] * 3],
+        sensors=SensorNoise(), disturbance=Disturbance.none(), rng=np.random.default_rng(0),
+    )
+    assert len(run.replans) == 2
+    for r in run.replans:
+        assert r.std_entries is not None and r.gamma_entries is not None and r.std_entries.size == 7
+        np.testing.assert_array_equal(r.gamma, r.gamma_entries[:4])
+        np.testing.assert_array_equal(r.std, r.std_entries[:4])
+        np.testing.assert_array_equal(r.std_entries[4:], PRIOR_STD[7:10])  # the oracle knows no CoM: its prior σ
+        assert np.all(r.gamma_entries[4:] > 0) and r.plan.information.shape == (7, 7)
+    # The oracle's σ of mass and inertia fall, so their weights decay; the CoM's (prior σ) stay.
+    assert np.all(run.replans[1].gamma_entries[:4] <= run.replans[0].gamma_entries[:4])
+    np.testing.assert_array_equal(run.replans[1].gamma_entries[4:], run.replans[0].gamma_entries[4:])
