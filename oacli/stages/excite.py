@@ -60,6 +60,7 @@ from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.phases import set_phase
 from oacli.reference_limits import DesignLimits
 from oacli.stages.design_limits import design_limit_log, excitation_design_limits, to_motion_limits
+from oacli.stages.estimate_rigid import batch_model
 from oacli.stages.excite_journal import ExciteJournal, RattleJournal
 from oacli.stages.settings import (
     estimator_settings,
@@ -415,7 +416,10 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         )
     else:
         prior = ParameterEstimate(0.0, prior_model.theta, prior_cov, "prior")
-        estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior))
+        # With the full θ informed, the filter estimates estimation.parameters' full rigid body, so that the σ of
+        # the informed entries it estimates fall (and their weights decay) as the run goes.
+        full_model = None if exc.information.is_legacy else batch_model(cfg, prior)
+        estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior, model=full_model))
     cw = cfg.controller.weights
 
     with (open_run("excite", cfg, out=out, runs_root=runs_root, started=wall) as stage_run,
