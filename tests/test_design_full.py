@@ -69,3 +69,10 @@ def test_config_refuses_bad_information_choices(tmp_path) -> None:
     assert result.exit_code == 2, result.output
     assert "excitation.information.parameters" in result.output and "A-criterion" in result.output
     assert "Traceback" not in result.output
+    result = CliRunner().invoke(app, ["excite", str(REPO / "configs" / "iss_reswarm.yaml"), "--method", "rattle",
+                                      "--out", str(tmp_path / "y"), "--quiet", "--set",
+                                      "excitation.information.parameters=[mass,inertia,products]"])
+    assert result.exit_code == 2, result.output
+    assert "excitation.information.parameters" in result.output and "products not in estimation.parameters" in (
+        result.output)
+    assert not (tmp_path / "y").exists() and not (tmp_path / "x").exists()  # refused before any run folder

@@ -395,6 +395,12 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     wall = time.perf_counter()
     exc = cfg.excitation
     rcfg = exc.rattle
+    if not exc.information.is_legacy:  # an informed entry's σ must fall in the loop, else its weight never decays
+        missing = sorted(set(exc.information.parameters) - set(cfg.estimation.parameters))
+        if rcfg.estimator == "oracle" or missing:
+            raise ConfigError("excitation.information.parameters: RATTLE informs only entries its filter estimates ("
+                              + ("the oracle knows mass and inertia only" if rcfg.estimator == "oracle"
+                                 else f"{', '.join(missing)} not in estimation.parameters") + ")")
     design_lim = excitation_design_limits(cfg, rattle=True)
     problem = excitation_problem(cfg, design_lim)  # start, goal, workspace checks, measurement model
     limits = to_motion_limits(design_lim)
