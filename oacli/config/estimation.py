@@ -146,7 +146,7 @@ class EstimationConfig(Section):
         description="Batch and sequential: which parameters are estimated, groups of mass, inertia (Ixx, Iyy, "
         "Izz), products (Jxy, Jxz, Jyz), com (centre-of-mass offset), force_scale, torque_scale (per body axis); "
         "must include mass and inertia. The others are held at rigid_body's means. The rls method estimates mass "
-        "and inertia only (its force scale: rls.force_scale).",
+        "and inertia only (its force scale: rls.force_scale), with rls.full_body also products and com.",
     )
     rigid_body: Annotated[RigidBodyPriorConfig, none_to({})] = Field(
         default_factory=RigidBodyPriorConfig,
