@@ -120,6 +120,12 @@ class RlsConfig(Section):
         default=(0.0, 0.0, 0.0, 0.0),
         description="Random-walk variance added to P per sample [kg², (kg·m²)² ×3] (RATTLE's Q; 0: constant θ).",
     )
+    full_body: bool = Field(
+        default=False,
+        description="Estimate the groups of estimation.parameters (mass, inertia, products, com; the scales are "
+        "calibrated, not estimated) with the full rigid body's RLS (oacli.estimation.rls_full); false: [m, I] only "
+        "(process_variance applies to this one only).",
+    )
 
 
 class EstimationConfig(Section):
@@ -140,7 +146,7 @@ class EstimationConfig(Section):
         description="Batch and sequential: which parameters are estimated, groups of mass, inertia (Ixx, Iyy, "
         "Izz), products (Jxy, Jxz, Jyz), com (centre-of-mass offset), force_scale, torque_scale (per body axis); "
         "must include mass and inertia. The others are held at rigid_body's means. The rls method estimates mass "
-        "and inertia only (its force scale: rls.force_scale).",
+        "and inertia only (its force scale: rls.force_scale), with rls.full_body also products and com.",
     )
     rigid_body: Annotated[RigidBodyPriorConfig, none_to({})] = Field(
         default_factory=RigidBodyPriorConfig,

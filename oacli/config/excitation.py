@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
-from pydantic import BeforeValidator, Field, model_validator
+from pydantic import BeforeValidator, Field, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from oacli.config.environment import WaypointRef
@@ -178,6 +178,53 @@ class RattleConfig(Section):
     )
 
 
+ParameterGroup = Literal["mass", "inertia", "products", "com", "force_scale", "torque_scale"]
+
+
+class InformationConfig(Section):
+    """Which entries of the full rigid body's θ the excitation informs, and how the A-criterion is scaled.
+
+    The default, mass and inertia, is the 4-parameter design of [Doerr2021] Eq. 30 and RATTLE's information term,
+    unchanged. More groups (:mod:`oacli.excitation.information_full`): the offline SCP minimises their scaled
+    A-criterion (:mod:`oacli.excitation.design_full`; ``criterion`` must be A, ``parameter_scaling`` is not used)
+    and RATTLE's information term counts them (weights below, their σ from the sequential filter's full estimate,
+    else their prior σ); the summary reports their Cramér-Rao bound along the trajectory. The γ0 and floors of the
+    groups beyond mass and inertia have no published source: they are chosen like RATTLE's (γ0 = 20, floor of the
+    order of a good estimate).
+    """
+
+    parameters: tuple[ParameterGroup, ...] = Field(
+        default=("mass", "inertia"),
+        description="Informed groups: mass, inertia, products, com, force_scale, torque_scale; must include mass and "
+        "inertia (the default keeps the 4-parameter design).",
+    )
+    scaling: Literal["prior", "nominal", "absolute"] = Field(
+        default="prior",
+        description="A-criterion of the full θ on D F D: 'prior' D = prior σ (unit free: Σ CRB²/σ²), 'nominal' "
+        "D = |θ| (prior σ where θ = 0), 'absolute' D = 1 (unit dependent).",
+    )
+    products_gamma0: Annotated[Real, Field(ge=0)] = Field(default=20.0, description="RATTLE γ0 of each product.")
+    products_floor_kgm2: PositiveReal = Field(default=1e-4, description="RATTLE floor of each product [kg·m²].")
+    com_gamma0: Annotated[Real, Field(ge=0)] = Field(default=20.0, description="RATTLE γ0 of each CoM component.")
+    com_floor_m: PositiveReal = Field(default=5e-4, description="RATTLE floor of each CoM component [m].")
+    scale_gamma0: Annotated[Real, Field(ge=0)] = Field(default=20.0, description="RATTLE γ0 of each scale factor.")
+    scale_floor: PositiveReal = Field(default=2e-3, description="RATTLE floor of each scale factor [-].")
+
+    @field_validator("parameters")
+    @classmethod
+    def _groups(cls, groups: tuple[str, ...]) -> tuple[str, ...]:
+        if len(set(groups)) != len(groups):
+            raise PydanticCustomError("oacli_information", "a group is listed twice")
+        if "mass" not in groups or "inertia" not in groups:
+            raise PydanticCustomError("oacli_information", "must include mass and inertia")
+        return groups
+
+    @property
+    def is_legacy(self) -> bool:
+        """Mass and inertia only: the 4-parameter design."""
+        return set(self.parameters) == {"mass", "inertia"}
+
+
 class ExcitationConfig(Section):
     """Information-rich excitation from ``start`` to ``goal`` ([Doerr2021] Eq. 30) and online RATTLE planning."""
 
@@ -228,10 +275,15 @@ class ExcitationConfig(Section):
     rattle: Annotated[RattleConfig, none_to({})] = Field(
         default_factory=RattleConfig, description="Online information-aware planner (method 'rattle')."
     )
+    information: Annotated[InformationConfig, none_to({})] = Field(
+        default_factory=InformationConfig,
+        description="Which entries of the full rigid body the excitation informs (default: mass and inertia).",
+    )
 
 
 __all__ = [
     "ExcitationConfig",
+    "InformationConfig",
     "LimitsOverride",
     "MeasurementNoiseConfig",
     "PriorConfig",

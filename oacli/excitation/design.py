@@ -71,6 +71,7 @@ from collections.abc import Callable
 import numpy as np
 
 from oacli.excitation import split_information
+from oacli.excitation.design_full import FullConvexSubproblem, FullScpMerit, full_linearisation, symmetric_pairs
 from oacli.excitation.design_types import ExcitationDesign, ExcitationProblem, ScpIterate, ScpSettings
 from oacli.excitation.fim_gradient import SYMMETRIC_PAIRS, criterion_value, fim_gradients, symmetric_basis
 from oacli.excitation.information import (
@@ -96,6 +97,7 @@ class _ScpRun:
 
     def __init__(self, problem: ExcitationProblem, settings: ScpSettings, merit: ScpMerit, sub: ConvexSubproblem,
                  start: Evaluation) -> None:
+        self.full = problem.information is not None
         self.p = problem
         self.s = settings
         self.merit = merit
@@ -114,7 +116,10 @@ class _ScpRun:
         it = len(self.history) + 1
         current = self.current
         if self.lin is None:
-            if current.rollout is not None:  # fast path: the iterate's split rollout, batched adjoint
+            if self.full:  # the full θ (oacli.excitation.design_full): difference gradients of its FIM
+                assert p.information is not None
+                self.lin = full_linearisation(p, p.information, current)  # type: ignore[assignment]
+            elif current.rollout is not None:  # fast path: the iterate's split rollout, batched adjoint
                 self.lin = split_information.fim_gradients(  # type: ignore[assignment]
                     p.start, current.u, p.theta, p.dt, p.measurement, _BASIS, ro=current.rollout)
             else:
@@ -244,12 +249,17 @@ def design_excitation(
     wall = time.perf_counter()
     p = problem
     check_reachable(p.start, p.goal, p.duration_s, p.theta, p.limits)
-    merit = ScpMerit(p, settings.penalty, fast=not reference)
     if u_init is None:
         u0 = initial_guess(p)
     else:
         u0 = np.clip(np.asarray(u_init, dtype=float), -p.limits.input, p.limits.input)
-    sub = ConvexSubproblem(p, merit, settings.penalty, compiled=not reference)
+    merit: ScpMerit
+    if p.information is None:
+        merit = ScpMerit(p, settings.penalty, fast=not reference)
+        sub = ConvexSubproblem(p, merit, settings.penalty, compiled=not reference)
+    else:  # the full θ's entries (oacli.excitation.design_full; the fast path only)
+        merit = FullScpMerit(p, settings.penalty, p.information)
+        sub = FullConvexSubproblem(p, merit, settings.penalty, compiled=True)
     # The first start fixes the merit's normalisation, so that all starts are compared on the same merit.
     runs = [_ScpRun(p, settings, merit, sub, merit.evaluate(u0))]
     rng = np.random.default_rng(0) if rng is None else rng
@@ -295,7 +305,11 @@ def design_excitation(
     traj = Trajectory(t, x, u_full, name="excitation")
     x_init = first.x
     initial = Trajectory(t, x_init, np.vstack([first.u, np.zeros((1, 6))]), name="initial_guess")
-    fim_meas = current.fim - p.prior
+    if p.information is None:
+        fim_meas = current.fim - p.prior
+    else:  # the outputs stay the 4 entries' (the criterion is the full θ's)
+        assert current.rollout is not None
+        fim_meas = split_information.fisher_information(current.rollout, current.u, p.theta, p.measurement)
     return ExcitationDesign(
         trajectory=traj,
         fim=fim_meas,
@@ -389,10 +403,16 @@ def _rotational_violation(ev: Evaluation) -> float:
 
 
 def _fim_step(gradients: np.ndarray, du: np.ndarray) -> np.ndarray:
-    """First-order change of F for a step δu, from the gradients of its 10 distinct entries."""
+    """First-order change of F for a step δu, from the gradients of its distinct entries (10 for the 4 entries,
+    ``p(p+1)/2`` in the order of :func:`oacli.excitation.design_full.symmetric_pairs` for p)."""
     vals = np.einsum("pki,ki->p", gradients, du)
-    out = np.zeros((N_PARAMS, N_PARAMS))
-    for idx, (a, b) in enumerate(SYMMETRIC_PAIRS):
+    if gradients.shape[0] == len(SYMMETRIC_PAIRS):
+        pairs, size = SYMMETRIC_PAIRS, N_PARAMS
+    else:
+        size = int((np.sqrt(8 * gradients.shape[0] + 1) - 1) // 2)
+        pairs = symmetric_pairs(size)
+    out = np.zeros((size, size))
+    for idx, (a, b) in enumerate(pairs):
         out[a, b] = out[b, a] = vals[idx]
     return out
 

@@ -14,10 +14,42 @@ import numpy as np
 
 from oacli.excitation.fim_gradient import Criterion, Scaling
 from oacli.excitation.information import N_PARAMS, MeasurementModel
+from oacli.excitation.information_full import FullScaling, entry_index, parameter_scale
 from oacli.excitation.problem import TerminalTolerance
 from oacli.geometry import Scene
 from oacli.model.limits import MotionLimits
 from oacli.types import Trajectory
+
+
+@dataclass(frozen=True)
+class FullDesignSpec:
+    """The entries an offline design informs.
+
+    Attributes
+    ----------
+    groups : tuple of str
+        Groups of :data:`oacli.estimation.rigid_parameters.GROUPS`.
+    theta : ndarray, shape (16,)
+        θ the design is made for (:func:`oacli.excitation.information_full.ideal_theta`).
+    prior_std : ndarray, shape (16,)
+        Prior σ of every entry (scaling, and the prior information of the entries beyond mass and inertia).
+    scaling : {"prior", "nominal", "absolute"}
+    """
+
+    groups: tuple[str, ...]
+    theta: np.ndarray
+    prior_std: np.ndarray
+    scaling: FullScaling = "prior"
+
+    @property
+    def index(self) -> np.ndarray:
+        """θ indices of the entries."""
+        return entry_index(self.groups)
+
+    @property
+    def scale(self) -> np.ndarray:
+        """``d`` of ``D = diag(d)`` (:func:`oacli.excitation.information_full.parameter_scale`)."""
+        return parameter_scale(self.theta, self.prior_std, self.groups, self.scaling)
 
 
 @dataclass(frozen=True)
@@ -47,6 +79,9 @@ class ExcitationProblem:
     clearance_m : float
         Extra distance kept from keep-in faces and keep-out surfaces [m].
     terminal : TerminalTolerance
+    information : FullDesignSpec, optional
+        Design for these entries of the full θ (:mod:`oacli.excitation.design_full`; A-criterion only) instead of
+        [m, Ixx, Iyy, Izz].
     """
 
     start: np.ndarray
@@ -62,6 +97,7 @@ class ExcitationProblem:
     prior_information: np.ndarray | None = None
     clearance_m: float = 0.0
     terminal: TerminalTolerance = field(default_factory=TerminalTolerance)
+    information: FullDesignSpec | None = None
 
     def __post_init__(self) -> None:
         for name in ("start", "goal"):
@@ -207,4 +243,4 @@ class ExcitationDesign:
         return sum(it.accepted for it in self.iterations)
 
 
-__all__ = ["ExcitationDesign", "ExcitationProblem", "ScpIterate", "ScpSettings"]
+__all__ = ["ExcitationDesign", "ExcitationProblem", "FullDesignSpec", "ScpIterate", "ScpSettings"]

@@ -42,6 +42,7 @@ from oacli.excitation.information import (
     output_sensitivities,
     propagate_with_sensitivities,
 )
+from oacli.excitation.information_full import FullInformationTerm
 from oacli.excitation.problem import (
     LENGTH_UNIT_M,
     attitude_errors,
@@ -64,9 +65,10 @@ class InformationWeighting:
     Attributes
     ----------
     gamma0 : ndarray, shape (4,)
-        Initial weights γ0 for [m, Ixx, Iyy, Izz].
+        Initial weights γ0 for [m, Ixx, Iyy, Izz] (or for the chosen entries of the full θ,
+        :func:`oacli.excitation.rattle_full.full_weighting`).
     floor : ndarray, shape (4,)
-        Desired precision per parameter [kg, kg·m²].
+        Desired precision per parameter [kg, kg·m²] (likewise).
     alpha : float
         Shut-off: γ_i = 0 once σ_i ≤ α · floor_i.
     beta : float
@@ -80,9 +82,11 @@ class InformationWeighting:
 
     def __post_init__(self) -> None:
         for name in ("gamma0", "floor"):
-            value = np.array(getattr(self, name), dtype=float).reshape(N_PARAMS)
+            value = np.array(getattr(self, name), dtype=float).reshape(-1)
             value.setflags(write=False)
             object.__setattr__(self, name, value)
+        if self.gamma0.size != self.floor.size:
+            raise ValueError(f"gamma0 has {self.gamma0.size} entries, floor {self.floor.size}")
 
     def weights(self, std: np.ndarray) -> np.ndarray:
         """γ (4,) for the current standard deviations σ (4,).
@@ -207,6 +211,9 @@ class InformationAwarePlanner:
         The speed at the end of the horizon is bounded by this fraction of the velocity limit, and the last sample
         keeps the braking distance from that speed (at full force) from the walls and obstacles, so that the next
         plan can always stay in the workspace.
+    information : FullInformationTerm, optional
+        Reward the information of chosen entries of the full θ instead of [m, I]
+        (:mod:`oacli.excitation.rattle_full`); ``std`` and ``gamma`` of :meth:`plan` then run over those entries.
     """
 
     def __init__(
@@ -225,8 +232,11 @@ class InformationAwarePlanner:
         dither: float = 0.3,
         clearance_m: float = 0.0,
         stop_speed_fraction: float = 0.25,
+        information: FullInformationTerm | None = None,
     ) -> None:
         self.goal = np.array(goal, dtype=float).reshape(13)
+        self.information_term = information
+        self._theta_full: np.ndarray | None = None
         self.n = int(horizon)
         self.dt = float(dt_s)
         self.limits = limits
@@ -340,9 +350,14 @@ class InformationAwarePlanner:
         return self.stop_speed**2 * theta[0] / (2.0 * self.limits.force_N)
 
     def _evaluate(self, x0, u, theta, std, gamma) -> dict:
-        x, s = propagate_with_sensitivities(x0, u, theta, self.dt)
-        g_state, g_acc = output_sensitivities(x, u, s, theta, self.measurement)
-        fim = np.einsum("kmi,kmj->ij", g_state, g_state) + np.einsum("kmi,kmj->ij", g_acc, g_acc)
+        if self.information_term is None:
+            x, s = propagate_with_sensitivities(x0, u, theta, self.dt)
+            g_state, g_acc = output_sensitivities(x, u, s, theta, self.measurement)
+            fim = np.einsum("kmi,kmj->ij", g_state, g_state) + np.einsum("kmi,kmj->ij", g_acc, g_acc)
+        else:
+            assert self._theta_full is not None
+            full = self.information_term.information(x0, u, self._theta_full, self.dt, self.measurement)
+            x, fim = full.x, full.fim
         reward = float(np.sum(gamma * 0.5 * np.log1p(np.diag(fim) * std**2)))
         w = self.weights
         err, jac = attitude_errors(self.goal[6:10], x[:, 6:10])
@@ -378,8 +393,14 @@ class InformationAwarePlanner:
         self.p_u.value = ev["u"]
         fim = ev["fim"]
         weight = np.diag(gamma * 0.5 * std**2 / (1.0 + np.diag(fim) * std**2))
-        lin = fim_gradients(x[0], ev["u"], theta, self.dt, self.measurement, weight[None])
-        self.p_g.value = lin.gradients[0]
+        if self.information_term is None:
+            lin = fim_gradients(x[0], ev["u"], theta, self.dt, self.measurement, weight[None])
+            self.p_g.value = lin.gradients[0]
+        else:  # the dynamics' Jacobians of the 4-parameter model, the information's gradient of the full one
+            assert self._theta_full is not None
+            lin = fim_gradients(x[0], ev["u"], theta, self.dt, self.measurement, np.zeros((1, N_PARAMS, N_PARAMS)))
+            self.p_g.value = self.information_term.gradient(x[0], ev["u"], self._theta_full, self.dt,
+                                                            self.measurement, weight)
         self.rotation.set(lin.a, lin.b)
         self.attitude.set(ev["err"], ev["jac"])
         self.p_delta.value = delta * self.limits.input
@@ -419,6 +440,7 @@ class InformationAwarePlanner:
         *,
         t0: float = 0.0,
         u_warm: np.ndarray | None = None,
+        theta_full: np.ndarray | None = None,
     ) -> ReplanResult:
         """Plan N steps from ``x0`` with the model ``theta`` (the estimate), its std ``σ`` and weights ``γ``.
 
@@ -432,6 +454,9 @@ class InformationAwarePlanner:
             Mission time of ``x0`` [s] (time stamps of the returned trajectory).
         u_warm : ndarray, shape (N, 6), optional
             Initial inputs (e.g. the previous plan shifted); zero (drift) by default.
+        theta_full : ndarray, shape (16,), optional
+            With an information term: the full θ its information is evaluated at (default: ``theta`` with the
+            term's prior for the rest); ``std`` and ``gamma`` then have one entry per chosen entry.
 
         Returns
         -------
@@ -439,6 +464,9 @@ class InformationAwarePlanner:
         """
         wall = time.perf_counter()
         theta = np.asarray(theta, dtype=float)
+        if self.information_term is not None:
+            self._theta_full = (self.information_term.theta(theta) if theta_full is None
+                                else np.asarray(theta_full, dtype=float).reshape(16))
         std = np.asarray(std, dtype=float)
         gamma = np.asarray(gamma, dtype=float)
         if self._built_for_mass is None or abs(self._built_for_mass - theta[0]) > 1e-12 * theta[0]:

@@ -27,6 +27,7 @@ from oacli.control.lqr import dlqr
 from oacli.control.tracking import to_error_state
 from oacli.excitation.oracle import OnlineEstimator
 from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, ReplanResult
+from oacli.excitation.rattle_full import entry_estimate
 from oacli.model.double_integrator import hover_error_model
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
@@ -45,6 +46,9 @@ class ReplanRecord:
     theta, std, gamma : ndarray, shape (4,)
         Estimate used as the model, its standard deviations, and the information weights set from them.
     plan : ReplanResult
+    std_entries, gamma_entries : ndarray, shape (p,), optional
+        With the planner's full information term (:mod:`oacli.excitation.rattle_full`): σ and γ of every informed
+        entry of the full θ (mass and inertia first, as ``std`` and ``gamma``).
     """
 
     t: float
@@ -52,6 +56,8 @@ class ReplanRecord:
     std: np.ndarray
     gamma: np.ndarray
     plan: ReplanResult
+    std_entries: np.ndarray | None = None
+    gamma_entries: np.ndarray | None = None
 
 
 class RattleController:
@@ -107,17 +113,35 @@ class RattleController:
     def _replan(self, t: float, x: np.ndarray) -> None:
         est = self.estimator.estimate
         std = est.std
-        gamma = self.weighting.weights(std)
+        term = self.planner.information_term
+        theta_full = std_entries = None
+        if term is not None:  # σ of the chosen entries: the filter's full estimate where it has one, else the prior
+            filt = getattr(self.estimator, "filter", None)
+            full = filt.full_estimate() if filt is not None and hasattr(filt, "full_estimate") else None
+            theta_full, std_entries = entry_estimate(est.theta, std, term, full)
+            gamma_entries = self.weighting.weights(std_entries)
+            gamma = gamma_entries[0:4]
+        else:
+            gamma = self.weighting.weights(std)
         warm = None
         if self._plan is not None:
             times = t + self.planner.dt * np.arange(self.planner.n)
             warm = sample_inputs(self._plan, times)
-        plan = self.planner.plan(x, est.theta, std, gamma, t0=t, u_warm=warm)
+        if term is None:
+            plan = self.planner.plan(x, est.theta, std, gamma, t0=t, u_warm=warm)
+        else:
+            assert std_entries is not None
+            plan = self.planner.plan(x, est.theta, std_entries, gamma_entries, t0=t, u_warm=warm,
+                                     theta_full=theta_full)
         self._plan = plan.trajectory
         params = InertialParams(est.theta[0], est.theta[1:4])
         a, b = hover_error_model(params, self.control_period_s)
         self._gain, _ = dlqr(a, b, self.q, self.r)
-        self.replans.append(ReplanRecord(t, est.theta.copy(), std.copy(), gamma, plan))
+        if term is None:
+            self.replans.append(ReplanRecord(t, est.theta.copy(), std.copy(), gamma, plan))
+        else:
+            self.replans.append(ReplanRecord(t, est.theta.copy(), std.copy(), gamma, plan, std_entries,
+                                             gamma_entries))
         self._next_replan = t + self.replan_period_s
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:

@@ -161,6 +161,16 @@ class ConvexSubproblem:
         """Slacks of the last (compiled) solve on translational constraints (velocity, keep-in, keep-out, terminal
         position and velocity): the model's violation of a force-only step."""
 
+        crit_expr = self._information_model(du, cons, n)
+        cons += self._slack_cons
+        penalty_expr = sum(cp.sum(s) for s in slacks)
+        self.problem = cp.Problem(cp.Minimize(crit_expr + penalty * penalty_expr), cons)
+        self.merit = merit
+
+    def _information_model(self, du: cp.Variable, cons: list[cp.Constraint], n: int) -> cp.Expression:
+        """The criterion of the affine model of the (scaled) FIM in the step ``du``; its constraints appended to
+        ``cons`` (overridden for the full rigid body, :mod:`oacli.excitation.design_full`)."""
+        p = self.p
         # Affine model of the (scaled) FIM: F̃(δu) = F̃0 + Σ_ab E_ab ⟨∇F̃_ab, δu⟩. Translation and rotation are
         # decoupled (F_mI ≡ 0 for every input, :mod:`oacli.excitation.split_information`): F_mm moves with the
         # forces only, the six entries of F_II with the torques only, F_mI not at all. So the gradient has 7 rows
@@ -188,10 +198,7 @@ class ConvexSubproblem:
             z = cp.Variable((N_PARAMS, N_PARAMS), PSD=True, name="lmi")
             cons.append(z == fim_var - t_min * self.crit_param)
             crit_expr = -t_min
-        cons += self._slack_cons
-        penalty_expr = sum(cp.sum(s) for s in slacks)
-        self.problem = cp.Problem(cp.Minimize(crit_expr + penalty * penalty_expr), cons)
-        self.merit = merit
+        return crit_expr
 
     def _slack(self, size: int, name: str) -> cp.Variable:
         """A non-negative slack: a ``nonneg`` Variable, or (compiled) a plain one with ``s >= 0`` (cvxpy replaces
@@ -267,6 +274,11 @@ class ConvexSubproblem:
         rate_kappa = 1.0 - (1.0 - kappa) * self.rate_margin_fraction
         put(self.w_bound, np.minimum(w_max, np.maximum(rate_kappa * w_max, np.abs(x[1:, 10:13]))))
 
+        self._set_information(ev, lin, put)
+
+    def _set_information(self, ev: Evaluation, lin, put) -> None:
+        """Set the FIM model's Parameters around the iterate (see :meth:`_information_model`)."""
+        p = self.p
         # Scaled FIM model: F̃ = Dθ F Dθ / c with c = tr(Dθ F Dθ)/4 (O(1) numbers for the conic solver).
         d_theta = np.abs(p.theta)
         f_rel = d_theta[:, None] * ev.fim * d_theta[None, :]

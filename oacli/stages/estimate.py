@@ -258,7 +258,8 @@ def run_estimation(
         states[lost] = np.array([by_t[ti].x_measured for ti in t[lost]]).reshape(-1, 13)
     elif method == "rls":
         set_phase(progress, f"recursive least squares ({len(records)} records)")
-        flight = run_rls(records, settings, prior, rls or RlsConfig(), imu, period_s)
+        flight = run_rls(records, settings, prior, rls or RlsConfig(), imu, period_s, model)
+        full = flight.full
         final, history, t, status, d2 = flight.final, flight.history, flight.t, flight.status, flight.d2
         states = np.array([by_t[ti].x_measured for ti in t]).reshape(-1, 13)  # no state estimate: as measured
         dof, threshold = 6, flight.gate_threshold
@@ -541,7 +542,8 @@ def run_estimate(
         raise InputError(f"{telemetry}: {measured} usable measurement(s); estimation needs at least 2")
     settings = estimator_settings(cfg)
     prior = estimation_prior(cfg)
-    model = batch_model(cfg, prior) if method in ("batch", "sequential") else None
+    full_rls = method == "rls" and cfg.estimation.rls.full_body
+    model = batch_model(cfg, prior) if method in ("batch", "sequential") or full_rls else None
     run = run_estimation(records, settings, prior, method, use_prior=cfg.estimation.use_prior,
                          window_s=cfg.estimation.window_s, progress=progress, rls=cfg.estimation.rls,
                          imu=_imu_stream(streams), period_s=alignment.control_period_s, model=model)
@@ -569,7 +571,7 @@ def run_estimate(
                 f"θ = {np.round(final.theta, 6).tolist()} ± {np.round(final.std, 6).tolist()} "
                 f"(Cramér-Rao {np.round(run.bound.std, 6).tolist()}), {final.samples_rejected} rejected"))
     summary = _estimate_summary(run, prior, truth, telemetry, alignment, streams)
-    if method in ("batch", "sequential"):
+    if method in ("batch", "sequential") or full_rls:
         log.append((float(run.t_records[-1]), "info", rigid_body_section(summary, run, model, settings, records,
                                                                          streams.config_yaml)))
     if use_localisation:

@@ -14,16 +14,19 @@ import numpy as np
 
 from oacli.config.estimation import RlsConfig
 from oacli.errors import InputError
+from oacli.estimation.batch_model import FullModel
 from oacli.estimation.gating import chi2_threshold
 from oacli.estimation.imu import ImuStream, gyro_noise_variance
 from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.rls import (
     RATTLE_TABLE_COV_REDUCTION_PCT,
     RATTLE_TABLE_ERROR_PCT,
+    AccelerationSamples,
     RlsEstimator,
     acceleration_samples,
     calibrate_force_scale,
 )
+from oacli.estimation.rls_full import RLS_FULL_GROUPS, RlsFullEstimator
 from oacli.types import InertialParams, ParameterEstimate
 
 
@@ -50,6 +53,8 @@ class RlsRun:
         6 × the number of samples.
     summary : dict
         The method's own summary entries (force scale, calibration, infeasible updates).
+    full : (ndarray (16,), ndarray (16, 16)) or None
+        With ``rls.full_body``: the full rigid body's θ and covariance (entries not estimated: zero variance).
     """
 
     final: ParameterEstimate
@@ -61,10 +66,12 @@ class RlsRun:
     nis_ratio: float
     nis_dof: int
     summary: dict[str, Any]
+    full: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def run_rls(records: list[Measurement], settings: EstimatorSettings, prior: ParameterEstimate,
-            config: RlsConfig, imu: ImuStream | None = None, period_s: float | None = None) -> RlsRun:
+            config: RlsConfig, imu: ImuStream | None = None, period_s: float | None = None,
+            model: FullModel | None = None) -> RlsRun:
     """Run the flight's RLS over time-ordered records.
 
     Parameters
@@ -82,6 +89,10 @@ def run_rls(records: list[Measurement], settings: EstimatorSettings, prior: Para
         measured rate's finite difference, biased in closed loop: the summary warns).
     period_s : float, optional
         Control period [s] (for the gyro's noise variance, fitted on the data).
+    model : FullModel, optional
+        With ``config.full_body``: the groups and the prior of the full rigid body
+        (:class:`oacli.estimation.rls_full.RlsFullEstimator`; the force scale as calibrated here, the torque scale
+        at the prior's mean).
 
     Returns
     -------
@@ -119,6 +130,8 @@ def run_rls(records: list[Measurement], settings: EstimatorSettings, prior: Para
                                               "scale": [float(v) for v in fit.scale],
                                               "std": [float(v) for v in fit.std], "samples": fit.samples}
     summary["force_scale"] = [float(v) for v in scale]
+    if config.full_body and model is not None:
+        return _run_full(samples, settings, model, scale, summary)
     est = RlsEstimator(prior, force_scale=scale, gate_probability=settings.gate_probability,
                        process_variance=np.array(config.process_variance, dtype=float))
     final = est.run(samples)
@@ -132,4 +145,47 @@ def run_rls(records: list[Measurement], settings: EstimatorSettings, prior: Para
         final=final, history=[s.estimate for s in est.history], t=samples.t, status=[s.status for s in est.history],
         d2=d2, gate_threshold=chi2_threshold(6, gate) if gate is not None else float("inf"),
         nis_ratio=float(np.mean(d2) / 6.0), nis_dof=6 * d2.size, summary=summary,
+    )
+
+
+def _run_full(samples: AccelerationSamples, settings: EstimatorSettings, model: FullModel, force_scale: np.ndarray,
+              summary: dict[str, Any]) -> RlsRun:
+    """:func:`run_rls` with the full rigid body's RLS (``rls.full_body``)."""
+    groups = model.params.groups
+    if set(groups) - set(RLS_FULL_GROUPS):
+        raise InputError(f"estimation.parameters: the rls method estimates {', '.join(RLS_FULL_GROUPS)}, not "
+                         f"{', '.join(sorted(set(groups) - set(RLS_FULL_GROUPS)))} (the force scale is calibrated: "
+                         "rls.force_scale or rls.calibration_mass_kg)")
+    mean = np.array(model.prior_mean, dtype=float)
+    mean[10:13] = force_scale
+    try:
+        est = RlsFullEstimator(mean, model.prior_cov, groups, settings.gate_probability, t0=float(samples.t[0]))
+    except ValueError as exc:
+        raise InputError(f"estimation.rigid_body: {exc}") from None
+    history: list[ParameterEstimate] = []
+    status: list[str] = []
+    for k in range(len(samples)):
+        status.append(est.update(samples.t[k], samples.accel_mps2[k], samples.alpha_radps2[k], samples.force_N[k],
+                                 samples.torque_Nm[k], samples.rate_radps[k], samples.accel_std_mps2[k],
+                                 samples.alpha_std_radps2[k]))
+        history.append(est.estimate.parameter_estimate())
+    final = est.estimate
+    cov = np.zeros((16, 16))
+    cov[np.ix_(final.index, final.index)] = final.covariance
+    summary["infeasible_updates"] = int(est.infeasible)
+    summary["rls_full"] = {"groups": list(groups), "physical": final.physical,
+                           "triangle_margin_kgm2": final.triangle_margin,
+                           "theta": {n: float(final.theta[i]) for n, i in zip(final.names, final.index, strict=True)},
+                           "std": {n: float(v) for n, v in zip(final.names, final.std, strict=True)}}
+    if not final.physical:
+        summary.setdefault("warnings", []).append("rls: the full rigid body's estimate is not physical")
+    summary["flight_rattle_table"] = {"source": "[ReSWARM2023] §6.2, RATTLE table",
+                                      "error_pct": list(RATTLE_TABLE_ERROR_PCT),
+                                      "cov_reduction_pct": list(RATTLE_TABLE_COV_REDUCTION_PCT)}
+    d2 = np.array([h[2] for h in est.history])
+    gate = settings.gate_probability
+    return RlsRun(
+        final=final.parameter_estimate(), history=history, t=samples.t, status=status, d2=d2,
+        gate_threshold=chi2_threshold(6, gate) if gate is not None else float("inf"),
+        nis_ratio=float(np.mean(d2) / 6.0), nis_dof=6 * d2.size, summary=summary, full=(final.theta, cov),
     )

@@ -43,8 +43,10 @@ from oacli.errors import ConfigError, InfeasibleError, InputError
 from oacli.estimation.online import OnlineSequentialEstimator
 from oacli.estimation.sequential import SequentialEstimator
 from oacli.excitation.design import ExcitationDesign, ExcitationProblem, design_excitation
+from oacli.excitation.design_types import FullDesignSpec
 from oacli.excitation.fim_gradient import criterion_value, scaling_matrix
 from oacli.excitation.information import PARAM_NAMES, MeasurementModel, cramer_rao_std
+from oacli.excitation.information_full import ideal_theta, information_summary
 from oacli.excitation.oracle import CramerRaoOracle
 from oacli.excitation.rattle import InformationAwarePlanner
 from oacli.excitation.rattle_loop import RattleRun, run_rattle
@@ -58,10 +60,13 @@ from oacli.metrics import percentiles_ms, safety_block, safety_report
 from oacli.phases import set_phase
 from oacli.reference_limits import DesignLimits
 from oacli.stages.design_limits import design_limit_log, excitation_design_limits, to_motion_limits
+from oacli.stages.estimate_rigid import batch_model
 from oacli.stages.excite_journal import ExciteJournal, RattleJournal
 from oacli.stages.settings import (
     estimator_settings,
     excitation_prior_model,
+    excitation_prior_std_full,
+    full_information_term,
     information_weighting,
     measurement_model,
     open_run,
@@ -126,6 +131,13 @@ def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> 
     prior_model = excitation_prior_model(cfg)
     theta = np.array(prior_model.theta)
     prior_info = np.linalg.inv(prior_model.covariance) if exc.use_prior_information else None
+    spec = None
+    if not exc.information.is_legacy and exc.method == "offline":
+        if exc.criterion != "A":
+            raise ConfigError(f"excitation.information.parameters: the full rigid body's design has the A-criterion "
+                              f"only (excitation.criterion is {exc.criterion})")
+        spec = FullDesignSpec(tuple(exc.information.parameters), ideal_theta(theta, cfg.estimation.rigid_body.mean()),
+                              excitation_prior_std_full(cfg), exc.information.scaling)
     return ExcitationProblem(
         start=start,
         goal=goal,
@@ -140,7 +152,23 @@ def excitation_problem(cfg: OacliConfig, limits: DesignLimits | None = None) -> 
         prior_information=prior_info,
         clearance_m=exc.clearance_m,
         terminal=terminal_tolerance(cfg),
+        information=spec,
     )
+
+
+def _information_full_block(cfg: OacliConfig, x0: np.ndarray, u: np.ndarray, theta4: np.ndarray, dt: float,
+                            measurement: MeasurementModel) -> dict[str, Any] | None:
+    """The scaled A-criterion and CRB of ``excitation.information.parameters`` along a trajectory (None for the
+    default, mass and inertia: the summary's criterion and crb_std already say it)."""
+    info = cfg.excitation.information
+    if info.is_legacy:
+        return None
+    theta = ideal_theta(theta4, cfg.estimation.rigid_body.mean())
+    block = information_summary(x0, u, theta, dt, measurement, tuple(info.parameters),
+                                excitation_prior_std_full(cfg), info.scaling)
+    block["designed_for"] = ("the informed entries (RATTLE's information term)" if cfg.excitation.method == "rattle"
+                             else "the informed entries (the SCP's criterion: criterion_initial/final)")
+    return block
 
 
 def _named(values: np.ndarray) -> dict[str, float]:
@@ -296,6 +324,10 @@ def _offline_outputs(cfg: OacliConfig, problem: ExcitationProblem, limits: Desig
         "steps": problem.steps,
         "dt_s": problem.dt,
     }
+    block = _information_full_block(cfg, problem.start, u[:problem.steps], problem.theta, problem.dt,
+                                    problem.measurement)
+    if block is not None:
+        summary["information_full"] = block
     offline_findings(summary, problem).apply(summary)
     log.extend(status_log(summary))
     mcap = run.open_mcap(method="offline")
@@ -363,6 +395,12 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
     wall = time.perf_counter()
     exc = cfg.excitation
     rcfg = exc.rattle
+    if not exc.information.is_legacy:  # an informed entry's σ must fall in the loop, else its weight never decays
+        missing = sorted(set(exc.information.parameters) - set(cfg.estimation.parameters))
+        if rcfg.estimator == "oracle" or missing:
+            raise ConfigError("excitation.information.parameters: RATTLE informs only entries its filter estimates ("
+                              + ("the oracle knows mass and inertia only" if rcfg.estimator == "oracle"
+                                 else f"{', '.join(missing)} not in estimation.parameters") + ")")
     design_lim = excitation_design_limits(cfg, rattle=True)
     problem = excitation_problem(cfg, design_lim)  # start, goal, workspace checks, measurement model
     limits = to_motion_limits(design_lim)
@@ -371,7 +409,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         problem.goal, horizon=rcfg.horizon, dt_s=rcfg.step_s, limits=limits, measurement=problem.measurement,
         scene=problem.scene, weights=rattle_planner_weights(cfg),
         iterations=rcfg.iterations, penalty=rcfg.penalty, clearance_m=exc.clearance_m,
-        stop_speed_fraction=rcfg.stop_speed_fraction,
+        stop_speed_fraction=rcfg.stop_speed_fraction, information=full_information_term(cfg, limits.input),
     )
     weighting = information_weighting(cfg)
     prior_model, plant = excitation_prior_model(cfg), truth_model(cfg)
@@ -384,7 +422,10 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
         )
     else:
         prior = ParameterEstimate(0.0, prior_model.theta, prior_cov, "prior")
-        estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior))
+        # With the full θ informed, the filter estimates estimation.parameters' full rigid body, so that the σ of
+        # the informed entries it estimates fall (and their weights decay) as the run goes.
+        full_model = None if exc.information.is_legacy else batch_model(cfg, prior)
+        estimator = OnlineSequentialEstimator(SequentialEstimator(estimator_settings(cfg), prior, model=full_model))
     cw = cfg.controller.weights
 
     with (open_run("excite", cfg, out=out, runs_root=runs_root, started=wall) as stage_run,
@@ -519,6 +560,15 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
     )
     summary["safety"] = safety_block(report, samples=len(tel.t_true), robot_radius_m=robot.radius_m,
                                      keep_in_margin_m=cfg.environment.keep_in_margin_m)
+    block = _information_full_block(cfg, traj.x[0], traj.u[:-1], theta_true, cfg.controller.period_s,
+                                    problem.measurement)
+    if block is not None:
+        last = run.replans[-1]
+        if last.std_entries is not None and last.gamma_entries is not None:
+            names = list(block["crb_std"])
+            block["std_final"] = dict(zip(names, map(float, last.std_entries), strict=True))
+            block["gamma_final"] = dict(zip(names, map(float, last.gamma_entries), strict=True))
+        summary["information_full"] = block
     rattle_findings(summary, problem, run).apply(summary)
     log.extend(status_log(summary, float(tel.t_true[-1])))
     return summary, traj, log

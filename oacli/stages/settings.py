@@ -35,8 +35,10 @@ from oacli.estimation.models import EstimatorSettings, ProcessNoise
 from oacli.estimation.models import MeasurementModel as EstimationMeasurementModel
 from oacli.excitation.design import ScpSettings
 from oacli.excitation.information import MeasurementModel
+from oacli.excitation.information_full import FullInformationTerm
 from oacli.excitation.problem import TerminalTolerance
 from oacli.excitation.rattle import InformationWeighting, PlannerWeights
+from oacli.excitation.rattle_full import full_weighting
 from oacli.geometry.collision import RobotBody
 from oacli.io.runfolder import StageRun, open_stage_run
 from oacli.model import quaternion as quat
@@ -425,7 +427,51 @@ def information_weighting(cfg: OacliConfig) -> InformationWeighting:
     InformationWeighting
     """
     r = cfg.excitation.rattle
-    return InformationWeighting(np.array(r.gamma0), np.array(r.floor), r.alpha, r.beta)
+    base = InformationWeighting(np.array(r.gamma0), np.array(r.floor), r.alpha, r.beta)
+    info = cfg.excitation.information
+    if info.is_legacy:
+        return base
+    g0 = {"products": info.products_gamma0, "com": info.com_gamma0, "force_scale": info.scale_gamma0,
+          "torque_scale": info.scale_gamma0}
+    floor = {"products": info.products_floor_kgm2, "com": info.com_floor_m, "force_scale": info.scale_floor,
+             "torque_scale": info.scale_floor}
+    return full_weighting(base, tuple(info.parameters), g0, floor)
+
+
+def excitation_prior_std_full(cfg: OacliConfig) -> np.ndarray:
+    """Prior σ of the full θ (16): ``excitation.prior``'s for [m, I], ``estimation.rigid_body``'s for the rest.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+
+    Returns
+    -------
+    ndarray, shape (16,)
+    """
+    return np.r_[np.sqrt(np.array(cfg.excitation.prior.variances, dtype=float)), cfg.estimation.rigid_body.std()]
+
+
+def full_information_term(cfg: OacliConfig, input_scale: np.ndarray) -> FullInformationTerm | None:
+    """RATTLE's information term over ``excitation.information.parameters``; None for mass and inertia only.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        Resolved configuration.
+    input_scale : ndarray, shape (6,)
+        The planner's input limits [N, N·m] (difference steps of the information gradient).
+
+    Returns
+    -------
+    FullInformationTerm or None
+    """
+    info = cfg.excitation.information
+    if info.is_legacy:
+        return None
+    return FullInformationTerm(tuple(info.parameters), cfg.estimation.rigid_body.mean(),
+                               excitation_prior_std_full(cfg), np.asarray(input_scale, dtype=float))
 
 
 # ----------------------------------------------------------------------------------------------------------------
