@@ -14,7 +14,7 @@ import copy
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator
 from pydantic_core import PydanticCustomError
 
 from oacli.config.fields import (
@@ -164,12 +164,14 @@ class MissionConfig(Section):
         "a stage key (segment-3/baseline-mpc-prior ...) overrides that stage alone, after its segment's.",
     )
 
-    @model_validator(mode="after")
-    def _manoeuvre_needs_calibration(self) -> MissionConfig:
-        if self.calibration_manoeuvre is not None and not self.calibration:
-            raise PydanticCustomError("oacli_range", "calibration_manoeuvre: needs calibration: true (the "
-                                      "manoeuvre is flown for segment-1/calibrate); set it null or calibration true")
-        return self
+    @field_validator("calibration_manoeuvre", mode="after")
+    @classmethod
+    def _manoeuvre_needs_calibration(cls, value: CalibrationManoeuvreConfig | None,
+                                     info: ValidationInfo) -> CalibrationManoeuvreConfig | None:
+        if value is not None and info.data.get("calibration") is False:
+            raise PydanticCustomError("oacli_range", "needs mission.calibration: true (the manoeuvre is flown for "
+                                      "segment-1/calibrate); set it null or calibration true")
+        return value
 
 
 __all__ = ["SEGMENT_NAMES", "CalibrationManoeuvreConfig", "GraspedPlantConfig", "MissionConfig", "PayloadPriorConfig",

@@ -40,7 +40,7 @@ __all__ = [
     "actuator_calibration",
     "assess_calibration",
     "calibration_prior_section",
-    "calibration_stage_prior",
+    "calibration_stage_prior", "config_actuator_prior",
     "estimate_failures",
     "handed_rigid_body",
     "manoeuvre_poses",
@@ -266,7 +266,7 @@ class ActuatorCalibration:
         return out
 
 
-def _prior_of(cfg: OacliConfig) -> dict[str, Any]:
+def config_actuator_prior(cfg: OacliConfig) -> dict[str, Any]:
     """The config's actuator prior (``estimation.rigid_body``) as per-axis means and σ, like
     :func:`handed_rigid_body`'s."""
     rb = cfg.estimation.rigid_body
@@ -352,7 +352,7 @@ def _stage_summary(mission_dir: Path, key: str) -> dict[str, Any]:
 def calibration_stage_prior(cfg: OacliConfig, mission_dir: Path) -> dict[str, Any] | None:
     """The ``estimation.rigid_body`` prior of :data:`ON_MANOEUVRE_KEY`: :data:`CALIBRATE_KEY`'s handed scales when
     they pass :func:`assess_calibration`, else None (the config's)."""
-    handed, problems, _ = assess_calibration(_stage_summary(mission_dir, CALIBRATE_KEY), _prior_of(cfg))
+    handed, problems, _ = assess_calibration(_stage_summary(mission_dir, CALIBRATE_KEY), config_actuator_prior(cfg))
     return None if problems else handed
 
 
@@ -377,7 +377,7 @@ def actuator_calibration(cfg: OacliConfig, mission_dir: Path) -> ActuatorCalibra
     """
     if cfg.mission is None or not cfg.mission.calibration:
         return None
-    config_prior = _prior_of(cfg)
+    config_prior = config_actuator_prior(cfg)
     first = _stage_summary(mission_dir, CALIBRATE_KEY)
     handed, problems, inflation = assess_calibration(first, config_prior)
     key, summary = CALIBRATE_KEY, first
