@@ -30,6 +30,7 @@ from oacli.status import OK
 __all__ = [
     "CALIBRATE_KEY",
     "CHI2_ACCEPT_MAX",
+    "CONSISTENCY_Z_MAX",
     "HANDED_GROUPS",
     "KNOWN_VARIANCE",
     "MANOEUVRE_KEY",
@@ -40,11 +41,13 @@ __all__ = [
     "actuator_calibration",
     "assess_calibration",
     "calibration_prior_section",
-    "calibration_stage_prior", "config_actuator_prior",
+    "calibration_stage_prior",
+    "config_actuator_prior",
     "estimate_failures",
     "handed_rigid_body",
     "manoeuvre_poses",
     "manoeuvre_section",
+    "reconcile_flights",
 ]
 
 CALIBRATE_KEY = "segment-1/calibrate"
@@ -76,6 +79,9 @@ CHI2_ACCEPT_MAX = 2.0
 
 PRIOR_Z_MAX = 4.0
 """Largest |z| of a calibrated scale against the prior it was fitted from (:func:`assess_calibration`)."""
+
+CONSISTENCY_Z_MAX = 3.0
+"""Largest |z| between the two calibration flights of the known robot on one scale (:func:`reconcile_flights`)."""
 
 _AXES = ("x", "y", "z")
 
@@ -241,6 +247,9 @@ class ActuatorCalibration:
         The stage whose estimate is handed on.
     inflation : float
         The factor its σ was inflated by (:func:`assess_calibration`; 1: none).
+    replaced : tuple of str
+        The scales on which the two flights disagreed, handed on from the manoeuvre alone
+        (:func:`reconcile_flights`).
     """
 
     source: str
@@ -249,12 +258,13 @@ class ActuatorCalibration:
     truth: dict[str, float] = field(default_factory=dict)
     stage: str = CALIBRATE_KEY
     inflation: float = 1.0
+    replaced: tuple[str, ...] = ()
 
     def summary(self) -> dict[str, Any]:
         """The ``calibration`` entry of the mission's summary (with the z-scores where the truth is known)."""
         out: dict[str, Any] = {"source": self.source, **self.rigid_body, "note": self.note}
         if self.stage != CALIBRATE_KEY or self.inflation != 1.0:
-            out.update(stage=self.stage, sigma_inflation=self.inflation)
+            out.update(stage=self.stage, sigma_inflation=self.inflation, replaced=list(self.replaced))
         z = {}
         for group in HANDED_GROUPS:
             for i, a in enumerate(_AXES):
@@ -344,6 +354,61 @@ def assess_calibration(summary: dict[str, Any], prior: dict[str, Any]) -> tuple[
     return ({}, problems, 1.0) if problems else (handed, [], inflation)
 
 
+def reconcile_flights(second: dict[str, Any], first: dict[str, Any],
+                      inflation: float = 1.0) -> tuple[dict[str, Any], list[str], list[str]]:
+    """Check the manoeuvre's calibration (fitted from the first one's scales) against segment 1's, per scale.
+
+    The manoeuvre's fit ``κ₂ ± σ₂`` started from segment 1's ``κ₁ ± σ₁``; per axis (scalar Gaussian update, the
+    cross-correlations neglected) the manoeuvre's own data say ``κ_d ± σ_d`` with ``1/σ_d² = 1/σ₂² - 1/σ₁²`` and
+    ``κ_d = σ_d² (κ₂/σ₂² - κ₁/σ₁²)``, and the two flights agree when ``|κ_d - κ₁| / √(σ_d² + σ₁²)`` (= ``|κ₂ - κ₁|
+    / √(σ₁² - σ₂²)``) is at most :data:`CONSISTENCY_Z_MAX`. Where they do not, a fault struck one flight: a
+    saturating actuator clips the large commands only ([ReSWARM2023] §6.2.1; ``faults.actuator_saturation`` delivers
+    at least 60 % of a limit in the flight-fault campaign), and the manoeuvre stays below about half of every limit
+    (the defaults of ``mission.calibration_manoeuvre``) while segment 1's plan may use all of it, so the manoeuvre's
+    own ``κ_d ± σ_d`` is handed on for that scale.
+
+    Parameters
+    ----------
+    second : dict
+        The manoeuvre's handed scales (:func:`assess_calibration`), σ already multiplied by ``inflation``.
+    first : dict
+        Segment 1's handed scales (its prior).
+    inflation : float
+        The factor ``second``'s σ carries (removed for the update arithmetic, applied to σ_d).
+
+    Returns
+    -------
+    handed : dict
+        ``second`` with the disagreeing scales replaced (empty when a replacement is impossible).
+    replaced : list of str
+        One sentence per replaced scale.
+    problems : list of str
+        Why nothing can be handed on (empty: it can).
+    """
+    out = {k: list(v) for k, v in second.items()}
+    replaced: list[str] = []
+    for group in HANDED_GROUPS:
+        if group not in second or group not in first:
+            continue
+        for i, a in enumerate(_AXES):
+            k1, s1 = first[group][i], first[f"{group}_std"][i]
+            k2, s2 = second[group][i], second[f"{group}_std"][i] / inflation
+            var = s1**2 - s2**2
+            z = (k2 - k1) / np.sqrt(max(var, 1e-4 * s1**2))
+            if abs(z) <= CONSISTENCY_Z_MAX:
+                continue
+            info = 1.0 / s2**2 - 1.0 / s1**2
+            if info <= 0.0:
+                return {}, replaced, [f"{group}_{a}: the two flights disagree (z {z:.1f}) and the manoeuvre alone does "
+                                      "not determine it"]
+            kd, sd = (k2 / s2**2 - k1 / s1**2) / info, 1.0 / np.sqrt(info)
+            out[group][i], out[f"{group}_std"][i] = float(kd), float(inflation * sd)
+            replaced.append(f"{group}_{a}: segment 1 says {k1:.4f} ± {s1:.2g}, the manoeuvre {kd:.4f} ± {sd:.2g} "
+                            f"(z {z:.1f} > {CONSISTENCY_Z_MAX:g}: e.g. a saturating actuator); the manoeuvre's is "
+                            "handed on")
+    return out, replaced, []
+
+
 def _stage_summary(mission_dir: Path, key: str) -> dict[str, Any]:
     folder = stage_by_key(key).folder(Path(mission_dir))
     return json.loads((folder / "summary.json").read_text()) if is_complete(folder) else {}
@@ -382,10 +447,13 @@ def actuator_calibration(cfg: OacliConfig, mission_dir: Path) -> ActuatorCalibra
     handed, problems, inflation = assess_calibration(first, config_prior)
     key, summary = CALIBRATE_KEY, first
     notes = [f"{CALIBRATE_KEY} {' and '.join(problems)}"] if problems else []
+    replaced: list[str] = []
     if cfg.mission.calibration_manoeuvre is not None:
-        prior = config_prior if problems else handed
+        first_handed = None if problems else handed
         key, summary = ON_MANOEUVRE_KEY, _stage_summary(mission_dir, ON_MANOEUVRE_KEY)
-        handed, problems, inflation = assess_calibration(summary, prior)
+        handed, problems, inflation = assess_calibration(summary, config_prior)  # plausible at all?
+        if not problems and first_handed is not None:  # and the two flights agree
+            handed, replaced, problems = reconcile_flights(handed, first_handed, inflation)
         if problems:
             notes.append(f"{ON_MANOEUVRE_KEY} {' and '.join(problems)}")
     if problems:
@@ -396,4 +464,7 @@ def actuator_calibration(cfg: OacliConfig, mission_dir: Path) -> ActuatorCalibra
     note = None
     if notes:  # the manoeuvre's fit from the config's prior: handed on, the first one's rejection noted
         note = f"the actuator calibration: {'; '.join(notes)}: {key} is handed on, fitted from the config's prior"
-    return ActuatorCalibration("calibration", handed, note=note, truth=truth, stage=key, inflation=inflation)
+    if replaced:
+        note = f"the actuator calibration's two flights disagree: {'; '.join(replaced)}"
+    return ActuatorCalibration("calibration", handed, note=note, truth=truth, stage=key, inflation=inflation,
+                               replaced=tuple(replaced))

@@ -581,6 +581,8 @@ def mission_summary(cfg: OacliConfig, mission_dir: Path, stages: tuple[MissionSt
     calibration = actuator_calibration(cfg, mission_dir)
     if calibration is not None and calibration.source == "config" and calibration.note is not None:
         verdict.add(DEGRADED, "calibration_fallback", calibration.note)
+    elif calibration is not None and calibration.replaced and calibration.note is not None:
+        verdict.add(DEGRADED, "calibration_inconsistent", calibration.note)
     estimate = results["segment-2/estimate"]
     comparison = {}
     for key in ("segment-3/track", *(f"segment-3/{n}" for n in BASELINE_STAGES)):
