@@ -24,6 +24,7 @@ from oacli.io.mcap_read import read_stage
 from oacli.mission.calibration import (
     CALIBRATE_KEY,
     CHI2_ACCEPT_MAX,
+    CONSISTENCY_Z_MAX,
     KNOWN_PRODUCTS_STD,
     KNOWN_VARIANCE,
     MANOEUVRE_KEY,
@@ -33,6 +34,7 @@ from oacli.mission.calibration import (
     assess_calibration,
     config_actuator_prior,
     handed_rigid_body,
+    reconcile_flights,
 )
 from oacli.mission.configs import Handoff, seed_index, stage_config, stage_seed
 from oacli.mission.layout import MISSION_STAGES, stage_by_key
@@ -298,6 +300,32 @@ def test_acceptance_rule_inflates_a_moderate_chi2_and_rejects_a_contradicted_pri
         assert bool(problems) is rejected and (handed == {}) is rejected
         if rejected:
             assert f"accepted up to {PRIOR_Z_MAX:g}" in problems[0] and "torque_scale_z" in problems[0]
+
+
+def test_two_flights_that_disagree_hand_on_the_manoeuvres_own_estimate():
+    """Segment 1 (κ₁ ± σ₁) is the manoeuvre's prior; its own data say κ_d ± σ_d, the fit κ₂ the inverse-variance
+    combination. Agreeing flights keep κ₂; on a disagreement (a saturating impeller biased segment 1's κ_x,
+    campaign run 2: 0.9997 ± 0.0032 against the truth 1.0355) κ_d ± σ_d is recovered exactly and handed on."""
+    first = {"force_scale": [0.9997, 0.97, 1.02], "force_scale_std": [0.0032, 0.004, 0.004]}
+
+    def fit(kd, sd):  # the scalar Gaussian update the batch fit makes per axis
+        post_var = 1.0 / (1.0 / first["force_scale_std"][0] ** 2 + 1.0 / sd**2)
+        kappa = post_var * (first["force_scale"][0] / first["force_scale_std"][0] ** 2 + kd / sd**2)
+        return {"force_scale": [kappa, 0.97, 1.02], "force_scale_std": [np.sqrt(post_var), 0.0039, 0.0039]}
+
+    handed, replaced, problems = reconcile_flights(fit(1.0300, 0.009), first)   # z 3.2: disagree
+    assert not problems and len(replaced) == 1 and replaced[0].startswith("force_scale_x")
+    np.testing.assert_allclose([handed["force_scale"][0], handed["force_scale_std"][0]], [1.0300, 0.009], rtol=1e-9)
+    assert handed["force_scale"][1:] == [0.97, 1.02]
+    inflated = fit(1.0300, 0.009)   # as assess_calibration hands it: σ × 1.5 (a χ² of 2.25 × expected)
+    inflated["force_scale_std"] = [1.5 * v for v in inflated["force_scale_std"]]
+    handed, replaced, _ = reconcile_flights(inflated, first, inflation=1.5)   # σ_d inflated too
+    np.testing.assert_allclose(handed["force_scale_std"][0], 1.5 * 0.009, rtol=1e-9)
+    second = fit(1.0050, 0.009)   # z 0.55: agree, κ₂ kept
+    handed, replaced, problems = reconcile_flights(second, first)
+    assert handed == second and not replaced and not problems
+    z = (1.0300 - 0.9997) / np.hypot(0.009, 0.0032)
+    assert z > CONSISTENCY_Z_MAX > (1.0050 - 0.9997) / np.hypot(0.009, 0.0032)
 
 
 def test_manoeuvre_calibration_is_handed_on_and_a_rejected_first_one_noted(mission_run, tmp_path):
