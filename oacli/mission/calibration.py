@@ -2,14 +2,24 @@
 
 The flight calibrated the per-axis force scale on its own data before estimating the payload ([ReSWARM2023] Eqs.
 38-39, §6.2.1): ``v̇ = R κ_F ⊙ (Rᵀ F) / m`` hides a common factor of κ_F and m, so a payload's mass is known no
-better than κ_F. Segment 1 flies the bare robot, whose mass and inertias are known (``robot:``): the stage
-``segment-1/calibrate`` (an ordinary ``estimate`` of segment 1's telemetry, :func:`calibration_prior_section`)
-holds them with a negligible variance and estimates the estimation section's other groups. Its force and torque
-scales (mean and σ per body axis) become the ``estimation.rigid_body`` prior of segment 2's estimates
-(:func:`actuator_calibration`): the payload changes mass, inertia and CoM, not the impellers. A calibration that
-failed, did not converge or ended other than ``ok`` (e.g. ``degraded``: its χ² says the actuator model does not
-explain the telemetry, as with a saturating impeller, so its small σ would make segment 2's mass confidently
-wrong) is not handed on: segment 2 keeps the config's prior and the mission says so (``degraded``).
+better than κ_F (and its inertias no better than the torque scale κ_τ). Segment 1 flies the bare robot, whose mass
+and inertias are known (``robot:``): the stage ``segment-1/calibrate`` (an ordinary ``estimate`` of segment 1's
+telemetry, :func:`calibration_prior_section`) holds them with a negligible variance and estimates the estimation
+section's other groups. Its force and torque scales (mean and σ per body axis) become the ``estimation.rigid_body``
+prior of segment 2's estimates (:func:`actuator_calibration`): the payload changes mass, inertia and CoM, not the
+impellers.
+
+Segment 1 barely rotates the robot, so it calibrates κ_τ only to a few per cent. With
+``mission.calibration_manoeuvre`` the known robot also flies a rotation-rich manoeuvre at B before the grasp
+(``segment-1/calibrate-manoeuvre``: a waypoint reference, :func:`manoeuvre_poses`) and ``segment-1/calibrate-on-
+manoeuvre`` fits its telemetry from segment 1's scales (products of inertia held too), which are then handed on.
+
+Acceptance (:func:`assess_calibration`, :func:`reconcile_flights`): a calibration that failed, did not converge, or
+ended ``degraded`` for anything but a moderately high χ² (σ then inflated by √χ²), or whose scale contradicts the
+prior it was fitted from, is not handed on: segment 2 keeps the config's prior and the mission says so
+(``degraded``, ``calibration_fallback``). Where the two flights disagree on a scale (e.g. a saturating impeller
+clipped segment 1's large commands; the manoeuvre stays below about half of each limit), the manoeuvre's own
+estimate of it is handed on (``degraded``, ``calibration_inconsistent``).
 """
 
 from __future__ import annotations
@@ -300,8 +310,8 @@ def assess_calibration(summary: dict[str, Any], prior: dict[str, Any]) -> tuple[
        the mean, posterior - prior, has variance σ_prior² - σ_post², so ``|z| = |κ - κ_prior| /
        √(σ_prior² - σ_post²)`` above :data:`PRIOR_Z_MAX` means the telemetry contradicts the prior. With the
        config's 5 % prior that is a scale 20 % off (a saturating impeller: the commands are recorded as applied
-       while the plant receives less, [ReSWARM2023] §6.2.1); with the first calibration as prior (the manoeuvre's
-       fit) it is two flights of the same robot that disagree.
+       while the plant receives less, [ReSWARM2023] §6.2.1). Two calibration flights are compared by
+       :func:`reconcile_flights`.
 
     Parameters
     ----------
@@ -426,8 +436,8 @@ def actuator_calibration(cfg: OacliConfig, mission_dir: Path) -> ActuatorCalibra
 
     Without the manoeuvre: :data:`CALIBRATE_KEY`'s estimate if it passes :func:`assess_calibration` against the
     config's prior. With it (``mission.calibration_manoeuvre``): :data:`ON_MANOEUVRE_KEY`'s, fitted from the
-    first calibration's scales (or the config's when that one was rejected) and assessed against that prior; when
-    the two flights disagree neither is handed on.
+    first calibration's scales (or the config's when that one was rejected), assessed against the config's prior
+    and, scale by scale, against the first one (:func:`reconcile_flights`).
 
     Parameters
     ----------
