@@ -18,8 +18,8 @@ Acceptance (:func:`assess_calibration`, :func:`reconcile_flights`): a calibratio
 ended ``degraded`` for anything but a moderately high χ² (σ then inflated by √χ²), or whose scale contradicts the
 prior it was fitted from, is not handed on: segment 2 keeps the config's prior and the mission says so
 (``degraded``, ``calibration_fallback``). Where the two flights disagree on a scale (e.g. a saturating impeller
-clipped segment 1's large commands; the manoeuvre stays below about half of each limit), the manoeuvre's own
-estimate of it is handed on (``degraded``, ``calibration_inconsistent``).
+clipped segment 1's large commands; the manoeuvre's reference asks for about half of each limit at most), the
+manoeuvre's own estimate of it is handed on (``degraded``, ``calibration_inconsistent``).
 """
 
 from __future__ import annotations
@@ -373,9 +373,9 @@ def reconcile_flights(second: dict[str, Any], first: dict[str, Any],
     ``κ_d = σ_d² (κ₂/σ₂² - κ₁/σ₁²)``, and the two flights agree when ``|κ_d - κ₁| / √(σ_d² + σ₁²)`` (= ``|κ₂ - κ₁|
     / √(σ₁² - σ₂²)``) is at most :data:`CONSISTENCY_Z_MAX`. Where they do not, a fault struck one flight: a
     saturating actuator clips the large commands only ([ReSWARM2023] §6.2.1; ``faults.actuator_saturation`` delivers
-    at least 60 % of a limit in the flight-fault campaign), and the manoeuvre stays below about half of every limit
-    (the defaults of ``mission.calibration_manoeuvre``) while segment 1's plan may use all of it, so the manoeuvre's
-    own ``κ_d ± σ_d`` is handed on for that scale.
+    at least 60 % of a limit in the flight-fault campaign), and the manoeuvre's reference asks for less than about
+    half of every limit (the defaults of ``mission.calibration_manoeuvre``; the MPC's feedback adds to it) while
+    segment 1's plan may use most of it, so the manoeuvre's own ``κ_d ± σ_d`` is handed on for that scale.
 
     Parameters
     ----------
