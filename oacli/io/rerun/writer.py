@@ -281,7 +281,7 @@ class StageRecording(SpatialLogging):
             # Memory, not Rerun's file sink: the file sink can block forever on a full disk (DESIGN.md §7).
             stream = rr.binary_stream(recording=self._rec)
             if blueprint is not None:
-                rr.send_blueprint(blueprint, make_active=False, make_default=True, recording=self._rec)
+                send_default_blueprint(self._rec, self.application_id, blueprint)
             self._rec.flush()
             data = stream.read(flush=True) or b""
         finally:
@@ -309,6 +309,47 @@ class StageRecording(SpatialLogging):
         """
         del self._rec
         release_orphaned_recordings()
+
+
+def send_default_blueprint(recording: rr.RecordingStream, application_id: str, blueprint: rrb.Blueprint) -> None:
+    """Send ``blueprint`` to ``recording`` as its application's default layout, leaving no thread behind.
+
+    ``rr.send_blueprint`` logs the blueprint into a stream of its own with a memory sink and sends that sink's
+    storage; the blueprint stream still holds the storage's messages when Python drops it, so Rerun never treats it
+    as an orphan and its two threads (chunk batcher, sink forwarder) live until the process ends: one pair per saved
+    recording with a blueprint (the track, plan and estimate stages'), 860 threads in a campaign worker after 50
+    missions (the fix of :meth:`StageRecording._release` did not cover them). Here the same steps as
+    ``rerun.blueprint.api.create_in_memory_blueprint`` and ``rr.send_blueprint`` (rerun-sdk 0.41), then the memory
+    sink drained and the blueprint stream disconnected, so that :func:`release_orphaned_recordings` joins it.
+    Falls back to ``rr.send_blueprint`` where those internals are missing.
+
+    Parameters
+    ----------
+    recording : rerun.RecordingStream
+        The data recording the file is written from.
+    application_id : str
+        Its application id (the blueprint belongs to it).
+    blueprint : rerun.blueprint.Blueprint
+        The layout.
+    """
+    new_blueprint = getattr(rr.bindings, "new_blueprint", None)
+    from_native = getattr(rr.RecordingStream, "_from_native", None)
+    to_blueprint = getattr(blueprint, "to_blueprint", None)
+    if new_blueprint is None or from_native is None or to_blueprint is None:
+        rr.send_blueprint(blueprint, make_active=False, make_default=True, recording=recording)
+        return
+    full = to_blueprint()
+    stream = from_native(new_blueprint(application_id=application_id, make_default=False, make_thread_default=False,
+                                       default_enabled=True))
+    try:
+        stream.set_time("blueprint", sequence=0)
+        full._log_to_stream(stream)
+        memory = stream.memory_recording()
+        rr.bindings.send_blueprint(memory.storage, False, True, recording=recording.to_native())
+        memory.drain_as_bytes()
+    finally:
+        stream.disconnect()
+    del stream
 
 
 def release_orphaned_recordings() -> None:
