@@ -390,7 +390,7 @@ def test_manoeuvre_recovers_the_force_and_torque_scales(tmp_path):
 @pytest.mark.slow
 def test_a_saturating_torque_axis_is_not_handed_on(tmp_path):
     """The y torque delivers only 35 % of its limit (faults.actuator_saturation; the command is still recorded as
-    applied): the fit's κ_τy contradicts the 5 % prior and the calibration is rejected. (~2 min: the fit struggles.)"""
+    applied): the fit's κ_τy contradicts the 5 % prior and the calibration is rejected (31 s on an idle core)."""
     cfg, summary = _fly_manoeuvre(tmp_path, "faults.actuator_saturation=[1, 1, 1, 1, 0.35, 1]")
     handed, problems, _ = assess_calibration(summary, config_actuator_prior(cfg))
     assert handed == {} and any("torque_scale_y" in p and "contradicts its prior" in p for p in problems), problems
