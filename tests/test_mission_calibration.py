@@ -21,10 +21,25 @@ from oacli.cli import app
 from oacli.config import config_from_dict, load_config
 from oacli.config.overrides import apply_overrides
 from oacli.io.mcap_read import read_stage
-from oacli.mission.calibration import CALIBRATE_KEY, KNOWN_VARIANCE, actuator_calibration
+from oacli.mission.calibration import (
+    CALIBRATE_KEY,
+    CHI2_ACCEPT_MAX,
+    CONSISTENCY_Z_MAX,
+    KNOWN_PRODUCTS_STD,
+    KNOWN_VARIANCE,
+    MANOEUVRE_KEY,
+    ON_MANOEUVRE_KEY,
+    PRIOR_Z_MAX,
+    actuator_calibration,
+    assess_calibration,
+    config_actuator_prior,
+    handed_rigid_body,
+    reconcile_flights,
+)
 from oacli.mission.configs import Handoff, seed_index, stage_config, stage_seed
 from oacli.mission.layout import MISSION_STAGES, stage_by_key
 from oacli.mission.run import handoff_for, mission_stages, mission_summary
+from oacli.model import quaternion as quat
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNNER = CliRunner()
@@ -121,17 +136,23 @@ def test_an_unconverged_calibration_falls_back_to_the_config_prior(mission_run, 
     assert summary["calibration"]["source"] == "config"
     # Converged but degraded (the actuator model does not fit segment 1, e.g. a saturating impeller): its small σ
     # would make segment 2's mass confidently wrong, so it is not handed on either.
-    data.update(converged=True, status="degraded", status_reasons=[
-        {"level": "degraded", "kind": "fit_chi2", "message": "χ² 1.42 × its expected value"}])
+    # A χ² far above the accepted ratio is not handed on (up to CHI2_ACCEPT_MAX it is, σ inflated: below).
+    data.update(converged=True, status="degraded", chi2_ratio=2.5, status_reasons=[
+        {"level": "degraded", "kind": "fit_chi2", "message": "χ² 2.5 × its expected value"}])
     path.write_text(json.dumps(data))
     degraded = actuator_calibration(cfg, out)
-    assert degraded.source == "config" and "ended degraded (fit_chi2)" in degraded.note
+    assert degraded.source == "config" and "ended degraded (fit_chi2; χ² 2.5" in degraded.note
     shutil.rmtree(out / CALIBRATE_KEY)   # the stage failed (handled): no folder at all
     assert "failed" in actuator_calibration(cfg, out).note
 
 
 @pytest.mark.parametrize(("setting", "field"), [
     ("mission.calibration=maybe", "mission.calibration"),
+    ("mission.calibration_manoeuvre={angle_rad: 2}", "mission.calibration_manoeuvre.angle_rad"),
+    ("mission.calibration_manoeuvre={repeats: 0}", "mission.calibration_manoeuvre.repeats"),
+    ("mission.calibration_manoeuvre=5", "mission.calibration_manoeuvre"),
+    # beyond the robot's torque limit: the manoeuvre's reference is refused up front, naming the option
+    ("mission.calibration_manoeuvre={angular_acceleration_radps2: 0.5}", "mission.calibration_manoeuvre"),
     ("estimation.parameters=[mass, inertia, com]", "mission.calibration"),
     ("estimation.rigid_body.force_scale_std=[0.01, -0.01, 0.01]", "estimation.rigid_body.force_scale_std"),
 ])
@@ -168,3 +189,208 @@ def test_from_a_stage_the_mission_does_not_run_exits_2(mission_run, tmp_path):
     assert result.exit_code == 2, result.output
     assert "--from: segment-1/calibrate is not a stage of this mission" in result.output
     assert not (tmp_path / "new" / "segment-1").exists()
+
+
+def test_bad_manoeuvre_without_calibration_exits_2(tmp_path):
+    result = RUNNER.invoke(app, ["mission", str(ROOT / "configs" / "mission_iss.yaml"), "--set",
+                                 "mission.calibration=false", "--set", "mission.calibration_manoeuvre={}",
+                                 "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2, result.output
+    assert "mission.calibration_manoeuvre" in result.output and "needs mission.calibration: true" in result.output
+    assert "Traceback" not in result.output and not (tmp_path / "run").exists()
+
+
+MANOEUVRE_SETS = ("mission.calibration_manoeuvre={}",
+                  "estimation.parameters=[mass, inertia, com, force_scale, torque_scale]")
+
+
+def test_manoeuvre_stages_reference_and_calibration_configs():
+    """The manoeuvre (segment-1/calibrate-manoeuvre) flies at B between segment 1 and the grasp: about each body axis
+    +angle, -angle, back, within the rate and torque limits; segment-1/calibrate-on-manoeuvre fits its telemetry
+    from the first calibration's scales with the known robot's m, I and products held. The other stages keep
+    their seeds."""
+    from oacli.stages.track import reference_from_config
+
+    cfg = _cfg(*MANOEUVRE_SETS)
+    man = cfg.mission.calibration_manoeuvre
+    keys = [s.key for s in mission_stages(cfg)]
+    i = keys.index("segment-1/track")
+    assert keys[i + 1:i + 4] == [MANOEUVRE_KEY, CALIBRATE_KEY, ON_MANOEUVRE_KEY]
+    assert keys[i + 4] == "segment-2/excite"
+    plain = _cfg("estimation.parameters=[mass, inertia, com, force_scale, torque_scale]")
+    assert [k for k in keys if k not in (MANOEUVRE_KEY, ON_MANOEUVRE_KEY)] == [s.key for s in mission_stages(plain)]
+    seeds = {k: seed_index(stage_by_key(k)) for k in keys}
+    assert len(set(seeds.values())) == len(seeds)
+    assert all(seeds[s.key] == seed_index(s) for s in mission_stages(plain))
+
+    stage_cfg = stage_config(cfg, stage_by_key(MANOEUVRE_KEY), Handoff(initial_offset_m=(0.01, -0.02, 0.0)))
+    assert stage_cfg.controller.type == "mpc" and stage_cfg.truth.mass_kg == cfg.truth.mass_kg  # the bare robot
+    assert stage_cfg.simulation.initial_offset_m == (0.01, -0.02, 0.0)   # where segment 1 ended
+    ref = reference_from_config(stage_cfg)
+    b = cfg.waypoints["B"]
+    np.testing.assert_allclose(ref.x[0, 0:3], b.position, atol=1e-12)
+    np.testing.assert_allclose(ref.x[-1, 0:3], b.position, atol=1e-12)
+    assert quat.angle_between(ref.x[-1, 6:10], np.asarray(b.quaternion)) < 1e-9
+    # Body-frame rotation from B's attitude: each axis reaches ±angle about itself alone, in x, y, z order.
+    rot = np.array([quat.error_vector(np.asarray(b.quaternion), q) for q in ref.x[:, 6:10]])
+    for axis in range(3):
+        others = [a for a in range(3) if a != axis]
+        moving = np.abs(rot[:, axis]) > 1e-6
+        assert np.all(np.abs(rot[moving][:, others]) < 1e-6)
+        np.testing.assert_allclose([rot[:, axis].max(), rot[:, axis].min()], [man.angle_rad, -man.angle_rad],
+                                   atol=1e-6)
+    assert np.abs(ref.x[:, 10:13]).max() <= man.angular_rate_radps + 1e-9
+    assert np.all(np.abs(ref.u[:, 3:6]) < np.asarray(cfg.robot.torque_limit_Nm))   # feed-forward within limits
+    assert np.abs(ref.u[:, 3:6]).max() > 0.3 * min(cfg.robot.torque_limit_Nm)       # and rotation-rich
+
+    cal = stage_config(cfg, stage_by_key(ON_MANOEUVRE_KEY), Handoff(
+        telemetry=Path("m.mcap"), rigid_body={"force_scale": [1.03, 0.97, 1.02], "force_scale_std": [0.003] * 3}))
+    assert cal.estimation.method == "batch" and cal.estimation.prior.variance == KNOWN_VARIANCE
+    assert cal.estimation.rigid_body.products_std_kgm2 == KNOWN_PRODUCTS_STD
+    assert cal.estimation.rigid_body.force_scale == (1.03, 0.97, 1.02)
+    assert Path(cal.inputs.estimate_telemetry).name == "m.mcap"
+    first = stage_config(cfg, stage_by_key(CALIBRATE_KEY), Handoff(telemetry=Path("t.mcap"), rigid_body={
+        "force_scale": [1.03, 0.97, 1.02], "force_scale_std": [0.003] * 3}))
+    assert first.estimation.rigid_body == plain.estimation.rigid_body   # the first one: the config's prior
+
+
+def _summary(std=0.004, **changes):
+    est = {f"{g}_{a}": v for g, vals in (("force_scale", (1.03, 0.97, 1.02)), ("torque_scale", (1.04, 0.96, 1.05)))
+           for a, v in zip(AXES, vals, strict=True)}
+    data = {"status": "ok", "status_reasons": [], "converged": True, "covariance_identified": True,
+            "std": {"mass_kg": 1e-4}, "chi2_ratio": 1.02,
+            "rigid_body": {"estimate": est, "std": dict.fromkeys(est, std)}}
+    data.update(changes)
+    return data
+
+
+CONFIG_PRIOR = {"force_scale": [1.0] * 3, "force_scale_std": [0.05] * 3,
+                "torque_scale": [1.0] * 3, "torque_scale_std": [0.05] * 3}
+
+
+def test_acceptance_rule_inflates_a_moderate_chi2_and_rejects_a_contradicted_prior():
+    ok = _summary()
+    handed, problems, inflation = assess_calibration(ok, CONFIG_PRIOR)
+    assert not problems and inflation == 1.0 and handed == handed_rigid_body(ok)
+    # degraded by a χ² 1.44 × expected only (e.g. localisation jumps): handed on, σ × √1.44 = 1.2 (Birge ratio)
+    reasons = [{"kind": "fit_chi2"}, {"kind": "rejected"}]
+    handed, problems, inflation = assess_calibration(_summary(status="degraded", chi2_ratio=1.44,
+                                                              status_reasons=reasons), CONFIG_PRIOR)
+    assert not problems and inflation == pytest.approx(1.2)
+    np.testing.assert_allclose(handed["torque_scale_std"], [0.0048] * 3)
+    for bad in (_summary(status="degraded", chi2_ratio=CHI2_ACCEPT_MAX * 1.01, status_reasons=reasons),
+                _summary(status="degraded", status_reasons=[{"kind": "gate_empty"}]),
+                _summary(converged=False, iterations=30)):
+        handed, problems, _ = assess_calibration(bad, CONFIG_PRIOR)
+        assert handed == {} and problems
+    # A saturating impeller: κ_y 0.658 (campaign run, truth 0.857) is 6.8 prior σ from 1: not handed on.
+    sat = _summary()
+    sat["rigid_body"]["estimate"]["force_scale_y"] = 0.658
+    handed, problems, _ = assess_calibration(sat, CONFIG_PRIOR)
+    assert handed == {} and "force_scale_y 0.6580 contradicts its prior" in problems[0]
+    # Chained (the manoeuvre's fit from the first calibration): the shift posterior - prior has variance
+    # σ_prior² - σ_post²; a shift of 4.5 of those σ is two flights that disagree, 3.5 is not.
+    first = handed_rigid_body(_summary(std=0.003))
+    post_std = 0.0029
+    spread = np.sqrt(0.003**2 - post_std**2)
+    for shift, rejected in ((4.5 * spread, True), (3.5 * spread, False)):
+        second = _summary(std=post_std)
+        second["rigid_body"]["estimate"]["torque_scale_z"] = 1.05 + shift
+        handed, problems, _ = assess_calibration(second, first)
+        assert bool(problems) is rejected and (handed == {}) is rejected
+        if rejected:
+            assert f"accepted up to {PRIOR_Z_MAX:g}" in problems[0] and "torque_scale_z" in problems[0]
+
+
+def test_two_flights_that_disagree_hand_on_the_manoeuvres_own_estimate():
+    """Segment 1 (κ₁ ± σ₁) is the manoeuvre's prior; its own data say κ_d ± σ_d, the fit κ₂ the inverse-variance
+    combination. Agreeing flights keep κ₂; on a disagreement (a saturating impeller biased segment 1's κ_x,
+    campaign run 2: 0.9997 ± 0.0032 against the truth 1.0355) κ_d ± σ_d is recovered exactly and handed on."""
+    first = {"force_scale": [0.9997, 0.97, 1.02], "force_scale_std": [0.0032, 0.004, 0.004]}
+
+    def fit(kd, sd):  # the scalar Gaussian update the batch fit makes per axis
+        post_var = 1.0 / (1.0 / first["force_scale_std"][0] ** 2 + 1.0 / sd**2)
+        kappa = post_var * (first["force_scale"][0] / first["force_scale_std"][0] ** 2 + kd / sd**2)
+        return {"force_scale": [kappa, 0.97, 1.02], "force_scale_std": [np.sqrt(post_var), 0.0039, 0.0039]}
+
+    handed, replaced, problems = reconcile_flights(fit(1.0300, 0.009), first)   # z 3.2: disagree
+    assert not problems and len(replaced) == 1 and replaced[0].startswith("force_scale_x")
+    np.testing.assert_allclose([handed["force_scale"][0], handed["force_scale_std"][0]], [1.0300, 0.009], rtol=1e-9)
+    assert handed["force_scale"][1:] == [0.97, 1.02]
+    inflated = fit(1.0300, 0.009)   # as assess_calibration hands it: σ × 1.5 (a χ² of 2.25 × expected)
+    inflated["force_scale_std"] = [1.5 * v for v in inflated["force_scale_std"]]
+    handed, replaced, _ = reconcile_flights(inflated, first, inflation=1.5)   # σ_d inflated too
+    np.testing.assert_allclose(handed["force_scale_std"][0], 1.5 * 0.009, rtol=1e-9)
+    second = fit(1.0050, 0.009)   # z 0.55: agree, κ₂ kept
+    handed, replaced, problems = reconcile_flights(second, first)
+    assert handed == second and not replaced and not problems
+    z = (1.0300 - 0.9997) / np.hypot(0.009, 0.0032)
+    assert z > CONSISTENCY_Z_MAX > (1.0050 - 0.9997) / np.hypot(0.009, 0.0032)
+
+
+def test_manoeuvre_calibration_is_handed_on_and_a_rejected_first_one_noted(mission_run, tmp_path):
+    """With the manoeuvre, segment 2 takes segment-1/calibrate-on-manoeuvre's scales; when the first calibration
+    was rejected the second (then fitted from the config's prior) is still handed on, with a note and no fallback."""
+    run, _, _ = mission_run
+    cfg = _cfg(*MANOEUVRE_SETS)
+    out = tmp_path / "m"
+    (out / "segment-1").mkdir(parents=True)
+    shutil.copytree(run / CALIBRATE_KEY, out / CALIBRATE_KEY)
+    shutil.copytree(run / CALIBRATE_KEY, out / ON_MANOEUVRE_KEY)
+    second = json.loads((out / ON_MANOEUVRE_KEY / "summary.json").read_text())
+    first = json.loads((out / CALIBRATE_KEY / "summary.json").read_text())
+    cal = actuator_calibration(cfg, out)
+    assert cal.source == "calibration" and cal.stage == ON_MANOEUVRE_KEY and cal.note is None
+    assert cal.rigid_body == handed_rigid_body(second)
+    assert cal.summary()["stage"] == ON_MANOEUVRE_KEY
+    handoff = handoff_for(cfg, stage_by_key(ON_MANOEUVRE_KEY), out)   # fitted from the first's scales
+    assert handoff.rigid_body == handed_rigid_body(first)
+    assert handoff.telemetry.parent.name == "calibrate-manoeuvre"
+    first.update(converged=False, iterations=30)
+    (out / CALIBRATE_KEY / "summary.json").write_text(json.dumps(first))
+    assert handoff_for(cfg, stage_by_key(ON_MANOEUVRE_KEY), out).rigid_body is None   # the config's prior
+    cal = actuator_calibration(cfg, out)
+    assert cal.source == "calibration" and "segment-1/calibrate did not converge" in cal.note
+    shutil.rmtree(out / ON_MANOEUVRE_KEY)
+    cal = actuator_calibration(cfg, out)
+    assert cal.source == "config" and "segment-1/calibrate-on-manoeuvre failed" in cal.note
+
+
+def _fly_manoeuvre(out: Path, *sets: str):
+    """Fly the manoeuvre with known actuator scales and fit it as segment-1/calibrate-on-manoeuvre does."""
+    from oacli.stages.estimate import run_estimate
+    from oacli.stages.track import run_track
+
+    cfg = _cfg(*MANOEUVRE_SETS, "truth.actuator_scale=[1.03, 0.97, 1.02, 1.04, 0.96, 1.05]", *sets)
+    track = run_track(stage_config(cfg, stage_by_key(MANOEUVRE_KEY), Handoff()), out=out / "track", progress=None)
+    assert track.summary["status"] == "ok"
+    telemetry = out / "track" / "track.mcap"
+    est = run_estimate(stage_config(cfg, stage_by_key(ON_MANOEUVRE_KEY), Handoff(telemetry=telemetry)),
+                       telemetry=telemetry, out=out / "estimate", progress=None)
+    return cfg, est.summary
+
+
+def test_manoeuvre_recovers_the_force_and_torque_scales(tmp_path):
+    """A simulated manoeuvre of the known robot (truth κ_F 1.03 / 0.97 / 1.02, κ_τ 1.04 / 0.96 / 1.05, never told
+    the estimator) calibrates both within 3 of their σ, the torque scales to < 0.5 % (segment 1's flight: 3-4 %,
+    docs/estimation.md), and is handed on."""
+    cfg, summary = _fly_manoeuvre(tmp_path)
+    assert summary["status"] == "ok" and summary["converged"]
+    rb = summary["rigid_body"]
+    for group, truth in (("force_scale", cfg.truth.actuator_scale[:3]), ("torque_scale", cfg.truth.actuator_scale[3:])):
+        est = np.array([rb["estimate"][f"{group}_{a}"] for a in AXES])
+        std = np.array([rb["std"][f"{group}_{a}"] for a in AXES])
+        assert np.all(np.abs(est - truth) <= 3 * std), (group, est, std, truth)
+        assert np.all(std < (0.005 if group == "torque_scale" else 0.015)), (group, std)
+    handed, problems, inflation = assess_calibration(summary, config_actuator_prior(cfg))
+    assert not problems and inflation == 1.0 and handed["torque_scale"] == [rb["estimate"][f"torque_scale_{a}"]
+                                                                          for a in AXES]
+
+
+@pytest.mark.slow
+def test_a_saturating_torque_axis_is_not_handed_on(tmp_path):
+    """The y torque delivers only 35 % of its limit (faults.actuator_saturation; the command is still recorded as
+    applied): the fit's κ_τy contradicts the 5 % prior and the calibration is rejected (31 s on an idle core)."""
+    cfg, summary = _fly_manoeuvre(tmp_path, "faults.actuator_saturation=[1, 1, 1, 1, 0.35, 1]")
+    handed, problems, _ = assess_calibration(summary, config_actuator_prior(cfg))
+    assert handed == {} and any("torque_scale_y" in p and "contradicts its prior" in p for p in problems), problems

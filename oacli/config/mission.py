@@ -14,7 +14,8 @@ import copy
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
-from pydantic import Field
+from pydantic import Field, ValidationInfo, field_validator
+from pydantic_core import PydanticCustomError
 
 from oacli.config.fields import (
     Name,
@@ -24,6 +25,7 @@ from oacli.config.fields import (
     PrincipalInertia,
     Section,
     StrictBool,
+    StrictInt,
     none_to,
 )
 
@@ -77,6 +79,37 @@ class PayloadPriorConfig(Section):
     )
 
 
+class CalibrationManoeuvreConfig(Section):
+    """A rotation-rich flight of the known bare robot at B before the grasp, for the actuator calibration.
+
+    Segment 1 barely rotates the robot, so its telemetry calibrates the torque scales κ_τ only to the prior's few
+    per cent, and the payload's inertias are known no better than κ_τ (``τ = κ_τ ⊙ τ_cmd = J ω̇``: κ_τ and J enter
+    as one product, docs/estimation.md). This manoeuvre (stage ``segment-1/calibrate-manoeuvre``, a ``track`` of a
+    waypoint reference, :func:`oacli.reference.waypoint_reference`) swings the robot about each body axis in turn,
+    ``+angle`` then ``-angle`` then back, while it translates ``±offset`` along the same axis, within the rate and
+    torque limits; ``segment-1/calibrate`` then fits the force and torque scales on its telemetry with the robot's
+    mass and inertias held ([ReSWARM2023] Eqs. 38-39).
+    """
+
+    angle_rad: Annotated[PositiveReal, Field(le=1.5)] = Field(
+        default=0.25, description="Slew amplitude about each body axis [rad], in (0, 1.5].")
+    offset_m: Annotated[NonNegativeReal, Field(le=0.3)] = Field(
+        default=0.08, description="Translation amplitude along each body axis during its slews [m], in [0, 0.3].")
+    angular_rate_radps: PositiveReal = Field(
+        default=0.15, description="Peak angular rate of the slews [rad/s] (reference.angular_rate_radps; <= every "
+        "robot angular velocity limit).")
+    angular_acceleration_radps2: PositiveReal = Field(
+        default=0.08, description="Peak angular acceleration of the slews [rad/s²] (the largest inertia × it must "
+        "stay within every robot torque limit: 0.08 × 0.162 = 0.013 N·m < 0.0216 N·m on the ISS robot).")
+    acceleration_mps2: PositiveReal = Field(
+        default=0.02, description="Peak linear acceleration of the translations [m/s²] (mass × it within every "
+        "robot force limit).")
+    cruise_speed_mps: PositiveReal = Field(default=0.1, description="Peak translation speed [m/s].")
+    hold_s: NonNegativeReal = Field(default=0.5, description="Hold at each pose of the manoeuvre [s].")
+    repeats: Annotated[StrictInt, Field(ge=1, le=5)] = Field(
+        default=1, description="The three axes' swings flown this many times, 1..5.")
+
+
 SegmentName = Literal["segment-1", "segment-2", "segment-3"]
 """segment-1: A → B (plan, smooth, track); segment-2: B → C (excite, track, estimate); segment-3: C → A (plan,
 smooth, track and the baselines)."""
@@ -120,11 +153,26 @@ class MissionConfig(Section):
         "(segment-1/calibrate: the estimation section's force and torque scales with the robot's mass and inertias "
         "held, [ReSWARM2023] Eqs. 38-39) and hand its mean and σ to segment 2's estimates as their prior.",
     )
+    calibration_manoeuvre: CalibrationManoeuvreConfig | None = Field(
+        default=None, description="With calibration: fly a rotation-rich manoeuvre of the known robot at B before "
+        "the grasp (segment-1/calibrate-manoeuvre) and calibrate on its telemetry instead of segment 1's, so the "
+        "torque scales are identified too (mapping; {} takes the defaults); null: calibrate on segment 1's track.",
+    )
     segments: Annotated[dict[str, Any], none_to({})] = Field(
         default_factory=dict,
         description="Per-segment overrides of the other sections (segment-1, segment-2, segment-3), deep-merged; "
         "a stage key (segment-3/baseline-mpc-prior ...) overrides that stage alone, after its segment's.",
     )
 
+    @field_validator("calibration_manoeuvre", mode="after")
+    @classmethod
+    def _manoeuvre_needs_calibration(cls, value: CalibrationManoeuvreConfig | None,
+                                     info: ValidationInfo) -> CalibrationManoeuvreConfig | None:
+        if value is not None and info.data.get("calibration") is False:
+            raise PydanticCustomError("oacli_range", "needs mission.calibration: true (the manoeuvre is flown for "
+                                      "segment-1/calibrate); set it null or calibration true")
+        return value
 
-__all__ = ["SEGMENT_NAMES", "GraspedPlantConfig", "MissionConfig", "PayloadPriorConfig", "SegmentName", "deep_merge"]
+
+__all__ = ["SEGMENT_NAMES", "CalibrationManoeuvreConfig", "GraspedPlantConfig", "MissionConfig", "PayloadPriorConfig",
+           "SegmentName", "deep_merge"]

@@ -20,7 +20,13 @@ import numpy as np
 from oacli.config import OacliConfig, config_from_dict
 from oacli.config.mission import MissionConfig, deep_merge
 from oacli.errors import ConfigError, InfeasibleError
-from oacli.mission.calibration import CALIBRATE_KEY, calibration_prior_section
+from oacli.mission.calibration import (
+    CALIBRATE_KEY,
+    MANOEUVRE_KEY,
+    ON_MANOEUVRE_KEY,
+    calibration_prior_section,
+    manoeuvre_section,
+)
 from oacli.mission.layout import ALL_STAGES, MissionStage, stage_by_key
 from oacli.model.robot_model import RobotModel
 from oacli.stages.settings import robot_model, tube_design_from_config
@@ -349,8 +355,8 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
         "seed": stage_seed(cfg.seed, index),
         "simulation": {"settle_time_s": mission.settle_s, "initial_offset_m": list(handoff.initial_offset_m)},
     }
-    if stage.segment == "segment-1":  # the mission's own start offset (a campaign disperses it); later ones hand off
-        sets["simulation"]["initial_offset_m"] = list(cfg.simulation.initial_offset_m)
+    if stage.segment == "segment-1" and stage.key != MANOEUVRE_KEY:  # the mission's own start offset (a campaign
+        sets["simulation"]["initial_offset_m"] = list(cfg.simulation.initial_offset_m)  # disperses it); later: handed
     if stage.segment == "segment-1":
         sets["planner"] = {"segment": f"{a}-{b}"}
         sets["controller"] = {"type": "mpc"}
@@ -384,7 +390,9 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
             nominal = tube_nominal_force_N(track)
         sets = deep_merge(sets, {"planner": {"limits": {"force_N": _tube_force_cap(data, nominal)},
                                              "max_connection_s": _connection_s(data, model, mission.w_sigmas)}})
-    if stage.command == "track" and handoff.reference is not None:
+    if stage.key == MANOEUVRE_KEY:  # the known robot's calibration manoeuvre at B: a waypoint reference
+        sets = deep_merge(sets, manoeuvre_section(cfg))
+    elif stage.command == "track" and handoff.reference is not None:
         sets = deep_merge(sets, {"reference": {"source": "file", "file": str(handoff.reference)}})
     # The stage's input file and method in its config, as its command records them: the folder's config.yaml alone
     # reruns it (``oacli smooth RUN/segment-1/smooth/config.yaml``, ``oacli estimate .../estimate/config.yaml``).
@@ -395,13 +403,16 @@ def stage_config(cfg: OacliConfig, stage: MissionStage, handoff: Handoff, *, sou
             sets["inputs"] = {"estimate_telemetry": str(handoff.telemetry)}
         method = "sequential" if stage.name == "estimate-sequential" else "batch"
         sets = deep_merge(sets, {"estimation": {"method": method}})  # merged: the section holds the prior
-        if stage.key == CALIBRATE_KEY:  # the known robot: its θ held, the actuators fitted
-            sets = deep_merge(sets, calibration_prior_section(cfg))
-        elif handoff.rigid_body:
+        if stage.key in (CALIBRATE_KEY, ON_MANOEUVRE_KEY):  # the known robot: its θ held, the actuators fitted
+            sets = deep_merge(sets, calibration_prior_section(cfg, manoeuvre=stage.key == ON_MANOEUVRE_KEY))
+        if stage.key != CALIBRATE_KEY and handoff.rigid_body:
             sets = deep_merge(sets, {"estimation": {"rigid_body": dict(handoff.rigid_body)}})
     data = deep_merge(data, sets)
     try:
         return config_from_dict(data, source=f"{source} ({stage.key})")
     except ConfigError as exc:
+        if stage.key == MANOEUVRE_KEY:
+            raise ConfigError([f"mission.calibration_manoeuvre: {line} (the manoeuvre's reference, {stage.key})"
+                               for line in exc.problems]) from None
         raise ConfigError([f"{line} (from mission.segments.{stage.segment} and the mission's settings)"
                            for line in exc.problems]) from None

@@ -6,7 +6,9 @@ A mission run folder ``runs/mission-<name>-<UTC stamp>/`` holds::
     segment-1/plan/                   A -> B, model known: LQR-RRT* (or kino-RRT)
     segment-1/smooth/                 LQR shortcutting + polish of segment-1/plan/plan.mcap
     segment-1/track/                  standard MPC tracking segment-1/smooth/smooth.mcap
-    segment-1/calibrate/              actuator calibration from segment-1/track/track.mcap (known robot; optional)
+    segment-1/calibrate-manoeuvre/    optional: a rotation-rich flight of the known robot at B for the calibration
+    segment-1/calibrate/              actuator calibration from segment-1/track/track.mcap (known robot; optional),
+    segment-1/calibrate-on-manoeuvre/ optional: calibration from the manoeuvre, fitted from segment-1/calibrate's
     segment-2/excite/                 B -> C, payload grasped: A-optimal excitation (or RATTLE)
     segment-2/track/                  tube MPC tracking segment-2/excite/excite.mcap, W from the prior (Eq. 28)
     segment-2/estimate-sequential/    sequential estimate from segment-2/track/track.mcap (during the segment)
@@ -104,10 +106,15 @@ MISSION_STAGES: tuple[MissionStage, ...] = (
 
 OPTIONAL_STAGES: tuple[MissionStage, ...] = (
     MissionStage("segment-3", "baseline-mpc-unconstrained-prior", "track"),
+    MissionStage("segment-1", "calibrate-manoeuvre", "track"),
+    MissionStage("segment-1", "calibrate-on-manoeuvre", "estimate"),
 )
-"""Stages a mission flies only when asked (``mission.unconstrained_baseline``), after :data:`MISSION_STAGES`; when
-flown, in ``mission.mcap``, ``mission.rrd``, the mission's plots and its report beside the other baselines (their
-folders are ordinary ``track`` folders)."""
+"""Stages a mission flies only when asked, after :data:`MISSION_STAGES` in this table's order
+(:func:`oacli.mission.run.mission_stages` places them): ``mission.unconstrained_baseline`` flies
+``segment-3/baseline-mpc-unconstrained-prior``, which then appears in ``mission.mcap``, ``mission.rrd``, the mission's
+plots and its report beside the other baselines; ``mission.calibration_manoeuvre`` flies
+``segment-1/calibrate-manoeuvre`` after ``segment-1/track`` and fits it in ``segment-1/calibrate-on-manoeuvre`` after
+``segment-1/calibrate`` (ordinary ``track`` and ``estimate`` folders, not in the mission's combined recording)."""
 
 ALL_STAGES: tuple[MissionStage, ...] = MISSION_STAGES + OPTIONAL_STAGES
 """Every stage a mission may run, in order (a stage's seed is drawn from its index here)."""

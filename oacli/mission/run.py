@@ -30,7 +30,14 @@ from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
 from oacli.io.folder_lock import folder_lock
 from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
-from oacli.mission.calibration import CALIBRATE_KEY, actuator_calibration, estimate_failures
+from oacli.mission.calibration import (
+    CALIBRATE_KEY,
+    MANOEUVRE_KEY,
+    ON_MANOEUVRE_KEY,
+    actuator_calibration,
+    calibration_stage_prior,
+    estimate_failures,
+)
 from oacli.mission.compare import ARRIVAL_TOLERANCE_M, comparison_row
 from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
 from oacli.mission.foxglove import MISSION_MCAP, write_mission_mcap
@@ -85,7 +92,16 @@ def mission_stages(cfg: OacliConfig) -> tuple[MissionStage, ...]:
     skip = set() if mission.baselines else set(BASELINE_STAGES)
     if not (mission.baselines and mission.unconstrained_baseline):
         skip.add(UNCONSTRAINED_BASELINE.split("/")[1])
-    return tuple(s for s in ALL_STAGES if s.name not in skip and (mission.calibration or s.key != CALIBRATE_KEY))
+    if not mission.calibration:
+        skip.add(CALIBRATE_KEY.split("/")[1])
+    if not (mission.calibration and mission.calibration_manoeuvre is not None):
+        skip.update(k.split("/")[1] for k in (MANOEUVRE_KEY, ON_MANOEUVRE_KEY))
+    stages = [s for s in ALL_STAGES if s.name not in skip]
+    if mission.calibration and mission.calibration_manoeuvre is not None:  # at B, before the grasp
+        extra = [stages.pop([s.key for s in stages].index(k)) for k in (MANOEUVRE_KEY, ON_MANOEUVRE_KEY)]
+        at = [s.key for s in stages].index(CALIBRATE_KEY)
+        stages[at:at + 1] = [extra[0], stages[at], extra[1]]
+    return tuple(stages)
 
 
 def _final_position(track_mcap: Path) -> np.ndarray:
@@ -204,16 +220,22 @@ def handoff_for(cfg: OacliConfig, stage: MissionStage, mission_dir: Path) -> Han
         return Handoff(plan=stage_by_key(f"{stage.segment}/plan").mcap(d), estimate=learned)
     if stage.key == CALIBRATE_KEY:
         return Handoff(telemetry=stage_by_key("segment-1/track").mcap(d))
+    if stage.key == ON_MANOEUVRE_KEY:  # fitted from the first calibration's scales (the config's if rejected)
+        return Handoff(telemetry=stage_by_key(MANOEUVRE_KEY).mcap(d), rigid_body=calibration_stage_prior(cfg, d))
     if stage.command == "estimate":
         calibration = actuator_calibration(cfg, d)
         return Handoff(telemetry=stage_by_key("segment-2/track").mcap(d),
                        rigid_body=calibration.rigid_body if calibration is not None else None)
     if stage.command != "track":
         return Handoff(estimate=learned)
+    if stage.key == MANOEUVRE_KEY:  # from where segment 1 ended, at B
+        offset = _final_position(stage_by_key("segment-1/track").mcap(d)) - _waypoint(cfg, b)
+        return Handoff(initial_offset_m=tuple(offset.tolist()))
     if stage.segment == "segment-1":
         return Handoff(reference=stage_by_key("segment-1/smooth").mcap(d))
     if stage.segment == "segment-2":
-        offset = _final_position(stage_by_key("segment-1/track").mcap(d)) - _waypoint(cfg, b)
+        before = MANOEUVRE_KEY if MANOEUVRE_KEY in {s.key for s in mission_stages(cfg)} else "segment-1/track"
+        offset = _final_position(stage_by_key(before).mcap(d)) - _waypoint(cfg, b)
         return Handoff(reference=stage_by_key("segment-2/excite").mcap(d), initial_offset_m=tuple(offset.tolist()))
     offset = _final_position(stage_by_key("segment-2/track").mcap(d)) - _waypoint(cfg, c)
     return Handoff(reference=stage_by_key("segment-3/smooth").mcap(d), initial_offset_m=tuple(offset.tolist()),
@@ -521,6 +543,8 @@ def _segment_times(stages_done: dict[str, dict[str, Any]]) -> dict[str, tuple[fl
     out = {}
     for seg in SEGMENTS:
         duration = float(stages_done[f"{seg}/track"]["sim_time_s"])
+        if seg == "segment-1" and MANOEUVRE_KEY in stages_done:  # flown at B before the grasp
+            duration += float(stages_done[MANOEUVRE_KEY].get("sim_time_s") or 0.0)
         out[seg] = (t0, duration)
         t0 += duration
     return out
@@ -555,8 +579,10 @@ def mission_summary(cfg: OacliConfig, mission_dir: Path, stages: tuple[MissionSt
     if learned.note is not None:
         verdict.add(DEGRADED, "estimate_fallback", learned.note)
     calibration = actuator_calibration(cfg, mission_dir)
-    if calibration is not None and calibration.note is not None:
+    if calibration is not None and calibration.source == "config" and calibration.note is not None:
         verdict.add(DEGRADED, "calibration_fallback", calibration.note)
+    elif calibration is not None and calibration.replaced and calibration.note is not None:
+        verdict.add(DEGRADED, "calibration_inconsistent", calibration.note)
     lagging = plan_above_nominal(results.get("segment-3/smooth"), results.get("segment-3/track"))
     if lagging is not None:
         verdict.add(DEGRADED, "plan_above_nominal", lagging)
