@@ -33,7 +33,7 @@ from oacli.io.foxglove_layouts import (
     stage_layouts,
     three_d_panel,
 )
-from oacli.mission.layout import ALL_STAGES, MISSION_STAGES
+from oacli.mission.layout import ALL_STAGES, MISSION_STAGES, RECORDED_STAGES
 
 #: Chunk size of ``mission.mcap`` [bytes, uncompressed], as the stage files'
 #: (:data:`oacli.io.mcap_write.DEFAULT_CHUNK_SIZE`).
@@ -72,7 +72,7 @@ def write_mission_mcap(mission_dir: Path, summary: dict[str, Any], path: Path | 
     channel_index: dict[tuple[str, str], int] = {}
     publish: list[int] = []
     frame = FRAME
-    for stage in ALL_STAGES:  # an optional stage (segment-3/baseline-mpc-unconstrained-prior) when it flew
+    for stage in RECORDED_STAGES:  # the unconstrained baseline too, when it flew
         source = stage.mcap(mission_dir)
         if not source.is_file():
             continue
@@ -94,7 +94,7 @@ def write_mission_mcap(mission_dir: Path, summary: dict[str, Any], path: Path | 
                     channels.append((topic, channel.message_encoding, schema_key, {**channel.metadata, **extra}))
                 messages.append((message.log_time + shift, len(messages), index, bytes(message.data)))
                 publish.append(message.publish_time + shift)
-    listed = {s.key for s in MISSION_STAGES} | {s.key for s in ALL_STAGES if s.mcap(mission_dir).is_file()}
+    listed = {s.key for s in MISSION_STAGES} | {s.key for s in RECORDED_STAGES if s.mcap(mission_dir).is_file()}
     messages.sort(key=lambda m: (m[0], m[1]))
     config = (mission_dir / "config.yaml").read_bytes() if (mission_dir / "config.yaml").is_file() else b""
     with atomic_file(out) as handle:
@@ -124,9 +124,9 @@ def mission_layout() -> dict[str, Any]:
     """The layout of ``mission.mcap``: every stage's ``/scene`` in one 3D panel, the flights' positions and forces,
     the two mass estimates and the merged log, on the mission clock. Every stage a mission may fly is named (the
     optional unconstrained baseline's series stay empty in a mission that did not fly it)."""
-    scenes = [f"/{s.key}/scene" for s in ALL_STAGES]
-    poses = [f"/{s.key}/robot/pose" for s in ALL_STAGES if s.command == "track"]
-    flights = [s.key for s in ALL_STAGES if s.command == "track"]
+    scenes = [f"/{s.key}/scene" for s in RECORDED_STAGES]
+    poses = [f"/{s.key}/robot/pose" for s in RECORDED_STAGES if s.command == "track"]
+    flights = [s.key for s in RECORDED_STAGES if s.command == "track"]
     panels: dict[str, dict[str, Any]] = {
         "3D!mission": three_d_panel(scenes, poses),
         "Plot!position": plot_panel("true position [m] of every flight", [

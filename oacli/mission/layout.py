@@ -161,3 +161,10 @@ def stage_by_key(key: str) -> MissionStage:
         if stage.key == key.strip("/"):
             return stage
     raise KeyError(f"{key!r}: not a mission stage; one of " + ", ".join(s.key for s in ALL_STAGES))
+
+RECORDED_STAGES: tuple[MissionStage, ...] = MISSION_STAGES + tuple(s for s in OPTIONAL_STAGES
+                                                                   if s.key == UNCONSTRAINED_BASELINE)
+"""The stages whose records the mission's combined files (``mission.mcap``, the mission log) carry, when flown: the
+default stages and the unconstrained baseline (it flies from segment 3's start like the other baselines). The
+calibration manoeuvre's two stages are left out: their clocks start after ``segment-1/track`` ends, which the
+segment's offset does not say; their own folders hold their records."""

@@ -31,7 +31,7 @@ from oacli.geometry import Scene
 from oacli.io import mcap_schema as ms
 from oacli.io.mcap_read import TELEMETRY_TOPICS, StageRecord, read_stage, telemetry_from_record
 from oacli.metrics import tracking_errors
-from oacli.mission.layout import ALL_STAGES, MISSION_STAGES, SEGMENTS, stage_by_key
+from oacli.mission.layout import ALL_STAGES, MISSION_STAGES, RECORDED_STAGES, SEGMENTS, stage_by_key
 from oacli.mission.layout import FLIGHT_LABELS as SEGMENT3_LABELS
 from oacli.types import Telemetry
 
@@ -524,7 +524,7 @@ def load_mission_records(mission_dir: Path, summary: dict[str, Any]) -> MissionR
             estimates[key] = e
     truth = (summary.get("estimate") or {}).get("truth_theta")
     log: list[tuple[float, str, str]] = []
-    for stage in ALL_STAGES:  # the optional stages' logs too, when flown
+    for stage in RECORDED_STAGES:  # the unconstrained baseline's log too, when flown
         path = stage.mcap(mission_dir)
         if path.is_file():
             offset = segment_offset(summary, stage.segment)
