@@ -30,6 +30,7 @@ import os
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -321,7 +322,7 @@ def send_default_blueprint(recording: rr.RecordingStream, application_id: str, b
     missions (the fix of :meth:`StageRecording._release` did not cover them). Here the same steps as
     ``rerun.blueprint.api.create_in_memory_blueprint`` and ``rr.send_blueprint`` (rerun-sdk 0.41), then the memory
     sink drained and the blueprint stream disconnected, so that :func:`release_orphaned_recordings` joins it.
-    Falls back to ``rr.send_blueprint`` where those internals are missing.
+    Falls back to ``rr.send_blueprint`` where those internals are missing (rerun-sdk is pinned to 0.41.*).
 
     Parameters
     ----------
@@ -335,10 +336,10 @@ def send_default_blueprint(recording: rr.RecordingStream, application_id: str, b
     new_blueprint = getattr(rr.bindings, "new_blueprint", None)
     from_native = getattr(rr.RecordingStream, "_from_native", None)
     to_blueprint = getattr(blueprint, "to_blueprint", None)
-    if new_blueprint is None or from_native is None or to_blueprint is None:
+    full: Any = to_blueprint() if to_blueprint is not None else None
+    if new_blueprint is None or from_native is None or full is None or not hasattr(full, "_log_to_stream"):
         rr.send_blueprint(blueprint, make_active=False, make_default=True, recording=recording)
         return
-    full = to_blueprint()
     stream = from_native(new_blueprint(application_id=application_id, make_default=False, make_thread_default=False,
                                        default_enabled=True))
     try:
