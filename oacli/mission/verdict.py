@@ -163,8 +163,8 @@ def plan_above_nominal(reference: Mapping[str, Any] | None, track: Mapping[str, 
     asked, bounds = reference.get("max_force_per_axis_N"), track.get("tightened_force_N")
     if asked is None or bounds is None:
         return None
-    over = [(axis, float(f), min(-float(lo), float(hi))) for axis, f, (lo, hi) in zip("xyz", asked, bounds, strict=True)
-            if float(f) > min(-float(lo), float(hi)) + tolerance_N]
+    nominal = [min(-float(lo), float(hi)) for lo, hi in bounds]
+    over = [(axis, float(f), u) for axis, f, u in zip("xyz", asked, nominal, strict=True) if float(f) > u + tolerance_N]
     if not over:
         return None
     parts = ", ".join(f"{axis} {f:.3g} N > Ū {u:.3g} N" for axis, f, u in over)
