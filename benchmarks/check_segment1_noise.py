@@ -26,7 +26,8 @@ from scipy.optimize import minimize_scalar
 from oacli.campaign.sampling import run_seed
 from oacli.config import load_config
 from oacli.io.mcap_read import read_telemetry
-from oacli.mission.run import handoff_for, mission_stages, run_stage, stage_config
+from oacli.mission.run import handoff_for, mission_stages, stage_config
+from oacli.mission.stage_call import run_stage
 
 REPO = Path(__file__).resolve().parents[1]
 

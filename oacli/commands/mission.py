@@ -137,6 +137,12 @@ def mission(
                                  help="TARGET is a mission folder: rerun from this "
                                  "stage (e.g. segment-3/track) into a new folder, copying the earlier stages' folders.")
     ] = None,
+    in_line: Annotated[
+        bool, typer.Option("--in-line", help="Run every stage in line on one core. By default, on a machine with "
+                           "two or more cores, the stages the flight does not wait for (the calibrations, the "
+                           "sequential estimate, the segment-3 baselines, mission.mcap) run beside it in a second "
+                           "process: the same files and numbers, less wall time.")
+    ] = False,
 ) -> None:
     """Fly the assembly mission A → B → C → A: plan, smooth, track (segment 1); excite, tube MPC, estimate
     (segment 2); plan, smooth, tube MPC with the learned model and the two baselines (segment 3)."""
@@ -182,7 +188,10 @@ def mission(
             if from_stage is not None:
                 copy_stages_before(target, mission_dir, cfg, from_stage)
         say = (lambda line: typer.echo(line, err=True)) if not (quiet or json_out) else None
-        result = run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say)
+        from oacli.mission.background import background_workers_default
+
+        result = run_mission(cfg, mission_dir, progress=lambda key: Progress(f"  {key}", not quiet), announce=say,
+                             background=not in_line and background_workers_default() > 0)
         if cfg.outputs.report:  # report.html from the finished folder (oacli report; outputs.report: false skips)
             from oacli.commands.report import report_after_run
             from oacli.signals import note_recorded

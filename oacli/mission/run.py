@@ -29,7 +29,8 @@ from oacli.io import mcap_memo
 from oacli.io import mcap_schema as ms
 from oacli.io.atomic import write_text_atomic
 from oacli.io.folder_lock import folder_lock
-from oacli.io.runfolder import StageResult, create_run_dir, is_complete, write_summary
+from oacli.io.runfolder import create_run_dir, is_complete, write_summary
+from oacli.mission.background import BACKGROUND, LAUNCH_BEFORE, MISSION_MCAP_JOB, BackgroundStages, Outcome
 from oacli.mission.calibration import (
     CALIBRATE_KEY,
     MANOEUVRE_KEY,
@@ -45,6 +46,7 @@ from oacli.mission.layout import ALL_STAGES, SEGMENTS, UNCONSTRAINED_BASELINE, M
 from oacli.mission.plots import write_mission_plots
 from oacli.mission.recording import write_mission_recording
 from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
+from oacli.mission.stage_call import run_stage
 from oacli.mission.verdict import MissionStageError, plan_above_nominal, stage_verdict, stop_reason
 from oacli.model.robot_model import RobotModel
 from oacli.signals import held
@@ -261,46 +263,6 @@ def validate_mission(cfg: OacliConfig) -> None:
         stage_config(cfg, stage, Handoff(reference=ref))
 
 
-def run_stage(stage: MissionStage, stage_cfg: OacliConfig, handoff: Handoff, folder: Path,
-              progress: Callable[[float], None] | None) -> StageResult:
-    """Run one stage into ``folder`` through the function its command uses.
-
-    Parameters
-    ----------
-    stage : MissionStage
-        The stage.
-    stage_cfg : OacliConfig
-        Its config (:func:`oacli.mission.configs.stage_config`).
-    handoff : Handoff
-        Its inputs.
-    folder : Path
-        Its run folder (must not exist).
-    progress : callable or None
-        Progress callback.
-
-    Returns
-    -------
-    StageResult
-    """
-    if stage.command == "plan":
-        from oacli.stages.plan import run_plan
-        return run_plan(stage_cfg, out=folder, progress=progress)
-    if stage.command == "smooth":
-        from oacli.stages.smooth import run_smooth
-        assert handoff.plan is not None
-        return run_smooth(stage_cfg, input_path=handoff.plan, out=folder, progress=progress)
-    if stage.command == "excite":
-        from oacli.stages.excite import run_excite
-        return run_excite(stage_cfg, out=folder, progress=progress)
-    if stage.command == "track":
-        from oacli.stages.track import run_track
-        return run_track(stage_cfg, out=folder, progress=progress)
-    from oacli.stages.estimate import run_estimate
-    assert handoff.telemetry is not None
-    # The method is the stage config's (stage_config sets it per stage), so its config.yaml reruns the same one.
-    return run_estimate(stage_cfg, telemetry=handoff.telemetry, out=folder, progress=progress)
-
-
 def _read_summary(folder: Path) -> dict[str, Any]:
     return json.loads((folder / "summary.json").read_text())
 
@@ -371,6 +333,7 @@ def run_mission(
     *,
     progress: ProgressFactory | None = None,
     announce: Callable[[str], None] | None = None,
+    background: bool = False,
 ) -> MissionResult:
     """Run (or resume) every stage of a mission in ``mission_dir``, then write its outputs and ``summary.json``.
 
@@ -386,6 +349,10 @@ def run_mission(
         Progress callback per stage key.
     announce : callable, optional
         Called with one line per stage (kept / running / its status).
+    background : bool
+        Run the stages the flight does not wait for (the calibrations, the sequential estimate, the baselines,
+        ``mission.mcap``) in a second process beside it (:mod:`oacli.mission.background`): same files and numbers,
+        less wall time on a machine with a free core. False: every stage in line, in order.
 
     Returns
     -------
@@ -403,7 +370,55 @@ def run_mission(
     comparison rows, the recording and the plots read them back without walking the files again (same records).
     """
     with folder_lock(mission_dir, "mission"), mcap_memo.remembering():  # one process at a time (exit 2)
-        return _run_mission(cfg, mission_dir, progress=progress, announce=announce)
+        return _run_mission(cfg, mission_dir, progress=progress, announce=announce, background=background)
+
+
+def run_one_stage(cfg: OacliConfig, key: str, mission_dir: Path,
+                  progress: Callable[[float], None] | None = None) -> tuple[dict[str, Any], OacliConfig | None]:
+    """Run the stage ``key`` into its folder (an incomplete one is removed first), with its hand-off and config.
+
+    Parameters
+    ----------
+    cfg : OacliConfig
+        The mission config.
+    key : str
+        The stage's key.
+    mission_dir : Path
+        The mission folder (the stages it reads are complete in it).
+    progress : callable, optional
+        Progress callback.
+
+    Returns
+    -------
+    summary : dict
+        The stage's summary; for a failure the mission records (a baseline's or an estimate's: segment 3 then falls
+        back to the prior, :func:`learned_model`), its entry (status ``failed``, ``error``, ``handled``).
+    stage_cfg : OacliConfig or None
+        The config it ran with; None for a recorded failure.
+
+    Raises
+    ------
+    OacliError
+        Any other stage's failure.
+    """
+    stage = stage_by_key(key)
+    folder = stage.folder(mission_dir)
+    _clear_incomplete(folder, mission_dir)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        handoff = handoff_for(cfg, stage, mission_dir)
+        stage_cfg = stage_config(cfg, stage, handoff)
+        result = run_stage(stage, stage_cfg, handoff, folder, progress)
+    except OacliError as exc:
+        if not (stage.name in BASELINE_STAGES or stage.command == "estimate"):
+            raise
+        return {"stage": stage.command, "status": FAILED, "error": "; ".join(exc.problems), "handled": True}, None
+    return result.summary, stage_cfg
+
+
+def _check_complete(key: str, summary: dict[str, Any], folder: Path) -> None:
+    if summary.get("status") not in COMPLETE_STATUSES:
+        raise OacliError(f"{key}: ended {summary.get('status')} (see {folder / 'summary.json'})")
 
 
 def _run_mission(
@@ -412,50 +427,90 @@ def _run_mission(
     *,
     progress: ProgressFactory | None,
     announce: Callable[[str], None] | None,
+    background: bool,
 ) -> MissionResult:
     wall = time.perf_counter()
     say = announce or (lambda _line: None)
     stages = mission_stages(cfg)
+    number = {s.key: i for i, s in enumerate(stages, start=1)}
     own = [s.key for s in stages if s.name not in BASELINE_STAGES]
     results: dict[str, dict[str, Any]] = {}
     current: str | None = None
+    in_background = background and any(s.key in BACKGROUND for s in stages)
+    bg = BackgroundStages(cfg, mission_dir, run_one_stage) if in_background else None
+    launched: list[str] = []  # handed to the background process, in order
+
+    def record(outcome: Outcome) -> None:
+        """A background stage's outcome, recorded as the chain records its own."""
+        nonlocal current
+        if outcome.key == MISSION_MCAP_JOB and outcome.kind == "done":
+            return
+        current = outcome.key
+        if outcome.kind == "crash":
+            raise RuntimeError(f"{outcome.key} (in the background process): {outcome.message}")
+        if outcome.kind == "error":
+            raise OacliError(outcome.message)
+        tag = f"[{number[outcome.key]}/{len(stages)}] {outcome.key}"
+        if outcome.kind == "handled":
+            assert outcome.failure is not None
+            results[outcome.key] = outcome.failure
+            say(f"{tag}: failed: {outcome.failure['error']}")
+        else:
+            folder = stage_by_key(outcome.key).folder(mission_dir)
+            results[outcome.key] = _read_summary(folder)
+            say(f"{tag}: {results[outcome.key]['status']} ({results[outcome.key].get('wall_time_s', 0.0):.1f} s, "
+                "beside the flight)")
+            _check_complete(outcome.key, results[outcome.key], folder)
+        current = None
+
+    def launch(stage: MissionStage) -> None:
+        assert bg is not None
+        bg.submit([stage.key])
+        launched.append(stage.key)
+        say(f"[{number[stage.key]}/{len(stages)}] {stage.key}: running {stage.command} beside the flight")
+
     try:
         stopped: str | None = None
         for i, stage in enumerate(stages, start=1):
+            if stage.key in launched:
+                continue
             current = stage.key
             folder = stage.folder(mission_dir)
             if is_complete(folder):
                 results[stage.key] = _read_summary(folder)
                 say(f"[{i}/{len(stages)}] {stage.key}: kept ({results[stage.key]['status']})")
+            elif bg is not None and stage.key in BACKGROUND:
+                launch(stage)  # estimates and baselines never stop a mission (stop_reason): nothing to check here
+                continue
             else:
-                _clear_incomplete(folder, mission_dir)
-                folder.parent.mkdir(parents=True, exist_ok=True)
+                if bg is not None:  # start what flies beside this stage, wait for what it reads
+                    for later in stages[i:]:
+                        if LAUNCH_BEFORE.get(later.key) == stage.key and not is_complete(later.folder(mission_dir)):
+                            launch(later)
+                    bg.wait_for({k for k in bg.pending() if stage.key not in BACKGROUND[k]}, record)
+                    current = stage.key
                 say(f"[{i}/{len(stages)}] {stage.key}: running {stage.command}")
-                try:
-                    handoff = handoff_for(cfg, stage, mission_dir)
-                    stage_cfg = stage_config(cfg, stage, handoff)
-                    result = run_stage(stage, stage_cfg, handoff, folder, progress(stage.key) if progress else None)
-                except OacliError as exc:
-                    # A failing baseline is reported in the comparison; a failing estimate is not handed on
-                    # (segment 3 falls back to the prior: learned_model); any other stage stops the mission.
-                    handled = stage.name in BASELINE_STAGES or stage.command == "estimate"
-                    if not handled:
-                        raise
-                    results[stage.key] = {"stage": stage.command, "status": FAILED, "error": "; ".join(exc.problems),
-                                          "handled": True}
-                    say(f"[{i}/{len(stages)}] {stage.key}: failed: {'; '.join(exc.problems)}")
+                summary, stage_cfg = run_one_stage(cfg, stage.key, mission_dir,
+                                                   progress(stage.key) if progress else None)
+                results[stage.key] = summary
+                if stage_cfg is None:
+                    say(f"[{i}/{len(stages)}] {stage.key}: failed: {summary['error']}")
                     continue
-                results[stage.key] = result.summary
                 remember_config(folder / "config.yaml", stage_cfg)  # the outputs below need not parse it again
-                say(f"[{i}/{len(stages)}] {stage.key}: {result.summary['status']} "
-                    f"({result.summary.get('wall_time_s', 0.0):.1f} s)")
-                if result.summary.get("status") not in COMPLETE_STATUSES:
-                    raise OacliError(f"{stage.key}: ended {result.summary.get('status')} "
-                                     f"(see {folder / 'summary.json'})")
+                say(f"[{i}/{len(stages)}] {stage.key}: {summary['status']} ({summary.get('wall_time_s', 0.0):.1f} s)")
+                _check_complete(stage.key, summary, folder)
             stopped = stop_reason(stage.key, results[stage.key]) if stage.key in own else None
             if stopped is not None:
                 say(f"[{i}/{len(stages)}] {stopped}")
                 break
+        if bg is not None:
+            bg.wait_all(record)
+            if stopped is not None:  # what was launched beside a flight that stopped the mission did not fly
+                after = {s.key for s in stages[[s.key for s in stages].index(current or "") + 1:]} if current else set()
+                for key in (k for k in launched if k in after):
+                    results.pop(key, None)
+                    _clear_incomplete(stage_by_key(key).folder(mission_dir), mission_dir)
+        results = {s.key: results[s.key] for s in stages if s.key in results}
         current = None
         if stopped is not None:
             summary = stopped_summary(cfg, stages, results, stopped)
@@ -463,14 +518,20 @@ def _run_mission(
             write_summary(mission_dir, summary)
             return MissionResult(mission_dir, summary, results)
         summary = mission_summary(cfg, mission_dir, stages, results)
+        say("writing mission.mcap (every stage on the mission clock, for Foxglove: docs/foxglove/mission.json)")
+        if bg is not None:
+            bg.submit([MISSION_MCAP_JOB], summary)
+        else:
+            write_mission_mcap(mission_dir, summary)
         say("writing mission.rrd" + (" and plots/" if cfg.outputs.mission_pngs else ""))
         records = load_mission_records(mission_dir, summary)  # once for both (the stage MCAPs are cached)
         write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary,
                                 recording_name=f"{cfg.name}/mission", records=records)
-        say("writing mission.mcap (every stage on the mission clock, for Foxglove: docs/foxglove/mission.json)")
-        write_mission_mcap(mission_dir, summary)
         with held():  # matplotlib can swallow an interruption raised inside its drawing: raised after the PNGs
             plots = write_mission_plots(mission_dir, summary, records=records) if cfg.outputs.mission_pngs else {}
+        if bg is not None:
+            current = "mission outputs"
+            bg.wait_all(record)
         summary["files"]["rrd"] = "mission.rrd"
         summary["files"]["mcap"] = MISSION_MCAP
         summary["files"]["plots"] = {k: str(p.relative_to(mission_dir)) for k, p in plots.items()}
@@ -478,6 +539,8 @@ def _run_mission(
         write_summary(mission_dir, summary)
         return MissionResult(mission_dir, summary, results)
     except BaseException as exc:
+        if bg is not None:  # nothing writes after the failed summary; an unfinished stage stays incomplete
+            bg.stop()
         # The worst of the stages that ran stays the mission's status; the failure is reported beside it.
         verdict = stage_verdict(results, own)
         interrupted = isinstance(exc, KeyboardInterrupt)
@@ -494,6 +557,9 @@ def _run_mission(
             # The mission's config was valid (validate_mission ran first): not exit 2, the mission's status's code.
             raise MissionStageError([f"{where}: {p}" for p in exc.problems], failed["status"]) from exc
         raise
+    finally:
+        if bg is not None:
+            bg.stop()
 
 
 def stopped_summary(cfg: OacliConfig, stages: tuple[MissionStage, ...], results: dict[str, dict[str, Any]],

@@ -1,0 +1,111 @@
+"""The stages a mission runs beside the flight (:mod:`oacli.mission.background`) change its wall time only.
+
+The shared mission (``conftest.mission_run``, through the CLI: on a machine with two cores its calibration,
+sequential estimate, baselines and ``mission.mcap`` run in the background process) is compared with the same mission
+run with ``--in-line``: every stage's summary and the mission's summary equal (timings and paths aside), every
+stage MCAP holds the same messages, and ``mission.mcap`` the same messages on the same topics.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from typer.testing import CliRunner
+
+from oacli.cli import app
+from oacli.mission.background import BACKGROUND, LAUNCH_BEFORE, BackgroundStages, Outcome, background_workers_default
+from oacli.mission.layout import ALL_STAGES, MISSION_STAGES
+from tests.test_mission import stable
+
+
+def _messages(path: Path) -> list[tuple[str, int, object]]:
+    """Every message but the log's, JSON ones without their timings and run folder (:func:`stable`)."""
+    out: list[tuple[str, int, object]] = []
+    with path.open("rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            if channel.topic.endswith("/log"):
+                continue
+            data: object = bytes(message.data)
+            if channel.message_encoding == "json":
+                data = stable(json.loads(message.data), str(path.parents[2]))
+            out.append((channel.topic, message.log_time, data))
+    return out
+
+
+@pytest.fixture(scope="module")
+def in_line(mission_run, tmp_path_factory):
+    _, cfg, _ = mission_run
+    out = tmp_path_factory.mktemp("in-line") / "run"
+    result = CliRunner().invoke(app, ["mission", str(cfg), "--out", str(out), "--in-line"])
+    assert result.exit_code == 0, result.output
+    return out, result.output
+
+
+def test_the_shared_mission_ran_stages_beside_the_flight(mission_run):
+    if background_workers_default() == 0:
+        pytest.skip("one usable core: oacli mission runs every stage in line here")
+    _, _, output = mission_run
+    assert "segment-2/estimate-sequential: running estimate beside the flight" in output
+    assert "segment-3/baseline-tube-prior: running track beside the flight" in output
+
+
+def test_in_line_and_beside_the_flight_give_the_same_mission(mission_run, in_line):
+    run, _, _ = mission_run
+    out, output = in_line
+    assert "beside the flight" not in output
+    for stage in MISSION_STAGES:
+        if not stage.folder(run).exists():
+            assert not stage.folder(out).exists(), stage.key
+            continue
+        a = json.loads((stage.folder(out) / "summary.json").read_text())
+        b = json.loads((stage.folder(run) / "summary.json").read_text())
+        assert stable(a, str(out)) == stable(b, str(run)), stage.key
+        if stage.command in ("track", "estimate"):  # the flown and estimated records, message by message
+            assert _messages(stage.mcap(out)) == _messages(stage.mcap(run)), stage.key
+    a = json.loads((out / "summary.json").read_text())
+    b = json.loads((run / "summary.json").read_text())
+    assert stable(a, str(out)) == stable(b, str(run))
+    assert a["status"] == b["status"] == "ok"
+    topics_a = {t for t, _, _ in _messages(out / "mission.mcap")}
+    topics_b = {t for t, _, _ in _messages(run / "mission.mcap")}
+    assert topics_a == topics_b and "/segment-2/estimate-sequential/estimate/params" in topics_a
+
+
+def test_background_stages_feed_nothing_the_flight_reads():
+    """The table's promise, checked against the hand-offs: no stage that may run before a background stage has
+    finished reads its folder (:func:`oacli.mission.run.handoff_for` is the only reader of earlier stages)."""
+    import inspect
+
+    from oacli.mission import calibration, run
+
+    source = inspect.getsource(run.handoff_for) + inspect.getsource(run.learned_model)
+    for key, runs_meanwhile in BACKGROUND.items():
+        assert key in {s.key for s in ALL_STAGES}
+        if key.startswith("segment-3/") or key == "segment-2/estimate-sequential":
+            assert f'"{key}"' not in source and key not in source, key   # read by the outputs only
+        else:  # a calibration: read by the estimates only, never by segment 2's excitation or flight
+            assert runs_meanwhile <= {"segment-2/excite", "segment-2/track"}
+            assert "estimate" in inspect.getsource(calibration.actuator_calibration)
+    assert set(LAUNCH_BEFORE) <= set(BACKGROUND)
+
+
+def test_a_crash_in_the_background_is_reported_with_its_stage(tmp_path):
+    """A job whose stage raises reports it (kind ``crash``, the traceback), and the worker goes on to the next."""
+    from oacli.config import load_config
+    from oacli.mission.run import run_one_stage
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "mission_iss.yaml")
+    bg = BackgroundStages(cfg, tmp_path / "nothing-here", run_one_stage)
+    seen: list[Outcome] = []
+    try:
+        bg.submit(["segment-2/estimate-sequential"])   # no segment-2/track in the folder: the stage fails
+        bg.wait_all(seen.append)
+    finally:
+        bg.stop()
+    assert len(seen) == 1 and seen[0].key == "segment-2/estimate-sequential"
+    assert seen[0].kind in ("handled", "error", "crash")
+    text = seen[0].message or (seen[0].failure or {}).get("error", "")
+    assert "track" in text or "mcap" in text.lower(), text
