@@ -254,9 +254,9 @@ class FullModel:
         a : ndarray, shape (K, 13, 13) or None
         c : ndarray, shape (K, 13, len(theta)) or None
         """
-        if jacobians and np.shape(x)[0] == 1:  # a filter step: the single-interval path (8× faster)
-            x1, a1, c1 = propagate_full_one(x, u, theta, durations)
-            return x1[None], a1[None], c1[None]
+        if np.shape(x)[0] == 1:  # a filter step or a warm start's record: the single-interval path (8× faster)
+            x1, a1, c1 = propagate_full_one(x, u, theta, durations, jacobians=jacobians)
+            return x1[None], None if a1 is None else a1[None], None if c1 is None else c1[None]
         return propagate_full(x, u, theta, durations, jacobians=jacobians)
 
     def accelerations(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, jacobians: bool = True

@@ -357,8 +357,8 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
     return x_next, a, c
 
 
-def propagate_full_one(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def propagate_full_one(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray, *,
+                       jacobians: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """:func:`propagate_full` for a single interval (a filter step): the same outputs, the states integrated in
     Python floats and the stage Jacobians of all sub-steps evaluated at once.
 
@@ -374,13 +374,15 @@ def propagate_full_one(x: np.ndarray, u: np.ndarray, theta: np.ndarray, duration
     theta : ndarray, shape (16,)
     durations : ndarray, shape (M,) or (1, M)
         Sub-step durations [s] (zeros skipped).
+    jacobians : bool
+        False: the end state only (a warm start's record, :func:`oacli.estimation.batch.extend_states`).
 
     Returns
     -------
     x_next : ndarray, shape (13,)
-    a : ndarray, shape (13, 13)
+    a : ndarray, shape (13, 13) or None
         ``∂x_next/∂x``.
-    c : ndarray, shape (13, 16)
+    c : ndarray, shape (13, 16) or None
         ``∂x_next/∂θ``.
     """
     x = np.asarray(x, dtype=float).reshape(STATE_DIM)
@@ -445,6 +447,8 @@ def propagate_full_one(x: np.ndarray, u: np.ndarray, theta: np.ndarray, duration
     x_next[0:3] = x[0:3] + total_s * x[3:6] + np.array([rx, ry, rz])
     x_next[3:6] = [vx, vy, vz]
     x_next[6:13] = [qx, qy, qz, qw, wx, wy, wz]
+    if not jacobians:
+        return x_next, None, None
     a = np.eye(STATE_DIM)
     a[0, 3] = a[1, 4] = a[2, 5] = total_s
     c = np.zeros((STATE_DIM, N_FULL))
