@@ -56,3 +56,28 @@ def test_split_information_euler_and_xi_equal_the_reference(seed):
     for k in range(len(x)):
         fx, _, _ = rb.dynamics_jacobians(x[k], u[k], theta)
         np.testing.assert_allclose(_gyro(x[k, 10:13], theta[1:4]), fx[10:13, 10:13], rtol=1e-13, atol=1e-16)
+
+
+@pytest.mark.parametrize("columns", [[0, 1, 2, 3, 7, 8, 9, 10, 11, 12], [0, 1, 2, 3], [1, 2, 3, 4, 5, 6, 13, 14, 15],
+                                     [7, 8, 9]])
+def test_full_propagation_on_the_estimated_columns_equals_all_columns(columns):
+    """``propagate_full(columns=…)`` (what the batch's full model carries: the estimated entries only) gives the
+    same end states and ``∂x⁺/∂x``, the same ``∂x⁺/∂θ`` on those columns and zero on the others; the all-column
+    result is itself pinned to finite differences in tests/test_rigid_body_estimation.py."""
+    from oacli.estimation.propagation import substep_schedule
+    from oacli.estimation.rigid_dynamics import propagate_full, propagate_full_one
+
+    x, u, _ = _samples(3, k=25)
+    theta = np.array([15.5, 0.15, 0.14, 0.16, 0.004, -0.003, 0.002, 0.01, -0.02, 0.015,
+                      1.02, 0.97, 1.01, 0.98, 1.03, 0.99])
+    t = np.arange(26) * 0.2
+    durations = substep_schedule(t[:-1], t[1:], 0.016)
+    cols = np.array(columns)
+    x_all, a_all, c_all = propagate_full(x, u, theta, durations)
+    x_sub, a_sub, c_sub = propagate_full(x, u, theta, durations, columns=cols)
+    assert np.array_equal(x_sub, x_all) and np.array_equal(a_sub, a_all)
+    np.testing.assert_allclose(c_sub[:, :, cols], c_all[:, :, cols], rtol=1e-12, atol=1e-15)
+    assert not np.any(np.delete(c_sub, cols, axis=2))
+    one = propagate_full_one(x[4], u[4], theta, durations[4], jacobians=False)   # the warm start's float path
+    np.testing.assert_allclose(one[0], x_all[4], rtol=1e-12, atol=1e-14)
+    assert one[1] is None and one[2] is None

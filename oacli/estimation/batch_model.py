@@ -257,7 +257,8 @@ class FullModel:
         if np.shape(x)[0] == 1:  # a filter step or a warm start's record: the single-interval path (8× faster)
             x1, a1, c1 = propagate_full_one(x, u, theta, durations, jacobians=jacobians)
             return x1[None], None if a1 is None else a1[None], None if c1 is None else c1[None]
-        return propagate_full(x, u, theta, durations, jacobians=jacobians)
+        # Only the estimated entries' sensitivities are carried (dθ/dφ is zero on the others).
+        return propagate_full(x, u, theta, durations, jacobians=jacobians, columns=self.params.index)
 
     def accelerations(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, jacobians: bool = True
                       ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:

@@ -230,8 +230,16 @@ def accelerations_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray
     return acc, d_x, d_th
 
 
+def _as_slice(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` as a slice when it is a contiguous run (basic indexing: views, in-place sums), else itself."""
+    if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
+        return slice(int(index[0]), int(index[0]) + index.size)
+    return index
+
+
 def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: np.ndarray, *,
-                   jacobians: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+                   jacobians: bool = True, columns: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Integrate K intervals of the full model, each from its own state with its own held input.
 
     Parameters
@@ -246,6 +254,10 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
         Sub-step durations from :func:`oacli.estimation.propagation.substep_schedule` (zeros skipped exactly).
     jacobians : bool
         False: the end states only.
+    columns : ndarray of int, optional
+        The θ entries to differentiate by (increasing; the estimated ones, :attr:`ParameterSet.index`): the
+        sensitivities carried through the sub-steps have ``7 + len(columns)`` columns instead of 23, and ``c`` is
+        zero in the others. Default: all 16.
 
     Returns
     -------
@@ -263,7 +275,15 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
     m = float(theta[0])
     j = inertia_tensor(theta)
     j_inv = np.linalg.inv(j)
-    nc = _NZ + N_FULL
+    cols = np.arange(N_FULL) if columns is None else np.asarray(columns, dtype=int)
+    all_cols = cols.size == N_FULL
+    th_cols = slice(None) if all_cols else _as_slice(cols)
+    # Where the inertia entries (θ 1..6: ∂ω̇/∂J, module docstring) and the mass (θ 0) sit among the carried columns.
+    j_local = np.flatnonzero((cols >= 1) & (cols <= 6))
+    j_sel = _as_slice(cols[j_local] - 1)
+    j_dst = _as_slice(_NZ + j_local)
+    mass_local = int(np.flatnonzero(cols == 0)[0]) if np.any(cols == 0) else None
+    nc = _NZ + cols.size
     total_s = durations.sum(axis=1)
     z = x[:, 6:13].copy()
     v_sum = np.zeros((k, 3))
@@ -293,13 +313,14 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
             assert d_z is not None and d_v is not None and d_r is not None and wq is not None and wth is not None
             dq0 = d_z[:, 0:4, :]
             g_acc = wq[:, 0:3] @ dq0
-            g_acc[:, :, _NZ:] += wth[:, 0:3]
+            g_acc[:, :, _NZ:] += wth[:, 0:3, th_cols]
             g_acc /= m
-            g_acc[:, :, _NZ] -= acc / m
+            if mass_local is not None:
+                g_acc[:, :, _NZ + mass_local] -= acc / m
             d_v += h[:, None, None] * g_acc
             d_r += weight[:, None, None] * g_acc
             g_tau = wq[:, 3:6] @ dq0
-            g_tau[:, :, _NZ:] += wth[:, 3:6]
+            g_tau[:, :, _NZ:] += wth[:, 3:6, th_cols]
             g_tau = j_inv @ g_tau  # ∂ω̇/∂(held τ) · ∂τ/∂[z0, θ]
         ks: list[np.ndarray] = []
         d_sum = None  # Σ_s w_s dk_s (RK4 weights 1, 2, 2, 1)
@@ -317,7 +338,7 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
                 dk[:, 0:4] += jz[:, 0:4, 4:7] @ ds[:, 4:7]
                 np.matmul(jz[:, 4:7, 4:7], ds[:, 4:7], out=dk[:, 4:7])
                 dk[:, 4:7] += g_tau
-                dk[:, 4:7, _NZ + 1:_NZ + 7] += jj
+                dk[:, 4:7, j_dst] += jj[:, :, j_sel]
                 if d_sum is None:
                     d_sum = dk.copy()
                 else:
@@ -350,10 +371,10 @@ def propagate_full(x: np.ndarray, u: np.ndarray, theta: np.ndarray, durations: n
     a[:, 0:3, 6:13] = d_r[:, :, 0:_NZ]
     a[:, 3:6, 6:13] = d_v[:, :, 0:_NZ]
     a[:, 6:13, 6:13] = d_z[:, :, 0:_NZ]
-    c = np.empty((k, STATE_DIM, N_FULL))
-    c[:, 0:3] = d_r[:, :, _NZ:]
-    c[:, 3:6] = d_v[:, :, _NZ:]
-    c[:, 6:13] = d_z[:, :, _NZ:]
+    c = np.empty((k, STATE_DIM, N_FULL)) if all_cols else np.zeros((k, STATE_DIM, N_FULL))
+    c[:, 0:3, th_cols] = d_r[:, :, _NZ:]
+    c[:, 3:6, th_cols] = d_v[:, :, _NZ:]
+    c[:, 6:13, th_cols] = d_z[:, :, _NZ:]
     return x_next, a, c
 
 
