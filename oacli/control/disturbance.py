@@ -251,7 +251,13 @@ class AttitudeDisturbance:
         return np.asarray(self.inertia_term_Nm + self.products_term_Nm + self.com_term_Nm)
 
     def summary(self) -> dict[str, list[float]]:
-        """The terms as plain lists (a stage summary's ``attitude_w`` entry)."""
+        """The terms as plain lists (a stage summary's ``attitude_w`` entry).
+
+        Returns
+        -------
+        dict
+            ``torque_Nm`` and its three terms [N·m], ``step_attitude_rad`` and ``step_rate_radps`` per body axis.
+        """
         return {"torque_Nm": [float(v) for v in self.torque_Nm],
                 "inertia_term_Nm": [float(v) for v in self.inertia_term_Nm],
                 "products_term_Nm": [float(v) for v in self.products_term_Nm],
