@@ -41,7 +41,7 @@ COM = np.array([0.03, -0.03, 0.03])  # a payload's centre of mass 5 cm off the g
 DT = 0.2
 
 
-def model(com=np.zeros(3), com_std=np.zeros(3), products=np.zeros(3), products_std=np.zeros(3),
+def model(com=(0.0, 0.0, 0.0), com_std=(0.0, 0.0, 0.0), products=(0.0, 0.0, 0.0), products_std=(0.0, 0.0, 0.0),
           inertia_std=0.0) -> RobotModel:
     cov = np.diag([0.0, *(np.full(3, inertia_std**2))])
     return RobotModel(MASS, INERTIA, cov, FORCE, TORQUE, np.full(3, 0.2), np.full(3, 0.1745), 0.25,
