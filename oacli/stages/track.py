@@ -285,6 +285,11 @@ def run_track(
                 summary["sensors"] = flown.summary()
             summary["reference_check"] = reference_check.summary()
             summary.update(rigid_body_entries(cfg, model, controller, ctrl_limits, design))
+            clipped = (summary["com_compensation"] or {}).get("clipped_steps", 0)
+            if clipped:
+                log.append((float(tel.t_true[-1]), "warning",
+                            f"centre-of-mass compensation clipped to the torque limit on {clipped} steps "
+                            "(its worst case exceeds half the limit: docs/control.md)"))
             monitor = controller if isinstance(controller, TubeMonitor) else None
             history = monitor.history() if monitor is not None else None
             findings = StatusReport()
