@@ -112,6 +112,13 @@ def test_a_batch_estimate_that_failed_is_not_handed_on(mission_run, tmp_path):
     good = learned_model(cfg, run)
     assert good.source == "estimate" and good.note is None
     assert good.model.mass_std_kg < prior_model(cfg).mass_std_kg  # the estimate's own covariance, not the prior's
+    # issue 30: the learned centre of mass and its σ reach segment 3's controllers (the prior's is zero)
+    if "com" in cfg.estimation.parameters:
+        np.testing.assert_allclose(good.model.com_offset_m, cfg.truth.com_offset_m, atol=1e-3)
+        assert np.all(good.model.com_std_m > 0) and not np.any(prior_model(cfg).com_offset_m)
+        flown = stage_config(cfg, stage_by_key("segment-3/track"), Handoff(reference=Path("r.mcap"),
+                                                                           estimate=good.model))
+        np.testing.assert_array_equal(robot_model(flown).com_offset_m, good.model.com_offset_m)
     out = _copy_until(run, tmp_path / "m", "segment-2/estimate")
     _edit_summary(out / "segment-2" / "estimate", converged=False, iterations=212, covariance_identified=False,
                   std={"mass_kg": None, "Ixx_kgm2": None, "Iyy_kgm2": None, "Izz_kgm2": None})

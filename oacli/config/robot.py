@@ -64,14 +64,38 @@ class RobotConfig(Section):
         "covariance; 0: known exactly). The tube's W and the planner's design limits take σ_m = sqrt(variance[0]) "
         "([Doerr2021] Eq. 28); the mission writes each segment's model here (the prior's, then the estimate's).",
     )
+    com_offset_m: Vector3 = Field(
+        default=(0.0, 0.0, 0.0),
+        description="The model's centre of mass relative to the geometric centre the thrust acts on, body frame [m] "
+        "(default 0; the mission writes segment 2's estimate here for segment 3). The controllers compensate its "
+        "moment c × F (docs/control.md, \"The full rigid body\").",
+    )
+    com_variance_m2: NonNegativeVector3 = Field(
+        default=(0.0, 0.0, 0.0),
+        description="Variances of com_offset_m per body axis [m²], >= 0 (W's attitude part takes their σ).",
+    )
+    inertia_products_kgm2: Vector3 = Field(
+        default=(0.0, 0.0, 0.0),
+        description="The model's products of inertia [Ixy, Ixz, Iyz] [kg·m²] (default 0: principal axes); with "
+        "inertia_kgm2 the tensor the attitude controllers use (positive definite).",
+    )
+    products_variance: NonNegativeVector3 = Field(
+        default=(0.0, 0.0, 0.0),
+        description="Variances of inertia_products_kgm2 [(kg·m²)²], >= 0.",
+    )
 
     def model(self) -> RobotModel:
-        """This section as the :class:`~oacli.model.robot_model.RobotModel` (covariance ``diag(variance)``)."""
+        """This section as the :class:`~oacli.model.robot_model.RobotModel` (covariance ``diag(variance)``; centre
+        of mass and products with σ = sqrt of their variances)."""
         return RobotModel(
             mass_kg=self.mass_kg, inertia_kgm2=np.asarray(self.inertia_kgm2),
             covariance=np.diag(np.asarray(self.variance, dtype=float)), force_limit_N=np.asarray(self.force_limit_N),
             torque_limit_Nm=np.asarray(self.torque_limit_Nm), velocity_limit_mps=np.asarray(self.velocity_limit_mps),
             angular_velocity_limit_radps=np.asarray(self.angular_velocity_limit_radps), radius_m=self.radius_m,
+            com_offset_m=np.asarray(self.com_offset_m, dtype=float),
+            com_std_m=np.sqrt(np.asarray(self.com_variance_m2, dtype=float)),
+            inertia_products_kgm2=np.asarray(self.inertia_products_kgm2, dtype=float),
+            products_std_kgm2=np.sqrt(np.asarray(self.products_variance, dtype=float)),
         )
 
     def inertial_params(self) -> InertialParams:

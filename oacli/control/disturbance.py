@@ -14,6 +14,14 @@ model error of one axis over one control step ``dt`` is additive on ``[position,
   ``ẽ⁺ = A_K ẽ + w + n⁺ − A n`` (A the open-loop model), so W gains ``N ⊕ (−A N)``.
 
 ``W = scale · (box(mass + force + given) ⊕ N ⊕ (−A N))``; ``scale < 1`` only by an explicit policy.
+
+W's attitude part (:func:`attitude_disturbance`, [Doerr2021] Eq. 28 generalised to the full rigid body's estimated
+parameters): per body axis, the torque the model leaves unexplained from ``n_σ`` σ of the principal inertias, the
+products of inertia and the centre of mass (the residual moment ``δc × F`` of the compensated offset,
+:mod:`oacli.control.rigid_terms`). The centre of mass does not enter the translation (the force accelerates the
+centre of mass by ``F/m`` wherever it acts). Attitude has no tube (:mod:`oacli.control.tube_mpc`): this part is
+reported with each tracking run (``attitude_w``), sized for a tube on attitude, and bounds what the attitude MPC's
+feedback must reject.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from oacli.control.rigid_terms import com_moment_bound_Nm
 from oacli.model.robot_model import RobotModel
 from oacli.sets import Polytope
 
@@ -208,3 +217,96 @@ class AxisDisturbance:
     def half_widths(self) -> np.ndarray:
         """Largest |w| per component ``[position m, velocity m/s]`` (support along ±e)."""
         return np.maximum(self.w.support(np.eye(2)), self.w.support(-np.eye(2)))
+
+
+@dataclass(frozen=True)
+class AttitudeDisturbance:
+    """W's attitude part ([Doerr2021] Eq. 28 generalised to the full rigid body): the torque about the centre of mass
+    the model leaves unexplained, per body axis, and its one-step ``[φ rad, ω rad/s]`` half-widths.
+
+    Attributes
+    ----------
+    inertia_term_Nm : ndarray, shape (3,)
+        The principal inertias' ``n_σ`` interval at the largest planned angular acceleration: ``n_σ σ_I,i α_max,i``
+        with ``α_max,i = τ_max,i / (I_i − n_σ σ_I,i)`` (Eq. 28's mass term for the rotation).
+    products_term_Nm : ndarray, shape (3,)
+        The products' ``n_σ`` box: ``Σ_{j≠i} n_σ σ_ij α_max,j + ‖ω_max‖² ‖δJ‖_F`` (``δJ ω̇`` and the gyroscopic
+        ``ω × δJ ω``).
+    com_term_Nm : ndarray, shape (3,)
+        The residual centre-of-mass moment ``|δc × F_b|`` over ``|δc_j| ≤ n_σ σ_c,j``, every attitude and world force
+        in the box (:func:`oacli.control.rigid_terms.com_moment_bound_Nm`; a vertex of the δc box).
+    step_box : ndarray, shape (3, 2)
+        Per body axis, ``[φ, ω]`` half-widths of one control step: the total torque on the lightest plausible
+        inertia, ``(Σ terms) / (I_i − n_σ σ_I,i) [dt²/2, dt]`` (the exact double integrator, as the translation's).
+    """
+
+    inertia_term_Nm: np.ndarray
+    products_term_Nm: np.ndarray
+    com_term_Nm: np.ndarray
+    step_box: np.ndarray
+
+    @property
+    def torque_Nm(self) -> np.ndarray:
+        """The total torque half-width per body axis [N·m], shape (3,)."""
+        return np.asarray(self.inertia_term_Nm + self.products_term_Nm + self.com_term_Nm)
+
+    def summary(self) -> dict[str, list[float]]:
+        """The terms as plain lists (a stage summary's ``attitude_w`` entry).
+
+        Returns
+        -------
+        dict
+            ``torque_Nm`` and its three terms [N·m], ``step_attitude_rad`` and ``step_rate_radps`` per body axis.
+        """
+        return {"torque_Nm": [float(v) for v in self.torque_Nm],
+                "inertia_term_Nm": [float(v) for v in self.inertia_term_Nm],
+                "products_term_Nm": [float(v) for v in self.products_term_Nm],
+                "com_term_Nm": [float(v) for v in self.com_term_Nm],
+                "step_attitude_rad": [float(v) for v in self.step_box[:, 0]],
+                "step_rate_radps": [float(v) for v in self.step_box[:, 1]]}
+
+
+def attitude_disturbance(model: RobotModel, force_limit_N: np.ndarray, torque_limit_Nm: np.ndarray,
+                         rate_limit_radps: np.ndarray, dt_s: float, n_sigma: float = 2.0) -> AttitudeDisturbance:
+    """W's attitude part of ``model`` (:class:`AttitudeDisturbance`; [Doerr2021] Eq. 28 with ``n_σ`` of every
+    estimated parameter's σ: inertias, products of inertia, centre of mass).
+
+    Parameters
+    ----------
+    model : RobotModel
+        The controller's model: principal inertias with σ (covariance), products and centre of mass with σ.
+    force_limit_N : ndarray, shape (3,)
+        The largest world force the controller commands per axis [N].
+    torque_limit_Nm : ndarray, shape (3,)
+        The largest torque the controller commands per body axis [N·m].
+    rate_limit_radps : ndarray, shape (3,)
+        The body-rate bound [rad/s] (the gyroscopic term's ω).
+    dt_s : float
+        Control step [s].
+    n_sigma : float
+        Half-width of every interval in σ.
+
+    Returns
+    -------
+    AttitudeDisturbance
+
+    Raises
+    ------
+    ValueError
+        An inertia's lower bound ``I − n_σ σ`` not positive.
+    """
+    inertia, sigma_i = model.inertia_kgm2, n_sigma * model.std[1:4]
+    low = inertia - sigma_i
+    if np.any(~(low > 0)):
+        raise ValueError(f"inertia_kgm2 - {n_sigma:g} sigma = {low.tolist()} kg·m² is not positive")
+    alpha = np.asarray(torque_limit_Nm, dtype=float) / low  # the largest angular acceleration of a plausible plant
+    inertia_term = sigma_i * alpha
+    d_products = n_sigma * model.products_std_kgm2  # [Ixy, Ixz, Iyz]
+    d_j = np.array([[0.0, d_products[0], d_products[1]], [d_products[0], 0.0, d_products[2]],
+                    [d_products[1], d_products[2], 0.0]])
+    gyro = float(np.sum(np.asarray(rate_limit_radps, dtype=float) ** 2)) * float(np.linalg.norm(d_j))
+    products_term = d_j @ alpha + gyro  # both 0 without products' σ
+    com_term = com_moment_bound_Nm(n_sigma * model.com_std_m, force_limit_N)
+    total = inertia_term + products_term + com_term
+    box = (total / low)[:, None] * step_gain(dt_s)[None, :]
+    return AttitudeDisturbance(inertia_term, products_term, com_term, box)

@@ -130,10 +130,15 @@ class RateObserver:
         l in (0, 1].
     dt_s : float
         Control period [s]; a measurement after another interval re-initialises the estimate.
+    inertia_tensor_kgm2 : ndarray, shape (3, 3), optional
+        The full tensor ``J`` [kg·m²] (products of inertia): ``ω̂⁻ = ω̂ + dt J⁻¹ (τ − ω̂ × J ω̂)``; None: ``diag(I)``.
     """
 
-    def __init__(self, inertia_kgm2: np.ndarray, gain: float, dt_s: float) -> None:
+    def __init__(self, inertia_kgm2: np.ndarray, gain: float, dt_s: float,
+                 inertia_tensor_kgm2: np.ndarray | None = None) -> None:
         self.inertia = np.asarray(inertia_kgm2, dtype=float).reshape(3)
+        self.tensor = None if inertia_tensor_kgm2 is None else np.asarray(inertia_tensor_kgm2, float).reshape(3, 3)
+        self.tensor_inv = None if self.tensor is None else np.linalg.inv(self.tensor)
         self.gain, self.dt_s = float(gain), float(dt_s)
         self._w: np.ndarray | None = None
         self._t: float | None = None
@@ -168,7 +173,10 @@ class RateObserver:
         if w is None or t_prev is None or tau is None or abs(t - t_prev - self.dt_s) > 1e-6 * self.dt_s:
             self._w = y.copy()
         else:
-            pred = w + self.dt_s * (tau - np.cross(w, self.inertia * w)) / self.inertia
+            if self.tensor is None or self.tensor_inv is None:
+                pred = w + self.dt_s * (tau - np.cross(w, self.inertia * w)) / self.inertia
+            else:
+                pred = w + self.dt_s * (self.tensor_inv @ (tau - np.cross(w, self.tensor @ w)))
             self._w = pred + self.gain * (y - pred)
         self._t = float(t)
         return self._w.copy()

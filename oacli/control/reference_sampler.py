@@ -131,7 +131,8 @@ def attitude_errors(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.asarray(k * v)
 
 
-def feedforward(x_ref: np.ndarray, dt: float, params: InertialParams) -> np.ndarray:
+def feedforward(x_ref: np.ndarray, dt: float, params: InertialParams,
+                inertia_tensor_kgm2: np.ndarray | None = None) -> np.ndarray:
     """:func:`oacli.trajectory.feedforward_inputs` written out (the same operations and arguments), shape (N, 6).
 
     Parameters
@@ -142,6 +143,9 @@ def feedforward(x_ref: np.ndarray, dt: float, params: InertialParams) -> np.ndar
         Sample period [s].
     params : InertialParams
         The controller's model θ (``RobotModel.params``): mass m [kg] and principal inertias I [kg·m²].
+    inertia_tensor_kgm2 : ndarray, shape (3, 3), optional
+        The full tensor ``J`` [kg·m²] (products of inertia) in place of ``diag(I)``: ``J ω̇ + ω × J ω``
+        ([Doerr2021] Eq. 35b); None: the diagonal, the same operations as without the argument.
 
     Returns
     -------
@@ -152,5 +156,9 @@ def feedforward(x_ref: np.ndarray, dt: float, params: InertialParams) -> np.ndar
     out = np.empty((x_ref.shape[0] - 1, 6))
     out[:, 0:3] = mass_kg * ((x_ref[1:, 3:6] - x_ref[:-1, 3:6]) / dt)
     w = x_ref[:-1, 10:13]
+    if inertia_tensor_kgm2 is not None:
+        j_t = np.asarray(inertia_tensor_kgm2, dtype=float).T  # rows: (J v)ᵀ = vᵀ Jᵀ
+        out[:, 3:6] = ((x_ref[1:, 10:13] - x_ref[:-1, 10:13]) / dt) @ j_t + cross_rows(w, w @ j_t)
+        return out
     out[:, 3:6] = inertia_kgm2 * ((x_ref[1:, 10:13] - x_ref[:-1, 10:13]) / dt) + cross_rows(w, inertia_kgm2 * w)
     return out

@@ -41,7 +41,7 @@ step's SolveInfo.status starts with the mode: the solver's status for a fresh so
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -49,6 +49,7 @@ from oacli.control.lqr import dlqr, solve_dare
 from oacli.control.mpc import POSITION_PENALTY, LinearMPC
 from oacli.control.observer import TranslationObserver, kalman_gain
 from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
+from oacli.control.rigid_terms import RigidCompensator
 from oacli.control.workspace import WorkspaceRows, shifted_plan
 from oacli.geometry.collision import RobotBody
 from oacli.geometry.shapes import Scene
@@ -217,6 +218,10 @@ class TrackingMPC:
     estimate : StateEstimate, optional
         The measured state or an observer's estimate, and the rows' margin for its error (module docstring);
         None: the measured state, no margin.
+    rigid : RigidCompensator, optional
+        The learned centre of mass and inertia tensor (:mod:`oacli.control.rigid_terms`): the attitude model and
+        feed-forward with ``J``, the planned torque limited to ``rigid.planned_torque_limit_Nm`` and the
+        commanded torque ``τ + ĉ × R(q̃)ᵀ F``; None: θ = [m, Ixx, Iyy, Izz] alone (the controller as before).
     """
 
     def __init__(
@@ -234,6 +239,7 @@ class TrackingMPC:
         max_consecutive_failures: int | None = None,
         position_penalty: float = POSITION_PENALTY,
         estimate: StateEstimate | None = None,
+        rigid: RigidCompensator | None = None,
     ) -> None:
         if max_consecutive_failures is not None and max_consecutive_failures < 1:
             raise ValueError("max_consecutive_failures must be >= 1")
@@ -242,6 +248,11 @@ class TrackingMPC:
         self.params = params
         self.dt_s = float(dt_s)
         self.horizon = int(horizon)
+        self.rigid = rigid
+        self._tensor = None if rigid is None else rigid.inertia_tensor_kgm2
+        if rigid is not None:  # the torque the MPC plans leaves room for the compensation
+            limits = MotionLimits(limits.force_N, rigid.planned_torque_limit_Nm, limits.velocity_mps,
+                                  limits.angular_velocity_radps)
         self.limits = limits
         self.max_failures = max_consecutive_failures
         self.workspace: WorkspaceRows | None = None
@@ -257,7 +268,7 @@ class TrackingMPC:
             )
         self.observer = estimate_observer(estimate, params, self.dt_s)
         ws = self.workspace
-        a, b = hover_error_model(params, self.dt_s)
+        a, b = hover_error_model(params, self.dt_s, self._tensor)
         self.mpc = LinearMPC(
             a, b, weights.q_diag, weights.r_diag, self.horizon, limits.input, x_max=limits.error_state,
             keep_in=ws is not None and ws.has_keep_in, keep_out_zones=0 if ws is None else ws.n_zones,
@@ -302,11 +313,14 @@ class TrackingMPC:
         """
         x = np.asarray(x_measured, dtype=float)
         if self.observer is None:
-            return self._step(t, x)
-        x = x.copy()
-        x[0:6] = self.observer.update(t, x[0:6])
-        out = self._step(t, x)
-        self.observer.applied(out.u[0:3])
+            out = self._step(t, x)
+        else:
+            x = x.copy()
+            x[0:6] = self.observer.update(t, x[0:6])
+            out = self._step(t, x)
+            self.observer.applied(out.u[0:3])
+        if self.rigid is not None:  # τ_cmd = τ_des + ĉ × R(q̃)ᵀ F (oacli.control.rigid_terms)
+            out = replace(out, u=self.rigid.command(out.u, x[6:10]))
         return out
 
     def _step(self, t: float, x_measured: np.ndarray) -> ControlStep:
@@ -330,7 +344,7 @@ class TrackingMPC:
         if self._hold_q is not None:
             info = SolveInfo("hold (safe_hold)", False, solve_time_s=0.0, step_time_s=time.perf_counter() - start)
             return ControlStep(u=self._hold_input(x, self._hold_q), info=info, x_reference=x_ref_full[0])
-        u_ref = feedforward(x_ref_full, self.dt_s, self.params)
+        u_ref = feedforward(x_ref_full, self.dt_s, self.params, self._tensor)
         origin = x_ref_full[0, 0:3]
         anchor = x_ref_full[0, 6:10]
         # The measured state and the references in one call (row by row the same values).

@@ -60,6 +60,7 @@ import numpy as np
 from oacli.control.lqr import dlqr, solve_dare
 from oacli.control.observer import RateObserver, TranslationObserver
 from oacli.control.reference_sampler import ReferenceSampler, attitude_errors, feedforward
+from oacli.control.rigid_terms import RigidCompensator
 from oacli.control.tracking import TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_qp import LinearConstraint, NominalQP, PositionRowsSpec, QPBlock
@@ -89,7 +90,8 @@ class TubeHistory:
     nominal_force, ancillary_force : ndarray, shape (K, 3)
         ``v`` and ``K (x̃ − z)`` [N]; the commanded force is their sum.
     torque : ndarray, shape (K, 3)
-        Commanded torque [N·m] (standard MPC, no tube).
+        The attitude MPC's torque τ_des [N·m] (standard MPC, no tube); the commanded torque adds the
+        centre-of-mass compensation with a :class:`~oacli.control.rigid_terms.RigidCompensator`.
     predicted_nominal : ndarray, shape (K, 6)
         ``ẑ_k = A z_{k−1} + B v_{k−1}`` (NaN at the first step).
     tube_margin : ndarray, shape (K,)
@@ -175,6 +177,11 @@ class TubeMPC:
     observer : TranslationObserver, optional
         Output feedback ([Mayne2006]): the controller acts on the observer's estimate (the design then has the
         error set; :mod:`oacli.sets.error_set`); shared by the successive controllers of a redesign.
+    rigid : RigidCompensator, optional
+        The learned centre of mass and inertia tensor (:mod:`oacli.control.rigid_terms`): the attitude model and
+        feed-forward with ``J``, the attitude QP's torque bound ``rigid.planned_torque_limit_Nm`` and the commanded
+        torque ``τ + ĉ × R(q̃)ᵀ F`` (F = v + K(x̂ − z), the whole commanded force); None: the controller of
+        θ = [m, Ixx, Iyy, Izz] alone.
     """
 
     def __init__(
@@ -197,8 +204,14 @@ class TubeMPC:
         observer: TranslationObserver | None = None,
         initial_weight: float = 0.0,
         rate_observer: RateObserver | None = None,
+        rigid: RigidCompensator | None = None,
     ) -> None:
         params = InertialParams(design.model.mass_kg, inertia_kgm2)
+        self.rigid = rigid
+        tensor = self._tensor = None if rigid is None else rigid.inertia_tensor_kgm2
+        if rigid is not None:  # the torque the attitude MPC plans leaves room for the compensation
+            limits = MotionLimits(limits.force_N, rigid.planned_torque_limit_Nm, limits.velocity_mps,
+                                  limits.angular_velocity_radps)
         ratio = prediction_step_s / design.dt_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError("prediction_step_s must be an integer multiple of the control period")
@@ -207,7 +220,7 @@ class TubeMPC:
         self._sampler = ReferenceSampler(reference)
         self.horizon, self.step_s, self.dt_s = int(horizon), float(prediction_step_s), design.dt_s
         self.limits, self.max_failures = limits, int(max_consecutive_failures)
-        a12, b12 = hover_error_model(params, self.step_s)
+        a12, b12 = hover_error_model(params, self.step_s, tensor)
         a_t, b_t = a12[:6, :6], b12[:6, :3]
         a_r, b_r = a12[6:, 6:], b12[6:, 3:]
         q_t = np.concatenate([weights.position, weights.velocity])
@@ -240,7 +253,7 @@ class TubeMPC:
         self.qp = NominalQP([trans, rot], self.horizon, fast=fast)
         self.fast = fast
         # Exact per-control-step models for the nominal evolution and the attitude hold.
-        a_c, b_c = hover_error_model(params, self.dt_s)
+        a_c, b_c = hover_error_model(params, self.dt_s, tensor)
         self._a_c, self._b_c = a_c[:6, :6], b_c[:6, :3]
         self._k_att, _ = dlqr(a_c[6:, 6:], b_c[6:, 3:], np.diag(q_r), np.diag(weights.torque))
         self._gain = design.gain
@@ -335,7 +348,7 @@ class TubeMPC:
         info: SolveInfo
         attempted = self._hold_q is None
         if attempted:
-            u_ref = feedforward(x_ref_full, self.step_s, self.params)
+            u_ref = feedforward(x_ref_full, self.step_s, self.params, self._tensor)
             anchor = x_ref_full[0, 6:10]
             # Translation is exactly linear: the QP works relative to the measured position (small numbers,
             # so the solver's absolute tolerances are small against Z).
@@ -394,7 +407,9 @@ class TubeMPC:
         if self.observer is not None:
             self.observer.applied(u[0:3])
         if self.rate_observer is not None:
-            self.rate_observer.applied(u[3:6])
+            self.rate_observer.applied(u[3:6])  # τ_des: the torque about the CoM once ĉ's moment is cancelled
+        if self.rigid is not None:  # τ_cmd = τ_des + ĉ × R(q̃)ᵀ F (oacli.control.rigid_terms)
+            u = self.rigid.command(u, x[6:10])
         status = info.status if mode == "mpc" else f"{mode} ({info.status})"
         step_info = SolveInfo(status, mode == "mpc", info.objective, info.iterations, info.solve_time_s,
                               time.perf_counter() - start)

@@ -47,7 +47,8 @@ class Handoff:
     initial_offset_m : tuple of float
         Where the previous segment's true state ended, minus this segment's start [m].
     estimate : RobotModel or None
-        The learned model (segment 3): mass, inertias and their covariance.
+        The learned model (segment 3): mass, inertias and their covariance, and the centre of mass and products of
+        inertia with their σ when segment 2 estimated them.
     rigid_body : dict or None
         Segment 2's estimates: the actuator calibration's ``estimation.rigid_body`` entries
         (:mod:`oacli.mission.calibration`); None: the config's.
@@ -142,6 +143,46 @@ def prior_model(cfg: OacliConfig) -> RobotModel:
         np.array([prior.mass_kg, *prior.inertia_kgm2]), np.diag(np.array(prior.variance, dtype=float)))
 
 
+RIGID_ENTRIES = (("com_x_m", "com_y_m", "com_z_m"), ("Ixy_kgm2", "Ixz_kgm2", "Iyz_kgm2"))
+"""The estimate summary's ``rigid_body`` entries the learned model carries beyond θ: the centre of mass and the
+products of inertia (:data:`oacli.estimation.rigid_parameters.FULL_NAMES`)."""
+
+
+def with_rigid_estimate(model: RobotModel, rigid: dict[str, Any]) -> RobotModel:
+    """``model`` with the centre of mass and the products of inertia the batch estimated, and their σ.
+
+    Reads the estimate summary's ``rigid_body`` section (``estimate`` and ``std`` by name, as the estimate stage
+    writes it); an entry not estimated stays at the model's value and σ (zeros for the prior: the centred,
+    principal-axes robot, as before the full rigid body was estimated).
+
+    Parameters
+    ----------
+    model : RobotModel
+        The learned model (θ and its covariance set).
+    rigid : dict
+        The summary's ``rigid_body`` section.
+
+    Returns
+    -------
+    RobotModel
+
+    Raises
+    ------
+    ValueError
+        The estimated tensor is not physical (the learned model then falls back to the prior).
+    """
+    estimate, std = rigid.get("estimate") or {}, rigid.get("std") or {}
+    parts = []
+    for names, mean0, std0 in ((RIGID_ENTRIES[0], model.com_offset_m, model.com_std_m),
+                               (RIGID_ENTRIES[1], model.inertia_products_kgm2, model.products_std_kgm2)):
+        mean, sigma = np.array(mean0, dtype=float), np.array(std0, dtype=float)
+        for i, name in enumerate(names):
+            if name in estimate and name in std:
+                mean[i], sigma[i] = float(estimate[name]), float(std[name])
+        parts.extend([mean, sigma])
+    return model.with_rigid_body(*parts)
+
+
 REFERENCE_SHARE = 0.8
 """Share of the smallest force (torque) limit the reference section's acceleration (angular acceleration) may ask
 of the heaviest plausible plant (the rest for the feedback, as ``reference_force_fraction``)."""
@@ -157,12 +198,20 @@ def model_section(model: RobotModel) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``{"mass_kg", "inertia_kgm2", "variance"}``: ``robot_model`` of the stage's config gives back θ and
-        ``diag(covariance)`` exactly.
+        ``{"mass_kg", "inertia_kgm2", "variance", "com_offset_m", "com_variance_m2", "inertia_products_kgm2",
+        "products_variance"}``: ``robot_model`` of the stage's config gives back θ, ``diag(covariance)``, the
+        centre of mass, the products and their σ (σ² written, its square root read back: to rounding).
     """
     theta = model.theta
-    return {"mass_kg": float(theta[0]), "inertia_kgm2": [float(v) for v in theta[1:4]],
-            "variance": [float(v) for v in np.diag(model.covariance)]}
+
+    def floats(values: np.ndarray) -> list[float]:
+        return [float(v) for v in values]
+
+    return {"mass_kg": float(theta[0]), "inertia_kgm2": floats(theta[1:4]),
+            "variance": floats(np.diag(model.covariance)),
+            "com_offset_m": floats(model.com_offset_m), "com_variance_m2": floats(model.com_std_m**2),
+            "inertia_products_kgm2": floats(model.inertia_products_kgm2),
+            "products_variance": floats(model.products_std_kgm2**2)}
 
 
 def _model_sections(model: RobotModel, w_sigmas: float) -> dict[str, Any]:
@@ -211,7 +260,7 @@ def reference_within_model(reference: dict[str, Any], robot: dict[str, Any], mod
 
 
 def _prior_sections(prior: RobotModel) -> dict[str, Any]:
-    section = model_section(prior)
+    section = {k: v for k, v in model_section(prior).items() if k in ("mass_kg", "inertia_kgm2", "variance")}
     return {"excitation": {"prior": dict(section)}, "estimation": {"prior": dict(section)}}
 
 

@@ -40,7 +40,7 @@ from oacli.mission.calibration import (
     estimate_failures,
 )
 from oacli.mission.compare import ARRIVAL_TOLERANCE_M, comparison_row
-from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config
+from oacli.mission.configs import Handoff, mission_section, prior_model, stage_config, with_rigid_estimate
 from oacli.mission.foxglove import MISSION_MCAP, write_mission_mcap
 from oacli.mission.layout import ALL_STAGES, SEGMENTS, UNCONSTRAINED_BASELINE, MissionStage, stage_by_key
 from oacli.mission.plots import write_mission_plots
@@ -135,7 +135,10 @@ def estimate_model(cfg: OacliConfig, estimate_mcap: Path) -> RobotModel:
         raise InputError(f"{estimate_mcap}: no final /estimate/params record")
     final = params[-1]
     theta = np.array([final["mass_kg"], *final["inertia_kgm2"]], dtype=float)
-    return prior_model(cfg).with_estimate(theta, np.asarray(final["covariance"], dtype=float))
+    model = prior_model(cfg).with_estimate(theta, np.asarray(final["covariance"], dtype=float))
+    summary = estimate_mcap.parent / "summary.json"
+    rigid = _read_summary(estimate_mcap.parent).get("rigid_body") if summary.is_file() else None
+    return model if not rigid else with_rigid_estimate(model, rigid)
 
 
 @dataclass(frozen=True)
@@ -161,7 +164,9 @@ class LearnedModel:
         m = self.model
         return {"source": self.source, "mass_kg": m.mass_kg, "mass_std_kg": m.mass_std_kg,
                 "inertia_kgm2": [float(v) for v in m.inertia_kgm2], "inertia_std_kgm2": [float(v) for v in m.std[1:]],
-                "note": self.note}
+                "com_offset_m": [float(v) for v in m.com_offset_m], "com_std_m": [float(v) for v in m.com_std_m],
+                "inertia_products_kgm2": [float(v) for v in m.inertia_products_kgm2],
+                "products_std_kgm2": [float(v) for v in m.products_std_kgm2], "note": self.note}
 
 
 def learned_model(cfg: OacliConfig, mission_dir: Path) -> LearnedModel:

@@ -5,7 +5,8 @@ discretisation over ``dt`` is ``A = [[1, dt], [0, 1]]``, ``B = [[dt²/(2m)], [dt
 
 Attitude linearised about rest (ω = 0) in a body-frame rotation-vector error chart ``φ`` (``q = q_a ⊗ exp(φ)``)
 is again a double integrator per principal axis: ``φ̈ = τ / I_i`` (the gyroscopic term ω × Iω is second order
-and vanishes in the linearisation at ω = 0). That is the exact discretisation of [Doerr2021] Eq. 2 about hover.
+and vanishes in the linearisation at ω = 0); with products of inertia, ``φ̈ = J⁻¹ τ``. That is the exact
+discretisation of [Doerr2021] Eq. 2 about hover.
 """
 
 from __future__ import annotations
@@ -64,8 +65,12 @@ def _translation(mass_kg: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
-def hover_error_model(params: InertialParams, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def hover_error_model(params: InertialParams, dt: float,
+                      inertia_tensor_kgm2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Exact discretisation of the free-flyer linearised about hover, error state ``[r, v, φ, ω]`` (12).
+
+    With a full inertia tensor ``J`` (products of inertia) the attitude block is ``φ̈ = J⁻¹ τ``: [Doerr2021]
+    Eq. 35b, ``ω̇ = J⁻¹ (τ − ω × J ω)``, linearised at ω = 0 (the gyroscopic term is second order in ω).
 
     Parameters
     ----------
@@ -73,6 +78,9 @@ def hover_error_model(params: InertialParams, dt: float) -> tuple[np.ndarray, np
         Mass and principal inertias of the model.
     dt : float
         Step [s].
+    inertia_tensor_kgm2 : ndarray, shape (3, 3), optional
+        ``J`` [kg·m²] (symmetric positive definite) in place of ``diag(params.inertia_kgm2)``; None: the diagonal
+        (the same arrays as without the argument).
 
     Returns
     -------
@@ -86,7 +94,10 @@ def hover_error_model(params: InertialParams, dt: float) -> tuple[np.ndarray, np
     a[:6, :6] = a_t
     b[:6, :3] = b_t
     eye = np.eye(3)
-    inv_i = np.diag(1.0 / params.inertia_kgm2)
+    if inertia_tensor_kgm2 is None:
+        inv_i = np.diag(1.0 / params.inertia_kgm2)
+    else:
+        inv_i = np.linalg.inv(np.asarray(inertia_tensor_kgm2, dtype=float).reshape(3, 3))
     a[6:, 6:] = np.block([[eye, dt * eye], [np.zeros((3, 3)), eye]])
     b[6:9, 3:] = 0.5 * dt * dt * inv_i
     b[9:12, 3:] = dt * inv_i

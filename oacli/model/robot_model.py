@@ -8,7 +8,12 @@ estimated and handed to the next segment):
 * the covariance of θ (4 × 4; zeros: known exactly): a prior before estimation, the estimator's covariance after
   ([Doerr2021] Eqs. 31-32; [ReSWARM2023] §4.4.1);
 * the actuator and flight-mode limits (:class:`oacli.model.limits.MotionLimits`; [ReSWARM2023] Table 2);
-* the collision radius.
+* the collision radius;
+* the full rigid body beyond θ ([Doerr2021] text before Eq. 29; [ReSWARM2023] §3): the centre-of-mass offset ``c``
+  from the geometric centre the thrust acts on (body frame) and the products of inertia ``[Ixy, Ixz, Iyz]`` of the
+  tensor ``J`` (body frame), each with its σ (zeros: the principal-axes, centred robot, known exactly, as before
+  the full rigid body was estimated). The controllers compensate ``c``'s moment and use ``J``
+  (:mod:`oacli.control.rigid_terms`); W's attitude part takes their σ (:mod:`oacli.control.disturbance`).
 
 Every σ-bound is derived from ``covariance`` by one function, :meth:`RobotModel.parameter_interval`
 (``[θ_i − n_σ σ_i, θ_i + n_σ σ_i]``, [Doerr2021] Eq. 28), each consumer choosing only its own ``n_σ``: the tube's
@@ -21,7 +26,7 @@ design limits, the tube's config checks and the planners take the model, not a b
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -41,7 +46,32 @@ COVARIANCE_RTOL = 1e-9
 """Relative tolerance (to the largest entry) of the covariance's symmetry and smallest eigenvalue."""
 
 _VECTORS = ("force_limit_N", "torque_limit_Nm", "velocity_limit_mps", "angular_velocity_limit_radps")
-_FIELDS = ("mass_kg", "inertia_kgm2", "covariance", *_VECTORS, "radius_m")
+_RIGID = ("com_offset_m", "com_std_m", "inertia_products_kgm2", "products_std_kgm2")
+_FIELDS = ("mass_kg", "inertia_kgm2", "covariance", *_VECTORS, "radius_m", *_RIGID)
+_PRODUCT_INDEX = ((0, 1), (0, 2), (1, 2))
+"""The tensor entries of ``inertia_products_kgm2`` = [Ixy, Ixz, Iyz]."""
+
+
+def inertia_tensor(inertia_kgm2: np.ndarray, products_kgm2: np.ndarray) -> np.ndarray:
+    """The symmetric tensor ``J`` [kg·m²] of the diagonal ``(Ixx, Iyy, Izz)`` and the products ``(Ixy, Ixz, Iyz)``.
+
+    Parameters
+    ----------
+    inertia_kgm2 : ndarray, shape (3,)
+    products_kgm2 : ndarray, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+    """
+    j = np.diag(np.asarray(inertia_kgm2, dtype=float))
+    for value, (a, b) in zip(np.asarray(products_kgm2, dtype=float), _PRODUCT_INDEX, strict=True):
+        j[a, b] = j[b, a] = value
+    return j
+
+
+def _zeros3() -> np.ndarray:
+    return np.zeros(3)
 
 
 def _read_only(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
@@ -105,6 +135,16 @@ class RobotModel:
         Angular-rate bound per body axis [rad/s], > 0.
     radius_m : float
         Collision radius [m], >= 0.
+    com_offset_m : ndarray, shape (3,)
+        Centre of mass relative to the geometric centre, body frame [m] (default zeros).
+    com_std_m : ndarray, shape (3,)
+        Its σ per body axis [m], >= 0 (default zeros: known).
+    inertia_products_kgm2 : ndarray, shape (3,)
+        Products of inertia ``[Ixy, Ixz, Iyz]`` [kg·m²] of the tensor ``J`` whose diagonal is ``inertia_kgm2``
+        (default zeros: principal axes); ``J`` must be positive definite with principal moments satisfying the
+        triangle inequalities.
+    products_std_kgm2 : ndarray, shape (3,)
+        Their σ [kg·m²], >= 0 (default zeros).
 
     Raises
     ------
@@ -121,6 +161,10 @@ class RobotModel:
     velocity_limit_mps: np.ndarray
     angular_velocity_limit_radps: np.ndarray
     radius_m: float = 0.0
+    com_offset_m: np.ndarray = field(default_factory=_zeros3)
+    com_std_m: np.ndarray = field(default_factory=_zeros3)
+    inertia_products_kgm2: np.ndarray = field(default_factory=_zeros3)
+    products_std_kgm2: np.ndarray = field(default_factory=_zeros3)
 
     def __post_init__(self) -> None:
         mass = float(self.mass_kg)
@@ -150,6 +194,20 @@ class RobotModel:
         if not (radius >= 0 and np.isfinite(radius)):
             raise ValueError(f"radius_m: must be a finite number >= 0, got {radius:g}")
         object.__setattr__(self, "radius_m", radius)
+        for name in _RIGID:
+            value = _read_only(name, getattr(self, name), (3,))
+            if name.endswith("_std_m") or name.endswith("_std_kgm2"):
+                if np.any(value < 0):
+                    raise ValueError(f"{name}: each entry must be >= 0, got {value.tolist()}")
+            object.__setattr__(self, name, value)
+        if np.any(self.inertia_products_kgm2 != 0):
+            principal = np.linalg.eigvalsh(self.inertia_tensor_kgm2)
+            if not principal[0] > 0:
+                raise ValueError(f"inertia_products_kgm2: the tensor is not positive definite (smallest principal "
+                                 f"moment {principal[0]:.3g} kg·m²)")
+            if principal[0] + principal[1] < principal[2] * (1.0 - INERTIA_TRIANGLE_RTOL):
+                raise ValueError("inertia_products_kgm2: the principal moments break the triangle inequality "
+                                 f"({principal.tolist()})")
 
     def __eq__(self, other: object) -> bool:
         """Equal when every field is (arrays element by element)."""
@@ -255,6 +313,41 @@ class RobotModel:
         """
         return np.array([self.parameter_interval(n, n_sigma)[1] for n in PARAMETER_NAMES[1:]])
 
+    # -- the full rigid body ------------------------------------------------------------------------------------
+
+    @property
+    def inertia_tensor_kgm2(self) -> np.ndarray:
+        """``J`` [kg·m²], shape (3, 3): ``diag(inertia_kgm2)`` with the products off the diagonal."""
+        return inertia_tensor(self.inertia_kgm2, self.inertia_products_kgm2)
+
+    @property
+    def has_rigid_body(self) -> bool:
+        """True when the model carries a centre-of-mass offset or products of inertia (a mean or a σ ≠ 0)."""
+        return any(bool(np.any(getattr(self, name) != 0)) for name in _RIGID)
+
+    def with_rigid_body(self, com_offset_m: np.ndarray, com_std_m: np.ndarray, inertia_products_kgm2: np.ndarray,
+                        products_std_kgm2: np.ndarray) -> RobotModel:
+        """The model with the centre-of-mass offset, the products of inertia and their σ replaced.
+
+        Parameters
+        ----------
+        com_offset_m, com_std_m : ndarray, shape (3,)
+            ``c`` and σ_c, body frame [m].
+        inertia_products_kgm2, products_std_kgm2 : ndarray, shape (3,)
+            ``[Ixy, Ixz, Iyz]`` and their σ [kg·m²].
+
+        Returns
+        -------
+        RobotModel
+
+        Raises
+        ------
+        ValueError
+            As on construction (a tensor that is not positive definite, a negative σ).
+        """
+        return replace(self, com_offset_m=com_offset_m, com_std_m=com_std_m,
+                       inertia_products_kgm2=inertia_products_kgm2, products_std_kgm2=products_std_kgm2)
+
     # -- limits -------------------------------------------------------------------------------------------------
 
     @property
@@ -276,7 +369,8 @@ class RobotModel:
     # -- updates ------------------------------------------------------------------------------------------------
 
     def with_estimate(self, theta: np.ndarray, covariance: np.ndarray) -> RobotModel:
-        """The model after estimation: θ and its covariance replaced, limits and geometry kept.
+        """The model after estimation: θ and its covariance replaced, limits, geometry and the rigid body's
+        centre of mass and products kept (:meth:`with_rigid_body` replaces those).
 
         What the estimator hands to the next segment ([Doerr2021] Eqs. 31-32: the estimate and the covariance
         from ``(AᵀA)⁻¹``; the next tube's W from its Eq. 28 bounds).
@@ -301,4 +395,4 @@ class RobotModel:
         return replace(self, mass_kg=float(t[0]), inertia_kgm2=t[1:4], covariance=covariance)
 
 
-__all__ = ["COVARIANCE_RTOL", "N_THETA", "PARAMETER_NAMES", "RobotModel", "check_covariance"]
+__all__ = ["COVARIANCE_RTOL", "N_THETA", "PARAMETER_NAMES", "RobotModel", "check_covariance", "inertia_tensor"]

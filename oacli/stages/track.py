@@ -16,6 +16,7 @@ import numpy as np
 
 from oacli.config import OacliConfig
 from oacli.config.sizes import check_simulation_length
+from oacli.control.rigid_terms import RigidCompensator
 from oacli.control.tracking import TrackingMPC
 from oacli.control.tube_monitor import TubeMonitor
 from oacli.control.tube_mpc import TubeHistory
@@ -48,6 +49,7 @@ from oacli.stages.settings import (
     tube_design_from_config,
 )
 from oacli.stages.track_journal import TrackJournal
+from oacli.stages.track_rigid import controller_force_limit_N, rigid_body_entries
 from oacli.stages.track_status import assess_track, controller_counts, track_safety
 from oacli.stages.track_tube import (
     add_tube_reasons,
@@ -249,6 +251,7 @@ def run_track(
         controller = TrackingMPC(
             reference, model.params, dt_s=cfg.controller.period_s, horizon=cfg.controller.horizon,
             weights=weights, limits=ctrl_limits, max_consecutive_failures=cfg.controller.max_consecutive_failures,
+            rigid=RigidCompensator.of_model(model, controller_force_limit_N(ctrl_limits, None), ctrl_limits.torque_Nm),
             **standard_mpc_arguments(cfg),
         )
     else:
@@ -281,6 +284,12 @@ def run_track(
             if flown is not None:
                 summary["sensors"] = flown.summary()
             summary["reference_check"] = reference_check.summary()
+            summary.update(rigid_body_entries(cfg, model, controller, ctrl_limits, design))
+            clipped = (summary["com_compensation"] or {}).get("clipped_steps", 0)
+            if clipped:
+                log.append((float(tel.t_true[-1]), "warning",
+                            f"centre-of-mass compensation clipped to the torque limit on {clipped} steps "
+                            "(its worst case exceeds half the limit: docs/control.md)"))
             monitor = controller if isinstance(controller, TubeMonitor) else None
             history = monitor.history() if monitor is not None else None
             findings = StatusReport()

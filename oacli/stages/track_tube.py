@@ -15,6 +15,7 @@ from scipy import special, stats
 
 from oacli.config import OacliConfig
 from oacli.control.observer import RateObserver, TranslationObserver, observer_for
+from oacli.control.rigid_terms import RigidCompensator
 from oacli.control.tracking import StateEstimate, TrackingWeights
 from oacli.control.tube_design import TubeDesign
 from oacli.control.tube_monitor import TubeMonitor, half_widths
@@ -59,19 +60,23 @@ def tube_controller_from_config(
         observer = observer_for(design)
     if rate_observer is None:
         rate_observer = rate_observer_for(cfg, model)
+    force_limit = np.array([ax.force_limit_N for ax in design.axes])
     return TubeMPC(
         reference, design, inertia_kgm2=model.inertia_kgm2, horizon=cfg.controller.horizon, prediction_step_s=step,
         weights=weights, limits=limits, terminal=terminal,
         max_consecutive_failures=cfg.controller.max_consecutive_failures, fast=tube.solver == "direct",
         observer=observer, initial_weight=tube.initial_weight, rate_observer=rate_observer,
-        **workspace_arguments(cfg),
+        rigid=RigidCompensator.of_model(model, force_limit, limits.torque_Nm), **workspace_arguments(cfg),
     )
 
 
 def rate_observer_for(cfg: OacliConfig, model: RobotModel) -> RateObserver | None:
     """The body-rate observer of ``controller.tube.observer.rate_gain`` (None when unset)."""
     gain = cfg.controller.tube.observer.rate_gain
-    return None if gain is None else RateObserver(np.asarray(model.inertia_kgm2), gain, cfg.controller.period_s)
+    if gain is None:
+        return None
+    tensor = model.inertia_tensor_kgm2 if np.any(model.inertia_products_kgm2 != 0) else None
+    return RateObserver(np.asarray(model.inertia_kgm2), gain, cfg.controller.period_s, tensor)
 
 
 def workspace_arguments(cfg: OacliConfig) -> dict[str, Any]:
