@@ -102,7 +102,8 @@ class ScpConfig(Section):
         default=10.0, description="Exact-penalty weight on the normalised constraint violation [-], > 0."
     )
     tolerance: PositiveReal = Field(
-        default=1e-4, description="Stop when the predicted merit decrease is below this (merit starts at 1)."
+        default=1e-4, description="Stop when the predicted merit decrease, or the decrease a full step achieved, "
+        "is below this (merit starts at 1)."
     )
     starts: Annotated[StrictInt, Field(ge=1, le=50)] = Field(
         default=1,
