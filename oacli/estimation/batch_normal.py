@@ -138,6 +138,31 @@ class NormalEquations:
         return out if np.all(np.isfinite(out)) else None
 
 
+    def predicted_decrease(self, step: np.ndarray) -> float:
+        """The cost decrease the linearised problem predicts for ``step``: ``‖b‖² − ‖b + Aδ‖² = −2 δᵀAᵀb −
+        δᵀAᵀAδ`` (the Gauss-Newton model of [Doerr2021] Eq. 32), from the blocks.
+
+        Parameters
+        ----------
+        step : ndarray, shape (12 K + n,)
+            ``[δx_1 .. δx_K, δφ]``.
+
+        Returns
+        -------
+        float
+            Dimensionless (whitened cost units).
+        """
+        k, nt = self.hd.shape[0], TANGENT_DIM
+        dx = step[:k * nt].reshape(k, nt)
+        dp = step[k * nt:]
+        quad = float(np.einsum("ki,kij,kj->", dx, self.hd, dx)) + float(dp @ self.hpp @ dp)
+        if k > 1:
+            quad += 2.0 * float(np.einsum("ki,kij,kj->", dx[:-1], self.ho, dx[1:]))
+        quad += 2.0 * float(np.einsum("ki,kij,j->", dx, self.hxp, dp))
+        lin = float(np.einsum("ki,ki->", self.gx, dx)) + float(self.gp @ dp)
+        return -(2.0 * lin + quad)
+
+
 _TRIL = np.tril_indices(TANGENT_DIM)
 _FULL = tuple(np.indices((TANGENT_DIM, TANGENT_DIM)).reshape(2, -1))
 
@@ -263,3 +288,16 @@ class ReferenceSystem:
             The step ``[δx_1 .. δx_K, δφ]``; None when the damped system is singular or the step not finite.
         """
         return sparse_solve((self.h + sp.diags(damping)).tocsc(), -self.g)
+
+    def predicted_decrease(self, step: np.ndarray) -> float:
+        """``−2 δᵀAᵀb − δᵀAᵀAδ`` (as :meth:`NormalEquations.predicted_decrease`).
+
+        Parameters
+        ----------
+        step : ndarray, shape (12 K + n,)
+
+        Returns
+        -------
+        float
+        """
+        return -(2.0 * float(self.g @ step) + float(step @ (self.h @ step)))

@@ -96,7 +96,8 @@ def levenberg_marquardt(
     iterations : int
         Iterations done.
     converged : bool
-        True when the relative cost decrease or the step fell below ``settings.tolerance``, or no damping up to
+        True when the relative cost decrease (achieved, or predicted by the linearised problem for the next step,
+        which is then not taken) or the step fell below ``settings.tolerance``, or no damping up to
         ``LAMBDA_MAX`` lowers the cost (a minimum within rounding); False after ``max_iterations`` or when the
         damped system stays singular.
     """
@@ -116,6 +117,11 @@ def levenberg_marquardt(
                 if lam > LAMBDA_MAX:
                     return x, phi, it, False
                 continue
+            if not retried:
+                # Converged before the step: the linearised cost predicts a relative decrease below the tolerance
+                # (the test below, on the step the model predicts, without propagating to it).
+                if system.predicted_decrease(step) < settings.tolerance * max(cost, 1e-300):
+                    return x, phi, it, True
             x_new = boxplus(x, step[: TANGENT_DIM * k].reshape(k, TANGENT_DIM))
             phi_new = phi + step[TANGENT_DIM * k:]
             # The first trial of an iteration is linearised at once (it is nearly always taken); after a rejection
