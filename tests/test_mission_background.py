@@ -74,6 +74,25 @@ def test_in_line_and_beside_the_flight_give_the_same_mission(mission_run, in_lin
     assert topics_a == topics_b and "/segment-2/estimate-sequential/estimate/params" in topics_a
 
 
+def test_the_mission_forks_its_worker_before_rerun_starts_threads(tmp_path):
+    """``oacli mission`` imports rerun (whose runtime starts threads) only after its worker is forked, so the
+    worker shares the imported modules instead of importing everything again (checked in a fresh process)."""
+    import subprocess
+    import sys
+
+    code = ("import os, sys\n"
+            "from oacli.commands.mission import mission\n"
+            "from oacli.mission.run import run_mission\n"
+            "from oacli.mission.background import _fork_safe\n"
+            "print(_fork_safe(), 'rerun' in sys.modules)\n"
+            "import rerun\n"
+            "print(_fork_safe())\n")
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**__import__("os").environ, "PYTHONPATH": str(root)}, cwd=root)
+    assert out.stdout.split() == ["True", "False", "False"], out.stdout + out.stderr
+
+
 def test_background_stages_feed_nothing_the_flight_reads():
     """The table's promise, checked against the hand-offs: no stage that may run before a background stage has
     finished reads its folder (:func:`oacli.mission.run.handoff_for` is the only reader of earlier stages)."""
@@ -105,6 +124,7 @@ def test_a_crash_in_the_background_is_reported_with_its_stage(tmp_path):
         bg.wait_all(seen.append)
     finally:
         bg.stop()
+    assert bg.start_method in ("fork", "spawn")
     assert len(seen) == 1 and seen[0].key == "segment-2/estimate-sequential"
     assert seen[0].kind in ("handled", "error", "crash")
     text = seen[0].message or (seen[0].failure or {}).get("error", "")

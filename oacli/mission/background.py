@@ -14,11 +14,13 @@ files and numbers are the same (``tests/test_mission_background.py``). Only the 
 ``segment-3/track``: they fly the same reference from the same start with the prior model, so they only need what
 ``segment-3/track`` itself needs.
 
-The worker is one child process, forked when the mission starts (before any stage runs, when this process has one
-thread; spawned otherwise), so it has every module already imported. It takes jobs (lists of stage keys) in order
-and answers each with the stages' outcomes; the stages' results are their folders, read back like kept stages. It
-ignores SIGINT: an interrupted mission stops it (:meth:`BackgroundStages.stop`) and leaves an unfinished stage's
-folder incomplete, so ``--resume`` reruns it. Campaigns run one mission per core and keep every stage in line.
+The worker is one child process, started with the mission (before any stage runs): forked when that is safe (no
+thread but BLAS pools; rerun's import starts a runtime's threads, so the mission imports it after the fork), so it
+shares what is already imported; spawned otherwise. It imports the stages' modules while the chain's first stages
+run, takes jobs (lists of stage keys) in order and answers each with the stages' outcomes; the stages' results are their
+folders, read back like kept stages. It ignores SIGINT: an interrupted mission stops it
+(:meth:`BackgroundStages.stop`) and leaves an unfinished stage's folder incomplete, so ``--resume`` reruns it; it
+dies with the mission's process (Linux). Campaigns run one mission per core and keep every stage in line.
 """
 
 from __future__ import annotations
@@ -59,9 +61,8 @@ fly beside ``segment-3/track``: the same reference and start, the prior model)."
 MISSION_MCAP_JOB = "mission.mcap"
 """The job name of writing ``mission.mcap`` (:func:`oacli.mission.foxglove.write_mission_mcap`)."""
 
-STAGE_MODULES = ("oacli.stages.plan", "oacli.stages.smooth", "oacli.stages.excite", "oacli.stages.track",
-                 "oacli.stages.estimate", "oacli.mission.foxglove", "oacli.mission.recording", "oacli.mission.plots")
-"""Modules imported before the worker starts (a forked worker then has them; the chain imports them anyway)."""
+STAGE_MODULES = ("oacli.stages.track", "oacli.stages.estimate", "oacli.mission.foxglove")
+"""Modules the worker imports as soon as it starts, before its first job (the background stages' commands)."""
 
 
 @dataclass
@@ -103,6 +104,10 @@ def _worker(conn: Connection, cfg: OacliConfig, mission_dir: Path, run_one: Stag
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the mission's process decides what an interruption stops
     signal.signal(signal.SIGTERM, _exit_on_sigterm)  # BackgroundStages.stop: files being written are cleaned up
     _die_with_parent()
+    import importlib
+
+    for name in STAGE_MODULES:  # while the chain's first stages run: the first job starts at once
+        importlib.import_module(name)
     while True:
         try:
             job = conn.recv()
@@ -162,12 +167,21 @@ def _die_with_parent() -> None:
         os._exit(1)
 
 
-def _single_threaded() -> bool:
-    """Whether this process has one OS thread (Linux: ``/proc/self/task``); False where that cannot be told."""
+def _fork_safe() -> bool:
+    """Whether forking this process is safe: no Python thread but the main one, and no named native thread (rerun's
+    runtime workers, its allocator's); unnamed native threads (BLAS pools) re-initialise after a fork. Linux only
+    (``/proc/self/task``); False where that cannot be told."""
+    import threading
+
+    if threading.active_count() != 1:
+        return False
     try:
-        return len(os.listdir("/proc/self/task")) == 1
+        tasks = os.listdir("/proc/self/task")
+        names = {Path(f"/proc/self/task/{t}/comm").read_text().strip() for t in tasks}
+        main_name = Path("/proc/self/comm").read_text().strip()
     except OSError:
         return False
+    return names == {main_name}
 
 
 @dataclass
@@ -188,17 +202,17 @@ class BackgroundStages:
     cfg: OacliConfig
     mission_dir: Path
     run_one: StageRunner
+    start_method: str = ""
     _jobs: list[_Job] = field(default_factory=list)
     _process: Any = None
     _conn: Connection | None = None
 
     def start(self) -> None:
-        """Import the stages' modules, then fork (or spawn) the worker."""
-        import importlib
-
-        for name in STAGE_MODULES:
-            importlib.import_module(name)
-        ctx: Any = mp.get_context("fork" if _single_threaded() else "spawn")
+        """Fork the worker while this process has one thread (before rerun's import starts its runtime's threads:
+        :mod:`oacli.mission.run` imports the recording lazily), spawn it otherwise; either way it then imports the
+        stages' modules while the chain's first stages run."""
+        self.start_method = "fork" if _fork_safe() else "spawn"
+        ctx: Any = mp.get_context(self.start_method)
         parent, child = ctx.Pipe()
         self._process = ctx.Process(target=_worker, args=(child, self.cfg, Path(self.mission_dir), self.run_one),
                                     name="oacli-mission-background", daemon=True)

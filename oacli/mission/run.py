@@ -44,7 +44,6 @@ from oacli.mission.configs import Handoff, mission_section, prior_model, stage_c
 from oacli.mission.foxglove import MISSION_MCAP, write_mission_mcap
 from oacli.mission.layout import ALL_STAGES, SEGMENTS, UNCONSTRAINED_BASELINE, MissionStage, stage_by_key
 from oacli.mission.plots import write_mission_plots
-from oacli.mission.recording import write_mission_recording
 from oacli.mission.records import load_mission_records, read_telemetry_cached, remember_config, stage_record
 from oacli.mission.stage_call import run_stage
 from oacli.mission.verdict import MissionStageError, plan_above_nominal, stage_verdict, stop_reason
@@ -443,6 +442,8 @@ def _run_mission(
     current: str | None = None
     in_background = background and any(s.key in BACKGROUND for s in stages)
     bg = BackgroundStages(cfg, mission_dir, run_one_stage) if in_background else None
+    if bg is not None:
+        bg.start()  # before any stage: forked while this process has one thread (mission.background)
     launched: list[str] = []  # handed to the background process, in order
 
     def record(outcome: Outcome) -> None:
@@ -529,6 +530,8 @@ def _run_mission(
         else:
             write_mission_mcap(mission_dir, summary)
         say("writing mission.rrd" + (" and plots/" if cfg.outputs.mission_pngs else ""))
+        from oacli.mission.recording import write_mission_recording  # rerun: imported after the worker's fork
+
         records = load_mission_records(mission_dir, summary)  # once for both (the stage MCAPs are cached)
         write_mission_recording(mission_dir / "mission.rrd", mission_dir, summary,
                                 recording_name=f"{cfg.name}/mission", records=records)
