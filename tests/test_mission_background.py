@@ -129,3 +129,36 @@ def test_a_crash_in_the_background_is_reported_with_its_stage(tmp_path):
     assert seen[0].kind in ("handled", "error", "crash")
     text = seen[0].message or (seen[0].failure or {}).get("error", "")
     assert "track" in text or "mcap" in text.lower(), text
+
+
+def test_baselines_launched_beside_a_flight_that_ends_unsafe_are_removed(mission_run, tmp_path, monkeypatch):
+    """segment-3/track ends unsafe (its real run, its summary then marked unsafe) while the baselines fly beside
+    it: the mission stops there, and the baselines, which in line would never have flown, leave no folder and are
+    ``not_run`` in its summary."""
+    from oacli.config import load_config
+    from oacli.mission import run as run_module
+    from oacli.mission.run import run_mission
+    from tests.test_mission_status import _copy_until
+
+    run, cfg_path, _ = mission_run
+    out = _copy_until(run, tmp_path / "m", "segment-3/smooth")
+    real = run_module.run_stage
+
+    def unsafe_segment_3(stage, stage_cfg, handoff, folder, progress):
+        result = real(stage, stage_cfg, handoff, folder, progress)
+        if stage.key == "segment-3/track":
+            result.summary["status"] = "unsafe"
+            result.summary["status_reasons"] = [{"level": "unsafe", "kind": "angular_velocity",
+                                                 "message": "marked unsafe by the test"}]
+            (folder / "summary.json").write_text(json.dumps(result.summary))
+        return result
+
+    monkeypatch.setattr(run_module, "run_stage", unsafe_segment_3)
+    result = run_mission(load_config(out / "config.yaml"), out, background=True)
+    summary = result.summary
+    assert summary["status"] == "unsafe" and "segment-3/track" in summary["stopped"]
+    for key in ("segment-3/baseline-mpc-prior", "segment-3/baseline-tube-prior"):
+        assert summary["stages"][key]["status"] == "not_run", key
+        assert not (out / key).exists(), key
+    assert summary["stages"]["segment-2/estimate-sequential"]["status"] == "ok"   # kept, before the stop
+    assert cfg_path.exists()

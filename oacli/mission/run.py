@@ -477,6 +477,7 @@ def _run_mission(
 
     try:
         stopped: str | None = None
+        stopped_at = len(stages)
         for i, stage in enumerate(stages, start=1):
             if stage.key in launched:
                 continue
@@ -506,13 +507,14 @@ def _run_mission(
                 say(f"[{i}/{len(stages)}] {stage.key}: {summary['status']} ({summary.get('wall_time_s', 0.0):.1f} s)")
                 _check_complete(stage.key, summary, folder)
             stopped = stop_reason(stage.key, results[stage.key]) if stage.key in own else None
+            stopped_at = number[stage.key]
             if stopped is not None:
                 say(f"[{i}/{len(stages)}] {stopped}")
                 break
         if bg is not None:
             bg.wait_all(record)
             if stopped is not None:  # what was launched beside a flight that stopped the mission did not fly
-                after = {s.key for s in stages[[s.key for s in stages].index(current or "") + 1:]} if current else set()
+                after = {s.key for s in stages[stopped_at:]}
                 for key in (k for k in launched if k in after):
                     results.pop(key, None)
                     _clear_incomplete(stage_by_key(key).folder(mission_dir), mission_dir)
