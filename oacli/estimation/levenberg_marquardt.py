@@ -56,6 +56,11 @@ def linearise(
     return b, normal  # type: ignore[return-value]
 
 
+EARLY_STOP_STEP = 1e-6
+"""Largest step entry (m, m/s, rad, rad/s of the states' tangents; log-parameters of φ) :func:`levenberg_marquardt`
+may leave untaken when the linearised cost predicts a decrease below the tolerance."""
+
+
 def levenberg_marquardt(
     problem: BatchProblem, x: np.ndarray, phi: np.ndarray, inliers: np.ndarray, settings: EstimatorSettings,
     history: list[float], reference: bool = False, lambda_init: float = LAMBDA_INIT,
@@ -96,8 +101,9 @@ def levenberg_marquardt(
     iterations : int
         Iterations done.
     converged : bool
-        True when the relative cost decrease (achieved, or predicted by the linearised problem for the next step,
-        which is then not taken) or the step fell below ``settings.tolerance``, or no damping up to
+        True when the relative cost decrease (achieved, or predicted by the linearised problem for a next step
+        below :data:`EARLY_STOP_STEP`, which is then not taken) or the step fell below ``settings.tolerance``, or
+        no damping up to
         ``LAMBDA_MAX`` lowers the cost (a minimum within rounding); False after ``max_iterations`` or when the
         damped system stays singular.
     """
@@ -117,9 +123,10 @@ def levenberg_marquardt(
                 if lam > LAMBDA_MAX:
                     return x, phi, it, False
                 continue
-            if not retried:
-                # Converged before the step: the linearised cost predicts a relative decrease below the tolerance
-                # (the test below, on the step the model predicts, without propagating to it).
+            if not retried and float(np.max(np.abs(step))) < EARLY_STOP_STEP:
+                # Converged before a negligible step: the linearised cost predicts a relative decrease below the
+                # tolerance (the test below, on the step the model predicts, without propagating to it). Not for a
+                # larger step (a flat direction, e.g. a filter's bootstrap on a few records): that one is taken.
                 if system.predicted_decrease(step) < settings.tolerance * max(cost, 1e-300):
                     return x, phi, it, True
             x_new = boxplus(x, step[: TANGENT_DIM * k].reshape(k, TANGENT_DIM))
