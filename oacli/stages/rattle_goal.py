@@ -27,6 +27,19 @@ KEYS = ("position_m", "velocity_mps", "angular_velocity_radps")
 """The goal residuals checked (largest per-axis error)."""
 
 
+def loop_jitter_std(cfg: OacliConfig, theta: np.ndarray) -> dict[str, float]:
+    """σ of the RATTLE loop's jitter about a held state (largest axis): ``position_m``, ``velocity_mps``,
+    ``angular_velocity_radps`` (:func:`oacli.excitation.rattle_terminal.closed_loop_jitter_std` with the config's
+    ``controller`` weights and period and ``sensors`` noise, the gain's model ``theta`` = [m, Ixx, Iyy, Izz])."""
+    s = sensor_noise(cfg)
+    noise = np.repeat([s.position_std_m, s.velocity_std_mps, s.attitude_std_rad, s.angular_velocity_std_radps], 3)
+    cw = cfg.controller.weights
+    jitter = closed_loop_jitter_std(InertialParams(float(theta[0]), np.asarray(theta[1:4], dtype=float)),
+                                    cfg.controller.period_s, cw.state_weights(), cw.input_weights(), noise)
+    return {"position_m": float(np.max(jitter[0:3])), "velocity_mps": float(np.max(jitter[3:6])),
+            "angular_velocity_radps": float(np.max(jitter[9:12]))}
+
+
 def goal_tolerance(cfg: OacliConfig, theta: np.ndarray) -> dict[str, Any]:
     """The tolerance of the run's true final state: design tolerance + n σ of the closed loop's jitter.
 
@@ -43,13 +56,7 @@ def goal_tolerance(cfg: OacliConfig, theta: np.ndarray) -> dict[str, Any]:
         ``position_m``, ``velocity_mps``, ``angular_velocity_radps`` (the tolerances), ``noise_sigmas`` and
         ``jitter_std`` (σ per quantity, largest axis).
     """
-    s = sensor_noise(cfg)
-    noise = np.repeat([s.position_std_m, s.velocity_std_mps, s.attitude_std_rad, s.angular_velocity_std_radps], 3)
-    cw = cfg.controller.weights
-    jitter = closed_loop_jitter_std(InertialParams(float(theta[0]), np.asarray(theta[1:4], dtype=float)),
-                                    cfg.controller.period_s, cw.state_weights(), cw.input_weights(), noise)
-    sigma = {"position_m": float(np.max(jitter[0:3])), "velocity_mps": float(np.max(jitter[3:6])),
-             "angular_velocity_radps": float(np.max(jitter[9:12]))}
+    sigma = loop_jitter_std(cfg, theta)
     tol = terminal_tolerance(cfg)
     n = cfg.excitation.rattle.goal_noise_sigmas
     design = {"position_m": tol.position_m, "velocity_mps": tol.velocity_mps,

@@ -18,7 +18,8 @@ import numpy as np
 
 from oacli.config import OacliConfig
 from oacli.model.limits import MotionLimits
-from oacli.stages.settings import controller_limits, robot_model
+from oacli.stages.rattle_goal import loop_jitter_std
+from oacli.stages.settings import controller_limits, excitation_prior_model, robot_model
 
 
 def rattle_governor_limit(cfg: OacliConfig) -> np.ndarray:
@@ -26,8 +27,15 @@ def rattle_governor_limit(cfg: OacliConfig) -> np.ndarray:
     return np.asarray(controller_limits(cfg, robot_model(cfg)).angular_velocity_radps, dtype=float)
 
 
+JITTER_SIGMAS = 2.0
+"""The planner's rate cap leaves this many σ of the RATTLE loop's own rate jitter below the governor's limit."""
+
+
 def rattle_planner_limits(cfg: OacliConfig, design: MotionLimits) -> MotionLimits:
-    """The design limits with the angular rate capped at the governor's (:func:`rattle_governor_limit`).
+    """The design limits with the angular rate capped at the governor's (:func:`rattle_governor_limit`) less
+    :data:`JITTER_SIGMAS` σ of the loop's rate jitter under the sensor noise (:func:`oacli.stages.rattle_goal.
+    loop_jitter_std` with the prior's θ): the flown motion, which the track stage follows, then stays within the
+    tracking controller's constraint.
 
     Parameters
     ----------
@@ -40,5 +48,6 @@ def rattle_planner_limits(cfg: OacliConfig, design: MotionLimits) -> MotionLimit
     -------
     MotionLimits
     """
-    rate = np.minimum(design.angular_velocity_radps, rattle_governor_limit(cfg))
+    jitter = loop_jitter_std(cfg, np.asarray(excitation_prior_model(cfg).theta, dtype=float))["angular_velocity_radps"]
+    rate = np.minimum(design.angular_velocity_radps, rattle_governor_limit(cfg) - JITTER_SIGMAS * jitter)
     return MotionLimits(design.force_N, design.torque_Nm, design.velocity_mps, rate)
