@@ -482,10 +482,11 @@ def actuator_calibration(cfg: OacliConfig, mission_dir: Path) -> ActuatorCalibra
             notes.append(f"{ON_MANOEUVRE_KEY} {' and '.join(problems)}")
     linearity = flights_linearity(cfg, mission_dir)
     clipped = [a.describe() for a in linearity if a.saturating]
-    if clipped and not problems:  # the scales fitted a clipped response: a saturating impeller, not to be handed on
-        problems = [f"the known robot's flights ({', '.join(CALIBRATION_FLIGHTS)}) show a saturating actuator: "
-                    + "; ".join(clipped)]
-        notes.append(problems[0])
+    if clipped:  # the scales fitted a clipped response: a saturating impeller, not to be handed on
+        found = (f"the known robot's flights ({', '.join(CALIBRATION_FLIGHTS)}) show a saturating actuator: "
+                 + "; ".join(clipped))
+        problems = [*problems, found]
+        notes.append(found)
     if problems:
         return ActuatorCalibration("config", note=(
             f"the actuator calibration: {'; '.join(notes)}: segment 2's estimates keep the config's actuator prior "
