@@ -16,7 +16,9 @@ information [nats] the horizon would add about parameter i alone given its curre
 
     γ_i = γ0_i · exp(−β · floor_i / σ_i),   and γ_i = 0 once σ_i ≤ α · floor_i,
 
-with α = 2.2, β = 5, floor = [0.03, 1e-4, 1e-4, 1e-4], γ0 = [50, 20, 20, 20] for [m, Ixx, Iyy, Izz].
+with α = 2.2, β = 5, floor = [0.03, 1e-4, 1e-4, 1e-4], γ0 = [50, 20, 20, 20] for [m, Ixx, Iyy, Izz]. A terminal
+replan (``arrival_step``, :mod:`oacli.excitation.rattle_terminal`) sets γ = 0 and bounds every step from the arrival
+on to the goal at rest (exact penalty).
 
 The problem is non-convex (information is a convex function of the inputs, and it is *maximised*); it is solved by
 a few sequential convex programming iterations in the spirit of ACADO's real-time iterations: each linearises the

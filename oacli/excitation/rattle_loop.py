@@ -6,7 +6,9 @@ control step it first feeds the estimator the new measurement (with the input he
 (:func:`oacli.excitation.rattle.information_weights`) and replans from the measured state with the estimate as the
 model (warm-started with the previous plan shifted). Between replans it follows the plan: the planned input plus
 an LQR correction of the error to the planned state (gain from the exact hover discretisation with the current
-estimate, :func:`oacli.model.double_integrator.hover_error_model`), clipped to the limits.
+estimate, :func:`oacli.model.double_integrator.hover_error_model`), clipped to the limits. With a terminal phase
+(:class:`oacli.excitation.rattle_terminal.TerminalPhase`) the last replan comes when its horizon ends ``hold`` before
+the run's end; it informs nothing and plans to the goal at rest, which the loop then holds.
 
 The plan keeps its angular rate within the planner's (margined) limit, but the feedback that corrects attitude
 errors can push the rate past the robot's limit. With ``rate_limit_radps`` a rate governor bounds each body
