@@ -117,15 +117,51 @@ class TerminalPhase:
         return self.arrival_s - self.horizon_s
 
     def is_terminal(self, t: float) -> bool:
-        """Whether a replan at ``t`` [s] is the terminal one."""
+        """Whether a replan at ``t`` is the terminal one.
+
+        Parameters
+        ----------
+        t : float
+            Mission time of the replan [s].
+
+        Returns
+        -------
+        bool
+        """
         return t >= self.start_s - 1e-9
 
     def next_replan(self, t: float, period_s: float) -> float:
-        """The replan after a regular one at ``t`` [s]: one period later, but not after the terminal replan."""
+        """The replan after a regular one: one period later, but not after the terminal replan.
+
+        Parameters
+        ----------
+        t : float
+            Mission time of the regular replan [s].
+        period_s : float
+            Replan period [s].
+
+        Returns
+        -------
+        float
+            Mission time of the next replan [s].
+        """
         return min(t + period_s, self.start_s)
 
     def arrival_step(self, t: float, dt_s: float) -> int:
-        """The first step of a plan starting at ``t`` [s] with steps of ``dt_s`` [s] at or after the arrival."""
+        """The first step of a plan at or after the arrival.
+
+        Parameters
+        ----------
+        t : float
+            Mission time of the plan's first sample [s].
+        dt_s : float
+            The plan's step [s].
+
+        Returns
+        -------
+        int
+            At least 1 (the first sample is the measured state).
+        """
         return max(math.ceil((self.arrival_s - t) / dt_s - 1e-9), 1)
 
 
