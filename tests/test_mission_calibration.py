@@ -36,6 +36,7 @@ from oacli.mission.calibration import (
     handed_rigid_body,
     reconcile_flights,
 )
+from oacli.mission.calibration_linearity import Z_SATURATION
 from oacli.mission.configs import Handoff, seed_index, stage_config, stage_seed
 from oacli.mission.layout import MISSION_STAGES, stage_by_key
 from oacli.mission.run import handoff_for, mission_stages, mission_summary
@@ -394,3 +395,38 @@ def test_a_saturating_torque_axis_is_not_handed_on(tmp_path):
     cfg, summary = _fly_manoeuvre(tmp_path, "faults.actuator_saturation=[1, 1, 1, 1, 0.35, 1]")
     handed, problems, _ = assess_calibration(summary, config_actuator_prior(cfg))
     assert handed == {} and any("torque_scale_y" in p and "contradicts its prior" in p for p in problems), problems
+
+
+def test_the_flights_clip_test_runs_on_the_flown_telemetry_and_passes_a_healthy_robot(mission_run, tmp_path):
+    """The clip test (oacli.mission.calibration_linearity) reads segment 1's flown telemetry: a healthy robot is not
+    refused (no axis below −Z_SATURATION) and the summary reports the scores."""
+    run, cfg_path, _ = mission_run
+    cfg = load_config(cfg_path)
+    out = tmp_path / "m"
+    (out / "segment-1").mkdir(parents=True)
+    for key in (CALIBRATE_KEY, "segment-1/track"):
+        shutil.copytree(run / key, out / key)
+    cal = actuator_calibration(cfg, out)
+    assert cal.source == "calibration" and cal.note is None
+    z = cal.summary()["linearity_z"]
+    assert z and all(v >= -Z_SATURATION for v in z.values()), z
+    assert set(z) <= {"force_x", "force_y", "force_z", "torque_x", "torque_y", "torque_z"}
+
+
+@pytest.mark.slow
+def test_a_force_axis_saturating_in_both_flights_is_refused(mission_run, tmp_path):
+    """World y delivers at most 75 % of its limit in the manoeuvre (faults.actuator_saturation): the flights' clip
+    test finds force_y and the calibration falls back to the config's prior with the axis named (~35 s on an idle
+    core)."""
+    run, _, _ = mission_run
+    flown = tmp_path / "flown"
+    cfg, _ = _fly_manoeuvre(flown, "faults.actuator_saturation=[1, 0.75, 1, 1, 1, 1]")
+    out = tmp_path / "m"
+    (out / "segment-1").mkdir(parents=True)
+    for key in (CALIBRATE_KEY, "segment-1/track"):
+        shutil.copytree(run / key, out / key)
+    shutil.copytree(flown / "track", out / MANOEUVRE_KEY)
+    shutil.copytree(flown / "estimate", out / ON_MANOEUVRE_KEY)
+    cal = actuator_calibration(cfg, out)
+    assert cal.source == "config" and "saturating actuator" in cal.note and "force_y" in cal.note, cal.note
+    assert cal.summary()["linearity_z"]["force_y"] < -Z_SATURATION

@@ -161,6 +161,17 @@ class RattleConfig(Section):
         description="End-of-horizon speed bound as a fraction of the velocity limit; the last planned sample keeps "
         "the braking distance from walls and obstacles (recursive feasibility), in (0, 1].",
     )
+    terminal_hold_s: Annotated[Real, Field(ge=0)] | None = Field(
+        default=4.0,
+        description="RATTLE's terminal phase (oacli.excitation.rattle_terminal): the last replan drops the "
+        "information term and plans to the goal at rest, arriving this long [s] before the run ends (>= 0, below "
+        "duration_s); null: every replan informs and the run may end away from the goal.",
+    )
+    goal_noise_sigmas: PositiveReal = Field(
+        default=4.0,
+        description="The run ends at the goal at rest when its true state is within excitation.terminal_tolerance "
+        "plus this many σ of the closed loop's jitter under the sensor noise (Lyapunov equation of the LQR loop) [-].",
+    )
     weights: Annotated[RattleWeightsConfig, none_to({})] = Field(
         default_factory=RattleWeightsConfig, description="Quadratic tracking weights of the planner."
     )
@@ -177,6 +188,15 @@ class RattleConfig(Section):
         description="Planner limits (rattle planner: 0.15 N, 0.015 N·m); omitted ones: excitation.limits, then robot; "
         "capped by excitation.margin like the offline design's.",
     )
+
+    @model_validator(mode="after")
+    def _hold_within_run(self) -> RattleConfig:
+        if self.terminal_hold_s is not None and self.terminal_hold_s >= self.duration_s:
+            raise PydanticCustomError(
+                "oacli_terminal_hold", "terminal_hold_s ({h}) must be below duration_s ({d})",
+                {"h": self.terminal_hold_s, "d": self.duration_s},
+            )
+        return self
 
 
 ParameterGroup = Literal["mass", "inertia", "products", "com", "force_scale", "torque_scale"]

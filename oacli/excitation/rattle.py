@@ -16,7 +16,9 @@ information [nats] the horizon would add about parameter i alone given its curre
 
     γ_i = γ0_i · exp(−β · floor_i / σ_i),   and γ_i = 0 once σ_i ≤ α · floor_i,
 
-with α = 2.2, β = 5, floor = [0.03, 1e-4, 1e-4, 1e-4], γ0 = [50, 20, 20, 20] for [m, Ixx, Iyy, Izz].
+with α = 2.2, β = 5, floor = [0.03, 1e-4, 1e-4, 1e-4], γ0 = [50, 20, 20, 20] for [m, Ixx, Iyy, Izz]. A terminal
+replan (``arrival_step``, :mod:`oacli.excitation.rattle_terminal`) sets γ = 0 and bounds every step from the arrival
+on to the goal at rest (exact penalty).
 
 The problem is non-convex (information is a convex function of the inputs, and it is *maximised*); it is solved by
 a few sequential convex programming iterations in the spirit of ACADO's real-time iterations: each linearises the
@@ -51,6 +53,7 @@ from oacli.excitation.problem import (
     keep_out_violation,
     rest_to_rest_inputs,
 )
+from oacli.excitation.rattle_terminal import terminal_bounds, terminal_violation
 from oacli.geometry import Scene
 from oacli.geometry.halfspaces import keep_out_zone, point_halfspaces
 from oacli.model.limits import MotionLimits
@@ -168,6 +171,8 @@ class ReplanResult:
         Wall time of the whole replan [s].
     status : str
         Last solver status.
+    arrival_step : int or None
+        The terminal phase's arrival step (None: not a terminal replan).
     """
 
     trajectory: Trajectory
@@ -179,6 +184,7 @@ class ReplanResult:
     accepted: int
     solve_time_s: float
     status: str
+    arrival_step: int | None = None
 
 
 class InformationAwarePlanner:
@@ -250,6 +256,7 @@ class InformationAwarePlanner:
         self.clearance_m = float(clearance_m)
         self.stop_speed = float(stop_speed_fraction) * limits.velocity_mps
         self._built_for_mass: float | None = None
+        self._terminal_bounds = terminal_bounds(self.n, None)
 
     # -- the QP -----------------------------------------------------------------------------------------------
 
@@ -291,6 +298,16 @@ class InformationAwarePlanner:
         s_stop = cp.Variable(nonneg=True)
         cons.append(cp.abs(self.p_v[n] + dv[n]) <= self.stop_speed * (1.0 + s_stop))
         slacks = [s_v, s_w, s_stop]
+        # RATTLE's terminal phase (:mod:`oacli.excitation.rattle_terminal`): the steps at and after the arrival are
+        # at the goal at rest (bounds per step [m, m/s, rad, rad/s]; :data:`FREE_BOUND` elsewhere), exact penalty.
+        self.p_terminal = cp.Parameter((n + 1, 4), nonneg=True, name="terminal_bounds")
+        s_t = cp.Variable(n + 1, nonneg=True)
+        bound = [cp.reshape(self.p_terminal[:, j], (n + 1, 1), order="C") @ np.ones((1, 3)) for j in range(4)]
+        unit = [LENGTH_UNIT_M * np.ones(3), lim.velocity_mps, np.ones(3), lim.angular_velocity_radps]
+        col = cp.reshape(s_t, (n + 1, 1), order="C")
+        for j, expr in enumerate((self.p_r + dr, self.p_v + dv, self.attitude.expr, self.p_w + drot[:, 4:7])):
+            cons.append(cp.abs(expr) <= bound[j] + col @ unit[j][None, :])
+        slacks.append(s_t)
         self.has_keep_in = bool(self.scene.keep_in)
         if self.has_keep_in:
             self.in_lo0, self.in_hi0, self.in_lo1, self.in_hi1 = (cp.Parameter((n, 3)) for _ in range(4))
@@ -381,6 +398,7 @@ class InformationAwarePlanner:
             + np.sum(keep_out_violation(self.scene, x[:, 0:3], out_margin, float(np.linalg.norm(stop))))
             / LENGTH_UNIT_M
         )
+        viol += terminal_violation(self._terminal_bounds, dr, x[:, 3:6], err, x[:, 10:13], lim)
         cost = tracking + terminal + effort - reward
         return {"u": u, "x": x, "fim": 0.5 * (fim + fim.T), "reward": reward, "cost": float(cost),
                 "violation": float(viol), "merit": float(cost + self.penalty * viol), "err": err, "jac": jac}
@@ -404,6 +422,7 @@ class InformationAwarePlanner:
         self.rotation.set(lin.a, lin.b)
         self.attitude.set(ev["err"], ev["jac"])
         self.p_delta.value = delta * self.limits.input
+        self.p_terminal.value = self._terminal_bounds
         # The rates follow the linearised rotation only to first order: the model aims at 90 % of the limit (never
         # tighter than the current rate, so the slack at zero step is the true violation), leaving the rest for
         # the linearisation error of a step.
@@ -441,6 +460,7 @@ class InformationAwarePlanner:
         t0: float = 0.0,
         u_warm: np.ndarray | None = None,
         theta_full: np.ndarray | None = None,
+        arrival_step: int | None = None,
     ) -> ReplanResult:
         """Plan N steps from ``x0`` with the model ``theta`` (the estimate), its std ``σ`` and weights ``γ``.
 
@@ -457,6 +477,9 @@ class InformationAwarePlanner:
         theta_full : ndarray, shape (16,), optional
             With an information term: the full θ its information is evaluated at (default: ``theta`` with the
             term's prior for the rest); ``std`` and ``gamma`` then have one entry per chosen entry.
+        arrival_step : int, optional
+            RATTLE's terminal phase (:mod:`oacli.excitation.rattle_terminal`): the plan reaches the goal at rest by
+            this step and stays there (exact penalty), and rewards no information (γ = 0).
 
         Returns
         -------
@@ -469,6 +492,9 @@ class InformationAwarePlanner:
                                 else np.asarray(theta_full, dtype=float).reshape(16))
         std = np.asarray(std, dtype=float)
         gamma = np.asarray(gamma, dtype=float)
+        self._terminal_bounds = terminal_bounds(self.n, arrival_step)
+        if arrival_step is not None:
+            gamma = np.zeros_like(gamma)
         if self._built_for_mass is None or abs(self._built_for_mass - theta[0]) > 1e-12 * theta[0]:
             self._build(float(theta[0]))
         u = np.zeros((self.n, 6)) if u_warm is None else np.asarray(u_warm, dtype=float)
@@ -517,4 +543,5 @@ class InformationAwarePlanner:
             accepted=accepted,
             solve_time_s=time.perf_counter() - wall,
             status=status,
+            arrival_step=arrival_step,
         )

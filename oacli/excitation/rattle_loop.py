@@ -6,7 +6,9 @@ control step it first feeds the estimator the new measurement (with the input he
 (:func:`oacli.excitation.rattle.information_weights`) and replans from the measured state with the estimate as the
 model (warm-started with the previous plan shifted). Between replans it follows the plan: the planned input plus
 an LQR correction of the error to the planned state (gain from the exact hover discretisation with the current
-estimate, :func:`oacli.model.double_integrator.hover_error_model`), clipped to the limits.
+estimate, :func:`oacli.model.double_integrator.hover_error_model`), clipped to the limits. With a terminal phase
+(:class:`oacli.excitation.rattle_terminal.TerminalPhase`) the last replan comes when its horizon ends ``hold`` before
+the run's end; it informs nothing and plans to the goal at rest, which the loop then holds.
 
 The plan keeps its angular rate within the planner's (margined) limit, but the feedback that corrects attitude
 errors can push the rate past the robot's limit. With ``rate_limit_radps`` a rate governor bounds each body
@@ -28,6 +30,7 @@ from oacli.control.tracking import to_error_state
 from oacli.excitation.oracle import OnlineEstimator
 from oacli.excitation.rattle import InformationAwarePlanner, InformationWeighting, ReplanResult
 from oacli.excitation.rattle_full import entry_estimate
+from oacli.excitation.rattle_terminal import TerminalPhase
 from oacli.model.double_integrator import hover_error_model
 from oacli.sim.sensors import Disturbance, SensorNoise
 from oacli.sim.simulator import simulate
@@ -78,6 +81,9 @@ class RattleController:
         Actuator limits the input is clipped to (the plan keeps its own, lower, design limits).
     rate_limit_radps : ndarray, shape (3,), optional
         Body-rate limit of the rate governor (:func:`rate_governed_torque`); none by default.
+    terminal : TerminalPhase, optional
+        RATTLE's terminal phase (:mod:`oacli.excitation.rattle_terminal`): a last replan with no information term
+        that arrives at the goal at rest before the run ends; none by default (every replan informs).
     """
 
     def __init__(
@@ -92,8 +98,10 @@ class RattleController:
         feedback_r: np.ndarray,
         input_limits: np.ndarray,
         rate_limit_radps: np.ndarray | None = None,
+        terminal: TerminalPhase | None = None,
     ) -> None:
         self.planner = planner
+        self.terminal = terminal
         self.estimator = estimator
         self.weighting = weighting
         self.replan_period_s = float(replan_period_s)
@@ -123,16 +131,22 @@ class RattleController:
             gamma = gamma_entries[0:4]
         else:
             gamma = self.weighting.weights(std)
+        arrival = None
+        if self.terminal is not None and self.terminal.is_terminal(t):  # the shut-off: no information, to rest
+            arrival = self.terminal.arrival_step(t, self.planner.dt)
+            gamma = np.zeros_like(gamma)
+            if term is not None:
+                gamma_entries = np.zeros_like(gamma_entries)
         warm = None
         if self._plan is not None:
             times = t + self.planner.dt * np.arange(self.planner.n)
             warm = sample_inputs(self._plan, times)
         if term is None:
-            plan = self.planner.plan(x, est.theta, std, gamma, t0=t, u_warm=warm)
+            plan = self.planner.plan(x, est.theta, std, gamma, t0=t, u_warm=warm, arrival_step=arrival)
         else:
             assert std_entries is not None
             plan = self.planner.plan(x, est.theta, std_entries, gamma_entries, t0=t, u_warm=warm,
-                                     theta_full=theta_full)
+                                     theta_full=theta_full, arrival_step=arrival)
         self._plan = plan.trajectory
         params = InertialParams(est.theta[0], est.theta[1:4])
         a, b = hover_error_model(params, self.control_period_s)
@@ -143,6 +157,9 @@ class RattleController:
             self.replans.append(ReplanRecord(t, est.theta.copy(), std.copy(), gamma, plan, std_entries,
                                              gamma_entries))
         self._next_replan = t + self.replan_period_s
+        if self.terminal is not None:  # none after the terminal replan; the terminal one not after its time
+            self._next_replan = (np.inf if arrival is not None
+                                 else self.terminal.next_replan(t, self.replan_period_s))
 
     def step(self, t: float, x_measured: np.ndarray) -> ControlStep:
         """Input for ``[t, t + control period)`` (simulator ``Controller`` protocol).
@@ -278,6 +295,7 @@ def run_rattle(
     actuator_scale: np.ndarray | None = None,
     com_offset_m: np.ndarray | None = None,
     on_step: Callable[..., None] | None = None,
+    terminal_hold_s: float | None = None,
 ) -> RattleRun:
     """Simulate RATTLE in closed loop from ``x0`` for ``duration_s`` (see :class:`RattleController`).
 
@@ -313,6 +331,9 @@ def run_rattle(
         Called after each control step with what the step produced (passed to :func:`oacli.sim.simulator.simulate`,
         whose docstring lists the arguments; ``x_reference`` is the plan's state at the step), e.g. to journal
         the loop as it runs.
+    terminal_hold_s : float, optional
+        Turns RATTLE's terminal phase on (:class:`oacli.excitation.rattle_terminal.TerminalPhase`): the plan
+        arrives at the goal at rest this long [s] before the run ends (at ``duration_s``); off when omitted.
 
     Returns
     -------
@@ -322,6 +343,8 @@ def run_rattle(
     controller = RattleController(
         planner, estimator, weighting, replan_period_s=replan_period_s, control_period_s=control_period_s,
         feedback_q=feedback_q, feedback_r=feedback_r, input_limits=input_limits, rate_limit_radps=rate_limit_radps,
+        terminal=None if terminal_hold_s is None else TerminalPhase(duration_s, terminal_hold_s,
+                                                                    planner.n * planner.dt),
     )
     tel = simulate(
         controller, x0, truth, duration_s=duration_s, control_period_s=control_period_s,

@@ -19,7 +19,11 @@ ended ``degraded`` for anything but a moderately high χ² (σ then inflated by 
 prior it was fitted from, is not handed on: segment 2 keeps the config's prior and the mission says so
 (``degraded``, ``calibration_fallback``). Where the two flights disagree on a scale (e.g. a saturating impeller
 clipped segment 1's large commands; the manoeuvre's reference asks for about half of each limit at most), the
-manoeuvre's own estimate of it is handed on (``degraded``, ``calibration_inconsistent``).
+manoeuvre's own estimate of it is handed on (``degraded``, ``calibration_inconsistent``). A saturating impeller that
+clips both flights passes all of these (the fit averages the clipped response into κ, a few per cent low, with a χ²
+near 1 and a shift inside the prior): the flights' telemetry is therefore also asked whether any axis's response is
+clipped above some fraction of its limit (:func:`flights_linearity`, :mod:`oacli.mission.calibration_linearity`),
+and a clipped axis refuses the calibration (``calibration_fallback``, the axis and level named).
 """
 
 from __future__ import annotations
@@ -33,12 +37,15 @@ import numpy as np
 
 from oacli.config import OacliConfig
 from oacli.errors import ConfigError
+from oacli.io.mcap_read import read_telemetry
 from oacli.io.runfolder import is_complete
+from oacli.mission.calibration_linearity import AxisLinearity, actuator_linearity
 from oacli.mission.layout import stage_by_key
 from oacli.status import OK
 
 __all__ = [
     "CALIBRATE_KEY",
+    "CALIBRATION_FLIGHTS",
     "CHI2_ACCEPT_MAX",
     "CONSISTENCY_Z_MAX",
     "HANDED_GROUPS",
@@ -54,6 +61,7 @@ __all__ = [
     "calibration_stage_prior",
     "config_actuator_prior",
     "estimate_failures",
+    "flights_linearity",
     "handed_rigid_body",
     "manoeuvre_poses",
     "manoeuvre_section",
@@ -260,6 +268,9 @@ class ActuatorCalibration:
     replaced : tuple of str
         The scales on which the two flights disagreed, handed on from the manoeuvre alone
         (:func:`reconcile_flights`).
+    linearity : dict of str to float
+        The clip test's smallest z per actuator axis over the calibration flights
+        (:mod:`oacli.mission.calibration_linearity`; a saturating actuator refuses the calibration).
     """
 
     source: str
@@ -269,10 +280,13 @@ class ActuatorCalibration:
     stage: str = CALIBRATE_KEY
     inflation: float = 1.0
     replaced: tuple[str, ...] = ()
+    linearity: dict[str, float] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         """The ``calibration`` entry of the mission's summary (with the z-scores where the truth is known)."""
         out: dict[str, Any] = {"source": self.source, **self.rigid_body, "note": self.note}
+        if self.linearity:
+            out["linearity_z"] = dict(self.linearity)
         if self.stage != CALIBRATE_KEY or self.inflation != 1.0:
             out.update(stage=self.stage, sigma_inflation=self.inflation, replaced=list(self.replaced))
         z = {}
@@ -466,10 +480,17 @@ def actuator_calibration(cfg: OacliConfig, mission_dir: Path) -> ActuatorCalibra
             handed, replaced, problems = reconcile_flights(handed, first_handed, inflation)
         if problems:
             notes.append(f"{ON_MANOEUVRE_KEY} {' and '.join(problems)}")
+    linearity = flights_linearity(cfg, mission_dir)
+    clipped = [a.describe() for a in linearity if a.saturating]
+    if clipped:  # the scales fitted a clipped response: a saturating impeller, not to be handed on
+        found = (f"the known robot's flights ({', '.join(CALIBRATION_FLIGHTS)}) show a saturating actuator: "
+                 + "; ".join(clipped))
+        problems = [*problems, found]
+        notes.append(found)
     if problems:
         return ActuatorCalibration("config", note=(
             f"the actuator calibration: {'; '.join(notes)}: segment 2's estimates keep the config's actuator prior "
-            "(estimation.rigid_body)"))
+            "(estimation.rigid_body)"), linearity=_linearity_z(linearity))
     truth = {k: float(v) for k, v in ((summary.get("rigid_body") or {}).get("truth") or {}).items()}
     note = None
     if notes:  # the manoeuvre's fit from the config's prior: handed on, the first one's rejection noted
@@ -477,4 +498,31 @@ def actuator_calibration(cfg: OacliConfig, mission_dir: Path) -> ActuatorCalibra
     if replaced:
         note = f"the actuator calibration's two flights disagree: {'; '.join(replaced)}"
     return ActuatorCalibration("calibration", handed, note=note, truth=truth, stage=key, inflation=inflation,
-                               replaced=tuple(replaced))
+                               replaced=tuple(replaced), linearity=_linearity_z(linearity))
+
+
+CALIBRATION_FLIGHTS = ("segment-1/track", MANOEUVRE_KEY)
+"""The known robot's flights whose telemetry the calibrations fit (the manoeuvre's when it is flown)."""
+
+_LINEARITY_CACHE: dict[tuple[str, ...], list[AxisLinearity]] = {}
+
+
+def flights_linearity(cfg: OacliConfig, mission_dir: Path) -> list[AxisLinearity]:
+    """The clip test of :mod:`oacli.mission.calibration_linearity` over the calibration flights' telemetry
+    (:data:`CALIBRATION_FLIGHTS` that ran; empty when none did)."""
+    paths = [stage_by_key(key).mcap(Path(mission_dir)) for key in CALIBRATION_FLIGHTS
+             if is_complete(stage_by_key(key).folder(Path(mission_dir)))]
+    if not paths:
+        return []
+    cache_key = tuple(f"{p}:{p.stat().st_mtime_ns}" for p in paths)
+    if cache_key not in _LINEARITY_CACHE:
+        s, robot = cfg.sensors, cfg.robot
+        _LINEARITY_CACHE[cache_key] = actuator_linearity(
+            [read_telemetry(p) for p in paths], float(robot.mass_kg), np.asarray(robot.inertia_kgm2, dtype=float),
+            np.concatenate([robot.force_limit_N, robot.torque_limit_Nm]),
+            (s.position_std_m, s.velocity_std_mps, s.angular_velocity_std_radps))
+    return _LINEARITY_CACHE[cache_key]
+
+
+def _linearity_z(linearity: list[AxisLinearity]) -> dict[str, float]:
+    return {a.axis: round(a.z, 2) for a in linearity if np.isfinite(a.z)}

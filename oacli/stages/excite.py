@@ -19,8 +19,9 @@ computation so far) next to an ``interrupted`` ``summary.json`` (exit 130 / 143)
 Both design within the limits of :func:`oacli.stages.design_limits.excitation_design_limits`: the robot's with
 ``excitation.margin`` (the force also × m_prior/m_upper, [Doerr2021] Eq. 28), capped by ``excitation.limits`` (RATTLE:
 ``excitation.rattle.limits`` over them); a cap above the robot's is refused (exit 2) or clipped with a warning. In
-RATTLE's closed loop the feedback may use the actuator's full limits and a rate governor keeps the body rate within
-``robot.angular_velocity_limit_radps``. ``summary.json`` records the limits used (``design_limits``).
+RATTLE's closed loop the feedback may use the actuator's full limits; RATTLE plans its rates and a rate governor
+keeps the measured body rate within the tracking controller's (``controller.rate_margin``,
+:mod:`oacli.stages.rattle_rates`). ``summary.json`` records the limits used (``design_limits``).
 
 Outputs in the run folder: ``config.yaml`` (first), ``excite.mcap`` (``/trajectory`` as ``oacli.TrajectorySample``
 at the design's sample period, the criterion per SCP iteration, the information over time, the scene),
@@ -62,6 +63,8 @@ from oacli.reference_limits import DesignLimits
 from oacli.stages.design_limits import design_limit_log, excitation_design_limits, to_motion_limits
 from oacli.stages.estimate_rigid import batch_model
 from oacli.stages.excite_journal import ExciteJournal, RattleJournal
+from oacli.stages.rattle_goal import goal_reasons, goal_tolerance, plan_goal_residual
+from oacli.stages.rattle_rates import rattle_governor_limit, rattle_planner_limits
 from oacli.stages.settings import (
     estimator_settings,
     excitation_prior_model,
@@ -403,7 +406,7 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
                                  else f"{', '.join(missing)} not in estimation.parameters") + ")")
     design_lim = excitation_design_limits(cfg, rattle=True)
     problem = excitation_problem(cfg, design_lim)  # start, goal, workspace checks, measurement model
-    limits = to_motion_limits(design_lim)
+    limits = rattle_planner_limits(cfg, to_motion_limits(design_lim))  # within the controller's rate margin
     actuator = robot_model(cfg).input_limits  # the plant's actuators: the feedback may use what the plan leaves
     planner = InformationAwarePlanner(
         problem.goal, horizon=rcfg.horizon, dt_s=rcfg.step_s, limits=limits, measurement=problem.measurement,
@@ -440,9 +443,9 @@ def _run_rattle(cfg: OacliConfig, *, out: Path | None, runs_root: Path,
             input_limits=actuator, feedback_q=cw.state_weights(), feedback_r=cw.input_weights(),
             sensors=sensor_noise(cfg), disturbance=plant_disturbance(cfg),
             rng=np.random.default_rng(cfg.seed), progress=progress,
-            rate_limit_radps=np.asarray(robot_model(cfg).angular_velocity_limit_radps),
+            rate_limit_radps=rattle_governor_limit(cfg),
             actuator_scale=np.asarray(cfg.truth.actuator_scale), com_offset_m=np.asarray(cfg.truth.com_offset_m),
-            on_step=journal.on_step,
+            on_step=journal.on_step, terminal_hold_s=rcfg.terminal_hold_s,
         )
         journal.flush()
         summary, traj, log = _rattle_summary(cfg, problem, design_lim, run, prior_cov, theta_true)
@@ -527,6 +530,7 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
                                                      for r in run.replans)),
         "within_robot_limits": within_robot,
         "rate_governed_steps": run.governed_steps,
+        "rate_governor_limit_radps": rattle_governor_limit(cfg).tolist(),  # and the planner's cap (rattle_rates)
         "design_limits": design_lim.summary(),
         "collision_free": bool(np.all(inside)),
         "crb_std": _named(crb),
@@ -545,7 +549,11 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
             "velocity_mps": float(np.max(np.abs(tel.x_true[-1, 3:6]))),
             "angular_velocity_radps": float(np.max(np.abs(tel.x_true[-1, 10:13]))),
         },
+        "goal_tolerance": goal_tolerance(cfg, run.replans[-1].theta),
+        "plan_goal_residual": plan_goal_residual(run, goal),
+        "terminal_replan_s": next((r.t for r in run.replans if r.plan.arrival_step is not None), None),
         "final_position_error_m": float(np.linalg.norm(tel.x_true[-1, 0:3] - goal[0:3])),
+        "final_speed_mps": float(np.linalg.norm(tel.x_true[-1, 3:6])),
         "duration_s": float(tel.t_true[-1]),
         "dt_s": cfg.controller.period_s,
         "force_limit_N": design_lim.limits.force_N,
@@ -569,7 +577,7 @@ def _rattle_summary(cfg, problem, design_lim: DesignLimits, run: RattleRun, prio
             block["std_final"] = dict(zip(names, map(float, last.std_entries), strict=True))
             block["gamma_final"] = dict(zip(names, map(float, last.gamma_entries), strict=True))
         summary["information_full"] = block
-    rattle_findings(summary, problem, run).apply(summary)
+    rattle_findings(summary, cfg, run).apply(summary)
     log.extend(status_log(summary, float(tel.t_true[-1])))
     return summary, traj, log
 
@@ -601,16 +609,17 @@ def offline_findings(summary: dict[str, Any], problem: ExcitationProblem) -> Sta
     return report
 
 
-def rattle_findings(summary: dict[str, Any], problem: ExcitationProblem, run: RattleRun) -> StatusReport:
+def rattle_findings(summary: dict[str, Any], cfg: OacliConfig, run: RattleRun) -> StatusReport:
     """The RATTLE loop's findings: the true state's safety block (robot limits: unsafe; a command beyond the
-    robot's actuators: degraded), replans without a solution and a final state away from the goal (degraded)."""
+    robot's actuators: degraded), replans without a solution and a final state away from the goal at rest, or a
+    terminal plan that misses it (degraded, :func:`oacli.stages.rattle_goal.goal_reasons`)."""
     report = StatusReport()
     add_safety_reasons(report, summary["safety"])
     failed = [r for r in run.replans if r.plan.status not in ("optimal", "optimal_inaccurate")]
     if failed:
         report.degraded("replan", f"{len(failed)} of {len(run.replans)} replans ended without a solution (last "
                                   f"status {failed[-1].plan.status}); the previous plan was kept")
-    _goal_reasons(report, summary["goal_residual"], problem)
+    goal_reasons(report, summary, cfg)
     return report
 
 
