@@ -20,7 +20,9 @@ largest |z|, share within 2σ (≥ 90 %) and within 3σ, for
 and the statuses of the runs (the stage's findings: χ², NIS).
 
 Run: ``nice -n 10 python benchmarks/check_estimate_honesty.py RUN --seeds 1-50 --method batch
---torque-dispersion-pct 0 1`` (~3 s a seed for the batch, ~6 s for the sequential filter, one core).
+--torque-dispersion-pct 0 1`` (~3 s a seed for the batch, ~6 s for the sequential filter, one core);
+``--torque-scale-std 0.01 --products-std 1e-5`` gives the held groups priors that match the truth's spread (κ_τ
+± 1 %, products 0): a calibration check of the consider covariance (the z spreads should then be about 1).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from oacli.config import load_config
+from oacli.estimation.batch_model import FullModel
 from oacli.estimation.manifold import boxminus
 from oacli.estimation.preprocessing import measurements_from_telemetry
 from oacli.estimation.rigid_parameters import FULL_NAMES
@@ -66,6 +69,10 @@ def main() -> None:
     parser.add_argument("--seeds", default="1-50", help="first-last seed")
     parser.add_argument("--method", default="batch", choices=["batch", "sequential"])
     parser.add_argument("--torque-dispersion-pct", type=float, nargs="+", default=[0.0, 1.0])
+    parser.add_argument("--torque-scale-std", type=float, default=None,
+                        help="the held torque scales' prior σ (default: the run's estimation.rigid_body)")
+    parser.add_argument("--products-std", type=float, default=None,
+                        help="the held products of inertia's prior σ [kg·m²] (default: the run's)")
     args = parser.parse_args()
     first, last = (int(v) for v in args.seeds.split("-"))
     cfg = load_config(args.run / "segment-2" / "estimate" / "config.yaml")
@@ -79,6 +86,11 @@ def main() -> None:
     settings, prior = estimator_settings(cfg), estimation_prior(cfg)
     model = batch_model(cfg, prior)
     assert model is not None, "the run's estimate config estimates mass and inertia only (nothing held)"
+    cov = model.prior_cov.copy()  # the held groups' prior σ replaced where asked (their means and the rest kept)
+    for at, std in ((slice(13, 16), args.torque_scale_std), (slice(4, 7), args.products_std)):
+        if std is not None:
+            cov[at, at] = std**2 * np.eye(3)
+    model = FullModel(model.params, model.prior_mean, cov)
     idx = model.params.index
     limits = np.r_[cfg.robot.force_limit_N, cfg.robot.torque_limit_Nm]
     for pct in args.torque_dispersion_pct:

@@ -24,10 +24,10 @@ Two covariances are reported (docs/estimation.md, "Held parameters: the consider
 
 * **physical**: every held group considered: the σ of the physical m, J, c, κ_F against the truth (summary
   ``std``, ``rigid_body``);
-* **handed on** (``effective``): the groups whose effect an estimated group absorbs exactly are left out
-  (:data:`ABSORBED`): with κ_τ held at 1, ``ω̇ = J⁻¹(κ_τ ⊙ τ − ω × Jω)`` makes the estimate the effective inertia
-  ``J_i/κ_τ,i`` (up to the small gyroscopic term), which is what a controller commanding ``τ`` needs. The
-  controllers (segment 3's model, W of [Doerr2021] Eq. 28) get this one.
+* **handed on** (``effective``): the inertias taken as the effective inertia ``J_i/κ_τ,i`` (:data:`ABSORBED`), what
+  a controller commanding ``τ`` with κ_τ = 1 needs: ``ω̇ = J⁻¹(κ_τ ⊙ τ − ω × Jω)`` sees J and κ_τ mostly as
+  ``J/κ_τ``, so the held κ_τ's uncertainty enters only through what the data identify of J itself (the gyroscopic
+  term), :func:`effective_sensitivity`. The controllers (segment 3's model, W of [Doerr2021] Eq. 28) get this one.
 
 The sequential filter's final estimate of a constant parameter equals the batch posterior for a linear-Gaussian
 model, so its ``S`` is the batch problem's at the filter's estimates (:func:`consider_held`), added to the filter's
@@ -58,12 +58,13 @@ from oacli.estimation.rigid_parameters import (
 from oacli.types import ParameterEstimate
 
 __all__ = ["ABSORBED", "AugmentedModel", "ConsiderCovariance", "batch_sensitivity", "consider_covariance",
-           "consider_held", "held_index", "linear_sensitivity", "split_triangular"]
+           "consider_held", "effective_sensitivity", "held_index", "linear_sensitivity", "split_triangular"]
 
 ABSORBED: dict[str, str] = {"torque_scale": "inertia"}
-"""Held group → the estimated group whose value absorbs it in the model a controller flies: ``J_i/κ_τ,i`` (the
-control law commands torque; only ``J/κ_τ`` enters ``ω̇`` but for the gyroscopic term). A held force scale is not
-absorbed: per body axis, it cannot be folded into one scalar mass."""
+"""Held group → the estimated group whose value absorbs it in the model a controller flies: the diagonal inertia as
+``J_i/κ_τ,i`` (the control law commands torque; ``J/κ_τ`` enters ``ω̇`` but for the gyroscopic term;
+:func:`effective_sensitivity`). A held force scale is not absorbed: per body axis, it cannot be folded into one
+scalar mass."""
 
 
 def consider_covariance(cov: np.ndarray, sensitivity: np.ndarray, cov_held: np.ndarray) -> np.ndarray:
@@ -322,13 +323,14 @@ class ConsiderCovariance:
         ``statistical + T P_h Tᵀ`` with ``T = dθ̂/dθ_held`` over every held entry; the held entries' rows carry their
         prior.
     effective : ndarray, shape (16, 16)
-        The same over the held entries not in ``absorbed`` (what is handed to the controllers).
+        The same with the inertias taken as ``J_i/κ_τ,i`` (:func:`effective_sensitivity`; what is handed to the
+        controllers).
     sensitivity : ndarray, shape (16, n_held)
         ``T = dθ̂/dθ_held`` [θ units per θ_held unit].
     held : ndarray of int
         θ indices of the held entries considered.
     absorbed : ndarray of int
-        Those left out of ``effective`` (:data:`ABSORBED`).
+        Those the effective inertia absorbs (:data:`ABSORBED`).
     """
 
     theta: np.ndarray
@@ -417,7 +419,41 @@ def consider_held(records: Sequence[Measurement], settings: EstimatorSettings, p
     p_held = model.prior_cov[np.ix_(held, held)]
     absorbed_groups = {g for g, by in ABSORBED.items() if by in model.params.groups}
     absorbed = np.array([i for i in held if any(i in GROUPS[g] for g in absorbed_groups)], dtype=int)
-    keep = np.array([i not in set(absorbed.tolist()) for i in held], dtype=bool)
     physical = consider_covariance(cov, t_theta, p_held)
-    effective = consider_covariance(cov, t_theta[:, keep], p_held[np.ix_(keep, keep)])
+    effective = consider_covariance(cov, effective_sensitivity(t_theta, held, absorbed, theta,
+                                                               model.params.theta_fixed), p_held)
     return ConsiderCovariance(np.asarray(theta, dtype=float), cov, physical, effective, t_theta, held, absorbed)
+
+
+def effective_sensitivity(sensitivity: np.ndarray, held: np.ndarray, absorbed: np.ndarray, theta: np.ndarray,
+                          theta_fixed: np.ndarray) -> np.ndarray:
+    """``dθ̂/dh`` of the estimate taken as the effective inertia ``J_a h₀,a/κ_τ,a`` (``J_a/κ_τ,a`` for ``h₀ = 1``).
+
+    With the held torque scale ``h₀`` and the truth's ``κ``, ``θ̂ ≈ J + T (h₀ − κ)`` while the effective inertia a
+    controller assuming ``h₀`` needs is ``J h₀/κ ≈ J + (J/h₀)(h₀ − κ)``: the error against it moves with
+    ``T − J_a/h₀,a`` on the column of ``κ_τ,a`` and row of ``J_aa``. It vanishes when the data see only ``J/κ_τ``;
+    the gyroscopic term ``ω × Jω`` (which does not scale with ``κ_τ``) identifies part of J itself and leaves the
+    rest.
+
+    Parameters
+    ----------
+    sensitivity : ndarray, shape (16, n_held)
+        ``T = dθ̂/dθ_held``.
+    held, absorbed : ndarray of int
+        θ indices of the held entries (the columns) and of those absorbed (torque scales).
+    theta : ndarray, shape (16,)
+        θ̂.
+    theta_fixed : ndarray, shape (16,)
+        The held values ``h₀``.
+
+    Returns
+    -------
+    ndarray, shape (16, n_held)
+    """
+    out = np.array(sensitivity, dtype=float)
+    first = GROUPS["torque_scale"][0]
+    for j, h in enumerate(np.asarray(held).tolist()):
+        if h in set(np.asarray(absorbed).tolist()):
+            axis = 1 + h - first  # J_aa's θ index
+            out[axis, j] -= float(theta[axis]) / float(theta_fixed[h])
+    return out
