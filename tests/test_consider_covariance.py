@@ -1,7 +1,7 @@
 """The Schmidt consider covariance of the held parameter groups (oacli.estimation.consider).
 
 Closed form: for ``y = Aθ + Bh + e`` with ``h ~ N(h₀, P_h)`` held at ``h₀``, the least-squares estimate's error has
-covariance ``P + S P_h Sᵀ`` with ``P = (AᵀA)⁻¹``, ``S = −(AᵀA)⁻¹AᵀB`` (Tapley, Schutz & Born 2004, §6.3): exactly, and
+covariance ``P + S P_h Sᵀ`` with ``P = (AᵀA)⁻¹``, ``S = −(AᵀA)⁻¹AᵀB`` ([Tapley2004] Ch. 6): exactly, and
 by Monte Carlo. The batch problem's block-QR sensitivity equals the dense one and the re-solved nonlinear
 estimator's finite difference; hostile inputs (a held entry confounded with an estimated one, one the data do not
 see, rank-deficient data, nothing held, an unidentified covariance) behave as the closed form says.

@@ -9,9 +9,10 @@ at the solution, with ``b(θ, h)`` the whitened residuals, ``A = ∂b/∂θ`` (s
 
     S = ∂θ̂/∂h = −(AᵀA)⁻¹ AᵀB,      cov(θ̂ − θ) = P + S P_h Sᵀ
 
-(Schmidt 1966's consider covariance; Tapley, Schutz & Born 2004, *Statistical Orbit Determination*, §6.3, Eqs.
-6.3.8-6.3.13; Bierman 1977, §VIII). For the linear model ``y = Aθ + Bh + e`` with ``h ~ N(h₀, P_h)`` held at ``h₀``
-this is exact (the tests check it against the closed form and by Monte Carlo).
+(S. F. Schmidt's consider covariance, 1966; [Tapley2004] Ch. 6, "Consider covariance analysis"). For the linear
+model ``y = Aθ + Bh + e`` with ``h ~ N(h₀, P_h)`` held at ``h₀`` this is exact (the tests check it against the
+closed form and by Monte Carlo). Held products of inertia are mapped through φ (log-Cholesky), exactly at a held
+mean of 0 (the default: ``dθ_held/dφ_est = 0`` there), to first order otherwise.
 
 ``S`` is computed without forming ``AᵀA``: the held entries are appended to φ as the last columns of the batch
 problem's border (:class:`AugmentedModel`, the prior kept on the estimated entries only), and the block QR of
@@ -20,7 +21,7 @@ triangular block over ``[x_K, φ, h]``, ``[[R₁₁, R₁₂], [0, R₂₂]]``, 
 solution for ``[x_K, φ]`` with ``h`` fixed, ``R₁₁ z = c − R₁₂ h``) and ``R₁₁⁻¹R₁₁⁻ᵀ = P`` (:func:`split_triangular`).
 ``R₂₂`` (what the data say about ``h``) is never needed, so held entries the data do not see at all are fine.
 
-Two covariances are reported (docs/estimation.md, "Held parameters: the consider covariance"):
+Two covariances are reported (docs/estimation.md, "Held groups: the consider covariance"):
 
 * **physical**: every held group considered: the σ of the physical m, J, c, κ_F against the truth (summary
   ``std``, ``rigid_body``);
