@@ -9,6 +9,8 @@ see, rank-deficient data, nothing held, an unidentified covariance) behave as th
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from estimation_helpers import (
@@ -215,3 +217,19 @@ def test_nothing_held_or_unidentified_keeps_the_estimators_covariance(solved):
     full, final, extras = consider_run(recs, settings(), PRIOR, model, res.t, res.states, res.inliers,
                                        (res.theta_full, bad), res.estimate, history)
     assert extras is None and final is res.estimate and full[1] is bad and history == [res.estimate]
+
+
+def test_a_gap_in_the_input_record_is_bridged_as_the_batch_does(solved):
+    """Records with a gap in the input record (a record that starts a segment: the lost wrench predicted from its
+    neighbours, oacli.estimation.lost_inputs): the consider covariance is still formed, finite and at least the
+    estimator's, and one lost control period of 125 changes the sensitivities by a few per cent only."""
+    recs, model, res = solved
+    gapped = list(recs)
+    gapped[60] = dataclasses.replace(gapped[60], starts_segment=True)
+    args = (settings(), PRIOR, model, res.states, res.inliers, res.theta_full, res.covariance_full)
+    whole, cut = consider_held(recs, *args), consider_held(gapped, *args)
+    assert whole is not None and cut is not None
+    assert np.all(np.isfinite(cut.physical)) and np.all(np.linalg.eigvalsh(cut.physical - cut.statistical) > -1e-12)
+    est = model.params.index
+    np.testing.assert_allclose(cut.sensitivity[est], whole.sensitivity[est], rtol=0.1,
+                               atol=0.05 * np.abs(whole.sensitivity[est]).max())
