@@ -56,7 +56,7 @@ from oacli.io.rerun.estimate import EstimationRecords, write_estimate_recording
 from oacli.io.runfolder import StageResult
 from oacli.io.telemetry_streams import TelemetryStreams, read_telemetry_streams
 from oacli.phases import set_phase
-from oacli.stages.estimate_rigid import batch_model, rigid_body_section
+from oacli.stages.estimate_rigid import batch_model, consider_run, rigid_body_section
 from oacli.stages.estimate_rls import run_rls
 from oacli.stages.settings import estimation_prior, estimator_settings, open_run
 from oacli.status import StatusReport, status_log
@@ -269,6 +269,9 @@ def run_estimation(
             progress(1.0)
     else:
         raise ValueError(f"unknown method {method!r} (batch, sequential or rls)")
+    if model is not None and full is not None and method != "rls":  # the held groups' prior (estimate_rigid)
+        full, final, extras = consider_run(records, settings, prior if use_prior or method != "batch" else None,
+                                           model, t, states, used, full, final, history)
     recs = [by_t[ti] for ti in t]
     u = np.array([r.u_applied for r in recs]).reshape(-1, 6)
     y = np.array([r.x_measured for r in recs]).reshape(-1, 13)

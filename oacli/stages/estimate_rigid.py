@@ -4,6 +4,13 @@
 ``estimation.rigid_body`` gives the prior of the parts beyond mass and inertia (and the fixed values of those not
 estimated). The summary's ``rigid_body`` section lists every estimated entry with its σ (``[(AᵀA)⁻¹]_θθ`` at the
 solution, [Doerr2021] Eq. 32) and, for a simulated run, its truth and z-score ``(θ̂ − θ)/σ``.
+
+Held groups (``estimation.parameters`` leaves them out) are known only to their prior: :func:`consider_run` adds
+their uncertainty to the batch's and the sequential filter's covariance (:mod:`oacli.estimation.consider`, Schmidt's
+consider covariance). The summary's ``std`` and ``rigid_body`` report the physical σ (every held group considered);
+the final ``/estimate/params`` record, which segment 3 flies with, carries the covariance handed on (the torque
+scales left out: the estimate is the effective inertia ``J/κ_τ`` the controllers need); the summary's ``consider``
+section lists both and the sensitivities.
 """
 
 from __future__ import annotations
@@ -16,12 +23,13 @@ import yaml
 from oacli.config import OacliConfig
 from oacli.estimation.batch_model import FullModel, full_prior
 from oacli.estimation.bounds_full import FullBound, cramer_rao_bound_full
+from oacli.estimation.consider import consider_held
 from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.rigid_parameters import FULL_NAMES, ParameterSet
 from oacli.types import ParameterEstimate
 
-__all__ = ["apply_full_bound", "batch_model", "full_bound", "rigid_body_line", "rigid_body_section",
-           "rigid_body_summary", "truth_full_from_config_yaml"]
+__all__ = ["apply_full_bound", "apply_physical_std", "batch_model", "consider_run", "full_bound", "rigid_body_line",
+           "rigid_body_section", "rigid_body_summary", "truth_full_from_config_yaml"]
 
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
@@ -46,6 +54,79 @@ def batch_model(cfg: OacliConfig, prior: ParameterEstimate) -> FullModel | None:
     if params.is_legacy:
         return None
     return FullModel(params, mean, cov)
+
+
+def consider_run(records: list[Measurement], settings: EstimatorSettings, prior: ParameterEstimate | None,
+                 model: FullModel, t: np.ndarray, states: np.ndarray, used: np.ndarray,
+                 full: tuple[np.ndarray, np.ndarray], final: ParameterEstimate, history: list[ParameterEstimate]
+                 ) -> tuple[tuple[np.ndarray, np.ndarray], ParameterEstimate, dict[str, Any] | None]:
+    """The held groups' prior uncertainty in an estimate (:func:`oacli.estimation.consider.consider_held`).
+
+    Parameters
+    ----------
+    records : list of Measurement
+        The aligned records (by time stamp).
+    settings : EstimatorSettings
+    prior : ParameterEstimate or None
+        The prior the estimator used (None: the batch without it).
+    model : FullModel
+    t : ndarray, shape (K,)
+        The estimate's record times [s].
+    states : ndarray, shape (K, 13)
+        Its states.
+    used : ndarray of bool, shape (K,)
+        Records whose measurements it used.
+    full : tuple of ndarray
+        θ̂ (16) and the estimator's covariance (16×16).
+    final : ParameterEstimate
+        The final estimate of [m, Ixx, Iyy, Izz].
+    history : list of ParameterEstimate
+        The estimates over time; the last one (the final) is replaced in place.
+
+    Returns
+    -------
+    full : tuple of ndarray
+        θ̂ and the physical covariance (every held group considered).
+    final : ParameterEstimate
+        With the covariance handed on (``effective``).
+    extras : dict or None
+        ``{"consider": ...}`` for the summary; None (and ``full``, ``final`` unchanged) when nothing is held with a
+        prior σ > 0 or the covariance is not finite.
+    """
+    by_t = {r.t: r for r in records}
+    con = consider_held([by_t[ti] for ti in t], settings, prior, model, states, used, *full)
+    if con is None:
+        return full, final, None
+    handed = ParameterEstimate(final.t, final.theta, con.effective[:4, :4], final.method, final.samples_used,
+                               final.samples_rejected)
+    if history:
+        history[-1] = handed
+    return (con.theta, con.physical), handed, {"consider": con.summary(model.params.index)}
+
+
+def apply_physical_std(summary: dict[str, Any], full: tuple[np.ndarray, np.ndarray] | None) -> None:
+    """With a consider covariance (summary ``consider``), the summary's ``std``, ``error_over_std``,
+    ``std_over_crb`` and ``cov_reduction_pct`` of mass and inertia use the physical σ (``full``'s), not the one
+    handed on.
+
+    Parameters
+    ----------
+    summary : dict
+        The estimate's summary, updated in place.
+    full : tuple of ndarray or None
+        θ̂ (16) and its physical covariance.
+    """
+    if full is None or "consider" not in summary:
+        return
+    std = np.sqrt(np.clip(np.diag(full[1])[:4], 0.0, None))
+    names = FULL_NAMES[:4]
+    summary["std"] = {n: float(v) for n, v in zip(names, std, strict=True)}
+    summary["std_over_crb"] = {n: float(v / summary["crb_std"][n]) for n, v in zip(names, std, strict=True)}
+    summary["cov_reduction_pct"] = {n: float(100.0 * (1.0 - (v / summary["prior_std"][n]) ** 2))
+                                    for n, v in zip(names, std, strict=True)}
+    if "truth_theta" in summary:
+        err = np.abs(np.asarray(full[0][:4]) - np.asarray(summary["truth_theta"], dtype=float))
+        summary["error_over_std"] = {n: float(e / v) for n, e, v in zip(names, err, std, strict=True)}
 
 
 def truth_full_from_config_yaml(text: str | None) -> np.ndarray | None:
@@ -229,5 +310,6 @@ def rigid_body_section(summary: dict[str, Any], run: Any, model: FullModel | Non
     str
     """
     summary["rigid_body"] = rigid_body_summary(run.final, run.full, model, truth_full_from_config_yaml(config_yaml))
+    apply_physical_std(summary, run.full)
     apply_full_bound(summary, full_bound(run.t_records, run.states, run.status, run.full, model, settings, records))
     return rigid_body_line(summary["rigid_body"])
