@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-import oacli.mission.run as mission_run_module
+import oacli.mission.recording as mission_recording_module
 from oacli.cli import app
 from oacli.io.runfolder import is_complete
 from oacli.mission.layout import MISSION_STAGES
@@ -47,7 +47,7 @@ def _resume(folder: Path, monkeypatch: pytest.MonkeyPatch, signum: int | None, o
     """``oacli mission FOLDER --resume`` with ``signum`` sent ``offset_s`` after the final write begins."""
     started: list[float] = []
     timers: list[threading.Timer] = []
-    original = mission_run_module.write_mission_recording
+    original = mission_recording_module.write_mission_recording
 
     def recording_then_shoot(*args, **kwargs):
         started.append(time.perf_counter())
@@ -56,7 +56,7 @@ def _resume(folder: Path, monkeypatch: pytest.MonkeyPatch, signum: int | None, o
             timers[-1].start()
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(mission_run_module, "write_mission_recording", recording_then_shoot)
+    monkeypatch.setattr(mission_recording_module, "write_mission_recording", recording_then_shoot)
     previous = signal.signal(signal.SIGTERM, lambda *_: None)  # a SIGTERM after the command ends: harmless here
     result = None
     try:

@@ -81,3 +81,27 @@ def test_full_propagation_on_the_estimated_columns_equals_all_columns(columns):
     one = propagate_full_one(x[4], u[4], theta, durations[4], jacobians=False)   # the warm start's float path
     np.testing.assert_allclose(one[0], x_all[4], rtol=1e-12, atol=1e-14)
     assert one[1] is None and one[2] is None
+
+
+@pytest.mark.parametrize("products", [(0.0, 0.0, 0.0), (0.012, -0.008, 0.005)])
+def test_full_model_propagation_carries_every_column_its_jacobian_reaches(products):
+    """The batch's full model carries only the θ columns dθ/dφ can reach (:attr:`FullModel.differentiated`), so
+    ``c @ dθ/dφ`` equals the all-column product, also with held products of inertia away from 0 (the log-Cholesky
+    map then couples them with the estimated diagonal)."""
+    from oacli.estimation.batch_model import FullModel
+    from oacli.estimation.propagation import substep_schedule
+    from oacli.estimation.rigid_dynamics import propagate_full
+    from oacli.estimation.rigid_parameters import ParameterSet
+
+    x, u, _ = _samples(5, k=15)
+    theta = np.array([15.5, 0.15, 0.14, 0.16, *products, 0.01, -0.02, 0.015, 1.02, 0.97, 1.01, 0.98, 1.03, 0.99])
+    model = FullModel(ParameterSet.build(("mass", "inertia", "com", "force_scale"), theta), theta,
+                      np.diag(np.full(16, 1e-2)))
+    assert set(model.params.index.tolist()) < set(model.differentiated.tolist())
+    phi = model.phi(theta)
+    jac = model.jacobian(phi)
+    t = np.arange(16) * 0.2
+    durations = substep_schedule(t[:-1], t[1:], 0.016)
+    _, _, c_model = model.propagate(x, u, theta, durations)
+    _, _, c_all = propagate_full(x, u, theta, durations)
+    np.testing.assert_allclose(c_model @ jac, c_all @ jac, rtol=1e-10, atol=1e-13)

@@ -144,6 +144,17 @@ class LegacyModel:
         return f, jac[:, :, 0:13], jac[:, :, 13:]
 
 
+_INERTIA_ENTRIES = frozenset(range(1, 7))
+
+
+def _reachable(index: np.ndarray) -> np.ndarray:
+    """``index`` with every inertia entry added when it holds one (:attr:`FullModel.differentiated`)."""
+    entries = {int(i) for i in index}
+    if entries & _INERTIA_ENTRIES:
+        entries |= _INERTIA_ENTRIES
+    return np.array(sorted(entries), dtype=int)
+
+
 @dataclass(frozen=True)
 class FullModel:
     """A chosen part of the full rigid body (:class:`~oacli.estimation.rigid_parameters.ParameterSet`).
@@ -170,6 +181,13 @@ class FullModel:
     def prior_index(self) -> np.ndarray:
         """θ indices the prior's residual is on (the estimated ones)."""
         return self.params.index
+
+    @property
+    def differentiated(self) -> np.ndarray:
+        """θ entries whose sensitivities :meth:`propagate` carries: every entry ``dθ/dφ`` can reach (the estimated
+        ones, and all six inertia entries when any of them is estimated: the log-Cholesky map couples a held
+        product with the estimated diagonal unless it is 0). ``∂x⁺/∂θ`` is zero in the other columns."""
+        return _reachable(self.params.index)
 
     def theta(self, phi: np.ndarray) -> np.ndarray:
         """θ (16) of φ (n).
@@ -257,8 +275,8 @@ class FullModel:
         if np.shape(x)[0] == 1:  # a filter step or a warm start's record: the single-interval path (8× faster)
             x1, a1, c1 = propagate_full_one(x, u, theta, durations, jacobians=jacobians)
             return x1[None], None if a1 is None else a1[None], None if c1 is None else c1[None]
-        # Only the estimated entries' sensitivities are carried (dθ/dφ is zero on the others).
-        return propagate_full(x, u, theta, durations, jacobians=jacobians, columns=self.params.index)
+        # Only the sensitivities dθ/dφ can reach are carried (zero columns of c elsewhere).
+        return propagate_full(x, u, theta, durations, jacobians=jacobians, columns=self.differentiated)
 
     def accelerations(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, jacobians: bool = True
                       ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:

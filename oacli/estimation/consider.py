@@ -161,6 +161,11 @@ class AugmentedModel(FullModel):
         """The estimated entries (the prior's rows are the solved problem's)."""
         return self.params.index
 
+    @property
+    def differentiated(self) -> np.ndarray:
+        """The estimated and the held entries (``B``'s columns need the held ones' sensitivities too)."""
+        return np.union1d(super().differentiated, np.asarray(self.held, dtype=int)).astype(int)
+
     def phi_full(self, phi: np.ndarray) -> np.ndarray:
         """The 16-entry φ of ``[φ_est, φ_held]``.
 
