@@ -461,54 +461,16 @@ class BatchProblem:
             rows or a negligible pivot of the last block) or the result is not finite.
         """
         _, groups = self.jacobian_groups(x, phi, inliers)
-        k, nt, npar = self.k, TANGENT_DIM, self.n_par
-        single: list[list[np.ndarray]] = [[] for _ in range(k)]
-        phi_only: list[np.ndarray] = []
-        process = None
-        for grp in groups:
-            if grp.next_state is not None:
-                process = grp
-                continue
-            if grp.state is None:
-                for blk in grp.phi:  # type: ignore[union-attr,index]
-                    rows = np.zeros((blk.shape[0], nt + npar))
-                    rows[:, nt:] = blk
-                    phi_only.append(rows)
-                continue
-            n, r = grp.res.shape
-            rows = np.zeros((n, r, nt + npar))
-            rows[:, :, :nt] = grp.state
-            if grp.phi is not None:
-                rows[:, :, nt:] = grp.phi
-            for i, at in enumerate(grp.index):
-                single[at].append(rows[i])
-        carry = np.zeros((0, nt + npar))  # rows on [x_k, φ]
-        for i in range(k):
-            last = i == k - 1
-            width = nt + npar if last else 2 * nt + npar
-            own = [carry, *single[i], *(phi_only if last else ())]
-            stacked = np.concatenate([r for r in own if r.size] or [np.zeros((0, nt + npar))])
-            block = np.zeros((stacked.shape[0], width))
-            block[:, :nt] = stacked[:, :nt]
-            block[:, width - npar:] = stacked[:, nt:]
-            if not last:
-                link = np.zeros((nt, width))
-                link[:, :nt] = process.state[i]  # type: ignore[union-attr,index]
-                link[:, nt:2 * nt] = process.next_state[i]  # type: ignore[union-attr,index]
-                link[:, 2 * nt:] = process.phi[i]  # type: ignore[union-attr,index]
-                block = np.vstack([block, link])
-            if block.shape[0] < (width if last else nt):
-                return None
-            r_mat: np.ndarray = np.asarray(np.linalg.qr(block, mode="r"))
-            if last:
-                r_ll = r_mat[:width, :width]
-                if np.min(np.abs(np.diag(r_ll))) <= 1e-14 * np.max(np.abs(np.diag(r_ll))):
-                    return None
-                r_inv = sla.solve_triangular(r_ll, np.eye(width), check_finite=False)
-                cov = r_inv @ r_inv.T
-                return cov if np.all(np.isfinite(cov)) else None
-            carry = r_mat[nt:, nt:]
-        return None
+        width = TANGENT_DIM + self.n_par
+        r_mat = last_triangular_block(groups, self.k, self.n_par, full_last=True)
+        if r_mat is None:
+            return None
+        r_ll = r_mat[:width, :width]
+        if np.min(np.abs(np.diag(r_ll))) <= 1e-14 * np.max(np.abs(np.diag(r_ll))):
+            return None
+        r_inv = sla.solve_triangular(r_ll, np.eye(width), check_finite=False)
+        cov = r_inv @ r_inv.T
+        return cov if np.all(np.isfinite(cov)) else None
 
     def d2(self, x: np.ndarray, phi: np.ndarray) -> np.ndarray:
         """Normalised residual squared ``d²_k`` of every record against the states ``x``.
@@ -553,6 +515,76 @@ class BatchProblem:
         n = int(inliers.sum()) * self.dof + int(self.link_rows.sum())
         n += self.gauge_rows.size * self.segment_starts.size
         return n + (self.n_par if self.prior is not None else 0)
+
+
+def last_triangular_block(groups: list[ResidualGroup], k: int, npar: int, *, full_last: bool) -> np.ndarray | None:
+    """The last triangular block, over ``[x_K, φ]``, of the block QR factorisation of the batch problem's ``A``
+    (the square-root information smoother of :meth:`BatchProblem.last_covariance_qr`).
+
+    The rows left over on ``[x_k, φ]``, the rows of record k and the process rows k → k+1 are triangularised on
+    ``[x_k, x_{k+1}, φ]``; what remains on ``[x_{k+1}, φ]`` is carried on.
+
+    Parameters
+    ----------
+    groups : list of ResidualGroup
+        :meth:`BatchProblem.jacobian_groups`'s blocks.
+    k : int
+        Records.
+    npar : int
+        Columns of φ.
+    full_last : bool
+        Require as many rows as columns in the last block (a covariance needs them all); else only the 12 of the
+        state (:mod:`oacli.estimation.consider` reads the state's and the estimated entries' rows only).
+
+    Returns
+    -------
+    ndarray or None
+        ``R`` of the last block (rows × (12 + npar)); None when a block has too few rows.
+    """
+    nt = TANGENT_DIM
+    single: list[list[np.ndarray]] = [[] for _ in range(k)]
+    phi_only: list[np.ndarray] = []
+    process = None
+    for grp in groups:
+        if grp.next_state is not None:
+            process = grp
+            continue
+        if grp.state is None:
+            for blk in grp.phi:  # type: ignore[union-attr]
+                rows = np.zeros((blk.shape[0], nt + npar))
+                rows[:, nt:] = blk
+                phi_only.append(rows)
+            continue
+        rows = np.zeros((*grp.res.shape, nt + npar))
+        rows[:, :, :nt] = grp.state
+        if grp.phi is not None:
+            rows[:, :, nt:] = grp.phi
+        for i, at in enumerate(grp.index):
+            single[at].append(rows[i])
+    carry = np.zeros((0, nt + npar))  # rows on [x_k, φ]
+    for i in range(k):
+        last = i == k - 1
+        width = nt + npar if last else 2 * nt + npar
+        own = [carry, *single[i], *(phi_only if last else ())]
+        stacked = np.concatenate([r for r in own if r.size] or [np.zeros((0, nt + npar))])
+        block = np.zeros((stacked.shape[0], width))
+        block[:, :nt] = stacked[:, :nt]
+        block[:, width - npar:] = stacked[:, nt:]
+        if not last:
+            assert process is not None and process.state is not None and process.next_state is not None
+            assert process.phi is not None
+            link = np.zeros((nt, width))
+            link[:, :nt] = process.state[i]
+            link[:, nt:2 * nt] = process.next_state[i]
+            link[:, 2 * nt:] = process.phi[i]
+            block = np.vstack([block, link])
+        if block.shape[0] < (width if last and full_last else nt):
+            return None
+        r_mat: np.ndarray = np.asarray(np.linalg.qr(block, mode="r"))
+        if last:
+            return r_mat
+        carry = r_mat[nt:, nt:]
+    return None
 
 
 def marginal_covariances(

@@ -45,8 +45,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from oacli.estimation.batch_model import FullModel
-from oacli.estimation.batch_normal import ResidualGroup
-from oacli.estimation.batch_problem import BatchProblem
+from oacli.estimation.batch_problem import BatchProblem, last_triangular_block
 from oacli.estimation.manifold import TANGENT_DIM
 from oacli.estimation.models import EstimatorSettings, Measurement
 from oacli.estimation.rigid_parameters import (
@@ -239,54 +238,6 @@ def held_index(model: FullModel) -> np.ndarray:
     return np.array([i for i in range(var.size) if i not in est and var[i] > 0], dtype=int)
 
 
-def _last_block_r(groups: list[ResidualGroup], k: int, npar: int) -> np.ndarray | None:
-    """The last triangular block (over ``[x_K, φ]``) of the block QR of ``A`` (the loop of
-    :meth:`BatchProblem.last_covariance_qr`, without its inversion or its rank check on the whole block)."""
-    nt = TANGENT_DIM
-    single: list[list[np.ndarray]] = [[] for _ in range(k)]
-    phi_only: list[np.ndarray] = []
-    process = None
-    for grp in groups:
-        if grp.next_state is not None:
-            process = grp
-        elif grp.state is None:
-            for blk in grp.phi:  # type: ignore[union-attr]
-                rows = np.zeros((blk.shape[0], nt + npar))
-                rows[:, nt:] = blk
-                phi_only.append(rows)
-        else:
-            rows = np.zeros((*grp.res.shape, nt + npar))
-            rows[:, :, :nt] = grp.state
-            if grp.phi is not None:
-                rows[:, :, nt:] = grp.phi
-            for i, at in enumerate(grp.index):
-                single[at].append(rows[i])
-    carry = np.zeros((0, nt + npar))
-    for i in range(k):
-        last = i == k - 1
-        width = nt + npar if last else 2 * nt + npar
-        own = [carry, *single[i], *(phi_only if last else ())]
-        stacked = np.concatenate([r for r in own if r.size] or [np.zeros((0, nt + npar))])
-        block = np.zeros((stacked.shape[0], width))
-        block[:, :nt] = stacked[:, :nt]
-        block[:, width - npar:] = stacked[:, nt:]
-        if not last:
-            assert process is not None and process.state is not None and process.next_state is not None
-            assert process.phi is not None
-            link = np.zeros((nt, width))
-            link[:, :nt] = process.state[i]
-            link[:, nt:2 * nt] = process.next_state[i]
-            link[:, 2 * nt:] = process.phi[i]
-            block = np.vstack([block, link])
-        if block.shape[0] < nt:
-            return None
-        r_mat = np.asarray(np.linalg.qr(block, mode="r"))
-        if last:
-            return r_mat
-        carry = r_mat[nt:, nt:]
-    return None
-
-
 def batch_sensitivity(problem: BatchProblem, states: np.ndarray, phi: np.ndarray, inliers: np.ndarray,
                       n_est: int) -> tuple[np.ndarray, np.ndarray] | None:
     """``P`` and ``S`` of ``[δx_K, δφ_est]`` against ``δφ_held`` from the block QR of the augmented problem.
@@ -311,7 +262,7 @@ def batch_sensitivity(problem: BatchProblem, states: np.ndarray, phi: np.ndarray
     if problem.k < 2:
         return None
     _, groups = problem.jacobian_groups(states, phi, inliers)
-    r = _last_block_r(groups, problem.k, problem.n_par)
+    r = last_triangular_block(groups, problem.k, problem.n_par, full_last=False)
     return None if r is None else split_triangular(r, TANGENT_DIM + n_est)
 
 
