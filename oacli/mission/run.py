@@ -521,6 +521,8 @@ def _run_mission(
         results = {s.key: results[s.key] for s in stages if s.key in results}
         current = None
         if stopped is not None:
+            if bg is not None:
+                bg.stop()
             summary = stopped_summary(cfg, stages, results, stopped)
             summary["wall_time_s"] = time.perf_counter() - wall
             write_summary(mission_dir, summary)
@@ -542,6 +544,7 @@ def _run_mission(
         if bg is not None:
             current = "mission outputs"
             bg.wait_all(record)
+            bg.stop()  # before summary.json: once it is written, nothing is left to stop (a signal then keeps it)
         summary["files"]["rrd"] = "mission.rrd"
         summary["files"]["mcap"] = MISSION_MCAP
         summary["files"]["plots"] = {k: str(p.relative_to(mission_dir)) for k, p in plots.items()}
