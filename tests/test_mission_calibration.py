@@ -303,6 +303,22 @@ def test_acceptance_rule_inflates_a_moderate_chi2_and_rejects_a_contradicted_pri
             assert f"accepted up to {PRIOR_Z_MAX:g}" in problems[0] and "torque_scale_z" in problems[0]
 
 
+def test_the_prior_test_uses_the_fits_own_sigma_not_the_consider_covariance():
+    """A calibration whose consider covariance (docs/estimation.md: what the fit holds fixed) widens κ_y's σ to the
+    prior's 5 %: the shift of κ_y 0.9686 (a payload-envelope run's) is judged against the fit's own σ, as the update
+    formula assumes, so it is handed on (with the wide σ); before, σ_prior² − σ_post² ≈ 0 made it 63 σ and the
+    calibration was refused as a saturating actuator. A saturating impeller's κ_y 0.658 is still refused."""
+    wide = _summary()
+    wide["rigid_body"]["estimate"]["force_scale_y"] = 0.9686
+    wide["rigid_body"]["std"]["force_scale_y"] = 0.0508
+    wide["consider"] = {"std_statistical": dict.fromkeys(wide["rigid_body"]["estimate"], 0.0017)}
+    handed, problems, _ = assess_calibration(wide, CONFIG_PRIOR)
+    assert not problems and handed["force_scale_std"][1] == pytest.approx(0.0508)
+    wide["rigid_body"]["estimate"]["force_scale_y"] = 0.658
+    handed, problems, _ = assess_calibration(wide, CONFIG_PRIOR)
+    assert handed == {} and "force_scale_y 0.6580 contradicts its prior" in problems[0]
+
+
 def test_two_flights_that_disagree_hand_on_the_manoeuvres_own_estimate():
     """Segment 1 (κ₁ ± σ₁) is the manoeuvre's prior; its own data say κ_d ± σ_d, the fit κ₂ the inverse-variance
     combination. Agreeing flights keep κ₂; on a disagreement (a saturating impeller biased segment 1's κ_x,

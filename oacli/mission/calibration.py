@@ -322,7 +322,8 @@ def assess_calibration(summary: dict[str, Any], prior: dict[str, Any]) -> tuple[
        larger than the noise model says, so the σ from that model is too small by about that factor).
     3. Every handed scale must agree with the prior it was fitted from: in a linear-Gaussian update the shift of
        the mean, posterior - prior, has variance σ_prior² - σ_post², so ``|z| = |κ - κ_prior| /
-       √(σ_prior² - σ_post²)`` above :data:`PRIOR_Z_MAX` means the telemetry contradicts the prior. With the
+       √(σ_prior² - σ_post²)`` (``σ_post`` the fit's own, before the consider covariance) above
+       :data:`PRIOR_Z_MAX` means the telemetry contradicts the prior. With the
        config's 5 % prior that is a scale 20 % off (a saturating impeller: the commands are recorded as applied
        while the plant receives less, [ReSWARM2023] §6.2.1). Two calibration flights are compared by
        :func:`reconcile_flights`.
@@ -361,6 +362,9 @@ def assess_calibration(summary: dict[str, Any], prior: dict[str, Any]) -> tuple[
     handed = handed_rigid_body(summary)
     if not handed:
         return {}, ["estimated no force or torque scale"], 1.0
+    # The update's own σ (the fit's, before the consider covariance widens it by what it holds fixed: that one is
+    # not a posterior of this prior and may exceed it, docs/estimation.md).
+    statistical = (summary.get("consider") or {}).get("std_statistical") or {}
     for group in HANDED_GROUPS:
         if group not in handed:
             continue
@@ -369,7 +373,8 @@ def assess_calibration(summary: dict[str, Any], prior: dict[str, Any]) -> tuple[
             continue
         for i, a in enumerate(_AXES):
             shift = handed[group][i] - prior[group][i]
-            var = prior[f"{group}_std"][i] ** 2 - (handed[f"{group}_std"][i] / inflation) ** 2
+            post = float(statistical.get(f"{group}_{a}", handed[f"{group}_std"][i] / inflation))
+            var = prior[f"{group}_std"][i] ** 2 - post ** 2
             z = shift / np.sqrt(max(var, 1e-4 * prior[f"{group}_std"][i] ** 2))
             if abs(z) > PRIOR_Z_MAX:
                 problems.append(f"{group}_{a} {handed[group][i]:.4f} contradicts its prior {prior[group][i]:.4f} ± "
