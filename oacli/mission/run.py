@@ -442,8 +442,6 @@ def _run_mission(
     current: str | None = None
     in_background = background and any(s.key in BACKGROUND for s in stages)
     bg = BackgroundStages(cfg, mission_dir, run_one_stage) if in_background else None
-    if bg is not None:
-        bg.start()  # before any stage: forked while this process has one thread (mission.background)
     launched: list[str] = []  # handed to the background process, in order
 
     def record(outcome: Outcome) -> None:
@@ -476,6 +474,8 @@ def _run_mission(
         say(f"[{number[stage.key]}/{len(stages)}] {stage.key}: running {stage.command} beside the flight")
 
     try:
+        if bg is not None:
+            bg.start()  # before any stage: forked while this process has one thread (mission.background)
         stopped: str | None = None
         stopped_at = len(stages)
         for i, stage in enumerate(stages, start=1):
