@@ -233,3 +233,20 @@ def test_a_gap_in_the_input_record_is_bridged_as_the_batch_does(solved):
     est = model.params.index
     np.testing.assert_allclose(cut.sensitivity[est], whole.sensitivity[est], rtol=0.1,
                                atol=0.05 * np.abs(whole.sensitivity[est]).max())
+
+
+def test_an_estimate_on_the_lamina_boundary_keeps_its_covariance_and_says_so(solved):
+    """A filter's θ̂ whose inertias meet a triangle inequality with equality (an envelope run: 0.0754 + 0.4765 =
+    0.5520 kg·m²) has no log-Cholesky φ to differentiate at: consider_run keeps the estimator's covariance, names
+    the reason (``consider_skipped`` and a warning) and never raises (it failed the whole mission before)."""
+    recs, model, res = solved
+    theta = res.theta_full.copy()
+    theta[1:4] = [0.07544099056109987, 0.4765270351085512, 0.07544099056109987 + 0.4765270351085512]
+    history = [res.estimate]
+    with pytest.raises(ValueError, match="not physical"):
+        phi_from_theta_full(theta)
+    full, final, extras = consider_run(recs, settings(), PRIOR, model, res.t, res.states, res.inliers,
+                                       (theta, res.covariance_full), res.estimate, history)
+    assert final is res.estimate and full[1] is res.covariance_full and history == [res.estimate]
+    assert extras is not None and "consider covariance could not be formed" in extras["consider_skipped"]
+    assert extras["warnings"] == [extras["consider_skipped"]]

@@ -91,10 +91,15 @@ def consider_run(records: list[Measurement], settings: EstimatorSettings, prior:
         With the covariance handed on (``effective``).
     extras : dict or None
         ``{"consider": ...}`` for the summary; None (and ``full``, ``final`` unchanged) when nothing is held with a
-        prior σ > 0 or the covariance is not finite.
+        prior σ > 0 or the covariance is not finite; ``{"consider_skipped": reason}`` (``full``, ``final``
+        unchanged) when θ̂ has no parametrisation to differentiate at (a non-physical or boundary inertia).
     """
     by_t = {r.t: r for r in records}
-    con = consider_held([by_t[ti] for ti in t], settings, prior, model, states, used, *full)
+    try:
+        con = consider_held([by_t[ti] for ti in t], settings, prior, model, states, used, *full)
+    except (ValueError, np.linalg.LinAlgError) as exc:  # e.g. θ̂ on the lamina boundary (no φ there)
+        reason = f"the consider covariance could not be formed ({exc}): σ without the held groups' prior"
+        return full, final, {"consider_skipped": reason, "warnings": [reason]}
     if con is None:
         return full, final, None
     handed = ParameterEstimate(final.t, final.theta, con.effective[:4, :4], final.method, final.samples_used,
