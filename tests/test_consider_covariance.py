@@ -238,7 +238,8 @@ def test_a_gap_in_the_input_record_is_bridged_as_the_batch_does(solved):
 def test_an_estimate_on_the_lamina_boundary_keeps_its_covariance_and_says_so(solved):
     """A filter's θ̂ whose inertias meet a triangle inequality with equality (an envelope run: 0.0754 + 0.4765 =
     0.5520 kg·m²) has no log-Cholesky φ to differentiate at: consider_run keeps the estimator's covariance, names
-    the reason (``consider_skipped`` and a warning) and never raises (it failed the whole mission before)."""
+    the reason (``consider_skipped``, a finding: the stage is degraded) and never raises (it failed the whole mission
+    before)."""
     recs, model, res = solved
     theta = res.theta_full.copy()
     theta[1:4] = [0.07544099056109987, 0.4765270351085512, 0.07544099056109987 + 0.4765270351085512]
@@ -249,4 +250,8 @@ def test_an_estimate_on_the_lamina_boundary_keeps_its_covariance_and_says_so(sol
                                        (theta, res.covariance_full), res.estimate, history)
     assert final is res.estimate and full[1] is res.covariance_full and history == [res.estimate]
     assert extras is not None and "consider covariance could not be formed" in extras["consider_skipped"]
-    assert extras["warnings"] == [extras["consider_skipped"]]
+    from oacli.stages.estimate import estimate_findings  # the stage then says degraded, with that reason
+
+    report = estimate_findings({"status": "ok", **extras})
+    assert report.status == "degraded" and [r.kind for r in report.reasons] == ["consider_skipped"]
+    assert estimate_findings({"status": "ok"}).status == "ok"

@@ -93,21 +93,40 @@ def test_the_mission_forks_its_worker_before_rerun_starts_threads(tmp_path):
     assert out.stdout.split() == ["True", "False", "False"], out.stdout + out.stderr
 
 
-def test_background_stages_feed_nothing_the_flight_reads():
-    """The table's promise, checked against the hand-offs: no stage that may run before a background stage has
-    finished reads its folder (:func:`oacli.mission.run.handoff_for` is the only reader of earlier stages)."""
-    import inspect
+def test_background_stages_feed_nothing_the_stages_run_meanwhile_read(mission_run, tmp_path):
+    """The table's promise, checked on the shared mission: with a background stage's folder gone, every stage the
+    table lets run meanwhile gets the same hand-off and the same config (``handoff_for`` and ``stage_config`` are
+    where the chain reads earlier stages)."""
+    import dataclasses
+    import shutil
 
-    from oacli.mission import calibration, run
+    from oacli.config import dump_config, load_config
+    from oacli.mission.configs import stage_config
+    from oacli.mission.layout import stage_by_key
+    from oacli.mission.run import handoff_for, mission_stages
 
-    source = inspect.getsource(run.handoff_for) + inspect.getsource(run.learned_model)
-    for key, runs_meanwhile in BACKGROUND.items():
+    run, cfg_path, _ = mission_run
+    cfg = load_config(cfg_path)
+    keys = {s.key for s in mission_stages(cfg)}
+    checked = 0
+    for key, meanwhile in BACKGROUND.items():
         assert key in {s.key for s in ALL_STAGES}
-        if key.startswith("segment-3/") or key == "segment-2/estimate-sequential":
-            assert f'"{key}"' not in source and key not in source, key   # read by the outputs only
-        else:  # a calibration: read by the estimates only, never by segment 2's excitation or flight
-            assert runs_meanwhile <= {"segment-2/excite", "segment-2/track"}
-            assert "estimate" in inspect.getsource(calibration.actuator_calibration)
+        if key not in keys:
+            continue
+        without = tmp_path / key.replace("/", "_")
+        shutil.copytree(run, without)
+        shutil.rmtree(stage_by_key(key).folder(without))
+        for other in sorted(meanwhile & keys):
+            stage = stage_by_key(other)
+            want, got = handoff_for(cfg, stage, run), handoff_for(cfg, stage, without)
+            as_text = [str(dataclasses.asdict(h)).replace(str(d.resolve()), "<RUN>")
+                       for h, d in ((want, run), (got, without))]
+            assert as_text[0] == as_text[1], (key, other)
+            configs = [dump_config(stage_config(cfg, stage, h)).replace(str(d.resolve()), "<RUN>")
+                       for h, d in ((want, run), (got, without))]
+            assert configs[0] == configs[1], (key, other)
+            checked += 1
+    assert checked >= 6
     assert set(LAUNCH_BEFORE) <= set(BACKGROUND)
 
 

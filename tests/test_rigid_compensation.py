@@ -280,3 +280,15 @@ def test_the_model_carries_the_rigid_body_through_the_mission_handoff():
     assert m.with_estimate(np.r_[15.0, INERTIA], np.zeros((4, 4))).com_offset_m[1] == -0.02  # kept by an estimate
     with pytest.raises(ValueError, match="inertia_products_kgm2"):
         model(products=np.array([0.2, 0.0, 0.0]))  # |Ixy| > sqrt(Ixx Iyy): not positive definite
+
+
+def test_a_clipped_compensation_degrades_the_track():
+    """A track whose CoM compensation was clipped on some steps names it (``com_clipped``, degraded); none: no
+    finding."""
+    from oacli.stages.track_rigid import com_clip_finding
+
+    assert com_clip_finding({"com_compensation": None}) is None
+    assert com_clip_finding({"com_compensation": {"clipped_steps": 0}}) is None
+    message = com_clip_finding({"com_compensation": {"clipped_steps": 3}})
+    assert message is not None and "on 3 steps" in message
+

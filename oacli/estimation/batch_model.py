@@ -215,7 +215,7 @@ class FullModel:
         -------
         ndarray, shape (4,)
         """
-        return self.params.theta(phi)[:4]
+        return self.theta(phi)[:4]
 
     def jacobian(self, phi: np.ndarray) -> np.ndarray:
         """``dθ/dφ`` (16×n).

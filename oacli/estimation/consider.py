@@ -195,19 +195,6 @@ class AugmentedModel(FullModel):
         """
         return theta_from_phi_full(self.phi_full(phi))
 
-    def theta4(self, phi: np.ndarray) -> np.ndarray:
-        """[m, Ixx, Iyy, Izz] of ``[φ_est, φ_held]``.
-
-        Parameters
-        ----------
-        phi : ndarray, shape (n,)
-
-        Returns
-        -------
-        ndarray, shape (4,)
-        """
-        return self.theta(phi)[:4]
-
     def jacobian(self, phi: np.ndarray) -> np.ndarray:
         """``dθ/d[φ_est, φ_held]`` (16×n).
 

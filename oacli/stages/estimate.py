@@ -459,6 +459,8 @@ def estimate_findings(summary: dict[str, Any]) -> StatusReport:
                                             "model (inputs, noise levels or unmodelled effects such as thrust errors "
                                             "or a centre-of-mass offset), and the reported σ covers the modelled "
                                             "noise only")
+    if summary.get("consider_skipped"):
+        report.degraded("consider_skipped", summary["consider_skipped"])
     total = summary.get("samples_total") or 0
     if total and summary.get("samples_rejected", 0) > REJECTED_FRACTION_LIMIT * total:
         report.degraded("rejected", f"{summary['samples_rejected']} of {total} records were rejected by the χ² "

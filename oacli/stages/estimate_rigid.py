@@ -99,7 +99,7 @@ def consider_run(records: list[Measurement], settings: EstimatorSettings, prior:
         con = consider_held([by_t[ti] for ti in t], settings, prior, model, states, used, *full)
     except (ValueError, np.linalg.LinAlgError) as exc:  # e.g. θ̂ on the lamina boundary (no φ there)
         reason = f"the consider covariance could not be formed ({exc}): σ without the held groups' prior"
-        return full, final, {"consider_skipped": reason, "warnings": [reason]}
+        return full, final, {"consider_skipped": reason}  # a finding (estimate_findings): degraded
     if con is None:
         return full, final, None
     handed = ParameterEstimate(final.t, final.theta, con.effective[:4, :4], final.method, final.samples_used,

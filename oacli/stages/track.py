@@ -49,7 +49,7 @@ from oacli.stages.settings import (
     tube_design_from_config,
 )
 from oacli.stages.track_journal import TrackJournal
-from oacli.stages.track_rigid import controller_force_limit_N, rigid_body_entries
+from oacli.stages.track_rigid import com_clip_finding, controller_force_limit_N, rigid_body_entries
 from oacli.stages.track_status import assess_track, controller_counts, track_safety
 from oacli.stages.track_tube import (
     add_tube_reasons,
@@ -285,14 +285,13 @@ def run_track(
                 summary["sensors"] = flown.summary()
             summary["reference_check"] = reference_check.summary()
             summary.update(rigid_body_entries(cfg, model, controller, ctrl_limits, design))
-            clipped = (summary["com_compensation"] or {}).get("clipped_steps", 0)
-            if clipped:
-                log.append((float(tel.t_true[-1]), "warning",
-                            f"centre-of-mass compensation clipped to the torque limit on {clipped} steps "
-                            "(its worst case exceeds half the limit: docs/control.md)"))
+            findings = StatusReport()
+            clipped = com_clip_finding(summary)
+            if clipped is not None:
+                findings.degraded("com_clipped", clipped)
+                log.append((float(tel.t_true[-1]), "warning", clipped))
             monitor = controller if isinstance(controller, TubeMonitor) else None
             history = monitor.history() if monitor is not None else None
-            findings = StatusReport()
             if monitor is not None and history is not None:
                 summary.update(tube_summary(monitor, history, tel, cfg))
                 add_tube_reasons(findings, summary)

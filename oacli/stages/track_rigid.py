@@ -17,7 +17,7 @@ from oacli.control.tube_monitor import TubeMonitor
 from oacli.model.limits import MotionLimits
 from oacli.model.robot_model import RobotModel
 
-__all__ = ["controller_force_limit_N", "rigid_body_entries"]
+__all__ = ["com_clip_finding", "controller_force_limit_N", "rigid_body_entries"]
 
 
 def controller_force_limit_N(limits: MotionLimits, design: TubeDesign | None) -> np.ndarray:
@@ -69,3 +69,24 @@ def rigid_body_entries(cfg: OacliConfig, model: RobotModel, controller: Tracking
         "clipped_steps": int(sum(c.clipped_steps for c in comps)),
     }
     return {"attitude_w": w, "com_compensation": comp}
+
+
+def com_clip_finding(summary: dict[str, Any]) -> str | None:
+    """Why a track whose centre-of-mass compensation was clipped to the torque limit is ``degraded`` (None: it
+    never was): on those steps the plant received less than the moment the compensation cancels
+    (:mod:`oacli.control.rigid_terms`).
+
+    Parameters
+    ----------
+    summary : dict
+        The track's summary (its ``com_compensation`` entry).
+
+    Returns
+    -------
+    str or None
+    """
+    clipped = int((summary.get("com_compensation") or {}).get("clipped_steps", 0))
+    if not clipped:
+        return None
+    return (f"the centre-of-mass compensation was clipped to the torque limit on {clipped} steps (its worst case "
+            "exceeds half the limit: docs/control.md), so the CoM moment was not fully cancelled there")
