@@ -156,7 +156,8 @@ class MissionConfig(Section):
     calibration_manoeuvre: CalibrationManoeuvreConfig | None = Field(
         default=None, description="With calibration: fly a rotation-rich manoeuvre of the known robot at B before "
         "the grasp (segment-1/calibrate-manoeuvre) and calibrate on its telemetry instead of segment 1's, so the "
-        "torque scales are identified too (mapping; {} takes the defaults); null: calibrate on segment 1's track.",
+        "torque scales are identified too and handed to segment 2 (its held κ_τ ± σ, or its prior where it estimates "
+        "them; mapping, {} takes the defaults); null: calibrate on segment 1's track (force scales only).",
     )
     segments: Annotated[dict[str, Any], none_to({})] = Field(
         default_factory=dict,

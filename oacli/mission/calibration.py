@@ -197,7 +197,8 @@ def calibration_prior_section(cfg: OacliConfig, *, manoeuvre: bool = False) -> d
         The mission config.
     manoeuvre : bool
         For :data:`ON_MANOEUVRE_KEY`: the known robot's products of inertia are held too (at 0,
-        :data:`KNOWN_PRODUCTS_STD`).
+        :data:`KNOWN_PRODUCTS_STD`), and every group of :data:`HANDED_GROUPS` is estimated (the slews inform the
+        torque scales even where segment 2 holds them).
 
     Returns
     -------
@@ -219,6 +220,9 @@ def calibration_prior_section(cfg: OacliConfig, *, manoeuvre: bool = False) -> d
     if manoeuvre:  # the known robot's principal axes too: its slews would otherwise trade products of inertia for κ_τ.
         section["estimation"]["rigid_body"] = {"products_kgm2": [0.0, 0.0, 0.0],
                                                "products_std_kgm2": KNOWN_PRODUCTS_STD}
+        # The slews determine the torque scales whatever segment 2 estimates: a segment 2 that holds them gets the
+        # calibrated κ_τ ± σ as its held value, so its consider covariance carries σ, not the config's 5 %.
+        section["estimation"]["parameters"] = list(dict.fromkeys([*cfg.estimation.parameters, *HANDED_GROUPS]))
     return section
 
 
