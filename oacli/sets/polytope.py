@@ -31,6 +31,25 @@ from oacli.sets.hull import hull_normals
 #: Relative tolerance of feasibility tests on vertices during vertex enumeration (keeps vertices, never drops).
 _ENUM_RTOL = 1e-9
 
+_LP_METHODS = ("highs", "highs-ipm", "highs-ds")
+"""HiGHS's solvers, tried in turn while one ends without a verdict: on some degenerate LPs the default returns
+model status "Unknown" (scipy status 4, or an unrecognised code) where another solves it."""
+
+
+def _linprog(c: np.ndarray, a_ub: np.ndarray, b_ub: np.ndarray, bounds: list[tuple[float | None, float | None]]):
+    """``scipy.optimize.linprog`` with HiGHS, retried with its other methods when one gives no verdict.
+
+    Returns
+    -------
+    scipy.optimize.OptimizeResult
+        The first result with status 0 (optimal), 2 (infeasible) or 3 (unbounded); else the last one.
+    """
+    res = None
+    for method in _LP_METHODS:
+        res = linprog(c, A_ub=a_ub, b_ub=b_ub, bounds=bounds, method=method)
+        if res.status in (0, 2, 3):
+            return res
+    return res
 
 class Polytope:
     """A convex polytope ``{x ∈ Rⁿ : A x ≤ b}``.
@@ -186,7 +205,7 @@ class Polytope:
         c = np.zeros(n + 1)
         c[-1] = -1.0
         a_ub = np.column_stack([self._a, np.ones(self.n_facets)])
-        res = linprog(c, A_ub=a_ub, b_ub=self._b, bounds=[(None, None)] * n + [(None, 1e12)], method="highs")
+        res = _linprog(c, a_ub, self._b, [(None, None)] * n + [(None, 1e12)])
         if res.status == 2:
             return None, -np.inf
         if res.status != 0:
@@ -231,7 +250,7 @@ class Polytope:
                 if float(np.max(gaps)) < np.pi - 1e-9:
                     return True
         for d in np.vstack([np.eye(n), -np.eye(n)]):
-            res = linprog(-d, A_ub=self._a, b_ub=self._b, bounds=[(None, None)] * n, method="highs")
+            res = _linprog(-d, self._a, self._b, [(None, None)] * n)
             if res.status == 3:
                 return False
             if res.status == 2:
@@ -307,7 +326,7 @@ class Polytope:
         return float(out[0]) if single else out
 
     def _support_lp(self, d: np.ndarray) -> float:
-        res = linprog(-d, A_ub=self._a, b_ub=self._b, bounds=[(None, None)] * self.dim, method="highs")
+        res = _linprog(-d, self._a, self._b, [(None, None)] * self.dim)
         if res.status == 3:
             return np.inf
         if res.status == 2:
