@@ -140,8 +140,11 @@ def plot_views(path: Path, scene: Scene | None, robot_radius_m: float, reference
             ax.plot(*decimate(t, d), lw=1.4, label=f"keep-out {k}: min {1e3 * float(d.min()):.0f} mm")
         clearance = np.column_stack(columns) if columns else np.zeros((len(flown), 0))
         ax.axhline(0.0, color="tab:red", ls="--", lw=1.0, label="touching (robot radius incl.)")
-        if not zones:
+        if not zones:  # nothing to scale to: fixed limits (the flight's time span), so every draw is the same
             ax.text(0.5, 0.5, "no keep-out near the path", transform=ax.transAxes, ha="center", va="center")
+            span = (float(t[0]), float(t[-1])) if len(t) > 1 and t[-1] > t[0] else (0.0, 1.0)
+            ax.set_xlim(*span)
+            ax.set_ylim(-0.1, 1.0)
         ax.set_xlabel("time [s]")
         ax.set_ylabel("clearance to keep-out [m]")
         ax.grid(True, alpha=0.3)
