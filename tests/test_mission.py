@@ -71,6 +71,8 @@ def test_mission_writes_every_stage_folder_and_a_summary(mission):
     # One timeline: segment k+1 starts where segment k's tracking ended.
     seg = summary["segments"]
     t1 = json.loads((run / "segment-1/track/summary.json").read_text())["sim_time_s"]
+    # The default mission flies the calibration manoeuvre at B after segment 1's track: the grasp follows it.
+    t1 += json.loads((run / "segment-1/calibrate-manoeuvre/summary.json").read_text())["sim_time_s"]
     t2 = json.loads((run / "segment-2/track/summary.json").read_text())["sim_time_s"]
     assert seg["segment-2"]["start_time_s"] == pytest.approx(t1)
     assert seg["segment-3"]["start_time_s"] == pytest.approx(t1 + t2)
@@ -103,8 +105,11 @@ def test_model_handoff_prior_then_estimate(mission):
         base = load_config(run / "segment-3" / name / "config.yaml")
         assert base.controller.type == kind and base.robot.mass_kg == prior.mass_kg
         assert base.reference.file == seg3.reference.file          # the same smoothed plan
-    # Each segment starts where the previous one ended.
-    end1 = read_telemetry(run / "segment-1/track/track.mcap").x_true[-1, 0:3]
+    # Each segment starts where the previous one ended (segment 1's last flight: the calibration manoeuvre at B).
+    manoeuvre = read_telemetry(run / "segment-1/calibrate-manoeuvre/track.mcap").x_true
+    np.testing.assert_allclose(manoeuvre[0, 0:3], read_telemetry(run / "segment-1/track/track.mcap").x_true[-1, 0:3],
+                               atol=1e-9)
+    end1 = manoeuvre[-1, 0:3]
     start2 = read_telemetry(run / "segment-2/track/track.mcap").x_true[0, 0:3]
     np.testing.assert_allclose(start2, end1, atol=1e-9)
 

@@ -74,25 +74,38 @@ def test_calibration_stage_fits_the_force_scale_and_segment_2_takes_it_as_prior(
     truth = np.array(cfg.truth.actuator_scale[:3])
     assert np.all(np.abs(kappa - truth) <= 3 * sigma), (kappa, sigma, truth)
     assert np.all(sigma < 0.5 * cfg.estimation.rigid_body.force_scale_std)  # well below the config prior σ
-    # Segment 2's batch and sequential estimates take it as their prior: config and summary read back.
+    # Segment 2's batch and sequential estimates take the last calibration (the manoeuvre's, fitted from this one's
+    # scales, when it is flown) as their prior, its torque scales as their held values: config and summary read back.
+    assert cfg.mission.calibration_manoeuvre is not None   # the default mission flies it
+    on_manoeuvre = stage_by_key(ON_MANOEUVRE_KEY).folder(run)
+    last = json.loads((on_manoeuvre / "summary.json").read_text())["rigid_body"]
+    chained = load_config(on_manoeuvre / "config.yaml").estimation.rigid_body   # fitted from this one's scales
+    np.testing.assert_array_equal(chained.force_scale, kappa)
+    np.testing.assert_array_equal(chained.force_scale_std, sigma)
+    handed = {g: np.array([last["estimate"][f"{g}_{a}"] for a in AXES]) for g in ("force_scale", "torque_scale")}
+    handed_std = {g: np.array([last["std"][f"{g}_{a}"] for a in AXES]) for g in ("force_scale", "torque_scale")}
+    assert np.all(handed_std["torque_scale"] < 0.2 * 0.05)   # the slews calibrate κ_τ far below the 5 % prior
     for key in ("segment-2/estimate", "segment-2/estimate-sequential"):
         stage_cfg = load_config(run / key / "config.yaml")
-        np.testing.assert_array_equal(stage_cfg.estimation.rigid_body.force_scale, kappa)
-        np.testing.assert_array_equal(stage_cfg.estimation.rigid_body.force_scale_std, sigma)
+        for group in ("force_scale", "torque_scale"):
+            np.testing.assert_array_equal(getattr(stage_cfg.estimation.rigid_body, group), handed[group])
+            np.testing.assert_array_equal(getattr(stage_cfg.estimation.rigid_body, f"{group}_std"), handed_std[group])
         prior_std = json.loads((run / key / "summary.json").read_text())["rigid_body"]["prior_std"]
-        np.testing.assert_allclose([prior_std[f"force_scale_{a}"] for a in AXES], sigma, rtol=1e-12)
+        np.testing.assert_allclose([prior_std[f"force_scale_{a}"] for a in AXES], handed_std["force_scale"],
+                                   rtol=1e-12)
     summary = json.loads((run / "summary.json").read_text())
     assert summary["stages"][CALIBRATE_KEY]["status"] == cal["status"]
     entry = summary["calibration"]
-    assert entry["source"] == "calibration" and entry["note"] is None
-    np.testing.assert_array_equal(entry["force_scale"], kappa)
+    assert entry["source"] == "calibration" and entry["note"] is None and entry["stage"] == ON_MANOEUVRE_KEY
+    np.testing.assert_array_equal(entry["force_scale"], handed["force_scale"])
     assert all(abs(z) <= 3 for z in entry["z_score"].values())
 
 
 def test_calibration_off_keeps_todays_stages_seeds_and_configs():
     """mission.calibration: false runs the stages and draws the seeds of the mission before the calibration; with
     it, only segment 2's estimates change (their rigid_body prior)."""
-    on, off = _cfg(), _cfg("mission.calibration=false")
+    on = _cfg("mission.calibration_manoeuvre=null")
+    off = _cfg("mission.calibration=false", "mission.calibration_manoeuvre=null")
     assert CALIBRATE_KEY in [s.key for s in mission_stages(on)]
     before = [s for s in MISSION_STAGES if s.key != CALIBRATE_KEY]
     assert mission_stages(off) == tuple(before)
@@ -116,13 +129,20 @@ def test_calibration_off_keeps_todays_stages_seeds_and_configs():
 
 def test_an_unconverged_calibration_falls_back_to_the_config_prior(mission_run, tmp_path):
     run, _, _ = mission_run
-    cfg = load_config(run / "config.yaml")
+    flown = load_config(run / "config.yaml")
     out = tmp_path / "m"
     shutil.copytree(run, out)
     path = out / CALIBRATE_KEY / "summary.json"
     data = json.loads(path.read_text())
     data.update(converged=False, iterations=30)
     path.write_text(json.dumps(data))
+    # With the manoeuvre (the default): its own fit, from the config's prior, is handed on and the first one's
+    # failure is named.
+    chained = actuator_calibration(flown, out)
+    assert chained.source == "calibration" and chained.stage == ON_MANOEUVRE_KEY
+    assert f"{CALIBRATE_KEY} did not converge" in chained.note and "fitted from the config's prior" in chained.note
+    # Without it, segment 2 falls back to the config's prior.
+    cfg = flown.model_copy(update={"mission": flown.mission.model_copy(update={"calibration_manoeuvre": None})})
     fallback = actuator_calibration(cfg, out)
     assert fallback.source == "config" and not fallback.rigid_body and "did not converge" in fallback.note
     handoff = handoff_for(cfg, stage_by_key("segment-2/estimate"), out)
@@ -184,7 +204,7 @@ def test_from_a_stage_the_mission_does_not_run_exits_2(mission_run, tmp_path):
     source = tmp_path / "source"
     source.mkdir()
     data = yaml.safe_load((run / "config.yaml").read_text())
-    data["mission"]["calibration"] = False
+    data["mission"].update(calibration=False, calibration_manoeuvre=None)
     (source / "config.yaml").write_text(yaml.safe_dump(data))
     result = RUNNER.invoke(app, ["mission", str(source), "--from", CALIBRATE_KEY, "--out", str(tmp_path / "new")])
     assert result.exit_code == 2, result.output
@@ -218,7 +238,8 @@ def test_manoeuvre_stages_reference_and_calibration_configs():
     i = keys.index("segment-1/track")
     assert keys[i + 1:i + 4] == [MANOEUVRE_KEY, CALIBRATE_KEY, ON_MANOEUVRE_KEY]
     assert keys[i + 4] == "segment-2/excite"
-    plain = _cfg("estimation.parameters=[mass, inertia, com, force_scale, torque_scale]")
+    plain = _cfg("estimation.parameters=[mass, inertia, com, force_scale, torque_scale]",
+                 "mission.calibration_manoeuvre=null")
     assert [k for k in keys if k not in (MANOEUVRE_KEY, ON_MANOEUVRE_KEY)] == [s.key for s in mission_stages(plain)]
     seeds = {k: seed_index(stage_by_key(k)) for k in keys}
     assert len(set(seeds.values())) == len(seeds)
@@ -250,9 +271,29 @@ def test_manoeuvre_stages_reference_and_calibration_configs():
     assert cal.estimation.rigid_body.products_std_kgm2 == KNOWN_PRODUCTS_STD
     assert cal.estimation.rigid_body.force_scale == (1.03, 0.97, 1.02)
     assert Path(cal.inputs.estimate_telemetry).name == "m.mcap"
+    assert "torque_scale" in cal.estimation.parameters
     first = stage_config(cfg, stage_by_key(CALIBRATE_KEY), Handoff(telemetry=Path("t.mcap"), rigid_body={
         "force_scale": [1.03, 0.97, 1.02], "force_scale_std": [0.003] * 3}))
     assert first.estimation.rigid_body == plain.estimation.rigid_body   # the first one: the config's prior
+
+
+def test_the_manoeuvre_calibrates_the_torque_scales_segment_2_holds():
+    """The default mission estimates no torque scale in segment 2, yet its manoeuvre calibration fits them (the
+    slews inform κ_τ); segment 2 holds the calibrated κ_τ ± σ, which its consider covariance then carries
+    (oacli.estimation.consider) instead of the config's 5 %. Segment 1's calibration fits segment 2's groups only."""
+    cfg = _cfg()
+    assert cfg.mission.calibration_manoeuvre is not None and "torque_scale" not in cfg.estimation.parameters
+    on_manoeuvre = stage_config(cfg, stage_by_key(ON_MANOEUVRE_KEY), Handoff(telemetry=Path("m.mcap"))).estimation
+    assert {"force_scale", "torque_scale"} <= set(on_manoeuvre.parameters)
+    assert set(cfg.estimation.parameters) <= set(on_manoeuvre.parameters)
+    first = stage_config(cfg, stage_by_key(CALIBRATE_KEY), Handoff(telemetry=Path("t.mcap"))).estimation
+    assert first.parameters == cfg.estimation.parameters
+    handed = handed_rigid_body(_summary(std=0.003))
+    assert handed["torque_scale"] == [1.04, 0.96, 1.05]
+    est = stage_config(cfg, stage_by_key("segment-2/estimate"), Handoff(telemetry=Path("t.mcap"),
+                                                                         rigid_body=handed)).estimation
+    assert "torque_scale" not in est.parameters
+    assert est.rigid_body.torque_scale == (1.04, 0.96, 1.05) and est.rigid_body.torque_scale_std == (0.003,) * 3
 
 
 def _summary(std=0.004, **changes):
@@ -420,10 +461,10 @@ def test_the_flights_clip_test_runs_on_the_flown_telemetry_and_passes_a_healthy_
     cfg = load_config(cfg_path)
     out = tmp_path / "m"
     (out / "segment-1").mkdir(parents=True)
-    for key in (CALIBRATE_KEY, "segment-1/track"):
+    for key in (CALIBRATE_KEY, "segment-1/track", MANOEUVRE_KEY, ON_MANOEUVRE_KEY):
         shutil.copytree(run / key, out / key)
     cal = actuator_calibration(cfg, out)
-    assert cal.source == "calibration" and cal.note is None
+    assert cal.source == "calibration" and cal.note is None and cal.stage == ON_MANOEUVRE_KEY
     z = cal.summary()["linearity_z"]
     assert z and all(v >= -Z_SATURATION for v in z.values()), z
     assert set(z) <= {"force_x", "force_y", "force_z", "torque_x", "torque_y", "torque_z"}

@@ -17,6 +17,7 @@ from oacli.config.outputs import PlotSet
 from oacli.errors import ConfigError
 from oacli.mission.layout import MISSION_STAGES
 from oacli.mission.plots import view_axes
+from oacli.mission.run import mission_stages
 from tests.plot_checks import PNGS
 from tests.test_stage_plots import png_size, stage_runs  # noqa: F401 -- the tiny runs of every stage (fixture)
 
@@ -94,7 +95,9 @@ def test_mission_draws_only_its_own_pngs_and_plots_draws_the_rest(mission_run, t
     mission_dir = mission_run[0]
     summary = json.loads((mission_dir / "summary.json").read_text())
     assert set(summary["files"]["plots"]) == {"tracking_error", "estimate_convergence", "paths"}
-    for stage in MISSION_STAGES:  # outputs.plots: mission -> no stage PNG, none listed; the data is all there
+    stages = mission_stages(load_config(mission_dir / "config.yaml"))   # with the default's calibration manoeuvre
+    assert len(stages) == len(MISSION_STAGES) + 2
+    for stage in stages:  # outputs.plots: mission -> no stage PNG, none listed; the data is all there
         folder = stage.folder(mission_dir)
         stage_summary = json.loads((folder / "summary.json").read_text())
         assert not list(folder.glob("*.png")), stage.key
@@ -103,14 +106,14 @@ def test_mission_draws_only_its_own_pngs_and_plots_draws_the_rest(mission_run, t
     result = runner.invoke(app, ["plots", str(mission_dir), "--out", str(tmp_path), "--json"])
     assert result.exit_code == 0, result.output
     written = json.loads(result.output)["written"]
-    for stage in MISSION_STAGES:
+    for stage in stages:
         names = sorted(Path(p).name for p in written[stage.key].values())
         assert names == sorted(PNGS[stage.command]), stage.key
         for name in names:
             width, height = png_size(tmp_path / stage.segment / stage.name / name)
             assert width >= 500 and height >= 400
-    stage_pngs = sum(len(PNGS[stage.command]) for stage in MISSION_STAGES)
-    assert stage_pngs == 31  # 5 track-kind stages x 3, 4 plan/smooth x 2, excite 2, 3 estimates x 2 (calibrate)
+    stage_pngs = sum(len(PNGS[stage.command]) for stage in stages)
+    assert stage_pngs == 36  # 6 track-kind stages x 3, 4 plan/smooth x 2, excite 2, 4 estimates x 2 (calibrations)
     assert sum(len(v) for v in written.values()) == stage_pngs + 3  # and 3 of the mission
     for name in ("tracking_error", "estimate_convergence", "paths"):  # the mission's: as the runner drew them
         a, b = _pixels(tmp_path / "plots" / f"{name}.png"), _pixels(mission_dir / "plots" / f"{name}.png")
