@@ -37,14 +37,14 @@ from typing import Any
 
 from oacli.config import OacliConfig
 from oacli.errors import OacliError
-from oacli.mission.calibration import CALIBRATE_KEY, ON_MANOEUVRE_KEY
+from oacli.mission.calibration import CALIBRATE_KEY, MANOEUVRE_KEY, ON_MANOEUVRE_KEY
 from oacli.mission.layout import BASELINES, UNCONSTRAINED_BASELINE
 
 _CHAIN_AFTER_SEGMENT_2 = frozenset({"segment-2/estimate", "segment-3/plan", "segment-3/smooth", "segment-3/track"})
 _BASELINE_KEYS = (*(k for k in BASELINES if k != "segment-3/track"), UNCONSTRAINED_BASELINE)
 
 BACKGROUND: dict[str, frozenset[str]] = {
-    CALIBRATE_KEY: frozenset({"segment-2/excite", "segment-2/track"}),
+    CALIBRATE_KEY: frozenset({MANOEUVRE_KEY, "segment-2/excite", "segment-2/track"}),
     ON_MANOEUVRE_KEY: frozenset({"segment-2/excite", "segment-2/track"}),
     "segment-2/estimate-sequential": _CHAIN_AFTER_SEGMENT_2,
     **{key: frozenset({"segment-3/track"}) for key in _BASELINE_KEYS},
@@ -54,9 +54,10 @@ BACKGROUND: dict[str, frozenset[str]] = {
 (:func:`oacli.mission.calibration.actuator_calibration`), the sequential estimate and the baselines only the
 mission's outputs (segment 3 flies the batch estimate: :func:`oacli.mission.run.learned_model`)."""
 
-LAUNCH_BEFORE: dict[str, str] = {key: "segment-3/track" for key in _BASELINE_KEYS}
-"""Background stages started before a stage of the chain that comes earlier in the mission's order (the baselines
-fly beside ``segment-3/track``: the same reference and start, the prior model)."""
+LAUNCH_BEFORE: dict[str, str] = {CALIBRATE_KEY: MANOEUVRE_KEY, **{key: "segment-3/track" for key in _BASELINE_KEYS}}
+"""Background stages started before a stage of the chain that comes earlier in the mission's order: segment 1's
+calibration beside the calibration manoeuvre's flight (it reads segment 1's track only), the baselines beside
+``segment-3/track`` (the same reference and start, the prior model)."""
 
 MISSION_MCAP_JOB = "mission.mcap"
 """The job name of writing ``mission.mcap`` (:func:`oacli.mission.foxglove.write_mission_mcap`)."""
