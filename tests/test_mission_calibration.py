@@ -57,6 +57,7 @@ def test_calibration_stage_fits_the_force_scale_and_segment_2_takes_it_as_prior(
     cfg = load_config(cfg_path)
     assert cfg.mission.calibration
     assert "actuator calibration (segment 1, [ReSWARM2023] Eqs. 38-39): force scale" in output
+    assert "; torque scale " in output   # the manoeuvre's: segment 2 holds them
     folder = stage_by_key(CALIBRATE_KEY).folder(run)
     cal = json.loads((folder / "summary.json").read_text())
     assert cal["stage"] == "estimate" and cal["status"] == "ok" and cal["converged"]

@@ -106,6 +106,34 @@ def test_support_of_an_unbounded_polytope_uses_a_linear_program():
     assert tight.b == pytest.approx([0.15, 0.15])
 
 
+def test_an_lp_without_verdict_is_retried_with_highs_other_methods(monkeypatch):
+    """HiGHS's default can end a degenerate LP with model status Unknown (a hypothesis case in
+    test_pontryagin_difference_is_the_largest_such_set): the polytope's LPs retry with its other methods instead of
+    raising; only when every method fails is it an error."""
+    import scipy.optimize
+
+    import oacli.sets.polytope as polytope
+
+    calls: list[str] = []
+
+    def flaky(c, A_ub, b_ub, bounds, method):  # scipy's argument names
+        calls.append(method)
+        if method == "highs":
+            return scipy.optimize.OptimizeResult(status=4, message="model_status is Unknown")
+        return linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method=method)
+
+    monkeypatch.setattr(polytope, "linprog", flaky)
+    box = Polytope(np.vstack([np.eye(3), -np.eye(3)]), [1.0, 2.0, 3.0, 1.0, 2.0, 3.0])
+    centre, radius = box.chebyshev_ball()
+    assert radius == pytest.approx(1.0) and abs(centre[0]) < 1e-9   # the largest ball in the box touches x = ±1
+    assert calls == ["highs", "highs-ipm"]
+    band = Polytope(np.array([[0.0, 1.0], [0.0, -1.0]]), [0.2, 0.2])
+    assert band.support(np.array([0.0, 1.0])) == pytest.approx(0.2)
+    monkeypatch.setattr(polytope, "linprog", lambda *a, **k: scipy.optimize.OptimizeResult(status=4, message="no"))
+    with pytest.raises(RuntimeError, match="Chebyshev-ball LP failed"):
+        Polytope(np.vstack([np.eye(2), -np.eye(2)]), [1.0] * 4).chebyshev_ball()
+
+
 def test_containment_margin_is_the_smallest_offset_slack():
     p = Polytope.symmetric_box([1.0, 2.0])
     assert p.containment_margin(Polytope.symmetric_box([0.5, 1.0])) == pytest.approx(0.5)

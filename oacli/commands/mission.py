@@ -50,9 +50,11 @@ def print_mission_tables(summary: dict[str, Any]) -> None:
         typer.echo(f"  {key:<{width}}  {entry['status']:<10} {'' if wall is None else f'{wall:7.1f} s'}")
     cal = summary.get("calibration") or {}
     if cal.get("source") == "calibration":
-        typer.echo("actuator calibration (segment 1, [ReSWARM2023] Eqs. 38-39): force scale "
-                   + " / ".join(f"{k:.4f} ± {s:.4f}" for k, s in zip(cal["force_scale"], cal["force_scale_std"],
-                                                                    strict=True)) + ", segment 2's prior")
+        scales = "; ".join(
+            f"{group.replace('_', ' ')} " + " / ".join(f"{k:.4f} ± {s:.4f}" for k, s in zip(
+                cal[group], cal[f"{group}_std"], strict=True))
+            for group in ("force_scale", "torque_scale") if group in cal)
+        typer.echo(f"actuator calibration (segment 1, [ReSWARM2023] Eqs. 38-39): {scales}, segment 2's prior")
     elif cal.get("note"):
         typer.echo(f"actuator calibration: {cal['note']}")
     est = summary.get("estimate") or {}

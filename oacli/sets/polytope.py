@@ -23,7 +23,7 @@ from typing import cast
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linprog
+from scipy.optimize import OptimizeResult, linprog
 from scipy.spatial import HalfspaceIntersection, QhullError
 
 from oacli.sets.hull import hull_normals
@@ -36,7 +36,8 @@ _LP_METHODS = ("highs", "highs-ipm", "highs-ds")
 model status "Unknown" (scipy status 4, or an unrecognised code) where another solves it."""
 
 
-def _linprog(c: np.ndarray, a_ub: np.ndarray, b_ub: np.ndarray, bounds: list[tuple[float | None, float | None]]):
+def _linprog(c: np.ndarray, a_ub: np.ndarray, b_ub: np.ndarray,
+             bounds: list[tuple[float | None, float | None]]) -> OptimizeResult:
     """``scipy.optimize.linprog`` with HiGHS, retried with its other methods when one gives no verdict.
 
     Returns
@@ -50,6 +51,7 @@ def _linprog(c: np.ndarray, a_ub: np.ndarray, b_ub: np.ndarray, bounds: list[tup
         if res.status in (0, 2, 3):
             return res
     return res
+
 
 class Polytope:
     """A convex polytope ``{x ∈ Rⁿ : A x ≤ b}``.
