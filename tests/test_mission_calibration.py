@@ -91,9 +91,22 @@ def test_calibration_stage_fits_the_force_scale_and_segment_2_takes_it_as_prior(
         for group in ("force_scale", "torque_scale"):
             np.testing.assert_array_equal(getattr(stage_cfg.estimation.rigid_body, group), handed[group])
             np.testing.assert_array_equal(getattr(stage_cfg.estimation.rigid_body, f"{group}_std"), handed_std[group])
-        prior_std = json.loads((run / key / "summary.json").read_text())["rigid_body"]["prior_std"]
+        stage_summary = json.loads((run / key / "summary.json").read_text())
+        prior_std = stage_summary["rigid_body"]["prior_std"]
         np.testing.assert_allclose([prior_std[f"force_scale_{a}"] for a in AXES], handed_std["force_scale"],
                                    rtol=1e-12)
+        # The held κ_τ's σ in the consider covariance is the calibrated one: physical² = statistical² + Σ_j (S_ij
+        # σ_j)² (the held entries independent), and the inertias' σ is well under the 5 % κ_τ prior's ~4 %.
+        consider = stage_summary["consider"]
+        assert consider["held"] == [f"torque_scale_{a}" for a in AXES]
+        for name in ("mass_kg", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2"):
+            spread = sum((consider["sensitivity"][name][f"torque_scale_{a}"] * sd) ** 2
+                         for a, sd in zip(AXES, handed_std["torque_scale"], strict=True))
+            assert consider["std_physical"][name] ** 2 == pytest.approx(consider["std_statistical"][name] ** 2
+                                                                        + spread, rel=1e-6), name
+        rb = stage_summary["rigid_body"]
+        assert all(consider["std_physical"][n] < 0.015 * rb["estimate"][n] for n in ("Ixx_kgm2", "Iyy_kgm2",
+                                                                                    "Izz_kgm2"))
     summary = json.loads((run / "summary.json").read_text())
     assert summary["stages"][CALIBRATE_KEY]["status"] == cal["status"]
     entry = summary["calibration"]
