@@ -235,6 +235,25 @@ def test_bad_manoeuvre_without_calibration_exits_2(tmp_path):
     assert "Traceback" not in result.output and not (tmp_path / "run").exists()
 
 
+def test_a_calibration_with_nothing_to_calibrate_exits_2_naming_the_way_out(tmp_path):
+    """estimation.parameters without a scale group leaves the calibration nothing to fit: exit 2 before anything
+    flies, naming the field and both settings that turn the calibration off (the default flies the manoeuvre,
+    which needs the calibration); that way out gives a mission whose every stage has a valid config."""
+    sets = "estimation.parameters=[mass, inertia, products, com]"
+    result = RUNNER.invoke(app, ["mission", str(ROOT / "configs" / "mission_iss.yaml"), "--set", sets,
+                                 "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2, result.output
+    assert "needs force_scale or torque_scale in estimation.parameters" in result.output
+    assert "set mission.calibration: false and mission.calibration_manoeuvre: null" in result.output
+    assert "Traceback" not in result.output and not (tmp_path / "run").exists()
+    cfg = _cfg(sets, "mission.calibration=false", "mission.calibration_manoeuvre=null")
+    keys = [s.key for s in mission_stages(cfg)]
+    assert CALIBRATE_KEY not in keys and MANOEUVRE_KEY not in keys
+    for stage in mission_stages(cfg):
+        stage_config(cfg, stage, Handoff(telemetry=Path("t.mcap") if stage.command == "estimate" else None,
+                                         reference=Path("r.mcap") if stage.command == "track" else None))
+
+
 MANOEUVRE_SETS = ("mission.calibration_manoeuvre={}",
                   "estimation.parameters=[mass, inertia, com, force_scale, torque_scale]")
 

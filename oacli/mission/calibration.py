@@ -211,8 +211,10 @@ def calibration_prior_section(cfg: OacliConfig, *, manoeuvre: bool = False) -> d
         ``estimation.parameters`` has none of :data:`HANDED_GROUPS` (nothing to calibrate).
     """
     if not set(HANDED_GROUPS) & set(cfg.estimation.parameters):
+        off = "mission.calibration: false" + ("" if cfg.mission is None or cfg.mission.calibration_manoeuvre is None
+                                              else " and mission.calibration_manoeuvre: null")
         raise ConfigError("mission.calibration: true needs force_scale or torque_scale in estimation.parameters "
-                          f"(it has {', '.join(cfg.estimation.parameters)}); set mission.calibration: false")
+                          f"(it has {', '.join(cfg.estimation.parameters)}); set {off}")
     robot = cfg.robot
     section: dict[str, Any] = {"estimation": {"method": "batch", "prior": {
         "mass_kg": float(robot.mass_kg), "inertia_kgm2": [float(v) for v in robot.inertia_kgm2],
