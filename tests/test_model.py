@@ -32,6 +32,9 @@ class TestQuaternion:
             expected = (Rotation.from_quat(p) * Rotation.from_quat(q)).as_matrix()
             np.testing.assert_allclose(quat.to_rotation_matrix(quat.multiply(p, q)), expected, atol=1e-12)
             np.testing.assert_allclose(quat.to_rotation_matrix(p), Rotation.from_quat(p).as_matrix(), atol=1e-12)
+            raw = 3.0 * rng.standard_normal(4)   # unnormalised, either sign of w: the per-step float form
+            np.testing.assert_allclose(np.reshape(quat.rotation_floats(*raw), (3, 3)),
+                                       Rotation.from_quat(raw).as_matrix(), atol=1e-12)
 
     def test_exp_log_and_matrix_round_trip(self, rng):
         for _ in range(20):

@@ -32,11 +32,11 @@ controllers are exactly those of θ = [m, Ixx, Iyy, Izz].
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from oacli.model import quaternion as quat
 from oacli.model.robot_model import RobotModel
 
 MAX_COMPENSATION_SHARE = 0.5
@@ -149,14 +149,11 @@ class RigidCompensator:
         -------
         ndarray, shape (6,)
         """
-        x, y, z, w = (float(v) for v in q)
-        n = math.sqrt(x * x + y * y + z * z + w * w)
-        x, y, z, w = x / n, y / n, z / n, w / n
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat.rotation_floats(*(float(v) for v in q))
         f0, f1, f2 = float(u[0]), float(u[1]), float(u[2])
-        # F_b = Rᵀ F (the rotation of oacli.model.quaternion.to_rotation_matrix, transposed; as sim/actuators.py)
-        b0 = (1 - 2 * (y * y + z * z)) * f0 + 2 * (x * y + z * w) * f1 + 2 * (x * z - y * w) * f2
-        b1 = 2 * (x * y - z * w) * f0 + (1 - 2 * (x * x + z * z)) * f1 + 2 * (y * z + x * w) * f2
-        b2 = 2 * (x * z + y * w) * f0 + 2 * (y * z - x * w) * f1 + (1 - 2 * (x * x + y * y)) * f2
+        b0 = r00 * f0 + r10 * f1 + r20 * f2  # F_b = Rᵀ F
+        b1 = r01 * f0 + r11 * f1 + r21 * f2
+        b2 = r02 * f0 + r12 * f1 + r22 * f2
         c0, c1, c2 = (float(v) for v in self.com_offset_m)
         tau = u[3:6] + np.array([c1 * b2 - c2 * b1, c2 * b0 - c0 * b2, c0 * b1 - c1 * b0])
         clipped = np.clip(tau, -self.torque_limit_Nm, self.torque_limit_Nm)

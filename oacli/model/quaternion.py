@@ -7,6 +7,7 @@ All functions accept a single quaternion (4,) or a stack (..., 4).
 
 from __future__ import annotations
 
+import math
 from typing import cast
 
 import numpy as np
@@ -128,6 +129,28 @@ def to_rotation_matrix(q: np.ndarray) -> np.ndarray:
     r[..., 2, 1] = 2 * (y * z + x * w)
     r[..., 2, 2] = 1 - 2 * (x * x + y * y)
     return r
+
+
+def rotation_floats(qx: float, qy: float, qz: float, qw: float) -> tuple[float, float, float, float, float, float,
+                                                                         float, float, float]:
+    """:func:`to_rotation_matrix` of one quaternion on Python floats, row by row (the per-step paths: the
+    simulator's actuators, the controllers' centre-of-mass feed-forward).
+
+    Parameters
+    ----------
+    qx, qy, qz, qw : float
+        Quaternion ``[x, y, z, w]``; normalised first.
+
+    Returns
+    -------
+    tuple of 9 float
+        ``r00, r01, r02, r10, r11, r12, r20, r21, r22`` of R(q) (body to world).
+    """
+    norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    x, y, z, w = qx / norm, qy / norm, qz / norm, qw / norm
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
 
 
 def from_rotation_matrix(r: np.ndarray) -> np.ndarray:

@@ -16,8 +16,6 @@ derivatives, is :mod:`oacli.estimation.rigid_dynamics`.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from oacli.model import quaternion as quat
@@ -86,13 +84,7 @@ def delivered_wrench_floats(f0: float, f1: float, f2: float, t0: float, t1: floa
     tuple of 6 float
         Delivered world force [N] and torque about the centre of mass [N·m].
     """
-    norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-    if qw / norm < 0.0:
-        norm = -norm
-    x, y, z, w = qx / norm, qy / norm, qz / norm, qw / norm
-    r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
-    r10, r11, r12 = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
-    r20, r21, r22 = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat.rotation_floats(qx, qy, qz, qw)
     b0 = r00 * f0 + r10 * f1 + r20 * f2
     b1 = r01 * f0 + r11 * f1 + r21 * f2
     b2 = r02 * f0 + r12 * f1 + r22 * f2
